@@ -1,0 +1,245 @@
+"""Reading and writing calib.yaml (see ARCHITECTURE.md, "the calibration file").
+
+Every problem is reported as a :class:`CalibFileError` naming the file and the key
+path, e.g. ``calib.yaml: cameras.camera.fxx: unknown key; did you mean fx?``.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from acq import camera_models
+from acq.camera_models import CameraModel
+from acq.transforms import Rigid
+
+__all__ = ["CalibFileError", "Calibration", "CameraCalib", "dump", "load", "parse", "save"]
+
+VERSION = 1
+
+_TOP_KEYS = {"version", "laser", "laser_to_vehicle", "cameras"}
+_CAMERA_KEYS = {
+    "model",
+    "image_size",
+    "fx",
+    "fy",
+    "cx",
+    "cy",
+    "fov_deg",
+    "k",
+    "camera_to_laser",
+    "time_offset_s",
+    "method",
+}
+_RIGID_KEYS = {"rotation", "translation"}
+
+
+class CalibFileError(ValueError):
+    """A calib.yaml that cannot be used; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class CameraCalib:
+    """One camera's intrinsics and its pose relative to the laser (paper eq. 2)."""
+
+    model: CameraModel
+    camera_to_laser: Rigid = field(default_factory=Rigid.identity)
+    time_offset_s: float = 0.0  # camera time minus laser time
+    method: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        d = self.model.to_dict()
+        d["camera_to_laser"] = self.camera_to_laser.to_dict()
+        d["time_offset_s"] = float(self.time_offset_s)
+        if self.method:
+            d["method"] = self.method
+        return d
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The whole calib.yaml: the reference laser, its vehicle pose, the cameras."""
+
+    laser: str = "laser"
+    cameras: dict[str, CameraCalib] = field(default_factory=dict)
+    laser_to_vehicle: Rigid | None = None
+
+    def camera(self, name: str | None = None) -> CameraCalib:
+        """The named camera, or the only one when ``name`` is None."""
+        if name is None:
+            if len(self.cameras) != 1:
+                raise KeyError(
+                    f"calibration has {len(self.cameras)} cameras "
+                    f"({', '.join(self.cameras) or 'none'}); name one"
+                )
+            return next(iter(self.cameras.values()))
+        try:
+            return self.cameras[name]
+        except KeyError:
+            raise KeyError(
+                f"no camera {name!r} in the calibration (has {', '.join(self.cameras)})"
+            ) from None
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"version": VERSION, "laser": self.laser}
+        if self.laser_to_vehicle is not None:
+            d["laser_to_vehicle"] = self.laser_to_vehicle.to_dict()
+        d["cameras"] = {name: cam.to_dict() for name, cam in self.cameras.items()}
+        return d
+
+
+class _Reader:
+    """Walks a parsed YAML tree, raising errors that name ``source`` and the key path."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, path: str, message: str) -> CalibFileError:
+        where = f"{self.source}: {path}" if path else self.source
+        return CalibFileError(f"{where}: {message}")
+
+    def mapping(self, value: Any, path: str, allowed: set[str], required: set[str]) -> dict:
+        if not isinstance(value, Mapping):
+            raise self.fail(path, f"expected a mapping, got {type(value).__name__}")
+        for key in value:
+            if key not in allowed:
+                hint = difflib.get_close_matches(str(key), sorted(allowed), n=1)
+                extra = f"; did you mean {hint[0]}?" if hint else ""
+                raise self.fail(_join(path, str(key)), f"unknown key{extra}")
+        for key in sorted(required - set(value)):
+            raise self.fail(_join(path, key), "missing")
+        return dict(value)
+
+    def number(self, value: Any, path: str, positive: bool = False) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.fail(path, f"expected a number, got {value!r}")
+        x = float(value)
+        if not math.isfinite(x) or (positive and x <= 0):
+            raise self.fail(path, f"expected a {'positive ' if positive else ''}finite number")
+        return x
+
+    def numbers(self, value: Any, path: str, n: int | tuple[int, ...]) -> list[float]:
+        counts = (n,) if isinstance(n, int) else n
+        if not isinstance(value, list | tuple) or len(value) not in counts:
+            want = " or ".join(str(c) for c in counts)
+            raise self.fail(path, f"expected a list of {want} numbers, got {value!r}")
+        return [self.number(x, f"{path}[{i}]") for i, x in enumerate(value)]
+
+    def rigid(self, value: Any, path: str) -> Rigid:
+        d = self.mapping(value, path, _RIGID_KEYS, _RIGID_KEYS)
+        rot = d["rotation"]
+        if not isinstance(rot, list) or len(rot) != 3:
+            raise self.fail(_join(path, "rotation"), "expected 3 rows of 3 numbers")
+        rows = [self.numbers(r, f"{path}.rotation[{i}]", 3) for i, r in enumerate(rot)]
+        t = self.numbers(d["translation"], _join(path, "translation"), 3)
+        try:
+            return Rigid(rows, t)  # type: ignore[arg-type]
+        except ValueError as e:
+            raise self.fail(_join(path, "rotation"), str(e)) from None
+
+    def camera(self, value: Any, path: str) -> CameraCalib:
+        d = self.mapping(value, path, _CAMERA_KEYS, {"model", "image_size", "fx", "cx", "cy"})
+        model = d["model"]
+        if model not in camera_models.MODELS:
+            raise self.fail(
+                _join(path, "model"),
+                f"unknown model {model!r}; expected one of {', '.join(camera_models.MODELS)}",
+            )
+        size = self.numbers(d["image_size"], _join(path, "image_size"), 2)
+        if any(s <= 0 or s != int(s) for s in size):
+            raise self.fail(_join(path, "image_size"), "expected two positive whole numbers")
+        fx = self.number(d["fx"], _join(path, "fx"), positive=True)
+        fy = self.number(d.get("fy", fx), _join(path, "fy"), positive=True)
+        entry: dict[str, Any] = {
+            "model": model,
+            "image_size": [int(s) for s in size],
+            "fx": fx,
+            "fy": fy,
+            "cx": self.number(d["cx"], _join(path, "cx")),
+            "cy": self.number(d["cy"], _join(path, "cy")),
+        }
+        if model in ("equidistant", "kannala_brandt"):
+            entry["fov_deg"] = self.number(d.get("fov_deg", 185.0), _join(path, "fov_deg"), True)
+        n_k = 5 if model == "pinhole" else 4
+        if "k" in d:
+            entry["k"] = self.numbers(d["k"], _join(path, "k"), n_k)
+        try:
+            cam = camera_models.from_dict(entry)
+        except ValueError as e:
+            raise self.fail(path, str(e)) from None
+        extr = d.get("camera_to_laser")
+        method = d.get("method", "")
+        if not isinstance(method, str):
+            raise self.fail(_join(path, "method"), "expected a string")
+        return CameraCalib(
+            model=cam,
+            camera_to_laser=(
+                Rigid.identity()
+                if extr is None
+                else self.rigid(extr, _join(path, "camera_to_laser"))
+            ),
+            time_offset_s=self.number(d.get("time_offset_s", 0.0), _join(path, "time_offset_s")),
+            method=method,
+        )
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+def parse(data: Any, source: str = "calib.yaml") -> Calibration:
+    """A :class:`Calibration` from an already-parsed YAML tree."""
+    r = _Reader(source)
+    d = r.mapping(data, "", _TOP_KEYS, {"version", "cameras"})
+    if d["version"] != VERSION:
+        raise r.fail("version", f"unsupported version {d['version']!r}; this acq reads {VERSION}")
+    laser = d.get("laser", "laser")
+    if not isinstance(laser, str) or not laser:
+        raise r.fail("laser", "expected the scanner's name")
+    cams = d["cameras"]
+    if not isinstance(cams, Mapping) or not cams:
+        raise r.fail("cameras", "expected a mapping of camera names to entries")
+    cameras = {str(name): r.camera(entry, f"cameras.{name}") for name, entry in cams.items()}
+    ltv = d.get("laser_to_vehicle")
+    return Calibration(
+        laser=laser,
+        cameras=cameras,
+        laser_to_vehicle=None if ltv is None else r.rigid(ltv, "laser_to_vehicle"),
+    )
+
+
+def load(path: str | Path) -> Calibration:
+    """Read and validate a calib.yaml."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CalibFileError(f"{path}: no such file") from None
+    except OSError as e:
+        raise CalibFileError(f"{path}: cannot read: {e.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise CalibFileError(f"{path}:{where} not valid YAML") from None
+    return parse(data, str(path))
+
+
+def dump(calib: Calibration) -> str:
+    """The YAML text of a calibration."""
+    return yaml.safe_dump(calib.to_dict(), sort_keys=False, default_flow_style=None)
+
+
+def save(calib: Calibration, path: str | Path) -> None:
+    """Write a calibration atomically (a reader never sees half a file)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(dump(calib), encoding="utf-8")
+    tmp.replace(path)

@@ -1,0 +1,154 @@
+"""The simulated fisheye camera and laser scanner, with their ground truth.
+
+A frame is rendered instantaneously at its time (the middle of its exposure). A scan
+casts step i from the laser's pose at ``t0 + i * time_increment``, so the vehicle's motion
+during the scan is in the data. World frame and units as in ``sim.world``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from acq.camera_models import KannalaBrandt
+from acq.transforms import Rigid
+from sim.raycast import cast
+from sim.world import Rig, Street, Trajectory
+
+__all__ = [
+    "FrameTruth",
+    "ScanTruth",
+    "camera_to_world",
+    "laser_to_world",
+    "pixel_rays",
+    "render_frame",
+    "render_frame_truth",
+    "render_scan",
+    "true_pixels",
+]
+
+
+@lru_cache(maxsize=8)
+def pixel_rays(lens: KannalaBrandt) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame unit rays (M,3) float64 of the pixels inside the image circle
+    (theta <= fov/2), and their flat pixel indices (M,) int64 (``v * width + u``).
+
+    Cached per lens: do not modify the arrays."""
+    v, u = np.mgrid[0 : lens.height, 0 : lens.width]
+    uv = np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64)
+    mx = (uv[:, 0] - lens.cx) / lens.fx
+    my = (uv[:, 1] - lens.cy) / lens.fy
+    rd_max = float(lens.distort_theta(np.array([lens.theta_max]))[0])
+    inside = np.hypot(mx, my) <= rd_max
+    rays = np.ascontiguousarray(lens.unproject(uv[inside]))
+    return rays, np.flatnonzero(inside).astype(np.int64)
+
+
+def camera_to_world(trajectory: Trajectory, rig: Rig, t: float) -> Rigid:
+    """Camera optical frame -> world at time t (s)."""
+    return trajectory.pose(t) @ rig.camera_to_vehicle
+
+
+def laser_to_world(
+    trajectory: Trajectory, rig: Rig, ts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Laser -> world at times ts (s): rotations (N,3,3) and origins (N,3) m."""
+    Rv, tv = trajectory.poses(ts)
+    Rl = rig.laser_to_vehicle.rotation
+    tl = rig.laser_to_vehicle.translation
+    return Rv @ Rl, np.einsum("nij,j->ni", Rv, tl) + tv
+
+
+@dataclass(frozen=True)
+class FrameTruth:
+    """A rendered frame and its truth, per pixel (pixel centres' rays)."""
+
+    t: float  # s, the middle of the exposure
+    image: np.ndarray  # (H,W,3) uint8 BGR, black outside the image circle
+    depth: np.ndarray  # (H,W) float64 m along the ray; +inf sky, NaN outside the circle
+    material: np.ndarray  # (H,W) uint8 sim.world.Material, raycast.NO_RAY outside
+
+
+def render_frame_truth(street: Street, trajectory: Trajectory, rig: Rig, t: float) -> FrameTruth:
+    """The fisheye view at time t (s) with per-pixel depth and material."""
+    lens = rig.lens
+    rays, index = pixel_rays(lens)
+    pose = camera_to_world(trajectory, rig, t)
+    hit = cast(street, pose.translation, rays, pose.rotation, index, lens.width * lens.height)
+    shape = (lens.height, lens.width)
+    return FrameTruth(
+        t=float(t),
+        image=hit.colour.reshape(*shape, 3),
+        depth=hit.distance.reshape(shape),
+        material=hit.material.reshape(shape),
+    )
+
+
+def render_frame(street: Street, trajectory: Trajectory, rig: Rig, t: float) -> np.ndarray:
+    """The fisheye image at time t (s): (H,W,3) uint8 BGR, black outside the image circle."""
+    return render_frame_truth(street, trajectory, rig, t).image
+
+
+@dataclass(frozen=True)
+class ScanTruth:
+    """One simulated scan and its truth.
+
+    ``ranges`` are what the device reports (m, noisy, float32; +inf no echo or beyond
+    ``max_range``, -inf closer than ``min_range``). ``points`` are the noise-free world hit
+    points (m, NaN where there is no echo), ``colours`` the BGR surface colour there (sky
+    colour where there is none), ``material`` the ``sim.world.Material`` id.
+    """
+
+    t0: float  # s, time of step 0
+    angles: np.ndarray  # (N,) rad, REP-103 laser frame
+    times: np.ndarray  # (N,) s, t0 + i * time_increment
+    ranges: np.ndarray  # (N,) float32 m
+    true_ranges: np.ndarray  # (N,) float64 m, noise-free, +inf for no hit
+    points: np.ndarray  # (N,3) float64 world m
+    colours: np.ndarray  # (N,3) uint8 BGR
+    material: np.ndarray  # (N,) uint8
+    origins: np.ndarray  # (N,3) float64 world m, the laser centre at each step
+
+
+def render_scan(
+    street: Street, trajectory: Trajectory, rig: Rig, t0: float, rng: np.random.Generator
+) -> ScanTruth:
+    """One scan starting at t0 (s), each step cast from the laser pose at its own time.
+
+    Range noise is Gaussian with ``rig.range_noise`` m (drawn from ``rng``; set the rig's
+    noise to 0 for exact ranges).
+    """
+    angles = rig.angles
+    times = t0 + rig.time_increment * np.arange(rig.n_steps)
+    Rw, origins = laser_to_world(trajectory, rig, times)
+    d_laser = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
+    dirs = np.einsum("nij,nj->ni", Rw, d_laser)
+    hit = cast(street, origins, dirs)
+    true = hit.distance
+    echo = np.isfinite(true) & (true <= rig.max_range)
+    noisy = true + rng.normal(0.0, rig.range_noise, true.shape) if rig.range_noise else true
+    ranges = np.where(echo, noisy, np.inf)
+    ranges = np.where(echo & (true < rig.min_range), -np.inf, ranges)
+    points = np.where(echo[:, None], origins + dirs * np.where(echo, true, 0.0)[:, None], np.nan)
+    return ScanTruth(
+        t0=float(t0),
+        angles=angles,
+        times=times,
+        ranges=ranges.astype(np.float32),
+        true_ranges=true,
+        points=points,
+        colours=hit.colour,
+        material=hit.material,
+        origins=origins,
+    )
+
+
+def true_pixels(
+    world_points: np.ndarray, trajectory: Trajectory, rig: Rig, t: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where world points (N,3) m fall in the frame at time t with the true lens:
+    (N,2) px and (N,) valid (inside the lens's fov and the image; occlusion not checked)."""
+    P_cam = camera_to_world(trajectory, rig, t).inverse().apply(world_points)
+    return rig.lens.project(P_cam)

@@ -1,0 +1,32 @@
+"""Rigid transforms: composition, inverse, Euler angles, refusal of non-rotations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from acq.transforms import Rigid, rotation_from_euler, rotation_to_euler
+
+
+def test_inverse_and_composition() -> None:
+    rng = np.random.default_rng(0)
+    a = Rigid(rotation_from_euler(0.3, -0.2, 1.1), [1.0, -2.0, 0.5])
+    b = Rigid(rotation_from_euler(-1.0, 0.4, -2.5), [0.1, 0.2, -0.3])
+    P = rng.normal(size=(50, 3))
+    np.testing.assert_allclose((a @ b).apply(P), a.apply(b.apply(P)), atol=1e-12)
+    np.testing.assert_allclose(a.inverse().apply(a.apply(P)), P, atol=1e-12)
+    np.testing.assert_allclose((a @ a.inverse()).matrix(), np.eye(4), atol=1e-12)
+
+
+def test_euler_round_trip() -> None:
+    for rpy in [(0.1, 0.2, 0.3), (-2.0, 1.2, 3.0), (0.0, -1.5, -0.7)]:
+        np.testing.assert_allclose(rotation_to_euler(rotation_from_euler(*rpy)), rpy, atol=1e-12)
+
+
+def test_reflection_and_bad_shapes_are_refused() -> None:
+    with pytest.raises(ValueError, match="proper rotation"):
+        Rigid(np.diag([1.0, 1.0, -1.0]), np.zeros(3))
+    with pytest.raises(ValueError, match="proper rotation"):
+        Rigid(np.eye(3) * 1.01, np.zeros(3))
+    with pytest.raises(ValueError, match="3 values"):
+        Rigid(np.eye(3), np.zeros(2))

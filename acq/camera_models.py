@@ -47,10 +47,15 @@ def _pixels(uv: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class CameraModel(ABC):
-    """A camera model with an image size, a field of view and project/unproject."""
+    """A camera model: image size (px), focal lengths and principal point (px), and
+    project/unproject."""
 
     width: int
     height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
 
     name: ClassVar[str] = ""
 
@@ -72,9 +77,16 @@ class CameraModel(ABC):
     def unproject(self, uv: np.ndarray) -> np.ndarray:
         """(N,2) px -> (N,3) unit rays in the camera frame."""
 
-    @abstractmethod
     def to_dict(self) -> dict[str, Any]:
         """The calib.yaml entry of this model (without extrinsics)."""
+        return {
+            "model": self.name,
+            "image_size": [self.width, self.height],
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+        }
 
 
 @dataclass(frozen=True)
@@ -86,10 +98,6 @@ class KannalaBrandt(CameraModel):
     degrees included, project correctly.
     """
 
-    fx: float = 0.0
-    fy: float = 0.0
-    cx: float = 0.0
-    cy: float = 0.0
     k: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     fov_deg: float = 185.0
 
@@ -160,16 +168,7 @@ class KannalaBrandt(CameraModel):
         return np.stack([s * ux, s * uy, np.cos(theta)], axis=1)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "model": self.name,
-            "image_size": [self.width, self.height],
-            "fx": self.fx,
-            "fy": self.fy,
-            "cx": self.cx,
-            "cy": self.cy,
-            "fov_deg": self.fov_deg,
-            "k": list(self.k),
-        }
+        return {**super().to_dict(), "fov_deg": self.fov_deg, "k": list(self.k)}
 
 
 @dataclass(frozen=True)
@@ -217,10 +216,6 @@ class Pinhole(CameraModel):
     into the image as if they were near its corners.
     """
 
-    fx: float = 0.0
-    fy: float = 0.0
-    cx: float = 0.0
-    cy: float = 0.0
     dist: tuple[float, float, float, float, float] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))
 
     name: ClassVar[str] = "pinhole"
@@ -283,15 +278,7 @@ class Pinhole(CameraModel):
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "model": self.name,
-            "image_size": [self.width, self.height],
-            "fx": self.fx,
-            "fy": self.fy,
-            "cx": self.cx,
-            "cy": self.cy,
-            "k": list(self.dist),
-        }
+        return {**super().to_dict(), "k": list(self.dist)}
 
 
 MODELS: dict[str, type[CameraModel]] = {

@@ -60,7 +60,11 @@ _K = np.array([[CAM.fx, 0, CAM.cx], [0, CAM.fy, CAM.cy], [0, 0, 1]], dtype=np.fl
 
 
 def opencv(P: np.ndarray, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """cv2.fisheye.projectPoints (which mirrors points past 90 degrees) + numpy lookup."""
+    """cv2.fisheye.projectPoints (which mirrors points past 90 degrees) + numpy lookup.
+
+    Its Python binding always returns the (2N, 15) Jacobian too, which OpenCV computes
+    whether or not it is used: that is the price a user of this path pays.
+    """
     uv, _ = cv2.fisheye.projectPoints(P.reshape(-1, 1, 3), _RVEC, _TVEC, _K, np.zeros(4))
     uv = uv.reshape(-1, 2)
     # OpenCV cannot say which points lie behind the fov; the camera-frame z is needed.

@@ -37,6 +37,45 @@ def _sim_render(args: argparse.Namespace) -> int:
     )
 
 
+def _probe_scanner(args: argparse.Namespace) -> int:
+    from acq.probe import probe_scanner
+
+    if args.count < 0:
+        raise UsageError(f"--count {args.count}: expected 0 or more")
+    return probe_scanner(args.driver, args.url, args.count, args.json, args.timeout)
+
+
+def _sim_scanner(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from sim.devices import make_scanner, serve_scanner
+
+    try:
+        m, device = make_scanner(
+            args.model, seed=args.seed, drift_ppm=args.drift_ppm, protocol=args.protocol
+        )
+        server = serve_scanner(device, args.listen, pty=args.pty)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    except OSError as e:
+        print(f"acq sim scanner: {args.listen}: {e.strerror or e}", file=sys.stderr)
+        return 1
+    driver = "hokuyo" if m.vendor == "hokuyo" else "sick"
+    print(f"simulated {m.name} ({m.protocol}) on {server.url}", flush=True)
+    print(f"try: acq probe scanner --driver {driver} --url {server.url}", flush=True)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    try:
+        while not done.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.close()
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="acq",
@@ -74,6 +113,51 @@ def build_parser() -> argparse.ArgumentParser:
         help="an exactly equidistant lens instead of the default with small k1..k4",
     )
     render.set_defaults(handler=_sim_render)
+
+    from drivers.scanner import driver_names
+    from sim.scanner_models import MODELS
+
+    simscan = sim_sub.add_parser(
+        "scanner",
+        help="serve one simulated scanner for any client",
+        description="Serve one simulated laser scanner that speaks the real device's "
+        "protocol (SCIP 2.0/2.2 or CoLa-A/B) over TCP or a pseudo-terminal, scanning the "
+        "synthetic street. Runs until Ctrl-C or SIGTERM.",
+    )
+    simscan.add_argument("--model", required=True, choices=sorted(MODELS), help="device model")
+    where = simscan.add_mutually_exclusive_group()
+    where.add_argument(
+        "--listen", help="tcp://HOST:PORT to listen on (default: 127.0.0.1, a free port)"
+    )
+    where.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal (SCIP)")
+    simscan.add_argument(
+        "--protocol", choices=["cola-b", "cola-a"], default="cola-b",
+        help="SICK models: the CoLa dialect the device starts in (default cola-b)",
+    )  # fmt: skip
+    simscan.add_argument("--drift-ppm", type=float, default=0.0, help="device clock drift")
+    simscan.add_argument("--seed", type=int, default=0, help="street seed")
+    simscan.set_defaults(handler=_sim_scanner)
+
+    probe = sub.add_parser("probe", help="talk to one device and print what it says")
+    probe_sub = probe.add_subparsers(dest="probe_command", metavar="DEVICE", required=True)
+    pscan = probe_sub.add_parser(
+        "scanner",
+        help="device info, then N scans",
+        description="Connect to one laser scanner, print its identity and geometry, then N "
+        "scans (with --json: one JSON object for the device, then one per scan with time, "
+        "ranges in metres (null where there is no finite range) and intensities).",
+    )
+    pscan.add_argument("--driver", required=True, choices=driver_names())
+    pscan.add_argument(
+        "--url",
+        required=True,
+        help="hokuyo: a pyserial URL (/dev/ttyACM0, /dev/serial/by-id/..., "
+        "socket://192.168.0.10:10940); sick: tcp://192.168.0.1:2112",
+    )
+    pscan.add_argument("--count", type=int, default=10, help="scans to read (default 10)")
+    pscan.add_argument("--json", action="store_true", help="JSON lines instead of text")
+    pscan.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for data")
+    pscan.set_defaults(handler=_probe_scanner)
     return p
 
 

@@ -61,6 +61,10 @@ class Scan:
     device_ticks: tuple[int, ...] = ()  # raw device clock values (Hokuyo: ms; SICK: µs)
     sequence: int = 0  # device scan counter where it has one, else the driver's
     raw: bytes = b""  # the telegram as received
+    # Multi-echo devices: further echoes per point, (N, E) metres (+inf none) and their
+    # intensities; ``ranges``/``intensities`` hold the first echo.
+    extra_echoes: np.ndarray | None = None
+    extra_intensities: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         ranges = _frozen_array(self.ranges, np.float32, "ranges")

@@ -1,0 +1,218 @@
+"""Keeping a scanner streaming through cable pulls, reboots and stalls.
+
+:class:`Reconnecting` wraps any :class:`drivers.scanner.Scanner`: it connects, starts
+measurement and yields scans; when the link fails (an I/O error, end of stream, a
+device error, or no complete telegram for ``stall_periods`` scan periods) it closes
+the driver and tries again with exponential backoff (0.5 s doubling to 5 s). While it
+waits it watches, cheaply, whether the device is reachable again (the serial node is
+back, the TCP port answers), and then tries at once: scans flow again well within 2 s
+of the device coming back, whatever the backoff had reached. A device clock that
+restarted (a reboot) is reported as an event, never hidden.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from urllib.parse import urlsplit
+
+from acq.records import Scan
+from drivers.scanner import (
+    ConnectionLost,
+    DeviceError,
+    ProtocolError,
+    Scanner,
+    ScannerError,
+    ScanTimeout,
+)
+
+__all__ = ["Backoff", "LinkEvent", "Reconnecting", "url_reachable"]
+
+
+@dataclass(frozen=True)
+class LinkEvent:
+    """Something that happened to a device's link, for logs and /acq/status."""
+
+    kind: str  # connected | connect_failed | disconnected | stalled | protocol_error
+    #            | device_error | clock_reset
+    mono_ns: int  # host monotonic time
+    detail: str = ""
+
+
+@dataclass
+class Backoff:
+    """Delays between connection attempts: ``first`` doubling up to ``cap`` seconds."""
+
+    first: float = 0.5
+    cap: float = 5.0
+    _next: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self._next = self.first
+
+    def next(self) -> float:
+        delay = self._next
+        self._next = min(self.cap, self._next * 2)
+        return delay
+
+
+def url_reachable(url: str, timeout: float = 0.2) -> bool:
+    """Cheap check that a device may answer: its TCP port accepts, or its serial node exists."""
+    if "://" in url:
+        parts = urlsplit(url)
+        if parts.scheme in ("socket", "tcp") and parts.hostname and parts.port:
+            try:
+                with socket.create_connection((parts.hostname, parts.port), timeout=timeout):
+                    return True
+            except OSError:
+                return False
+        return True  # other pyserial URL handlers: no cheap check, rely on the backoff
+    if ":" in url and not url.startswith("/"):
+        host, _, port = url.rpartition(":")
+        return url_reachable(f"tcp://{host}:{port}", timeout)
+    return os.path.exists(url)
+
+
+class Reconnecting:
+    """Yields the scans of one scanner for as long as asked, reconnecting as needed.
+
+    ``on_event`` receives every :class:`LinkEvent`; counters (``disconnects``,
+    ``protocol_errors``, ``clock_resets``) are kept for status reports.
+    """
+
+    def __init__(
+        self,
+        scanner: Scanner,
+        *,
+        backoff: Backoff | None = None,
+        stall_periods: float = 3.0,
+        max_protocol_errors: int = 10,
+        on_event: Callable[[LinkEvent], None] | None = None,
+        reachable: Callable[[str], bool] = url_reachable,
+    ) -> None:
+        self.scanner = scanner
+        self.backoff = backoff if backoff is not None else Backoff()
+        self.stall_periods = stall_periods
+        self.max_protocol_errors = max_protocol_errors
+        self.on_event = on_event
+        self.reachable = reachable
+        self.connected = False
+        self.disconnects = 0
+        self.protocol_errors = 0
+        self.clock_resets = 0
+        self._last_tick: tuple[int, int] | None = None  # (device tick, host ns)
+
+    def _emit(self, kind: str, detail: str = "") -> None:
+        if self.on_event is not None:
+            self.on_event(LinkEvent(kind, time.monotonic_ns(), detail))
+
+    def _connect(self) -> None:
+        info = self.scanner.connect()
+        geometry = self.scanner.geometry
+        if geometry is not None:
+            self.scanner.timeout = max(self.stall_periods * geometry.scan_period, 0.05)
+        self.scanner.start()
+        self.connected = True
+        self.backoff.reset()
+        self._emit("connected", f"{info.vendor} {info.model} {info.serial}".strip())
+
+    def _drop(self, kind: str, detail: str) -> None:
+        self.connected = False
+        self.disconnects += 1
+        self._emit(kind, detail)
+        try:
+            self.scanner.close()
+        except (ScannerError, OSError):
+            pass
+
+    def _wait(self, delay: float, stop: threading.Event) -> None:
+        """Sleep up to ``delay`` s, returning early when the device becomes reachable."""
+        url = self.scanner.url
+        deadline = time.monotonic() + delay
+        was_reachable = self.reachable(url)
+        while not stop.is_set():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            stop.wait(min(0.1, left))
+            now_reachable = self.reachable(url)
+            if now_reachable and not was_reachable:
+                return  # it came back: try at once
+            was_reachable = now_reachable
+
+    def _check_clock(self, scan: Scan) -> None:
+        if not scan.device_ticks:
+            return
+        tick = scan.device_ticks[0]
+        hz, bits = type(self.scanner).tick_hz, type(self.scanner).tick_bits
+        if self._last_tick is not None:
+            last, last_ns = self._last_tick
+            elapsed = (scan.recv_ns - last_ns) * 1e-9
+            expected = (last + elapsed * hz) % (1 << bits)
+            diff = (tick - expected + (1 << (bits - 1))) % (1 << bits) - (1 << (bits - 1))
+            # a healthy clock agrees with the host within latency and drift
+            if abs(diff) > hz * (0.5 + 0.001 * elapsed):
+                self.clock_resets += 1
+                self._emit(
+                    "clock_reset",
+                    f"device clock read {tick} where {expected:.0f} was expected "
+                    f"({diff / hz:+.3f} s): the device restarted its clock",
+                )
+        self._last_tick = (tick, scan.recv_ns)
+
+    def scans(self, stop: threading.Event | None = None) -> Iterator[Scan]:
+        """Scans until ``stop`` is set (forever without one)."""
+        stop = stop if stop is not None else threading.Event()
+        errors_in_row = 0
+        try:
+            while not stop.is_set():
+                if not self.connected:
+                    try:
+                        self._connect()
+                    except (ScannerError, OSError) as e:
+                        self._emit("connect_failed", str(e))
+                        try:
+                            self.scanner.close()
+                        except (ScannerError, OSError):
+                            pass
+                        self._wait(self.backoff.next(), stop)
+                        continue
+                try:
+                    scan = self.scanner.read_scan()
+                except ProtocolError as e:
+                    self.protocol_errors += 1
+                    errors_in_row += 1
+                    self._emit("protocol_error", str(e))
+                    if errors_in_row >= self.max_protocol_errors:
+                        self._drop("disconnected", f"{errors_in_row} bad telegrams in a row")
+                    continue
+                except ScanTimeout as e:
+                    self._drop("stalled", str(e))
+                    continue
+                except DeviceError as e:
+                    self._drop("device_error", str(e))
+                    continue
+                except (ConnectionLost, OSError) as e:
+                    self._drop("disconnected", str(e))
+                    continue
+                errors_in_row = 0
+                self._check_clock(scan)
+                yield scan
+        finally:
+            if self.connected:
+                try:
+                    self.scanner.stop()
+                except (ScannerError, OSError):
+                    pass
+            try:
+                self.scanner.close()
+            except (ScannerError, OSError):
+                pass
+            self.connected = False

@@ -1,0 +1,149 @@
+"""What every laser-scanner driver offers, its typed errors, and the driver registry.
+
+A driver owns one connection and is used from one thread: ``connect()`` identifies the
+device and reads its geometry, ``start()`` begins continuous measurement, and
+``read_scan()`` blocks (at most ``timeout`` seconds) for the next :class:`acq.records.Scan`.
+Reconnection lives in :mod:`drivers.reconnect`, not in the drivers. The registry maps a
+configuration's ``driver:`` key to a class, the way python-can maps an interface name.
+"""
+
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from acq.records import DeviceInfo, Scan
+
+__all__ = [
+    "ConnectionLost",
+    "DeviceError",
+    "ProtocolError",
+    "ScanGeometry",
+    "ScanTimeout",
+    "Scanner",
+    "ScannerError",
+    "driver_names",
+    "scanner_class",
+    "scanner_for",
+]
+
+
+class ScannerError(Exception):
+    """Base of every scanner failure."""
+
+
+class ProtocolError(ScannerError):
+    """Bytes that do not follow the protocol; the message says where (command, offset)."""
+
+
+class DeviceError(ScannerError):
+    """The device answered with an error status (``status`` holds it as sent)."""
+
+    def __init__(self, message: str, status: str = "") -> None:
+        super().__init__(message)
+        self.status = status
+
+
+class ConnectionLost(ScannerError):
+    """The transport closed or failed (cable pulled, device rebooting)."""
+
+
+class ScanTimeout(ScannerError):
+    """No complete telegram arrived within the timeout (a stalled stream)."""
+
+
+@dataclass(frozen=True)
+class ScanGeometry:
+    """A scanner's measurement geometry in the REP-103 laser frame.
+
+    Angles in radians (0 along x, counter-clockwise about z), times in seconds, ranges
+    in metres. ``n_points`` is the number of points the driver delivers per scan (after
+    any cropping).
+    """
+
+    angle_min: float
+    angle_increment: float
+    n_points: int
+    scan_period: float
+    time_increment: float
+    range_min: float
+    range_max: float
+
+    @property
+    def angle_max(self) -> float:
+        return self.angle_min + self.angle_increment * (self.n_points - 1)
+
+
+class Scanner(ABC):
+    """One connection to one laser scanner (blocking, one thread)."""
+
+    driver: ClassVar[str] = ""
+    tick_hz: ClassVar[float] = 1000.0  # the device clock in Scan.device_ticks[0]
+    tick_bits: ClassVar[int] = 24  # its counter width (it wraps at 2**tick_bits)
+
+    def __init__(self, url: str, *, name: str = "laser", timeout: float = 1.0) -> None:
+        self.url = url
+        self.name = name
+        self.timeout = timeout
+        self.info: DeviceInfo | None = None
+        self.geometry: ScanGeometry | None = None
+
+    @abstractmethod
+    def connect(self) -> DeviceInfo:
+        """Open the transport, identify the device, read its geometry; sets ``info``."""
+
+    @abstractmethod
+    def start(self) -> None:
+        """Start continuous measurement."""
+
+    @abstractmethod
+    def read_scan(self) -> Scan:
+        """The next scan; raises ScanTimeout, ConnectionLost, ProtocolError, DeviceError."""
+
+    @abstractmethod
+    def stop(self) -> None:
+        """Stop measurement (the connection stays open)."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Close the transport; safe to call twice and after a failure."""
+
+    def __enter__(self) -> Scanner:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# driver name -> "module:Class"; imported on first use so a missing optional
+# dependency of one driver does not break the others.
+_REGISTRY: dict[str, str] = {
+    "hokuyo": "drivers.scip:ScipScanner",
+    "sick": "drivers.cola:ColaScanner",
+}
+
+
+def driver_names() -> list[str]:
+    return sorted(_REGISTRY)
+
+
+def scanner_class(driver: str) -> type[Scanner]:
+    """The class registered for a configuration's ``driver:`` value."""
+    try:
+        target = _REGISTRY[driver]
+    except KeyError:
+        raise ValueError(
+            f"unknown scanner driver {driver!r}; expected one of {', '.join(driver_names())}"
+        ) from None
+    module, _, cls = target.partition(":")
+    found = getattr(importlib.import_module(module), cls)
+    if not (isinstance(found, type) and issubclass(found, Scanner)):
+        raise TypeError(f"{target} is not a Scanner")
+    return found
+
+
+def scanner_for(driver: str, url: str, **options: Any) -> Scanner:
+    """A driver instance for ``driver`` (``hokuyo`` | ``sick``) talking to ``url``."""
+    return scanner_class(driver)(url, **options)

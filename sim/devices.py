@@ -1,0 +1,50 @@
+"""Which simulated device speaks for which scanner model, and serving one on a transport."""
+
+from __future__ import annotations
+
+from urllib.parse import urlsplit
+
+from sim.device_clock import SimClock
+from sim.scan_source import StreetSource
+from sim.scanner_models import ScannerModel, model
+from sim.transport import DeviceServer, PtyDeviceServer, SimDevice, TcpDeviceServer
+
+__all__ = ["make_scanner", "serve_scanner"]
+
+
+def make_scanner(
+    name: str,
+    *,
+    seed: int = 0,
+    drift_ppm: float = 0.0,
+    offset_ticks: float = 0.0,
+    protocol: str = "cola-b",
+) -> tuple[ScannerModel, SimDevice]:
+    """The model and a simulated device for it, with its own clock.
+
+    ``protocol`` (cola-a | cola-b) applies to SICK models, which power up in it.
+    """
+    m = model(name)
+    clock = SimClock(
+        tick_hz=m.clock_hz, wrap_bits=m.clock_bits, drift_ppm=drift_ppm, offset_ticks=offset_ticks
+    )
+    source = StreetSource(m, seed=seed)
+    if m.vendor == "hokuyo":
+        from sim.scip_device import ScipDevice
+
+        return m, ScipDevice(m, source=source, clock=clock)
+    from sim.cola_device import ColaDevice
+
+    return m, ColaDevice(m, source=source, clock=clock, protocol=protocol)
+
+
+def serve_scanner(device: SimDevice, listen: str | None, pty: bool = False) -> DeviceServer:
+    """Start serving ``device`` on ``listen`` (tcp://host:port) or on a pty."""
+    if pty:
+        return PtyDeviceServer(device).start()
+    if listen is None:
+        return TcpDeviceServer(device).start()
+    parts = urlsplit(listen if "://" in listen else f"tcp://{listen}")
+    if parts.scheme not in ("tcp", "socket") or parts.port is None:
+        raise ValueError(f"--listen {listen!r}: expected tcp://HOST:PORT")
+    return TcpDeviceServer(device, parts.hostname or "127.0.0.1", parts.port).start()

@@ -1,0 +1,59 @@
+"""Where simulated scanners get their ranges: the synthetic street, seen by the rig.
+
+A scanner model's geometry (REP-103 angles, point timing, range limits) replaces the
+rig's default UTM-30LX, so every model scans the same street from the same mount.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from sim import sensors
+from sim.scanner_models import ScannerModel
+from sim.world import Rig, Street, Trajectory, default_rig
+
+__all__ = ["StreetSource"]
+
+
+class StreetSource:
+    """Ranges (m) and intensities of one scan starting at true time ``t0`` (s).
+
+    ``ranges``: +inf no echo (beyond range or sky), -inf too close, as REP-117.
+    ``intensities``: a plausible return strength from range and surface colour.
+    """
+
+    def __init__(
+        self,
+        model: ScannerModel,
+        street: Street | None = None,
+        trajectory: Trajectory | None = None,
+        rig: Rig | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.model = model
+        self.street = street if street is not None else Street.generate(seed=seed)
+        self.trajectory = trajectory if trajectory is not None else Trajectory()
+        base = rig if rig is not None else default_rig()
+        self.rig = replace(
+            base,
+            angle_min=model.angle_min(),
+            angle_increment=model.angle_increment(),
+            n_steps=model.steps,
+            scan_period=model.scan_period,
+            time_increment=model.time_increment(),
+            max_range=model.range_max,
+            min_range=model.range_min,
+        )
+        self.rng = np.random.default_rng(seed)
+
+    def scan(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
+        """(ranges (N,) float64 m, intensities (N,) float64) of the scan starting at t0."""
+        truth = sensors.render_scan(self.street, self.trajectory, self.rig, t0, self.rng)
+        ranges = truth.ranges.astype(np.float64)
+        brightness = truth.colours.astype(np.float64).mean(axis=1) / 255.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            strength = 8000.0 * (0.2 + brightness) / np.maximum(ranges, 1.0) ** 0.5
+        intensities = np.where(np.isfinite(ranges), strength, 0.0)
+        return ranges, intensities

@@ -150,12 +150,27 @@ class DeviceServer(ABC):
             view = view[n:]
             self.bytes_sent += n
 
+    @abstractmethod
+    def _go_down(self) -> None:
+        """The device is off: it no longer answers on its transport."""
+
+    @abstractmethod
+    def _come_up(self) -> None:
+        """The device is on again."""
+
     def _run(self) -> None:
+        down = False
         while not self._stop.is_set():
             now = time.monotonic()
             if now < self._down_until:
+                if not down:
+                    self._go_down()
+                    down = True
                 time.sleep(min(0.05, self._down_until - now))
                 continue
+            if down:
+                self._come_up()
+                down = False
             fd = self._accept(0.1)
             if fd is None:
                 continue
@@ -204,16 +219,32 @@ class TcpDeviceServer(DeviceServer):
 
     def __init__(self, device: SimDevice, host: str = "127.0.0.1", port: int = 0, seed: int = 0):
         super().__init__(device, seed)
-        self._listener = socket.create_server((host, port))
-        self._listener.settimeout(0.1)
+        self._listener: socket.socket | None = self._listen(host, port)
         self.host, self.port = self._listener.getsockname()[:2]
         self._client: socket.socket | None = None
+
+    @staticmethod
+    def _listen(host: str, port: int) -> socket.socket:
+        listener = socket.create_server((host, port), reuse_port=False)
+        listener.settimeout(0.1)
+        return listener
+
+    def _go_down(self) -> None:
+        # A device that is off refuses connections (no listener, so the kernel says RST).
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
+
+    def _come_up(self) -> None:
+        self._listener = self._listen(self.host, self.port)
 
     @property
     def url(self) -> str:
         return f"socket://{self.host}:{self.port}"
 
     def _accept(self, timeout: float) -> int | None:
+        if self._listener is None:
+            return None
         try:
             conn, _ = self._listener.accept()
         except (TimeoutError, OSError):
@@ -231,7 +262,8 @@ class TcpDeviceServer(DeviceServer):
             self._client = None
 
     def _close_transport(self) -> None:
-        self._listener.close()
+        if self._listener is not None:
+            self._listener.close()
 
 
 class PtyDeviceServer(DeviceServer):
@@ -269,6 +301,14 @@ class PtyDeviceServer(DeviceServer):
         tmp.symlink_to(name)
         tmp.replace(self.link)
         self._master, self._slave = master, slave
+
+    def _go_down(self) -> None:
+        # Unplugged: the device node and its by-id link disappear.
+        with contextlib.suppress(FileNotFoundError):
+            self.link.unlink()
+
+    def _come_up(self) -> None:
+        pass  # the next _accept makes a fresh pty and points the link at it
 
     def _accept(self, timeout: float) -> int | None:
         if self._master is None:

@@ -108,17 +108,20 @@ class Reconnecting:
         self.protocol_errors = 0
         self.clock_resets = 0
         self._last_tick: tuple[int, int] | None = None  # (device tick, host ns)
+        self._command_timeout = scanner.timeout  # for replies during connect
 
     def _emit(self, kind: str, detail: str = "") -> None:
         if self.on_event is not None:
             self.on_event(LinkEvent(kind, time.monotonic_ns(), detail))
 
     def _connect(self) -> None:
+        self.scanner.timeout = self._command_timeout
         info = self.scanner.connect()
+        self.scanner.start()
         geometry = self.scanner.geometry
         if geometry is not None:
+            # a stream with nothing for this long is stalled
             self.scanner.timeout = max(self.stall_periods * geometry.scan_period, 0.05)
-        self.scanner.start()
         self.connected = True
         self.backoff.reset()
         self._emit("connected", f"{info.vendor} {info.model} {info.serial}".strip())

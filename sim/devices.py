@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from urllib.parse import urlsplit
 
 from sim.device_clock import SimClock
@@ -26,7 +27,11 @@ def make_scanner(
     """
     m = model(name)
     clock = SimClock(
-        tick_hz=m.clock_hz, wrap_bits=m.clock_bits, drift_ppm=drift_ppm, offset_ticks=offset_ticks
+        tick_hz=m.clock_hz,
+        wrap_bits=m.clock_bits,
+        drift_ppm=drift_ppm,
+        offset_ticks=offset_ticks,
+        epoch=time.monotonic(),  # powered up now: its clock counts from here
     )
     source = StreetSource(m, seed=seed)
     if m.vendor == "hokuyo":

@@ -47,10 +47,12 @@ def probe_scanner(
     count: int = 10,
     as_json: bool = False,
     timeout: float = 2.0,
-    out: TextIO = sys.stdout,
+    out: TextIO | None = None,
 ) -> int:
     """Connect, print identity and geometry, then ``count`` scans; 0 on success, 1 on failure."""
     from drivers.scanner import ScannerError, scanner_for
+
+    out = out if out is not None else sys.stdout
 
     scanner = scanner_for(driver, url, timeout=timeout)
     try:

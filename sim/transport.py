@@ -108,6 +108,9 @@ class DeviceServer(ABC):
     # --- life cycle -------------------------------------------------------------------
 
     def start(self) -> DeviceServer:
+        """Start serving (once: a second call, e.g. ``with server.start():``, is a no-op)."""
+        if self._thread is not None:
+            return self
         self._thread = threading.Thread(target=self._run, name=type(self).__name__, daemon=True)
         self._thread.start()
         return self

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import math
 
 import pytest
 
@@ -48,9 +47,8 @@ def test_probe_reads_every_simulated_model(
         assert all(m.range_min <= r <= m.range_max for r in finite)
     ticks = [s["device_ticks"][0] for s in scans]
     period_ticks = m.scan_period * m.clock_hz
-    assert all(
-        math.isclose(b - a, period_ticks, rel_tol=0.01) for a, b in itertools.pairwise(ticks)
-    )
+    # one scan period apart on the device clock, within one tick of quantisation
+    assert all(abs(b - a - period_ticks) <= 1 for a, b in itertools.pairwise(ticks)), ticks
 
 
 def test_probe_reports_an_unreachable_device(capsys: pytest.CaptureFixture[str]) -> None:

@@ -141,7 +141,9 @@ class ScipScanner(Scanner):
             )
         except (serial.SerialException, OSError, ValueError) as e:
             raise ConnectionLost(f"{self.url}: cannot open: {e}") from e
-        self._sock_fd = self._ser.fileno() if self.url.startswith("socket://") else None
+        # A socket, or a POSIX serial port: read its descriptor directly (see _read_chunk).
+        fd = getattr(self._ser, "fd", None) if "://" not in self.url else None
+        self._sock_fd = self._ser.fileno() if self.url.startswith("socket://") else fd
         self._buf.clear()
         self._marks.clear()
         self._stop_any_stream()
@@ -347,15 +349,20 @@ class ScipScanner(Scanner):
     def _read_chunk(self, deadline: float) -> bytes:
         """What has arrived (waits at most until ``deadline``, in short polls)."""
         assert self._ser is not None
-        if self._sock_fd is None:  # a serial port: in_waiting is the real byte count
+        if self._sock_fd is None:  # other pyserial URL handlers: in_waiting is the byte count
             return bytes(self._ser.read(max(1, self._ser.in_waiting)))
-        # pyserial's socket read() goes byte by byte or waits for its whole timeout;
-        # read the socket directly so the receive time is that of the bytes' arrival.
+        # pyserial's socket read() goes byte by byte or waits for its whole timeout, and
+        # its serial read() loops and throws away what it already read when the device
+        # vanishes mid-telegram (an unplugged cable): read the descriptor directly, so
+        # no byte that arrived is lost and the receive time is that of its arrival.
         wait = min(_POLL_S, max(0.0, deadline - time.monotonic()))
         ready, _, _ = select.select([self._sock_fd], [], [], wait)
         if not ready:
             return b""
-        chunk = os.read(self._sock_fd, 1 << 16)
+        try:
+            chunk = os.read(self._sock_fd, 1 << 16)
+        except BlockingIOError:
+            return b""
         if not chunk:
             raise ConnectionLost(f"{self.url}: connection closed by the device")
         return chunk

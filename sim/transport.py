@@ -12,9 +12,12 @@ functions of it.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import select
 import socket
+import struct
+import termios
 import threading
 import time
 import tty
@@ -320,6 +323,19 @@ class PtyDeviceServer(DeviceServer):
         return self._master
 
     def _drop(self, fd: int) -> None:
+        # Bytes already sent reach the host before the hangup (a pty would discard what
+        # the client has not read yet): wait, briefly, for its input queue to drain. The
+        # kernel moves written bytes to that queue asynchronously, so the queue must be
+        # seen empty twice, a little apart.
+        deadline = time.monotonic() + 0.5
+        empty_seen = 0
+        while self._slave is not None and time.monotonic() < deadline and empty_seen < 2:
+            time.sleep(0.01)
+            try:
+                raw = fcntl.ioctl(self._slave, termios.FIONREAD, b"\0" * 4)
+            except OSError:
+                break
+            empty_seen = empty_seen + 1 if struct.unpack("i", raw)[0] == 0 else 0
         for f in (self._master, self._slave):
             if f is not None:
                 with contextlib.suppress(OSError):

@@ -1,0 +1,109 @@
+"""Soak: a driver behind ``Reconnecting`` against a simulated device whose cable is
+pulled periodically loses no scan the device sent while connected.
+
+The quick version runs in ``make test``; the ten-minute one (``ACQ_SOAK_S`` seconds,
+default 600) in ``make test-slow``. Both devices run at once: a SICK LMS111 over TCP
+(keyed by its scan counter) and a Hokuyo UTM-30LX over a pty (keyed by its ms
+timestamp).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import pytest
+
+from drivers.reconnect import LinkEvent, Reconnecting
+from drivers.scanner import scanner_for
+from sim.devices import make_scanner, serve_scanner
+
+
+@dataclass
+class Soak:
+    name: str
+    pty: bool
+    sent: list[int] = field(default_factory=list)
+    received: list[int] = field(default_factory=list)
+    events: list[LinkEvent] = field(default_factory=list)
+    pulls: int = 0
+
+
+def _drain(history: deque, out: list[int], key: str) -> None:  # type: ignore[type-arg]
+    while history:
+        out.append(getattr(history.popleft(), key))
+
+
+def run_soak(seconds: float, pull_every: float) -> list[Soak]:
+    runs = [Soak("lms111", pty=False), Soak("utm-30lx", pty=True)]
+    stop = threading.Event()
+    setups = []
+    for run in runs:
+        m, dev = make_scanner(run.name)
+        server = serve_scanner(dev, None, pty=run.pty)
+        driver = "hokuyo" if m.vendor == "hokuyo" else "sick"
+        link = Reconnecting(
+            scanner_for(driver, server.url, timeout=2.0), on_event=run.events.append
+        )
+        history, key, scan_key = (
+            (dev.history, "scan_counter", "sequence")  # type: ignore[attr-defined]
+            if driver == "sick"
+            else (dev.sent, "timestamp", "ticks")  # type: ignore[attr-defined]
+        )
+
+        def consume(link: Reconnecting = link, run: Soak = run, scan_key: str = scan_key) -> None:
+            for scan in link.scans(stop):
+                run.received.append(
+                    scan.sequence if scan_key == "sequence" else scan.device_ticks[0]
+                )
+
+        thread = threading.Thread(target=consume, daemon=True)
+        thread.start()
+        setups.append((run, server, history, key, thread))
+    t_end = time.monotonic() + seconds
+    next_pull = time.monotonic() + pull_every
+    while time.monotonic() < t_end:
+        time.sleep(0.1)
+        for run, _server, history, key, _ in setups:
+            _drain(history, run.sent, key)
+        if time.monotonic() >= next_pull:
+            for run, server, *_ in setups:
+                server.disconnect()
+                run.pulls += 1
+            next_pull += pull_every
+    stop.set()
+    for run, server, history, key, thread in setups:
+        thread.join(10)
+        assert not thread.is_alive()
+        _drain(history, run.sent, key)
+        server.close()
+    return runs
+
+
+def check(runs: list[Soak], min_connects: int) -> None:
+    for run in runs:
+        assert run.received, run.name
+        last = run.received[-1]
+        # Every scan sent up to the last one received (later ones were in flight when
+        # the consumer stopped) arrived, once, in order.
+        expected = [k for k in run.sent if k <= last]
+        assert run.received == expected, (run.name, len(expected), len(run.received))
+        connects = [e for e in run.events if e.kind == "connected"]
+        assert len(connects) >= min_connects, (run.name, [e.kind for e in run.events])
+
+
+def test_quick_soak_with_cable_pulls() -> None:
+    runs = run_soak(seconds=6.0, pull_every=2.0)
+    check(runs, min_connects=3)
+
+
+@pytest.mark.slow
+def test_ten_minute_soak_with_periodic_disconnects() -> None:
+    seconds = float(os.environ.get("ACQ_SOAK_S", "600"))
+    runs = run_soak(seconds=seconds, pull_every=20.0)
+    check(runs, min_connects=int(seconds // 20))
+    for run in runs:
+        print(f"{run.name}: {len(run.received)} scans, {run.pulls} cable pulls, none lost")

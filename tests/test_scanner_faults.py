@@ -1,0 +1,92 @@
+"""The real drivers behind ``Reconnecting`` through a device reboot, and ``acq sim
+scanner`` run as its own process for a client to use."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from acq import cli
+from drivers.reconnect import LinkEvent, Reconnecting
+from drivers.scanner import scanner_for
+from sim.devices import make_scanner, serve_scanner
+
+
+@pytest.mark.parametrize(("name", "pty"), [("lms111", False), ("utm-30lx", True)])
+def test_reboot_is_reported_and_scans_resume_within_2s(name: str, pty: bool) -> None:
+    m, device = make_scanner(name)
+    server = serve_scanner(device, None, pty=pty)
+    driver = "hokuyo" if m.vendor == "hokuyo" else "sick"
+    events: list[LinkEvent] = []
+    link = Reconnecting(scanner_for(driver, server.url, timeout=2.0), on_event=events.append)
+    times: list[float] = []
+    stop = threading.Event()
+
+    def consume() -> None:
+        for _ in link.scans(stop):
+            times.append(time.monotonic())
+
+    thread = threading.Thread(target=consume, daemon=True)
+    thread.start()
+    try:
+        while len(times) < 5:
+            time.sleep(0.01)
+        down = 2.5  # long enough for the backoff to reach 2 s
+        server.reboot(down)
+        back = time.monotonic() + down
+        n = len(times)
+        deadline = back + 4.0
+        while len(times) <= n + 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        after = [t for t in times[n:] if t > back]
+        assert after, [e.kind for e in events]
+        assert after[0] - back < 2.0
+        assert "clock_reset" in [e.kind for e in events]
+    finally:
+        stop.set()
+        thread.join(5)
+        server.close()
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_acq_sim_scanner_serves_any_client_until_sigterm(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", "sim", "scanner", "--model", "utm-30lx",
+         "--listen", f"tcp://127.0.0.1:{port}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy(),
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline()
+        assert f"127.0.0.1:{port}" in first, first + (proc.stderr.read() if proc.stderr else "")
+        url = f"socket://127.0.0.1:{port}"
+        assert cli.main(["probe", "scanner", "--driver", "hokuyo", "--url", url,
+                         "--count", "2", "--json"]) == 0  # fmt: skip
+        lines = capsys.readouterr().out.splitlines()
+        assert json.loads(lines[0])["device"]["model"].endswith("UTM-30LX")
+        assert len(lines) == 3
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(10) == 0
+
+
+def test_acq_sim_scanner_refuses_a_bad_listen_address(capsys: pytest.CaptureFixture[str]) -> None:
+    code = cli.main(["sim", "scanner", "--model", "lms111", "--listen", "udp://127.0.0.1:5"])
+    assert code == 2
+    assert "expected tcp://HOST:PORT" in capsys.readouterr().err

@@ -99,12 +99,11 @@ def probe_scanner(
                 print(json.dumps(scan_json(scan)), file=out, flush=True)
                 continue
             r = scan.ranges[np.isfinite(scan.ranges)]
-            rate = i / ((scan.recv_ns - t_first) * 1e-9) if i else float("nan")
+            rate = f", {i / ((scan.recv_ns - t_first) * 1e-9):.1f} Hz" if i else ""
+            span = f" ({r.min():.3f}-{r.max():.3f} m)" if r.size else ""
             print(
-                f"scan {i + 1}: {scan.size} points, {r.size} with a range "
-                f"({r.min() if r.size else float('nan'):.3f}-"
-                f"{r.max() if r.size else float('nan'):.3f} m), "
-                f"device ticks {list(scan.device_ticks)}, {rate:.1f} Hz",
+                f"scan {i + 1}: {scan.size} points, {r.size} with a range{span}, "
+                f"device ticks {list(scan.device_ticks)}{rate}",
                 file=out,
                 flush=True,
             )

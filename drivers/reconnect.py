@@ -2,12 +2,13 @@
 
 :class:`Reconnecting` wraps any :class:`drivers.scanner.Scanner`: it connects, starts
 measurement and yields scans; when the link fails (an I/O error, end of stream, a
-device error, or no complete telegram for ``stall_periods`` scan periods) it closes
+device error, or nothing complete for ``stall_periods`` record periods) it closes
 the driver and tries again with exponential backoff (0.5 s doubling to 5 s). While it
 waits it watches, cheaply, whether the device is reachable again (the serial node is
 back, the TCP port answers), and then tries at once: scans flow again well within 2 s
-of the device coming back, whatever the backoff had reached. A device clock that
-restarted (a reboot) is reported as an event, never hidden.
+of the device coming back, whatever the backoff had reached. :class:`Reconnecting`
+is the scanners' version: it also reports a device clock that restarted (a reboot),
+never hiding it. Cameras use :class:`Relink` with their frame period.
 """
 
 from __future__ import annotations
@@ -18,19 +19,28 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import Any, Generic, Protocol, TypeVar
 from urllib.parse import urlsplit
 
-from acq.records import Scan
-from drivers.scanner import (
-    ConnectionLost,
-    DeviceError,
-    ProtocolError,
-    Scanner,
-    ScannerError,
-    ScanTimeout,
-)
+from acq.records import DeviceInfo, Scan
+from drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
+from drivers.scanner import Scanner
 
-__all__ = ["Backoff", "LinkEvent", "Reconnecting", "url_reachable"]
+__all__ = ["Backoff", "LinkEvent", "Reconnecting", "Relink", "url_reachable"]
+
+R = TypeVar("R")
+
+
+class Driver(Protocol):
+    """What :class:`Relink` needs of a driver."""
+
+    url: str
+    timeout: float
+
+    def connect(self) -> DeviceInfo: ...
+    def start(self) -> None: ...
+    def stop(self) -> None: ...
+    def close(self) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -80,16 +90,17 @@ def url_reachable(url: str, timeout: float = 0.2) -> bool:
     return os.path.exists(url)
 
 
-class Reconnecting:
-    """Yields the scans of one scanner for as long as asked, reconnecting as needed.
+class Relink(Generic[R]):
+    """Yields the records ``read()`` returns for as long as asked, reconnecting as needed.
 
     ``on_event`` receives every :class:`LinkEvent`; counters (``disconnects``,
-    ``protocol_errors``, ``clock_resets``) are kept for status reports.
+    ``protocol_errors``) are kept for status reports.
     """
 
     def __init__(
         self,
-        scanner: Scanner,
+        device: Driver,
+        read: Callable[[], R],
         *,
         backoff: Backoff | None = None,
         stall_periods: float = 3.0,
@@ -97,7 +108,8 @@ class Reconnecting:
         on_event: Callable[[LinkEvent], None] | None = None,
         reachable: Callable[[str], bool] = url_reachable,
     ) -> None:
-        self.scanner = scanner
+        self.device = device
+        self.read = read
         self.backoff = backoff if backoff is not None else Backoff()
         self.stall_periods = stall_periods
         self.max_protocol_errors = max_protocol_errors
@@ -106,22 +118,27 @@ class Reconnecting:
         self.connected = False
         self.disconnects = 0
         self.protocol_errors = 0
-        self.clock_resets = 0
-        self._last_tick: tuple[int, int] | None = None  # (device tick, host ns)
-        self._command_timeout = scanner.timeout  # for replies during connect
+        self._command_timeout = device.timeout  # for replies during connect
 
     def _emit(self, kind: str, detail: str = "") -> None:
         if self.on_event is not None:
             self.on_event(LinkEvent(kind, time.monotonic_ns(), detail))
 
+    def period(self) -> float | None:
+        """Seconds between records once connected (None: unknown, keep the timeout)."""
+        return None
+
+    def check(self, record: R) -> None:
+        """Look at each record before it is yielded (subclasses report anomalies)."""
+
     def _connect(self) -> None:
-        self.scanner.timeout = self._command_timeout
-        info = self.scanner.connect()
-        self.scanner.start()
-        geometry = self.scanner.geometry
-        if geometry is not None:
+        self.device.timeout = self._command_timeout
+        info = self.device.connect()
+        self.device.start()
+        period = self.period()
+        if period is not None:
             # a stream with nothing for this long is stalled
-            self.scanner.timeout = max(self.stall_periods * geometry.scan_period, 0.05)
+            self.device.timeout = max(self.stall_periods * period, 0.05)
         self.connected = True
         self.backoff.reset()
         self._emit("connected", f"{info.vendor} {info.model} {info.serial}".strip())
@@ -131,13 +148,13 @@ class Reconnecting:
         self.disconnects += 1
         self._emit(kind, detail)
         try:
-            self.scanner.close()
-        except (ScannerError, OSError):
+            self.device.close()
+        except (DriverError, OSError):
             pass
 
     def _wait(self, delay: float, stop: threading.Event) -> None:
         """Sleep up to ``delay`` s, returning early when the device becomes reachable."""
-        url = self.scanner.url
+        url = self.device.url
         deadline = time.monotonic() + delay
         was_reachable = self.reachable(url)
         while not stop.is_set():
@@ -149,6 +166,74 @@ class Reconnecting:
             if now_reachable and not was_reachable:
                 return  # it came back: try at once
             was_reachable = now_reachable
+
+    def records(self, stop: threading.Event | None = None) -> Iterator[R]:
+        """Records until ``stop`` is set (forever without one)."""
+        stop = stop if stop is not None else threading.Event()
+        errors_in_row = 0
+        try:
+            while not stop.is_set():
+                if not self.connected:
+                    try:
+                        self._connect()
+                    except (DriverError, OSError) as e:
+                        self._emit("connect_failed", str(e))
+                        try:
+                            self.device.close()
+                        except (DriverError, OSError):
+                            pass
+                        self._wait(self.backoff.next(), stop)
+                        continue
+                try:
+                    record = self.read()
+                except ProtocolError as e:
+                    self.protocol_errors += 1
+                    errors_in_row += 1
+                    self._emit("protocol_error", str(e))
+                    if errors_in_row >= self.max_protocol_errors:
+                        self._drop("disconnected", f"{errors_in_row} bad telegrams in a row")
+                    continue
+                except ReadTimeout as e:
+                    self._drop("stalled", str(e))
+                    continue
+                except DeviceError as e:
+                    self._drop("device_error", str(e))
+                    continue
+                except (ConnectionLost, OSError) as e:
+                    self._drop("disconnected", str(e))
+                    continue
+                errors_in_row = 0
+                self.check(record)
+                yield record
+        finally:
+            if self.connected:
+                try:
+                    self.device.stop()
+                except (DriverError, OSError):
+                    pass
+            try:
+                self.device.close()
+            except (DriverError, OSError):
+                pass
+            self.connected = False
+
+
+class Reconnecting(Relink[Scan]):
+    """A scanner's scans through reconnections; a restarted device clock is reported."""
+
+    def __init__(self, scanner: Scanner, **options: Any) -> None:
+        """``options`` as for :class:`Relink`."""
+        super().__init__(scanner, scanner.read_scan, **options)
+        self.scanner = scanner
+        self.clock_resets = 0
+        self._last_tick: tuple[int, int] | None = None  # (device tick, host ns)
+
+    def period(self) -> float | None:
+        geometry = self.scanner.geometry
+        return None if geometry is None else geometry.scan_period
+
+    def check(self, record: Scan) -> None:
+        self._check_clock(record)
 
     def _check_clock(self, scan: Scan) -> None:
         if not scan.device_ticks:
@@ -172,50 +257,4 @@ class Reconnecting:
 
     def scans(self, stop: threading.Event | None = None) -> Iterator[Scan]:
         """Scans until ``stop`` is set (forever without one)."""
-        stop = stop if stop is not None else threading.Event()
-        errors_in_row = 0
-        try:
-            while not stop.is_set():
-                if not self.connected:
-                    try:
-                        self._connect()
-                    except (ScannerError, OSError) as e:
-                        self._emit("connect_failed", str(e))
-                        try:
-                            self.scanner.close()
-                        except (ScannerError, OSError):
-                            pass
-                        self._wait(self.backoff.next(), stop)
-                        continue
-                try:
-                    scan = self.scanner.read_scan()
-                except ProtocolError as e:
-                    self.protocol_errors += 1
-                    errors_in_row += 1
-                    self._emit("protocol_error", str(e))
-                    if errors_in_row >= self.max_protocol_errors:
-                        self._drop("disconnected", f"{errors_in_row} bad telegrams in a row")
-                    continue
-                except ScanTimeout as e:
-                    self._drop("stalled", str(e))
-                    continue
-                except DeviceError as e:
-                    self._drop("device_error", str(e))
-                    continue
-                except (ConnectionLost, OSError) as e:
-                    self._drop("disconnected", str(e))
-                    continue
-                errors_in_row = 0
-                self._check_clock(scan)
-                yield scan
-        finally:
-            if self.connected:
-                try:
-                    self.scanner.stop()
-                except (ScannerError, OSError):
-                    pass
-            try:
-                self.scanner.close()
-            except (ScannerError, OSError):
-                pass
-            self.connected = False
+        return self.records(stop)

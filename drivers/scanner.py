@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from acq.records import DeviceInfo, Scan
+from drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
 
 __all__ = [
     "ConnectionLost",
@@ -30,28 +31,9 @@ __all__ = [
 ]
 
 
-class ScannerError(Exception):
-    """Base of every scanner failure."""
-
-
-class ProtocolError(ScannerError):
-    """Bytes that do not follow the protocol; the message says where (command, offset)."""
-
-
-class DeviceError(ScannerError):
-    """The device answered with an error status (``status`` holds it as sent)."""
-
-    def __init__(self, message: str, status: str = "") -> None:
-        super().__init__(message)
-        self.status = status
-
-
-class ConnectionLost(ScannerError):
-    """The transport closed or failed (cable pulled, device rebooting)."""
-
-
-class ScanTimeout(ScannerError):
-    """No complete telegram arrived within the timeout (a stalled stream)."""
+# The scanner names of the shared driver errors.
+ScannerError = DriverError
+ScanTimeout = ReadTimeout  # no complete telegram within the timeout (a stalled stream)
 
 
 @dataclass(frozen=True)

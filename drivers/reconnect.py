@@ -22,11 +22,12 @@ from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 from urllib.parse import urlsplit
 
-from acq.records import DeviceInfo, Scan
+from acq.records import DeviceInfo, Frame, Scan
+from drivers.camera import Camera
 from drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
 from drivers.scanner import Scanner
 
-__all__ = ["Backoff", "LinkEvent", "Reconnecting", "Relink", "url_reachable"]
+__all__ = ["Backoff", "CameraLink", "LinkEvent", "Reconnecting", "Relink", "url_reachable"]
 
 R = TypeVar("R")
 
@@ -34,8 +35,10 @@ R = TypeVar("R")
 class Driver(Protocol):
     """What :class:`Relink` needs of a driver."""
 
-    url: str
     timeout: float
+
+    @property
+    def url(self) -> str: ...
 
     def connect(self) -> DeviceInfo: ...
     def start(self) -> None: ...
@@ -73,20 +76,29 @@ class Backoff:
         return delay
 
 
+_DEFAULT_PORTS = {"http": 80, "https": 443, "rtsp": 554}
+
+
 def url_reachable(url: str, timeout: float = 0.2) -> bool:
-    """Cheap check that a device may answer: its TCP port accepts, or its serial node exists."""
+    """Cheap check that a device may answer: its TCP port accepts (socket://, tcp://,
+    http://, rtsp://, host:port), or its device node exists (a path, a camera index)."""
     if "://" in url:
         parts = urlsplit(url)
-        if parts.scheme in ("socket", "tcp") and parts.hostname and parts.port:
+        port = parts.port or _DEFAULT_PORTS.get(parts.scheme)
+        if parts.scheme in ("socket", "tcp", *_DEFAULT_PORTS) and parts.hostname and port:
             try:
-                with socket.create_connection((parts.hostname, parts.port), timeout=timeout):
+                with socket.create_connection((parts.hostname, port), timeout=timeout):
                     return True
             except OSError:
                 return False
-        return True  # other pyserial URL handlers: no cheap check, rely on the backoff
+        return True  # other URL handlers: no cheap check, rely on the backoff
+    if url.isdigit():  # an OpenCV camera index
+        return os.path.exists(f"/dev/video{url}")
+    if "!" in url:  # a GStreamer pipeline
+        return True
     if ":" in url and not url.startswith("/"):
-        host, _, port = url.rpartition(":")
-        return url_reachable(f"tcp://{host}:{port}", timeout)
+        host, _, port_text = url.rpartition(":")
+        return url_reachable(f"tcp://{host}:{port_text}", timeout)
     return os.path.exists(url)
 
 
@@ -257,4 +269,22 @@ class Reconnecting(Relink[Scan]):
 
     def scans(self, stop: threading.Event | None = None) -> Iterator[Scan]:
         """Scans until ``stop`` is set (forever without one)."""
+        return self.records(stop)
+
+
+class CameraLink(Relink[Frame]):
+    """A camera's frames through reconnections (an unplugged or stalled camera)."""
+
+    def __init__(self, camera: Camera, **options: Any) -> None:
+        """``options`` as for :class:`Relink`."""
+        super().__init__(camera, camera.read_frame, **options)
+        self.camera = camera
+
+    def period(self) -> float | None:
+        fmt = self.camera.format
+        fps = fmt.fps if fmt is not None and fmt.fps > 0 else self.camera.fps
+        return 1.0 / fps if fps > 0 else None
+
+    def frames(self, stop: threading.Event | None = None) -> Iterator[Frame]:
+        """Frames until ``stop`` is set (forever without one)."""
         return self.records(stop)

@@ -10,7 +10,7 @@ noise-free point and the true colour of the surface the laser hit.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -59,8 +59,6 @@ def render_overlay(
 
     ``range_noise`` (m) overrides the simulated scanner's noise (0 for exact ranges).
     """
-    from dataclasses import replace
-
     from sim import sensors, world
 
     street = world.Street.generate(seed=seed)

@@ -11,15 +11,16 @@ drivers count the frames they know were dropped in ``drops``. Reconnection lives
 
 from __future__ import annotations
 
-import importlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from acq.records import DeviceInfo, Frame
 from drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
+from drivers.registry import Registry
 
 __all__ = [
+    "CAMERAS",
     "Camera",
     "ConnectionLost",
     "DeviceError",
@@ -114,31 +115,22 @@ class Camera(ABC):
         self.close()
 
 
-_REGISTRY: dict[str, str] = {
-    "opencv": "drivers.camera_opencv:OpenCVCamera",
-    "v4l2": "drivers.camera_v4l2:V4L2Camera",
-}
+CAMERAS: Registry[Camera] = Registry(
+    "camera",
+    Camera,
+    {"opencv": "drivers.camera_opencv:OpenCVCamera", "v4l2": "drivers.camera_v4l2:V4L2Camera"},
+)
 
 
 def camera_driver_names() -> list[str]:
-    return sorted(_REGISTRY)
+    return CAMERAS.names()
 
 
 def camera_class(driver: str) -> type[Camera]:
     """The class registered for a configuration's camera ``driver:`` value."""
-    try:
-        target = _REGISTRY[driver]
-    except KeyError:
-        raise ValueError(
-            f"unknown camera driver {driver!r}; expected one of {', '.join(camera_driver_names())}"
-        ) from None
-    module, _, cls = target.partition(":")
-    found = getattr(importlib.import_module(module), cls)
-    if not (isinstance(found, type) and issubclass(found, Camera)):
-        raise TypeError(f"{target} is not a Camera")
-    return found
+    return CAMERAS.get(driver)
 
 
 def camera_for(driver: str, source: str, **options: Any) -> Camera:
     """A driver instance for ``driver`` (``opencv`` | ``v4l2``) capturing from ``source``."""
-    return camera_class(driver)(source, **options)
+    return CAMERAS.create(driver, source, **options)

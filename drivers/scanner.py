@@ -9,15 +9,16 @@ configuration's ``driver:`` key to a class, the way python-can maps an interface
 
 from __future__ import annotations
 
-import importlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from acq.records import DeviceInfo, Scan
 from drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
+from drivers.registry import Registry
 
 __all__ = [
+    "SCANNERS",
     "ConnectionLost",
     "DeviceError",
     "ProtocolError",
@@ -99,33 +100,22 @@ class Scanner(ABC):
         self.close()
 
 
-# driver name -> "module:Class"; imported on first use so a missing optional
-# dependency of one driver does not break the others.
-_REGISTRY: dict[str, str] = {
-    "hokuyo": "drivers.scip:ScipScanner",
-    "sick": "drivers.cola:ColaScanner",
-}
+SCANNERS: Registry[Scanner] = Registry(
+    "scanner",
+    Scanner,
+    {"hokuyo": "drivers.scip:ScipScanner", "sick": "drivers.cola:ColaScanner"},
+)
 
 
 def driver_names() -> list[str]:
-    return sorted(_REGISTRY)
+    return SCANNERS.names()
 
 
 def scanner_class(driver: str) -> type[Scanner]:
     """The class registered for a configuration's ``driver:`` value."""
-    try:
-        target = _REGISTRY[driver]
-    except KeyError:
-        raise ValueError(
-            f"unknown scanner driver {driver!r}; expected one of {', '.join(driver_names())}"
-        ) from None
-    module, _, cls = target.partition(":")
-    found = getattr(importlib.import_module(module), cls)
-    if not (isinstance(found, type) and issubclass(found, Scanner)):
-        raise TypeError(f"{target} is not a Scanner")
-    return found
+    return SCANNERS.get(driver)
 
 
 def scanner_for(driver: str, url: str, **options: Any) -> Scanner:
     """A driver instance for ``driver`` (``hokuyo`` | ``sick``) talking to ``url``."""
-    return scanner_class(driver)(url, **options)
+    return SCANNERS.create(driver, url, **options)

@@ -10,7 +10,7 @@ from sim.scan_source import StreetSource
 from sim.scanner_models import ScannerModel, model
 from sim.transport import DeviceServer, PtyDeviceServer, SimDevice, TcpDeviceServer
 
-__all__ = ["make_scanner", "serve_scanner"]
+__all__ = ["make_scanner", "parse_listen", "serve_scanner"]
 
 
 def make_scanner(
@@ -43,13 +43,23 @@ def make_scanner(
     return m, ColaDevice(m, source=source, clock=clock, protocol=protocol)
 
 
+def parse_listen(listen: str) -> tuple[str, int]:
+    """(host, port) of a ``tcp://HOST:PORT`` (or ``HOST:PORT``) listen address."""
+    parts = urlsplit(listen if "://" in listen else f"tcp://{listen}")
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme not in ("tcp", "socket") or port is None:
+        raise ValueError(f"--listen {listen!r}: expected tcp://HOST:PORT")
+    return parts.hostname or "127.0.0.1", port
+
+
 def serve_scanner(device: SimDevice, listen: str | None, pty: bool = False) -> DeviceServer:
     """Start serving ``device`` on ``listen`` (tcp://host:port) or on a pty."""
     if pty:
         return PtyDeviceServer(device).start()
     if listen is None:
         return TcpDeviceServer(device).start()
-    parts = urlsplit(listen if "://" in listen else f"tcp://{listen}")
-    if parts.scheme not in ("tcp", "socket") or parts.port is None:
-        raise ValueError(f"--listen {listen!r}: expected tcp://HOST:PORT")
-    return TcpDeviceServer(device, parts.hostname or "127.0.0.1", parts.port).start()
+    host, port = parse_listen(listen)
+    return TcpDeviceServer(device, host, port).start()

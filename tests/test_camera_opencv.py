@@ -1,0 +1,314 @@
+"""The OpenCV camera driver against the simulated MJPEG camera over real HTTP on 127.0.0.1,
+on a video file and an image sequence, and a fuzz of its multipart parser."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.camera import FrameTimeout, camera_for
+from drivers.camera_opencv import OpenCVCamera
+from drivers.errors import ConnectionLost, DeviceError, ProtocolError
+from drivers.mjpeg import MultipartReader, jpeg_size
+from drivers.reconnect import Backoff, CameraLink
+from sim.camera_device import MjpegServer, MjpegServerProcess, SimCamera, jpeg_digest
+from sim.world import Street
+
+EXPOSURE = 0.004
+LATENCY = 0.02
+JITTER = 0.003
+
+
+@pytest.fixture(scope="module")
+def street() -> Street:
+    return Street.generate(seed=5, length_m=200.0)
+
+
+@pytest.fixture(scope="module")
+def server() -> Iterator[MjpegServerProcess]:
+    """One simulated camera in its own process for the fault tests (its renderer would
+    hold this process's GIL and delay the driver's receipt times)."""
+    with MjpegServerProcess(exposure_s=EXPOSURE, latency_s=LATENCY, jitter_s=JITTER, seed=4) as srv:
+        yield srv
+
+
+def _camera(url: str, timeout: float = 1.0) -> OpenCVCamera:
+    return OpenCVCamera(url, fps=25.0, latency_s=EXPOSURE / 2 + LATENCY, timeout=timeout)
+
+
+def test_ten_seconds_at_25_hz_nothing_lost_bytes_exact() -> None:
+    """The sim camera in its own process (its renderer holds the GIL), 10 s of frames."""
+    with MjpegServerProcess(exposure_s=EXPOSURE, latency_s=LATENCY, jitter_s=JITTER, seed=7) as srv:
+        cam = camera_for("opencv", srv.url, fps=25.0, latency_s=EXPOSURE / 2 + LATENCY)
+        info = cam.connect()
+        cam.start()
+        assert info.driver == "opencv" and info.extra["applied"] == "780x582@25 MJPG"
+        assert cam.format is not None and (cam.format.width, cam.format.height) == (780, 582)
+        frames = []
+        t_end = time.monotonic() + 10.0
+        while time.monotonic() < t_end:
+            frames.append(cam.read_frame())
+        cam.close()
+        time.sleep(0.1)  # the server logs t_sent once send() has returned
+        truth = srv.truth()
+    by_digest = {t.digest: t for t in truth if t.status == "sent"}
+    matched = [by_digest[jpeg_digest(f.jpeg)] for f in frames]  # KeyError: bytes altered
+    seq_true = np.array([t.sequence for t in matched])
+    seq_driver = np.array([f.sequence for f in frames])
+    # every frame sent between the first and the last received was received, in order
+    sent = [t.sequence for t in truth if t.status == "sent"]
+    window = [s for s in sent if seq_true[0] <= s <= seq_true[-1]]
+    assert list(seq_true) == window
+    assert len(frames) >= 245
+    assert np.all(seq_driver - seq_true == seq_driver[0] - seq_true[0])
+    assert cam.drops == 0 and cam.corrupt == 0 and cam.frames == len(frames)
+    assert all(f.width == 780 and f.height == 582 and f.time_source == "receipt" for f in frames)
+
+    err = np.array([f.stamp_ns * 1e-9 - t.t_mid for f, t in zip(frames, matched, strict=True)])
+    bias = float(err.mean())
+    spread = err - bias
+    rms = float(np.sqrt(np.mean(spread**2)))
+    p99 = float(np.percentile(np.abs(spread), 99))
+    # the part the driver adds: from the server's send to the driver's receipt stamp
+    transit = np.array([f.recv_ns * 1e-9 - t.t_sent for f, t in zip(frames, matched, strict=True)])
+    print(
+        f"\nframe time error over {len(frames)} frames: bias {bias * 1e3:+.2f} ms "
+        f"(mean random latency of the camera, invisible to the driver), spread about it "
+        f"RMS {rms * 1e3:.2f} ms, p99 {p99 * 1e3:.2f} ms; send-to-receipt median "
+        f"{np.median(transit) * 1e3:.3f} ms, p99 {np.percentile(transit, 99) * 1e3:.3f} ms"
+    )
+    assert 0 <= bias < 0.010
+    assert rms < 0.008
+    assert p99 < 0.025
+
+
+def test_corrupt_jpeg_counted_and_skipped(server: MjpegServerProcess) -> None:
+    cam = _camera(server.url)
+    cam.connect()
+    first = cam.read_frame()
+    server.corrupt_next()
+    frames = [cam.read_frame() for _ in range(4)]
+    cam.close()
+    assert cam.corrupt == 1 and cam.drops == 0
+    seqs = [first.sequence] + [f.sequence for f in frames]
+    assert np.diff(seqs).tolist().count(2) == 1  # the corrupt frame's number is used
+    sent = {t.digest for t in server.truth() if t.status == "sent"}
+    assert all(jpeg_digest(f.jpeg) in sent for f in frames)
+
+
+def test_skipped_frame_is_a_drop(server: MjpegServerProcess) -> None:
+    cam = _camera(server.url)
+    cam.connect()
+    first = cam.read_frame()
+    server.skip_next()
+    frames = [cam.read_frame() for _ in range(4)]
+    cam.close()
+    assert cam.drops == 1 and cam.corrupt == 0
+    gaps = np.diff([first.sequence] + [f.sequence for f in frames]).tolist()
+    assert sorted(gaps) == [1, 1, 1, 2]  # the skipped frame's number is left out
+
+
+def test_stall_times_out_then_recovers(server: MjpegServerProcess) -> None:
+    cam = _camera(server.url, timeout=0.2)
+    cam.connect()
+    cam.read_frame()
+    server.stall(0.6)
+    with pytest.raises(FrameTimeout):
+        for _ in range(5):
+            cam.read_frame()
+    cam.timeout = 1.0
+    before = cam.drops
+    frame = cam.read_frame()  # the same connection carries on
+    assert frame.jpeg and cam.drops - before >= 10
+
+
+def test_dropped_connection_is_connection_lost(server: MjpegServerProcess) -> None:
+    cam = _camera(server.url)
+    cam.connect()
+    cam.read_frame()
+    server.drop_connection()
+    with pytest.raises(ConnectionLost):
+        for _ in range(10):
+            cam.read_frame()
+    cam.close()
+    cam.close()  # twice is fine
+
+
+def test_camera_link_comes_back(server: MjpegServerProcess) -> None:
+    cam = _camera(server.url)
+    link = CameraLink(cam, backoff=Backoff(first=0.1, cap=0.5))
+    stop = threading.Event()
+    got = []
+    for frame in link.frames(stop):
+        got.append(frame)
+        if len(got) == 5:
+            server.drop_connection()
+        if len(got) == 10:
+            server.stall(0.5)
+        if len(got) == 20:
+            stop.set()
+    assert link.disconnects >= 2
+    assert len(got) == 20
+
+
+def test_http_errors() -> None:
+    cam = SimCamera(Street.generate(seed=1, length_m=100.0))
+    with MjpegServer(cam, path="/other.mjpg") as srv:
+        with pytest.raises(DeviceError, match="404"):
+            _camera(f"http://127.0.0.1:{srv.port}/stream.mjpg").connect()
+        port = srv.port
+    with pytest.raises(ConnectionLost):
+        _camera(f"http://127.0.0.1:{port}/stream.mjpg").connect()
+
+
+def test_parts_without_content_length(street: Street) -> None:
+    cam = SimCamera(street, seed=9)
+    with MjpegServer(cam, content_length=False) as srv:
+        drv = _camera(srv.url)
+        drv.connect()
+        frames = [drv.read_frame() for _ in range(3)]
+        drv.close()
+        sent = {t.digest for t in cam.truth() if t.status == "sent"}
+    assert all(jpeg_digest(f.jpeg) in sent for f in frames)
+
+
+def test_decode_verification(server: MjpegServerProcess) -> None:
+    cam = OpenCVCamera(server.url, verify="decode")
+    cam.connect()
+    assert cam.read_frame().width == 780
+    cam.close()
+
+
+# --- VideoCapture path (no hardware) ----------------------------------------------------
+
+
+def _images(n: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(0)
+    return [rng.integers(0, 255, (120, 160, 3), dtype=np.uint8) for _ in range(n)]
+
+
+def test_video_file(tmp_path: Path) -> None:
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"MJPG"), 25.0, (160, 120))
+    assert writer.isOpened()
+    for image in _images(8):
+        writer.write(image)
+    writer.release()
+    cam = OpenCVCamera(str(path), width=640, height=480, fps=25.0, latency_s=0.01)
+    info = cam.connect()
+    cam.start()
+    assert cam.format is not None and (cam.format.width, cam.format.height) == (160, 120)
+    assert info.extra["requested"] == "640x480@25 any"
+    assert info.extra["applied"].startswith("160x120@25")
+    frames = []
+    with pytest.raises(ConnectionLost):
+        while True:
+            frames.append(cam.read_frame())
+    cam.close()
+    assert len(frames) == 8 and cam.frames == 8
+    for i, f in enumerate(frames):
+        assert f.image is not None and f.image.shape == (120, 160, 3) and not f.jpeg
+        assert f.time_source == "receipt"
+        assert f.stamp_ns == f.recv_ns - 10_000_000
+        assert f.sequence == i
+
+
+def test_image_sequence(tmp_path: Path) -> None:
+    for i, image in enumerate(_images(3)):
+        cv2.imwrite(str(tmp_path / f"f{i:03d}.png"), image)
+    cam = OpenCVCamera(str(tmp_path / "f%03d.png"))
+    cam.connect()
+    frames = [cam.read_frame() for _ in range(3)]
+    assert [f.image.shape for f in frames if f.image is not None] == [(120, 160, 3)] * 3
+    cam.close()
+
+
+def test_unopenable_source(tmp_path: Path) -> None:
+    with pytest.raises(DeviceError):
+        OpenCVCamera(str(tmp_path / "missing.avi")).connect()
+
+
+# --- the multipart parser and the JPEG header check ---------------------------------------
+
+
+def _stream(bodies: list[bytes], lengths: bool) -> bytes:
+    out = b""
+    for body in bodies:
+        out += b"--bnd\r\nContent-Type: image/jpeg\r\n"
+        if lengths:
+            out += f"Content-Length: {len(body)}\r\n".encode()
+        out += b"\r\n" + body + b"\r\n"
+    return out + b"--bnd\r\n"
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    bodies=st.lists(st.binary(max_size=300), min_size=1, max_size=5),
+    lengths=st.booleans(),
+    cuts=st.lists(st.integers(min_value=0, max_value=2000), max_size=8),
+)
+def test_parser_any_split(bodies: list[bytes], lengths: bool, cuts: list[int]) -> None:
+    if not lengths:  # without a length, a body cannot hold the delimiter
+        bodies = [b.replace(b"\n--bnd", b"\n-bnd") for b in bodies]
+    data = _stream(bodies, lengths)
+    reader = MultipartReader(b"bnd")
+    got = []
+    last = 0
+    for cut in [*sorted({min(c, len(data)) for c in cuts}), len(data)]:
+        got += reader.feed(data[last:cut])
+        last = cut
+    assert [p.body for p in got] == bodies
+
+
+@settings(max_examples=500, deadline=None)
+@given(data=st.binary(max_size=3000), boundary=st.sampled_from([None, b"bnd", b"--bnd"]))
+def test_parser_any_bytes(data: bytes, boundary: bytes | None) -> None:
+    reader = MultipartReader(boundary)
+    try:
+        for i in range(0, len(data), 97):
+            for part in reader.feed(data[i : i + 97]):
+                assert isinstance(part.body, bytes)
+    except ProtocolError:
+        pass
+
+
+@settings(max_examples=300, deadline=None)
+@given(prefix=st.binary(max_size=200), junk=st.binary(max_size=2000))
+def test_parser_garbage_after_valid(prefix: bytes, junk: bytes) -> None:
+    reader = MultipartReader(b"bnd")
+    try:
+        reader.feed(_stream([prefix], True) + junk)
+    except ProtocolError:
+        pass
+
+
+@settings(max_examples=500, deadline=None)
+@given(data=st.binary(max_size=600))
+def test_jpeg_size_any_bytes(data: bytes) -> None:
+    try:
+        w, h = jpeg_size(b"\xff\xd8" + data)
+        assert w > 0 and h > 0
+    except ProtocolError:
+        pass
+
+
+def test_jpeg_size_real_and_broken() -> None:
+    _, buf = cv2.imencode(".jpg", np.zeros((37, 53, 3), np.uint8))
+    data = buf.tobytes()
+    assert jpeg_size(data) == (53, 37)
+    assert jpeg_size(data + b"\r\n") == (53, 37)
+    _, buf = cv2.imencode(
+        ".jpg", np.zeros((37, 53, 3), np.uint8), [cv2.IMWRITE_JPEG_PROGRESSIVE, 1]
+    )
+    assert jpeg_size(buf.tobytes()) == (53, 37)
+    for broken in (data[: len(data) // 2], data[2:], data[:20] + data[-2:], b""):
+        with pytest.raises(ProtocolError):
+            jpeg_size(broken)

@@ -1,0 +1,233 @@
+"""The simulated camera and its MJPEG-over-HTTP server, read by a plain independent reader."""
+
+from __future__ import annotations
+
+import socket
+import statistics
+import time
+from collections.abc import Iterator
+
+import cv2
+import numpy as np
+import pytest
+
+from sim.camera_device import MjpegServer, SimCamera, jpeg_digest, serve_camera
+from sim.world import Street
+
+
+@pytest.fixture(scope="module")
+def camera_args() -> dict[str, object]:
+    return {"street": Street.generate(seed=3, length_m=200.0)}
+
+
+@pytest.fixture
+def server(camera_args: dict[str, object]) -> Iterator[MjpegServer]:
+    cam = SimCamera(**camera_args, latency_s=0.02, jitter_s=0.003, seed=1)  # type: ignore[arg-type]
+    with MjpegServer(cam) as srv:
+        yield srv
+
+
+class PlainReader:
+    """A deliberately simple multipart reader, independent of drivers.mjpeg."""
+
+    def __init__(self, url_port: int, path: str = "/stream.mjpg", method: str = "GET"):
+        self.sock = socket.create_connection(("127.0.0.1", url_port), timeout=3.0)
+        self.sock.sendall(f"{method} {path} HTTP/1.0\r\nHost: x\r\n\r\n".encode())
+        self.buf = b""
+
+    def _more(self) -> None:
+        data = self.sock.recv(65536)
+        if not data:
+            raise EOFError
+        self.buf += data
+
+    def head(self) -> tuple[str, dict[str, str]]:
+        while b"\r\n\r\n" not in self.buf:
+            self._more()
+        head, self.buf = self.buf.split(b"\r\n\r\n", 1)
+        lines = head.decode("latin-1").split("\r\n")
+        headers = dict(line.split(": ", 1) for line in lines[1:])
+        return lines[0], {k.lower(): v for k, v in headers.items()}
+
+    def line(self) -> bytes:
+        while b"\r\n" not in self.buf:
+            self._more()
+        line, self.buf = self.buf.split(b"\r\n", 1)
+        return line
+
+    def part(self, boundary: bytes = b"acqframe") -> tuple[dict[str, str], bytes, float]:
+        """(headers, body, arrival monotonic s) of the next part."""
+        line = self.line()
+        while line == b"":
+            line = self.line()
+        assert line == b"--" + boundary, line[:80]
+        headers = {}
+        while (line := self.line()) != b"":
+            name, value = line.decode("ascii").split(": ", 1)
+            headers[name.lower()] = value
+        if "content-length" in headers:
+            n = int(headers["content-length"])
+            while len(self.buf) < n + 2:
+                self._more()
+            body, self.buf = self.buf[:n], self.buf[n:]
+            assert self.buf.startswith(b"\r\n")
+        else:
+            delim = b"\r\n--" + boundary
+            while delim not in self.buf:
+                self._more()
+            body, self.buf = self.buf.split(delim, 1)
+            self.buf = b"--" + boundary + self.buf
+        return headers, body, time.monotonic()
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def test_http_framing_and_truth(server: MjpegServer) -> None:
+    reader = PlainReader(server.port)
+    status, headers = reader.head()
+    assert status == "HTTP/1.0 200 OK"
+    assert headers["content-type"] == "multipart/x-mixed-replace; boundary=acqframe"
+    parts = [reader.part() for _ in range(6)]
+    reader.close()
+    truth = {t.digest: t for t in server.camera.truth() if t.status == "sent"}
+    seqs = []
+    for part_headers, body, arrived in parts:
+        assert set(part_headers) == {"content-type", "content-length"}  # no truth leaks
+        assert part_headers["content-type"] == "image/jpeg"
+        assert body[:2] == b"\xff\xd8" and body[-2:] == b"\xff\xd9"
+        image = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_COLOR)
+        assert image.shape == (582, 780, 3)
+        t = truth[jpeg_digest(body)]
+        assert t.size == len(body) and t.t_sent is not None
+        # sent when available, received just after
+        assert -0.001 <= t.t_sent - t.t_available < 0.05
+        assert arrived >= t.t_available and arrived - t.t_sent < 0.1
+        exp = t.exposure_s
+        assert exp / 2 + 0.02 <= t.t_available - t.t_mid <= exp / 2 + 0.02 + 4 * 0.003 + 1e-9
+        seqs.append(t.sequence)
+    assert seqs == list(range(seqs[0], seqs[0] + 6))
+    mids = [truth[jpeg_digest(b)].t_mid for _, b, _ in parts]
+    assert np.allclose(np.diff(mids), 1 / 25, atol=1e-9)
+
+
+def test_two_clients_get_the_same_frames(server: MjpegServer) -> None:
+    a, b = PlainReader(server.port), PlainReader(server.port)
+    a.head(), b.head()
+    time.sleep(0.1)
+    assert server.clients == 2
+    got_a = [jpeg_digest(a.part()[1]) for _ in range(4)]
+    got_b = [jpeg_digest(b.part()[1]) for _ in range(6)]
+    assert set(got_a) & set(got_b)
+    a.close(), b.close()
+
+
+def test_other_paths_and_methods(server: MjpegServer) -> None:
+    reader = PlainReader(server.port, path="/nothing")
+    assert reader.head()[0] == "HTTP/1.0 404 Not Found"
+    reader.close()
+    reader = PlainReader(server.port, method="POST")
+    assert reader.head()[0].startswith("HTTP/1.0 405")
+    reader.close()
+    reader = PlainReader(server.port, path="/stream.mjpg?x=1")  # a query is fine
+    assert reader.head()[0] == "HTTP/1.0 200 OK"
+    reader.close()
+
+
+def test_parts_without_content_length(camera_args: dict[str, object]) -> None:
+    cam = SimCamera(**camera_args, seed=2)  # type: ignore[arg-type]
+    with MjpegServer(cam, content_length=False, boundary="b0undary") as srv:
+        reader = PlainReader(srv.port)
+        assert reader.head()[1]["content-type"].endswith("boundary=b0undary")
+        bodies = [reader.part(b"b0undary") for _ in range(3)]
+        reader.close()
+        sent = {t.digest for t in cam.truth() if t.status == "sent"}
+    for headers, body, _ in bodies:
+        assert "content-length" not in headers
+        assert jpeg_digest(body) in sent
+
+
+def test_faults(server: MjpegServer) -> None:
+    reader = PlainReader(server.port)
+    reader.head()
+    reader.part()
+    server.skip_next()
+    server.corrupt_next()
+    parts = [reader.part() for _ in range(3)]
+    log = {t.sequence: t for t in server.camera.truth()}
+    by_digest = {t.digest: t for t in log.values() if t.digest}
+    seqs = [by_digest[jpeg_digest(body)].sequence for _, body, _ in parts]
+    # skip applies first, then the corrupt frame is the next one sent
+    assert log[seqs[0] - 1].status == "skipped"
+    assert log[seqs[0]].status == "corrupt"
+    assert parts[0][1][-2:] != b"\xff\xd9" and int(parts[0][0]["content-length"]) == len(
+        parts[0][1]
+    )
+    assert seqs[1:] == [seqs[0] + 1, seqs[0] + 2]
+
+    # stall: nothing for the stall's length, the connection stays open
+    server.stall(0.4)
+    t0 = time.monotonic()
+    _, _, arrived = reader.part()
+    assert arrived - t0 > 0.3
+    stalled = [t for t in server.camera.truth() if t.status == "stalled"]
+    assert 8 <= len(stalled) <= 11
+
+    # drop: the client reads end-of-stream, a new client is served again
+    server.drop_connection()
+    with pytest.raises((EOFError, ConnectionResetError)):
+        for _ in range(10):
+            reader.part()
+    reader.close()
+    again = PlainReader(server.port)
+    again.head()
+    again.part()
+    again.close()
+    assert server.connections == 2
+
+
+def test_in_process_frames_and_clock(camera_args: dict[str, object]) -> None:
+    cam = SimCamera(
+        **camera_args,  # type: ignore[arg-type]
+        fps=10.0,
+        clock_offset_s=0.013,
+        drift_ppm=100.0,
+        t_origin=100.0,
+        jitter="uniform",
+    )
+    frames = [cam.next_frame() for _ in range(3)]
+    assert [f.sequence for f in frames] == [0, 1, 2]
+    assert frames[0].t_mid == pytest.approx(100.013 + 0.002)
+    assert frames[2].t_mid - frames[0].t_mid == pytest.approx(0.2 / (1 + 1e-4))
+    truth = cam.truth()
+    assert [t.digest for t in truth] == [jpeg_digest(f.jpeg) for f in frames]
+    # real time: frames come at their availability times
+    cam = SimCamera(**camera_args)  # type: ignore[arg-type]
+    it = cam.frames()
+    first = next(it)
+    second = next(it)
+    assert time.monotonic() >= second.t_available
+    assert second.sequence == first.sequence + 1
+
+
+def test_render_and_encode_keep_25_hz(camera_args: dict[str, object]) -> None:
+    cam = SimCamera(**camera_args)  # type: ignore[arg-type]
+    durations = []
+    for _ in range(12):
+        t0 = time.perf_counter()
+        cam.next_frame()
+        durations.append(time.perf_counter() - t0)
+    median = statistics.median(durations)
+    print(f"render+encode 780x582: median {median * 1e3:.1f} ms per frame")
+    assert median < 1 / 25
+
+
+def test_serve_camera_parses_listen() -> None:
+    srv = serve_camera("http://127.0.0.1:0/cam.mjpg", street=Street.generate(1, 100.0))
+    try:
+        assert srv.url.startswith("http://127.0.0.1:") and srv.url.endswith("/cam.mjpg")
+        assert srv.port != 0
+    finally:
+        srv.close()
+    with pytest.raises(ValueError):
+        serve_camera("tcp://127.0.0.1:80")

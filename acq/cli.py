@@ -46,12 +46,11 @@ def _probe_scanner(args: argparse.Namespace) -> int:
 
 
 def _sim_scanner(args: argparse.Namespace) -> int:
-    import signal
-    import threading
-
-    from sim.devices import make_scanner, serve_scanner
+    from sim.devices import make_scanner, parse_listen, serve_scanner
 
     try:
+        if args.listen is not None:
+            parse_listen(args.listen)  # a bad address fails before the street is built
         m, device = make_scanner(
             args.model, seed=args.seed, drift_ppm=args.drift_ppm, protocol=args.protocol
         )
@@ -64,6 +63,28 @@ def _sim_scanner(args: argparse.Namespace) -> int:
     driver = "hokuyo" if m.vendor == "hokuyo" else "sick"
     print(f"simulated {m.name} ({m.protocol}) on {server.url}", flush=True)
     print(f"try: acq probe scanner --driver {driver} --url {server.url}", flush=True)
+    try:
+        _wait_for_signal()
+    finally:
+        server.close()
+    return 0
+
+
+def _probe_camera(args: argparse.Namespace) -> int:
+    from acq.probe import probe_camera
+
+    if args.count < 1:
+        raise UsageError(f"--count {args.count}: expected 1 or more")
+    return probe_camera(
+        args.driver, args.source, args.count, args.json, args.snapshot, args.fps, args.timeout
+    )
+
+
+def _wait_for_signal() -> None:
+    """Block until Ctrl-C or SIGTERM."""
+    import signal
+    import threading
+
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     try:
@@ -71,9 +92,31 @@ def _sim_scanner(args: argparse.Namespace) -> int:
             pass
     except KeyboardInterrupt:
         pass
+
+
+def _sim_camera(args: argparse.Namespace) -> int:
+    from sim.camera_device import serve_camera
+
+    try:
+        server = serve_camera(args.listen, seed=args.seed)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    except OSError as e:
+        print(f"acq sim camera: {args.listen}: {e.strerror or e}", file=sys.stderr)
+        return 1
+    print(f"simulated fisheye camera (MJPEG over HTTP) on {server.url}", flush=True)
+    print(f"try: acq probe camera --driver opencv --source {server.url}", flush=True)
+    try:
+        _wait_for_signal()
     finally:
         server.close()
     return 0
+
+
+def _devices(args: argparse.Namespace) -> int:
+    from acq.devices import main_devices
+
+    return main_devices(args.json, args.reset)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -158,6 +201,56 @@ def build_parser() -> argparse.ArgumentParser:
     pscan.add_argument("--json", action="store_true", help="JSON lines instead of text")
     pscan.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for data")
     pscan.set_defaults(handler=_probe_scanner)
+
+    from drivers.camera import camera_driver_names
+
+    pcam = probe_sub.add_parser(
+        "camera",
+        help="grab N frames: size, rate, timestamps, drops",
+        description="Open one camera, print the format it applied, then N frames with their "
+        "sequence numbers and times (the middle of exposure, and where that time came from), "
+        "the measured rate and the frames known to be dropped.",
+    )
+    pcam.add_argument("--driver", required=True, choices=camera_driver_names())
+    pcam.add_argument(
+        "--source",
+        required=True,
+        help="opencv: an index, /dev/videoN, an http(s)/rtsp URL or a GStreamer pipeline; "
+        "v4l2: /dev/videoN or /dev/v4l/by-id/...",
+    )
+    pcam.add_argument("--count", type=int, default=25, help="frames to grab (default 25)")
+    pcam.add_argument("--fps", type=float, default=25.0, help="frame rate to request")
+    pcam.add_argument("--json", action="store_true", help="JSON lines instead of text")
+    pcam.add_argument("--snapshot", metavar="PNG", help="write the last frame to this PNG")
+    pcam.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for a frame")
+    pcam.set_defaults(handler=_probe_camera)
+
+    simcam = sim_sub.add_parser(
+        "camera",
+        help="serve one simulated camera as MJPEG over HTTP",
+        description="Serve the simulated 185-degree fisheye, rendering the synthetic street at "
+        "25 Hz on its own clock, as an MJPEG stream (multipart/x-mixed-replace) over HTTP. "
+        "Runs until Ctrl-C or SIGTERM.",
+    )
+    simcam.add_argument(
+        "--listen",
+        help="http://HOST:PORT/PATH to serve on (default: 127.0.0.1, a free port, /stream.mjpg)",
+    )
+    simcam.add_argument("--seed", type=int, default=0, help="street seed")
+    simcam.set_defaults(handler=_sim_camera)
+
+    devices = sub.add_parser(
+        "devices",
+        help="list attached scanners, cameras, serial ports, CAN interfaces",
+        description="List what this machine has attached that a rig uses: USB devices by "
+        "vendor and product, serial ports with their stable /dev/serial/by-id names, V4L2 "
+        "cameras, CAN interfaces; each with the configuration line to paste.",
+    )
+    devices.add_argument("--json", action="store_true", help="JSON instead of text")
+    devices.add_argument(
+        "--reset", metavar="BUS:ADDR", help="reset a wedged USB device (e.g. 001:004)"
+    )
+    devices.set_defaults(handler=_devices)
     return p
 
 

@@ -130,7 +130,8 @@ class ColaDevice:
             return b""
         period = self.model.scan_period
         latest = math.floor((now - self.clock.epoch) / period) - 1  # last fully sent scan
-        if latest - self._next_k > 5:  # far behind (host busy): the device moved on
+        # far behind (the host was busy for over a second): the device moved on
+        if (latest - self._next_k) * period > 1.0:
             self._next_k = latest
         out = []
         while self._scan_start(self._next_k) + period <= now:

@@ -100,9 +100,10 @@ def test_http_framing_and_truth(server: MjpegServer) -> None:
         assert image.shape == (582, 780, 3)
         t = truth[jpeg_digest(body)]
         assert t.size == len(body) and t.t_sent is not None
-        # sent when available, received just after
-        assert -0.001 <= t.t_sent - t.t_available < 0.05
-        assert arrived >= t.t_available and arrived - t.t_sent < 0.1
+        # sent when available, received just after (generous bounds: the suite shares
+        # two cores, and the renderer holds the GIL for ~20 ms a frame)
+        assert -0.001 <= t.t_sent - t.t_available < 0.15
+        assert arrived >= t.t_available and arrived - t.t_sent < 0.2
         exp = t.exposure_s
         assert exp / 2 + 0.02 <= t.t_available - t.t_mid <= exp / 2 + 0.02 + 4 * 0.003 + 1e-9
         seqs.append(t.sequence)

@@ -127,10 +127,12 @@ def render_scan(
     dirs = np.einsum("nij,nj->ni", Rw, d_laser)
     hit = cast(street, origins, dirs)
     true = hit.distance
-    echo = np.isfinite(true) & (true <= rig.max_range)
     noisy = true + rng.normal(0.0, rig.range_noise, true.shape) if rig.range_noise else true
-    ranges = np.where(echo, noisy, np.inf)
-    ranges = np.where(echo & (true < rig.min_range), -np.inf, ranges)
+    # the device applies its limits to what it measured, noise included
+    with np.errstate(invalid="ignore"):
+        echo = np.isfinite(true) & (noisy <= rig.max_range)
+        ranges = np.where(echo, noisy, np.inf)
+        ranges = np.where(echo & (noisy < rig.min_range), -np.inf, ranges)
     points = np.where(echo[:, None], origins + dirs * np.where(echo, true, 0.0)[:, None], np.nan)
     return ScanTruth(
         t0=float(t0),

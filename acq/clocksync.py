@@ -21,7 +21,10 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-__all__ = ["DeviceClock", "Unwrapper"]
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["DeviceClock", "Unwrapper", "retime_offline"]
 
 
 @dataclass
@@ -179,3 +182,109 @@ class DeviceClock:
         x = self.unwrapper.nearest(tick) / self.tick_hz - self._x0
         a, b = self._line
         return self._y0_ns + round((a + b * x) * 1e9)
+
+
+def _lower_hull(xs: np.ndarray, ys: np.ndarray) -> list[int]:
+    """Indices of the lower convex hull of points sorted by x."""
+    hull: list[int] = []
+    for i in range(xs.size):
+        while len(hull) >= 2:
+            a, b = hull[-2], hull[-1]
+            if (xs[b] - xs[a]) * (ys[i] - ys[a]) - (ys[b] - ys[a]) * (xs[i] - xs[a]) <= 0:
+                hull.pop()
+            else:
+                break
+        hull.append(i)
+    return hull
+
+
+def _periodic_device_times(u: np.ndarray, tick_hz: float) -> np.ndarray | None:
+    """Device seconds of a periodic stream's stamps, finer than its ticks.
+
+    A scanner's stamps come once a turn: the true stamp of turn k is ``phase + k·period``
+    and the device reports ``floor`` of it in ticks. A straight line through
+    (k, tick + 1/2) recovers the stamps to far better than a tick when the period is not
+    a whole number of ticks (it never is exactly). None when the stream is not periodic
+    to within a tick.
+    """
+    if u.size < 20:
+        return None
+    steps = np.diff(u)
+    period = float(np.median(steps))
+    if period <= 0:
+        return None
+    # turn numbers, counting a gap of n periods as n turns
+    turns = np.round(steps / period)
+    if np.any(turns <= 0):
+        return None
+    k = np.concatenate([[0.0], np.cumsum(turns)])
+    coef = np.polyfit(k, u + 0.5, 1)
+    fit = np.polyval(coef, k)
+    if np.max(np.abs(fit - (u + 0.5))) > 1.0:  # more than the quantisation: not periodic
+        return None
+    return fit / tick_hz
+
+
+def retime_offline(
+    ticks: npt.ArrayLike,
+    recv_ns: npt.ArrayLike,
+    tick_hz: float,
+    wrap_bits: int,
+    *,
+    window_s: float = 120.0,
+    bucket_s: float = 0.5,
+    max_drift_ppm: float = 500.0,
+) -> np.ndarray:
+    """Host ns of every stamp of a whole log, using past and future samples alike.
+
+    Per device-clock epoch: unwrap the ticks; for a periodic stream (a scanner's turns)
+    replace each tick by the fitted stamp; then, for every ``bucket_s`` of device time,
+    take the lower convex hull of the earliest arrivals within ``window_s`` centred on
+    it and the hull edge under its centre, as :class:`DeviceClock` does online but
+    looking both ways. Returns float64 ns (same order as the input).
+    """
+    ticks = np.asarray(ticks, dtype=np.int64)
+    recv = np.asarray(recv_ns, dtype=np.int64)
+    unwrapper = Unwrapper(tick_hz, wrap_bits)
+    u = np.empty(ticks.size, dtype=np.float64)
+    epochs = np.empty(ticks.size, dtype=np.int64)
+    for i, (t, r) in enumerate(zip(ticks.tolist(), recv.tolist(), strict=True)):
+        u[i] = unwrapper.unwrap(t, r)
+        epochs[i] = unwrapper.epoch
+    out = np.empty(ticks.size, dtype=np.float64)
+    max_drift = max_drift_ppm * 1e-6
+    for epoch in np.unique(epochs):
+        sel = np.flatnonzero(epochs == epoch)
+        dev = _periodic_device_times(u[sel], tick_hz)
+        # the middle of a tick is the best guess of when within it the stamp was taken
+        x = dev if dev is not None else (u[sel] + 0.5) / tick_hz
+        x0, y0 = x[0], recv[sel[0]]
+        x = x - x0
+        y = (recv[sel] - y0) * 1e-9
+        # earliest arrival (least y - x) in each bucket
+        b = np.floor(x / bucket_s).astype(np.int64)
+        order = np.lexsort((y - x, b))
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = b[order][1:] != b[order][:-1]
+        keep = order[first]
+        bx, by = x[keep], y[keep]
+        est = np.empty(sel.size)
+        for bucket in np.unique(b):
+            centre = (bucket + 0.5) * bucket_s
+            near = np.flatnonzero(np.abs(bx - centre) <= window_s / 2)
+            hx, hy = bx[near], by[near]
+            hull = _lower_hull(hx, hy)
+            members = b == bucket
+            if len(hull) == 1:
+                a, slope = hy[hull[0]] - hx[hull[0]], 1.0
+            else:
+                j = 0
+                while j < len(hull) - 2 and hx[hull[j + 1]] < centre:
+                    j += 1
+                i1, i2 = hull[j], hull[j + 1]
+                slope = (hy[i2] - hy[i1]) / (hx[i2] - hx[i1])
+                slope = min(max(slope, 1.0 - max_drift), 1.0 + max_drift)
+                a = min(hy[i1] - slope * hx[i1], hy[i2] - slope * hx[i2])
+            est[members] = a + slope * x[members]
+        out[sel] = y0 + est * 1e9
+    return out

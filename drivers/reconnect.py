@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 from urllib.parse import urlsplit
 
+from acq.clocksync import Unwrapper
 from acq.records import DeviceInfo, Frame, Scan
 from drivers.camera import Camera
 from drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
@@ -238,7 +239,8 @@ class Reconnecting(Relink[Scan]):
         super().__init__(scanner, scanner.read_scan, **options)
         self.scanner = scanner
         self.clock_resets = 0
-        self._last_tick: tuple[int, int] | None = None  # (device tick, host ns)
+        cls = type(scanner)
+        self._unwrapper = Unwrapper(cls.tick_hz, cls.tick_bits)  # detects restarts
 
     def period(self) -> float | None:
         geometry = self.scanner.geometry
@@ -250,22 +252,15 @@ class Reconnecting(Relink[Scan]):
     def _check_clock(self, scan: Scan) -> None:
         if not scan.device_ticks:
             return
-        tick = scan.device_ticks[0]
-        hz, bits = type(self.scanner).tick_hz, type(self.scanner).tick_bits
-        if self._last_tick is not None:
-            last, last_ns = self._last_tick
-            elapsed = (scan.recv_ns - last_ns) * 1e-9
-            expected = (last + elapsed * hz) % (1 << bits)
-            diff = (tick - expected + (1 << (bits - 1))) % (1 << bits) - (1 << (bits - 1))
-            # a healthy clock agrees with the host within latency and drift
-            if abs(diff) > hz * (0.5 + 0.001 * elapsed):
-                self.clock_resets += 1
-                self._emit(
-                    "clock_reset",
-                    f"device clock read {tick} where {expected:.0f} was expected "
-                    f"({diff / hz:+.3f} s): the device restarted its clock",
-                )
-        self._last_tick = (tick, scan.recv_ns)
+        epoch = self._unwrapper.epoch
+        self._unwrapper.unwrap(scan.device_ticks[0], scan.recv_ns)
+        if self._unwrapper.epoch != epoch:
+            self.clock_resets += 1
+            self._emit(
+                "clock_reset",
+                f"device clock read {scan.device_ticks[0]}, which the host time since the "
+                "last scan cannot explain: the device restarted its clock",
+            )
 
     def scans(self, stop: threading.Event | None = None) -> Iterator[Scan]:
         """Scans until ``stop`` is set (forever without one)."""

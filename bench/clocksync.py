@@ -2,8 +2,9 @@
 per scenario and method.
 
 Simulated streams with a known truth: ten minutes of device time, drift 50 or 100
-ppm, 1 ms ticks (Hokuyo, 24-bit, 25 ms scans with the motor slightly off the tick grid)
-or 1 µs ticks (SICK, 32-bit, 20 ms scans), latency 1 ms + exponential (mean 2 ms), 1 %
+ppm, 1 ms ticks (Hokuyo, 24-bit, 25 ms scans with the motor slightly off the tick grid,
+and exactly on it: the stamp's phase in its tick then never moves) or 1 µs ticks (SICK,
+32-bit, 20 ms scans), latency 1 ms + exponential (mean 2 ms), 1 %
 spikes of 20-80 ms, and bursts (the host stalls 0.3 s every 30 s and gets the held
 telegrams at once); plus one latency law the estimator was not designed on (lognormal).
 Methods, all in the same run: (a) stamping on receipt, (b) an exponential moving
@@ -106,6 +107,7 @@ def main() -> None:
     scenarios = [
         (name, hz, bits, period, drift, latency)
         for name, hz, bits, period in (("1ms_ticks", 1000.0, 24, 0.0250013),
+                                       ("1ms_ticks_on_grid", 1000.0, 24, 0.025),
                                        ("1us_ticks", 1e6, 32, 0.02))
         for drift in (50.0, 100.0)
         for latency in ("designed", "lognormal")

@@ -330,6 +330,7 @@ class ColaScanner(Scanner):
             sd.time_increment,
             g.range_min,
             g.range_max,
+            0.0,  # LMDscandata's time stamp is that of the first point
         )
 
     def _poll_scan(self) -> ScanData:

@@ -43,7 +43,9 @@ class ScanGeometry:
 
     Angles in radians (0 along x, counter-clockwise about z), times in seconds, ranges
     in metres. ``n_points`` is the number of points the driver delivers per scan (after
-    any cropping).
+    any cropping). ``stamp_offset_s`` is the time from the instant the device's time
+    stamp refers to until point 0 was measured (Hokuyo stamps a fixed step behind the
+    sensor, not the first point; SICK stamps the first point).
     """
 
     angle_min: float
@@ -53,6 +55,7 @@ class ScanGeometry:
     time_increment: float
     range_min: float
     range_max: float
+    stamp_offset_s: float = 0.0
 
     @property
     def angle_max(self) -> float:

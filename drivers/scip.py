@@ -50,7 +50,9 @@ class LatencyEstimate:
     """TM round trips, seconds. ``one_way`` = min RTT / 2 bounds the constant latency.
 
     ``spread`` = median - min RTT (jitter); ``offset_s`` = device time minus host time at
-    the min-RTT sample (device ms counter, not unwrapped), for information.
+    the min-RTT sample (device ms counter, not unwrapped), for information. ``samples``
+    holds every round trip as (host ns sent, device tick, host ns received), for
+    :func:`acq.clocksync.latency_bounds`.
     """
 
     n: int
@@ -60,6 +62,7 @@ class LatencyEstimate:
     one_way: float
     spread: float
     offset_s: float
+    samples: tuple[tuple[int, int, int], ...] = ()
 
 
 class ScipScanner(Scanner):
@@ -273,6 +276,7 @@ class ScipScanner(Scanner):
             self.stop()
         self._command("TM0", ok=("00", "02"))
         rtts: list[float] = []
+        samples: list[tuple[int, int, int]] = []
         best = (float("inf"), 0.0)
         try:
             for _ in range(n):
@@ -285,6 +289,7 @@ class ScipScanner(Scanner):
                 tick = decode_int(reply.lines[0])
                 rtt = (t1 - t0) * 1e-9
                 rtts.append(rtt)
+                samples.append((t0, tick, t1))
                 if rtt < best[0]:
                     best = (rtt, tick * 1e-3 - (t0 + t1) * 0.5e-9)
         finally:
@@ -299,6 +304,7 @@ class ScipScanner(Scanner):
             one_way=rmin / 2,
             spread=med - rmin,
             offset_s=best[1],
+            samples=tuple(samples),
         )
 
     def sleep(self) -> None:

@@ -319,17 +319,25 @@ class ScipParams:
             raise ValueError(f"angle range [{angle_min}, {angle_max}] rad selects no step")
         return start, end
 
+    @property
+    def stamp_step(self) -> int:
+        """The step a scan's time stamp refers to: straight behind the sensor (angle
+        -pi), where the turn starts; urg_node and Hokuyo's URG library assume the same."""
+        return self.afrt - self.ares // 2
+
     def geometry(self, start: int, end: int, cluster: int = 1, interval: int = 0) -> ScanGeometry:
         """The REP-103 geometry of the points of a scan from step start to end, clustered."""
         c = max(cluster, 1)
+        step_dt = self.scan_period / self.ares
         return ScanGeometry(
             angle_min=self.angle_of_step(start),
             angle_increment=c * self.step_angle,
             n_points=-(-(end - start + 1) // c),
             scan_period=self.scan_period * (interval + 1),
-            time_increment=c * self.scan_period / self.ares,
+            time_increment=c * step_dt,
             range_min=self.dmin / 1000.0,
             range_max=self.dmax / 1000.0,
+            stamp_offset_s=(start - self.stamp_step) * step_dt,
         )
 
 

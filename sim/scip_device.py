@@ -39,6 +39,7 @@ class SentScan:
     command: str
     timestamp: int
     t0: float  # true time of step 0, s
+    t_stamp: float  # true time the timestamp refers to (the step behind the sensor), s
     start: int
     end: int
     cluster: int
@@ -411,7 +412,9 @@ class ScipDevice:
     ) -> bytes:
         m = self.model
         t0 = self._t0(k)
-        ts = self.clock.ticks(t0)
+        # the stamp refers to the step straight behind the sensor, as on the real devices
+        t_stamp = t0 + (m.afrt - m.ares // 2) * self.step_dt
+        ts = self.clock.ticks(t_stamp)
         ranges, intens = self.source.scan(t0 + m.amin * self.step_dt)
         sel = slice(start - m.amin, end - m.amin + 1)
         codes = self._codes(np.asarray(ranges, dtype=np.float64)[sel])
@@ -476,6 +479,7 @@ class ScipDevice:
                 op,
                 ts,
                 t0,
+                t_stamp,
                 start,
                 end,
                 cluster,

@@ -8,10 +8,10 @@ each request with the LMS111's recorded answer.
 
 from __future__ import annotations
 
-import json
 import math
 import struct
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from acq.wireshark_json import Packet, Stream, read_packets, reassemble, split_directions
 from drivers.cola import ColaScanner, parse_url
 from drivers.cola_codec import (
     ArgReader,
@@ -45,42 +46,37 @@ CAPTURE = (
 REQUESTS = (b"sMN", b"sRN", b"sWN", b"sEN")
 
 
-def _load_capture() -> tuple[list[bytes], list[bytes], int]:
-    """(host payloads, device payloads) in order, TCP retransmissions dropped; and the
-    number dropped. Direction comes from the command type (requests sMN/sRN/sWN/sEN);
-    a payload that does not start a telegram continues its predecessor's direction. A
-    retransmission repeats the previous payload of its direction byte for byte."""
+def _from_device(payload: bytes) -> bool | None:
+    """The export has no addresses: direction from the command type (host requests are
+    sMN/sRN/sWN/sEN); a payload that does not start a telegram continues its
+    predecessor's direction."""
+    if payload[:4] != b"\x02\x02\x02\x02":
+        return None
+    return payload[8:11] not in REQUESTS
+
+
+@dataclass(frozen=True)
+class Capture:
+    """The session's packets and both directions' streams, TCP retransmissions dropped."""
+
+    packets: dict[int, Packet]  # by element index
+    host: Stream  # host to device
+    device: Stream  # device to host
+
+
+@pytest.fixture(scope="module")
+def capture() -> Capture:
     if not CAPTURE.is_file():
         pytest.skip(f"{CAPTURE} is absent: the real LMS111 capture is needed")
-    packets = json.loads(CAPTURE.read_text())
-    host: list[bytes] = []
-    device: list[bytes] = []
-    dropped = 0
-    to_host = True
-    for pkt in packets:
-        hexes = pkt["_source"]["layers"]["tcp"].get("tcp.payload", "")
-        payload = bytes.fromhex(hexes.replace(":", ""))
-        if not payload:
-            continue
-        if payload[:4] == b"\x02\x02\x02\x02":
-            to_host = payload[8:11] not in REQUESTS
-        side = device if to_host else host
-        if side and side[-1] == payload:
-            dropped += 1
-            continue
-        side.append(payload)
-    return host, device, dropped
+    packets = read_packets(CAPTURE)
+    to_device, from_device = split_directions(packets, from_server=_from_device)
+    return Capture({p.index: p for p in packets}, reassemble(to_device), reassemble(from_device))
 
 
 @pytest.fixture(scope="module")
-def capture() -> tuple[list[bytes], list[bytes], int]:
-    return _load_capture()
-
-
-@pytest.fixture(scope="module")
-def device_telegrams(capture: tuple[list[bytes], list[bytes], int]) -> list[Telegram]:
+def device_telegrams(capture: Capture) -> list[Telegram]:
     framer = ColaFramer("b")
-    framer.feed(b"".join(capture[1]))
+    framer.feed(capture.device.data)
     items = list(framer.items())
     assert all(isinstance(t, Telegram) for t in items)
     assert framer.skipped == 0 and framer.pending == 0
@@ -99,11 +95,20 @@ def real_scans(device_telegrams: list[Telegram]) -> list[ScanData]:
 # --- the real capture -----------------------------------------------------------------
 
 
-def test_capture_has_172_distinct_scans(capture, real_scans: list[ScanData]) -> None:
+def test_capture_has_172_distinct_scans(capture: Capture, real_scans: list[ScanData]) -> None:
     # 3 scans and 3 answers (sRA field023, sRA LIDinputstate, sEA LIDinputstate) are
-    # TCP retransmissions in the capture.
-    assert capture[2] == 6
-    scans = [p for p in capture[1] if p[8:23] == b"sSN LMDscandata"]
+    # TCP retransmissions in the capture: exact repeats of a payload already kept.
+    assert capture.host.dropped == ()
+    repeats = [capture.packets[i].payload for i in capture.device.dropped]
+    assert len(repeats) == 6
+    pieces = capture.device.pieces()
+    assert all(r in pieces for r in repeats)
+    names = sorted(b" ".join(r[8:].split(b" ")[:2]) for r in repeats)
+    assert (
+        names
+        == [b"sEA LIDinputstate", b"sRA LIDinputstate", b"sRA field023"] + [b"sSN LMDscandata"] * 3
+    )
+    scans = [p for p in pieces if p[8:23] == b"sSN LMDscandata"]
     assert len(scans) == 172 and len(set(scans)) == 172
     assert len(real_scans) == 172
     counters = [s.scan_counter for s in real_scans]
@@ -151,8 +156,8 @@ def test_capture_encode_roundtrip(real_scans: list[ScanData]) -> None:
         assert a.angle_min == s.angle_min
 
 
-def test_capture_chunked_stream(capture, device_telegrams: list[Telegram]) -> None:
-    stream = b"".join(capture[1])
+def test_capture_chunked_stream(capture: Capture, device_telegrams: list[Telegram]) -> None:
+    stream = capture.device.data
     rng = np.random.default_rng(1)
     framer = ColaFramer()
     got: list[bytes] = []
@@ -179,9 +184,9 @@ def test_capture_control_answers(device_telegrams: list[Telegram]) -> None:
     assert by["sWA", "EIHstCola"].payload == b"sWA EIHstCola "
 
 
-def test_capture_requests_match_our_encoding(capture) -> None:
+def test_capture_requests_match_our_encoding(capture: Capture) -> None:
     """Our request builder gives the bytes the recorded host driver sent."""
-    sent = set(capture[0])
+    sent = set(capture.host.pieces())
     ours = [
         build("sMN", "SetAccessMode", [("u8", 3), ("u32", 0xF4724744)], binary=True),
         build("sRN", "FirmwareVersion", binary=True),
@@ -249,8 +254,8 @@ class ReplayDevice:
         pass
 
 
-def test_driver_against_recorded_lms111(capture) -> None:
-    device = ReplayDevice(capture[0], capture[1])
+def test_driver_against_recorded_lms111(capture: Capture) -> None:
+    device = ReplayDevice(capture.host.pieces(), capture.device.pieces())
     with TcpDeviceServer(device) as server:
         scanner = ColaScanner(server.url, timeout=2.0)
         info = scanner.connect()

@@ -6,9 +6,10 @@ runs in its own process (``acq sim scanner``); a thread of this process reads it
 the real driver (``drivers.scip.ScipScanner``) for ``--seconds``, in three conditions:
 ``idle``; ``busy_gil``, one more thread doing pure-Python work that holds the GIL (a
 writer serialising messages by hand); ``busy_nogil``, one more thread doing zlib and
-numpy work that releases the GIL (compression). CPython hands the GIL to a waiting
-thread only every ``sys.getswitchinterval()`` (5 ms), and the reader waits for it after
-each blocking call.
+numpy work that releases the GIL (compression); ``busy_gil_switch_1ms``, the first
+again with the thread switch interval lowered to 1 ms (what ``acq record`` does).
+CPython hands the GIL to a waiting thread only every ``sys.getswitchinterval()`` (5 ms
+by default), and the reader waits for it after each blocking call.
 
 Per condition: the delays above the lower envelope of (device s, host receive s), from
 ``acq.clocksync.fit_drift``'s line (``jitter_*``: on the raw ms ticks, which quantise
@@ -116,10 +117,13 @@ def nogil_work() -> None:
     np.multiply(_B, 1.000001, out=_B)
 
 
-WORK: dict[str, Callable[[], None] | None] = {
-    "idle": None,
-    "busy_gil": gil_work,
-    "busy_nogil": nogil_work,
+# condition: (busy work, thread switch interval in s); the last is the remedy the
+# recorder applies (sys.setswitchinterval(0.001)) against the first's cost
+WORK: dict[str, tuple[Callable[[], None] | None, float]] = {
+    "idle": (None, 0.005),
+    "busy_gil": (gil_work, 0.005),
+    "busy_nogil": (nogil_work, 0.005),
+    "busy_gil_switch_1ms": (gil_work, 0.001),
 }
 
 
@@ -247,9 +251,15 @@ def main() -> int:
         proc, url = start_simulator(err)
         try:
             record(url, 2.0, None)  # warm-up: the simulator compiles its ray caster
-            for condition, work in WORK.items():
-                log = record(url, args.seconds, work)
+            default_switch = sys.getswitchinterval()
+            for condition, (work, switch_s) in WORK.items():
+                sys.setswitchinterval(switch_s)
+                try:
+                    log = record(url, args.seconds, work)
+                finally:
+                    sys.setswitchinterval(default_switch)
                 figures = analyse(log, args.seconds)
+                figures["switch_interval_ms"] = switch_s * 1e3
                 print(json.dumps({**head, "condition": condition, **figures}), flush=True)
         except RuntimeError as e:
             err.seek(0)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 from acq import __version__
 
@@ -110,6 +111,41 @@ def _sim_camera(args: argparse.Namespace) -> int:
         _wait_for_signal()
     finally:
         server.close()
+    return 0
+
+
+_DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "config" / "sim.yaml"
+
+
+def _record(args: argparse.Namespace) -> int:
+    from acq import config as configfile
+    from acq import recorder
+
+    recorder.setup_logging(args.verbose)
+    try:
+        cfg = configfile.load(args.config or _DEFAULT_CONFIG)
+        return recorder.record(cfg, out_dir=args.out, duration_s=args.duration)
+    except configfile.ConfigError as e:
+        raise UsageError(str(e)) from None
+    except recorder.RecorderError as e:
+        raise UsageError(str(e)) from None
+
+
+def _info(args: argparse.Namespace) -> int:
+    from acq import loginfo
+
+    try:
+        if args.repair:
+            for src in args.logs:
+                dst = args.output if args.output else src.with_suffix(".repaired.mcap")
+                n = loginfo.repair(src, dst)
+                print(f"{src} -> {dst}: {n} messages, indexed")
+            return 0
+        print(loginfo.format_info(loginfo.info_many(args.logs), json=args.json))
+    except loginfo.LogError as e:
+        raise UsageError(str(e)) from None
+    except FileExistsError as e:
+        raise UsageError(f"{e.filename}: exists; not overwritten") from None
     return 0
 
 
@@ -238,6 +274,47 @@ def build_parser() -> argparse.ArgumentParser:
     )
     simcam.add_argument("--seed", type=int, default=0, help="street seed")
     simcam.set_defaults(handler=_sim_camera)
+
+    rec = sub.add_parser(
+        "record",
+        help="record the rig's devices to MCAP (the daemon systemd runs)",
+        description="Record every scanner and camera of a configuration into MCAP files: "
+        "one thread per device, reconnection with backoff, device clocks mapped to the host "
+        "clock, zstd chunks fsynced every second, files split by size and duration. Ctrl-C "
+        "or SIGTERM finish the file. Exit status: 0 stopped, 1 runtime failure, 2 bad "
+        "configuration, 3 disk below its reserve (the file is closed first).",
+    )
+    rec.add_argument(
+        "-c", "--config", help="configuration YAML (default: config/sim.yaml, the simulated rig)"
+    )
+    rec.add_argument("--out", type=Path, help="output folder (default: the config's output.dir)")
+    rec.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="stop after S seconds (default: run until stopped)",
+    )
+    rec.add_argument("-v", "--verbose", action="store_true", help="debug log lines")
+    rec.set_defaults(handler=_record)
+
+    info = sub.add_parser(
+        "info",
+        help="channels, rates, gaps, drops and clock-sync quality of logs",
+        description="Summarise MCAP logs: channels with counts, rates and gaps; time span; "
+        "drops and disconnects per device; clock-sync quality (drift, uncertainty, receive "
+        "minus stamp). Several files of one session are summarised together too. A file "
+        "whose writer was killed is read up to the cut and reported as not closed; "
+        "--repair writes an indexed copy of it.",
+    )
+    info.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files")
+    info.add_argument("--json", action="store_true", help="JSON instead of text")
+    info.add_argument(
+        "--repair",
+        action="store_true",
+        help="write an indexed copy of each LOG (LOG.repaired.mcap, or --output)",
+    )
+    info.add_argument("-o", "--output", type=Path, help="with --repair and one LOG: the copy")
+    info.set_defaults(handler=_info)
 
     devices = sub.add_parser(
         "devices",

@@ -39,5 +39,6 @@ class Registry(Generic[T]):
             raise TypeError(f"{target} is not a {self.base.__name__}")
         return cast(type[T], found)
 
-    def create(self, name: str, *args: Any, **options: Any) -> T:
-        return self.get(name)(*args, **options)
+    def create(self, driver: str, /, *args: Any, **options: Any) -> T:
+        """An instance of ``driver``'s class (``options`` may include the device's ``name``)."""
+        return self.get(driver)(*args, **options)

@@ -1,0 +1,630 @@
+"""`acq record`: every device of a configuration into rolling MCAP files.
+
+One thread per device reads records through its driver (reconnecting with backoff),
+applies the device clock, and hands them to one writer thread through a bounded queue:
+a slow disk drops records (counted per device), it never blocks a reader. The writer
+encodes (Foxglove protobuf schemas, the raw telegrams, the timing), writes, ends and
+fsyncs the chunk every second, publishes ``/acq/status`` and ``/acq/clock`` at 1 Hz,
+pings the systemd watchdog, and watches the disk: below the configured reserve it
+closes the file and the recorder exits with :data:`EXIT_DISK_FULL`.
+
+Exit codes: 0 stopped (signal or ``--duration``), 1 runtime failure, 2 bad
+configuration, 3 disk below its reserve (listed in the unit's ``RestartPreventExitStatus``).
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import os
+import queue
+import shutil
+import socket
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from acq import calibfile, schemas
+from acq.calibfile import Calibration
+from acq.clocksync import DeviceClock, latency_bounds
+from acq.config import CameraConfig, Config, ScannerConfig
+from acq.mcap_log import LogWriter
+from acq.records import Frame, Scan
+from acq.sdnotify import Notifier
+from acq.sync import scan_start_ns
+
+__all__ = ["EXIT_DISK_FULL", "Recorder", "RecorderError"]
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_DISK_FULL = 3
+
+log = logging.getLogger("acq.record")
+
+QUEUE_SIZE = 512  # records; at 25 frames/s of ~60 kB that is 20 s of a stalled disk
+STATUS_PERIOD_S = 1.0
+DRAIN_S = 1.0  # on stop: the time left to write what is queued before the file closes
+
+
+class RecorderError(RuntimeError):
+    """The recorder cannot start (a calibration that cannot be read, an output folder
+    that cannot be written)."""
+
+
+@dataclass
+class DeviceState:
+    """What the status reports of one device; updated by its thread, read by the writer."""
+
+    name: str
+    kind: str  # scanner | camera
+    connected: bool = False
+    received: int = 0
+    dropped: int = 0  # queue full: the writer could not keep up
+    source_drops: int = 0  # lost before us (a camera's sequence gaps)
+    corrupt: int = 0
+    disconnects: int = 0
+    protocol_errors: int = 0
+    last_recv_ns: int = 0
+    last_event: str = ""
+    clock: DeviceClock | None = None
+    latency_s: float = 0.0
+    latency_bounds_s: tuple[float, float] | None = None
+    times: deque[int] = field(default_factory=lambda: deque(maxlen=256))  # recent recv ns
+
+    def rate_hz(self, now_ns: int) -> float:
+        recent = [t for t in self.times if now_ns - t <= 2_000_000_000]
+        if len(recent) < 2:
+            return 0.0
+        return (len(recent) - 1) / ((recent[-1] - recent[0]) * 1e-9)
+
+
+@dataclass(frozen=True)
+class _ScanItem:
+    device: str
+    scan: Scan
+    stamp_ns: int  # host ns of point 0
+    unwrapped: int
+    epoch: int
+
+
+@dataclass(frozen=True)
+class _FrameItem:
+    device: str
+    frame: Frame
+
+
+class Recorder:
+    """Records ``config``'s devices until :meth:`stop` (or ``duration_s``).
+
+    ``out_dir`` overrides ``config.output.dir``; ``calibration`` overrides the file the
+    config names. :meth:`run` returns the exit code.
+    """
+
+    def __init__(
+        self,
+        config: Config,
+        *,
+        out_dir: Path | None = None,
+        duration_s: float | None = None,
+        calibration: Calibration | None = None,
+        notifier: Notifier | None = None,
+        queue_size: int = QUEUE_SIZE,
+    ) -> None:
+        self.config = config
+        self.out_dir = Path(out_dir if out_dir is not None else config.output.dir)
+        self.duration_s = duration_s
+        self.notifier = notifier if notifier is not None else Notifier()
+        self.calibration = calibration if calibration is not None else self._load_calibration()
+        self.queue: queue.Queue[_ScanItem | _FrameItem] = queue.Queue(maxsize=queue_size)
+        self.devices: dict[str, DeviceState] = {}
+        for s in config.scanners:
+            self.devices[s.name] = DeviceState(s.name, "scanner")
+        for c in config.cameras:
+            self.devices[c.name] = DeviceState(c.name, "camera")
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self.writer: LogWriter | None = None
+        self.exit_code = EXIT_OK
+        self.started_ns = 0
+        self._bytes_hist: deque[tuple[int, int]] = deque(maxlen=30)  # (mono ns, bytes)
+
+    # --- set-up ------------------------------------------------------------------------
+
+    def _load_calibration(self) -> Calibration | None:
+        path = self.config.calibration
+        if path is None:
+            log.warning("no calibration in the configuration: /tf_static and camera "
+                        "calibrations are not recorded")  # fmt: skip
+            return None
+        try:
+            return calibfile.load(path)
+        except FileNotFoundError:
+            raise RecorderError(f"{path}: no such calibration file") from None
+        except calibfile.CalibFileError as e:
+            raise RecorderError(str(e)) from None
+
+    def _open_writer(self) -> LogWriter:
+        out = self.config.output
+        try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise RecorderError(f"{self.out_dir}: cannot create the output folder: {e}") from None
+        if not os.access(self.out_dir, os.W_OK):
+            raise RecorderError(f"{self.out_dir}: the output folder is not writable")
+        writer = LogWriter(
+            self.out_dir,
+            prefix=out.prefix,
+            split_bytes=int(out.split_megabytes * 1e6),
+            split_s=out.split_minutes * 60.0,
+            metadata=self._metadata(),
+            profile="acq",
+        )
+        for s in self.config.scanners:
+            writer.add_channel(f"/{s.name}/scan", schemas.SCHEMAS["foxglove.LaserScan"])
+            writer.add_channel(f"/{s.name}/raw", schemas.SCHEMAS["acq.RawTelegram"])
+            writer.add_channel(f"/acq/timing/{s.name}", schemas.SCHEMAS["acq.Timing"])
+        for c in self.config.cameras:
+            writer.add_channel(
+                f"/{c.name}/image/compressed", schemas.SCHEMAS["foxglove.CompressedImage"]
+            )
+            writer.add_channel(f"/acq/timing/{c.name}", schemas.SCHEMAS["acq.Timing"])
+        writer.add_channel("/acq/status", schemas.SCHEMAS["acq.Status"])
+        writer.add_channel("/acq/clock", schemas.SCHEMAS["acq.Clock"])
+        now = time.monotonic_ns()
+        calib = self.calibration
+        if calib is not None:
+            writer.add_channel("/tf_static", schemas.SCHEMAS["foxglove.FrameTransforms"])
+            writer.set_latched("/tf_static", lambda t: schemas.frame_transforms(calib, t), now)
+            for c in self.config.cameras:
+                if c.name in calib.cameras:
+                    topic = f"/{c.name}/calibration"
+                    writer.add_channel(topic, schemas.SCHEMAS["foxglove.CameraCalibration"])
+                    writer.set_latched(topic, functools.partial(
+                        _camera_calibration, calib.cameras[c.name], c.name), now)  # fmt: skip
+                else:
+                    log.warning("camera %s has no entry in the calibration", c.name)
+        return writer
+
+    def _metadata(self) -> dict[str, dict[str, str]]:
+        from acq import __version__
+        from acq.config import dump
+
+        meta = {
+            "acq": {
+                "version": __version__,
+                "host": socket.gethostname(),
+                "python": sys.version.split()[0],
+                "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "clock": "log_time and timestamps are host CLOCK_MONOTONIC ns; "
+                "/acq/clock maps them to UTC",
+            },
+            "config": {"yaml": dump(self.config)},
+        }
+        if self.calibration is not None:
+            meta["calibration"] = {"yaml": calibfile.dump(self.calibration)}
+        return meta
+
+    # --- device threads ------------------------------------------------------------------
+
+    def _event(self, state: DeviceState, kind: str, detail: str) -> None:
+        state.last_event = f"{kind}: {detail}" if detail else kind
+        if kind == "connected":
+            state.connected = True
+            log.info("%s connected: %s", state.name, detail)
+        elif kind == "connect_failed":
+            state.connected = False
+            log.debug("%s: connect failed: %s", state.name, detail)
+        elif kind in ("disconnected", "stalled", "device_error"):
+            state.connected = False
+            state.disconnects += 1
+            log.warning("%s %s: %s", state.name, kind, detail)
+        elif kind == "protocol_error":
+            state.protocol_errors += 1
+            log.warning("%s: bad telegram: %s", state.name, detail)
+        elif kind == "clock_reset":
+            log.warning("%s: %s", state.name, detail)
+
+    def _put(self, state: DeviceState, item: _ScanItem | _FrameItem) -> None:
+        try:
+            self.queue.put_nowait(item)
+        except queue.Full:
+            state.dropped += 1
+
+    def _scanner_thread(self, cfg: ScannerConfig) -> None:
+        from drivers.reconnect import LinkEvent, Reconnecting
+        from drivers.scanner import scanner_for
+
+        state = self.devices[cfg.name]
+        options: dict[str, Any] = dict(cfg.options)
+        if cfg.protocol is not None:
+            options["protocol"] = cfg.protocol
+        scanner = scanner_for(cfg.driver, cfg.url, name=cfg.name, **options)
+        cls = type(scanner)
+        clock = DeviceClock(cls.tick_hz, cls.tick_bits)
+        state.clock = clock
+        tm_samples: tuple[tuple[int, int, int], ...] = ()
+        if cfg.latency_s == "auto":
+            tm_samples = self._measure_latency(scanner, state)
+        else:
+            state.latency_s = float(cfg.latency_s)
+
+        def on_event(e: LinkEvent) -> None:
+            self._event(state, e.kind, e.detail)
+
+        link = Reconnecting(scanner, on_event=on_event)
+        for scan in link.scans(self._stop):
+            state.received += 1
+            state.last_recv_ns = scan.recv_ns
+            state.times.append(scan.recv_ns)
+            if not scan.device_ticks:
+                stamp = scan.recv_ns - round(state.latency_s * 1e9)
+                self._put(state, _ScanItem(cfg.name, scan, stamp, 0, 0))
+                continue
+            clock.update(scan.device_ticks[0], scan.recv_ns)
+            if tm_samples and clock.updates in (1, 40, 400):  # at once, then refined
+                self._apply_latency_bounds(state, tm_samples, clock)
+            geometry = scanner.geometry
+            offset = geometry.stamp_offset_s if geometry is not None else 0.0
+            stamp = scan_start_ns(clock.to_host_ns(scan.device_ticks[0]), offset, state.latency_s)
+            unwrapped = clock.unwrapper.nearest(scan.device_ticks[0])
+            self._put(state, _ScanItem(cfg.name, scan, stamp, unwrapped, clock.epoch))
+
+    def _measure_latency(
+        self, scanner: Any, state: DeviceState
+    ) -> tuple[tuple[int, int, int], ...]:
+        """SCIP TM round trips before streaming; () if the device cannot be reached yet."""
+        from drivers.errors import DriverError
+
+        try:
+            scanner.connect()
+            est = scanner.measure_latency(20)
+        except (DriverError, OSError) as e:
+            log.warning("%s: latency_s auto: no time queries (%s); using 0 until then",
+                        state.name, e)  # fmt: skip
+            return ()
+        finally:
+            try:
+                scanner.close()
+            except (DriverError, OSError):
+                pass
+        log.info("%s: 20 time queries, round trip %.2f-%.2f ms", state.name,
+                 est.rtt_min * 1e3, est.rtt_max * 1e3)  # fmt: skip
+        return tuple(est.samples)
+
+    def _apply_latency_bounds(
+        self, state: DeviceState, samples: tuple[tuple[int, int, int], ...], clock: DeviceClock
+    ) -> None:
+        try:
+            lo, hi = latency_bounds(samples, clock)
+        except ValueError as e:
+            log.warning("%s: latency_s auto: %s", state.name, e)
+            return
+        state.latency_bounds_s = (lo, hi)
+        state.latency_s = (lo + hi) / 2
+        log.info("%s: latency from the stamp to receipt %.2f ms (bounds %.2f-%.2f ms)",
+                 state.name, state.latency_s * 1e3, lo * 1e3, hi * 1e3)  # fmt: skip
+
+    def _camera_thread(self, cfg: CameraConfig) -> None:
+        from drivers.camera import camera_for
+        from drivers.reconnect import CameraLink, LinkEvent
+
+        state = self.devices[cfg.name]
+        options: dict[str, Any] = dict(cfg.options)
+        for key in ("width", "height", "fourcc"):
+            value = getattr(cfg, key)
+            if value is not None:
+                options[key] = value
+        camera = camera_for(
+            cfg.driver, cfg.source, name=cfg.name, fps=cfg.fps, latency_s=cfg.latency_s, **options
+        )
+
+        def on_event(e: LinkEvent) -> None:
+            self._event(state, e.kind, e.detail)
+
+        link = CameraLink(camera, on_event=on_event)
+        for frame in link.frames(self._stop):
+            state.received += 1
+            state.last_recv_ns = frame.recv_ns
+            state.times.append(frame.recv_ns)
+            state.source_drops = camera.drops
+            state.corrupt = camera.corrupt
+            self._put(state, _FrameItem(cfg.name, frame))
+
+    def _guard(self, target: Any, cfg: Any) -> None:
+        """Run a device thread; an unexpected error stops the recorder (exit 1)."""
+        try:
+            target(cfg)
+        except Exception:
+            log.exception("%s: device thread failed", cfg.name)
+            self.exit_code = EXIT_FAILURE
+            self._stop.set()
+
+    # --- the writer ----------------------------------------------------------------------
+
+    def _write(self, writer: LogWriter, item: _ScanItem | _FrameItem) -> None:
+        state = self.devices[item.device]
+        if isinstance(item, _ScanItem):
+            scan = item.scan
+            name = item.device
+            writer.write(
+                f"/{name}/scan", schemas.laser_scan(scan, name, item.stamp_ns), scan.recv_ns,
+                item.stamp_ns,
+            )  # fmt: skip
+            writer.write(
+                f"/{name}/raw",
+                schemas.raw_telegram(
+                    device=name, data=scan.raw, device_ticks=scan.device_ticks,
+                    sequence=scan.sequence, recv_ns=scan.recv_ns, stamp_ns=item.stamp_ns,
+                ),
+                scan.recv_ns,
+                item.stamp_ns,
+            )  # fmt: skip
+            clock = state.clock
+            writer.write(
+                f"/acq/timing/{name}",
+                schemas.timing(
+                    recv_ns=scan.recv_ns,
+                    device_ticks=scan.device_ticks,
+                    unwrapped_tick=item.unwrapped,
+                    epoch=item.epoch,
+                    stamp_ns=item.stamp_ns,
+                    offset_ns=item.stamp_ns - scan.recv_ns,
+                    drift_ppm=clock.drift_ppm if clock else 0.0,
+                    uncertainty_s=_finite(clock.uncertainty_s) if clock else 0.0,
+                    sequence=scan.sequence,
+                    received=state.received,
+                    dropped=state.dropped,
+                ),
+                scan.recv_ns,
+                item.stamp_ns,
+            )
+        else:
+            frame = item.frame
+            name = item.device
+            writer.write(
+                f"/{name}/image/compressed",
+                schemas.compressed_image(frame, name),
+                frame.recv_ns,
+                frame.stamp_ns,
+            )
+            writer.write(
+                f"/acq/timing/{name}",
+                schemas.timing(
+                    recv_ns=frame.recv_ns,
+                    device_ticks=(),
+                    unwrapped_tick=0,
+                    epoch=0,
+                    stamp_ns=frame.stamp_ns,
+                    offset_ns=frame.stamp_ns - frame.recv_ns,
+                    drift_ppm=0.0,
+                    uncertainty_s=0.0,
+                    sequence=frame.sequence,
+                    received=state.received,
+                    dropped=state.dropped + state.source_drops,
+                ),
+                frame.recv_ns,
+                frame.stamp_ns,
+            )
+
+    def _write_rate(self) -> float:
+        """Bytes per second written over the last half minute (0 until known)."""
+        if len(self._bytes_hist) < 2:
+            return 0.0
+        (t0, b0), (t1, b1) = self._bytes_hist[0], self._bytes_hist[-1]
+        return max(b1 - b0, 0) / max((t1 - t0) * 1e-9, 1e-3)
+
+    def _disk(self, writer: LogWriter, now_ns: int) -> tuple[int, float]:
+        """(free bytes, minutes left above the reserve at the recent write rate)."""
+        free = shutil.disk_usage(self.out_dir).free
+        self._bytes_hist.append((now_ns, writer.bytes_written))
+        reserve = self.config.output.reserve_megabytes * 1e6
+        rate = self._write_rate()
+        minutes = max(free - reserve, 0.0) / rate / 60.0 if rate > 0 else math.inf
+        return free, minutes
+
+    def _status(self, writer: LogWriter, now_ns: int, free: int, minutes: float) -> None:
+        devices = []
+        for d in self.devices.values():
+            clock = d.clock
+            gap = (
+                (now_ns - d.last_recv_ns) * 1e-9
+                if d.last_recv_ns
+                else (now_ns - self.started_ns) * 1e-9
+            )
+            devices.append(
+                schemas.DeviceStatus(
+                    name=d.name,
+                    kind=d.kind,
+                    connected=d.connected,
+                    rate_hz=d.rate_hz(now_ns),
+                    received=d.received,
+                    dropped=d.dropped + d.source_drops,
+                    corrupt=d.corrupt,
+                    disconnects=d.disconnects,
+                    protocol_errors=d.protocol_errors,
+                    gap_s=gap,
+                    last_event=d.last_event,
+                    clock_offset_ns=0,
+                    clock_drift_ppm=clock.drift_ppm if clock else 0.0,
+                    clock_uncertainty_s=_finite(clock.uncertainty_s) if clock else 0.0,
+                    epoch=clock.epoch if clock else 0,
+                )
+            )
+        path = writer.path
+        data = schemas.status(
+            timestamp_ns=now_ns,
+            uptime_s=(now_ns - self.started_ns) * 1e-9,
+            file=path.name if path else "",
+            disk_free_bytes=free,
+            disk_minutes_left=_finite(minutes, 1e9),
+            writer_queue=self.queue.qsize(),
+            devices=devices,
+        )
+        writer.write("/acq/status", data, now_ns, now_ns)
+        writer.write(
+            "/acq/clock",
+            schemas.clock(realtime_ns=time.time_ns(), monotonic_ns=time.monotonic_ns()),
+            now_ns,
+            now_ns,
+        )
+        summary = ", ".join(
+            f"{d.name} {d.rate_hz(now_ns):.1f} Hz" + ("" if d.connected else " (down)")
+            for d in self.devices.values()
+        )
+        drops = sum(d.dropped + d.source_drops for d in self.devices.values())
+        disk = "" if math.isinf(minutes) else f", disk {minutes:.0f} min"
+        self.notifier.status(f"{summary}; drops {drops}{disk}")
+
+    def _writer_loop(self, writer: LogWriter) -> None:
+        reserve = self.config.output.reserve_megabytes * 1e6
+        next_status = time.monotonic_ns()
+        deadline = (
+            self.started_ns + round(self.duration_s * 1e9) if self.duration_s is not None else None
+        )
+        drain_until: int | None = None
+        while True:
+            now = time.monotonic_ns()
+            if deadline is not None and now >= deadline:
+                self._stop.set()
+            if self._stop.is_set() and drain_until is None:
+                drain_until = now + round(DRAIN_S * 1e9)
+            try:
+                item = self.queue.get(timeout=0.05)
+            except queue.Empty:
+                item = None
+                if drain_until is not None:
+                    return  # stopping, and everything queued is written
+            if item is not None:
+                self._write(writer, item)
+            now = time.monotonic_ns()
+            if drain_until is not None and now >= drain_until:
+                left = self.queue.qsize()
+                if left:
+                    log.warning("stopping: %d queued records not written", left)
+                return
+            if now >= next_status:
+                next_status = now + round(STATUS_PERIOD_S * 1e9)
+                writer.sync()
+                free, minutes = self._disk(writer, now)
+                self._status(writer, now, free, minutes)
+                self.notifier.watchdog()
+                # stop while the next seconds of data still fit above the reserve
+                if free - 2 * self._write_rate() < reserve:
+                    log.error(
+                        "%s: %.1f MB free, at the reserve of %.1f MB: closing the file "
+                        "and stopping", self.out_dir, free / 1e6, reserve / 1e6,
+                    )  # fmt: skip
+                    self.exit_code = EXIT_DISK_FULL
+                    self._stop.set()
+                    return
+            else:
+                writer.maybe_sync(now)
+
+    # --- running -------------------------------------------------------------------------
+
+    def stop(self) -> None:
+        """Ask the recorder to finish (safe from a signal handler)."""
+        self._stop.set()
+
+    def run(self) -> int:
+        """Record until stopped; returns the exit code."""
+        sys.setswitchinterval(0.001)  # readers stamp receipt: do not let them wait 5 ms
+        writer = self._open_writer()
+        self.writer = writer
+        self.started_ns = time.monotonic_ns()
+        for cfg in self.config.scanners:
+            self._start(self._scanner_thread, cfg)
+        for ccfg in self.config.cameras:
+            self._start(self._camera_thread, ccfg)
+        log.info("recording %s to %s", ", ".join(self.devices), self.out_dir)
+        self.notifier.ready(f"recording {', '.join(self.devices)}")
+        try:
+            self._writer_loop(writer)
+        except OSError as e:
+            if e.errno in (28, 122):  # ENOSPC, EDQUOT
+                log.error("%s: the disk is full: %s; closing the file", self.out_dir, e)
+                self.exit_code = EXIT_DISK_FULL
+            else:
+                log.error("%s: cannot write the log: %s", self.out_dir, e)
+                self.exit_code = EXIT_FAILURE
+        except Exception:
+            log.exception("the writer failed")
+            self.exit_code = EXIT_FAILURE
+        finally:
+            self._stop.set()
+            self.notifier.stopping()
+            self._close(writer)
+            for t in self._threads:
+                t.join(timeout=1.0)
+        return self.exit_code
+
+    def _start(self, target: Any, cfg: Any) -> None:
+        t = threading.Thread(target=self._guard, args=(target, cfg), name=cfg.name, daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def _close(self, writer: LogWriter) -> None:
+        path = writer.path
+        try:
+            report = writer.close()
+        except OSError as e:
+            log.error("%s: the last file could not be finished (%s): it is readable up to "
+                      "its last second; `acq info --repair` indexes it", path, e)  # fmt: skip
+            if self.exit_code == EXIT_OK:
+                self.exit_code = EXIT_FAILURE
+        else:
+            if report:
+                log.error("%s: %s", path, report)
+        for path in writer.files:
+            log.info("wrote %s", path)
+
+
+def _camera_calibration(cam: calibfile.CameraCalib, name: str, stamp_ns: int) -> bytes:
+    return schemas.camera_calibration(cam, name, stamp_ns)
+
+
+def _finite(x: float, cap: float = 1e9) -> float:
+    return x if math.isfinite(x) else cap
+
+
+def setup_logging(verbose: bool = False) -> None:
+    """Log lines for the journal (priority prefixes, no time) or for a terminal."""
+    from acq.sdnotify import JournalFormatter, use_journal_format
+
+    handler = logging.StreamHandler(sys.stderr)
+    if use_journal_format():
+        handler.setFormatter(JournalFormatter())
+    else:
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(logging.DEBUG if verbose else logging.INFO)
+
+
+def record(
+    config: Config,
+    *,
+    out_dir: Path | None = None,
+    duration_s: float | None = None,
+    notifier: Notifier | None = None,
+) -> int:
+    """Run a :class:`Recorder` with SIGTERM and SIGINT finishing the file; the exit code."""
+    import signal
+
+    recorder = Recorder(config, out_dir=out_dir, duration_s=duration_s, notifier=notifier)
+
+    def finish(signum: int, _frame: object) -> None:
+        log.info("%s: finishing the file", signal.Signals(signum).name)
+        recorder.stop()
+
+    old = {s: signal.signal(s, finish) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        return recorder.run()
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)

@@ -1,0 +1,230 @@
+"""The recorder end to end over real transports: the simulated UTM-30LX on TCP (SCIP),
+the simulated fisheye as MJPEG over HTTP (in its own process), the real drivers, the
+real MCAP files read back with the `mcap` readers and the Foxglove protobuf schemas."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+from acq import config as configfile
+from acq.recorder import EXIT_DISK_FULL, Recorder
+from sim.camera_device import MjpegServerProcess
+from sim.scanner_models import MODELS
+from sim.scip_device import ScipDevice
+from sim.transport import TcpDeviceServer
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class Rig:
+    """A simulated rig: a UTM-30LX on TCP and a fisheye camera over HTTP."""
+
+    def __init__(self) -> None:
+        self.scanner = ScipDevice(MODELS["utm-30lx"])
+        self.scanner_server = TcpDeviceServer(self.scanner).start()
+        self.camera = MjpegServerProcess()
+
+    def config(self, tmp_path: Path, **output: object) -> configfile.Config:
+        data = {
+            "version": 1,
+            "scanners": [
+                {"name": "laser", "driver": "hokuyo", "url": self.scanner_server.url,
+                 "options": {"intensity": True}, "latency_s": "auto"},
+            ],
+            "cameras": [
+                {"name": "camera", "driver": "opencv", "source": self.camera.url, "fps": 25,
+                 "latency_s": 0.022},
+            ],
+            "output": {"dir": str(tmp_path / "logs"), **output},
+        }  # fmt: skip
+        path = tmp_path / "rig.yaml"
+        path.write_text(yaml.safe_dump(data))
+        return configfile.load(path)
+
+    def close(self) -> None:
+        self.scanner_server.close()
+        self.camera.close()
+
+
+@pytest.fixture(scope="module")
+def rig() -> Iterator[Rig]:
+    r = Rig()
+    try:
+        yield r
+    finally:
+        r.close()
+
+
+def read_log(path: Path) -> dict[str, list[tuple[int, int, object]]]:
+    """topic -> [(log_time, publish_time, decoded message)] with the seeking reader."""
+    out: dict[str, list[tuple[int, int, object]]] = {}
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _schema, channel, message, decoded in reader.iter_decoded_messages():
+            out.setdefault(channel.topic, []).append(
+                (message.log_time, message.publish_time, decoded)
+            )
+    return out
+
+
+def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
+    cfg = rig.config(tmp_path)
+    code = Recorder(cfg, duration_s=6.0).run()
+    assert code == 0
+    files = sorted((tmp_path / "logs").glob("*.mcap"))
+    assert len(files) == 1
+    log = read_log(files[0])
+    scans = log["/laser/scan"]
+    raws = log["/laser/raw"]
+    images = log["/camera/image/compressed"]
+    # every scan the device sent between the first and the last recorded is there, once,
+    # with the bytes as they came
+    by_tick = {s.timestamp: s for s in list(rig.scanner.sent)}
+    recorded = [by_tick[m.device_ticks[0]] for _, _, m in raws]
+    assert len({s.timestamp for s in recorded}) == len(recorded)
+    between = [s for s in by_tick.values() if recorded[0].t0 <= s.t0 <= recorded[-1].t0]
+    assert len(recorded) == len(between)
+    assert all(m.data == s.telegram for (_, _, m), s in zip(raws, recorded, strict=True))
+    assert len(scans) == len(raws) == len(log["/acq/timing/laser"])
+    # rates: scans at 40 Hz, frames at 25 Hz, nothing lost between the first and the last
+    span = (scans[-1][1] - scans[0][1]) * 1e-9
+    assert len(scans) == pytest.approx(span * 40 + 1, rel=0.01)
+    fspan = (images[-1][1] - images[0][1]) * 1e-9
+    assert len(images) == pytest.approx(fspan * 25 + 1, rel=0.01)
+    # times: log_time (receipt) and publish_time (first point / mid-exposure) monotonic
+    for topic in ("/laser/scan", "/camera/image/compressed"):
+        logt = np.array([t for t, _, _ in log[topic]])
+        pub = np.array([p for _, p, _ in log[topic]])
+        assert np.all(np.diff(logt) > 0) and np.all(np.diff(pub) > 0)
+        assert np.all(pub < logt)  # measured before it was received
+    # the Foxglove messages carry what the devices sent
+    first = scans[0][2]
+    assert len(first.ranges) == 1081 and len(first.intensities) == 1081
+    assert first.start_angle == pytest.approx(np.radians(-135.0))
+    jpeg_digests = {t.digest for t in rig.camera.truth() if t.status == "sent"}
+    from sim.camera_device import jpeg_digest
+
+    assert all(jpeg_digest(m.data) in jpeg_digests for _, _, m in images)
+    assert images[0][2].format == "jpeg"
+    # status at 1 Hz, clock pairs, metadata
+    status = log["/acq/status"]
+    assert len(status) == pytest.approx(6, abs=1)
+    last = status[-1][2]
+    names = {d.name: d for d in last.devices}
+    assert names["laser"].connected and names["laser"].rate_hz == pytest.approx(40, rel=0.05)
+    assert names["camera"].rate_hz == pytest.approx(25, rel=0.1)
+    assert last.disk_free_bytes > 0
+    assert len(log["/acq/clock"]) == len(status)
+    with files[0].open("rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert "config" in meta and "acq" in meta
+
+
+def _acq(*args: str, **kw: object) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", *args], cwd=ROOT, stderr=subprocess.PIPE, **kw
+    )  # type: ignore[call-overload]
+
+
+def test_sigterm_finishes_the_file_within_2_s(rig: Rig, tmp_path: Path) -> None:
+    cfg = rig.config(tmp_path)
+    assert cfg.source is not None
+    proc = _acq("record", "-c", str(cfg.source))
+    time.sleep(4.0)
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    code = proc.wait(10)
+    took = time.monotonic() - t0
+    err = proc.stderr.read().decode() if proc.stderr else ""
+    assert code == 0, err
+    assert took < 2.0, err
+    files = sorted((tmp_path / "logs").glob("*.mcap"))
+    log = read_log(files[-1])  # the seeking reader: footer and summary are there
+    assert len(log["/laser/scan"]) > 40
+
+
+def test_bad_config_exits_2_with_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text("version: 1\nscanners:\n  - name: laser\n    driver: hokuyo\n    url: x\n"
+                    "    latncy_s: 0\n")  # fmt: skip
+    proc = _acq("record", "-c", str(path))
+    code = proc.wait(30)
+    err = proc.stderr.read().decode().strip() if proc.stderr else ""
+    assert code == 2
+    assert len(err.splitlines()) == 1 and "scanners[0].latncy_s" in err and str(path) in err
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[Path]:
+    """An 8 MB tmpfs (root can mount one; elsewhere skip: the reserve test still runs)."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mount)], capture_output=True
+    )
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here: {done.stderr.decode().strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], capture_output=True)
+
+
+def test_a_full_disk_closes_the_file_and_exits_3(
+    rig: Rig, tmp_path: Path, small_disk: Path
+) -> None:
+    cfg = rig.config(tmp_path, reserve_megabytes=2)
+    code = Recorder(cfg, out_dir=small_disk, duration_s=30.0).run()
+    assert code == EXIT_DISK_FULL
+    files = sorted(small_disk.glob("*.mcap"))
+    assert files
+    log = read_log(files[-1])  # closed cleanly: the seeking reader opens it
+    assert len(log["/camera/image/compressed"]) > 20
+    free = os.statvfs(small_disk)
+    assert free.f_bavail * free.f_frsize > 1e6  # it stopped before the disk was full
+
+
+def test_below_the_reserve_at_start_exits_3(rig: Rig, tmp_path: Path) -> None:
+    free_mb = os.statvfs(tmp_path).f_bavail * os.statvfs(tmp_path).f_frsize / 1e6
+    cfg = rig.config(tmp_path, reserve_megabytes=free_mb * 2)
+    code = Recorder(cfg, duration_s=10.0).run()
+    assert code == EXIT_DISK_FULL
+    files = sorted((tmp_path / "logs").glob("*.mcap"))
+    read_log(files[-1])
+
+
+def test_a_scanner_outage_is_a_gap_and_recording_goes_on(rig: Rig, tmp_path: Path) -> None:
+    cfg = rig.config(tmp_path)
+    import threading
+
+    def pull_cable() -> None:
+        time.sleep(2.0)
+        rig.scanner_server.reboot(1.0)  # down 1 s, then back with a restarted clock
+
+    threading.Thread(target=pull_cable, daemon=True).start()
+    assert Recorder(cfg, duration_s=7.0).run() == 0
+    files = sorted((tmp_path / "logs").glob("*.mcap"))
+    log = read_log(files[-1])
+    t = np.array([p for _, p, _ in log["/laser/scan"]]) * 1e-9
+    gaps = np.diff(t)
+    assert gaps.max() > 0.9  # the outage
+    assert t[-1] - t[np.argmax(gaps) + 1] > 2.0  # and scans again after it
+    frames = np.array([p for _, p, _ in log["/camera/image/compressed"]]) * 1e-9
+    assert np.diff(frames).max() < 0.2  # the camera kept recording meanwhile
+    status = [m for _, _, m in log["/acq/status"]]
+    laser = [next(d for d in s.devices if d.name == "laser") for s in status]
+    assert any(not d.connected or d.gap_s > 0.5 for d in laser)
+    assert laser[-1].connected and laser[-1].disconnects >= 1
+    assert laser[-1].epoch >= 1  # the device clock restarted: a new epoch

@@ -1,0 +1,369 @@
+"""acq.schemas: the Foxglove and acq.* encoders round trip and carry what they promise."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
+from google.protobuf import descriptor_pb2
+from mcap.records import Schema as McapSchema
+from mcap_protobuf.decoder import DecoderFactory
+
+from acq import schemas
+from acq.calibfile import Calibration, CameraCalib
+from acq.camera_models import Equidistant, KannalaBrandt, Pinhole
+from acq.records import Frame, Scan
+from acq.transforms import Rigid, rotation_from_euler
+
+FOXGLOVE = [
+    "foxglove.LaserScan",
+    "foxglove.CompressedImage",
+    "foxglove.CameraCalibration",
+    "foxglove.FrameTransforms",
+    "foxglove.PointCloud",
+]
+ACQ = ["acq.RawTelegram", "acq.Timing", "acq.Clock", "acq.Status", "acq.DeviceStatus"]
+STAMP = 1_234_567_890_123  # host monotonic ns
+
+
+def make_scan(n: int = 1081, intensities: bool = True) -> Scan:
+    rng = np.random.default_rng(1)
+    ranges = rng.uniform(0.1, 30.0, n).astype(np.float32)
+    if n > 10:
+        ranges[::50] = np.inf
+        ranges[7] = -np.inf
+        ranges[9] = np.nan
+    return Scan(
+        ranges=ranges,
+        intensities=rng.uniform(0, 5000, n).astype(np.float32) if intensities else np.zeros(0),
+        angle_min=-math.radians(135),
+        angle_increment=math.radians(0.25),
+        time_increment=25e-3 / 1440,
+        scan_period=25e-3,
+        recv_ns=STAMP,
+    )
+
+
+def decode_with_mcap(name: str, data: bytes) -> Any:
+    """Decode through mcap_protobuf, which builds its own pool from the schema's data."""
+    schema = schemas.SCHEMAS[name]
+    record = McapSchema(id=1, name=schema.name, encoding=schema.encoding, data=schema.data)
+    decoder = DecoderFactory().decoder_for("protobuf", record)
+    assert decoder is not None
+    return decoder(data)
+
+
+def ts_ns(ts: object) -> int:
+    return ts.seconds * 1_000_000_000 + ts.nanos  # type: ignore[attr-defined]
+
+
+# --- the schemas ---------------------------------------------------------------------------
+
+
+def test_schemas_are_named_and_self_contained() -> None:
+    assert set(schemas.SCHEMAS) == set(FOXGLOVE + ACQ)
+    for name, schema in schemas.SCHEMAS.items():
+        assert schema.name == name and schema.encoding == "protobuf"
+        fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+        files = [f.name for f in fds.file]
+        assert len(files) == len(set(files))
+        # every dependency comes before the file that needs it
+        for i, f in enumerate(fds.file):
+            assert set(f.dependency) <= set(files[:i]), (name, f.name)
+    acq_files = descriptor_pb2.FileDescriptorSet.FromString(schemas.SCHEMAS["acq.Timing"].data)
+    assert [f.name for f in acq_files.file] == ["google/protobuf/timestamp.proto", "acq/v1.proto"]
+    assert acq_files.file[1].package == "acq"
+
+
+def test_unknown_schema_is_a_clear_error() -> None:
+    with pytest.raises(KeyError, match=r"unknown schema 'foxglove\.Nope'"):
+        schemas.decode("foxglove.Nope", b"")
+
+
+# --- Foxglove messages ---------------------------------------------------------------------
+
+
+def test_laser_scan_matches_a_plainly_built_message() -> None:
+    scan = make_scan()
+    data = schemas.laser_scan(scan, "laser", STAMP)
+    msg = schemas.decode("foxglove.LaserScan", data)
+    ref = LaserScan(frame_id="laser", start_angle=scan.angle_min)
+    ref.timestamp.FromNanoseconds(STAMP)
+    ref.pose.orientation.w = 1.0
+    ref.end_angle = scan.angle_min + (scan.size - 1) * scan.angle_increment
+    ref.ranges.extend(scan.ranges.tolist())
+    ref.intensities.extend(scan.intensities.tolist())
+    assert msg.SerializeToString() == ref.SerializeToString()
+    assert ts_ns(msg.timestamp) == STAMP
+    assert msg.pose.orientation.w == 1.0 and msg.pose.position.x == 0.0
+    r = np.array(msg.ranges)
+    np.testing.assert_array_equal(r, scan.ranges.astype(np.float64))  # inf/-inf/nan kept
+    assert np.isposinf(r[0]) and np.isneginf(r[7]) and np.isnan(r[9])
+    assert math.isclose(msg.end_angle, math.radians(135), abs_tol=1e-12)
+    assert (
+        decode_with_mcap("foxglove.LaserScan", data).SerializeToString() == msg.SerializeToString()
+    )
+
+
+def test_laser_scan_without_intensities_or_points() -> None:
+    msg = schemas.decode("foxglove.LaserScan", schemas.laser_scan(make_scan(5, False), "l", 1))
+    assert len(msg.ranges) == 5 and len(msg.intensities) == 0
+    empty = Scan(np.zeros(0), np.zeros(0), 0.5, 0.01, 0.0, 0.0, recv_ns=0)
+    msg = schemas.decode("foxglove.LaserScan", schemas.laser_scan(empty, "l", 1))
+    assert len(msg.ranges) == 0 and msg.start_angle == msg.end_angle == 0.5
+
+
+def test_compressed_image_keeps_the_jpeg() -> None:
+    jpeg = b"\xff\xd8" + bytes(range(256)) * 200 + b"\xff\xd9"
+    frame = Frame(recv_ns=STAMP + 9, stamp_ns=STAMP, sequence=3, width=780, height=582, jpeg=jpeg)
+    msg = schemas.decode("foxglove.CompressedImage", schemas.compressed_image(frame, "camera"))
+    assert msg.data == jpeg and msg.format == "jpeg" and msg.frame_id == "camera"
+    assert ts_ns(msg.timestamp) == STAMP
+    raw = Frame(0, 0, 0, 2, 1, image=np.zeros((1, 2, 3), np.uint8))
+    with pytest.raises(ValueError, match="jpeg"):
+        schemas.compressed_image(raw, "camera")
+
+
+def test_camera_calibration_equidistant_is_kannala_brandt_with_zero_d() -> None:
+    cam = CameraCalib(Equidistant.from_f(169.3, 390.2, 291.1, 780, 582))
+    data = schemas.camera_calibration(cam, "camera", STAMP)
+    msg = schemas.decode("foxglove.CameraCalibration", data)
+    assert msg.distortion_model == "kannala_brandt"
+    assert list(msg.D) == [0.0] * 4
+    assert (msg.width, msg.height, msg.frame_id) == (780, 582, "camera")
+    np.testing.assert_allclose(
+        np.reshape(msg.K, (3, 3)), np.array([[169.3, 0, 390.2], [0, 169.3, 291.1], [0, 0, 1]])
+    )
+    np.testing.assert_array_equal(np.reshape(msg.R, (3, 3)), np.eye(3))
+    P = np.reshape(msg.P, (3, 4))
+    np.testing.assert_array_equal(P[:, :3], np.reshape(msg.K, (3, 3)))
+    np.testing.assert_array_equal(P[:, 3], 0.0)
+    assert ts_ns(msg.timestamp) == STAMP
+    assert (
+        decode_with_mcap("foxglove.CameraCalibration", data).SerializeToString()
+        == msg.SerializeToString()
+    )
+
+
+def test_camera_calibration_kannala_brandt_and_pinhole() -> None:
+    kb = KannalaBrandt(640, 480, 300.0, 301.0, 320.0, 240.0, k=(0.01, -0.002, 0.0003, -0.00004))
+    msg = schemas.decode(
+        "foxglove.CameraCalibration", schemas.camera_calibration(CameraCalib(kb), "c", 0)
+    )
+    assert msg.distortion_model == "kannala_brandt"
+    np.testing.assert_array_equal(msg.D, kb.k)
+    assert msg.K[4] == 301.0
+    ph = Pinhole(640, 480, 500.0, 500.0, 320.0, 240.0, dist=(-0.1, 0.01, 0.001, -0.002, 0.003))
+    msg = schemas.decode(
+        "foxglove.CameraCalibration", schemas.camera_calibration(CameraCalib(ph), "c", 0)
+    )
+    assert msg.distortion_model == "plumb_bob"
+    np.testing.assert_array_equal(msg.D, ph.dist)
+
+
+def quat_matrix(q: tuple[float, float, float, float]) -> np.ndarray:
+    x, y, z, w = q
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def test_quaternion_round_trips_including_half_turns() -> None:
+    rng = np.random.default_rng(2)
+    rotations = [rotation_from_euler(*rng.uniform(-np.pi, np.pi, 3)) for _ in range(200)]
+    rotations += [np.diag(d) for d in ([1, -1, -1], [-1, 1, -1], [-1, -1, 1], [1, 1, 1])]
+    for R in rotations:
+        q = schemas.quaternion(R)
+        assert math.isclose(float(np.linalg.norm(q)), 1.0, abs_tol=1e-12) and q[3] >= 0
+        np.testing.assert_allclose(quat_matrix(q), R, atol=1e-12)
+
+
+def test_frame_transforms_hold_each_cameras_pose_in_the_laser_frame() -> None:
+    R = rotation_from_euler(0.1, -1.2, 2.5)
+    t = np.array([0.12, -0.05, 0.3])
+    ltv = Rigid(rotation_from_euler(0, 0, 0.3), np.array([1.0, 0.0, 1.8]))
+    model = Equidistant.from_f(169.3, 390.2, 291.1, 780, 582)
+    calib = Calibration(
+        laser="lidar",
+        cameras={"front": CameraCalib(model, Rigid(R, t)), "back": CameraCalib(model)},
+        laser_to_vehicle=ltv,
+    )
+    data = schemas.frame_transforms(calib, STAMP, {"front": "front_optical"})
+    msg = schemas.decode("foxglove.FrameTransforms", data)
+    by_child = {tf.child_frame_id: tf for tf in msg.transforms}
+    assert set(by_child) == {"front_optical", "back", "lidar"}
+    for child, parent, pose in (
+        ("front_optical", "lidar", Rigid(R, t)),
+        ("back", "lidar", Rigid.identity()),
+        ("lidar", "vehicle", ltv),
+    ):
+        tf = by_child[child]
+        assert tf.parent_frame_id == parent and ts_ns(tf.timestamp) == STAMP
+        q = (tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w)
+        # a parent -> child transform maps child-frame points into the parent frame
+        P_child = np.array([[1.0, 2.0, 3.0], [-0.5, 0.2, 4.0]])
+        P_parent = P_child @ quat_matrix(q).T + [
+            tf.translation.x,
+            tf.translation.y,
+            tf.translation.z,
+        ]
+        np.testing.assert_allclose(P_parent, pose.apply(P_child), atol=1e-12)
+    no_vehicle = Calibration(cameras={"camera": CameraCalib(model)})
+    msg = schemas.decode("foxglove.FrameTransforms", schemas.frame_transforms(no_vehicle, 0))
+    assert [(tf.parent_frame_id, tf.child_frame_id) for tf in msg.transforms] == [
+        ("laser", "camera")
+    ]
+
+
+def test_point_cloud_layout() -> None:
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(100, 3)).astype(np.float32)
+    rgb = rng.integers(0, 256, size=(100, 3), dtype=np.uint8)
+    data = schemas.point_cloud(points, rgb, "laser", STAMP)
+    msg = schemas.decode("foxglove.PointCloud", data)
+    assert msg.point_stride == 16 and msg.frame_id == "laser" and ts_ns(msg.timestamp) == STAMP
+    assert [(f.name, f.offset) for f in msg.fields] == [("x", 0), ("y", 4), ("z", 8), ("rgb", 12)]
+    assert msg.pose.orientation.w == 1.0
+    raw = np.frombuffer(msg.data, dtype=np.uint8).reshape(100, 16)
+    np.testing.assert_array_equal(raw[:, :12].copy().view("<f4"), points)
+    np.testing.assert_array_equal(raw[:, 12:15], rgb[:, ::-1])  # B, G, R
+    assert np.all(raw[:, 15] == 0)
+    assert (
+        decode_with_mcap("foxglove.PointCloud", data).SerializeToString() == msg.SerializeToString()
+    )
+    empty = schemas.decode(
+        "foxglove.PointCloud", schemas.point_cloud(np.zeros((0, 3)), np.zeros((0, 3)), "l", 0)
+    )
+    assert empty.data == b""
+    with pytest.raises(ValueError, match=r"\(N,3\)"):
+        schemas.point_cloud(np.zeros((4, 2)), np.zeros((4, 3)), "l", 0)
+    with pytest.raises(ValueError, match="rgb"):
+        schemas.point_cloud(np.zeros((4, 3)), np.zeros((3, 3)), "l", 0)
+
+
+# --- acq.* messages ------------------------------------------------------------------------
+
+
+def test_raw_telegram() -> None:
+    telegram = b"MD0044072501000\n\x00\x01\xff"
+    data = schemas.raw_telegram(
+        device="laser",
+        data=telegram,
+        recv_ns=STAMP + 5,
+        stamp_ns=STAMP,
+        device_ticks=(2**24 - 1, 12),
+        sequence=7,
+    )
+    msg = schemas.decode("acq.RawTelegram", data)
+    assert msg.data == telegram and msg.device == "laser" and msg.sequence == 7
+    assert list(msg.device_ticks) == [2**24 - 1, 12]
+    assert msg.recv_ns == STAMP + 5 and ts_ns(msg.timestamp) == STAMP
+    assert decode_with_mcap("acq.RawTelegram", data).SerializeToString() == msg.SerializeToString()
+    only_recv = schemas.decode(
+        "acq.RawTelegram", schemas.raw_telegram(device="d", data=b"", recv_ns=99)
+    )
+    assert ts_ns(only_recv.timestamp) == 99
+
+
+def test_timing_and_clock() -> None:
+    data = schemas.timing(
+        recv_ns=STAMP,
+        stamp_ns=STAMP - 3_000_000,
+        device_ticks=[4_000_000_000],
+        unwrapped_tick=2**40,
+        epoch=2,
+        offset_ns=-17,
+        drift_ppm=12.5,
+        uncertainty_s=2e-4,
+        sequence=9,
+        received=100,
+        dropped=3,
+    )
+    msg = schemas.decode("acq.Timing", data)
+    assert (msg.recv_ns, msg.stamp_ns, msg.unwrapped_tick, msg.epoch) == (
+        STAMP,
+        STAMP - 3_000_000,
+        2**40,
+        2,
+    )
+    assert list(msg.device_ticks) == [4_000_000_000]
+    assert (msg.offset_ns, msg.drift_ppm, msg.uncertainty_s) == (-17, 12.5, 2e-4)
+    assert (msg.sequence, msg.received, msg.dropped) == (9, 100, 3)
+    assert decode_with_mcap("acq.Timing", data).SerializeToString() == msg.SerializeToString()
+    clock = schemas.decode(
+        "acq.Clock", schemas.clock(realtime_ns=1_700_000_000 * 10**9, monotonic_ns=STAMP)
+    )
+    assert clock.realtime_ns == 1_700_000_000 * 10**9 and clock.monotonic_ns == STAMP
+
+
+def test_status_from_dataclasses_and_dicts() -> None:
+    laser = schemas.DeviceStatus(
+        name="laser",
+        kind="scanner",
+        connected=True,
+        rate_hz=40.0,
+        received=4000,
+        dropped=2,
+        corrupt=1,
+        disconnects=1,
+        protocol_errors=3,
+        gap_s=0.025,
+        last_event="reconnected",
+        clock_offset_ns=-123456,
+        clock_drift_ppm=-3.5,
+        clock_uncertainty_s=1e-4,
+        epoch=1,
+    )
+    data = schemas.status(
+        timestamp_ns=STAMP,
+        uptime_s=100.5,
+        file="logs/acq_x_000.mcap",
+        disk_free_bytes=10**12,
+        disk_minutes_left=600.0,
+        writer_queue=4,
+        devices=[laser, {"name": "camera", "kind": "camera", "gap_s": 3.0}],
+    )
+    msg = schemas.decode("acq.Status", data)
+    assert ts_ns(msg.timestamp) == STAMP and msg.uptime_s == 100.5
+    assert (msg.file, msg.disk_free_bytes, msg.disk_minutes_left, msg.writer_queue) == (
+        "logs/acq_x_000.mcap",
+        10**12,
+        600.0,
+        4,
+    )
+    d0, d1 = msg.devices
+    assert (d0.name, d0.kind, d0.connected, d0.rate_hz, d0.received, d0.dropped) == (
+        "laser",
+        "scanner",
+        True,
+        40.0,
+        4000,
+        2,
+    )
+    assert (d0.corrupt, d0.disconnects, d0.protocol_errors, d0.gap_s, d0.last_event) == (
+        1,
+        1,
+        3,
+        0.025,
+        "reconnected",
+    )
+    assert (d0.clock_offset_ns, d0.clock_drift_ppm, d0.clock_uncertainty_s, d0.epoch) == (
+        -123456,
+        -3.5,
+        1e-4,
+        1,
+    )
+    assert (d1.name, d1.kind, d1.connected, d1.gap_s) == ("camera", "camera", False, 3.0)
+    assert math.isnan(d1.clock_uncertainty_s)  # unknown, not "perfect"
+    assert decode_with_mcap("acq.Status", data).SerializeToString() == msg.SerializeToString()
+    with pytest.raises(ValueError, match=r"unknown DeviceStatus field.*ratee_hz"):
+        schemas.status(
+            timestamp_ns=0, uptime_s=0, devices=[{"name": "x", "kind": "camera", "ratee_hz": 1}]
+        )

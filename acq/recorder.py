@@ -98,6 +98,29 @@ class _FrameItem:
     frame: Frame
 
 
+@dataclass(frozen=True)
+class _MetaItem:
+    """A device's description (identity, geometry, parameters) for the log's metadata."""
+
+    name: str
+    values: dict[str, str]
+
+
+def device_metadata(driver: str, device: Any) -> dict[str, str]:
+    """JSON strings describing a connected driver's device, for a ``device.<name>`` metadata
+    record: ``driver``, ``info`` (identity), ``geometry`` (scanners: ScanGeometry, in
+    rad, s, m), ``params`` (Hokuyo: the PP values), ``format`` (cameras)."""
+    import dataclasses
+    import json
+
+    out = {"driver": driver, "class": type(device).__name__}
+    for key in ("info", "geometry", "params", "format"):
+        value = getattr(device, key, None)
+        if value is not None and dataclasses.is_dataclass(value):
+            out[key] = json.dumps(dataclasses.asdict(value))  # type: ignore[arg-type]
+    return out
+
+
 class Recorder:
     """Records ``config``'s devices until :meth:`stop` (or ``duration_s``).
 
@@ -120,7 +143,9 @@ class Recorder:
         self.duration_s = duration_s
         self.notifier = notifier if notifier is not None else Notifier()
         self.calibration = calibration if calibration is not None else self._load_calibration()
-        self.queue: queue.Queue[_ScanItem | _FrameItem] = queue.Queue(maxsize=queue_size)
+        self.queue: queue.Queue[_ScanItem | _FrameItem | _MetaItem] = queue.Queue(
+            maxsize=queue_size
+        )
         self.devices: dict[str, DeviceState] = {}
         for s in config.scanners:
             self.devices[s.name] = DeviceState(s.name, "scanner")
@@ -229,7 +254,7 @@ class Recorder:
         elif kind == "clock_reset":
             log.warning("%s: %s", state.name, detail)
 
-    def _put(self, state: DeviceState, item: _ScanItem | _FrameItem) -> None:
+    def _put(self, state: DeviceState, item: _ScanItem | _FrameItem | _MetaItem) -> None:
         try:
             self.queue.put_nowait(item)
         except queue.Full:
@@ -257,7 +282,13 @@ class Recorder:
             self._event(state, e.kind, e.detail)
 
         link = Reconnecting(scanner, on_event=on_event)
+        described: object = None
         for scan in link.scans(self._stop):
+            if scanner.geometry is not described:  # (re)connected: describe the device
+                described = scanner.geometry
+                self.queue.put(
+                    _MetaItem(f"device.{cfg.name}", device_metadata(cfg.driver, scanner))
+                )
             state.received += 1
             state.last_recv_ns = scan.recv_ns
             state.times.append(scan.recv_ns)
@@ -327,7 +358,11 @@ class Recorder:
             self._event(state, e.kind, e.detail)
 
         link = CameraLink(camera, on_event=on_event)
+        described: object = None
         for frame in link.frames(self._stop):
+            if camera.format is not described:
+                described = camera.format
+                self.queue.put(_MetaItem(f"device.{cfg.name}", device_metadata(cfg.driver, camera)))
             state.received += 1
             state.last_recv_ns = frame.recv_ns
             state.times.append(frame.recv_ns)
@@ -346,7 +381,10 @@ class Recorder:
 
     # --- the writer ----------------------------------------------------------------------
 
-    def _write(self, writer: LogWriter, item: _ScanItem | _FrameItem) -> None:
+    def _write(self, writer: LogWriter, item: _ScanItem | _FrameItem | _MetaItem) -> None:
+        if isinstance(item, _MetaItem):
+            writer.update_metadata(item.name, item.values)
+            return
         state = self.devices[item.device]
         if isinstance(item, _ScanItem):
             scan = item.scan

@@ -130,6 +130,13 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     with files[0].open("rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert "config" in meta and "acq" in meta
+    import json
+
+    geometry = json.loads(meta["device.laser"]["geometry"])
+    assert geometry["time_increment"] == pytest.approx(0.025 / 1440)
+    assert geometry["stamp_offset_s"] == pytest.approx(180 * 0.025 / 1440)
+    assert json.loads(meta["device.laser"]["params"])["ares"] == 1440
+    assert json.loads(meta["device.camera"]["format"])["width"] == 780
 
 
 def _acq(*args: str, **kw: object) -> subprocess.Popen[bytes]:

@@ -150,8 +150,9 @@ class Relink(Generic[R]):
         self.device.start()
         period = self.period()
         if period is not None:
-            # a stream with nothing for this long is stalled
-            self.device.timeout = max(self.stall_periods * period, 0.05)
+            # a stream with nothing for this long is stalled (at least 0.25 s: a busy host
+            # can hold a reader up for tens of ms, which is not a stalled device)
+            self.device.timeout = max(self.stall_periods * period, 0.25)
         self.connected = True
         self.backoff.reset()
         self._emit("connected", f"{info.vendor} {info.model} {info.serial}".strip())

@@ -26,7 +26,7 @@ from __future__ import annotations
 import errno
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -260,13 +260,28 @@ class LogWriter:
         """Append one message; rolls over to a new file first when the current one is full
         or old enough. Raises OSError (e.g. ENOSPC) when the file cannot be written."""
         self._check_usable()
-        channel_id = self._channel_id(topic)
+        self._maybe_roll(log_time_ns)
+        self._append(topic, data, log_time_ns, publish_time_ns)
+
+    def write_group(self, messages: Sequence[tuple[str, bytes, int, int]]) -> None:
+        """Append (topic, data, log_time_ns, publish_time_ns) messages that belong together
+        (a scan, its raw telegram and its timing) to one file: a roll-over comes before
+        the group, never inside it."""
+        self._check_usable()
+        if messages:
+            self._maybe_roll(messages[0][2])
+        for topic, data, log_time_ns, publish_time_ns in messages:
+            self._append(topic, data, log_time_ns, publish_time_ns)
+
+    def _maybe_roll(self, log_time_ns: int) -> None:
         start = self._file_start_ns
         if start is not None and (
             self._size() >= self.split_bytes or log_time_ns - start >= self.split_ns
         ):
             self._guard(lambda: self._roll(log_time_ns))
-            channel_id = self._channel_id(topic)
+
+    def _append(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
+        channel_id = self._channel_id(topic)
         writer = self._require_writer()
         out = self._out
         assert out is not None

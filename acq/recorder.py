@@ -386,68 +386,47 @@ class Recorder:
             writer.update_metadata(item.name, item.values)
             return
         state = self.devices[item.device]
+        name = item.device
+        clock = state.clock
         if isinstance(item, _ScanItem):
-            scan = item.scan
-            name = item.device
-            writer.write(
-                f"/{name}/scan", schemas.laser_scan(scan, name, item.stamp_ns), scan.recv_ns,
-                item.stamp_ns,
-            )  # fmt: skip
-            writer.write(
-                f"/{name}/raw",
-                schemas.raw_telegram(
-                    device=name, data=scan.raw, device_ticks=scan.device_ticks,
-                    sequence=scan.sequence, recv_ns=scan.recv_ns, stamp_ns=item.stamp_ns,
-                ),
-                scan.recv_ns,
-                item.stamp_ns,
-            )  # fmt: skip
-            clock = state.clock
-            writer.write(
-                f"/acq/timing/{name}",
-                schemas.timing(
-                    recv_ns=scan.recv_ns,
-                    device_ticks=scan.device_ticks,
-                    unwrapped_tick=item.unwrapped,
-                    epoch=item.epoch,
-                    stamp_ns=item.stamp_ns,
-                    offset_ns=item.stamp_ns - scan.recv_ns,
-                    drift_ppm=clock.drift_ppm if clock else 0.0,
-                    uncertainty_s=_finite(clock.uncertainty_s) if clock else 0.0,
-                    sequence=scan.sequence,
-                    received=state.received,
-                    dropped=state.dropped,
-                ),
-                scan.recv_ns,
-                item.stamp_ns,
+            scan, stamp = item.scan, item.stamp_ns
+            timing = schemas.timing(
+                recv_ns=scan.recv_ns,
+                device_ticks=scan.device_ticks,
+                unwrapped_tick=item.unwrapped,
+                epoch=item.epoch,
+                stamp_ns=stamp,
+                offset_ns=stamp - scan.recv_ns,
+                drift_ppm=clock.drift_ppm if clock else 0.0,
+                uncertainty_s=_finite(clock.uncertainty_s) if clock else 0.0,
+                sequence=scan.sequence,
+                received=state.received,
+                dropped=state.dropped,
             )
+            raw = schemas.raw_telegram(
+                device=name, data=scan.raw, device_ticks=scan.device_ticks,
+                sequence=scan.sequence, recv_ns=scan.recv_ns, stamp_ns=stamp,
+            )  # fmt: skip
+            writer.write_group([
+                (f"/{name}/scan", schemas.laser_scan(scan, name, stamp), scan.recv_ns, stamp),
+                (f"/{name}/raw", raw, scan.recv_ns, stamp),
+                (f"/acq/timing/{name}", timing, scan.recv_ns, stamp),
+            ])  # fmt: skip
         else:
             frame = item.frame
-            name = item.device
-            writer.write(
-                f"/{name}/image/compressed",
-                schemas.compressed_image(frame, name),
-                frame.recv_ns,
-                frame.stamp_ns,
+            timing = schemas.timing(
+                recv_ns=frame.recv_ns,
+                stamp_ns=frame.stamp_ns,
+                offset_ns=frame.stamp_ns - frame.recv_ns,
+                sequence=frame.sequence,
+                received=state.received,
+                dropped=state.dropped + state.source_drops,
             )
-            writer.write(
-                f"/acq/timing/{name}",
-                schemas.timing(
-                    recv_ns=frame.recv_ns,
-                    device_ticks=(),
-                    unwrapped_tick=0,
-                    epoch=0,
-                    stamp_ns=frame.stamp_ns,
-                    offset_ns=frame.stamp_ns - frame.recv_ns,
-                    drift_ppm=0.0,
-                    uncertainty_s=0.0,
-                    sequence=frame.sequence,
-                    received=state.received,
-                    dropped=state.dropped + state.source_drops,
-                ),
-                frame.recv_ns,
-                frame.stamp_ns,
-            )
+            image = schemas.compressed_image(frame, name)
+            writer.write_group([
+                (f"/{name}/image/compressed", image, frame.recv_ns, frame.stamp_ns),
+                (f"/acq/timing/{name}", timing, frame.recv_ns, frame.stamp_ns),
+            ])  # fmt: skip
 
     def _write_rate(self) -> float:
         """Bytes per second written over the last half minute (0 until known)."""

@@ -354,3 +354,44 @@ def test_sigkill_at_random_moments_loses_at_most_the_last_second(rig: Rig, tmp_p
     # every scan and frame sent more than 1.2 s before the kill
     (tmp_path / "rig1").mkdir()
     _kill_loop(rig, tmp_path, range(20), 1)
+
+
+def test_files_roll_over_with_nothing_lost_or_repeated(rig: Rig, tmp_path: Path) -> None:
+    from acq import calibfile
+    from acq.calibfile import Calibration, CameraCalib
+    from sim.world import default_rig
+
+    truth = default_rig()
+    calib = Calibration(
+        laser="laser",
+        cameras={"camera": CameraCalib(truth.lens, truth.camera_to_laser, method="truth")},
+        laser_to_vehicle=truth.laser_to_vehicle,
+    )
+    calibfile.save(calib, tmp_path / "calib.yaml")
+    cfg = rig.config(tmp_path, split_megabytes=3)
+    cfg = cfg.model_copy(update={"calibration": tmp_path / "calib.yaml"})
+    assert Recorder(cfg, duration_s=7.0).run() == 0
+    files = sorted((tmp_path / "logs").glob("*.mcap"))
+    assert len(files) >= 3
+    ticks: list[int] = []
+    frames: list[int] = []  # the camera's received count at each frame
+    for path in files:
+        log = read_log(path)  # each file opens on its own, indexed
+        # and stands alone: transforms, camera calibration, metadata at its start
+        assert len(log["/tf_static"]) == 1 and len(log["/camera/calibration"]) == 1
+        first_log_time = min(t for msgs in log.values() for t, _, _ in msgs)
+        assert log["/tf_static"][0][0] == first_log_time
+        tf = log["/tf_static"][0][2]
+        assert {t.child_frame_id for t in tf.transforms} >= {"camera"}
+        with path.open("rb") as f:
+            names = {m.name for m in make_reader(f).iter_metadata()}
+        assert {"acq", "config", "calibration", "device.laser"} <= names or path == files[0]
+        ticks += [m.device_ticks[0] for _, _, m in log["/laser/raw"]]
+        frames += [m.received for _, _, m in log["/acq/timing/camera"]]
+        assert len(log["/camera/image/compressed"]) == len(log["/acq/timing/camera"])
+    # across the boundaries: every scan once, in order, none missing (40 Hz: 25 ms steps)
+    assert len(ticks) == len(set(ticks))
+    steps = np.diff(np.array(ticks))
+    assert np.all((steps >= 24) & (steps <= 26)), steps[(steps < 24) | (steps > 26)]
+    # every frame the recorder received, once (its running count goes up by one)
+    assert np.all(np.diff(frames) == 1)

@@ -78,9 +78,9 @@ class DeviceState:
 
     def rate_hz(self, now_ns: int) -> float:
         recent = [t for t in self.times if now_ns - t <= 2_000_000_000]
-        if len(recent) < 2:
-            return 0.0
-        return (len(recent) - 1) / ((recent[-1] - recent[0]) * 1e-9)
+        span_ns = recent[-1] - recent[0] if len(recent) >= 2 else 0
+        # records that came in one read share a receive time: no rate from them alone
+        return (len(recent) - 1) / (span_ns * 1e-9) if span_ns > 0 else 0.0
 
 
 @dataclass(frozen=True)

@@ -149,6 +149,14 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _replay(args: argparse.Namespace) -> int:
+    from acq.replay import replay_main
+
+    return replay_main(
+        args.logs, args.speed, args.listen, args.pty, args.camera_listen, args.config_out
+    )
+
+
 def _devices(args: argparse.Namespace) -> int:
     from acq.devices import main_devices
 
@@ -315,6 +323,42 @@ def build_parser() -> argparse.ArgumentParser:
     )
     info.add_argument("-o", "--output", type=Path, help="with --repair and one LOG: the copy")
     info.set_defaults(handler=_info)
+
+    replay = sub.add_parser(
+        "replay",
+        help="serve a log back through simulated devices on their real transports",
+        description="Serve recorded logs (the split files of one session, in order) back "
+        "through simulated devices: each scanner's raw telegrams byte for byte over SCIP "
+        "(TCP, or a pseudo-terminal with --pty) or CoLa (TCP), each camera's JPEG bytes as "
+        "MJPEG over HTTP, at their recorded receive times. Prints the devices' URLs and a "
+        "configuration for `acq record -c`. The replay starts when a client first asks a "
+        "device for data, and ends with the log (or Ctrl-C / SIGTERM). Exit status: 0 "
+        "served, 1 runtime failure, 2 bad log or address.",
+    )
+    replay.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files, in order")
+    replay.add_argument(
+        "--speed", type=float, default=1.0, metavar="X",
+        help="playback speed (default 1, the recorded pace; 2 plays twice as fast)",
+    )  # fmt: skip
+    replay.add_argument(
+        "--listen", metavar="tcp://HOST:PORT",
+        help="the first scanner's address, the next ones on the following ports "
+        "(default: 127.0.0.1, free ports)",
+    )  # fmt: skip
+    replay.add_argument(
+        "--pty", action="store_true", help="Hokuyo scanners on pseudo-terminals instead of TCP"
+    )
+    replay.add_argument(
+        "--camera-listen", metavar="http://HOST:PORT/PATH",
+        help="the first camera's address, the next ones on the following ports "
+        "(default: http://127.0.0.1, free ports, /stream.mjpg)",
+    )  # fmt: skip
+    replay.add_argument(
+        "--config-out", type=Path, metavar="YAML",
+        help="write the recorder configuration here (and the log's calibration beside it) "
+        "instead of printing it",
+    )  # fmt: skip
+    replay.set_defaults(handler=_replay)
 
     devices = sub.add_parser(
         "devices",

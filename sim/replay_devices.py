@@ -1,0 +1,483 @@
+"""Simulated devices that serve a recorded log instead of the synthetic street.
+
+The recorded bytes go back out exactly as they came in: each scanner telegram as the
+driver received it (``acq.RawTelegram.data``), each JPEG as the camera sent it, at the
+times they were received (MCAP ``log_time``), shifted to now and divided by the speed.
+A recorder that records the replay therefore gets the same device ticks, ranges and
+JPEG bytes; only the receive times are new.
+
+- :class:`ReplayClock` is the session's time axis, shared by all of its devices so that
+  they keep their recorded timing relative to each other. It starts the first time a
+  client asks any device for its time or its data (SCIP ``II``/``TM``/a scan command,
+  CoLa ``LMDscandata``, an MJPEG stream request): that device's first record is then
+  due ``lead_s`` later. It is a live device's time: a client that connects later, or
+  reconnects, gets what is due from then on, not what it missed.
+- :class:`ReplayStream` is one device's records on that axis.
+- :class:`ScipReplayDevice` and :class:`ColaReplayDevice` are ``SimDevice``s (serve them
+  with :class:`sim.transport.TcpDeviceServer` or ``PtyDeviceServer``): they answer the
+  start-up like the simulated devices (identity as recorded), and once the client starts
+  the recorded measurement they stream the recorded telegrams. A client asking for a
+  different measurement (another scan command or steps, the other CoLa encoding) is
+  refused (SCIP status ``0E``, CoLa ``sFA``) and ``report`` is called with why: a replay
+  serves only what was recorded.
+- :class:`ReplayMjpegServer` serves a camera's recorded JPEGs as MJPEG over HTTP.
+
+When the log ends the devices go silent: connections stay open, nothing more is sent
+(a reading client times out, as from a stalled device), until the server is closed.
+
+Times are the host's ``time.monotonic()`` seconds; log times are the recording host's
+monotonic nanoseconds.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from drivers.cola_codec import STX4, Telegram, unframe
+from drivers.scanner import ProtocolError
+from drivers.scip_codec import SCAN_COMMANDS, decode_int
+from sim.camera_device import MjpegServer, SimFrame
+from sim.cola_device import ColaDevice
+from sim.device_clock import SimClock
+from sim.scanner_models import ScannerModel
+from sim.scip_device import ScipDevice
+
+__all__ = [
+    "ColaReplayDevice",
+    "ReplayClock",
+    "ReplayMjpegServer",
+    "ReplayStream",
+    "ScipReplayDevice",
+    "cola_model",
+    "scip_model",
+]
+
+Report = Callable[[str], None]
+
+
+def _ignore(_msg: str) -> None:
+    pass
+
+
+class ReplayClock:
+    """Log time (recorded host monotonic ns) -> replay time (monotonic s), for a session.
+
+    ``at(log_ns) = origin + (log_ns - anchor_ns) / speed``; :meth:`start` fixes origin
+    and anchor once. Thread-safe.
+    """
+
+    def __init__(self, speed: float = 1.0, lead_s: float = 0.05) -> None:
+        if not (math.isfinite(speed) and speed > 0):
+            raise ValueError(f"speed must be a positive number, got {speed}")
+        self.speed = speed
+        self.lead_s = lead_s
+        self._lock = threading.Lock()
+        self._started = threading.Event()
+        self._origin = 0.0  # s
+        self._anchor_ns = 0
+
+    @property
+    def started(self) -> bool:
+        return self._started.is_set()
+
+    def start(self, now: float, first_ns: int) -> bool:
+        """Start the clock unless it runs: log time ``first_ns`` is due at ``now + lead_s``.
+        True when this call started it."""
+        with self._lock:
+            if self._started.is_set():
+                return False
+            self._origin = now + self.lead_s
+            self._anchor_ns = first_ns
+            self._started.set()
+            return True
+
+    def wait_started(self, timeout: float | None = None) -> bool:
+        return self._started.wait(timeout)
+
+    def at(self, log_ns: int) -> float:
+        """Replay time (monotonic s) at which log time ``log_ns`` is due."""
+        return self._origin + (log_ns - self._anchor_ns) * 1e-9 / self.speed
+
+    def log_ns_at(self, t: float) -> int:
+        """Log time (ns) due at replay time ``t`` (monotonic s)."""
+        return self._anchor_ns + round((t - self._origin) * self.speed * 1e9)
+
+
+class ReplayStream:
+    """One device's records: receive times (log ns, ascending) and bytes, served on a
+    :class:`ReplayClock`. Used by one server thread."""
+
+    def __init__(
+        self, name: str, times_ns: Sequence[int], data: Sequence[bytes], clock: ReplayClock
+    ) -> None:
+        if not times_ns or len(times_ns) != len(data):
+            raise ValueError(f"{name}: need as many record times as records, at least one")
+        self.name = name
+        self.times_ns = list(times_ns)
+        self.data = list(data)
+        self.clock = clock
+        self.active = False
+        self.sent = 0  # records handed out so far
+        self._k = 0  # next record
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+    @property
+    def first_ns(self) -> int:
+        return self.times_ns[0]
+
+    @property
+    def last_ns(self) -> int:
+        return self.times_ns[-1]
+
+    def start_clock(self, now: float) -> None:
+        """Start the shared clock here, unless it runs: this device's first record is due
+        ``lead_s`` from now."""
+        self.clock.start(now, self.first_ns)
+
+    def begin(self, now: float) -> None:
+        """A client starts streaming: serve from the first record due at or after ``now``."""
+        self.start_clock(now)
+        self._k = bisect.bisect_left(self.times_ns, self.clock.log_ns_at(now))
+        self.active = True
+
+    def stop(self) -> None:
+        self.active = False
+
+    def due(self) -> float | None:
+        """When the next record is due (monotonic s); None when stopped or at the end."""
+        if not self.active or self._k >= len(self.data):
+            return None
+        return self.clock.at(self.times_ns[self._k])
+
+    def take(self, now: float) -> list[bytes]:
+        """The records due by ``now``, in order (a burst when the server fell behind)."""
+        out: list[bytes] = []
+        if not self.active:
+            return out
+        while self._k < len(self.data) and self.clock.at(self.times_ns[self._k]) <= now:
+            out.append(self.data[self._k])
+            self._k += 1
+        self.sent += len(out)
+        return out
+
+    def latest(self, now: float) -> bytes:
+        """The last record due by ``now`` (the first one before it), for a polled scan."""
+        k = bisect.bisect_right(self.times_ns, self.clock.log_ns_at(now)) - 1
+        return self.data[max(k, 0)]
+
+
+class _NoSource:
+    """Stands in for the street: a replay device renders nothing."""
+
+    def scan(self, t0: float) -> Any:
+        raise RuntimeError("a replay device has no street to scan")
+
+
+# --- SCIP -----------------------------------------------------------------------------------
+
+
+def scip_model(info: dict[str, Any], params: dict[str, Any]) -> ScannerModel:
+    """The model a recorded Hokuyo describes: ``info`` (acq.records.DeviceInfo as a dict)
+    and ``params`` (drivers.scip_codec.ScipParams as a dict: PP in mm, steps, rpm)."""
+    extra = info.get("extra", {})
+    modl = str(params.get("model") or extra.get("PP.MODL") or "hokuyo")
+    return ScannerModel(
+        name=modl.split("(")[0].strip().lower() or "hokuyo",
+        vendor="hokuyo",
+        protocol="scip2.2" if "2.2" in extra.get("VV.PROT", "") else "scip2.0",
+        product=str(info.get("model", "")),
+        firmware=str(info.get("firmware", "")),
+        serial=str(info.get("serial", "")),
+        range_min=int(params["dmin"]) / 1000.0,
+        range_max=int(params["dmax"]) / 1000.0,
+        scan_hz=int(params["scan_rpm"]) / 60.0,
+        intensity=True,  # any scan command passes the model's gate; the echo check decides
+        multi_echo=True,
+        amin=int(params["amin"]),
+        amax=int(params["amax"]),
+        afrt=int(params["afrt"]),
+        ares=int(params["ares"]),
+        serial_port=True,
+        ethernet=True,
+    )
+
+
+class _RecordedTicks:
+    """The device clock of a replayed Hokuyo, for TM and II TIME answers.
+
+    The latest tick consistent with every telegram's receipt (of the first 200): the
+    stamp of the least delayed telegram plus the log time since its receipt, on the
+    replay's time axis (so it runs ``speed`` times fast in host time). Duck-types
+    :class:`sim.device_clock.SimClock` as far as :class:`ScipDevice` uses it.
+    """
+
+    epoch = 0.0
+
+    def __init__(self, stream: ReplayStream, tick_hz: float, bits: int) -> None:
+        self.stream = stream
+        self.tick_hz = tick_hz
+        self.bits = bits
+        wrap, half = 1 << bits, 1 << (bits - 1)
+        k0, r0 = _scip_tick(stream.data[0]), stream.first_ns
+        best = 0.0
+        for data, r in zip(stream.data[:200], stream.times_ns[:200], strict=False):
+            dk = (_scip_tick(data) - k0 + half) % wrap - half
+            best = max(best, dk - (r - r0) * 1e-9 * tick_hz)
+        self._k0 = k0 + best
+        self._r0 = r0
+
+    def ticks(self, t: float) -> int:
+        clock = self.stream.clock
+        if not clock.started:
+            self.stream.start_clock(t)
+        elapsed = (clock.log_ns_at(t) - self._r0) * 1e-9 * self.tick_hz
+        return math.floor(self._k0 + elapsed) % (1 << self.bits)
+
+    def reboot(self, t: float) -> None:
+        """A replayed device's clock is the recorded one, whatever happens to the link."""
+
+
+def _scip_tick(telegram: bytes) -> int:
+    """The 4-character time stamp of a SCIP scan telegram (third line)."""
+    lines = telegram.split(b"\n", 3)
+    if len(lines) < 4 or len(lines[2]) != 5:
+        raise ProtocolError(f"not a SCIP scan telegram: {telegram[:24]!r}")
+    return decode_int(lines[2][:4])
+
+
+class ScipReplayDevice(ScipDevice):
+    """A Hokuyo that streams recorded SCIP telegrams (see the module doc).
+
+    ``info``/``params``: the recorded ``device.<name>`` metadata (DeviceInfo, ScipParams
+    as dicts). VV/PP/II answer what the device answered then (II's TIME from the recorded
+    clock, LASR from the current state); the scan command must be the recorded one, echo
+    for echo (``MD``/``ME``/``ND``/``NE``, steps, cluster, interval, endless).
+    """
+
+    def __init__(
+        self,
+        stream: ReplayStream,
+        info: dict[str, Any],
+        params: dict[str, Any],
+        report: Report = _ignore,
+    ) -> None:
+        self.stream = stream
+        self.report = report
+        self.echo = stream.data[0].split(b"\n", 1)[0]
+        self.recorded_info = info
+        model = scip_model(info, params)
+        ticks = _RecordedTicks(stream, model.clock_hz, model.clock_bits)
+        super().__init__(model, source=_NoSource(), clock=ticks)  # type: ignore[arg-type]
+        self._reported: set[bytes] = set()
+
+    # --- SimDevice ------------------------------------------------------------------------
+
+    def poll(self, now: float) -> bytes:
+        if self._stream is None:
+            return b""
+        return b"".join(self.stream.take(now))
+
+    def next_due(self, now: float) -> float | None:
+        return None if self._stream is None else self.stream.due()
+
+    def on_disconnect(self) -> None:
+        super().on_disconnect()
+        self.stream.stop()
+
+    # --- replies ----------------------------------------------------------------------------
+
+    def _reply(self, line: bytes, now: float) -> bytes:
+        op = line[:2].decode("ascii", "replace")
+        if op in ("II", "TM") or op in SCAN_COMMANDS:
+            self.stream.start_clock(now)  # a time or data request starts the replay
+        items = None if self.tm_mode else self._recorded_items(line, now)
+        if items is not None:
+            self.commands.append(line.decode("ascii", "replace"))
+            return self._info(line, items)
+        reply = super()._reply(line, now)
+        if self._stream is None:
+            self.stream.stop()
+        return reply
+
+    def _recorded_items(self, line: bytes, now: float) -> list[tuple[str, str]] | None:
+        """VV/PP/II as the device answered when it was recorded (None: not one of them,
+        or not recorded)."""
+        if line not in (b"VV", b"PP", b"II"):
+            return None
+        prefix = line.decode("ascii") + "."
+        extra: dict[str, str] = self.recorded_info.get("extra", {})
+        items = [(k[3:], str(v)) for k, v in extra.items() if k.startswith(prefix)]
+        if not items:
+            return None
+        if line == b"II":
+            live = {"TIME": self._time_field(now), "LASR": "ON" if self.laser else "OFF"}
+            items = [(k, live.get(k, v)) for k, v in items]
+        return items
+
+    def _scan_command(self, line: bytes, op: str, params: str, now: float) -> bytes:
+        if line != self.echo:
+            if line not in self._reported:
+                self._reported.add(line)
+                self.report(
+                    f"{self.stream.name}: the client asked for {line.decode('ascii', 'replace')}"
+                    f" but the log holds {self.echo.decode('ascii', 'replace')} scans; a replay"
+                    " serves only what was recorded: configure the client's scanner options"
+                    " as in the recorded configuration"
+                )
+            return self._simple(line, "0E")
+        reply = super()._scan_command(line, op, params, now)
+        if self._stream is not None:
+            self.stream.begin(now)
+        return reply
+
+
+# --- CoLa -----------------------------------------------------------------------------------
+
+
+def cola_model(info: dict[str, Any], geometry: dict[str, Any]) -> ScannerModel:
+    """The model a recorded SICK describes: ``info`` (DeviceInfo as a dict) and
+    ``geometry`` (drivers.scanner.ScanGeometry as a dict: rad, s, m)."""
+    product = str(info.get("model", "")) or "LMS1xx"
+    return ScannerModel(
+        name=product.lower(),
+        vendor="sick",
+        protocol="cola",
+        product=product,
+        firmware=str(info.get("firmware", "")),
+        serial=str(info.get("serial", "")),
+        range_min=float(geometry.get("range_min", 0.0)),
+        range_max=max(float(geometry.get("range_max", 0.0)), 1.0),
+        scan_hz=1.0 / float(geometry["scan_period"]),
+        intensity=True,
+        start_deg=math.degrees(float(geometry["angle_min"])) + 90.0,
+        step_deg=math.degrees(float(geometry["angle_increment"])),
+        n_points=int(geometry["n_points"]),
+        ethernet=True,
+        clock_bits=32,
+        clock_hz=1e6,
+    )
+
+
+class ColaReplayDevice(ColaDevice):
+    """A SICK scanner that streams recorded ``sSN LMDscandata`` telegrams (CoLa-A or -B,
+    as recorded: it powers up in the recorded encoding).
+
+    The start-up (login, identity, scan configuration) is answered as
+    :class:`sim.cola_device.ColaDevice` does, from the recorded identity and geometry;
+    ``sEN LMDscandata 1`` starts the recorded stream, ``sRN LMDscandata`` answers the
+    latest recorded scan as ``sRA``.
+    """
+
+    def __init__(
+        self,
+        stream: ReplayStream,
+        info: dict[str, Any],
+        geometry: dict[str, Any],
+        report: Report = _ignore,
+    ) -> None:
+        self.stream = stream
+        self.report = report
+        self.recorded_binary = stream.data[0][:4] == STX4
+        model = cola_model(info, geometry)
+        super().__init__(
+            model,
+            source=_NoSource(),  # type: ignore[arg-type]
+            clock=SimClock(tick_hz=model.clock_hz, wrap_bits=model.clock_bits),
+            protocol="cola-b" if self.recorded_binary else "cola-a",
+        )
+        self._reported = False
+
+    def poll(self, now: float) -> bytes:
+        if not (self.streaming and self.measuring):
+            return b""
+        return b"".join(self.stream.take(now))
+
+    def next_due(self, now: float) -> float | None:
+        if not (self.streaming and self.measuring):
+            return None
+        return self.stream.due()
+
+    def on_disconnect(self) -> None:
+        super().on_disconnect()
+        self.stream.stop()
+
+    def _answer(self, tg: Telegram, now: float) -> bytes:
+        if tg.name == "LMDscandata" and tg.kind in ("sEN", "sRN"):
+            self.stream.start_clock(now)
+            if self.binary != self.recorded_binary:
+                if not self._reported:
+                    self._reported = True
+                    rec = "CoLa-B" if self.recorded_binary else "CoLa-A"
+                    self.report(
+                        f"{self.stream.name}: the client switched the device to "
+                        f"{self.protocol.upper()} but the log holds {rec} telegrams; a replay "
+                        "serves only what was recorded"
+                    )
+                return self._error(4)
+            if tg.kind == "sRN":
+                if not self.measuring:
+                    return self._error(4)
+                payload = unframe(self.stream.latest(now)).payload
+                return self._frame(b"sRA" + payload[3:])
+        reply = super()._answer(tg, now)
+        if tg.kind == "sEN" and tg.name == "LMDscandata":
+            if self.streaming:
+                self.stream.begin(now)
+            else:
+                self.stream.stop()
+        return reply
+
+
+# --- MJPEG ----------------------------------------------------------------------------------
+
+
+class _Sent:
+    """What :class:`MjpegServer` reports about each frame; a replay only counts them."""
+
+    def __init__(self) -> None:
+        self.sent = 0
+
+    def record(self, sequence: int, **fields: Any) -> None:
+        if fields.get("status") == "sent":
+            self.sent += 1
+
+
+class ReplayMjpegServer(MjpegServer):
+    """Serves a camera's recorded JPEG bytes as MJPEG over HTTP at their recorded times.
+
+    As :class:`sim.camera_device.MjpegServer` (several clients, the same faults): every
+    connected client gets each frame due while it is connected. The first client starts
+    the shared clock; with no client connected, frames are not sent (and not kept).
+    """
+
+    def __init__(
+        self, stream: ReplayStream, host: str = "127.0.0.1", port: int = 0, path: str = "/"
+    ) -> None:
+        super().__init__(_Sent(), host, port, path, late_s=math.inf)  # type: ignore[arg-type]
+        self.stream = stream
+
+    def _run(self) -> None:
+        stream = self.stream
+        sequence = 0
+        while not self._stop.is_set():
+            with self._lock:
+                watched = bool(self._clients)
+            now = time.monotonic()
+            if watched and not stream.active:
+                stream.begin(now)
+            elif not watched and stream.active:
+                stream.stop()
+            due = stream.due()
+            self._service(now + 0.01 if due is None else min(due, now + 0.01))
+            if self._stop.is_set():
+                return
+            for jpeg in stream.take(time.monotonic()):
+                self._deliver(SimFrame(sequence, jpeg, 0.0, time.monotonic(), 0.0))
+                sequence += 1

@@ -21,13 +21,9 @@ class UsageError(Exception):
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from acq import sim_render
+    from acq import demo
 
-    print(
-        "acq demo: the recorded demo (simulated rig -> recorder -> MCAP -> coloured cloud)\n"
-        "arrives with the recorder (issue 6). Until then it renders the simulated rig:\n"
-    )
-    return sim_render.run(out=args.out, time_s=2.0, seed=0, exact_equidistant=False)
+    return demo.run(Path(args.out), args.seconds)
 
 
 def _sim_render(args: argparse.Namespace) -> int:
@@ -174,11 +170,18 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser(
         "demo",
-        help="run the simulated rig end to end",
-        description="Run the simulated rig. Until the recorder lands this renders one "
-        "fisheye frame of the synthetic street with the laser profile of the same instant.",
+        help="record the simulated rig and colour its cloud, end to end",
+        description="Start the simulated rig (a UTM-30LX speaking SCIP on a pseudo-terminal, "
+        "a 185-degree fisheye serving MJPEG over HTTP, both on the synthetic street), record "
+        "it through the real drivers and recorder for --seconds, then colour every laser "
+        "point with the fisheye frame nearest in time, using the rig's calibration. Writes "
+        "DIR/demo.mcap, DIR/cloud.ply (x y z, colour, UTC time, scan, intensity), "
+        "DIR/preview.png (the coloured facade and a top view), calib.yaml and config.yaml, "
+        "and prints a summary checked against the simulator's truth. The vehicle's path is "
+        "the simulator's (odometry comes with the CAN driver).",
     )
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    demo.add_argument("--seconds", type=float, default=10.0, help="how long to record (default 10)")
     demo.set_defaults(handler=_demo)
 
     sim = sub.add_parser("sim", help="simulated street and devices")

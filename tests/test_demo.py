@@ -1,0 +1,203 @@
+"""`acq demo` end to end: the simulated rig recorded through the real recorder for 3 s,
+the files it writes read back with independent readers (mcap's seeking reader, plyfile,
+OpenCV), and the cloud's colours checked against the simulator's own surface colours."""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+from plyfile import PlyData
+
+from acq.demo import COLOUR_TOLERANCE, colour_check, run
+
+SECONDS = 3.0
+PLY_PROPERTIES = [
+    ("x", "double"),
+    ("y", "double"),
+    ("z", "double"),
+    ("red", "uchar"),
+    ("green", "uchar"),
+    ("blue", "uchar"),
+    ("time", "double"),
+    ("scan", "uint"),
+    ("intensity", "float"),
+    ("coloured", "uchar"),
+]
+
+
+class Demo(NamedTuple):
+    out: Path
+    code: int
+    took_s: float  # wall time of run()
+    utc0: float  # UTC s when it started
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
+    out = tmp_path_factory.mktemp("demo")
+    wall0, utc0 = time.monotonic(), time.time()
+    code = run(out, seconds=SECONDS)
+    return Demo(out, code, time.monotonic() - wall0, utc0)
+
+
+def test_exit_code_files_and_time(demo: Demo) -> None:
+    out, code, took, _ = demo
+    assert code == 0
+    for name in ("demo.mcap", "cloud.ply", "preview.png", "calib.yaml", "config.yaml"):
+        assert (out / name).is_file(), name
+    assert not (out / ".recording").exists()
+    assert took < 40.0
+
+
+class Log(NamedTuple):
+    scans: int
+    valid: int  # finite ranges
+    frame_utc: np.ndarray  # (F,) s, the frames' stamps (middle of exposure)
+
+
+def _read_log(path: Path) -> Log:
+    """What the test needs of the log, through mcap's seeking reader (needs the summary)."""
+    scans = valid = 0
+    frames: list[int] = []
+    offsets: list[int] = []
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        for _, channel, message, msg in reader.iter_decoded_messages(
+            topics=["/laser/scan", "/camera/image/compressed", "/acq/clock"]
+        ):
+            if channel.topic == "/laser/scan":
+                scans += 1
+                valid += int(np.isfinite(np.asarray(msg.ranges)).sum())
+            elif channel.topic == "/acq/clock":
+                offsets.append(msg.realtime_ns - msg.monotonic_ns)
+            else:
+                frames.append(message.publish_time)
+    utc = (np.array(frames) + int(np.median(offsets))) * 1e-9
+    return Log(scans, valid, utc)
+
+
+def _on_cadence(stamps: np.ndarray, period_s: float = 0.04, slack_s: float = 0.006) -> np.ndarray:
+    """(F,) bool: frames 'on time', both intervals to their neighbours one period within
+    ``slack_s``. A frame the busy machine delivered late (the camera sends no time, so
+    its stamp is its receipt) breaks the cadence of the stream."""
+    d = np.diff(stamps)
+    ok = np.abs(d - period_s) < slack_s
+    out = np.zeros(stamps.size, dtype=bool)
+    out[1:-1] = ok[:-1] & ok[1:]
+    return out
+
+
+def _laser_rays(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The laser rays that measured world points, from the geometry alone.
+
+    The demo's drive is the simulator's default: straight along +x in the lane at
+    y = -1.5, the laser 2.2 m up scanning the plane across the street. The ray to a
+    point therefore lies in the plane x = x_point and starts at (x_point, -1.5, 2.2).
+    """
+    from sim.world import Trajectory, default_rig
+
+    traj, rig = Trajectory(), default_rig()
+    assert traj.curve_amplitude == 0 and traj.vibration_rad == 0
+    y = traj.y0 + rig.laser_to_vehicle.translation[1]
+    z = rig.laser_to_vehicle.translation[2]
+    origins = np.stack([xyz[:, 0], np.full(len(xyz), y), np.full(len(xyz), z)], axis=1)
+    dirs = xyz - origins
+    return origins, dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+
+
+def test_log_and_cloud_agree(demo: Demo) -> None:
+    out, code, _, utc0 = demo
+    assert code == 0
+    scans, valid, frame_utc = _read_log(out / "demo.mcap")
+    assert scans == pytest.approx(SECONDS * 40, rel=0.1)
+    frames = frame_utc.size
+    assert frames == pytest.approx(SECONDS * 25, rel=0.15), "the sim camera fell behind (busy?)"
+
+    head = (out / "cloud.ply").read_bytes()[:2000].split(b"end_header")[0].decode("ascii")
+    lines = head.splitlines()
+    assert lines[:2] == ["ply", "format binary_little_endian 1.0"]
+    assert f"element vertex {valid}" in lines  # one point per finite range recorded
+    props = [tuple(line.split()[1:]) for line in lines if line.startswith("property")]
+    assert props == [(kind, name) for name, kind in PLY_PROPERTIES]
+    v = PlyData.read(str(out / "cloud.ply"))["vertex"].data
+    assert len(v) == valid
+    # UTC times within the run, one scan index per recorded scan
+    assert np.all(np.isfinite(v["time"]))
+    assert utc0 < v["time"].min() < v["time"].max() < utc0 + 60
+    assert np.unique(v["scan"]).size == pytest.approx(scans, abs=2)
+    assert v["intensity"].max() > 0
+
+    # the camera looks left (+y): what lies in front of it is coloured, behind it not
+    coloured = v["coloured"].astype(bool)
+    share = coloured.mean()
+    print(f"coloured share {share:.3f}")
+    assert share > 0.40  # the measured share is about 0.46: one camera, one side
+    front, behind = v["y"] > -1.0, v["y"] < -2.0
+    assert coloured[front].mean() > 0.97
+    assert coloured[behind].mean() < 0.01
+    assert np.all(v["red"][~coloured] == 0)
+
+
+def test_colours_are_the_true_surface_colours(demo: Demo) -> None:
+    from sim.world import Street, default_rig
+
+    out, code, _, _ = demo
+    assert code == 0
+    v = PlyData.read(str(out / "cloud.ply"))["vertex"].data
+    c = v[v["coloured"].astype(bool)]
+    xyz = np.stack([c["x"], c["y"], c["z"]], axis=1)
+    rgb = np.stack([c["red"], c["green"], c["blue"]], axis=1)
+    origins, dirs = _laser_rays(xyz)
+    street = Street.generate(seed=0, length_m=1000.0)
+    strict, near = colour_check(street, origins, dirs, rgb, default_rig().lens.fx)
+    # the frames each point was coloured by (the nearest in time), and whether they kept
+    # the camera's cadence
+    frame_utc = _read_log(out / "demo.mcap").frame_utc
+    i = np.clip(np.searchsorted(frame_utc, c["time"]), 1, frame_utc.size - 1)
+    nearest = np.where(c["time"] - frame_utc[i - 1] < frame_utc[i] - c["time"], i - 1, i)
+    steady = _on_cadence(frame_utc)[nearest]
+    print(
+        f"colour agreement of {strict.size} coloured points, within {COLOUR_TOLERANCE}/255: "
+        f"{strict.mean():.4f} of the true colour at the point, {near.mean():.4f} of the "
+        f"true colours within one camera pixel; {near[steady].mean():.4f} of the "
+        f"{steady.mean():.0%} coloured by frames that kept the camera's cadence"
+    )
+    # Measured on a quiet machine: about 0.90 and 0.98, and 0.98. Frames 20 ms late give
+    # 0.85 and 0.94, 50 ms late 0.80 and 0.88; the camera turned by 1 degree 0.81 and 0.91.
+    # A busy machine delivers frames late (0.83 and 0.90 with another simulated camera
+    # rendering beside), which the cadence check sets aside.
+    assert strict.mean() >= 0.75
+    assert near.mean() >= 0.85
+    assert steady.mean() >= 0.5
+    assert near[steady].mean() >= 0.95
+
+
+def test_preview_is_a_picture_of_the_street(demo: Demo) -> None:
+    out, code, _, _ = demo
+    assert code == 0
+    img = cv2.imread(str(out / "preview.png"), cv2.IMREAD_COLOR)
+    assert img is not None
+    v = PlyData.read(str(out / "cloud.ply"))["vertex"].data
+    lo, hi = np.percentile(v["x"], [0.1, 99.9])
+    width = math.ceil((max(hi - lo, 1.0) + 1.0) / 0.03)  # 3 cm per pixel along the street
+    assert abs(img.shape[1] - width) <= 2
+    assert 400 < img.shape[0] < 3000
+    spread = img.max(axis=2).astype(int) - img.min(axis=2)
+    assert (spread > 30).mean() > 0.05  # colour, not only grey points on black
+
+
+def test_bad_seconds_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for seconds in (0.0, -1.0, math.nan, 1e6):
+        assert run(tmp_path / "x", seconds=seconds) == 2
+    assert "--seconds" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()  # nothing started, nothing written

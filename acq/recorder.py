@@ -70,11 +70,20 @@ class DeviceState:
     disconnects: int = 0
     protocol_errors: int = 0
     last_recv_ns: int = 0
+    last_tick: int | None = None  # the last raw device tick
     last_event: str = ""
     clock: DeviceClock | None = None
     latency_s: float = 0.0
     latency_bounds_s: tuple[float, float] | None = None
     times: deque[int] = field(default_factory=lambda: deque(maxlen=256))  # recent recv ns
+
+    def clock_offset_ns(self) -> int:
+        """Host ns minus device ns (unwrapped ticks) at the last stamp; 0 before any."""
+        clock, tick = self.clock, self.last_tick
+        if clock is None or tick is None or clock.updates == 0:
+            return 0
+        device_ns = round(clock.unwrapper.nearest(tick) * 1e9 / clock.tick_hz)
+        return clock.to_host_ns(tick) - device_ns
 
     def rate_hz(self, now_ns: int) -> float:
         recent = [t for t in self.times if now_ns - t <= 2_000_000_000]
@@ -291,6 +300,8 @@ class Recorder:
                 )
             state.received += 1
             state.last_recv_ns = scan.recv_ns
+            if scan.device_ticks:
+                state.last_tick = scan.device_ticks[0]
             state.times.append(scan.recv_ns)
             if not scan.device_ticks:
                 stamp = scan.recv_ns - round(state.latency_s * 1e9)
@@ -444,6 +455,21 @@ class Recorder:
         minutes = max(free - reserve, 0.0) / rate / 60.0 if rate > 0 else math.inf
         return free, minutes
 
+    def _clock_metadata(self) -> dict[str, str]:
+        """Per device: clock offset (host minus device ns), drift, epoch, latency; and a
+        realtime/monotonic pair."""
+        out = {"realtime_ns": str(time.time_ns()), "monotonic_ns": str(time.monotonic_ns())}
+        for d in self.devices.values():
+            if d.clock is None:
+                continue
+            out[f"{d.name}.offset_ns"] = str(d.clock_offset_ns())
+            out[f"{d.name}.drift_ppm"] = f"{d.clock.drift_ppm:.3f}"
+            out[f"{d.name}.epoch"] = str(d.clock.epoch)
+            out[f"{d.name}.latency_s"] = f"{d.latency_s:.6f}"
+            if d.latency_bounds_s is not None:
+                out[f"{d.name}.latency_bounds_s"] = "{:.6f} {:.6f}".format(*d.latency_bounds_s)
+        return out
+
     def _status(self, writer: LogWriter, now_ns: int, free: int, minutes: float) -> None:
         devices = []
         for d in self.devices.values():
@@ -466,7 +492,7 @@ class Recorder:
                     protocol_errors=d.protocol_errors,
                     gap_s=gap,
                     last_event=d.last_event,
-                    clock_offset_ns=0,
+                    clock_offset_ns=d.clock_offset_ns(),
                     clock_drift_ppm=clock.drift_ppm if clock else 0.0,
                     clock_uncertainty_s=_finite(clock.uncertainty_s) if clock else 0.0,
                     epoch=clock.epoch if clock else 0,
@@ -500,6 +526,7 @@ class Recorder:
     def _writer_loop(self, writer: LogWriter) -> None:
         reserve = self.config.output.reserve_megabytes * 1e6
         next_status = time.monotonic_ns()
+        next_clock_meta = next_status + 2_000_000_000  # once the clocks have some data
         deadline = (
             self.started_ns + round(self.duration_s * 1e9) if self.duration_s is not None else None
         )
@@ -529,6 +556,9 @@ class Recorder:
                 writer.sync()
                 free, minutes = self._disk(writer, now)
                 self._status(writer, now, free, minutes)
+                if now >= next_clock_meta:
+                    next_clock_meta = now + 60_000_000_000
+                    writer.update_metadata("clock", self._clock_metadata())
                 self.notifier.watchdog()
                 # stop while the next seconds of data still fit above the reserve
                 if free - 2 * self._write_rate() < reserve:

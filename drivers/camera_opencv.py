@@ -15,8 +15,9 @@ clock (``time_source="kernel"``); elsewhere the host time at which the frame's l
 arrived (``time_source="receipt"``). Either way ``latency_s`` (the nominal delay from
 the middle of the exposure to that instant) is subtracted, so ``stamp_ns`` is the middle
 of the exposure. Sequence numbers are the driver's own: a gap of more than 1.5 frame
-periods since the previous frame advances them by the frames that must have been lost,
-which are counted in ``drops``.
+periods since the previous frame advances them by the frames that may have been lost,
+which are counted in ``drops`` unless the next frames arrive bunched up (they were late,
+not lost: ``drops`` is then taken back).
 """
 
 from __future__ import annotations
@@ -94,6 +95,7 @@ class OpenCVCamera(Camera):
         self._pending: Frame | None = None  # the frame read while connecting
         self._sequence = -1
         self._last_ns: int | None = None  # receipt of the previous batch with a frame
+        self._suspect = 0  # frames a long gap says may be lost, until the next ones show
 
     # --- common ------------------------------------------------------------------------
 
@@ -114,14 +116,20 @@ class OpenCVCamera(Camera):
             gap = (recv_ns - self._last_ns) / period
             if gap > 1.5:
                 missing = max(0, round(gap) - count)
+            elif gap < 0.5 and self._suspect > 0:
+                # frames arriving in a bunch after a long gap were late, not lost: a
+                # busy host or network delays them; a lost frame is never made up for
+                self._suspect -= 1
+                self.drops -= 1
         self._last_ns = recv_ns
         self.drops += missing
+        self._suspect = missing if missing else self._suspect
         self._sequence += 1 + missing
         return self._sequence
 
     def connect(self) -> DeviceInfo:
         self.close()
-        self._sequence, self._last_ns = -1, None
+        self._sequence, self._last_ns, self._suspect = -1, None, 0
         info = self._connect_http() if self.is_http else self._connect_capture()
         self.info = info
         return info

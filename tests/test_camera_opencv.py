@@ -312,3 +312,20 @@ def test_jpeg_size_real_and_broken() -> None:
     for broken in (data[: len(data) // 2], data[2:], data[:20] + data[-2:], b""):
         with pytest.raises(ProtocolError):
             jpeg_size(broken)
+
+
+@pytest.mark.parametrize(
+    ("arrivals_ms", "drops"),
+    [
+        ([0, 40, 80, 160, 200, 240], 1),  # one frame never came
+        ([0, 40, 80, 150, 162, 200, 240], 0),  # one came late, the next right behind it
+        ([0, 40, 200, 205, 210, 215, 240], 0),  # three late, bunched
+        ([0, 40, 200, 240, 280], 3),  # three lost
+    ],
+)
+def test_a_late_frame_is_not_a_drop(arrivals_ms: list[int], drops: int) -> None:
+    # the HTTP stream has no frame numbers: gaps in receipt times are all there is
+    cam = OpenCVCamera("http://127.0.0.1:9/stream.mjpg", fps=25.0)
+    for t in arrivals_ms:
+        cam._advance(t * 1_000_000)
+    assert cam.drops == drops

@@ -14,70 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from acq import config as configfile
 from acq.recorder import EXIT_DISK_FULL, Recorder
-from sim.camera_device import MjpegServerProcess
-from sim.scanner_models import MODELS
-from sim.scip_device import ScipDevice
-from sim.transport import TcpDeviceServer
+from tests.sim_rig import Rig
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-class Rig:
-    """A simulated rig: a UTM-30LX on TCP and a fisheye camera over HTTP."""
-
-    def __init__(self) -> None:
-        self.scanner = ScipDevice(MODELS["utm-30lx"])
-        self.scanner_server = TcpDeviceServer(self.scanner).start()
-        self.camera = MjpegServerProcess()
-
-    def config(
-        self, tmp_path: Path, latency: float | str = "auto", **output: object
-    ) -> configfile.Config:
-        data = {
-            "version": 1,
-            "scanners": [
-                {"name": "laser", "driver": "hokuyo", "url": self.scanner_server.url,
-                 "options": {"intensity": True}, "latency_s": latency},
-            ],
-            "cameras": [
-                {"name": "camera", "driver": "opencv", "source": self.camera.url, "fps": 25,
-                 "latency_s": 0.022},
-            ],
-            "output": {"dir": str(tmp_path / "logs"), **output},
-        }  # fmt: skip
-        path = tmp_path / "rig.yaml"
-        path.write_text(yaml.safe_dump(data))
-        return configfile.load(path)
-
-    def warm_up(self) -> Rig:
-        """Read a few frames and scans, so no test pays for the simulators' first frames."""
-        from drivers.camera_opencv import OpenCVCamera
-        from drivers.scip import ScipScanner
-
-        with OpenCVCamera(self.camera.url, timeout=30.0) as cam:
-            cam.connect()
-            cam.start()
-            for _ in range(3):
-                cam.read_frame()
-        scanner = ScipScanner(self.scanner_server.url, timeout=5.0)
-        try:
-            scanner.connect()
-            scanner.start()
-            for _ in range(3):
-                scanner.read_scan()
-        finally:
-            scanner.close()
-        return self
-
-    def close(self) -> None:
-        self.scanner_server.close()
-        self.camera.close()
 
 
 @pytest.fixture(scope="module")
@@ -159,6 +102,10 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     assert geometry["stamp_offset_s"] == pytest.approx(180 * 0.025 / 1440)
     assert json.loads(meta["device.laser"]["params"])["ares"] == 1440
     assert json.loads(meta["device.camera"]["format"])["width"] == 780
+    # the clock offsets in the metadata and the status: host minus device time
+    offset = int(meta["clock"]["laser.offset_ns"])
+    assert offset != 0 and int(meta["clock"]["laser.epoch"]) == 0
+    assert abs(names["laser"].clock_offset_ns - offset) < 0.01e9  # drift over seconds: tiny
 
 
 def _acq(*args: str, **kw: object) -> subprocess.Popen[bytes]:

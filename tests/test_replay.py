@@ -13,49 +13,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from mcap.writer import Writer as McapWriter
 
 from acq import config as configfile
 from acq import loginfo, schemas
 from acq.recorder import Recorder
 from acq.replay import Replay, replay_main
-from sim.camera_device import MjpegServerProcess
-from sim.scanner_models import MODELS
-from sim.scip_device import ScipDevice
 from sim.transport import TcpDeviceServer
+from tests.sim_rig import Rig
 
 RECORD_S = 4.0
-
-
-class Rig:
-    """A simulated rig: a UTM-30LX on TCP and a fisheye camera over HTTP."""
-
-    def __init__(self) -> None:
-        self.scanner = ScipDevice(MODELS["utm-30lx"])
-        self.scanner_server = TcpDeviceServer(self.scanner).start()
-        self.camera = MjpegServerProcess()
-
-    def config(self, tmp_path: Path, **output: object) -> configfile.Config:
-        data = {
-            "version": 1,
-            "scanners": [
-                {"name": "laser", "driver": "hokuyo", "url": self.scanner_server.url,
-                 "options": {"intensity": True}, "latency_s": 0},
-            ],
-            "cameras": [
-                {"name": "camera", "driver": "opencv", "source": self.camera.url, "fps": 25,
-                 "latency_s": 0.022},
-            ],
-            "output": {"dir": str(tmp_path / "logs"), **output},
-        }  # fmt: skip
-        path = tmp_path / "rig.yaml"
-        path.write_text(yaml.safe_dump(data))
-        return configfile.load(path)
-
-    def close(self) -> None:
-        self.scanner_server.close()
-        self.camera.close()
 
 
 @dataclass
@@ -109,7 +76,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Iterator[list[Path]]:
         tmp = tmp_path_factory.mktemp(f"rig{attempt}")
         rig = Rig()  # a fresh one each time: a simulated camera that fell behind may lag on
         try:
-            assert Recorder(rig.config(tmp), duration_s=RECORD_S).run() == 0
+            assert Recorder(rig.config(tmp, latency=0.0), duration_s=RECORD_S).run() == 0
         finally:
             rig.close()
         files = sorted((tmp / "logs").glob("*.mcap"))

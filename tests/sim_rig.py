@@ -1,0 +1,67 @@
+"""A simulated rig for the recorder, replay and demo tests: a UTM-30LX speaking SCIP on
+TCP (in this process) and the fisheye camera serving MJPEG over HTTP (in its own
+process), with a recorder configuration pointing at them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from acq import config as configfile
+from sim.camera_device import MjpegServerProcess
+from sim.scanner_models import MODELS
+from sim.scip_device import ScipDevice
+from sim.transport import TcpDeviceServer
+
+
+class Rig:
+    """A simulated rig: a UTM-30LX on TCP and a fisheye camera over HTTP."""
+
+    def __init__(self) -> None:
+        self.scanner = ScipDevice(MODELS["utm-30lx"])
+        self.scanner_server = TcpDeviceServer(self.scanner).start()
+        self.camera = MjpegServerProcess()
+
+    def config(
+        self, tmp_path: Path, latency: float | str = "auto", **output: object
+    ) -> configfile.Config:
+        data = {
+            "version": 1,
+            "scanners": [
+                {"name": "laser", "driver": "hokuyo", "url": self.scanner_server.url,
+                 "options": {"intensity": True}, "latency_s": latency},
+            ],
+            "cameras": [
+                {"name": "camera", "driver": "opencv", "source": self.camera.url, "fps": 25,
+                 "latency_s": 0.022},
+            ],
+            "output": {"dir": str(tmp_path / "logs"), **output},
+        }  # fmt: skip
+        path = tmp_path / "rig.yaml"
+        path.write_text(yaml.safe_dump(data))
+        return configfile.load(path)
+
+    def warm_up(self) -> Rig:
+        """Read a few frames and scans, so no test pays for the simulators' first frames."""
+        from drivers.camera_opencv import OpenCVCamera
+        from drivers.scip import ScipScanner
+
+        with OpenCVCamera(self.camera.url, timeout=30.0) as cam:
+            cam.connect()
+            cam.start()
+            for _ in range(3):
+                cam.read_frame()
+        scanner = ScipScanner(self.scanner_server.url, timeout=5.0)
+        try:
+            scanner.connect()
+            scanner.start()
+            for _ in range(3):
+                scanner.read_scan()
+        finally:
+            scanner.close()
+        return self
+
+    def close(self) -> None:
+        self.scanner_server.close()
+        self.camera.close()

@@ -474,11 +474,9 @@ class Recorder:
         devices = []
         for d in self.devices.values():
             clock = d.clock
-            gap = (
-                (now_ns - d.last_recv_ns) * 1e-9
-                if d.last_recv_ns
-                else (now_ns - self.started_ns) * 1e-9
-            )
+            # seconds since its last record (a record may land while this runs: >= 0)
+            since = d.last_recv_ns if d.last_recv_ns else self.started_ns
+            gap = max(now_ns - since, 0) * 1e-9
             devices.append(
                 schemas.DeviceStatus(
                     name=d.name,

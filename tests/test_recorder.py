@@ -88,8 +88,10 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     assert len(status) == pytest.approx(6, abs=1)
     last = status[-1][2]
     names = {d.name: d for d in last.devices}
-    assert names["laser"].connected and names["laser"].rate_hz == pytest.approx(40, rel=0.05)
-    assert names["camera"].rate_hz == pytest.approx(25, rel=0.1)
+    # rates over the last 2 s of receipts (a loaded host bunches them: 15 %)
+    assert names["laser"].connected and names["laser"].rate_hz == pytest.approx(40, rel=0.15)
+    assert names["camera"].rate_hz == pytest.approx(25, rel=0.15)
+    assert all(d.gap_s >= 0 for d in last.devices)
     assert last.disk_free_bytes > 0
     assert len(log["/acq/clock"]) == len(status)
     with files[0].open("rb") as f:

@@ -153,6 +153,15 @@ def _replay(args: argparse.Namespace) -> int:
     )
 
 
+def _calibrate_fisheye(args: argparse.Namespace) -> int:
+    from acq.fisheye_calib import main_fisheye
+
+    return main_fisheye(
+        args.images, args.fov, args.output, camera=args.camera, ellipse=args.ellipse,
+        json_out=args.json, overlay=args.overlay, board=args.board,
+    )  # fmt: skip
+
+
 def _devices(args: argparse.Namespace) -> int:
     from acq.devices import main_devices
 
@@ -362,6 +371,49 @@ def build_parser() -> argparse.ArgumentParser:
         "instead of printing it",
     )  # fmt: skip
     replay.set_defaults(handler=_replay)
+
+    cal = sub.add_parser("calibrate", help="calibrate the rig's sensors")
+    cal_sub = cal.add_subparsers(dest="calibrate_command", metavar="WHAT", required=True)
+    fish = cal_sub.add_parser(
+        "fisheye",
+        help="fisheye intrinsics from the image circle (paper §3.3.2)",
+        description="Find the image circle of a fisheye camera in one or more of its images "
+        "(any scene): barycentre of the non-black pixels, least-squares circle on Canny edges, "
+        "Hough circle, and a sub-pixel fit of the rim along rays (the one used). Works on "
+        "circles cut by the sensor edges. Writes u0, v0 = the centre and f = r / theta_max "
+        "(theta_max = fov / 2) into the camera's entry of CALIB (equidistant model; the rest "
+        "of an existing file is kept), and an overlay PNG. With --board, also fits the "
+        "Kannala-Brandt model (k1..k4) to a checkerboard in the images and writes that instead.",
+    )
+    fish.add_argument("images", nargs="+", type=Path, metavar="IMAGE", help="images of one camera")
+    fish.add_argument(
+        "--fov", type=float, required=True, metavar="DEG",
+        help="the lens's full aperture in degrees, from its data sheet (e.g. 185)",
+    )  # fmt: skip
+    fish.add_argument(
+        "--camera", metavar="NAME",
+        help="the entry under cameras: (default: CALIB's only camera, or 'camera' in a new file)",
+    )  # fmt: skip
+    fish.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="CALIB",
+        help="calib.yaml to create or update",
+    )  # fmt: skip
+    fish.add_argument(
+        "--ellipse", action="store_true",
+        help="non-square pixels: fit an axis-aligned ellipse "
+        "(fx = rx / theta_max, fy = ry / theta_max)",
+    )  # fmt: skip
+    fish.add_argument("--json", action="store_true", help="JSON instead of text")
+    fish.add_argument(
+        "--overlay", type=Path, metavar="PNG",
+        help="where to draw the circles on the first image (default: CALIB's name + _circle.png)",
+    )  # fmt: skip
+    fish.add_argument(
+        "--board", metavar="COLSxROWSxSQUARE",
+        help="also fit Kannala-Brandt to this checkerboard (inner corners, square in metres, "
+        "e.g. 8x6x0.117), starting from the circle",
+    )  # fmt: skip
+    fish.set_defaults(handler=_calibrate_fisheye)
 
     devices = sub.add_parser(
         "devices",

@@ -1,0 +1,758 @@
+"""The image circle of a fisheye image: its centre and radius (paper §3.3.2).
+
+Four estimators, each on a grey image (pixel centres at integers, as in OpenCV):
+
+- ``barycentre``: centroid and area of the non-black (filled) disc; the paper's first. It
+  assumes a whole disc: biased when the circle is cut by the sensor edges.
+- ``canny_fit``: least-squares circle through the Canny edge pixels of the rim, minus those
+  on the sensor edges.
+- ``hough``: a Hough circle transform of those edge pixels, each voting along its
+  gradient (whole pixels; OpenCV's ``HoughCircles`` strays by 10 px on the real images).
+- ``subpixel``: along rays from a first centre, the rim is where the intensity falls
+  fastest (the extremum of the radial derivative of the lightly blurred image, to a
+  fraction of a pixel); rays that leave the sensor, cross saturated glare or find no dark
+  outside are dropped, RANSAC rejects the rest of the outliers, and a geometric least
+  squares fit (radial distances) gives the circle. Twice, the second time from the
+  refined centre.
+
+With ``ellipse=True`` every estimator fits an axis-aligned ellipse instead (non-square
+pixels: semi-axes ``rx`` along u and ``ry`` along v). Several images of the same camera
+are combined: their edge points are pooled for the fits, the other estimators averaged.
+
+The black level and noise are measured on the image border, not assumed zero, and the
+disc threshold sits a few noise sigmas above it, so the paper's threshold estimators move
+little with noise; they still move with vignetting and soft edges (a threshold meets a
+faded rim further in or out), which the gradient-based sub-pixel estimator does not.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "ESTIMATORS",
+    "CircleResult",
+    "EdgePoints",
+    "Estimate",
+    "ImageCircle",
+    "RayEdges",
+    "barycentre",
+    "black_level",
+    "canny_fit",
+    "detect",
+    "disc_mask",
+    "fit_conic",
+    "hough",
+    "ransac_fit",
+    "ray_edges",
+    "refine_fit",
+    "subpixel",
+    "to_gray",
+]
+
+ESTIMATORS = ("barycentre", "canny_fit", "hough", "subpixel")
+
+
+@dataclass(frozen=True)
+class ImageCircle:
+    """An image circle, or an axis-aligned ellipse (non-square pixels), px."""
+
+    cx: float
+    cy: float
+    rx: float  # semi-axis along u
+    ry: float  # semi-axis along v (== rx for a circle)
+
+    def __post_init__(self) -> None:
+        for name in ("cx", "cy", "rx", "ry"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    @property
+    def radius(self) -> float:
+        """The radius; for an ellipse the mean of the semi-axes."""
+        return 0.5 * (self.rx + self.ry)
+
+    def radius_at(self, phi: np.ndarray) -> np.ndarray:
+        """Distance from the centre to the curve in direction ``phi`` (rad, from +u to +v)."""
+        return 1.0 / np.hypot(np.cos(phi) / self.rx, np.sin(phi) / self.ry)
+
+    def residuals(self, points: np.ndarray) -> np.ndarray:
+        """(N,) radial distance of (N,2) points from the curve, px (+ outside)."""
+        d = points - (self.cx, self.cy)
+        return np.hypot(d[:, 0], d[:, 1]) - self.radius_at(np.arctan2(d[:, 1], d[:, 0]))
+
+    def cut_sides(self, width: int, height: int, margin: float = 0.5) -> tuple[str, ...]:
+        """The sensor edges the curve reaches past (left, right, top, bottom)."""
+        sides = []
+        if self.cx - self.rx < -0.5 - margin:
+            sides.append("left")
+        if self.cx + self.rx > width - 0.5 + margin:
+            sides.append("right")
+        if self.cy - self.ry < -0.5 - margin:
+            sides.append("top")
+        if self.cy + self.ry > height - 0.5 + margin:
+            sides.append("bottom")
+        return tuple(sides)
+
+    def to_dict(self) -> dict[str, float]:
+        d = {"cx": self.cx, "cy": self.cy, "radius": self.radius}
+        if self.rx != self.ry:
+            d |= {"rx": self.rx, "ry": self.ry}
+        return {k: round(float(v), 4) for k, v in d.items()}
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One estimator's circle, with the count of points it used and its fit quality."""
+
+    name: str
+    circle: ImageCircle
+    n_points: int  # edge points in the fit (disc pixels for the barycentre)
+    rms_px: float = math.nan  # RMS radial residual of the fitted points
+    sigma_px: tuple[float, ...] = ()  # standard errors of (cx, cy, rx[, ry]) from the fit
+    notes: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {**self.circle.to_dict(), "n_points": self.n_points}
+        if math.isfinite(self.rms_px):
+            d["rms_px"] = round(self.rms_px, 4)
+        if self.sigma_px:
+            d["sigma_px"] = [round(float(s), 4) for s in self.sigma_px]
+        if self.notes:
+            d["notes"] = list(self.notes)
+        return d
+
+
+@dataclass(frozen=True)
+class EdgePoints:
+    """Sub-pixel rim points (N,2) px, which the final fit kept, and which image each is from."""
+
+    points: np.ndarray
+    inlier: np.ndarray  # (N,) bool
+    image: np.ndarray  # (N,) int
+
+
+@dataclass(frozen=True)
+class CircleResult:
+    """The image circle from one or more images, with every estimator's answer."""
+
+    circle: ImageCircle  # the sub-pixel estimate
+    estimates: dict[str, Estimate]  # all images combined, by estimator
+    per_image: list[dict[str, Estimate]]
+    width: int
+    height: int
+    black_level: float  # DN, median over images
+    noise: float  # DN sigma of the black level
+    threshold: float  # DN, the disc threshold of the barycentre and the masks
+    truncated: tuple[str, ...]  # sensor edges the circle is cut by
+    edges: EdgePoints
+    warnings: tuple[str, ...] = ()
+    rays: dict[str, int] = field(default_factory=dict)  # ray counts: cast, kept, dropped by cause
+
+    @property
+    def spread_centre_px(self) -> float:
+        """Largest distance between two estimators' centres, px."""
+        c = np.array([(e.circle.cx, e.circle.cy) for e in self.estimates.values()])
+        return float(np.max(np.hypot(*(c[:, None, :] - c[None, :, :]).transpose(2, 0, 1))))
+
+    @property
+    def spread_radius_px(self) -> float:
+        """Largest minus smallest radius over the estimators, px."""
+        r = [e.circle.radius for e in self.estimates.values()]
+        return float(max(r) - min(r))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            **self.circle.to_dict(),
+            "estimator": "subpixel",
+            "image_size": [self.width, self.height],
+            "truncated": list(self.truncated),
+            "estimators": {k: e.to_dict() for k, e in self.estimates.items()},
+            "spread": {
+                "centre_px": round(self.spread_centre_px, 4),
+                "radius_px": round(self.spread_radius_px, 4),
+            },
+            "per_image": [
+                {k: e.circle.to_dict() for k, e in est.items()} for est in self.per_image
+            ],
+            "black_level": round(self.black_level, 3),
+            "noise": round(self.noise, 3),
+            "threshold": round(self.threshold, 3),
+            "rays": self.rays,
+            "warnings": list(self.warnings),
+        }
+
+
+# --- the image --------------------------------------------------------------------------
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """(H,W) float32 grey levels (DN) of a grey or BGR image."""
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 3:
+        img = cv2.cvtColor(img[:, :, :3], cv2.COLOR_BGR2GRAY)
+    if img.ndim != 2:
+        raise ValueError(f"expected a grey or BGR image, got shape {img.shape}")
+    return img.astype(np.float32)
+
+
+def black_level(gray: np.ndarray, frame_px: int = 3) -> tuple[float, float]:
+    """Black level and noise sigma (DN) of the dark surround, from the image's outer frame.
+
+    The level is the mode of the frame's histogram (the dark class is most of the frame
+    unless the circle fills the sensor), sigma the RMS spread below the mode.
+    """
+    f = frame_px
+    frame = np.concatenate(
+        [gray[:f].ravel(), gray[-f:].ravel(), gray[f:-f, :f].ravel(), gray[f:-f, -f:].ravel()]
+    ).astype(np.float64)
+    lo, hi = float(frame.min()), float(np.percentile(frame, 60))
+    bins = max(8, min(256, math.ceil(hi - lo) + 1))
+    hist, edges = np.histogram(frame, bins=bins, range=(lo, hi + 1.0))
+    k = int(np.argmax(hist))
+    mode = 0.5 * (edges[k] + edges[k + 1])
+    below = frame[frame <= mode] - mode
+    sigma = max(float(np.sqrt(np.mean(below**2))) if below.size else 0.0, 0.5)
+    near = frame[np.abs(frame - mode) <= 3.0 * sigma]
+    return float(np.median(near)), sigma
+
+
+def disc_mask(gray: np.ndarray, threshold: float) -> np.ndarray:
+    """(H,W) bool: the image disc, pixels above ``threshold`` after a light blur, with the
+    dark parts of the scene inside it filled (dark regions not touching the image border)."""
+    smooth = cv2.GaussianBlur(gray, (0, 0), 2.0)
+    above = (smooth > threshold).astype(np.uint8)
+    opened = cv2.morphologyEx(above, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    # keep the largest bright component (drop specks in the dark surround)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(opened, connectivity=8)
+    if n <= 1:
+        return np.zeros(gray.shape, bool)
+    big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    disc = labels == big
+    # fill holes: dark components that do not touch the image border
+    n, labels = cv2.connectedComponents((~disc).astype(np.uint8), connectivity=4)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    outside = np.isin(labels, border) & ~disc
+    return ~outside
+
+
+# --- fitting ----------------------------------------------------------------------------
+
+
+def _design(points: np.ndarray, ellipse: bool) -> np.ndarray:
+    x, y = points[..., 0], points[..., 1]
+    one = np.ones_like(x)
+    if ellipse:
+        return np.stack([x * x, y * y, x, y, one], axis=-1)
+    return np.stack([x * x + y * y, x, y, one], axis=-1)
+
+
+def _conic_to_circle(c: np.ndarray, ellipse: bool) -> np.ndarray:
+    """(..., 4|5) conic coefficients -> (..., 4) cx, cy, rx, ry (NaN where not an ellipse)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if ellipse:
+            A, C, D, E, F = np.moveaxis(c, -1, 0)
+        else:
+            A, D, E, F = np.moveaxis(c, -1, 0)
+            C = A
+        cx, cy = -D / (2 * A), -E / (2 * C)
+        G = D * D / (4 * A) + E * E / (4 * C) - F
+        rx, ry = np.sqrt(G / A), np.sqrt(G / C)
+    return np.stack([cx, cy, rx, ry], axis=-1)
+
+
+def fit_conic(points: np.ndarray, ellipse: bool = False) -> ImageCircle:
+    """Algebraic least-squares circle (Kåsa) or axis-aligned ellipse through (N,2) points."""
+    pts = np.asarray(points, np.float64)
+    mean = pts.mean(axis=0)
+    scale = max(float(np.std(pts - mean)), 1e-9)
+    q = (pts - mean) / scale
+    _, _, vt = np.linalg.svd(_design(q, ellipse), full_matrices=False)
+    cx, cy, rx, ry = _conic_to_circle(vt[-1], ellipse)
+    if not np.all(np.isfinite([cx, cy, rx, ry])):
+        raise ValueError("the points do not lie on an ellipse")
+    return ImageCircle(
+        float(cx * scale + mean[0]),
+        float(cy * scale + mean[1]),
+        float(rx * scale),
+        float(ry * scale),
+    )
+
+
+def refine_fit(
+    points: np.ndarray, init: ImageCircle, ellipse: bool = False, iterations: int = 20
+) -> tuple[ImageCircle, np.ndarray, tuple[float, ...]]:
+    """Geometric least squares (radial distances, Gauss-Newton) from ``init``.
+
+    Returns the circle, the (N,) residuals (px) and the parameters' standard errors (px;
+    optimistic, as neighbouring edge points share blur and noise).
+    """
+    pts = np.asarray(points, np.float64)
+    p = np.array([init.cx, init.cy, init.rx] + ([init.ry] if ellipse else []), np.float64)
+
+    def circ(p: np.ndarray) -> ImageCircle:
+        return ImageCircle(p[0], p[1], p[2], p[3] if ellipse else p[2])
+
+    def jac(p: np.ndarray, res: np.ndarray) -> np.ndarray:
+        d = pts - p[:2]
+        dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+        if not ellipse:
+            return np.stack([-d[:, 0] / dist, -d[:, 1] / dist, -np.ones(len(pts))], axis=1)
+        cols = []
+        for i in range(len(p)):
+            h = 1e-4 * max(1.0, abs(p[i]))
+            q = p.copy()
+            q[i] += h
+            cols.append((circ(q).residuals(pts) - res) / h)
+        return np.stack(cols, axis=1)
+
+    res = circ(p).residuals(pts)
+    for _ in range(iterations):
+        J = jac(p, res)
+        step, *_ = np.linalg.lstsq(J, -res, rcond=None)
+        p = p + step
+        res = circ(p).residuals(pts)
+        if np.max(np.abs(step)) < 1e-7:
+            break
+    J = jac(p, res)
+    dof = max(len(pts) - len(p), 1)
+    try:
+        cov = np.linalg.inv(J.T @ J) * float(res @ res) / dof
+        sigma = tuple(float(math.sqrt(max(v, 0.0))) for v in np.diag(cov))
+    except np.linalg.LinAlgError:
+        sigma = tuple(math.nan for _ in p)
+    return circ(p), res, sigma
+
+
+def ransac_fit(
+    points: np.ndarray,
+    threshold_px: float = 1.5,
+    ellipse: bool = False,
+    iterations: int = 300,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
+    """(N,) bool inliers of the circle (ellipse) with the most points within
+    ``threshold_px`` of it, over random minimal samples (3 points; 4 for an ellipse)."""
+    pts = np.asarray(points, np.float64)
+    n_min = 4 if ellipse else 3
+    if len(pts) < n_min + 1:
+        return np.ones(len(pts), bool)
+    rng = np.random.default_rng(0) if rng is None else rng
+    mean = pts.mean(axis=0)
+    scale = max(float(np.std(pts - mean)), 1e-9)
+    q = (pts - mean) / scale
+    idx = rng.integers(0, len(pts), (iterations, n_min))  # repeats give NaN, dropped
+    with np.errstate(invalid="ignore", divide="ignore"):
+        _, _, vt = np.linalg.svd(_design(q[idx], ellipse))  # (K, n_min, n_min + 1)
+        params = _conic_to_circle(vt[:, -1, :], ellipse)  # (K, 4) in scaled units
+    ok = np.all(np.isfinite(params), axis=1) & np.all(params[:, 2:] > 0, axis=1)
+    if not np.any(ok):
+        return np.ones(len(pts), bool)
+    params = params[ok]
+    # score on at most 500 points, then the inliers of the best among all
+    sub = q if len(q) <= 500 else q[rng.choice(len(q), 500, replace=False)]
+
+    def residuals(p: np.ndarray, x: np.ndarray) -> np.ndarray:
+        d = x[None, :, :] - p[:, None, :2]
+        dist = np.hypot(d[..., 0], d[..., 1])
+        rho = np.hypot(d[..., 0] / p[:, None, 2], d[..., 1] / p[:, None, 3])
+        return np.abs(dist - dist / np.maximum(rho, 1e-12)) * scale
+
+    counts = np.sum(residuals(params, sub) < threshold_px, axis=1)
+    best = params[int(np.argmax(counts))][None, :]
+    return residuals(best, q)[0] < threshold_px
+
+
+def _robust_fit(
+    points: np.ndarray, ellipse: bool, threshold_px: float, rng: np.random.Generator
+) -> tuple[ImageCircle, np.ndarray, np.ndarray, tuple[float, ...]]:
+    """RANSAC, geometric refinement on its inliers, then inliers again within
+    max(3 robust sigma, 0.5 px) and a last refinement. Returns circle, inliers, residuals
+    of all points, standard errors."""
+    inl = ransac_fit(points, threshold_px, ellipse, rng=rng)
+    circle = fit_conic(points[inl], ellipse)
+    circle, _, sigma = refine_fit(points[inl], circle, ellipse)
+    for _ in range(2):
+        res = circle.residuals(points)
+        mad = float(np.median(np.abs(res[inl] - np.median(res[inl])))) * 1.4826
+        inl = np.abs(res) < max(3.0 * mad, 0.5)
+        circle, _, sigma = refine_fit(points[inl], circle, ellipse)
+    return circle, inl, circle.residuals(points), sigma
+
+
+# --- the paper's estimators -------------------------------------------------------------
+
+
+def _threshold(black: float, noise: float) -> float:
+    """The disc threshold (DN): 3 noise sigmas above black, on an image blurred by 2 px
+    (where the noise is 7 times smaller, so no speck of the surround passes)."""
+    return black + max(3.0 * noise, 2.0)
+
+
+def barycentre(mask: np.ndarray, ellipse: bool = False) -> Estimate:
+    """Centre of the disc pixels; radius from the area (circle) or from the second moments
+    (ellipse: a uniform ellipse has variance rx²/4 along u)."""
+    v, u = np.nonzero(mask)
+    if len(u) < 10:
+        raise ValueError("no disc found: the image is black")
+    cx, cy = float(u.mean()), float(v.mean())
+    if ellipse:
+        rx, ry = 2.0 * float(u.std()), 2.0 * float(v.std())
+    else:
+        rx = ry = math.sqrt(len(u) / math.pi)
+    return Estimate("barycentre", ImageCircle(cx, cy, rx, ry), len(u))
+
+
+def _off_border(points: np.ndarray, width: int, height: int, margin: float) -> np.ndarray:
+    x, y = points[:, 0], points[:, 1]
+    return (x >= margin) & (x <= width - 1 - margin) & (y >= margin) & (y <= height - 1 - margin)
+
+
+def _canny_points(gray: np.ndarray, mask: np.ndarray, band_px: int = 10) -> np.ndarray:
+    """(N,2) Canny edge pixels of the image within ``band_px`` of the disc's rim, without
+    those near the image border (where the disc is cut by the sensor, not by the lens)."""
+    smooth = cv2.GaussianBlur(gray, (0, 0), 1.5)
+    img8 = np.clip(smooth, 0, 255).astype(np.uint8)
+    m8 = mask.astype(np.uint8)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
+    rim = cv2.morphologyEx(m8, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))
+    # the image border is not the rim
+    h, w = mask.shape
+    rim[:2], rim[-2:], rim[:, :2], rim[:, -2:] = 0, 0, 0, 0
+    band = cv2.dilate(rim, kernel) > 0
+    gx = cv2.Sobel(img8, cv2.CV_32F, 1, 0)
+    gy = cv2.Sobel(img8, cv2.CV_32F, 0, 1)
+    mag = np.hypot(gx, gy)[band]
+    if mag.size == 0:
+        return np.zeros((0, 2))
+    hi = max(float(np.percentile(mag, 90)) * 0.5, 10.0)
+    edges = cv2.Canny(img8, 0.4 * hi, hi, L2gradient=True) > 0
+    v, u = np.nonzero(edges & band)
+    pts = np.stack([u, v], axis=1).astype(np.float64)
+    return pts[_off_border(pts, w, h, band_px + 2.0)]
+
+
+def canny_fit(
+    gray: np.ndarray, mask: np.ndarray, ellipse: bool = False, points: np.ndarray | None = None
+) -> tuple[Estimate, np.ndarray]:
+    """Least-squares circle (ellipse) through the rim's Canny edge pixels (paper: "best
+    fitting circle by mean squared estimation"), with 3-sigma clipping of stray scene edges.
+    Returns the estimate and its edge points (N,2)."""
+    pts = _canny_points(gray, mask) if points is None else points
+    if len(pts) < 10:
+        raise ValueError("too few rim edge pixels for a circle fit")
+    keep = np.ones(len(pts), bool)
+    circle = fit_conic(pts, ellipse)
+    for _ in range(3):
+        circle, res, sigma = refine_fit(pts[keep], circle, ellipse)
+        res = circle.residuals(pts)
+        s = float(np.std(res[keep]))
+        keep = np.abs(res) < max(3.0 * s, 1.0)
+    circle, res, sigma = refine_fit(pts[keep], circle, ellipse)
+    rms = float(np.sqrt(np.mean(res**2)))
+    return Estimate("canny_fit", circle, int(keep.sum()), rms, sigma), pts
+
+
+def hough(
+    gray: np.ndarray,
+    points: np.ndarray,
+    radius_range: tuple[float, float],
+    aspect: float = 1.0,
+) -> Estimate:
+    """Hough circle transform of the rim's edge pixels (paper [13]), whole pixels.
+
+    Each edge pixel votes for the centres along its gradient at every radius in
+    ``radius_range`` (px); the most voted centre wins, then the most common distance from
+    it to the edge pixels is the radius. ``aspect`` (ry / rx, for non-square pixels)
+    stretches u first so the ellipse becomes a circle, and the answer back.
+    """
+    if len(points) < 10:
+        raise ValueError("too few rim edge pixels for the Hough transform")
+    smooth = cv2.GaussianBlur(gray, (0, 0), 3.0)
+    gx = cv2.Sobel(smooth, cv2.CV_32F, 1, 0)
+    gy = cv2.Sobel(smooth, cv2.CV_32F, 0, 1)
+    iu, iv = points[:, 0].astype(np.intp), points[:, 1].astype(np.intp)
+    g = np.stack([gx[iv, iu] / aspect, gy[iv, iu]], axis=1).astype(np.float64)
+    g /= np.maximum(np.hypot(g[:, 0], g[:, 1]), 1e-12)[:, None]  # towards the bright inside
+    pts = np.stack([(points[:, 0] + 0.5) * aspect - 0.5, points[:, 1]], axis=1)
+    h, w = gray.shape
+    w = math.ceil(w * aspect)
+    r0, r1 = (r * aspect for r in radius_range)
+    radii = np.arange(math.floor(r0), math.ceil(r1) + 1.0)
+    centres = pts[:, None, :] + radii[None, :, None] * g[:, None, :]
+    cu = np.rint(centres[..., 0]).astype(np.intp).ravel()
+    cv = np.rint(centres[..., 1]).astype(np.intp).ravel()
+    ok = (cu >= 0) & (cu < w) & (cv >= 0) & (cv < h)
+    votes = np.bincount(cv[ok] * w + cu[ok], minlength=h * w).reshape(h, w)
+    acc = cv2.GaussianBlur(votes.astype(np.float32), (0, 0), 3.0)
+    v, u = np.unravel_index(int(np.argmax(acc)), acc.shape)
+    dist = np.hypot(pts[:, 0] - u, pts[:, 1] - v)
+    hist = np.bincount(np.rint(dist).astype(np.intp))
+    lo, hi = int(radii[0]), min(int(radii[-1]) + 1, len(hist))
+    if hi <= lo:
+        raise ValueError("the Hough transform found no circle")
+    r = float(lo + int(np.argmax(hist[lo:hi])))
+    cx = (u + 0.5) / aspect - 0.5
+    support = int(hist[int(r)])
+    return Estimate("hough", ImageCircle(float(cx), float(v), r / aspect, r), support)
+
+
+# --- the sub-pixel estimator ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RayEdges:
+    """The rim points found along rays, and how many rays were dropped and why."""
+
+    points: np.ndarray  # (N,2) kept edge points
+    cast: int
+    off_sensor: int
+    saturated: int
+    no_edge: int
+
+
+def ray_edges(
+    gray: np.ndarray,
+    guess: ImageCircle,
+    black: float,
+    noise: float,
+    n_rays: int = 720,
+    window_px: float | None = None,
+    step_px: float = 0.25,
+    blur_px: float = 1.0,
+    saturation: float = 250.0,
+) -> RayEdges:
+    """Sub-pixel rim points along ``n_rays`` rays from the guess's centre.
+
+    On each ray, within ``window_px`` of the guessed rim, the rim is the outermost strong
+    minimum of the radial derivative of the image blurred by ``blur_px`` (parabolic
+    interpolation between samples ``step_px`` apart), accepted only when the image beyond
+    it is dark (near the black level) and the inside brighter than the noise. Rays whose
+    window leaves the sensor, or that cross saturated pixels near the rim, are dropped.
+    """
+    h, w = gray.shape
+    window = max(10.0, 0.05 * guess.radius) if window_px is None else window_px
+    g = cv2.GaussianBlur(gray, (0, 0), blur_px)
+    phi = np.arange(n_rays) * (2.0 * math.pi / n_rays)
+    r_e = guess.radius_at(phi)
+    s = np.arange(-window, window + step_px / 2, step_px)
+    radii = r_e[:, None] + s[None, :]
+    X = guess.cx + radii * np.cos(phi)[:, None]
+    Y = guess.cy + radii * np.sin(phi)[:, None]
+    on_sensor = np.all((X >= 1) & (X <= w - 2) & (Y >= 1) & (Y <= h - 2), axis=1)
+    Xf, Yf = X.astype(np.float32), Y.astype(np.float32)
+    prof = cv2.remap(g, Xf, Yf, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    raw = cv2.remap(gray, Xf, Yf, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    prof = prof.astype(np.float64)
+    d = np.zeros_like(prof)
+    d[:, 1:-1] = (prof[:, 2:] - prof[:, :-2]) / (2.0 * step_px)
+    # noise of the derivative of the blurred, interpolated image (about)
+    d_noise = noise / (blur_px**2 * math.sqrt(8.0 * math.pi))
+    strongest = d.min(axis=1)
+    strong = d <= np.minimum(0.35 * strongest, -4.0 * d_noise)[:, None]
+    local_min = np.zeros_like(strong)
+    local_min[:, 1:-1] = (d[:, 1:-1] <= d[:, :-2]) & (d[:, 1:-1] < d[:, 2:])
+    cand = strong & local_min
+    cand[:, :2] = cand[:, -2:] = False
+    has = cand.any(axis=1)
+    m = len(s)
+    k = m - 1 - np.argmax(cand[:, ::-1], axis=1)  # outermost candidate
+    k = np.clip(k, 1, m - 2)
+    rows = np.arange(n_rays)
+    d0, d1, d2 = d[rows, k - 1], d[rows, k], d[rows, k + 1]
+    den = d0 - 2.0 * d1 + d2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(den > 0, 0.5 * (d0 - d2) / den, 0.0)
+    frac = np.clip(frac, -0.5, 0.5)
+    r_edge = r_e + s[k] + frac * step_px
+    # dark outside, bright inside
+    gap = max(3.0, 2.5 * blur_px) / step_px
+    idx = np.arange(m)[None, :]
+    outside = idx >= (k + gap)[:, None]
+    inside = (idx <= (k - gap)[:, None]) & (idx >= (k - 3 * gap)[:, None])
+    out_max = np.max(np.where(outside, prof, -np.inf), axis=1)
+    n_in = inside.sum(axis=1)
+    in_mean = np.where(
+        n_in > 0, np.sum(np.where(inside, prof, 0.0), axis=1) / np.maximum(n_in, 1), -np.inf
+    )
+    contrast = in_mean - black
+    dark = out_max <= black + np.maximum(4.0 * noise / blur_px, 0.25 * contrast)
+    bright = contrast >= np.maximum(4.0 * noise / blur_px, 3.0)
+    near = np.abs(idx - k[:, None]) <= gap * 2
+    saturated = np.any(near & (raw >= saturation), axis=1)
+    ok = has & dark & bright
+    keep = on_sensor & ~saturated & ok
+    pts = np.stack([guess.cx + r_edge * np.cos(phi), guess.cy + r_edge * np.sin(phi)], axis=1)[keep]
+    return RayEdges(
+        points=pts,
+        cast=n_rays,
+        off_sensor=int(np.sum(~on_sensor)),
+        saturated=int(np.sum(on_sensor & saturated)),
+        no_edge=int(np.sum(on_sensor & ~saturated & ~ok)),
+    )
+
+
+def subpixel(
+    gray: np.ndarray,
+    guess: ImageCircle,
+    black: float,
+    noise: float,
+    ellipse: bool = False,
+    n_rays: int = 720,
+    passes: int = 2,
+    rng: np.random.Generator | None = None,
+) -> tuple[Estimate, np.ndarray, np.ndarray, RayEdges]:
+    """The sub-pixel rim of one image (see :func:`ray_edges`), RANSAC and geometric fit,
+    repeated from the refined centre. Returns the estimate, the edge points, their inlier
+    mask and the last pass's ray counts."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    circle = guess
+    for i in range(passes):
+        rays = ray_edges(gray, circle, black, noise, n_rays, window_px=None if i == 0 else 6.0)
+        if len(rays.points) < 8:
+            raise ValueError(f"only {len(rays.points)} rays found the rim")
+        circle, inl, res, sigma = _robust_fit(rays.points, ellipse, 1.5, rng)
+    rms = float(np.sqrt(np.mean(res[inl] ** 2)))
+    est = Estimate("subpixel", circle, int(inl.sum()), rms, sigma)
+    return est, rays.points, inl, rays
+
+
+# --- several images ---------------------------------------------------------------------
+
+
+def _mean_circle(circles: Sequence[ImageCircle], median: bool = False) -> ImageCircle:
+    a = np.array([(c.cx, c.cy, c.rx, c.ry) for c in circles])
+    v = np.median(a, axis=0) if median else a.mean(axis=0)
+    return ImageCircle(*(float(x) for x in v))
+
+
+def _largest_gap_deg(points: np.ndarray, centre: ImageCircle) -> float:
+    ang = np.sort(np.degrees(np.arctan2(points[:, 1] - centre.cy, points[:, 0] - centre.cx)))
+    if len(ang) < 2:
+        return 360.0
+    gaps = np.diff(np.concatenate([ang, ang[:1] + 360.0]))
+    return float(gaps.max())
+
+
+def detect(images: Sequence[np.ndarray], ellipse: bool = False, n_rays: int = 720) -> CircleResult:
+    """The image circle of one camera from one or more of its images (same size).
+
+    Raises ValueError when an image shows no disc, or the images differ in size.
+    """
+    if not images:
+        raise ValueError("no images")
+    grays = [to_gray(im) for im in images]
+    h, w = grays[0].shape
+    for i, g in enumerate(grays):
+        if g.shape != (h, w):
+            raise ValueError(f"image {i} is {g.shape[1]}x{g.shape[0]}, the first {w}x{h}")
+    rng = np.random.default_rng(0)
+    per_image: list[dict[str, Estimate]] = []
+    canny_pts: list[np.ndarray] = []
+    sub_pts: list[np.ndarray] = []
+    sub_inl: list[np.ndarray] = []
+    sub_img: list[np.ndarray] = []
+    levels = [black_level(g) for g in grays]
+    counts = {"cast": 0, "kept": 0, "off_sensor": 0, "saturated": 0, "no_edge": 0}
+    for i, (g, (black, noise)) in enumerate(zip(grays, levels, strict=True)):
+        thr = _threshold(black, noise)
+        mask = disc_mask(g, thr)
+        est = {"barycentre": barycentre(mask, ellipse)}
+        est["canny_fit"], pts = canny_fit(g, mask, ellipse)
+        canny_pts.append(pts)
+        # the first guess: the rim's Canny pixels that agree on one circle (RANSAC), robust
+        # to a rim that fades into a dark scene where the mask strays inwards
+        guess, *_ = _robust_fit(pts, ellipse, 2.0, rng)
+        r_bar = est["barycentre"].circle.radius
+        aspect = guess.ry / guess.rx if ellipse else 1.0
+        est["hough"] = hough(g, pts, (0.7 * r_bar, 1.3 * r_bar), aspect)
+        est["subpixel"], spts, sinl, rays = subpixel(
+            g, guess, black, noise, ellipse, n_rays, rng=rng
+        )
+        sub_pts.append(spts)
+        sub_inl.append(sinl)
+        sub_img.append(np.full(len(spts), i))
+        counts["cast"] += rays.cast
+        counts["kept"] += len(rays.points)
+        counts["off_sensor"] += rays.off_sensor
+        counts["saturated"] += rays.saturated
+        counts["no_edge"] += rays.no_edge
+        per_image.append(est)
+    black = float(np.median([b for b, _ in levels]))
+    noise = float(np.median([n for _, n in levels]))
+    if len(grays) == 1:
+        combined = dict(per_image[0])
+        all_sub, inl = sub_pts[0], sub_inl[0]
+    else:
+        combined = {
+            "barycentre": Estimate(
+                "barycentre",
+                _mean_circle([e["barycentre"].circle for e in per_image]),
+                int(sum(e["barycentre"].n_points for e in per_image)),
+            ),
+            "hough": Estimate(
+                "hough",
+                _mean_circle([e["hough"].circle for e in per_image], median=True),
+                int(sum(e["hough"].n_points for e in per_image)),
+            ),
+        }
+        combined["canny_fit"], _ = canny_fit(
+            grays[0], np.ones((h, w), bool), ellipse, points=np.concatenate(canny_pts)
+        )
+        all_sub = np.concatenate(sub_pts)
+        circle, inl, res, sigma = _robust_fit(all_sub, ellipse, 1.5, np.random.default_rng(1))
+        rms = float(np.sqrt(np.mean(res[inl] ** 2)))
+        combined["subpixel"] = Estimate("subpixel", circle, int(inl.sum()), rms, sigma)
+    combined = {k: combined[k] for k in ESTIMATORS}
+    circle = combined["subpixel"].circle
+    truncated = circle.cut_sides(w, h)
+    warnings = []
+    if truncated:
+        warnings.append(
+            f"the image circle is cut by the sensor ({', '.join(truncated)}): the barycentre "
+            "is biased (it assumes a whole disc); the fits use rim points away from the "
+            "sensor edges only"
+        )
+        notes = ("biased: the circle is truncated",)
+        b = combined["barycentre"]
+        combined["barycentre"] = Estimate(b.name, b.circle, b.n_points, notes=notes)
+    gap = _largest_gap_deg(all_sub[inl], circle)
+    if gap > 200.0:
+        warnings.append(f"rim points span only {360 - gap:.0f} degrees: radius poorly fixed")
+    if counts["saturated"]:
+        warnings.append(f"{counts['saturated']} rays crossing saturated pixels at the rim dropped")
+    kept = int(inl.sum())
+    if kept < 0.5 * len(all_sub):
+        warnings.append(f"only {kept} of {len(all_sub)} rim points agree on one circle")
+    counts["inliers"] = kept
+    result = CircleResult(
+        circle=circle,
+        estimates=combined,
+        per_image=per_image,
+        width=w,
+        height=h,
+        black_level=black,
+        noise=noise,
+        threshold=_threshold(black, noise),
+        truncated=truncated,
+        edges=EdgePoints(all_sub, inl, np.concatenate(sub_img)),
+        warnings=(),
+        rays=counts,
+    )
+    # disagreement among the estimators not known to be biased here
+    fair = {k: e for k, e in combined.items() if not e.notes}
+    spread = replace(result, estimates=fair)
+    spread_c, spread_r = spread.spread_centre_px, spread.spread_radius_px
+    if spread_c > 3.0 or spread_r > 3.0:
+        warnings.append(
+            f"the estimators ({', '.join(fair)}) disagree by {spread_c:.1f} px in centre and "
+            f"{spread_r:.1f} px in radius (see the per-estimator results)"
+        )
+    return replace(result, warnings=tuple(warnings))

@@ -400,7 +400,7 @@ def _summary(
 
 def run(out: Path, seconds: float = 10.0) -> int:
     """The demo into folder ``out``: 0 done, 1 a runtime failure, 2 bad arguments."""
-    result = DemoResult(Path(out))
+    result = DemoResult(Path(out).absolute())  # the config it writes names files by path
     try:
         return _run(result, seconds)
     except (RecorderError, RuntimeError, OSError, ValueError) as e:

@@ -5,6 +5,7 @@ OpenCV), and the cloud's colours checked against the simulator's own surface col
 from __future__ import annotations
 
 import math
+import os
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -44,7 +45,12 @@ class Demo(NamedTuple):
 def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
     out = tmp_path_factory.mktemp("demo")
     wall0, utc0 = time.monotonic(), time.time()
-    code = run(out, seconds=SECONDS)
+    cwd = os.getcwd()
+    os.chdir(out.parent)  # a relative --out, as `make demo` gives
+    try:
+        code = run(Path(out.name), seconds=SECONDS)
+    finally:
+        os.chdir(cwd)
     return Demo(out, code, time.monotonic() - wall0, utc0)
 
 

@@ -71,6 +71,8 @@ def _fail(msg: str, *subpath: str | int) -> PydanticCustomError:
 def _not_empty_path(value: Any) -> Any:
     if value == "":
         raise _fail("expected a path, got ''")
+    if isinstance(value, str) and not value.isprintable():
+        raise _fail(f"expected a path, got {value!r} (it holds a control character)")
     return value
 
 

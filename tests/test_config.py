@@ -487,3 +487,10 @@ def test_parse_raises_only_config_errors(data: Any) -> None:
         return
     text = config.dump(cfg)
     assert config.parse(yaml.safe_load(text)) == cfg
+
+
+def test_a_path_with_a_control_character_is_refused() -> None:
+    # found by hypothesis: YAML would write U+0085 as a line break and read back a space
+    base = {"version": 1, "scanners": [{"name": "laser", "driver": "hokuyo", "url": "/dev/x"}]}
+    with pytest.raises(ConfigError, match=r"calibration: expected a path.*control character"):
+        config.parse({**base, "calibration": "\x85"}, "rig.yaml")

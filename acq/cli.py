@@ -162,6 +162,15 @@ def _calibrate_fisheye(args: argparse.Namespace) -> int:
     )  # fmt: skip
 
 
+def _analyze_sensitivity(args: argparse.Namespace) -> int:
+    from acq.sensitivity import main_sensitivity
+
+    return main_sensitivity(
+        args.calib, args.logs, args.output, args.camera_height, args.building_distance,
+        args.json,
+    )  # fmt: skip
+
+
 def _devices(args: argparse.Namespace) -> int:
     from acq.devices import main_devices
 
@@ -414,6 +423,36 @@ def build_parser() -> argparse.ArgumentParser:
         "e.g. 8x6x0.117), starting from the circle",
     )  # fmt: skip
     fish.set_defaults(handler=_calibrate_fisheye)
+
+    ana = sub.add_parser("analyze", help="analyse a calibration against logs")
+    ana_sub = ana.add_subparsers(dest="analyze_command", metavar="WHAT", required=True)
+    sens = ana_sub.add_parser(
+        "sensitivity",
+        help="sensitivity of the projection to its 12 parameters (paper §4.1)",
+        description="Project the laser points of LOG into CALIB's camera with the paper's "
+        "generic model (r = k1 theta + k2 theta^3) and compute, along theta, the eq. (7) "
+        "sensitivity of the distance to the principal point (eq. 8, measured from the "
+        "principal point, not pixel (0, 0) as printed) to the 3 rotation angles, 3 "
+        "translations, k1, k2, u0, v0, mu_x, mu_y, with the pixels one standard deviation of "
+        "each moves a point; Figures 7-9 as PNGs; Table 3 (height on a facade at which "
+        "dropping k2 theta^3 reaches 0.5..4 px); DIR/sensitivity.json.",
+    )
+    sens.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP logs of one session")
+    sens.add_argument("--calib", type=Path, required=True, metavar="CALIB", help="calib.yaml")
+    sens.add_argument(
+        "-o", "--output", type=Path, default=Path("sensitivity"), metavar="DIR",
+        help="where to write the PNGs and sensitivity.json (default: ./sensitivity)",
+    )  # fmt: skip
+    sens.add_argument(
+        "--camera-height", type=float, default=2.0, metavar="M",
+        help="Table 3: camera height above the ground, m (default 2)",
+    )  # fmt: skip
+    sens.add_argument(
+        "--building-distance", type=float, default=10.0, metavar="M",
+        help="Table 3: distance from the camera to the facade, m (default 10)",
+    )  # fmt: skip
+    sens.add_argument("--json", action="store_true", help="JSON instead of text")
+    sens.set_defaults(handler=_analyze_sensitivity)
 
     devices = sub.add_parser(
         "devices",

@@ -90,7 +90,15 @@ def test_http_framing_and_truth(server: MjpegServer) -> None:
     assert headers["content-type"] == "multipart/x-mixed-replace; boundary=acqframe"
     parts = [reader.part() for _ in range(6)]
     reader.close()
-    truth = {t.digest: t for t in server.camera.truth() if t.status == "sent"}
+    # the server notes when a frame was sent once sendall returns, which may be after
+    # the client read it: wait for those notes
+    deadline = time.monotonic() + 2.0
+    while True:
+        truth = {t.digest: t for t in server.camera.truth() if t.status == "sent"}
+        done = all(truth.get(jpeg_digest(b)) and truth[jpeg_digest(b)].t_sent for _, b, _ in parts)
+        if done or time.monotonic() > deadline:
+            break
+        time.sleep(0.01)
     seqs = []
     for part_headers, body, arrived in parts:
         assert set(part_headers) == {"content-type", "content-length"}  # no truth leaks

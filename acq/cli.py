@@ -162,6 +162,15 @@ def _calibrate_fisheye(args: argparse.Namespace) -> int:
     )  # fmt: skip
 
 
+def _calibrate_extrinsic(args: argparse.Namespace) -> int:
+    from acq.extrinsic_log import main_extrinsic
+
+    return main_extrinsic(
+        args.logs, args.camera, args.intrinsics, args.board, args.output, args.poses,
+        args.json, args.plot,
+    )  # fmt: skip
+
+
 def _analyze_sensitivity(args: argparse.Namespace) -> int:
     from acq.sensitivity import main_sensitivity
 
@@ -423,6 +432,42 @@ def build_parser() -> argparse.ArgumentParser:
         "e.g. 8x6x0.117), starting from the circle",
     )  # fmt: skip
     fish.set_defaults(handler=_calibrate_fisheye)
+
+    ext = cal_sub.add_parser(
+        "extrinsic",
+        help="camera-laser transform from checkerboard poses in a log (paper §3.2)",
+        description="Find the still board poses in LOG (or --poses), the board's corners in a "
+        "frame of each (in the fisheye image itself: a lens swap, as the paper does, moves the "
+        "projection centre along the optical axis) and its laser line, and fit camera_to_laser "
+        "(Zhang & Pless: linear solution, then robust Levenberg-Marquardt on point-to-plane "
+        "distances). Writes CALIB: a copy of --intrinsics with the camera's camera_to_laser "
+        "set, and a residual plot PNG.",
+    )
+    ext.add_argument(
+        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s)"
+    )
+    ext.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    ext.add_argument(
+        "--intrinsics", type=Path, required=True, metavar="CALIB",
+        help="calib.yaml with the camera's intrinsics (a non-identity camera_to_laser is used "
+        "as a coarse guess to pick the board's laser segment)",
+    )  # fmt: skip
+    ext.add_argument(
+        "--board", required=True, metavar="COLSxROWSxSQUARE",
+        help="inner corners and square side in metres, e.g. 9x7x0.1",
+    )  # fmt: skip
+    ext.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="CALIB", help="calib.yaml to write"
+    )
+    ext.add_argument(
+        "--poses", metavar="START:END,...",
+        help="still intervals in seconds from the log's first scan (default: detected)",
+    )  # fmt: skip
+    ext.add_argument("--json", action="store_true", help="JSON instead of text")
+    ext.add_argument(
+        "--plot", type=Path, metavar="PNG", help="residual plot (default: beside CALIB)"
+    )
+    ext.set_defaults(handler=_calibrate_extrinsic)
 
     ana = sub.add_parser("analyze", help="analyse a calibration against logs")
     ana_sub = ana.add_subparsers(dest="analyze_command", metavar="WHAT", required=True)

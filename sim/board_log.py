@@ -1,0 +1,295 @@
+"""A simulated camera–laser calibration recording (MCAP), with the truth (paper §3.2).
+
+A checkerboard (default 9x7 inner corners of 0.1 m, a white margin) is held still in
+``n_poses`` poses (placed as :func:`sim.board_poses.simulate` does: 1–2.5 m from the
+scanner, facing the camera, tilted up to ±30 degrees) for ``hold_s`` seconds each and
+carried from one to the next in ``move_s`` seconds. Behind it a wall (``wall_m`` m to the
+camera's side of the vehicle) and the ground, so the scanner sees more than the board.
+
+Sensors (``sim.world.default_rig``, the truth): the camera at ``fps`` Hz, every pixel
+ray-cast through the TRUE lens (2x2 supersampled for still poses), blurred (sigma
+``blur_px``), grey noise, JPEG; the scanner at 1 / ``scan_period`` Hz with the UTM-30LX
+geometry (-135..135 degrees, 0.25 degree steps, laser frame), 10 mm range noise. Topics as
+the recorder writes them: ``/laser/scan`` (foxglove.LaserScan stamped at point 0),
+``/laser/raw``, ``/camera/image/compressed`` (stamped at mid-exposure), ``/acq/clock``;
+metadata ``device.laser`` (geometry JSON) and ``calibration`` (the true intrinsics, the
+identity as camera_to_laser). Times are host monotonic ns from ``start_ns``.
+
+World frame = the laser frame (x = up, y = vehicle right, z = vehicle forward).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from acq import calibfile, schemas
+from acq.calibfile import Calibration, CameraCalib
+from acq.camera_models import CameraModel
+from acq.mcap_log import LogWriter
+from acq.records import Frame, Scan
+from acq.transforms import Rigid
+from sim.board_poses import Checkerboard, simulate
+from sim.world import Rig, default_rig
+
+__all__ = ["BoardLog", "board_at", "pixel_rays", "render_frame", "simulate_scan", "write_board_log"]
+
+BOARD = Checkerboard(cols=10, rows=8, square=0.1, width=1.2, height=1.0)  # 9x7 inner
+_WHITE, _BLACK, _WALL, _GROUND, _SKY = 225.0, 35.0, 140.0, 95.0, 170.0
+
+
+@dataclass(frozen=True)
+class BoardLog:
+    """What :func:`write_board_log` wrote: the file(s), the truth ``camera_to_laser``, the
+    ``boards`` (board_to_laser of each pose), the still intervals (host ns), the board
+    (``spec`` as ``acq calibrate extrinsic --board`` takes it) and the calibration stored
+    in the log (true intrinsics, identity extrinsic)."""
+
+    files: list[Path]
+    truth: Rigid
+    boards: list[Rigid]
+    holds: list[tuple[int, int]]
+    board: Checkerboard
+    spec: str
+    calibration: Calibration
+    start_ns: int
+
+
+def _checker(board: Checkerboard, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Grey level of board-frame points (m): squares centred, white margin, black corner
+    square at (-cols/2, -rows/2)."""
+    i = np.floor(x / board.square + board.cols / 2)
+    j = np.floor(y / board.square + board.rows / 2)
+    inside = (i >= 0) & (i < board.cols) & (j >= 0) & (j < board.rows)
+    black = inside & ((i + j) % 2 == 0)
+    return np.where(black, _BLACK, _WHITE)
+
+
+def _cast(
+    origin: np.ndarray,
+    dirs: np.ndarray,
+    board: Checkerboard,
+    board_to_laser: Rigid,
+    wall_m: float,
+    ground_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rays (laser frame, (N,3) unit ``dirs`` from ``origin``): hit distance (m, inf for
+    none) and grey level of the nearest of board, wall (laser y = -wall_m) and ground
+    (laser x = -ground_m)."""
+    n = len(dirs)
+    dist = np.full(n, np.inf)
+    grey = np.full(n, _SKY)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for axis, level, colour in ((1, -wall_m, _WALL), (0, -ground_m, _GROUND)):
+            s = (level - origin[axis]) / dirs[:, axis]
+            hit = np.isfinite(s) & (s > 0) & (s < dist)
+            dist = np.where(hit, s, dist)
+            grey = np.where(hit, colour, grey)
+        w = board_to_laser.rotation[:, 2]
+        C = board_to_laser.translation
+        s = ((C - origin) @ w) / (dirs @ w)
+    local = origin + np.nan_to_num(s, posinf=0.0, neginf=0.0)[:, None] * dirs - C
+    local = local @ board_to_laser.rotation
+    hit = (
+        np.isfinite(s)
+        & (s > 0)
+        & (s < dist)
+        & (np.abs(local[:, 0]) <= board.width / 2)
+        & (np.abs(local[:, 1]) <= board.height / 2)
+    )
+    dist = np.where(hit, s, dist)
+    grey = np.where(hit, _checker(board, local[:, 0], local[:, 1]), grey)
+    return dist, grey
+
+
+def pixel_rays(lens: CameraModel, supersample: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Unit rays (camera frame, (H*k*W*k, 3)) of ``supersample`` x ``supersample`` samples
+    per pixel, row-major, and whether each is inside the lens's field of view."""
+    W, H, k = lens.width, lens.height, supersample
+    u = (np.arange(W * k) + 0.5) / k - 0.5
+    v = (np.arange(H * k) + 0.5) / k - 0.5
+    uu, vv = np.meshgrid(u, v)
+    rays = lens.unproject(np.column_stack([uu.ravel(), vv.ravel()]))
+    _, valid = lens.project(rays)
+    return rays, valid & np.isfinite(rays).all(axis=1)
+
+
+def render_frame(
+    lens: CameraModel,
+    camera_to_laser: Rigid,
+    board: Checkerboard,
+    board_to_laser: Rigid,
+    *,
+    wall_m: float = 6.0,
+    ground_m: float = 2.2,
+    supersample: int = 2,
+    rays: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """(H,W) float32 grey image of the scene through ``lens`` (black outside its circle);
+    ``rays``: :func:`pixel_rays` of the same ``supersample``, when already computed."""
+    W, H, k = lens.width, lens.height, supersample
+    dirs, valid = rays if rays is not None else pixel_rays(lens, k)
+    dirs = dirs @ camera_to_laser.rotation.T
+    _, grey = _cast(camera_to_laser.translation, dirs, board, board_to_laser, wall_m, ground_m)
+    img = np.where(valid, grey, 0.0).reshape(H * k, W * k)
+    if k > 1:
+        img = img.reshape(H, k, W, k).mean(axis=(1, 3))
+    return img.astype(np.float32)
+
+
+def simulate_scan(
+    rig: Rig,
+    board: Checkerboard,
+    board_to_laser: Rigid,
+    rng: np.random.Generator,
+    *,
+    wall_m: float = 6.0,
+    ground_m: float = 2.2,
+) -> np.ndarray:
+    """(n_steps,) float32 ranges (m; +inf no return) with the rig's range noise."""
+    a = rig.angles
+    dirs = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
+    dist, _ = _cast(np.zeros(3), dirs, board, board_to_laser, wall_m, ground_m)
+    dist = dist + rng.normal(0.0, rig.range_noise, dist.shape)
+    dist = np.where((dist > rig.min_range) & (dist < rig.max_range), dist, np.inf)
+    return dist.astype(np.float32)
+
+
+def board_at(boards: list[Rigid], t: float, hold_s: float, move_s: float) -> Rigid:
+    """The board at ``t`` s: still for ``hold_s`` in pose i, then moving ``move_s`` to i+1
+    (linear translation, rotation along the geodesic)."""
+    period = hold_s + move_s
+    i = min(int(t // period), len(boards) - 1)
+    f = (t - i * period - hold_s) / move_s
+    if i == len(boards) - 1 or f <= 0:
+        return boards[i]
+    f = min(f, 1.0)
+    a, b = boards[i], boards[i + 1]
+    rel, _ = cv2.Rodrigues(b.rotation @ a.rotation.T)
+    Rf, _ = cv2.Rodrigues(rel * f)
+    return Rigid(Rf @ a.rotation, (1 - f) * a.translation + f * b.translation)
+
+
+def write_board_log(
+    directory: Path,
+    n_poses: int = 12,
+    seed: int = 0,
+    *,
+    hold_s: float = 1.5,
+    move_s: float = 0.4,
+    rig: Rig | None = None,
+    board: Checkerboard = BOARD,
+    distance: tuple[float, float] = (1.0, 2.5),
+    blur_px: float = 0.6,
+    pixel_noise: float = 1.5,
+    jpeg_quality: int = 92,
+    start_ns: int = 1_000_000_000_000,
+) -> BoardLog:
+    """Write the recording (see the module docstring) into ``directory``; the truth."""
+    rig = rig or default_rig()
+    rng = np.random.default_rng(seed + 1)
+    data = simulate(
+        n_poses, seed, rig=rig, board=board, true_planes=True, range_noise=0.0, distance=distance
+    )
+    boards = data.boards
+    truth = rig.camera_to_laser
+    lens = rig.lens
+    calib = Calibration(cameras={"camera": CameraCalib(lens)})
+    duration = n_poses * (hold_s + move_s) - move_s
+    geometry = {
+        "angle_min": rig.angle_min,
+        "angle_increment": rig.angle_increment,
+        "n_steps": rig.n_steps,
+        "time_increment": rig.time_increment,
+        "scan_period": rig.scan_period,
+        "min_range": rig.min_range,
+        "max_range": rig.max_range,
+    }
+    metadata = {
+        "device.laser": {"driver": "sim", "geometry": json.dumps(geometry)},
+        "device.camera": {"driver": "sim"},
+        "calibration": {"yaml": calibfile.dump(calib)},
+    }
+    writer = LogWriter(directory, prefix="board", metadata=metadata)
+    writer.add_channel("/laser/scan", schemas.SCHEMAS["foxglove.LaserScan"])
+    writer.add_channel("/laser/raw", schemas.SCHEMAS["acq.RawTelegram"])
+    writer.add_channel("/camera/image/compressed", schemas.SCHEMAS["foxglove.CompressedImage"])
+    writer.add_channel("/acq/clock", schemas.SCHEMAS["acq.Clock"])
+
+    rays2, rays1 = pixel_rays(lens, 2), pixel_rays(lens, 1)
+    # moving frames: every other pixel, scaled up (motion blurs them anyway)
+    half = [r.reshape(lens.height, lens.width, -1)[::2, ::2] for r in rays1]
+    hh, hw = half[0].shape[:2]
+    still = [render_frame(lens, truth, board, b, rays=rays2) for b in boards]
+    noise = [rng.normal(0.0, pixel_noise, still[0].shape).astype(np.float32) for _ in range(4)]
+    ksize = (0, 0)
+    events: list[tuple[int, str, bytes]] = []
+    for k in range(int(duration * rig.fps) + 1):
+        t = k / rig.fps
+        B = board_at(boards, t, hold_s, move_s)
+        i = min(int(t // (hold_s + move_s)), n_poses - 1)
+        if B is boards[i]:
+            img = still[i]
+        else:
+            _, g = _cast(truth.translation, half[0].reshape(-1, 3) @ truth.rotation.T, board, B,
+                         6.0, 2.2)  # fmt: skip
+            g = np.where(half[1].reshape(-1), g, 0.0).reshape(hh, hw).astype(np.float32)
+            img = cv2.resize(g, (lens.width, lens.height), interpolation=cv2.INTER_LINEAR)
+        img = cv2.GaussianBlur(img, ksize, blur_px) + noise[k % len(noise)]
+        grey = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        ok, buf = cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
+        if not ok:
+            raise RuntimeError("JPEG encoding failed")
+        stamp = start_ns + round(t * 1e9)
+        frame = Frame(stamp + 2_000_000, stamp, k, lens.width, lens.height, jpeg=buf.tobytes())
+        events.append(
+            (stamp, "/camera/image/compressed", schemas.compressed_image(frame, "camera"))
+        )
+    n_scans = int(duration / rig.scan_period) + 1
+    for k in range(n_scans):
+        t = k * rig.scan_period
+        B = board_at(boards, t + 0.5 * rig.scan_period * 0.75, hold_s, move_s)
+        ranges = simulate_scan(rig, board, B, rng)
+        stamp = start_ns + round(t * 1e9)
+        scan = Scan(
+            ranges=ranges,
+            intensities=np.zeros(0, np.float32),
+            angle_min=rig.angle_min,
+            angle_increment=rig.angle_increment,
+            time_increment=rig.time_increment,
+            scan_period=rig.scan_period,
+            recv_ns=stamp + 30_000_000,
+            start_ns=stamp,
+            sequence=k,
+        )
+        events.append((stamp, "/laser/scan", schemas.laser_scan(scan, "laser", stamp)))
+        raw = schemas.raw_telegram(device="laser", data=b"", recv_ns=stamp, stamp_ns=stamp)
+        events.append((stamp, "/laser/raw", raw))
+    for k in range(int(duration) + 1):
+        stamp = start_ns + k * 10**9
+        clock = schemas.clock(realtime_ns=1_800_000_000 * 10**9 + stamp, monotonic_ns=stamp)
+        events.append((stamp, "/acq/clock", clock))
+    events.sort(key=lambda e: e[0])
+    try:
+        for stamp, topic, payload in events:
+            writer.write(topic, payload, stamp, stamp)
+    finally:
+        writer.close()
+    period_ns = round((hold_s + move_s) * 1e9)
+    holds = [
+        (start_ns + i * period_ns, start_ns + i * period_ns + round(hold_s * 1e9))
+        for i in range(n_poses)
+    ]
+    spec = f"{board.cols - 1}x{board.rows - 1}x{board.square:g}"
+    return BoardLog(writer.files, truth, boards, holds, board, spec, calib, start_ns)
+
+
+if __name__ == "__main__":  # a quick look: python -m sim.board_log OUT_DIR
+    import sys
+
+    log = write_board_log(Path(sys.argv[1]))
+    print(log.files, log.spec, log.truth)

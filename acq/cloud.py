@@ -105,31 +105,6 @@ class DriveLog:
         return int(self.frame_ns.size)
 
 
-def _metadata(path: Path) -> dict[str, dict[str, str]]:
-    """Metadata records by name (the last of each name wins): from the summary's index
-    when the file is closed, else by a linear pass that stops at the first damage."""
-    from mcap.reader import SeekingReader
-    from mcap.records import Metadata
-    from mcap.stream_reader import StreamReader
-
-    out: dict[str, dict[str, str]] = {}
-    with path.open("rb") as f:
-        try:
-            for m in SeekingReader(f).iter_metadata():
-                out[m.name] = dict(m.metadata)
-            return out
-        except Exception:  # not closed: no summary to seek to
-            out.clear()
-        f.seek(0)
-        try:
-            for record in StreamReader(f, emit_chunks=True).records:
-                if isinstance(record, Metadata):
-                    out[record.name] = dict(record.metadata)
-        except Exception:  # a cut or garbled tail: keep what was read before it
-            pass
-    return out
-
-
 def _pick(found: Iterable[str], name: str | None, what: str, topic: str) -> str:
     """The device ``name``, or the only one ``found``; ValueError naming the choices."""
     names = sorted(found)
@@ -185,7 +160,7 @@ def read_log(
     clock: list[tuple[int, int]] = []
     bad = 0
     for path in files:
-        metadata.update(_metadata(path))
+        metadata.update(loginfo.read_metadata(path))
         factory = DecoderFactory()
         decoders: dict[int, Any] = {}
         for schema, channel, message in loginfo.read_messages(path):

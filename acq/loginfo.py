@@ -652,6 +652,22 @@ def _result(
     )
 
 
+def read_metadata(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
+    """A log's metadata records by name, the last of each name winning (the recorder
+    writes a newer record when a device reconnects): from the summary's index when the
+    file is closed, else from everything before the cut (as :func:`info` reads it)."""
+    from mcap.reader import SeekingReader
+
+    out: dict[str, dict[str, str]] = {}
+    try:
+        with open(path, "rb") as f:
+            for m in SeekingReader(f).iter_metadata():
+                out[m.name] = dict(m.metadata)
+        return out
+    except Exception:  # no usable summary (a killed writer): read linearly
+        return info(path).metadata
+
+
 def info(path: str | os.PathLike[str]) -> LogInfo:
     """Summary of one log; reads everything before a cut when the file was not closed."""
     return info_many([path])[0]

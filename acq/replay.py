@@ -126,24 +126,6 @@ class Session:
 # --- reading --------------------------------------------------------------------------------
 
 
-def _metadata(path: Path) -> dict[str, dict[str, str]]:
-    """Metadata records of one file, the first of each name: from the summary when the
-    file is closed, else by reading it linearly (a killed recorder's file)."""
-    from mcap.reader import make_reader
-
-    out: dict[str, dict[str, str]] = {}
-    try:
-        with path.open("rb") as f:
-            reader = make_reader(f)
-            if reader.get_summary() is not None:
-                for m in reader.iter_metadata():
-                    out.setdefault(m.name, dict(m.metadata))
-                return out
-    except Exception:  # any damage: the linear reader copes with it, or explains it
-        pass
-    return loginfo.info(path).metadata
-
-
 def _recorded_config(meta: dict[str, dict[str, str]], path: Path) -> Config | None:
     text = meta.get("config", {}).get("yaml")
     if not text:
@@ -172,7 +154,7 @@ def load_session(paths: Sequence[str | Path]) -> Session:
     calibration: str | None = None
     described: dict[str, dict[str, str]] = {}
     for path, messages in zip(files, readers, strict=True):
-        meta = _metadata(path)
+        meta = loginfo.read_metadata(path)
         if config is None:
             config = _recorded_config(meta, path)
         if calibration is None:

@@ -171,6 +171,12 @@ def _calibrate_extrinsic(args: argparse.Namespace) -> int:
     )  # fmt: skip
 
 
+def _calibrate_validate(args: argparse.Namespace) -> int:
+    from acq.validate import main_validate
+
+    return main_validate(args.logs, args.calib, args.camera, args.json, args.out)
+
+
 def _analyze_sensitivity(args: argparse.Namespace) -> int:
     from acq.sensitivity import main_sensitivity
 
@@ -468,6 +474,26 @@ def build_parser() -> argparse.ArgumentParser:
         "--plot", type=Path, metavar="PNG", help="residual plot (default: beside CALIB)"
     )
     ext.set_defaults(handler=_calibrate_extrinsic)
+
+    val = cal_sub.add_parser(
+        "validate",
+        help="laser points on the right colour of the two-depth pattern (paper §4.2)",
+        description="Project the laser points of a still recording of the validation pattern "
+        "(two coloured planar sets at different depths: red/green bars in front of a "
+        "blue/yellow wall) into the fisheye frames with CALIB, and report the share of points "
+        "on their set's colours, the pixel-error histogram (0, 1, 2, 3, >3 px, as the "
+        "paper's Table 4) and sigma of a normal fit to the errors at the front set's edges.",
+    )
+    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s)")
+    val.add_argument(
+        "--calib", required=True, type=Path, help="calibration (intrinsics + camera_to_laser)"
+    )
+    val.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    val.add_argument("--json", action="store_true", help="JSON instead of text")
+    val.add_argument(
+        "-o", dest="out", type=Path, metavar="DIR", help="write DIR/validate_overlay.png"
+    )
+    val.set_defaults(handler=_calibrate_validate)
 
     ana = sub.add_parser("analyze", help="analyse a calibration against logs")
     ana_sub = ana.add_subparsers(dest="analyze_command", metavar="WHAT", required=True)

@@ -282,6 +282,7 @@ class PtyDeviceServer(DeviceServer):
 
     def __init__(self, device: SimDevice, link: str | Path | None = None, seed: int = 0):
         super().__init__(device, seed)
+        self._tmp: str | None = None
         if link is None:
             import tempfile
 
@@ -346,3 +347,6 @@ class PtyDeviceServer(DeviceServer):
         self._drop(-1)
         with contextlib.suppress(FileNotFoundError):
             self.link.unlink()
+        if self._tmp is not None:  # the folder made for the link, now empty
+            with contextlib.suppress(OSError):
+                os.rmdir(self._tmp)

@@ -15,6 +15,7 @@ it. Colours are BGR uint8; distances are metres along unit directions.
 from __future__ import annotations
 
 import math
+import weakref
 from typing import NamedTuple
 
 import numba as nb
@@ -84,7 +85,9 @@ class CastResult(NamedTuple):
     material: np.ndarray  # (N,) uint8
 
 
-_PACK_CACHE: dict[int, tuple[int, PackedScene]] = {}
+# id(street) -> (a weak reference to it, its version, its packed scene); the reference
+# tells a live street from a new one that got a dead one's id
+_PACK_CACHE: dict[int, tuple[weakref.ref[Street], int, PackedScene]] = {}
 
 
 def _slices(
@@ -108,8 +111,8 @@ def pack(street: Street) -> PackedScene:
     """The street's objects as flat arrays with the x slices built; cached per street."""
     key = id(street)
     hit = _PACK_CACHE.get(key)
-    if hit is not None and hit[0] == street.version:
-        return hit[1]
+    if hit is not None and hit[0]() is street and hit[1] == street.version:
+        return hit[2]
     nb_, nc = len(street.boxes), len(street.cylinders)
     boxes = np.array(
         [[b.xmin, b.xmax, b.ymin, b.ymax, b.zmin, b.zmax] for b in street.boxes], float
@@ -193,7 +196,9 @@ def pack(street: Street) -> PackedScene:
         quad_params=params(street.quads),
         ground=np.array([street.road_half_width, street.lane_edge], float),
     )
-    _PACK_CACHE[key] = (street.version, packed)
+    for k in [k for k, v in _PACK_CACHE.items() if v[0]() is None]:
+        del _PACK_CACHE[k]  # streets that are gone
+    _PACK_CACHE[key] = (weakref.ref(street), street.version, packed)
     return packed
 
 

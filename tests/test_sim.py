@@ -322,3 +322,27 @@ def test_street_layout_follows_table_1(street: Street) -> None:
     widths = np.array([b.xmax - b.xmin for b in facades])
     assert np.median(widths) > 8.0
     assert street.cylinders and any(b.material == Material.CAR_BODY for b in street.boxes)
+
+
+def test_a_new_street_with_a_dead_streets_id_is_packed_afresh() -> None:
+    # CPython reuses the id of a freed object: a cache keyed by id alone handed a new
+    # street the old one's scene (the flaky sim-render test)
+    import gc
+
+    from sim import raycast, world
+
+    old = world.Street.generate(seed=1)
+    stale = raycast.pack(old)
+    key = id(old)
+    del old
+    gc.collect()
+    new = world.Street.generate(seed=2)
+    # whether or not CPython gave it the same id, a cache entry under its id whose street
+    # is gone must not be used
+    entry = raycast._PACK_CACHE.get(key)
+    assert entry is None or entry[0]() is None
+    if entry is not None:
+        raycast._PACK_CACHE[id(new)] = entry
+    packed = raycast.pack(new)
+    assert packed is not stale
+    assert len(packed.boxes) == len(new.boxes) and len(packed.cylinders) == len(new.cylinders)

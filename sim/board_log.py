@@ -174,6 +174,43 @@ def board_at(boards: list[Rigid], t: float, hold_s: float, move_s: float) -> Rig
     return Rigid(Rf @ a.rotation, (1 - f) * a.translation + f * b.translation)
 
 
+def scan_events(rig: Rig, ranges: np.ndarray, k: int, stamp: int) -> list[tuple[int, str, bytes]]:
+    """The /laser/scan and /laser/raw messages of scan ``k`` with point 0 at ``stamp`` ns."""
+    scan = Scan(
+        ranges=ranges,
+        intensities=np.zeros(0, np.float32),
+        angle_min=rig.angle_min,
+        angle_increment=rig.angle_increment,
+        time_increment=rig.time_increment,
+        scan_period=rig.scan_period,
+        recv_ns=stamp + 30_000_000,
+        start_ns=stamp,
+        sequence=k,
+    )
+    raw = schemas.raw_telegram(device="laser", data=b"", recv_ns=stamp, stamp_ns=stamp)
+    return [
+        (stamp, "/laser/scan", schemas.laser_scan(scan, "laser", stamp)),
+        (stamp, "/laser/raw", raw),
+    ]
+
+
+def write_events(
+    writer: LogWriter, events: list[tuple[int, str, bytes]], start_ns: int, duration_s: float
+) -> None:
+    """Write ``events`` (ns, topic, payload) in time order with 1 Hz /acq/clock pairs, and
+    close the writer."""
+    for k in range(int(duration_s) + 1):
+        stamp = start_ns + k * 10**9
+        clock = schemas.clock(realtime_ns=1_800_000_000 * 10**9 + stamp, monotonic_ns=stamp)
+        events.append((stamp, "/acq/clock", clock))
+    events.sort(key=lambda e: e[0])
+    try:
+        for stamp, topic, payload in events:
+            writer.write(topic, payload, stamp, stamp)
+    finally:
+        writer.close()
+
+
 def write_board_log(
     directory: Path,
     n_poses: int = 12,
@@ -254,31 +291,8 @@ def write_board_log(
         t = k * rig.scan_period
         B = board_at(boards, t + 0.5 * rig.scan_period * 0.75, hold_s, move_s)
         ranges = simulate_scan(rig, board, B, rng)
-        stamp = start_ns + round(t * 1e9)
-        scan = Scan(
-            ranges=ranges,
-            intensities=np.zeros(0, np.float32),
-            angle_min=rig.angle_min,
-            angle_increment=rig.angle_increment,
-            time_increment=rig.time_increment,
-            scan_period=rig.scan_period,
-            recv_ns=stamp + 30_000_000,
-            start_ns=stamp,
-            sequence=k,
-        )
-        events.append((stamp, "/laser/scan", schemas.laser_scan(scan, "laser", stamp)))
-        raw = schemas.raw_telegram(device="laser", data=b"", recv_ns=stamp, stamp_ns=stamp)
-        events.append((stamp, "/laser/raw", raw))
-    for k in range(int(duration) + 1):
-        stamp = start_ns + k * 10**9
-        clock = schemas.clock(realtime_ns=1_800_000_000 * 10**9 + stamp, monotonic_ns=stamp)
-        events.append((stamp, "/acq/clock", clock))
-    events.sort(key=lambda e: e[0])
-    try:
-        for stamp, topic, payload in events:
-            writer.write(topic, payload, stamp, stamp)
-    finally:
-        writer.close()
+        events += scan_events(rig, ranges, k, start_ns + round(t * 1e9))
+    write_events(writer, events, start_ns, duration)
     period_ns = round((hold_s + move_s) * 1e9)
     holds = [
         (start_ns + i * period_ns, start_ns + i * period_ns + round(hold_s * 1e9))

@@ -29,10 +29,10 @@ import numpy as np
 from acq import calibfile, schemas
 from acq.calibfile import Calibration, CameraCalib
 from acq.mcap_log import LogWriter
-from acq.records import Frame, Scan
+from acq.records import Frame
 from acq.transforms import Rigid
 from acq.validate import DEFAULT_COLOURS
-from sim.board_log import pixel_rays
+from sim.board_log import pixel_rays, scan_events, write_events
 from sim.world import Rig, default_rig
 
 __all__ = ["LABELS", "PatternScene", "ValidationLog", "cast", "write_validation_log"]
@@ -196,30 +196,8 @@ def write_validation_log(
         stamp = start_ns + round(k * rig.scan_period * 1e9)
         r = beam_range + rng.normal(0.0, rig.range_noise, beam_range.shape)
         r = np.where((r > rig.min_range) & (r < rig.max_range), r, np.inf).astype(np.float32)
-        scan = Scan(
-            ranges=r,
-            intensities=np.zeros(0, np.float32),
-            angle_min=rig.angle_min,
-            angle_increment=rig.angle_increment,
-            time_increment=rig.time_increment,
-            scan_period=rig.scan_period,
-            recv_ns=stamp + 30_000_000,
-            start_ns=stamp,
-            sequence=k,
-        )
-        events.append((stamp, "/laser/scan", schemas.laser_scan(scan, "laser", stamp)))
-        raw = schemas.raw_telegram(device="laser", data=b"", recv_ns=stamp, stamp_ns=stamp)
-        events.append((stamp, "/laser/raw", raw))
-    for k in range(int(duration_s) + 1):
-        stamp = start_ns + k * 10**9
-        clock = schemas.clock(realtime_ns=1_800_000_000 * 10**9 + stamp, monotonic_ns=stamp)
-        events.append((stamp, "/acq/clock", clock))
-    events.sort(key=lambda e: e[0])
-    try:
-        for stamp, topic, payload in events:
-            writer.write(topic, payload, stamp, stamp)
-    finally:
-        writer.close()
+        events += scan_events(rig, r, k, stamp)
+    write_events(writer, events, start_ns, duration_s)
     return ValidationLog(writer.files, truth, calib, scene, beam_label, beam_range, start_ns)
 
 

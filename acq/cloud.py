@@ -670,3 +670,19 @@ def preview_png(
     if not cv2.imwrite(str(path), img):
         raise OSError(f"{path}: cannot write the PNG")
     return int(img.shape[1]), int(img.shape[0])
+
+
+def camera_calib(
+    log: DriveLog, calib: Calibration, camera: str | None
+) -> tuple[str, calibfile.CameraCalib]:
+    """(name, calibration) of the camera to use: ``camera``, else the calibration's only
+    one, else the log's camera. KeyError for an unknown camera; ValueError when the log
+    has no frames."""
+    if camera is None and len(calib.cameras) != 1 and log.camera:
+        name = log.camera
+    else:
+        name = camera if camera is not None else next(iter(calib.cameras), "")
+    cam = calib.camera(name)
+    if not log.n_frames:
+        raise ValueError("the log has no camera frames")
+    return name, cam

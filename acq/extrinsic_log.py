@@ -417,13 +417,7 @@ def main_extrinsic(
         spec = parse_board(board)
         calib = calibfile.load(intrinsics)
         log = cloud.read_log(list(logs), camera=camera)
-        if camera is None and len(calib.cameras) != 1 and log.camera:
-            name = log.camera
-        else:
-            name = camera if camera is not None else next(iter(calib.cameras), "")
-        cam = calib.camera(name)
-        if not log.n_frames:
-            raise ValueError("the log has no camera frames")
+        name, cam = cloud.camera_calib(log, calib, camera)
         t0 = int(log.scan_ns[0])
         intervals = parse_poses(poses, t0) if poses else still_intervals(log)
     except (ValueError, KeyError, OSError, LogError) as e:

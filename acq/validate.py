@@ -451,13 +451,7 @@ def main_validate(
     try:
         cal = calibfile.load(calib)
         log = cloud.read_log(list(logs), camera=camera)
-        if camera is None and len(cal.cameras) != 1 and log.camera:
-            name = log.camera
-        else:
-            name = camera if camera is not None else next(iter(cal.cameras), "")
-        cam = cal.camera(name)
-        if not log.n_frames:
-            raise ValueError("the log has no camera frames")
+        name, cam = cloud.camera_calib(log, cal, camera)
     except (ValueError, KeyError, OSError, LogError) as e:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
         print(f"{prog}: {msg}", file=sys.stderr)

@@ -174,6 +174,31 @@ def board_at(boards: list[Rigid], t: float, hold_s: float, move_s: float) -> Rig
     return Rigid(Rf @ a.rotation, (1 - f) * a.translation + f * b.translation)
 
 
+def open_sim_log(directory: Path, prefix: str, rig: Rig, calib: Calibration) -> LogWriter:
+    """A log writer with the recorder's laser, camera and clock topics, the scanner's
+    geometry and ``calib`` in its metadata."""
+    geometry = {
+        "angle_min": rig.angle_min,
+        "angle_increment": rig.angle_increment,
+        "n_steps": rig.n_steps,
+        "time_increment": rig.time_increment,
+        "scan_period": rig.scan_period,
+        "min_range": rig.min_range,
+        "max_range": rig.max_range,
+    }
+    metadata = {
+        "device.laser": {"driver": "sim", "geometry": json.dumps(geometry)},
+        "device.camera": {"driver": "sim"},
+        "calibration": {"yaml": calibfile.dump(calib)},
+    }
+    writer = LogWriter(directory, prefix=prefix, metadata=metadata)
+    writer.add_channel("/laser/scan", schemas.SCHEMAS["foxglove.LaserScan"])
+    writer.add_channel("/laser/raw", schemas.SCHEMAS["acq.RawTelegram"])
+    writer.add_channel("/camera/image/compressed", schemas.SCHEMAS["foxglove.CompressedImage"])
+    writer.add_channel("/acq/clock", schemas.SCHEMAS["acq.Clock"])
+    return writer
+
+
 def scan_events(rig: Rig, ranges: np.ndarray, k: int, stamp: int) -> list[tuple[int, str, bytes]]:
     """The /laser/scan and /laser/raw messages of scan ``k`` with point 0 at ``stamp`` ns."""
     scan = Scan(
@@ -237,25 +262,7 @@ def write_board_log(
     lens = rig.lens
     calib = Calibration(cameras={"camera": CameraCalib(lens)})
     duration = n_poses * (hold_s + move_s) - move_s
-    geometry = {
-        "angle_min": rig.angle_min,
-        "angle_increment": rig.angle_increment,
-        "n_steps": rig.n_steps,
-        "time_increment": rig.time_increment,
-        "scan_period": rig.scan_period,
-        "min_range": rig.min_range,
-        "max_range": rig.max_range,
-    }
-    metadata = {
-        "device.laser": {"driver": "sim", "geometry": json.dumps(geometry)},
-        "device.camera": {"driver": "sim"},
-        "calibration": {"yaml": calibfile.dump(calib)},
-    }
-    writer = LogWriter(directory, prefix="board", metadata=metadata)
-    writer.add_channel("/laser/scan", schemas.SCHEMAS["foxglove.LaserScan"])
-    writer.add_channel("/laser/raw", schemas.SCHEMAS["acq.RawTelegram"])
-    writer.add_channel("/camera/image/compressed", schemas.SCHEMAS["foxglove.CompressedImage"])
-    writer.add_channel("/acq/clock", schemas.SCHEMAS["acq.Clock"])
+    writer = open_sim_log(directory, "board", rig, calib)
 
     rays2, rays1 = pixel_rays(lens, 2), pixel_rays(lens, 1)
     # moving frames: every other pixel, scaled up (motion blurs them anyway)

@@ -19,20 +19,18 @@ World frame = the laser frame (x = up, y = vehicle right, z = vehicle forward); 
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from acq import calibfile, schemas
+from acq import schemas
 from acq.calibfile import Calibration, CameraCalib
-from acq.mcap_log import LogWriter
 from acq.records import Frame
 from acq.transforms import Rigid
 from acq.validate import DEFAULT_COLOURS
-from sim.board_log import pixel_rays, scan_events, write_events
+from sim.board_log import open_sim_log, pixel_rays, scan_events, write_events
 from sim.world import Rig, default_rig
 
 __all__ = ["LABELS", "PatternScene", "ValidationLog", "cast", "write_validation_log"]
@@ -155,25 +153,7 @@ def write_validation_log(
     rng = np.random.default_rng(seed)
     truth = rig.camera_to_laser
     calib = Calibration(cameras={"camera": CameraCalib(rig.lens, truth)})
-    geometry = {
-        "angle_min": rig.angle_min,
-        "angle_increment": rig.angle_increment,
-        "n_steps": rig.n_steps,
-        "time_increment": rig.time_increment,
-        "scan_period": rig.scan_period,
-        "min_range": rig.min_range,
-        "max_range": rig.max_range,
-    }
-    metadata = {
-        "device.laser": {"driver": "sim", "geometry": json.dumps(geometry)},
-        "device.camera": {"driver": "sim"},
-        "calibration": {"yaml": calibfile.dump(calib)},
-    }
-    writer = LogWriter(directory, prefix="validation", metadata=metadata)
-    writer.add_channel("/laser/scan", schemas.SCHEMAS["foxglove.LaserScan"])
-    writer.add_channel("/laser/raw", schemas.SCHEMAS["acq.RawTelegram"])
-    writer.add_channel("/camera/image/compressed", schemas.SCHEMAS["foxglove.CompressedImage"])
-    writer.add_channel("/acq/clock", schemas.SCHEMAS["acq.Clock"])
+    writer = open_sim_log(directory, "validation", rig, calib)
 
     img = np.asarray(cv2.GaussianBlur(render(rig, scene), (0, 0), blur_px), np.float32)
     noise = [rng.normal(0.0, pixel_noise, img.shape).astype(np.float32) for _ in range(4)]

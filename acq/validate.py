@@ -6,12 +6,13 @@ coloured red/green and a back set (wall) coloured blue/yellow (:data:`DEFAULT_CO
 RGB; what ``sim/validation_log.py`` paints). As in the paper, a laser point's set comes
 from the geometry alone and its colour from the image:
 
-1. sets (:func:`find_sets`): on the per-beam median scan, the two largest parallel lines
-   (RANSAC, inliers within ``tol_m``); the nearer is the front set, the farther the
-   back; back points count only within the front set's extent along the line (+25 % at
-   each end). Back points the camera cannot see (:func:`occluded`: the camera-to-point
-   segment crosses the front set, assuming the pattern's edges are perpendicular to the
-   scan plane, as bars or panels crossing the laser line are) are left out;
+1. sets (:func:`find_sets`): on the per-beam median scan, among the points in the
+   camera's view, the two largest parallel lines (RANSAC, inliers within ``tol_m``);
+   the nearer is the front set, the farther the back; back points count only within
+   the front set's extent along the line (+25 % at each end). Back points the camera
+   cannot see (:func:`occluded`: the camera-to-point segment crosses the front set,
+   assuming the pattern's edges are perpendicular to the scan plane, as bars or panels
+   crossing the laser line are) are left out;
 2. every scan's points on a set go into the camera (``camera_to_laser`` inverted, the
    model) and the frame nearest in time (within ``max_dt_s``); the pixel's colour class is
    the nearest (RGB) of the pattern colours and of :data:`NEUTRALS` (non-pattern greys);
@@ -154,15 +155,20 @@ def find_sets(
     seed: int = 0,
 ) -> Sets:
     """The front and back sets on the median scan (module docstring, step 1); ValueError
-    when there are not two parallel lines at different depths. The front set occludes
-    ``occlusion_beams`` beam steps beyond its runs' ends (a margin for blur)."""
+    when there are not two parallel lines at different depths in the camera's view. The
+    front set occludes ``occlusion_beams`` beam steps beyond its runs' ends (a margin for
+    blur)."""
     r = np.where(np.isfinite(log.ranges), log.ranges, np.nan)
     with warnings.catch_warnings():  # beams with no return in any scan stay NaN
         warnings.simplefilter("ignore", RuntimeWarning)
         med = np.nanmedian(r, axis=0) if log.n_scans > 1 else r[0]
     a = log.angle_min + log.angle_increment * np.arange(med.size)
-    ok = np.isfinite(med)
     P = np.column_stack([np.nan_to_num(med * np.cos(a)), np.nan_to_num(med * np.sin(a))])
+    # only points in the camera's view can be on a set: what lies behind it (a street's
+    # far side, the vehicle) is left out, however large
+    P3 = np.column_stack([P, np.zeros(len(P))])
+    _, seen = camera.model.project(camera.camera_to_laser.inverse().apply(P3))
+    ok = np.isfinite(med) & seen
     rng = np.random.default_rng(seed)
     n1, c1, in1 = _ransac_line(P, ok, tol_m, rng)
     c2, in2 = c1, np.zeros_like(in1)

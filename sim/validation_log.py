@@ -1,20 +1,22 @@
-"""A simulated validation recording (MCAP) of the paper's §4.2 pattern, with the truth.
+"""A simulated validation recording (MCAP) of the paper's §4.2 pattern in the synthetic
+street, with the truth.
 
-The pattern, in front of the still rig on the camera's side (laser y < 0): a front set
-of ``n_strips`` horizontal bars ``strip_m`` tall (along laser x, up) and 3 m long (along
-laser z, forward), ``gap_m`` apart, alternately red and green, on the plane ``front_m``
-m from the scanner; behind it a wall ``back_m`` m away painted with blue and yellow
-squares (``square_m``). The scan plane (laser z = 0) is vertical, so the laser line
-crosses every bar and, through the gaps, the wall. The ground (grey) is ``ground_m``
-below the scanner; the rest is a grey sky.
+The pattern (:func:`sim.world.validation_pattern`) stands on the left sidewalk of a
+street (``Street.generate(seed, pattern_at=at_m)``, that stretch cleared of parked cars,
+poles and buildings): six red/green horizontal bars at |y| = 5 m (0.8-3.3 m above the
+road), a raised panel of blue/yellow squares behind them at |y| = 6 m (0.5-4.1 m). The
+vehicle is parked at the left kerb (y = ``park_y`` = 3.2 m, facing +x, the camera looking
+left) with its scan plane x = ``at_m`` through the middle of the pattern: the bars 1.8 m
+from the scanner, the panel 2.8 m, the laser line crossing every bar and, through the
+gaps, the panel (through square centres). It stands still for ``duration_s`` s.
 
-Rendering as :mod:`sim.board_log` does, in colour: every pixel ray-cast through the TRUE
-lens (2x2 supersampled), blurred (sigma ``blur_px``), RGB noise, JPEG; scans through the
-TRUE camera_to_laser with the rig's 10 mm range noise. Topics and metadata as
-:func:`sim.board_log.write_board_log` writes them (the stored calibration holds the true
-intrinsics and the TRUE camera_to_laser). The rig stands still for ``duration_s`` s.
-
-World frame = the laser frame (x = up, y = vehicle right, z = vehicle forward); metres.
+Rendering with the street's ray caster (:mod:`sim.raycast`), in colour: every pixel
+cast through the TRUE lens from the TRUE camera pose (2x2 supersampled), blurred (sigma
+``blur_px``), RGB noise, JPEG; every scan cast by :func:`sim.sensors.render_scan` with the
+rig's 10 mm range noise. Topics and metadata as :func:`sim.board_log.write_board_log`
+writes them (the stored calibration holds the true intrinsics and the TRUE
+camera_to_laser). The truth per beam (:data:`LABELS`) is what the caster hit: its
+material and colour. World frame and units as in :mod:`sim.world`.
 """
 
 from __future__ import annotations
@@ -31,88 +33,56 @@ from acq.records import Frame
 from acq.transforms import Rigid
 from acq.validate import DEFAULT_COLOURS
 from sim.board_log import open_sim_log, pixel_rays, scan_events, write_events
-from sim.world import Rig, default_rig
+from sim.raycast import NO_RAY, cast
+from sim.sensors import camera_to_world, render_scan
+from sim.world import Material, Rig, Street, Trajectory, default_rig
 
-__all__ = ["LABELS", "PatternScene", "ValidationLog", "cast", "write_validation_log"]
+__all__ = [
+    "LABELS",
+    "PARK_Y",
+    "PATTERN_AT",
+    "ValidationLog",
+    "labels",
+    "parked",
+    "render",
+    "write_validation_log",
+]
 
-LABELS = ("none", "red", "green", "blue", "yellow", "ground", "sky")
-"""Material labels of :func:`cast` (index = label)."""
+LABELS = ("none", "red", "green", "blue", "yellow", "ground", "sky", "other")
+"""What a beam hit (index = label): nothing cast, a pattern colour, the road or sidewalk,
+nothing (sky), anything else (facades, cars, poles, ...)."""
 
-_RGB = {
-    "none": (0, 0, 0),
-    **DEFAULT_COLOURS,
-    "ground": (95, 95, 95),
-    "sky": (170, 170, 170),
-}
-
-
-@dataclass(frozen=True)
-class PatternScene:
-    """The validation pattern (see the module docstring); metres, laser frame."""
-
-    front_m: float = 2.0
-    back_m: float = 3.0
-    strip_m: float = 0.2
-    gap_m: float = 0.15
-    n_strips: int = 6
-    bottom_m: float = -0.9  # laser x of the lowest bar's lower edge
-    length_m: float = 3.0  # bar length along laser z, centred on z = 0
-    square_m: float = 0.25
-    ground_m: float = 2.2
+PATTERN_AT = 20.0  # m, street x of the pattern (and of the parked vehicle's scan plane)
+PARK_Y = 3.2  # m, the parked vehicle's y: at the left kerb as the parked cars stand
 
 
-def cast(
-    origin: np.ndarray, dirs: np.ndarray, scene: PatternScene
-) -> tuple[np.ndarray, np.ndarray]:
-    """Rays from ``origin`` (laser frame, (N,3) unit ``dirs``): hit distance (m, inf for
-    none) and the :data:`LABELS` index of what they hit first."""
-    n = len(dirs)
-    dist = np.full(n, np.inf)
-    label = np.full(n, LABELS.index("sky"), dtype=np.int64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # the back wall (y = -back_m) and the ground (x = -ground_m)
-        for axis, level in ((1, -scene.back_m), (0, -scene.ground_m)):
-            s = (level - origin[axis]) / dirs[:, axis]
-            hit = np.isfinite(s) & (s > 0) & (s < dist)
-            p = origin + np.nan_to_num(s, posinf=0.0, neginf=0.0)[:, None] * dirs
-            if axis == 1:
-                # squares centred on the scan plane (no colour edge along the laser line)
-                q = scene.square_m
-                i = np.floor(p[:, 0] / q + 0.5) + np.floor(p[:, 2] / q + 0.5)
-                lab = np.where(i % 2 == 0, LABELS.index("blue"), LABELS.index("yellow"))
-            else:
-                lab = np.full(n, LABELS.index("ground"))
-            dist = np.where(hit, s, dist)
-            label = np.where(hit, lab, label)
-        # the front bars (y = -front_m)
-        s = (-scene.front_m - origin[1]) / dirs[:, 1]
-    p = origin + np.nan_to_num(s, posinf=0.0, neginf=0.0)[:, None] * dirs
-    pitch = scene.strip_m + scene.gap_m
-    k = np.floor((p[:, 0] - scene.bottom_m) / pitch)
-    on = (
-        np.isfinite(s)
-        & (s > 0)
-        & (s < dist)
-        & (k >= 0)
-        & (k < scene.n_strips)
-        & ((p[:, 0] - scene.bottom_m - k * pitch) <= scene.strip_m)
-        & (np.abs(p[:, 2]) <= scene.length_m / 2)
-    )
-    lab = np.where(k % 2 == 0, LABELS.index("red"), LABELS.index("green"))
-    return np.where(on, s, dist), np.where(on, lab, label)
+def labels(material: np.ndarray, colour: np.ndarray) -> np.ndarray:
+    """(N,) :data:`LABELS` index of ray-caster hits: ``material`` (N,) ``Material`` ids and
+    ``colour`` (N,3) BGR; a pattern colour only on the pattern's materials (SOLID bars,
+    CHECKER panel)."""
+    out = np.full(material.shape, LABELS.index("other"), np.int64)
+    out[material == NO_RAY] = LABELS.index("none")
+    out[material == Material.SKY] = LABELS.index("sky")
+    out[(material == Material.ROAD) | (material == Material.SIDEWALK)] = LABELS.index("ground")
+    pattern = (material == Material.SOLID) | (material == Material.CHECKER)
+    for name, rgb in DEFAULT_COLOURS.items():
+        out[pattern & np.all(colour == rgb[::-1], axis=1)] = LABELS.index(name)
+    return out
 
 
 @dataclass(frozen=True)
 class ValidationLog:
     """What :func:`write_validation_log` wrote: the file(s), the true ``camera_to_laser``,
-    the ``calibration`` stored in the log (true intrinsics and extrinsic), the scene, and
-    per beam the truth: ``beam_label`` (n_steps,) :data:`LABELS` index of what each beam
-    hit and ``beam_range`` (n_steps,) its noiseless range (m, inf for none)."""
+    the ``calibration`` stored in the log (true intrinsics and extrinsic), the ``street``
+    and the parked ``vehicle`` (a still trajectory), and per beam the truth:
+    ``beam_label`` (n_steps,) :data:`LABELS` index of what each beam hit and
+    ``beam_range`` (n_steps,) its noiseless range (m, inf for none)."""
 
     files: list[Path]
     truth: Rigid
     calibration: Calibration
-    scene: PatternScene
+    street: Street
+    vehicle: Trajectory
     beam_label: np.ndarray
     beam_range: np.ndarray
     start_ns: int
@@ -122,17 +92,25 @@ class ValidationLog:
         return [LABELS[i] for i in self.beam_label]
 
 
-def render(rig: Rig, scene: PatternScene, supersample: int = 2) -> np.ndarray:
-    """(H,W,3) float32 BGR image of the scene through the true lens and extrinsic."""
-    lens, T, k = rig.lens, rig.camera_to_laser, supersample
-    dirs, valid = pixel_rays(lens, k)
-    _, label = cast(T.translation, dirs @ T.rotation.T, scene)
-    label = np.where(valid, label, LABELS.index("none"))
-    table = np.array([_RGB[name][::-1] for name in LABELS], dtype=np.float32)
-    img = table[label].reshape(lens.height * k, lens.width * k, 3)
+def parked(at_m: float = PATTERN_AT, park_y: float = PARK_Y, rig: Rig | None = None) -> Trajectory:
+    """The still vehicle at y = ``park_y`` m, facing +x, its scan plane at x = ``at_m`` m."""
+    rig = rig or default_rig()
+    return Trajectory(speed=0.0, x0=at_m - float(rig.laser_to_vehicle.translation[0]), y0=park_y)
+
+
+def render(street: Street, vehicle: Trajectory, rig: Rig, supersample: int = 2) -> np.ndarray:
+    """(H,W,3) float32 BGR image of the street at time 0 through the TRUE lens from the
+    TRUE camera pose, ``supersample`` x ``supersample`` rays per pixel averaged; black
+    outside the lens's field of view."""
+    lens, k = rig.lens, supersample
+    rays, valid = pixel_rays(lens, k)
+    pose = camera_to_world(vehicle, rig, 0.0)
+    idx = np.flatnonzero(valid)
+    hit = cast(street, pose.translation, rays[idx], pose.rotation, idx, len(rays))
+    img = hit.colour.astype(np.float32).reshape(lens.height * k, lens.width * k, 3)
     if k > 1:
         img = img.reshape(lens.height, k, lens.width, k, 3).mean(axis=(1, 3))
-    return img.astype(np.float32)
+    return img
 
 
 def write_validation_log(
@@ -141,21 +119,27 @@ def write_validation_log(
     *,
     duration_s: float = 2.0,
     rig: Rig | None = None,
-    scene: PatternScene | None = None,
+    street: Street | None = None,
+    at_m: float = PATTERN_AT,
+    park_y: float = PARK_Y,
     blur_px: float = 0.6,
     pixel_noise: float = 2.0,
     jpeg_quality: int = 92,
     start_ns: int = 1_000_000_000_000,
 ) -> ValidationLog:
-    """Write the recording (see the module docstring) into ``directory``; the truth."""
+    """Write the recording (see the module docstring) into ``directory``; the truth.
+
+    ``street``: the scene (default ``Street.generate(seed, 80 m, pattern_at=at_m)``); the
+    vehicle parks at y = ``park_y`` m with its scan plane at x = ``at_m`` m."""
     rig = rig or default_rig()
-    scene = scene or PatternScene()
+    street = street if street is not None else Street.generate(seed, 80.0, pattern_at=at_m)
+    vehicle = parked(at_m, park_y, rig)
     rng = np.random.default_rng(seed)
     truth = rig.camera_to_laser
     calib = Calibration(cameras={"camera": CameraCalib(rig.lens, truth)})
     writer = open_sim_log(directory, "validation", rig, calib)
 
-    img = np.asarray(cv2.GaussianBlur(render(rig, scene), (0, 0), blur_px), np.float32)
+    img = np.asarray(cv2.GaussianBlur(render(street, vehicle, rig), (0, 0), blur_px), np.float32)
     noise = [rng.normal(0.0, pixel_noise, img.shape).astype(np.float32) for _ in range(4)]
     lens = rig.lens
     events: list[tuple[int, str, bytes]] = []
@@ -169,21 +153,26 @@ def write_validation_log(
         events.append(
             (stamp, "/camera/image/compressed", schemas.compressed_image(frame, "camera"))
         )
-    a = rig.angles
-    beam_dirs = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
-    beam_range, beam_label = cast(np.zeros(3), beam_dirs, scene)
-    for k in range(int(duration_s / rig.scan_period) + 1):
-        stamp = start_ns + round(k * rig.scan_period * 1e9)
-        r = beam_range + rng.normal(0.0, rig.range_noise, beam_range.shape)
-        r = np.where((r > rig.min_range) & (r < rig.max_range), r, np.inf).astype(np.float32)
-        events += scan_events(rig, r, k, stamp)
+    scans = [
+        render_scan(street, vehicle, rig, k * rig.scan_period, rng)
+        for k in range(int(duration_s / rig.scan_period) + 1)
+    ]
+    for k, scan in enumerate(scans):
+        events += scan_events(rig, scan.ranges, k, start_ns + round(scan.t0 * 1e9))
     write_events(writer, events, start_ns, duration_s)
-    return ValidationLog(writer.files, truth, calib, scene, beam_label, beam_range, start_ns)
+    label = labels(scans[0].material, scans[0].colours)  # the vehicle stands still
+    return ValidationLog(
+        writer.files, truth, calib, street, vehicle, label, scans[0].true_ranges, start_ns
+    )
 
 
 if __name__ == "__main__":  # a quick look: python -m sim.validation_log OUT_DIR
     import sys
 
-    log = write_validation_log(Path(sys.argv[1]))
+    from acq import calibfile
+
+    out = Path(sys.argv[1])
+    log = write_validation_log(out)
+    calibfile.save(log.calibration, out / "calib.yaml")
     names = log.beam_colour()
-    print(log.files, {n: names.count(n) for n in LABELS})
+    print(*log.files, out / "calib.yaml", {n: names.count(n) for n in LABELS})

@@ -5,11 +5,17 @@ surface is the plane z = 0 and the street's centre line is y = 0. Every object i
 axis-aligned box standing in the street, a vertical cylinder, or a free textured quad
 (for calibration boards and validation patterns), so the ray caster (``sim.raycast``)
 can cut the street into slices along x. Colours are BGR uint8.
+
+The paper's §4.2 validation pattern (:func:`validation_pattern`) can stand in the street:
+``Street.generate(..., pattern_at=x)`` puts it on the left sidewalk (the default camera's
+side) and keeps that stretch of the left side clear of parked cars, poles and buildings.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -20,6 +26,9 @@ from acq.transforms import Rigid, rotation_from_euler
 
 __all__ = [
     "N_PARAMS",
+    "PATTERN_BACK_Y",
+    "PATTERN_CLEAR_M",
+    "PATTERN_FRONT_Y",
     "Box",
     "Cylinder",
     "Material",
@@ -31,6 +40,7 @@ __all__ = [
     "default_lens",
     "default_rig",
     "solid_quad",
+    "validation_pattern",
 ]
 
 N_PARAMS = 16  # material parameters per object (colours, pattern sizes), see Material
@@ -154,6 +164,77 @@ def solid_quad(
     return Quad(origin, u, v, Material.SOLID, colour)
 
 
+PATTERN_FRONT_Y = 5.0  # m, |y| of the validation pattern's bars (0.75 m behind the kerb)
+PATTERN_BACK_Y = 6.0  # m, |y| of its back panel
+PATTERN_CLEAR_M = 10.0  # m, Street.generate keeps x_m ± this clear on the pattern's side
+
+
+def validation_pattern(
+    x_m: float,
+    side: int = 1,
+    *,
+    front_y: float = PATTERN_FRONT_Y,
+    back_y: float = PATTERN_BACK_Y,
+    bar_m: float = 0.25,
+    gap_m: float = 0.2,
+    n_bars: int = 6,
+    bottom_m: float = 0.8,
+    length_m: float = 3.0,
+    square_m: float = 0.45,
+    panel_cols: int = 9,
+    panel_rows: int = 8,
+    panel_bottom_m: float = 0.5,
+    colours: Mapping[str, tuple[int, int, int]] | None = None,
+) -> list[Quad]:
+    """The paper's §4.2 validation pattern at street position ``x_m`` (m) on the
+    ``side`` (+1 left, -1 right) of the street: two vertical planes parallel to it.
+
+    Front set: ``n_bars`` horizontal bars ``bar_m`` tall and ``length_m`` long (centred on
+    x_m), ``gap_m`` apart, the lowest from ``bottom_m`` above the road, alternately red
+    and green (the lowest red), at |y| = ``front_y``. Back set: a panel of ``panel_cols``
+    x ``panel_rows`` blue and yellow squares of ``square_m`` at |y| = ``back_y``, from
+    ``panel_bottom_m`` above the road up (raised, so no laser point where it meets the
+    ground lies on its plane); a square's centre lies on x = x_m (odd ``panel_cols``), so
+    a scan plane x = x_m runs through square centres, not along a colour edge. The stands
+    are not modelled. ``colours``: RGB by name as ``acq.validate.DEFAULT_COLOURS`` (the
+    default); metres.
+    """
+    if colours is None:
+        from acq.validate import DEFAULT_COLOURS  # here: it imports cv2, slow
+
+        colours = DEFAULT_COLOURS
+    rgb = colours
+    if side not in (1, -1):
+        raise ValueError(f"side must be +1 or -1, got {side}")
+    if panel_cols % 2 == 0:
+        raise ValueError("panel_cols must be odd (a square centred on x_m)")
+
+    def bgr(name: str) -> BGR:
+        r, g, b = rgb[name]
+        return (b, g, r)
+
+    x0 = x_m - length_m / 2
+    bars = [
+        solid_quad(
+            (x0, side * front_y, bottom_m + k * (bar_m + gap_m)),
+            (length_m, 0.0, 0.0),
+            (0.0, 0.0, bar_m),
+            bgr("red" if k % 2 == 0 else "green"),
+        )
+        for k in range(n_bars)
+    ]
+    panel = checkerboard_quad(
+        (x_m - panel_cols * square_m / 2, side * back_y, panel_bottom_m),
+        (1.0, 0.0, 0.0),
+        (0.0, 0.0, 1.0),
+        panel_cols,
+        panel_rows,
+        square_m,
+        (bgr("blue"), bgr("yellow")),
+    )
+    return [*bars, panel]
+
+
 # --- the street -------------------------------------------------------------------------
 
 ROAD_HALF_WIDTH = 4.25  # m, kerb line; driving lanes up to ±3.0, parking beyond
@@ -216,8 +297,16 @@ class Street:
         self.version += 1
 
     @classmethod
-    def generate(cls, seed: int = 0, length_m: float = 200.0) -> Street:
-        """A random street from x = -40 to ``length_m + 40`` m (the vehicle starts at 0)."""
+    def generate(
+        cls, seed: int = 0, length_m: float = 200.0, pattern_at: float | None = None
+    ) -> Street:
+        """A random street from x = -40 to ``length_m + 40`` m (the vehicle starts at 0).
+
+        With ``pattern_at`` (x, m) the validation pattern (:func:`validation_pattern`,
+        default placement) stands there on the left sidewalk, and the left side within
+        ``PATTERN_CLEAR_M`` of it is cleared of parked cars, poles and buildings (cut back
+        to the stretch's ends); the rest of the street is the one without the pattern.
+        """
         rng = np.random.default_rng(seed)
         street = cls(length_m=length_m, seed=seed)
         x0, x1 = -40.0, length_m + 40.0
@@ -228,8 +317,45 @@ class Street:
             street._back_row(rng, side, x0, x1)
             street._cars(rng, side, x0, x1, w)
             street._poles(rng, side, x0, x1, w)
+        if pattern_at is not None:
+            street._clear(pattern_at - PATTERN_CLEAR_M, pattern_at + PATTERN_CLEAR_M, 1.0)
+            street.quads.extend(validation_pattern(pattern_at))
         street.version += 1
         return street
+
+    def _clear(self, x0: float, x1: float, side: float) -> None:
+        """Remove parked cars and poles from x0..x1 (m) on ``side``, cut buildings back."""
+
+        def on_side(ylo: float, yhi: float) -> bool:
+            return ylo >= 0.0 if side > 0 else yhi <= 0.0
+
+        boxes: list[Box] = []
+        gone: list[Box] = []  # car bodies removed: their cabins go too
+        for b in self.boxes:
+            if not on_side(b.ymin, b.ymax) or b.xmax <= x0 or b.xmin >= x1:
+                boxes.append(b)
+            elif b.material == Material.FACADE:
+                if b.xmin < x0:
+                    boxes.append(dataclasses.replace(b, xmax=x0))
+                if b.xmax > x1:  # windows stay where they were (x phase, params[14])
+                    params = (*b.params[:14], b.params[14] + b.xmin - x1, *b.params[15:])
+                    boxes.append(dataclasses.replace(b, xmin=x1, params=params))
+            elif b.material == Material.CAR_BODY:
+                gone.append(b)
+            elif b.material != Material.CAR_CABIN:
+                boxes.append(b)  # the sidewalk
+        self.boxes = [
+            b
+            for b in boxes
+            if b.material != Material.CAR_CABIN
+            or not any(g.xmin <= b.xmin and b.xmax <= g.xmax and g.ymin < b.ymin < g.ymax
+                       for g in gone)
+        ]  # fmt: skip
+        self.cylinders = [
+            c
+            for c in self.cylinders
+            if not (on_side(c.y - c.radius, c.y + c.radius) and x0 <= c.x <= x1)
+        ]
 
     def _sidewalk(self, side: float, x0: float, x1: float) -> None:
         y_in, y_out = self.road_half_width, 30.0

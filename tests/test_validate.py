@@ -1,7 +1,9 @@
-"""acq calibrate validate on a simulated validation recording (sim/validation_log.py)."""
+"""acq calibrate validate on a simulated validation recording (sim/validation_log.py):
+the paper's pattern in the synthetic street, seen by the parked vehicle."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from pathlib import Path
@@ -13,8 +15,25 @@ import pytest
 from acq import calibfile, cloud
 from acq.calibfile import Calibration, CameraCalib
 from acq.transforms import Rigid
-from acq.validate import main_validate, validate
-from sim.validation_log import LABELS, ValidationLog, write_validation_log
+from acq.validate import DEFAULT_COLOURS, main_validate, validate
+from sim.raycast import NO_RAY
+from sim.validation_log import (
+    LABELS,
+    PARK_Y,
+    PATTERN_AT,
+    ValidationLog,
+    labels,
+    write_validation_log,
+)
+from sim.world import (
+    PATTERN_BACK_Y,
+    PATTERN_CLEAR_M,
+    PATTERN_FRONT_Y,
+    Material,
+    Street,
+    default_rig,
+    validation_pattern,
+)
 
 
 @pytest.fixture(scope="module")
@@ -99,13 +118,81 @@ def test_main_bad_input_exits_2(
 def test_no_pattern_exits_1(
     rec: tuple[ValidationLog, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    # the log's calibration with an empty scene: write a log whose scans see nothing
-    from sim.validation_log import PatternScene
-
-    log = write_validation_log(
-        tmp_path, duration_s=0.2, scene=PatternScene(n_strips=0, back_m=50.0, ground_m=50.0)
-    )
+    # the log's calibration in an empty street (the ground only): no two parallel sets
+    log = write_validation_log(tmp_path, duration_s=0.2, street=Street())
+    assert set(log.beam_colour()) <= {"ground", "sky"}
     calib = tmp_path / "c.yaml"
     calibfile.save(Calibration(cameras={"camera": log.calibration.camera()}), calib)
     assert main_validate(log.files, calib) == 1
     assert "no pattern" in capsys.readouterr().err
+
+
+# --- the pattern in the street ------------------------------------------------------------
+
+
+def test_pattern_stands_in_the_street(rec: tuple[ValidationLog, Path]) -> None:
+    log, _ = rec
+    assert log.street.quads == validation_pattern(PATTERN_AT)
+    # the beams' truth comes from the street's caster: the bars 1.8 m across from the
+    # scanner (laser -y), the panel 2.8 m; every bar and, through the gaps, the panel
+    a = default_rig().angles
+    across = -np.where(np.isfinite(log.beam_range), log.beam_range, 0.0) * np.sin(a)  # m
+    names = np.array(log.beam_colour())
+    for colour, y in (("red", PATTERN_FRONT_Y), ("green", PATTERN_FRONT_Y),
+                      ("blue", PATTERN_BACK_Y), ("yellow", PATTERN_BACK_Y)):  # fmt: skip
+        assert np.allclose(across[names == colour], y - PARK_Y, atol=1e-6), colour
+    # six bars: six runs of front beams, alternately red and green from the bottom
+    front = np.isin(names, ["red", "green"])
+    starts = np.flatnonzero(np.diff(np.r_[0, front.astype(int)]) == 1)
+    assert [names[i] for i in starts] == ["red", "green"] * 3
+    assert np.all(
+        np.isin(names[~front & (across > 0) & (across < 3.5)], ["blue", "yellow", "ground"])
+    )
+
+
+def test_labels_come_from_material_and_colour() -> None:
+    red = DEFAULT_COLOURS["red"][::-1]
+    mat = np.array([Material.SOLID, Material.FACADE, Material.CHECKER, Material.SKY, NO_RAY,
+                    Material.SIDEWALK, Material.SOLID], np.uint8)  # fmt: skip
+    col = np.array([red, red, DEFAULT_COLOURS["yellow"][::-1], (0, 0, 0), (0, 0, 0),
+                    (1, 2, 3), (1, 2, 3)], np.uint8)  # fmt: skip
+    got = [LABELS[i] for i in labels(mat, col)]
+    assert got == ["red", "other", "yellow", "sky", "none", "ground", "other"]
+
+
+def _fingerprint(street: Street) -> str:
+    rows = [[b.xmin, b.xmax, b.ymin, b.ymax, b.zmin, b.zmax, b.material, *b.params]
+            for b in street.boxes]  # fmt: skip
+    rows += [[c.x, c.y, c.radius, c.zmin, c.zmax, 0.0, c.material, *c.params]
+             for c in street.cylinders]  # fmt: skip
+    return hashlib.sha256(np.array(rows, "<f8").tobytes()).hexdigest()[:16]
+
+
+def test_street_without_pattern_is_unchanged() -> None:
+    # recorded before Street.generate had pattern_at: other tests and the demo rely on it
+    street = Street.generate(seed=1, length_m=120.0)
+    assert (len(street.boxes), len(street.cylinders), len(street.quads)) == (102, 16, 0)
+    assert street.version == 1
+    assert _fingerprint(street) == "b15e757dd461c7ad"
+
+
+def test_pattern_stretch_is_cleared_and_the_rest_kept() -> None:
+    x = 60.0
+    plain = Street.generate(seed=4, length_m=120.0)
+    street = Street.generate(seed=4, length_m=120.0, pattern_at=x)
+    assert street.quads == validation_pattern(x)
+    lo, hi = x - PATTERN_CLEAR_M, x + PATTERN_CLEAR_M
+
+    def in_stretch(xmin: float, xmax: float, ymin: float) -> bool:
+        return ymin >= 0.0 and xmax > lo and xmin < hi
+
+    for b in street.boxes:
+        if b.material != Material.SIDEWALK:
+            assert not in_stretch(b.xmin, b.xmax, b.ymin), b
+    for c in street.cylinders:
+        assert not in_stretch(c.x, c.x, c.y), c
+    # everything elsewhere is the street without the pattern
+    kept = [b for b in plain.boxes if not in_stretch(b.xmin, b.xmax, b.ymin)]
+    assert all(b in street.boxes for b in kept)
+    assert [c for c in plain.cylinders if not in_stretch(c.x, c.x, c.y)] == street.cylinders
+    assert plain.boxes != street.boxes  # something stood there (seed 4: a building at least)

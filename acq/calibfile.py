@@ -1,5 +1,23 @@
 """Reading and writing calib.yaml (see ARCHITECTURE.md, "the calibration file").
 
+This module extends that format on purpose with one optional key per camera, ``std``:
+one standard deviation of each calibrated parameter, from the calibrations'
+covariances (:class:`CalibStd`). Every sub-key is optional; files without it stay
+valid::
+
+    std:                     # optional, written by acq calibrate
+      fx: 0.21               # px, as the keys above
+      fy: 0.20
+      cx: 0.15
+      cy: 0.14
+      k: [0.001, 0.002, 0.001, 0.0005]        # as k (not for the equidistant model)
+      rotation_deg: [0.05, 0.04, 0.06]        # small rotations about the LASER x, y, z
+                                              # axes (R = exp([w]x) R_hat), degrees
+      translation_m: [0.002, 0.003, 0.002]    # of camera_to_laser's translation, m
+
+``acq calibrate fisheye --board`` writes fx, fy, cx, cy and k, ``acq calibrate
+extrinsic`` rotation_deg and translation_m; each keeps the other's part.
+
 Every problem is reported as a :class:`CalibFileError` naming the file and the key
 path, e.g. ``calib.yaml: cameras.camera.fxx: unknown key; did you mean fx?``.
 """
@@ -8,10 +26,10 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import yaml
 
@@ -19,7 +37,16 @@ from acq import camera_models
 from acq.camera_models import CameraModel
 from acq.transforms import Rigid
 
-__all__ = ["CalibFileError", "Calibration", "CameraCalib", "dump", "load", "parse", "save"]
+__all__ = [
+    "CalibFileError",
+    "CalibStd",
+    "Calibration",
+    "CameraCalib",
+    "dump",
+    "load",
+    "parse",
+    "save",
+]
 
 VERSION = 1
 
@@ -36,22 +63,95 @@ _CAMERA_KEYS = {
     "camera_to_laser",
     "time_offset_s",
     "method",
+    "std",
 }
 _RIGID_KEYS = {"rotation", "translation"}
+_STD_KEYS = {"fx", "fy", "cx", "cy", "k", "rotation_deg", "translation_m"}
 
 
 class CalibFileError(ValueError):
     """A calib.yaml that cannot be used; the message names the file and the key."""
 
 
+def _std_values(value: Any, n: int | None) -> tuple[float, ...]:
+    x = tuple(float(v) for v in value)
+    if n is not None and len(x) != n:
+        raise ValueError(f"expected {n} standard deviations, got {len(x)}")
+    if not all(math.isfinite(v) and v >= 0 for v in x):
+        raise ValueError(f"standard deviations must be finite and >= 0, got {x}")
+    return x
+
+
+@dataclass(frozen=True)
+class CalibStd:
+    """One standard deviation of each calibrated parameter (None: not estimated).
+
+    fx, fy, cx, cy px; ``k`` as the model's k (4 for kannala_brandt, 5 for pinhole);
+    ``rotation_deg`` (3,) degrees of small rotations about the LASER x, y, z axes,
+    ``R = exp([w]x) R_hat`` (as :class:`acq.extrinsic.ExtrinsicResult`'s ``std``, not
+    Euler angles: the default rig is near their gimbal lock); ``translation_m`` (3,) m.
+    """
+
+    INTRINSICS: ClassVar[tuple[str, ...]] = ("fx", "fy", "cx", "cy", "k")
+    EXTRINSICS: ClassVar[tuple[str, ...]] = ("rotation_deg", "translation_m")
+
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    k: tuple[float, ...] | None = None
+    rotation_deg: tuple[float, ...] | None = None
+    translation_m: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, _std_values([v], 1)[0])
+        for name, n in (("k", None), ("rotation_deg", 3), ("translation_m", 3)):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, _std_values(v, n))
+
+    def merged(self, other: CalibStd, keys: Sequence[str]) -> CalibStd:
+        """This std with ``keys`` (e.g. :attr:`INTRINSICS`) taken from ``other``."""
+        return replace(self, **{key: getattr(other, key) for key in keys})
+
+    def rounded(self, digits: int = 3) -> CalibStd:
+        """Every value to ``digits`` significant digits (what a writer stores)."""
+
+        def r(x: float) -> float:
+            return float(f"{x:.{digits}g}")
+
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, tuple):
+                out[f.name] = tuple(r(x) for x in v)
+            elif v is not None:
+                out[f.name] = r(v)
+        return CalibStd(**out)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The calib.yaml ``std`` entry: only the parameters that have one."""
+        d: dict[str, Any] = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if v is not None:
+                d[f.name] = list(v) if isinstance(v, tuple) else v
+        return d
+
+
 @dataclass(frozen=True)
 class CameraCalib:
-    """One camera's intrinsics and its pose relative to the laser (paper eq. 2)."""
+    """One camera's intrinsics and its pose relative to the laser (paper eq. 2), with
+    the standard deviations of whichever of them were calibrated (``std``)."""
 
     model: CameraModel
     camera_to_laser: Rigid = field(default_factory=Rigid.identity)
     time_offset_s: float = 0.0  # camera time minus laser time
     method: str = ""
+    std: CalibStd = field(default_factory=CalibStd)
 
     def to_dict(self) -> dict[str, Any]:
         d = self.model.to_dict()
@@ -59,6 +159,9 @@ class CameraCalib:
         d["time_offset_s"] = float(self.time_offset_s)
         if self.method:
             d["method"] = self.method
+        std = self.std.to_dict()
+        if std:
+            d["std"] = std
         return d
 
 
@@ -177,6 +280,7 @@ class _Reader:
         method = d.get("method", "")
         if not isinstance(method, str):
             raise self.fail(_join(path, "method"), "expected a string")
+        std = CalibStd() if "std" not in d else self.std(d["std"], _join(path, "std"), model)
         return CameraCalib(
             model=cam,
             camera_to_laser=(
@@ -186,7 +290,26 @@ class _Reader:
             ),
             time_offset_s=self.number(d.get("time_offset_s", 0.0), _join(path, "time_offset_s")),
             method=method,
+            std=std,
         )
+
+    def std(self, value: Any, path: str, model: str) -> CalibStd:
+        d = self.mapping(value, path, _STD_KEYS, set())
+        out: dict[str, Any] = {}
+        for key in ("fx", "fy", "cx", "cy"):
+            if key in d:
+                out[key] = self.number(d[key], _join(path, key))
+        if "k" in d:
+            if model == "equidistant":
+                raise self.fail(_join(path, "k"), "the equidistant model has no k")
+            out["k"] = self.numbers(d["k"], _join(path, "k"), 5 if model == "pinhole" else 4)
+        for key in CalibStd.EXTRINSICS:
+            if key in d:
+                out[key] = self.numbers(d[key], _join(path, key), 3)
+        for key, v in out.items():
+            if any(x < 0 for x in (v if isinstance(v, list) else [v])):
+                raise self.fail(_join(path, key), "a standard deviation must be >= 0")
+        return CalibStd(**out)
 
 
 def _join(path: str, key: str) -> str:

@@ -167,7 +167,7 @@ def _calibrate_extrinsic(args: argparse.Namespace) -> int:
 
     return main_extrinsic(
         args.logs, args.camera, args.intrinsics, args.board, args.output, args.poses,
-        args.json, args.plot,
+        args.json, args.plot, lens_swap=args.lens_swap, pupil_shift_m=args.pupil_shift,
     )  # fmt: skip
 
 
@@ -177,12 +177,21 @@ def _calibrate_validate(args: argparse.Namespace) -> int:
     return main_validate(args.logs, args.calib, args.camera, args.json, args.out)
 
 
+def _sigma_arg(text: str) -> tuple[str, float]:
+    from acq.sensitivity import parse_sigma
+
+    try:
+        return parse_sigma(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix("--sigma ")) from None
+
+
 def _analyze_sensitivity(args: argparse.Namespace) -> int:
     from acq.sensitivity import main_sensitivity
 
     return main_sensitivity(
         args.calib, args.logs, args.output, args.camera_height, args.building_distance,
-        args.json,
+        args.json, sigma=dict(args.sigma or ()),
     )  # fmt: skip
 
 
@@ -473,6 +482,22 @@ def build_parser() -> argparse.ArgumentParser:
     ext.add_argument(
         "--plot", type=Path, metavar="PNG", help="residual plot (default: beside CALIB)"
     )
+    ext.add_argument(
+        "--lens-swap", type=Path, metavar="FISHEYE_CALIB",
+        help="the paper's way: LOG was recorded with a regular lens on the camera, which "
+        "--intrinsics describes (model: pinhole), and the fisheye is mounted afterwards; "
+        "write the result into a copy of FISHEYE_CALIB (the fisheye's intrinsics). CAVEAT: "
+        "swapping lenses moves the projection centre along the optical axis (the lenses' "
+        "entrance pupils differ, typically by millimetres to centimetres); u0, v0 cannot "
+        "absorb that, so it goes into the translation unless --pupil-shift gives it. The "
+        "default (no lens swap, the fisheye seeing the board) has no such error",
+    )  # fmt: skip
+    ext.add_argument(
+        "--pupil-shift", type=float, default=0.0, metavar="M",
+        help="with --lens-swap: the fisheye's projection centre minus the regular lens's, "
+        "along the optical axis, metres, + towards the scene (default 0, the paper's "
+        "assumption)",
+    )  # fmt: skip
     ext.set_defaults(handler=_calibrate_extrinsic)
 
     val = cal_sub.add_parser(
@@ -521,6 +546,11 @@ def build_parser() -> argparse.ArgumentParser:
     sens.add_argument(
         "--building-distance", type=float, default=10.0, metavar="M",
         help="Table 3: distance from the camera to the facade, m (default 10)",
+    )  # fmt: skip
+    sens.add_argument(
+        "--sigma", type=_sigma_arg, action="append", metavar="NAME=VALUE",
+        help="one standard deviation of a parameter in its unit (rad, m, px, px/m), e.g. "
+        "yaw=0.002; repeatable; overrides calib.yaml's std and the defaults",
     )  # fmt: skip
     sens.add_argument("--json", action="store_true", help="JSON instead of text")
     sens.set_defaults(handler=_analyze_sensitivity)

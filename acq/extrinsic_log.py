@@ -8,9 +8,13 @@ From the log (:func:`acq.cloud.read_log`):
    grey levels) and consecutive scans barely change (median absolute range change, m);
    or the intervals given (``--poses START:END,...``, seconds from the log's first scan);
 2. per pose: the per-beam median of its scans (robust to noise and passers-by) and the
-   board's corners in one of its frames (:func:`find_corners`: on the fisheye image,
-   else on virtual pinhole views rendered through the camera model, mapped back), hence
-   the board plane in the camera frame (:func:`acq.extrinsic.board_pose_from_corners`);
+   board's corners averaged over up to 10 of its frames (:class:`CornerFinder`: on the
+   fisheye image, else on virtual pinhole views rendered through the camera model,
+   mapped back; :func:`average_corners`), hence the board plane in the camera frame
+   (:func:`acq.extrinsic.board_pose_from_corners`). Averaging matters: with one frame
+   per pose the camera's planes limit the rotation to ~0.18° (median, 20 poses at 1–4 m,
+   0.2 px corner noise; the Cramér–Rao bound of that data, ``bench/extrinsic.py``), with
+   4 frames and 6 scans per pose to ~0.06°;
 3. the laser points on the board (:func:`board_segment`): the scan cut at range jumps,
    the straight segments of a board's length; with a coarse ``camera_to_laser`` (not the
    identity) the one nearest the camera's plane, else the one in front of its
@@ -37,7 +41,7 @@ import cv2
 import numpy as np
 
 from acq import calibfile, cloud
-from acq.calibfile import Calibration, CameraCalib
+from acq.calibfile import Calibration, CalibStd, CameraCalib
 from acq.camera_models import CameraModel
 from acq.extrinsic import (
     BoardPose,
@@ -52,7 +56,9 @@ from acq.transforms import Rigid
 
 __all__ = [
     "METHOD",
+    "CornerFinder",
     "PoseData",
+    "average_corners",
     "board_segment",
     "find_corners",
     "main_extrinsic",
@@ -159,6 +165,81 @@ def _views(step_deg: float = 30.0) -> list[np.ndarray]:
     return dirs
 
 
+def _view_maps(
+    model: CameraModel, R: np.ndarray, view_px: int, view_fov_deg: float
+) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """cv2.remap maps of a virtual pinhole view (``view_px`` square, ``view_fov_deg``
+    wide, turned by ``R`` from the camera), its focal length and centre (px); None when
+    less than half of it falls inside the image."""
+    f = 0.5 * view_px / math.tan(math.radians(view_fov_deg) / 2)
+    c = 0.5 * (view_px - 1)
+    g = np.arange(view_px, dtype=np.float64)
+    uu, vv = np.meshgrid(g, g)
+    local = np.column_stack([(uu.ravel() - c) / f, (vv.ravel() - c) / f, np.ones(uu.size)])
+    src, valid = model.project(local @ R.T)
+    if valid.mean() < 0.5:
+        return None
+    mx = src[:, 0].reshape(view_px, view_px).astype(np.float32)
+    my = src[:, 1].reshape(view_px, view_px).astype(np.float32)
+    return mx, my, f, c
+
+
+class CornerFinder:
+    """Finds a board's corners in fisheye frames (px), first on the image itself, else on
+    virtual pinhole views (``view_px`` square, ``view_fov_deg`` wide) resampled through
+    ``model`` in several directions, corners found there mapped back through the model.
+
+    Remembers where it last succeeded (the image or which view), so the frames of one
+    still pose cost one detection each."""
+
+    def __init__(
+        self,
+        spec: BoardSpec,
+        model: CameraModel,
+        *,
+        view_px: int = 900,
+        view_fov_deg: float = 90.0,
+    ) -> None:
+        self.spec, self.model = spec, model
+        self.view_px, self.view_fov_deg = view_px, view_fov_deg
+        self._maps: dict[int, tuple[np.ndarray, np.ndarray, float, float] | None] = {}
+        self._views = _views()
+        self.last: int | None = None  # -1: the image itself, else a view index
+
+    def _in(self, gray: np.ndarray, where: int) -> np.ndarray | None:
+        if where < 0:
+            return detect_corners(gray, self.spec)
+        if where not in self._maps:
+            R = _look_at(self._views[where])
+            self._maps[where] = _view_maps(self.model, R, self.view_px, self.view_fov_deg)
+        maps = self._maps[where]
+        if maps is None:
+            return None
+        mx, my, f, c = maps
+        view = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderValue=0)
+        found = detect_corners(view, self.spec)
+        if found is None:
+            return None
+        rays = (
+            np.column_stack([(found - c) / f, np.ones(len(found))]) @ _look_at(self._views[where]).T
+        )
+        back, ok = self.model.project(rays)
+        return back if ok.all() else None
+
+    def __call__(self, gray: np.ndarray) -> np.ndarray | None:
+        """(cols*rows, 2) corners in ``gray`` (px), or None."""
+        order = [-1, *range(len(self._views))]
+        if self.last is not None:
+            order.remove(self.last)
+            order.insert(0, self.last)
+        for where in order:
+            uv = self._in(gray, where)
+            if uv is not None:
+                self.last = where
+                return uv
+        return None
+
+
 def find_corners(
     gray: np.ndarray,
     spec: BoardSpec,
@@ -167,35 +248,33 @@ def find_corners(
     view_px: int = 900,
     view_fov_deg: float = 90.0,
 ) -> np.ndarray | None:
-    """(cols*rows, 2) board corners in the fisheye image (px), or None.
+    """(cols*rows, 2) board corners in the fisheye image (px), or None (see
+    :class:`CornerFinder`)."""
+    return CornerFinder(spec, model, view_px=view_px, view_fov_deg=view_fov_deg)(gray)
 
-    First on the image itself, else on virtual pinhole views (``view_px`` square,
-    ``view_fov_deg`` wide) resampled through ``model`` in several directions; corners
-    found there are mapped back through the model."""
-    uv = detect_corners(gray, spec)
-    if uv is not None:
-        return uv
-    f = 0.5 * view_px / math.tan(math.radians(view_fov_deg) / 2)
-    c = 0.5 * (view_px - 1)
-    g = np.arange(view_px, dtype=np.float64)
-    uu, vv = np.meshgrid(g, g)
-    local = np.column_stack([(uu.ravel() - c) / f, (vv.ravel() - c) / f, np.ones(uu.size)])
-    for d in _views():
-        R = _look_at(d)
-        src, valid = model.project(local @ R.T)
-        if valid.mean() < 0.5:
+
+def average_corners(
+    detections: Sequence[np.ndarray], tol_px: float = 1.0
+) -> tuple[np.ndarray, int]:
+    """The mean of one still board's corner detections (each (N,2) px) and how many were
+    averaged: each detection put in the first one's corner order (OpenCV may report a
+    board reversed), those more than ``tol_px`` (RMS) from the per-corner median left out
+    (the board moved). Image noise is independent from frame to frame, so n frames bring
+    a corner's noise down by about sqrt(n)."""
+    ref = detections[0]
+    aligned = []
+    for uv in detections:
+        if uv.shape != ref.shape:
             continue
-        mx = src[:, 0].reshape(view_px, view_px).astype(np.float32)
-        my = src[:, 1].reshape(view_px, view_px).astype(np.float32)
-        view = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderValue=0)
-        found = detect_corners(view, spec)
-        if found is None:
-            continue
-        rays = np.column_stack([(found - c) / f, np.ones(len(found))]) @ R.T
-        back, ok = model.project(rays)
-        if ok.all():
-            return back
-    return None
+        rev = uv[::-1]
+        aligned.append(uv if np.sum((uv - ref) ** 2) <= np.sum((rev - ref) ** 2) else rev)
+    stack = np.stack(aligned)
+    med = np.median(stack, axis=0)
+    rms = np.sqrt(np.mean(np.sum((stack - med) ** 2, axis=2), axis=1))
+    keep = stack[rms <= tol_px]
+    if not len(keep):
+        keep = stack[[int(np.argmin(rms))]]
+    return keep.mean(axis=0), len(keep)
 
 
 # --- the laser: points on the board ---------------------------------------------------
@@ -294,8 +373,9 @@ def board_segment(
 
 @dataclass(frozen=True)
 class PoseData:
-    """One still interval: ``start_ns``/``end_ns``, the frame used (``frame_ns``, -1 when
-    no board was found), the camera's board RMS (px) and the pose (None with ``problem``)."""
+    """One still interval: ``start_ns``/``end_ns``, the first frame used (``frame_ns``, -1
+    when no board was found), the camera's board RMS (px) with the corners averaged over
+    ``frames`` frames, and the pose (None with ``problem``)."""
 
     start_ns: int
     end_ns: int
@@ -303,6 +383,7 @@ class PoseData:
     rms_px: float
     pose: BoardPose | None
     problem: str = ""
+    frames: int = 0
 
     def to_dict(self, t0_ns: int) -> dict[str, Any]:
         return {
@@ -310,6 +391,7 @@ class PoseData:
             "end_s": (self.end_ns - t0_ns) * 1e-9,
             "frame_s": None if self.frame_ns < 0 else (self.frame_ns - t0_ns) * 1e-9,
             "corner_rms_px": None if math.isnan(self.rms_px) else self.rms_px,
+            "frames": self.frames,
             "laser_points": 0 if self.pose is None else len(self.pose.points),
             "problem": self.problem,
         }
@@ -322,10 +404,13 @@ def poses_from_log(
     intervals: Sequence[tuple[int, int]],
     *,
     coarse: Rigid | None = None,
-    frames_per_pose: int = 3,
+    frames_per_pose: int = 10,
 ) -> list[PoseData]:
-    """A :class:`PoseData` per interval (see the module docstring, steps 2–3)."""
+    """A :class:`PoseData` per interval (see the module docstring, steps 2–3); the
+    corners averaged over up to ``frames_per_pose`` of the interval's frames (the middle
+    ones first)."""
     obj = spec.object_points()
+    finder = CornerFinder(spec, model)
     out = []
     for start, end in intervals:
         s = (log.scan_ns >= start) & (log.scan_ns <= end)
@@ -333,20 +418,20 @@ def poses_from_log(
         if not s.any() or not f.size:
             out.append(PoseData(start, end, -1, math.nan, None, "no scan or no frame"))
             continue
-        # the middle frames first
-        order = f[np.argsort(np.abs(f - f[len(f) // 2]))][:frames_per_pose]
-        uv, used = None, -1
-        for k in order:
+        # the middle frames first, spread over the interval
+        order = f[np.argsort(np.abs(f - f[len(f) // 2]))]
+        step = max(1, len(order) // frames_per_pose)
+        detections, used = [], -1
+        for k in order[::step][:frames_per_pose]:
             gray = cv2.imdecode(np.frombuffer(log.jpegs[k], np.uint8), cv2.IMREAD_GRAYSCALE)
-            if gray is None:
-                continue
-            uv = find_corners(gray, spec, model)
-            if uv is not None:
-                used = int(log.frame_ns[k])
-                break
-        if uv is None:
+            found = None if gray is None else finder(gray)
+            if found is not None:
+                detections.append(found)
+                used = int(log.frame_ns[k]) if used < 0 else used
+        if not detections:
             out.append(PoseData(start, end, -1, math.nan, None, "board not found in the image"))
             continue
+        uv, n_frames = average_corners(detections)
         fit = board_pose_from_corners(model, obj, uv)
         with warnings.catch_warnings():  # beams with no return in any scan stay NaN
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -355,10 +440,15 @@ def poses_from_log(
             ranges, log.angle_min, log.angle_increment, fit.plane(), spec, coarse=coarse
         )
         if pts is None:
-            out.append(PoseData(start, end, used, fit.rms_px, None, "board not found in the scan"))
+            out.append(
+                PoseData(
+                    start, end, used, fit.rms_px, None, "board not found in the scan", n_frames
+                )
+            )
             continue
         pid = f"{(start - int(log.scan_ns[0])) * 1e-9:.2f}s"
-        out.append(PoseData(start, end, used, fit.rms_px, BoardPose.from_fit(fit, pts, id=pid)))
+        pose = BoardPose.from_fit(fit, pts, id=pid)
+        out.append(PoseData(start, end, used, fit.rms_px, pose, frames=n_frames))
     return out
 
 
@@ -388,7 +478,8 @@ def _report(result: ExtrinsicResult, data: list[PoseData], t0: int) -> list[str]
         res = result.residuals_per_pose[k] * 1e3
         flag = "  OUTLIER, dropped" if k in result.outliers else ""
         lines.append(
-            f"{where}: {len(p.pose.points)} laser points, corners {p.rms_px:.2f} px,"
+            f"{where}: {len(p.pose.points)} laser points, corners {p.rms_px:.2f} px"
+            f" ({p.frames} frames),"
             f" residual {res:.2f} mm{flag}"
         )
         k += 1
@@ -404,9 +495,18 @@ def main_extrinsic(
     poses: str | None = None,
     json_out: bool = False,
     plot: Path | None = None,
+    lens_swap: Path | None = None,
+    pupil_shift_m: float = 0.0,
 ) -> int:
     """`acq calibrate extrinsic`: write ``camera``'s camera_to_laser, calibrated from the
     board poses in ``logs``, into ``output`` (a copy of ``intrinsics`` with it set).
+
+    ``lens_swap`` (the paper's way): ``logs`` were recorded with a regular lens that
+    ``intrinsics`` describes, and the fisheye was mounted afterwards; ``output`` is then
+    a copy of the calibration file ``lens_swap`` (the fisheye's intrinsics) with the
+    camera's camera_to_laser set, its origin moved ``pupil_shift_m`` along the optical
+    axis (the fisheye's projection centre minus the regular lens's, m, + towards the
+    scene; 0 is the paper's tacit assumption, and its error goes into the translation).
 
     Prints the result (or JSON), writes the residual plot PNG (default: beside
     ``output``). Exit status 0; 2 for bad input (board spec, log, calibration file,
@@ -418,6 +518,13 @@ def main_extrinsic(
         calib = calibfile.load(intrinsics)
         log = cloud.read_log(list(logs), camera=camera)
         name, cam = cloud.camera_calib(log, calib, camera)
+        target, target_cam = calib, cam
+        if lens_swap is not None:
+            target = calibfile.load(lens_swap)
+            try:
+                target_cam = target.camera(name)
+            except KeyError as e:
+                raise KeyError(f"--lens-swap {lens_swap}: {e.args[0]}") from None
         t0 = int(log.scan_ns[0])
         intervals = parse_poses(poses, t0) if poses else still_intervals(log)
     except (ValueError, KeyError, OSError, LogError) as e:
@@ -435,8 +542,16 @@ def main_extrinsic(
             file=sys.stderr,
         )
         return 1
-    entry = CameraCalib(cam.model, result.camera_to_laser, cam.time_offset_s, METHOD)
-    out = Calibration(calib.laser, {**calib.cameras, name: entry}, calib.laser_to_vehicle)
+    std = CalibStd(  # about the laser axes (rad -> deg), m; the intrinsics' std kept
+        rotation_deg=tuple(np.degrees(result.std[:3])), translation_m=tuple(result.std[3:])
+    ).rounded()
+    std = target_cam.std.merged(std, CalibStd.EXTRINSICS)
+    T, method = result.camera_to_laser, METHOD
+    if lens_swap is not None:
+        T = Rigid(T.rotation, T.translation + T.rotation @ np.array([0.0, 0.0, pupil_shift_m]))
+        method = f"{METHOD}+lens_swap"
+    entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std)
+    out = Calibration(target.laser, {**target.cameras, name: entry}, target.laser_to_vehicle)
     plot = plot if plot is not None else output.with_name(output.stem + "_extrinsic.png")
     try:
         calibfile.save(out, output)
@@ -454,8 +569,20 @@ def main_extrinsic(
             "poses": [p.to_dict(t0) for p in data],
             **result.to_dict(),
         }
+        if lens_swap is not None:
+            report["lens_swap"] = {
+                "fisheye": str(lens_swap),
+                "pupil_shift_m": pupil_shift_m,
+                "camera_to_laser": T.to_dict(),
+            }
         print(json.dumps(report, indent=2))
     else:
         print("\n".join(_report(result, data, t0)))
+        if lens_swap is not None:
+            print(
+                f"lens swap: found with the regular lens of {intrinsics}, written with the "
+                f"fisheye model of {lens_swap}, origin moved {pupil_shift_m * 1e3:.1f} mm along "
+                "the optical axis (--pupil-shift; the swap's unknown shift is in t)"
+            )
         print(f"wrote {output} (camera {name!r}) and {plot}")
     return 0

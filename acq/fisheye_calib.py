@@ -10,7 +10,10 @@ With ``--board COLSxROWSxSQUARE`` (inner corners, square side in metres) the Kan
 model (fx, fy, cx, cy, k1..k4) is fitted to the board's corners by Levenberg–Marquardt on
 reprojection errors, initialised from the circle. Angles are ``atan2(rho, z)``, so corners
 seen more than 90 degrees off the axis are modelled correctly (OpenCV's fisheye
-calibration mirrors them).
+calibration mirrors them). Its standard deviations (from the covariance of the fit,
+scaled by the residuals' variance) go into calib.yaml's ``std``. The circle alone writes
+none: its fit's σ of the centre (hundredths of a pixel) says nothing of how far the
+principal point is from the circle's centre (1.2 px on the real images).
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ import cv2
 import numpy as np
 
 from acq import calibfile, image_circle
-from acq.calibfile import CalibFileError, Calibration, CameraCalib
+from acq.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
 from acq.camera_models import Equidistant, KannalaBrandt
 from acq.image_circle import CircleResult
 
@@ -80,14 +83,21 @@ def circle_model(result: CircleResult, fov_deg: float) -> KannalaBrandt:
 
 
 def update_calibration(
-    path: Path, camera: str | None, model: KannalaBrandt, method: str
+    path: Path,
+    camera: str | None,
+    model: KannalaBrandt,
+    method: str,
+    std: CalibStd | None = None,
 ) -> tuple[Calibration, str, list[str]]:
     """The calibration in ``path`` (a new one if absent) with ``camera``'s intrinsics set.
 
-    The camera's extrinsics and time offset, the other cameras and the laser entries are
-    kept. ``camera`` None: the file's only camera, or ``camera`` for a new file. Returns the
-    calibration, the camera's name and notes for the user. Raises CalibFileError.
+    ``std``: the intrinsics' standard deviations (its fx, fy, cx, cy, k; none if None),
+    which replace the old ones. The camera's extrinsics, their std and time offset, the
+    other cameras and the laser entries are kept. ``camera`` None: the file's only camera,
+    or ``camera`` for a new file. Returns the calibration, the camera's name and notes for
+    the user. Raises CalibFileError.
     """
+    intr = (std or CalibStd()).merged(CalibStd(), CalibStd.EXTRINSICS)
     notes: list[str] = []
     if path.exists():
         old = calibfile.load(path)
@@ -100,7 +110,7 @@ def update_calibration(
         cameras = dict(old.cameras)
         prev = cameras.get(camera)
         if prev is None:
-            entry = CameraCalib(model, method=method)
+            entry = CameraCalib(model, method=method, std=intr)
             notes.append(f"camera {camera!r} added to {path}")
         else:
             size = (prev.model.width, prev.model.height)
@@ -109,12 +119,13 @@ def update_calibration(
                     f"camera {camera!r}: image size {size[0]}x{size[1]} replaced by "
                     f"{model.width}x{model.height}; check its extrinsics"
                 )
-            entry = CameraCalib(model, prev.camera_to_laser, prev.time_offset_s, method)
+            kept = prev.std.merged(intr, CalibStd.INTRINSICS)
+            entry = CameraCalib(model, prev.camera_to_laser, prev.time_offset_s, method, kept)
         cameras[camera] = entry
         calib = Calibration(old.laser, cameras, old.laser_to_vehicle)
     else:
         camera = camera or "camera"
-        calib = Calibration(cameras={camera: CameraCalib(model, method=method)})
+        calib = Calibration(cameras={camera: CameraCalib(model, method=method, std=intr)})
     return calib, camera, notes
 
 
@@ -233,6 +244,15 @@ class BoardFit:
     sigma: dict[str, float]  # standard errors of the intrinsics
     max_theta_deg: float  # the largest angle off the axis among the corners
     poses: list[tuple[np.ndarray, np.ndarray]]  # board -> camera (rvec, tvec) per view
+
+    def std(self) -> CalibStd:
+        """The intrinsics' standard deviations for calib.yaml (3 significant digits);
+        none when the fit's covariance is singular."""
+        s = self.sigma
+        k = tuple(s[f"k{i}"] for i in range(1, 5))
+        if not all(math.isfinite(v) for v in s.values()):
+            return CalibStd()
+        return CalibStd(fx=s["fx"], fy=s["fy"], cx=s["cx"], cy=s["cy"], k=k).rounded()
 
     def to_dict(self) -> dict[str, Any]:
         m = self.model
@@ -540,6 +560,7 @@ def main_fisheye(
     }
     lines = _summary(result, model, fov_deg, len(imgs))
     method = METHOD_CIRCLE
+    std = None  # the circle's fit sigma is not the principal point's: no std from it
     if spec is not None:
         grays = [image_circle.to_gray(i) for i in imgs]
         try:
@@ -557,9 +578,9 @@ def main_fisheye(
             f"RMS {fit.rms_px:.3f} px; the circle's model is up to {gap:.1f} px away from it "
             "over those angles"
         )
-        model, method = m, METHOD_BOARD
+        model, method, std = m, METHOD_BOARD, fit.std()
     try:
-        calib, name, notes = update_calibration(output, camera, model, method)
+        calib, name, notes = update_calibration(output, camera, model, method, std)
         calibfile.save(calib, output)
     except CalibFileError as e:
         print(f"{prog}: {e}", file=sys.stderr)

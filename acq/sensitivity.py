@@ -29,10 +29,22 @@ sensitivity statistics (eq. 7 divides by f).
 Eq. (7), ``s_i = ∂f/∂p_i · p_i / f``, is a relative sensitivity: it makes parameters with
 large values (u0 ≈ 390 px) look important and angles near zero look irrelevant. Beside
 it, :func:`pixel_shift` gives ``|∂(u, v)/∂p_i| · σ_i``: how many pixels one standard
-deviation of p_i moves a point, which is what one can act on. calib.yaml carries no
-covariance yet, so σ comes from :func:`default_sigma` (0.1° per rotation angle, 5 mm per
-translation, 0.5 px for u0 and v0, 1 % of k1, mu_x, mu_y, and the whole of k2, since the
-paper's model drops that term), or from the caller.
+deviation of p_i moves a point, which is what one can act on.
+
+σ (:func:`choose_sigma`): the caller's overrides (``--sigma NAME=VALUE``) first, then
+the calibration's ``std`` (calib.yaml, from the fits' covariances: :func:`calib_sigma`),
+else :func:`default_sigma` (0.1° per rotation angle, 5 mm per translation, 0.5 px for u0
+and v0, 1 % of k1, mu_x, mu_y, and the whole of k2, since the paper's model drops that
+term); the report says which came from where. From ``std``: u0, v0 <- cx, cy; tx, ty,
+tz <- translation_m; k1, mu_x and mu_y appear only through fx = k1 mu_x and fy = k1 mu_y,
+so k1 and mu_x get the relative σ of fx and mu_y that of fy (each then moves points as
+one σ of fx or fy does); k2 <- k1 σ(k[0]). The rotation's σ is stored as small
+rotations w about the laser axes (``R = exp([w]x) R_hat``, ``Σ_w = diag(std²)``; a full
+Σ_w can be given to :func:`rotation_sigma`). It is not turned into Euler-angle σ, which
+blow up near pitch ±90° where the rig sits (roll and yaw turn about nearly the same
+axis): each angle i moves R about the laser-frame axis ``a_i = vee(dR_i R^T)``
+(normalised), and gets ``σ_i = sqrt(a_iᵀ Σ_w a_i) / |vee(dR_i R^T)|``, so its px per σ
+is the shift of a one-σ rotation about a_i.
 """
 
 from __future__ import annotations
@@ -41,7 +53,7 @@ import json
 import math
 import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +73,8 @@ __all__ = [
     "Analysis",
     "analyze",
     "bin_by_theta",
+    "calib_sigma",
+    "choose_sigma",
     "criterion",
     "default_sigma",
     "jacobian",
@@ -68,9 +82,12 @@ __all__ = [
     "line_plot",
     "main_sensitivity",
     "params_from_calib",
+    "parse_sigma",
     "pixel_shift",
     "project",
+    "rotation_axes",
     "rotation_jacobian",
+    "rotation_sigma",
     "sensitivities",
     "table3",
     "third_order_px",
@@ -220,6 +237,89 @@ def default_sigma(p: np.ndarray, overrides: Mapping[str, float] | None = None) -
     return sig
 
 
+def parse_sigma(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` of ``--sigma`` (VALUE in the parameter's unit, see :data:`UNITS`)."""
+    name, sep, value = text.partition("=")
+    try:
+        if not sep:
+            raise ValueError
+        x = float(value)
+    except ValueError:
+        raise ValueError(f"--sigma {text!r}: expected NAME=VALUE, e.g. yaw=0.002") from None
+    if name not in PARAMS:
+        raise ValueError(f"--sigma {name}: unknown parameter; expected one of {PARAMS}")
+    if not (math.isfinite(x) and x >= 0):
+        raise ValueError(f"--sigma {text!r}: expected a finite value >= 0")
+    return name, x
+
+
+def rotation_axes(angles: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((3,3) rows a_i, (3,) rate_i) for roll, pitch, yaw: the laser-frame unit axis about
+    which changing angle i turns R, ``dR_i = rate_i [a_i]x R``, and the rate (rad of
+    rotation per rad of the angle, ``|vee(dR_i R^T)|``; 1 for this Euler convention)."""
+    R, dR = rotation_jacobian(angles)
+    w = np.empty((3, 3))
+    for i in range(3):
+        S = dR[i] @ R.T
+        w[i] = 0.5 * np.array([S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]])
+    rate = np.linalg.norm(w, axis=1)
+    return w / rate[:, None], rate
+
+
+def rotation_sigma(angles: Sequence[float] | np.ndarray, cov_w: np.ndarray) -> np.ndarray:
+    """(3,) σ (rad) of roll, pitch, yaw from the (3,3) covariance (rad²) of the small
+    rotation w about the laser axes (``R = exp([w]x) R_hat``): the σ of the rotation about
+    each angle's axis a_i (:func:`rotation_axes`), ``sqrt(a_iᵀ Σ_w a_i) / rate_i``."""
+    a, rate = rotation_axes(angles)
+    var = np.einsum("ij,jk,ik->i", a, np.asarray(cov_w, dtype=np.float64), a)
+    return np.sqrt(np.maximum(var, 0.0)) / rate
+
+
+def calib_sigma(cam: CameraCalib, p: np.ndarray) -> dict[str, float]:
+    """σ (:data:`UNITS`) of the parameters ``p`` (:func:`params_from_calib`) that
+    ``cam.std`` gives, by name (see the module docstring for the mapping)."""
+    std = cam.std
+    out: dict[str, float] = {}
+    if std.rotation_deg is not None:
+        cov_w = np.diag(np.radians(std.rotation_deg) ** 2)
+        out |= dict(zip(RIGID[:3], rotation_sigma(p[:3], cov_w).tolist(), strict=True))
+    if std.translation_m is not None:
+        out |= dict(zip(RIGID[3:], std.translation_m, strict=True))
+    m = cam.model
+    if std.fx is not None:
+        out["k1"] = abs(p[6]) * std.fx / m.fx
+        out["mu_x"] = abs(p[10]) * std.fx / m.fx
+    if std.fy is not None:
+        out["mu_y"] = abs(p[11]) * std.fy / m.fy
+    if std.k is not None:
+        out["k2"] = abs(p[6]) * std.k[0]
+    if std.cx is not None:
+        out["u0"] = std.cx
+    if std.cy is not None:
+        out["v0"] = std.cy
+    return out
+
+
+def choose_sigma(
+    p: np.ndarray, cam: CameraCalib, overrides: Mapping[str, float] | None = None
+) -> tuple[np.ndarray, tuple[str, ...]]:
+    """(12,) σ and where each came from: "override" (``overrides`` by name, in
+    :data:`UNITS`), else "calib" (:func:`calib_sigma`), else "default"
+    (:func:`default_sigma`)."""
+    sig = default_sigma(p, overrides)
+    given = calib_sigma(cam, p)
+    src = []
+    for i, name in enumerate(PARAMS):
+        if overrides and name in overrides:
+            src.append("override")
+        elif name in given:
+            sig[i] = given[name]
+            src.append("calib")
+        else:
+            src.append("default")
+    return sig, tuple(src)
+
+
 # --- the third-order term (§4.1.2) -------------------------------------------------------
 
 
@@ -351,6 +451,7 @@ class Analysis:
     sens: np.ndarray  # (N,12) eq. 7 (NaN where f < 1 px)
     shift: np.ndarray  # (N,12) px per sigma
     notes: list[str] = field(default_factory=list)
+    sigma_source: tuple[str, ...] = ()  # per parameter: "calib", "default" or "override"
 
     def summary(self) -> list[dict[str, Any]]:
         """Per parameter: value, sigma, median |s|, px per sigma at median and max theta."""
@@ -367,6 +468,7 @@ class Analysis:
                     "unit": UNITS[i],
                     "value": float(self.params[i]),
                     "sigma": float(self.sigma[i]),
+                    "sigma_source": self.sigma_source[i] if self.sigma_source else None,
                     "median_abs_s": float(np.nanmedian(s)) if np.isfinite(s).any() else None,
                     "px_per_sigma_median_theta": float(med[b_med, i]),
                     "px_per_sigma_max_theta": float(med[b_max, i]),
@@ -557,12 +659,14 @@ def _figure(a: Analysis, names: Sequence[str], what: str, bin_deg: float) -> np.
         "|s| (log)",
         log_y=True,
     )
+    star = ["*" if a.sigma_source and a.sigma_source[i] == "default" else "" for i in idx]
     labels = [
-        f"{n} ({_fmt_sigma(a.sigma[i], i, a.params[i])})" for n, i in zip(names, idx, strict=True)
+        f"{n} ({_fmt_sigma(a.sigma[i], i, a.params[i])}{m})"
+        for n, i, m in zip(names, idx, star, strict=True)
     ]
     bottom = line_plot(
         [(lab, c, med_px[:, k]) for k, lab in enumerate(labels)],
-        f"{what}: px moved by one sigma, median per bin",
+        f"{what}: px moved by one sigma{' (* default)' if any(star) else ''}, median per bin",
         "theta (deg from the optical axis)",
         "px per sigma (log)",
         log_y=True,
@@ -606,12 +710,24 @@ def figure9(
 # --- the command -------------------------------------------------------------------------
 
 
+def _sigma_note(src: Sequence[str]) -> str:
+    """Which σ came from the calibration, the defaults, the overrides."""
+    what = {"calib": "calib.yaml's std", "default": "defaults", "override": "--sigma"}
+    parts = []
+    for key, label in what.items():
+        names = [n for n, s in zip(PARAMS, src, strict=True) if s == key]
+        if names:
+            parts.append(f"{label}: {', '.join(names)}")
+    return "sigma from " + "; ".join(parts)
+
+
 def _row(s: dict[str, Any]) -> str:
     i = PARAMS.index(s["param"])
     med = s["median_abs_s"]
     sig = _fmt_sigma(s["sigma"], i, s["value"])
+    src = s["sigma_source"] or ""
     return (
-        f"  {s['param']:<6} {s['value']:>12.5g} {UNITS[i]:<5} {sig:>9}"
+        f"  {s['param']:<6} {s['value']:>12.5g} {UNITS[i]:<5} {sig:>9} {src:<8}"
         f" {med if med is not None else float('nan'):>10.3g}"
         f" {s['px_per_sigma_median_theta']:>10.3f} {s['px_per_sigma_max_theta']:>10.3f}"
         f" {s['px_per_sigma_max']:>10.3f}"
@@ -633,6 +749,8 @@ def main_sensitivity(
     """`acq analyze sensitivity`: eq. (7) sensitivities and px per sigma of the laser
     points of ``logs`` that project into ``calib``'s camera, Figures 7-9 as PNGs, Table 3
     for the given camera height and building distance (m), ``out/sensitivity.json``.
+    σ: ``sigma`` (by name, :data:`UNITS`), else the calibration's std, else the defaults
+    (:func:`choose_sigma`).
 
     Prints a summary (or the JSON). Exit 0; 2 for a bad calib, log or flag (one line);
     1 when no laser point projects into the image or the outputs cannot be written.
@@ -646,7 +764,7 @@ def main_sensitivity(
         name = camera or (log.camera if log.camera in cal.cameras else None)
         cam = cal.camera(name)
         p = params_from_calib(cam)
-        sig = default_sigma(p, sigma)
+        sig, src = choose_sigma(p, cam, sigma)
         if not (building_distance_m > 0 and math.isfinite(camera_height_m)):
             raise ValueError("--building-distance must be > 0 m, --camera-height finite")
         if not bin_deg > 0:
@@ -658,7 +776,9 @@ def main_sensitivity(
     lens = cam.model
     assert isinstance(lens, KannalaBrandt)
     P = laser_points(log.ranges, log.angle_min, log.angle_increment)
-    a = analyze(P, p, lens.width, lens.height, lens.theta_max, sig, origin)
+    a = replace(
+        analyze(P, p, lens.width, lens.height, lens.theta_max, sig, origin), sigma_source=src
+    )
     if a.theta.size == 0:
         print(f"{prog}: none of the {len(P)} laser points projects into the image", file=sys.stderr)
         return 1
@@ -675,11 +795,16 @@ def main_sensitivity(
         f"criterion eq. (8) measured from the {origin} point "
         f"({a.origin[0]:.1f}, {a.origin[1]:.1f}) px, held fixed; points with f < "
         f"{MIN_CRITERION_PX:g} px left out of eq. (7)",
-        "sigma: defaults (calib.yaml has no covariance)" + (" with overrides" if sigma else ""),
+        _sigma_note(src),
         "rotation angles: R = Rz(yaw) Ry(pitch) Rx(roll) of camera_to_laser"
         + ("; |pitch| near 90 deg: roll and yaw turn about nearly the same axis"
            if abs(abs(p[1]) - math.pi / 2) < math.radians(10) else ""),
     ]  # fmt: skip
+    if "calib" in src[:3]:
+        notes.append(
+            "rotation sigma: one std of the rotation about the axis each angle turns about "
+            "(laser frame), from std.rotation_deg taken as independent; not an Euler-angle std"
+        )
     figs = {
         "fig7": out / "fig7_rigid.png",
         "fig8": out / "fig8_camera.png",
@@ -734,7 +859,7 @@ def main_sensitivity(
         f"{th['max']:.1f} deg (median {th['median']:.1f})"
     )
     print(
-        f"  {'param':<6} {'value':>12} {'unit':<5} {'sigma':>9} {'med |s|':>10}"
+        f"  {'param':<6} {'value':>12} {'unit':<5} {'sigma':>9} {'from':<8} {'med |s|':>10}"
         f" {'px@θmed':>10} {'px@θmax':>10} {'px max':>10}"
     )
     for s in summary:

@@ -16,6 +16,14 @@ plane (0.25 degree steps, 10 mm range noise). One JSON line per result:
 - ``near``: boards at 1–2 m instead of 1–4 m (20 poses): what the geometry buys.
 - ``regular_lens``: the paper's way — a regular lens (pinhole, f = 600 px) on the camera
   for this calibration, boards at 1.5–4 m within ±20 degrees of its axis.
+- ``cramer_rao``: the Cramér–Rao bound of the 20-pose problem (corners and ranges with
+  the simulated noise, every board pose unknown): the median error an efficient unbiased
+  estimator would reach, from the bound's covariance of each seed (``samples`` draws per
+  seed), and ``efficiency`` = our median / the bound's median (1 = nothing left to gain
+  from the same data).
+- ``still_pose``: 20 poses, each held still for a while: corners averaged over
+  ``frames`` frames and ranges the per-beam median of ``scans`` scans (what
+  ``acq calibrate extrinsic`` does with a log), as the image and range noise average out.
 - ``targets``: median rotation <= 0.1 deg and translation <= 5 mm with 20 poses.
 
 Run as a script: ``python bench/extrinsic.py [--seeds N]``.
@@ -40,6 +48,45 @@ from sim.board_poses import BoardData, simulate
 from sim.world import default_rig
 
 POSE_COUNTS = (5, 8, 10, 15, 20, 30)
+STILL = ((1, 1), (4, 6), (10, 16), (25, 40))  # (frames, scans) per pose: 1 s = 25 and 40
+
+
+def cramer_rao(data: BoardData, pixel_noise: float = 0.2, range_noise: float = 0.01) -> np.ndarray:
+    """(6,6) Cramér–Rao bound of camera_to_laser (left rotation vector about the laser
+    axes, rad; translation, m) for ``data``'s poses: the inverse Fisher information of
+    every corner (``pixel_noise`` px per axis) and every range (``range_noise`` m along
+    its beam), with each board's pose a nuisance parameter (Schur complement)."""
+    E, obj, lens = data.truth, data.board.corners(), data.lens
+    n = len(data.poses)
+    info = np.zeros((6 + 6 * n, 6 + 6 * n))
+
+    def moved(T: Rigid, x: np.ndarray) -> Rigid:
+        return Rigid(ex.rotvec_to_matrix(x[:3]) @ T.rotation, T.translation + x[3:])
+
+    for i, (board, pose) in enumerate(zip(data.boards, data.poses, strict=True)):
+        B = E.inverse() @ board  # board_to_camera
+        beams = pose.points / np.linalg.norm(pose.points, axis=1, keepdims=True)
+
+        def measure(x: np.ndarray, B: Rigid = B, beams: np.ndarray = beams) -> np.ndarray:
+            Bx = moved(B, x[6:])
+            uv, _ = lens.project(Bx.apply(obj))
+            L = moved(E, x[:6]) @ Bx  # board_to_laser
+            normal = L.rotation[:, 2]
+            ranges = (normal @ L.translation) / (beams @ normal)
+            return np.r_[uv.ravel() / pixel_noise, ranges / range_noise]
+
+        h = 1e-6
+        J = np.column_stack([(measure(h * e) - measure(-h * e)) / (2 * h) for e in np.eye(12)])
+        idx = np.r_[0:6, 6 + 6 * i : 12 + 6 * i]
+        info[np.ix_(idx, idx)] += J.T @ J
+    return np.asarray(np.linalg.inv(info)[:6, :6])
+
+
+def _bound_stats(covs: Sequence[np.ndarray], samples: int, seed: int = 0) -> dict[str, float]:
+    """Median and p95 errors of draws from N(0, cov) pooled over ``covs``."""
+    rng = np.random.default_rng(seed)
+    draws = [rng.multivariate_normal(np.zeros(6), c, samples) for c in covs]
+    return _stats(list(np.concatenate(draws)))
 
 
 def _error_vector(estimate: Rigid, truth: Rigid) -> np.ndarray:
@@ -132,6 +179,33 @@ def main() -> None:
         )
     _line("simulation", ms_per_pose=round(sim_s * 1e3, 2))
 
+    first20 = [dataclasses.replace(d, poses=d.poses[:20], boards=d.boards[:20]) for d in data30]
+    bound = _bound_stats([cramer_rao(d) for d in first20], samples=2000)
+    d = summary["default"]
+    _line(
+        "cramer_rao",
+        poses=20,
+        seeds=args.seeds,
+        **bound,
+        efficiency_rot=round(d["rot_deg_median"] / bound["rot_deg_median"], 3),
+        efficiency_t=round(d["t_mm_median"] / bound["t_mm_median"], 3),
+    )
+
+    still: dict[tuple[int, int], dict[str, float]] = {}
+    for frames, scans in STILL:
+        held = [simulate(20, seed=4000 + s, frames=frames, scans=scans) for s in seeds]
+        errors, stds, failures, _ = _run(held, None, ex.calibrate)
+        still[frames, scans] = _stats(errors)
+        _line(
+            "still_pose",
+            poses=20,
+            frames=frames,
+            scans=scans,
+            **_stats(errors),
+            std_ratio=_std_ratio(errors, stds),
+            failures=failures,
+        )
+
     for n in POSE_COUNTS:
         for name in ("exact_planes", "default"):
             errors, stds, failures, warned = _run(data30, n, methods[name])
@@ -196,15 +270,22 @@ def main() -> None:
     )
 
     d = summary["default"]
+    h = still[STILL[1]]
     _line(
         "targets",
         poses=20,
-        rot_deg_median=d["rot_deg_median"],
         rot_target_deg=0.1,
-        rot_ok=d["rot_deg_median"] <= 0.1,
-        t_mm_median=d["t_mm_median"],
         t_target_mm=5.0,
-        t_ok=d["t_mm_median"] <= 5.0,
+        one_frame_rot_deg_median=d["rot_deg_median"],
+        one_frame_rot_ok=d["rot_deg_median"] <= 0.1,
+        one_frame_bound_rot_deg_median=bound["rot_deg_median"],
+        one_frame_t_mm_median=d["t_mm_median"],
+        one_frame_t_ok=d["t_mm_median"] <= 5.0,
+        still_frames_scans=list(STILL[1]),
+        still_rot_deg_median=h["rot_deg_median"],
+        still_rot_ok=h["rot_deg_median"] <= 0.1,
+        still_t_mm_median=h["t_mm_median"],
+        still_t_ok=h["t_mm_median"] <= 5.0,
     )
     assert math.isfinite(d["rot_deg_median"])
 

@@ -66,9 +66,15 @@ class BoardData:
 
 
 def laser_points_on_board(
-    rig: Rig, board: Checkerboard, board_to_laser: Rigid, rng: np.random.Generator, noise: float
+    rig: Rig,
+    board: Checkerboard,
+    board_to_laser: Rigid,
+    rng: np.random.Generator,
+    noise: float,
+    scans: int = 1,
 ) -> np.ndarray:
-    """(N,3) laser-frame points (z = 0) where the scan rays hit the board, ranges noisy."""
+    """(N,3) laser-frame points (z = 0) where the scan rays hit the board, ranges noisy
+    (``noise`` m; with ``scans`` > 1 the per-beam median of that many noisy scans)."""
     a = rig.angles
     dirs = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
     w = board_to_laser.rotation[:, 2]
@@ -79,7 +85,11 @@ def laser_points_on_board(
     hit = np.isfinite(s) & (s > rig.min_range) & (s < rig.max_range)
     local = (s[:, None] * dirs - C) @ board_to_laser.rotation
     hit &= (np.abs(local[:, 0]) <= board.width / 2) & (np.abs(local[:, 1]) <= board.height / 2)
-    s_noisy = s[hit] + rng.normal(0.0, noise, int(hit.sum())) if noise > 0 else s[hit]
+    n_hit = int(hit.sum())
+    if noise > 0:
+        s_noisy = s[hit] + np.median(rng.normal(0.0, noise, (max(scans, 1), n_hit)), axis=0)
+    else:
+        s_noisy = s[hit]
     return s_noisy[:, None] * dirs[hit]
 
 
@@ -105,6 +115,8 @@ def simulate(
     true_planes: bool = False,
     parallel: bool = False,
     min_laser_points: int = 20,
+    frames: int = 1,
+    scans: int = 1,
 ) -> BoardData:
     """``n_poses`` board poses (see the module docstring) seen by ``rig`` (default_rig()).
 
@@ -112,6 +124,10 @@ def simulate(
     axis in the scan plane, centre within ``max_offset`` m of the scan plane. With
     ``true_planes`` the planes are exact (no PnP; pixel noise unused); with ``parallel``
     every board has the same orientation (a degenerate set, for tests).
+
+    A still pose seen for a while: with ``frames`` > 1 the corners are the mean of that
+    many independent noisy detections, with ``scans`` > 1 each range the per-beam median
+    of that many noisy scans (what ``acq calibrate extrinsic`` does with a log).
     """
     rig = rig or default_rig()
     board = board or Checkerboard()
@@ -157,7 +173,7 @@ def simulate(
             uv, valid = rig.lens.project(board_to_camera.apply(obj))
             if not valid.all():
                 continue
-            pts = laser_points_on_board(rig, board, board_to_laser, rng, range_noise)
+            pts = laser_points_on_board(rig, board, board_to_laser, rng, range_noise, scans)
             if len(pts) < min_laser_points:
                 continue
             break
@@ -167,7 +183,9 @@ def simulate(
         if true_planes:
             poses.append(BoardPose.from_board(board_to_camera, pts, id=str(i)))
         else:
-            noisy = uv + rng.normal(0.0, pixel_noise, uv.shape) if pixel_noise > 0 else uv
+            k = max(frames, 1)
+            noise = rng.normal(0.0, pixel_noise, (k, *uv.shape)).mean(axis=0)
+            noisy = uv + noise if pixel_noise > 0 else uv
             fit = board_pose_from_corners(rig.lens, obj, noisy)
             poses.append(BoardPose.from_fit(fit, pts, id=str(i)))
         boards.append(board_to_laser)

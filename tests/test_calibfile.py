@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from acq import calibfile, camera_models
-from acq.calibfile import CalibFileError, Calibration, CameraCalib
+from acq.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
 from acq.camera_models import Equidistant, KannalaBrandt
 from acq.transforms import Rigid, rotation_from_euler
 
@@ -124,3 +124,104 @@ def test_missing_file_and_bad_yaml(tmp_path: Path) -> None:
     bad.write_text("version: 1\ncameras: [unclosed\n", encoding="utf-8")
     with pytest.raises(CalibFileError, match=r"bad\.yaml: line \d+, column \d+ not valid YAML"):
         calibfile.load(bad)
+
+
+# --- std: the calibrations' standard deviations -------------------------------------------
+
+STD = {
+    "fx": 0.21,
+    "fy": 0.2,
+    "cx": 0.15,
+    "cy": 0.14,
+    "k": [0.001, 0.002, 0.001, 0.0005],
+    "rotation_deg": [0.05, 0.04, 0.06],
+    "translation_m": [0.002, 0.003, 0.002],
+}
+
+
+def test_std_round_trips_and_is_written_only_when_present(tmp_path: Path) -> None:
+    full = CalibStd(**{k: tuple(v) if isinstance(v, list) else v for k, v in STD.items()})
+    calib = Calibration(
+        cameras={
+            "left": CameraCalib(
+                KannalaBrandt(780, 582, 169.0, 169.4, 390.2, 291.1, (0.007, -0.001, 0.0, 0.0)),
+                Rigid(rotation_from_euler(0.01, -1.5, 0.3), [0.3, -0.1, 0.2]),
+                method="board",
+                std=full,
+            ),
+            "right": CameraCalib(
+                Equidistant.from_f(170.0, 389.0, 290.0, 780, 582),
+                std=CalibStd(rotation_deg=(0.1, 0.2, 0.3)),
+            ),
+            "plain": CameraCalib(Equidistant.from_f(170.0, 389.0, 290.0, 780, 582)),
+        }
+    )
+    path = tmp_path / "calib.yaml"
+    calibfile.save(calib, path)
+    again = calibfile.load(path)
+    for name in calib.cameras:
+        assert again.cameras[name].std == calib.cameras[name].std, name
+    assert again.to_dict() == calib.to_dict()
+    assert calibfile.parse(yaml.safe_load(calibfile.dump(again))).to_dict() == calib.to_dict()
+    raw = yaml.safe_load(path.read_text())["cameras"]
+    assert raw["left"]["std"] == STD
+    assert raw["right"]["std"] == {"rotation_deg": [0.1, 0.2, 0.3]}
+    assert "std" not in raw["plain"]
+    # files without std (every existing one) read as an empty std
+    assert calibfile.parse(GOOD).camera().std == CalibStd()
+    assert calibfile.parse(GOOD).camera().std.to_dict() == {}
+
+
+def test_calib_std_normalises_merges_and_rounds() -> None:
+    s = CalibStd(fx=np.float64(0.123456), k=np.array([1e-3, 2e-3, 0.0, 0.0]))
+    assert s.k == (1e-3, 2e-3, 0.0, 0.0) and type(s.fx) is float
+    r = s.rounded(2)
+    assert r.fx == 0.12 and r.k == s.k and r.cx is None
+    e = CalibStd(rotation_deg=(0.1, 0.2, 0.3), translation_m=(1e-3, 2e-3, 3e-3))
+    both = s.merged(e, CalibStd.EXTRINSICS)
+    assert both.fx == s.fx and both.rotation_deg == e.rotation_deg
+    assert both.merged(CalibStd(), CalibStd.INTRINSICS) == CalibStd(
+        rotation_deg=e.rotation_deg, translation_m=e.translation_m
+    )
+    with pytest.raises(ValueError, match=">= 0"):
+        CalibStd(cx=-0.1)
+    with pytest.raises(ValueError, match="expected 3"):
+        CalibStd(translation_m=(0.1, 0.2))
+
+
+def _with_std(std: object) -> dict:
+    data = yaml.safe_load(yaml.safe_dump(GOOD))
+    data["cameras"]["camera"]["std"] = std
+    return data
+
+
+@pytest.mark.parametrize(
+    ("std", "message"),
+    [
+        ({"fxx": 0.1}, r"fxx: unknown key; did you mean fx\?"),
+        ({"rotation": [0.1] * 3}, r"rotation: unknown key; did you mean rotation_deg\?"),
+        ({"translation": [0.1] * 3}, r"translation: unknown key; did you mean translation_m\?"),
+        ({"fx": -0.1}, r"fx: a standard deviation must be >= 0"),
+        ({"cx": "big"}, r"cx: expected a number"),
+        ({"translation_m": [0.1, 0.2]}, r"translation_m: expected a list of 3 numbers"),
+        ({"rotation_deg": [0.1, float("nan"), 0.1]}, r"rotation_deg\[1\]: expected a finite"),
+        ({"rotation_deg": [0.1, -0.2, 0.1]}, r"rotation_deg: a standard deviation must be >= 0"),
+        ({"k": [0.1, 0.0, 0.0, 0.0]}, r"k: the equidistant model has no k"),
+        ([0.1], r": expected a mapping, got list"),
+    ],
+)
+def test_bad_std_is_reported_with_its_path(tmp_path: Path, std: object, message: str) -> None:
+    where = r"calib\.yaml: cameras\.camera\.std" + ("" if isinstance(std, list) else r"\.")
+    with pytest.raises(CalibFileError, match=where + message):
+        calibfile.load(write(tmp_path, _with_std(std)))
+
+
+def test_std_k_has_the_models_length(tmp_path: Path) -> None:
+    data = _with_std({"k": [0.1, 0.0, 0.0, 0.0, 0.0]})
+    cam = data["cameras"]["camera"]
+    cam.update(model="kannala_brandt", k=[0.0] * 4)
+    with pytest.raises(CalibFileError, match=r"std\.k: expected a list of 4 numbers"):
+        calibfile.load(write(tmp_path, data))
+    cam.update(model="pinhole", k=[0.0] * 5)
+    del cam["fov_deg"]
+    assert calibfile.load(write(tmp_path, data)).camera().std.k == (0.1, 0.0, 0.0, 0.0, 0.0)

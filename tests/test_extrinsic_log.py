@@ -12,7 +12,7 @@ import pytest
 from acq import calibfile, cloud
 from acq.calibfile import Calibration, CameraCalib
 from acq.extrinsic import rotation_angle
-from acq.extrinsic_log import main_extrinsic, parse_poses, still_intervals
+from acq.extrinsic_log import average_corners, main_extrinsic, parse_poses, still_intervals
 from acq.transforms import Rigid
 from sim.board_log import BoardLog, write_board_log
 
@@ -49,12 +49,13 @@ def test_calibration_recovers_the_truth(
     report = json.loads(capsys.readouterr().out)
     assert len(report["poses"]) == 12
     assert all(p["problem"] == "" for p in report["poses"])
+    assert all(p["frames"] >= 5 for p in report["poses"])  # 25 frames a pose, 10 asked
     cam = calibfile.load(out).camera("camera")
     assert cam.method == "zhang_pless"
     assert cam.model.to_dict() == log.calibration.camera("camera").model.to_dict()
     rot, trans = _errors(cam.camera_to_laser, log.truth)
     print(f"recovered camera_to_laser: {rot:.3f} deg, {trans * 1e3:.1f} mm from the truth")
-    assert rot < 0.5 and trans < 0.02
+    assert rot < 0.15 and trans < 0.003
     assert (tmp_path / "calib_extrinsic.png").stat().st_size > 0
 
 
@@ -78,6 +79,18 @@ def test_given_poses_and_a_coarse_extrinsic(
     assert "camera_to_laser" in text and png.exists()
     rot, trans = _errors(calibfile.load(out).camera().camera_to_laser, log.truth)
     assert rot < 0.5 and trans < 0.02
+
+
+def test_average_corners_aligns_and_drops_a_moved_board() -> None:
+    rng = np.random.default_rng(1)
+    truth = rng.uniform(0, 500, (63, 2))
+    dets = [truth + rng.normal(0, 0.2, truth.shape) for _ in range(9)]
+    dets[3] = dets[3][::-1]  # OpenCV reported this one reversed
+    dets[5] = dets[5] + 4.0  # the board moved in this frame
+    mean, n = average_corners(dets)
+    assert n == 8
+    one = np.sqrt(np.mean((dets[0] - truth) ** 2))
+    assert np.sqrt(np.mean((mean - truth) ** 2)) < 0.6 * one  # ~1/sqrt(8)
 
 
 def test_parse_poses() -> None:
@@ -118,3 +131,27 @@ def test_too_few_poses_exits_1(
     assert main_extrinsic(log.files, None, intr, log.spec, out, poses=spans) == 1
     assert "at least 5" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std(
+    rec: tuple[BoardLog, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from dataclasses import replace
+
+    from acq.calibfile import CalibStd
+
+    log, _ = rec
+    intr_std = CalibStd(fx=0.08, fy=0.09, cx=0.07, cy=0.07, k=(2e-3, 4e-3, 3e-3, 1e-3))
+    cam = log.calibration.camera("camera")
+    intr = tmp_path / "intrinsics.yaml"
+    calibfile.save(Calibration(cameras={"camera": replace(cam, std=intr_std)}), intr)
+    out = tmp_path / "calib.yaml"
+    assert main_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
+    report = json.loads(capsys.readouterr().out)
+    std = calibfile.load(out).camera("camera").std
+    assert std.rotation_deg is not None and std.translation_m is not None
+    # the result's std: rotation about the laser axes (rad -> deg), then translation (m)
+    np.testing.assert_allclose(std.rotation_deg, np.degrees(report["std"][:3]), rtol=5e-3)
+    np.testing.assert_allclose(std.rotation_deg, report["std_rot_deg"], rtol=5e-3)
+    np.testing.assert_allclose(std.translation_m, report["std"][3:], rtol=5e-3)
+    assert std.merged(CalibStd(), CalibStd.EXTRINSICS) == intr_std

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from acq import calibfile, camera_models, fisheye_calib, image_circle
-from acq.calibfile import Calibration, CameraCalib
+from acq.calibfile import Calibration, CalibStd, CameraCalib
 from acq.camera_models import Equidistant, KannalaBrandt
 from acq.transforms import Rigid, rotation_from_euler
 from sim.fisheye_images import CircleTruth, fisheye_image
@@ -207,6 +207,58 @@ def test_kannala_brandt_fit_recovers_the_lens_past_90_degrees() -> None:
     assert np.allclose(fisheye_calib.project_kb(intr, P), m.project(P)[0])
 
 
+def test_kannala_brandt_fit_std_matches_its_errors() -> None:
+    """The fit's standard deviations (calib.yaml's std) are those of its errors: over
+    seeds, the errors of fx, fy, cx, cy, k1..k4 divided by their std have an RMS near 1."""
+    lens = default_lens()
+    obj, views, _ = board_views(lens)
+    init = Equidistant.from_f(160.0, 395.0, 287.0, 780, 582)
+    truth = {"fx": lens.fx, "fy": lens.fy, "cx": lens.cx, "cy": lens.cy}
+    truth |= {f"k{i + 1}": k for i, k in enumerate(lens.k)}
+    z = []
+    for seed in range(8):
+        rng = np.random.default_rng(100 + seed)
+        fit = fisheye_calib.fit_kannala_brandt(
+            obj, [v + rng.normal(0.0, 0.2, v.shape) for v in views], init
+        )
+        m = fit.model
+        got = {"fx": m.fx, "fy": m.fy, "cx": m.cx, "cy": m.cy}
+        got |= {f"k{i + 1}": k for i, k in enumerate(m.k)}
+        z += [(got[n] - truth[n]) / fit.sigma[n] for n in truth]
+        std = fit.std()
+        assert std.k is not None and std.rotation_deg is None and std.translation_m is None
+        assert std.fx == pytest.approx(fit.sigma["fx"], rel=5e-3)
+        assert std.k[3] == pytest.approx(fit.sigma["k4"], rel=5e-3)
+    rms = math.sqrt(float(np.mean(np.square(z))))
+    print(f"RMS of error / std over 8 seeds x 8 intrinsics: {rms:.2f}")
+    assert 0.7 < rms < 1.4
+
+
+def test_keeps_the_extrinsics_std_and_replaces_the_intrinsics(
+    sim_png: tuple[Path, CircleTruth], tmp_path: Path
+) -> None:
+    path, _ = sim_png
+    extr_std = CalibStd(rotation_deg=(0.05, 0.04, 0.06), translation_m=(0.002, 0.003, 0.002))
+    old_std = extr_std.merged(CalibStd(fx=0.3, fy=0.3, cx=0.2, cy=0.2), CalibStd.INTRINSICS)
+    extr = Rigid(rotation_from_euler(0.1, -0.2, 0.3), np.array([0.4, -0.1, 0.2]))
+    old = Equidistant.from_f(150.0, 400.0, 280.0, 780, 582)
+    out = tmp_path / "calib.yaml"
+    calibfile.save(Calibration(cameras={"left": CameraCalib(old, extr, 0.0, "x", old_std)}), out)
+    # the circle writes no intrinsics' std: the old ones (of other values) are dropped
+    assert fisheye_calib.main_fisheye([path], 185.0, out) == 0
+    assert calibfile.load(out).camera("left").std == extr_std
+    # a board fit's std replaces the intrinsics' part only (extrinsics' part in it ignored)
+    kb = KannalaBrandt(780, 582, 170.0, 170.2, 390.0, 291.0, (0.01, 0.0, 0.0, 0.0))
+    new = CalibStd(fx=0.1, fy=0.1, cx=0.05, cy=0.06, k=(1e-3, 2e-3, 3e-3, 4e-3))
+    calib, name, _ = fisheye_calib.update_calibration(
+        out, None, kb, "board", new.merged(CalibStd(rotation_deg=(9, 9, 9)), ["rotation_deg"])
+    )
+    assert name == "left"
+    assert calib.camera().std == extr_std.merged(new, CalibStd.INTRINSICS)
+    calib, _, _ = fisheye_calib.update_calibration(tmp_path / "new.yaml", None, kb, "b", new)
+    assert calib.camera().std == new
+
+
 # --- the real images --------------------------------------------------------------------
 
 
@@ -244,6 +296,13 @@ def test_real_images_circle_then_board(
     assert b["circle_model_gap_px"] > 10.0
     cam = camera_models.load(out)
     assert type(cam) is KannalaBrandt and cam.k[0] < 0
+    # the fit's standard deviations are in calib.yaml (3 significant digits)
+    std = calibfile.load(out).camera().std
+    assert (std.fx, std.fy, std.cx, std.cy) == tuple(
+        b["sigma"][n] for n in ("fx", "fy", "cx", "cy")
+    )
+    assert std.k == tuple(b["sigma"][f"k{i}"] for i in range(1, 5))
+    assert std.rotation_deg is None and 0 < std.cx < 0.5
     # the board's lens puts the circle's rim at about half the 185-degree aperture
     theta_rim = float(cam.undistort_theta(np.array([c["radius"] / cam.fx]))[0])
     assert math.degrees(2 * theta_rim) == pytest.approx(185.0, abs=4.0)

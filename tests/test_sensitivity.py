@@ -7,16 +7,19 @@ from __future__ import annotations
 import itertools
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 import pytest
 
 from acq import calibfile, sensitivity
-from acq.calibfile import Calibration, CameraCalib
+from acq.calibfile import Calibration, CalibStd, CameraCalib
+from acq.extrinsic import rotvec_to_matrix
 from acq.sensitivity import PARAMS
-from acq.transforms import Rigid, rotation_from_euler
+from acq.transforms import Rigid, rotation_from_euler, rotation_to_euler
 from sim.world import default_rig
 
 
@@ -225,3 +228,174 @@ def test_main_sensitivity_json_and_bad_input(
     far = tmp_path / "far.yaml"
     calibfile.save(Calibration(cameras={"camera": CameraCalib(cam.model, away)}), far)
     assert sensitivity.main_sensitivity(far, [log], tmp_path / "f", 2.0, 10.0, False) == 1
+
+
+# --- sigma from the calibration's std ------------------------------------------------------
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def _spd(seed: int, scale: float) -> np.ndarray:
+    """A full (3,3) covariance, correlations included, of about ``scale``² ."""
+    A = np.random.default_rng(seed).normal(0.0, scale, (3, 3))
+    return A @ A.T + np.eye(3) * scale**2
+
+
+@pytest.mark.parametrize("generic", [False, True])
+def test_rotation_sigma_is_the_shift_of_a_one_sigma_rotation_about_each_axis(
+    generic: bool,
+) -> None:
+    """The rig sits near pitch -90 deg (roll and yaw turn about the same axis): each
+    angle's sigma moves points as one sigma of the rotation about that angle's axis, checked
+    with finite rotations of R (not through Euler angles)."""
+    p, _ = _rig_params()
+    if generic:
+        p = p.copy()
+        p[:3] = (0.3, -1.2, 2.0)
+    R = rotation_from_euler(*p[:3])
+    axes, rate = sensitivity.rotation_axes(p[:3])
+    np.testing.assert_allclose(rate, 1.0, atol=1e-12)  # unit rates for Rz Ry Rx
+    np.testing.assert_allclose(axes[2], [0.0, 0.0, 1.0], atol=1e-12)  # yaw: laser z
+    np.testing.assert_allclose(axes[0], R[:, 0], atol=1e-12)  # roll: the camera's x
+    if not generic:
+        assert abs(axes[0] @ axes[2]) > 0.999  # gimbal lock: roll ~ yaw
+    for i in range(3):  # an Euler step is a rotation about a_i (laser frame)
+        d = np.zeros(3)
+        d[i] = 1e-6
+        fd = (rotation_from_euler(*(p[:3] + d)) - rotation_from_euler(*(p[:3] - d))) / 2e-6
+        np.testing.assert_allclose(fd, rate[i] * _skew(axes[i]) @ R, atol=1e-8)
+    cov_w = _spd(3, math.radians(0.05))
+    sig = sensitivity.rotation_sigma(p[:3], cov_w)
+    np.testing.assert_allclose(sig, [math.sqrt(a @ cov_w @ a) for a in axes], rtol=1e-12)  # rate 1
+    P = _street_points(3000, 4)
+    uv, theta, J = sensitivity.jacobian(P, p)
+    seen = theta < math.radians(92.5)  # in the lens's field of view
+    P, uv, J = P[seen], uv[seen], J[seen]
+    full = np.r_[sig, np.zeros(9)]
+    linear = sensitivity.pixel_shift(J, full)[:, :3]
+    for i in range(3):
+        Ri = rotvec_to_matrix(axes[i] * sig[i] * rate[i]) @ R
+        q = p.copy()
+        q[:3] = rotation_to_euler(Ri)
+        moved = np.linalg.norm(sensitivity.project(P, q)[0] - uv, axis=1)
+        ok = np.isfinite(moved) & np.isfinite(linear[:, i]) & (linear[:, i] > 0.01)
+        assert ok.sum() > 100
+        np.testing.assert_allclose(moved[ok], linear[ok, i], rtol=0.01)
+    # the std of a diagonal covariance: an angle's sigma lies between the smallest and
+    # the largest (no blow-up at the gimbal lock, unlike Euler-angle std)
+    s = np.radians([0.05, 0.04, 0.06])
+    sig = sensitivity.rotation_sigma(p[:3], np.diag(s**2))
+    assert (sig >= s.min() - 1e-15).all() and (sig <= s.max() + 1e-15).all()
+    assert sig[2] == pytest.approx(s[2])  # yaw turns about the laser's z
+
+
+STD_VALUES: dict[str, Any] = {  # no cy: v0 keeps its default
+    "fx": 0.2,
+    "fy": 0.3,
+    "cx": 0.15,
+    "k": (2e-3, 4e-3, 3e-3, 1e-3),
+    "rotation_deg": (0.05, 0.04, 0.06),
+    "translation_m": (0.002, 0.003, 0.004),
+}
+
+
+def _std(scale: float = 1.0) -> CalibStd:
+    """:data:`STD_VALUES` times ``scale``."""
+    return CalibStd(
+        **{
+            n: tuple(scale * x for x in v) if isinstance(v, tuple) else scale * v
+            for n, v in STD_VALUES.items()
+        }
+    )
+
+
+STD = _std()
+
+
+def test_sigma_from_the_calibrations_std() -> None:
+    p, cam = _rig_params()
+    cam = replace(cam, std=STD)
+    m = cam.model
+    sig, src = sensitivity.choose_sigma(p, cam)
+    by = dict(zip(PARAMS, sig, strict=True))
+    assert dict(zip(PARAMS, src, strict=True)) == {
+        **dict.fromkeys(PARAMS, "calib"),
+        "v0": "default",
+    }
+    assert by["v0"] == 0.5 and by["u0"] == 0.15
+    assert by["k1"] / p[6] == pytest.approx(0.2 / m.fx)
+    assert by["mu_x"] / p[10] == pytest.approx(0.2 / m.fx)
+    assert by["mu_y"] / p[11] == pytest.approx(0.3 / m.fy)
+    assert by["k2"] == pytest.approx(p[6] * 2e-3)
+    np.testing.assert_allclose([by["tx"], by["ty"], by["tz"]], STD.translation_m)
+    expect = sensitivity.rotation_sigma(p[:3], np.diag(np.radians(STD.rotation_deg) ** 2))
+    np.testing.assert_allclose([by["roll"], by["pitch"], by["yaw"]], expect)
+    # mu_x and mu_y move a point as one sigma of fx, fy does in u = u0 + fx (theta +
+    # k[0] theta³) cos(phi), v = v0 + fy (...) sin(phi); k1 as a relative sigma_fx of both
+    P = _street_points(300, 5)
+    _, theta, J = sensitivity.jacobian(P, p)
+    shift = sensitivity.pixel_shift(J, sig)
+    g = theta + p[7] / p[6] * theta**3
+    cos, sin = J[:, 0, 10] / (p[6] * g), J[:, 1, 11] / (p[6] * g)  # du/dmu_x = r cos(phi)
+    np.testing.assert_allclose(shift[:, 10], np.abs(cos) * g * 0.2, rtol=1e-9)
+    np.testing.assert_allclose(shift[:, 11], np.abs(sin) * g * 0.3, rtol=1e-9)
+    k1_px = theta * 0.2 / m.fx * np.hypot(m.fx * cos, m.fy * sin)
+    np.testing.assert_allclose(shift[:, 6], k1_px, rtol=1e-9)
+    # --sigma overrides come first; without std every sigma is the default
+    sig2, src2 = sensitivity.choose_sigma(p, cam, {"tx": 0.01, "v0": 0.2})
+    assert (src2[3], src2[9]) == ("override", "override") and (sig2[3], sig2[9]) == (0.01, 0.2)
+    bare, src3 = sensitivity.choose_sigma(p, replace(cam, std=CalibStd()))
+    np.testing.assert_array_equal(bare, sensitivity.default_sigma(p))
+    assert set(src3) == {"default"}
+
+
+def test_main_sensitivity_uses_the_stored_std(
+    rig_files: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    calib, log = rig_files
+    cal = calibfile.load(calib)
+    name, cam = next(iter(cal.cameras.items()))
+    runs = {}
+    for k in (1.0, 2.0):
+        s = _std(k)
+        path = tmp_path / f"std{k:g}.yaml"
+        calibfile.save(Calibration(cameras={name: replace(cam, std=s)}), path)
+        assert sensitivity.main_sensitivity(path, [log], tmp_path / f"o{k:g}", json_out=True) == 0
+        runs[k] = json.loads(capsys.readouterr().out)
+    one = {s["param"]: s for s in runs[1.0]["summary"]}
+    two = {s["param"]: s for s in runs[2.0]["summary"]}
+    for n in PARAMS:
+        if n == "v0":  # not in the std: the default, the same in both runs
+            assert one[n]["sigma_source"] == "default" and one[n]["sigma"] == 0.5
+            assert two[n]["px_per_sigma_max"] == one[n]["px_per_sigma_max"]
+            continue
+        assert one[n]["sigma_source"] == "calib", n
+        for key in ("px_per_sigma_max", "px_per_sigma_median_theta", "px_per_sigma_max_theta"):
+            assert two[n][key] == pytest.approx(2 * one[n][key], rel=1e-9), (n, key)
+    assert one["u0"]["px_per_sigma_max"] == pytest.approx(0.15)  # du/du0 = 1
+    assert one["tx"]["sigma"] == pytest.approx(0.002)
+    notes = runs[1.0]["notes"]
+    assert any("calib.yaml's std: roll" in s and "defaults: v0" in s for s in notes)
+    assert any(s.startswith("rotation sigma: one std of the rotation about") for s in notes)
+    # the text report: where each sigma came from; --sigma overrides the std
+    path = tmp_path / "std1.yaml"
+    assert sensitivity.main_sensitivity(path, [log], tmp_path / "t", sigma={"tx": 0.01}) == 0
+    text = capsys.readouterr().out
+    row = {line.split()[0]: line.split() for line in text.splitlines() if line.startswith("  ")}
+    assert row["v0"][5] == "default" and row["u0"][5] == "calib" and row["tx"][5] == "override"
+    assert row["tx"][3:5] == ["10", "mm"] and "--sigma: tx" in text
+
+
+def test_sigma_flag(capsys: pytest.CaptureFixture[str]) -> None:
+    from acq import cli
+
+    base = ["analyze", "sensitivity", "x.mcap", "--calib", "c.yaml"]
+    args = cli.build_parser().parse_args([*base, "--sigma", "yaw=0.002", "--sigma", "tx=1e-3"])
+    assert args.sigma == [("yaw", 0.002), ("tx", 0.001)]
+    assert cli.build_parser().parse_args(base).sigma is None
+    for bad, word in (("yaw", "NAME=VALUE"), ("yawn=1", "unknown parameter"), ("tx=-1", ">= 0")):
+        with pytest.raises(SystemExit):
+            cli.build_parser().parse_args([*base, "--sigma", bad])
+        assert word in capsys.readouterr().err

@@ -22,8 +22,10 @@ lint: $(STAMP)
 	$(BIN)/ruff check acq drivers sim tests bench
 	$(BIN)/mypy acq drivers
 
+# real-time tests alone, then the rest on both cores (tests/conftest.py)
 test: lint
-	$(BIN)/pytest -q -m "not slow"
+	$(BIN)/pytest -q -m "not slow and realtime"
+	$(BIN)/pytest -q -m "not slow and not realtime" -n 2
 
 test-slow: $(STAMP)
 	$(BIN)/pytest -q -m slow

@@ -1,4 +1,11 @@
-"""Shared fixtures: paths to the real device data in ../shared/data/."""
+"""Shared fixtures (paths to the real device data in ../shared/data/) and the
+``realtime`` marker.
+
+Tests in :data:`REALTIME_MODULES` drive simulated devices, recorders and clocks in real
+time (frame rates, stall timeouts, kills at a moment): CPU load from other tests makes
+them miss deadlines that a real rig would meet. `make test` runs them alone, then the
+rest on both cores (pytest-xdist).
+"""
 
 from __future__ import annotations
 
@@ -8,6 +15,32 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
+
+REALTIME_MODULES = frozenset(
+    {
+        "test_camera_cli",
+        "test_camera_opencv",
+        "test_cola_sim",
+        "test_demo",
+        "test_loginfo",
+        "test_mcap_log",
+        "test_probe",
+        "test_reconnect",
+        "test_recorder",
+        "test_replay",
+        "test_scanner_faults",
+        "test_scip",
+        "test_sim_camera",
+        "test_soak",
+        "test_transport",
+    }
+)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.stem in REALTIME_MODULES:
+            item.add_marker(pytest.mark.realtime)
 
 
 @pytest.fixture

@@ -210,19 +210,72 @@ class OutputConfig(_Model):
 
 
 class CanConfig(_Model):
-    """Vehicle CAN bus through python-can, decoded with a DBC file."""
+    """Vehicle CAN bus through python-can, decoded with a DBC file: topics
+    ``/vehicle/odometry`` and ``/vehicle/can`` (every frame, raw).
+
+    Signals are named ``MESSAGE.SIGNAL`` as in the DBC, whose scale, offset and unit
+    (km/h, m/s, mph; deg/s, rad/s) give SI values. The defaults are those of
+    ``sim/vehicle.dbc``. ``speed`` names a vehicle speed signal; without one the speed
+    is the mean of the four wheel speeds. ``options`` are further keyword arguments of
+    ``can.Bus`` (e.g. ``fd: true``, ``data_bitrate``, ``port`` of udp_multicast).
+    """
 
     interface: str = Field(min_length=1)  # python-can interface: socketcan, pcan...
     channel: str = Field(min_length=1)  # e.g. can0
     dbc: _Path
     bitrate: int | None = Field(default=None, gt=0)  # bit/s; None: as the interface is set up
+    wheel_speeds: list[str] = [
+        f"WHEEL_SPEEDS.WHEEL_SPEED_{w}" for w in ("FL", "FR", "RL", "RR")
+    ]  # front left, front right, rear left, rear right
+    yaw_rate: str = "YAW_RATE.YAW_RATE"  # positive counter-clockwise (left turn)
+    speed: str | None = None  # a vehicle speed signal; None: mean of the wheel speeds
+    options: dict[str, Any] = {}  # keyword arguments of can.Bus
+
+    _empty = field_validator("options", mode="before")(_none_is_empty)
+
+    @field_validator("interface")
+    @classmethod
+    def _interface(cls, v: str) -> str:
+        try:
+            from can.interfaces import VALID_INTERFACES
+        except Exception:  # python-can missing or broken here: the recorder will say
+            return v
+        if v not in VALID_INTERFACES:
+            hint = _did_you_mean(v, sorted(VALID_INTERFACES))
+            raise _fail(
+                f"unknown python-can interface {v!r}{hint}"
+                if hint
+                else f"unknown python-can interface {v!r}; expected one of "
+                + ", ".join(sorted(VALID_INTERFACES))
+            )
+        return v
+
+    @field_validator("wheel_speeds")
+    @classmethod
+    def _wheels(cls, v: list[str]) -> list[str]:
+        if len(v) != 4:
+            raise _fail(
+                f"expected 4 signals (front left, front right, rear left, rear right), got {len(v)}"
+            )
+        for i, name in enumerate(v):
+            _signal_name(name, i)
+        return v
+
+    @field_validator("yaw_rate", "speed")
+    @classmethod
+    def _signal(cls, v: str | None) -> str | None:
+        return v if v is None else _signal_name(v)
 
 
 class GnssConfig(_Model):
-    """A GNSS receiver sending NMEA over a pyserial URL."""
+    """A GNSS receiver sending NMEA 0183 over a pyserial URL: topics ``/gnss/fix`` and
+    ``/gnss/raw``. ``latency_s`` is the constant delay from the fix instant to the
+    receipt of its first sentence that one-way timing cannot see (the receiver's
+    computation), subtracted from the fix times mapped to the host clock."""
 
     url: str
     baudrate: int = Field(default=9600, gt=0)
+    latency_s: float = Field(default=0.0, ge=0)
 
     @field_validator("url")
     @classmethod
@@ -271,6 +324,16 @@ class Config(_Model):
                 seen[device.name] = f"{kind}[{i}]"
         if not seen:
             raise _fail("no device; expected at least one scanner or camera", "scanners")
+        for section, name in (("can", "vehicle"), ("gnss", "gnss")):
+            if getattr(self, section) is not None and name in seen:
+                where = seen[name].replace("[", " ").rstrip("]").split()
+                raise _fail(
+                    f"{name!r} names the {section} section's topics (/{name}/...); "
+                    "rename this device",
+                    where[0],
+                    int(where[1]),
+                    "name",
+                )
         return self
 
     def devices(self) -> list[str]:
@@ -284,6 +347,14 @@ class Config(_Model):
 def _check_name(v: str) -> str:
     if not _NAME.fullmatch(v):
         raise _fail(f"expected letters, digits or '_' (it names topics), got {v!r}")
+    return v
+
+
+def _signal_name(v: str, *subpath: str | int) -> str:
+    """A DBC signal as ``MESSAGE.SIGNAL``."""
+    message, dot, signal = v.partition(".")
+    if not (dot and _NAME.fullmatch(message) and _NAME.fullmatch(signal)):
+        raise _fail(f"expected MESSAGE.SIGNAL as named in the DBC, got {v!r}", *subpath)
     return v
 
 

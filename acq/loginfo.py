@@ -467,7 +467,9 @@ def _gaps(times: list[int]) -> tuple[float, list[tuple[int, int]]]:
         return 0.0, []
     t = np.asarray(times, dtype=np.int64)
     d = np.diff(t)
-    positive = d[d > 0]
+    # the pace: the median interval, ignoring those far below the mean (records logged
+    # in bursts, as several CAN messages sent together, would otherwise set it)
+    positive = d[d > max((t[-1] - t[0]) / (len(t) - 1) / 10, 0)]
     if positive.size == 0:
         return 0.0, []
     period = float(np.median(positive))

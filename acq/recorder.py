@@ -1,12 +1,22 @@
 """`acq record`: every device of a configuration into rolling MCAP files.
 
-One thread per device reads records through its driver (reconnecting with backoff),
-applies the device clock, and hands them to one writer thread through a bounded queue:
+One thread per device (scanners, cameras, the vehicle's CAN bus, the GNSS receiver)
+reads records through its driver (reconnecting with backoff), applies the device
+clock, and hands them to one writer thread through a bounded queue:
 a slow disk drops records (counted per device), it never blocks a reader. The writer
 encodes (Foxglove protobuf schemas, the raw telegrams, the timing), writes, ends and
 fsyncs the chunk every second, publishes ``/acq/status`` and ``/acq/clock`` at 1 Hz,
 pings the systemd watchdog, and watches the disk: below the configured reserve it
 closes the file and the recorder exits with :data:`EXIT_DISK_FULL`.
+
+Vehicle topics (with ``can:`` / ``gnss:`` in the configuration): ``/vehicle/odometry``
+(``acq.Odometry``, stamped with the CAN receive stamp mapped to the monotonic clock, see
+:mod:`drivers.can_odometry`), ``/vehicle/can`` (``acq.CanFrame``: every frame of the bus,
+to re-decode with another DBC), ``/gnss/fix`` (``foxglove.LocationFix``), ``/gnss/raw``
+(``acq.RawTelegram``: each NMEA sentence) and ``/acq/timing/gnss``. A fix is stamped
+with its fix instant: the receiver's UTC fix time is a device clock like a scanner's,
+mapped to host time by the one-way estimator (:class:`acq.clocksync.DeviceClock`) less
+the configured ``latency_s``, so neither the host's wall clock nor its NTP steps enter.
 
 Exit codes: 0 stopped (signal or ``--duration``), 1 runtime failure, 2 bad
 configuration, 3 disk below its reserve (listed in the unit's ``RestartPreventExitStatus``).
@@ -32,9 +42,9 @@ from typing import Any
 from acq import calibfile, schemas
 from acq.calibfile import Calibration
 from acq.clocksync import DeviceClock, latency_bounds
-from acq.config import CameraConfig, Config, ScannerConfig
+from acq.config import CameraConfig, CanConfig, Config, GnssConfig, ScannerConfig
 from acq.mcap_log import LogWriter
-from acq.records import Frame, Scan
+from acq.records import CanFrame, Fix, Frame, Odometry, Scan, Sentence
 from acq.sdnotify import Notifier
 from acq.sync import scan_start_ns
 
@@ -47,6 +57,9 @@ EXIT_DISK_FULL = 3
 log = logging.getLogger("acq.record")
 
 QUEUE_SIZE = 512  # records; at 25 frames/s of ~60 kB that is 20 s of a stalled disk
+VEHICLE = "vehicle"  # the CAN bus's device name: topics /vehicle/odometry, /vehicle/can
+GNSS = "gnss"  # the GNSS receiver's: /gnss/fix, /gnss/raw, /acq/timing/gnss
+GNSS_TICK_HZ = 1_000_000  # a fix time as a device tick: UTC microseconds since the epoch
 STATUS_PERIOD_S = 1.0
 DRAIN_S = 1.0  # on stop: the time left to write what is queued before the file closes
 
@@ -61,7 +74,7 @@ class DeviceState:
     """What the status reports of one device; updated by its thread, read by the writer."""
 
     name: str
-    kind: str  # scanner | camera
+    kind: str  # scanner | camera | can | gnss
     connected: bool = False
     received: int = 0
     dropped: int = 0  # queue full: the writer could not keep up
@@ -108,11 +121,37 @@ class _FrameItem:
 
 
 @dataclass(frozen=True)
+class _CanItem:
+    """A CAN frame and the odometry decoded from it (None: not an odometry message)."""
+
+    device: str
+    frame: CanFrame
+    odometry: Odometry | None
+
+
+@dataclass(frozen=True)
+class _SentenceItem:
+    device: str
+    sentence: Sentence
+
+
+@dataclass(frozen=True)
+class _FixItem:
+    device: str
+    fix: Fix
+    stamp_ns: int  # the fix instant on the host clock
+    tick: int  # the fix time as UTC µs (GNSS_TICK_HZ)
+
+
+@dataclass(frozen=True)
 class _MetaItem:
     """A device's description (identity, geometry, parameters) for the log's metadata."""
 
     name: str
     values: dict[str, str]
+
+
+_Item = _ScanItem | _FrameItem | _MetaItem | _CanItem | _SentenceItem | _FixItem
 
 
 def device_metadata(driver: str, device: Any) -> dict[str, str]:
@@ -152,14 +191,17 @@ class Recorder:
         self.duration_s = duration_s
         self.notifier = notifier if notifier is not None else Notifier()
         self.calibration = calibration if calibration is not None else self._load_calibration()
-        self.queue: queue.Queue[_ScanItem | _FrameItem | _MetaItem] = queue.Queue(
-            maxsize=queue_size
-        )
+        self.queue: queue.Queue[_Item] = queue.Queue(maxsize=queue_size)
         self.devices: dict[str, DeviceState] = {}
         for s in config.scanners:
             self.devices[s.name] = DeviceState(s.name, "scanner")
         for c in config.cameras:
             self.devices[c.name] = DeviceState(c.name, "camera")
+        if config.can is not None:
+            self._check_dbc(config.can)
+            self.devices[VEHICLE] = DeviceState(VEHICLE, "can")
+        if config.gnss is not None:
+            self.devices[GNSS] = DeviceState(GNSS, "gnss")
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.writer: LogWriter | None = None
@@ -180,6 +222,18 @@ class Recorder:
         except FileNotFoundError:
             raise RecorderError(f"{path}: no such calibration file") from None
         except calibfile.CalibFileError as e:
+            raise RecorderError(str(e)) from None
+
+    @staticmethod
+    def _check_dbc(cfg: CanConfig) -> None:
+        """The DBC must hold the configured signals, with units (RecorderError if not)."""
+        from drivers.can_odometry import DbcError, OdometryDecoder
+
+        try:
+            OdometryDecoder.from_file(
+                cfg.dbc, wheel_speeds=cfg.wheel_speeds, yaw_rate=cfg.yaw_rate, speed=cfg.speed
+            )
+        except DbcError as e:
             raise RecorderError(str(e)) from None
 
     def _open_writer(self) -> LogWriter:
@@ -207,6 +261,13 @@ class Recorder:
                 f"/{c.name}/image/compressed", schemas.SCHEMAS["foxglove.CompressedImage"]
             )
             writer.add_channel(f"/acq/timing/{c.name}", schemas.SCHEMAS["acq.Timing"])
+        if self.config.can is not None:
+            writer.add_channel(f"/{VEHICLE}/odometry", schemas.SCHEMAS["acq.Odometry"])
+            writer.add_channel(f"/{VEHICLE}/can", schemas.SCHEMAS["acq.CanFrame"])
+        if self.config.gnss is not None:
+            writer.add_channel(f"/{GNSS}/fix", schemas.SCHEMAS["foxglove.LocationFix"])
+            writer.add_channel(f"/{GNSS}/raw", schemas.SCHEMAS["acq.RawTelegram"])
+            writer.add_channel(f"/acq/timing/{GNSS}", schemas.SCHEMAS["acq.Timing"])
         writer.add_channel("/acq/status", schemas.SCHEMAS["acq.Status"])
         writer.add_channel("/acq/clock", schemas.SCHEMAS["acq.Clock"])
         now = time.monotonic_ns()
@@ -263,7 +324,16 @@ class Recorder:
         elif kind == "clock_reset":
             log.warning("%s: %s", state.name, detail)
 
-    def _put(self, state: DeviceState, item: _ScanItem | _FrameItem | _MetaItem) -> None:
+    def _bad_record(self, state: DeviceState, what: str, detail: str) -> None:
+        """A record that does not decode, from a stream that goes on (a CAN bus, NMEA):
+        counted; logged at the 1st, 2nd, 4th, 8th... so a wrong DBC does not flood."""
+        state.protocol_errors += 1
+        state.last_event = f"protocol_error: {detail}"
+        n = state.protocol_errors
+        if n & (n - 1) == 0:
+            log.warning("%s: %s (%d so far): %s", state.name, what, n, detail)
+
+    def _put(self, state: DeviceState, item: _Item) -> None:
         try:
             self.queue.put_nowait(item)
         except queue.Full:
@@ -381,20 +451,114 @@ class Recorder:
             state.corrupt = camera.corrupt
             self._put(state, _FrameItem(cfg.name, frame))
 
-    def _guard(self, target: Any, cfg: Any) -> None:
+    def _can_thread(self, cfg: CanConfig) -> None:
+        """The vehicle's CAN bus: every frame to /vehicle/can, odometry decoded from the
+        configured messages to /vehicle/odometry; a frame that does not decode is a
+        protocol error (counted, logged), never the end of the thread."""
+        from drivers.can_odometry import CanDecodeError, CanOdometry
+        from drivers.reconnect import LinkEvent, Relink
+
+        state = self.devices[VEHICLE]
+        bus = CanOdometry(
+            cfg.interface,
+            cfg.channel,
+            cfg.dbc,
+            bitrate=cfg.bitrate,
+            wheel_speeds=cfg.wheel_speeds,
+            yaw_rate=cfg.yaw_rate,
+            speed=cfg.speed,
+            name=VEHICLE,
+            bus_options=cfg.options,
+        )
+
+        def on_event(e: LinkEvent) -> None:
+            self._event(state, e.kind, e.detail)
+
+        link = Relink(bus, bus.read_frame, on_event=on_event, reachable=bus.reachable)
+        described: object = None
+        bad_stamps = 0
+        for frame in link.records(self._stop):
+            if bus.info is not described:  # (re)connected
+                described = bus.info
+                self.queue.put(_MetaItem(f"device.{VEHICLE}", device_metadata("can", bus)))
+            try:
+                odometry = bus.decode(frame)
+            except CanDecodeError as e:
+                self._bad_record(state, "bad CAN frame", str(e))
+                odometry = None
+            if odometry is not None:
+                state.received += 1
+                state.last_recv_ns = frame.recv_ns
+                state.times.append(frame.recv_ns)
+            if bus.bad_stamps > bad_stamps:
+                bad_stamps = bus.bad_stamps
+                if bad_stamps & (bad_stamps - 1) == 0:  # 1, 2, 4, 8...: no flood
+                    log.warning("%s: %d CAN frames without a usable interface stamp (none, "
+                                "or the wall clock stepped): their receive time is used",
+                                VEHICLE, bad_stamps)  # fmt: skip
+            self._put(state, _CanItem(VEHICLE, frame, odometry))
+
+    def _gnss_thread(self, cfg: GnssConfig) -> None:
+        """The GNSS receiver: every sentence to /gnss/raw, each fix to /gnss/fix stamped
+        with its fix time mapped to the host clock (see the module doc)."""
+        from drivers.nmea import NmeaError, NmeaReceiver
+        from drivers.reconnect import LinkEvent, Relink
+
+        state = self.devices[GNSS]
+        receiver = NmeaReceiver(cfg.url, baudrate=cfg.baudrate, name=GNSS)
+        clock = DeviceClock(GNSS_TICK_HZ, 62, periodic=False)
+        state.clock = clock
+        state.latency_s = cfg.latency_s
+
+        def on_event(e: LinkEvent) -> None:
+            self._event(state, e.kind, e.detail)
+
+        link = Relink(receiver, receiver.read_sentence, on_event=on_event)
+        described: object = None
+        for sentence in link.records(self._stop):
+            if receiver.info is not described:
+                described = receiver.info
+                self.queue.put(_MetaItem(f"device.{GNSS}", device_metadata("nmea", receiver)))
+            self._put(state, _SentenceItem(GNSS, sentence))
+            try:
+                fix = receiver.decode(sentence)
+            except NmeaError as e:
+                self._bad_record(state, "bad NMEA sentence", str(e))
+                continue
+            if fix is None:
+                continue
+            tick = round(fix.utc_s * GNSS_TICK_HZ)
+            if fix.quality > 0:  # without a fix a receiver's time may be its RTC's guess
+                epoch = clock.epoch
+                clock.update(tick, fix.recv_ns)
+                state.last_tick = tick
+                if clock.epoch != epoch:
+                    self._event(state, "clock_reset", "the receiver's UTC jumped: "
+                                "its mapping to host time starts afresh")  # fmt: skip
+            state.received += 1
+            state.last_recv_ns = fix.recv_ns
+            state.times.append(fix.recv_ns)
+            mapped = clock.to_host_ns(tick) if clock.updates else fix.recv_ns
+            stamp = mapped - round(state.latency_s * 1e9)
+            self._put(state, _FixItem(GNSS, fix, stamp, tick))
+
+    def _guard(self, target: Any, cfg: Any, name: str) -> None:
         """Run a device thread; an unexpected error stops the recorder (exit 1)."""
         try:
             target(cfg)
         except Exception:
-            log.exception("%s: device thread failed", cfg.name)
+            log.exception("%s: device thread failed", name)
             self.exit_code = EXIT_FAILURE
             self._stop.set()
 
     # --- the writer ----------------------------------------------------------------------
 
-    def _write(self, writer: LogWriter, item: _ScanItem | _FrameItem | _MetaItem) -> None:
+    def _write(self, writer: LogWriter, item: _Item) -> None:
         if isinstance(item, _MetaItem):
             writer.update_metadata(item.name, item.values)
+            return
+        if isinstance(item, _CanItem | _SentenceItem | _FixItem):
+            self._write_vehicle(writer, item)
             return
         state = self.devices[item.device]
         name = item.device
@@ -437,6 +601,42 @@ class Recorder:
             writer.write_group([
                 (f"/{name}/image/compressed", image, frame.recv_ns, frame.stamp_ns),
                 (f"/acq/timing/{name}", timing, frame.recv_ns, frame.stamp_ns),
+            ])  # fmt: skip
+
+    def _write_vehicle(self, writer: LogWriter, item: _CanItem | _SentenceItem | _FixItem) -> None:
+        name = item.device
+        if isinstance(item, _CanItem):
+            frame = item.frame
+            group = [(f"/{name}/can", schemas.can_frame(frame), frame.recv_ns, frame.stamp_ns)]
+            if item.odometry is not None:
+                odo = item.odometry
+                group.append(
+                    (f"/{name}/odometry", schemas.odometry(odo), odo.recv_ns, odo.stamp_ns)
+                )
+            writer.write_group(group)
+        elif isinstance(item, _SentenceItem):
+            sentence = item.sentence
+            raw = schemas.raw_telegram(device=name, data=sentence.data, recv_ns=sentence.recv_ns)
+            writer.write(f"/{name}/raw", raw, sentence.recv_ns, sentence.recv_ns)
+        else:
+            fix, stamp = item.fix, item.stamp_ns
+            state = self.devices[name]
+            clock = state.clock
+            timing = schemas.timing(
+                recv_ns=fix.recv_ns,
+                device_ticks=(item.tick,),
+                unwrapped_tick=item.tick,
+                epoch=clock.epoch if clock else 0,
+                stamp_ns=stamp,
+                offset_ns=stamp - fix.recv_ns,
+                drift_ppm=clock.drift_ppm if clock else 0.0,
+                uncertainty_s=_finite(clock.uncertainty_s) if clock else 0.0,
+                received=state.received,
+                dropped=state.dropped,
+            )
+            writer.write_group([
+                (f"/{name}/fix", schemas.location_fix(fix, stamp, name), fix.recv_ns, stamp),
+                (f"/acq/timing/{name}", timing, fix.recv_ns, stamp),
             ])  # fmt: skip
 
     def _write_rate(self) -> float:
@@ -583,9 +783,13 @@ class Recorder:
         self.writer = writer
         self.started_ns = time.monotonic_ns()
         for cfg in self.config.scanners:
-            self._start(self._scanner_thread, cfg)
+            self._start(self._scanner_thread, cfg, cfg.name)
         for ccfg in self.config.cameras:
-            self._start(self._camera_thread, ccfg)
+            self._start(self._camera_thread, ccfg, ccfg.name)
+        if self.config.can is not None:
+            self._start(self._can_thread, self.config.can, VEHICLE)
+        if self.config.gnss is not None:
+            self._start(self._gnss_thread, self.config.gnss, GNSS)
         log.info("recording %s to %s", ", ".join(self.devices), self.out_dir)
         self.notifier.ready(f"recording {', '.join(self.devices)}")
         try:
@@ -608,8 +812,8 @@ class Recorder:
                 t.join(timeout=1.0)
         return self.exit_code
 
-    def _start(self, target: Any, cfg: Any) -> None:
-        t = threading.Thread(target=self._guard, args=(target, cfg), name=cfg.name, daemon=True)
+    def _start(self, target: Any, cfg: Any, name: str) -> None:
+        t = threading.Thread(target=self._guard, args=(target, cfg, name), name=name, daemon=True)
         t.start()
         self._threads.append(t)
 

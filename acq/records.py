@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["DeviceInfo", "Fix", "Frame", "Odometry", "Scan"]
+__all__ = ["CanFrame", "DeviceInfo", "Fix", "Frame", "Odometry", "Scan", "Sentence"]
 
 
 def _frozen_array(values: npt.ArrayLike, dtype: npt.DTypeLike, name: str) -> np.ndarray:
@@ -124,21 +124,60 @@ class Frame:
 
 
 @dataclass(frozen=True, slots=True)
+class CanFrame:
+    """One CAN frame as the bus delivered it (any id, decoded or not).
+
+    ``wall_ns`` is the interface's receive stamp as sent (socketcan: the kernel's
+    ``CLOCK_REALTIME`` stamp, ns since the Unix epoch; 0 where the interface gives none);
+    ``stamp_ns`` is that instant on the host monotonic clock (see
+    :mod:`drivers.can_odometry`), ``recv_ns`` when the stamp could not be used.
+    """
+
+    recv_ns: int  # host monotonic ns when the driver got the frame
+    stamp_ns: int  # host monotonic ns of the interface's receive stamp
+    wall_ns: int  # the interface's stamp, CLOCK_REALTIME ns (0: none)
+    arbitration_id: int
+    data: bytes
+    is_extended: bool = False  # 29-bit identifier
+    is_remote: bool = False
+    is_error: bool = False  # an error frame (bus error report), not data
+    is_fd: bool = False
+    channel: str = ""
+
+
+@dataclass(frozen=True, slots=True)
 class Odometry:
-    """Vehicle motion from wheel odometry: speed (m/s) and yaw rate (rad/s)."""
+    """Vehicle motion from one CAN message: speed (m/s) and yaw rate (rad/s, positive
+    counter-clockwise seen from above, REP-103), at ``stamp_ns`` (host monotonic ns).
+
+    Wheel speeds and yaw rate usually come in different CAN messages, measured at
+    different instants: a record holds what its message carried and NaN for the rest
+    (never a value held over from an older message). ``speed`` is the mean of the finite
+    ``wheel_speeds`` (m/s, front left, front right, rear left, rear right), or the
+    vehicle speed signal where one is configured. A value the DBC marks out of range
+    (an ECU's "invalid" code) is NaN too.
+    """
 
     recv_ns: int
     stamp_ns: int
     speed: float
     yaw_rate: float
     wheel_speeds: tuple[float, ...] = ()
+    arbitration_id: int = 0  # the CAN message it was decoded from
 
 
 @dataclass(frozen=True, slots=True)
 class Fix:
-    """A GNSS fix: WGS-84 degrees, metres above the ellipsoid, fix time in UTC seconds."""
+    """A GNSS fix (NMEA GGA, with the date and motion of the same epoch's RMC).
 
-    recv_ns: int
+    WGS-84 degrees; ``altitude`` metres above the WGS-84 ellipsoid (GGA's mean-sea-level
+    altitude plus its geoid separation); ``utc_s`` the fix time, UTC seconds since the
+    Unix epoch; ``quality`` GGA's fix quality (0 none, 1 GPS, 2 DGPS, 4 RTK fixed, 5 RTK
+    float...), with NaN latitude/longitude/altitude when it is 0; ``speed`` m/s over
+    ground and ``course`` rad clockwise from true north (RMC; NaN where not sent).
+    """
+
+    recv_ns: int  # host monotonic ns at receipt of the sentence's last byte
     utc_s: float
     latitude: float
     longitude: float
@@ -146,3 +185,14 @@ class Fix:
     quality: int = 0
     satellites: int = 0
     hdop: float = float("nan")
+    speed: float = float("nan")
+    course: float = float("nan")
+    geoid_separation: float = float("nan")  # m, geoid above the ellipsoid (GGA)
+
+
+@dataclass(frozen=True, slots=True)
+class Sentence:
+    """One line of a text protocol (an NMEA sentence) as received, without CR LF."""
+
+    recv_ns: int  # host monotonic ns at receipt of its last byte
+    data: bytes

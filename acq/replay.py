@@ -73,6 +73,7 @@ DEFAULT_CAMERA_LISTEN = "http://127.0.0.1:0/stream.mjpg"
 LEAD_S = 0.05  # from the request that starts the clock to that device's first record, s
 END_MARGIN_S = 0.1  # after the last record is due, s: it is on its way to the client
 _RAW_SUFFIX = "/raw"
+_NOT_REPLAYED = frozenset({"/gnss/raw"})  # raw telegrams that are not a scanner's
 _IMAGE_SUFFIX = "/image/compressed"
 
 
@@ -179,6 +180,8 @@ def _read_records(path: Path, messages: Iterable[Any], devices: dict[str, Device
     for schema, channel, message in messages:
         topic: str = channel.topic
         name = schema.name if schema is not None else ""
+        if topic in _NOT_REPLAYED:
+            continue  # the vehicle's CAN bus and GNSS receiver have no simulated device
         if name == "acq.RawTelegram" and topic.endswith(_RAW_SUFFIX):
             device, kind = topic[1 : -len(_RAW_SUFFIX)], "scanner"
         elif name == "foxglove.CompressedImage" and topic.endswith(_IMAGE_SUFFIX):

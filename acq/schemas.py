@@ -3,12 +3,13 @@
 Two families of schemas:
 
 - Foxglove's well-known schemas (``foxglove.LaserScan``, ``foxglove.CompressedImage``,
-  ``foxglove.CameraCalibration``, ``foxglove.FrameTransforms``, ``foxglove.PointCloud``),
-  so a log opens in Foxglove as it is.
+  ``foxglove.CameraCalibration``, ``foxglove.FrameTransforms``, ``foxglove.PointCloud``,
+  ``foxglove.LocationFix``), so a log opens in Foxglove as it is.
 - Our own versioned ``acq.*`` schemas (file ``acq/v1.proto``, package ``acq``), built at
   import time from a ``FileDescriptorProto`` (no protoc): ``acq.RawTelegram``,
-  ``acq.Timing``, ``acq.Clock``, ``acq.Status`` and ``acq.DeviceStatus``. A change that
-  is not backwards compatible gets a new file (``acq/v2.proto``); v1 field numbers stay.
+  ``acq.Timing``, ``acq.Clock``, ``acq.Status``, ``acq.DeviceStatus``, ``acq.Odometry``
+  and ``acq.CanFrame``. A change that is not backwards compatible gets a new file
+  (``acq/v2.proto``); v1 field numbers stay, new messages and fields may be added.
 
 Times: every ``timestamp`` field is a ``google.protobuf.Timestamp`` holding host
 *monotonic* nanoseconds (``time.monotonic_ns()``), the same clock as MCAP ``log_time``;
@@ -30,7 +31,9 @@ import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.KeyValuePair_pb2 import KeyValuePair
 from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
+from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
@@ -39,7 +42,7 @@ from google.protobuf.message_factory import GetMessageClass
 
 from acq.calibfile import Calibration, CameraCalib
 from acq.camera_models import KannalaBrandt, Pinhole
-from acq.records import Frame, Scan
+from acq.records import CanFrame, Fix, Frame, Odometry, Scan
 from acq.transforms import Rigid
 
 __all__ = [
@@ -48,12 +51,15 @@ __all__ = [
     "DeviceStatus",
     "Schema",
     "camera_calibration",
+    "can_frame",
     "clock",
     "compressed_image",
     "decode",
     "frame_transforms",
     "laser_scan",
+    "location_fix",
     "message_class",
+    "odometry",
     "point_cloud",
     "quaternion",
     "raw_telegram",
@@ -111,7 +117,7 @@ _ACQ_MESSAGES: dict[str, list[_FieldSpec]] = {
     ],
     "DeviceStatus": [
         ("name", 1, _F.TYPE_STRING, _ONE, ""),
-        ("kind", 2, _F.TYPE_STRING, _ONE, ""),  # "scanner" | "camera"
+        ("kind", 2, _F.TYPE_STRING, _ONE, ""),  # "scanner" | "camera" | "can" | "gnss"
         ("connected", 3, _F.TYPE_BOOL, _ONE, ""),
         ("rate_hz", 4, _F.TYPE_DOUBLE, _ONE, ""),
         ("received", 5, _F.TYPE_UINT64, _ONE, ""),
@@ -134,6 +140,26 @@ _ACQ_MESSAGES: dict[str, list[_FieldSpec]] = {
         ("disk_minutes_left", 5, _F.TYPE_DOUBLE, _ONE, ""),
         ("writer_queue", 6, _F.TYPE_UINT32, _ONE, ""),  # records waiting for the writer
         ("devices", 7, _F.TYPE_MESSAGE, _MANY, ".acq.DeviceStatus"),
+    ],
+    "Odometry": [  # /vehicle/odometry: one per decoded CAN message; NaN: not in it
+        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # the CAN receive stamp
+        ("recv_ns", 2, _F.TYPE_INT64, _ONE, ""),  # when the driver read the frame
+        ("speed_mps", 3, _F.TYPE_DOUBLE, _ONE, ""),
+        ("yaw_rate_rps", 4, _F.TYPE_DOUBLE, _ONE, ""),  # counter-clockwise, REP-103
+        ("wheel_speeds_mps", 5, _F.TYPE_DOUBLE, _MANY, ""),  # FL, FR, RL, RR; empty: none
+        ("arbitration_id", 6, _F.TYPE_UINT32, _ONE, ""),  # the CAN message decoded
+    ],
+    "CanFrame": [  # /vehicle/can: every frame of the bus, as received
+        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # receive stamp, monotonic
+        ("recv_ns", 2, _F.TYPE_INT64, _ONE, ""),
+        ("wall_ns", 3, _F.TYPE_INT64, _ONE, ""),  # the interface's stamp, CLOCK_REALTIME
+        ("arbitration_id", 4, _F.TYPE_UINT32, _ONE, ""),
+        ("is_extended", 5, _F.TYPE_BOOL, _ONE, ""),
+        ("is_remote", 6, _F.TYPE_BOOL, _ONE, ""),
+        ("is_error", 7, _F.TYPE_BOOL, _ONE, ""),
+        ("is_fd", 8, _F.TYPE_BOOL, _ONE, ""),
+        ("data", 9, _F.TYPE_BYTES, _ONE, ""),
+        ("channel", 10, _F.TYPE_STRING, _ONE, ""),
     ],
 }
 
@@ -169,6 +195,8 @@ TimingMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Timing"])
 ClockMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Clock"])
 DeviceStatusMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["DeviceStatus"])
 StatusMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Status"])
+OdometryMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Odometry"])
+CanFrameMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["CanFrame"])
 
 
 def _file_descriptor_set(file: FileDescriptor) -> bytes:
@@ -196,11 +224,14 @@ _CLASSES: dict[str, Any] = {
         CameraCalibration,
         FrameTransforms,
         PointCloud,
+        LocationFix,
         RawTelegramMsg,
         TimingMsg,
         ClockMsg,
         StatusMsg,
         DeviceStatusMsg,
+        OdometryMsg,
+        CanFrameMsg,
     )
 }
 
@@ -422,6 +453,49 @@ def point_cloud(points: np.ndarray, rgb: np.ndarray, frame_id: str, stamp_ns: in
     return msg.SerializeToString()
 
 
+def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
+    """``foxglove.LocationFix`` for ``/gnss/fix``, stamped ``stamp_ns`` (the fix instant
+    on the host monotonic clock).
+
+    Latitude and longitude in degrees, altitude above the ellipsoid (NaN without a fix);
+    ``heading`` (rad clockwise from north) and ENU ``velocity`` from RMC's course and
+    speed where the receiver sent them; covariance unknown. ``metadata`` holds the fix
+    time (``utc``, ISO 8601, and ``utc_s``), ``quality``, ``satellites``, ``hdop`` and
+    ``geoid_separation_m``.
+    """
+    import datetime as dt
+
+    msg = LocationFix(
+        frame_id=frame_id,
+        latitude=fix.latitude,
+        longitude=fix.longitude,
+        altitude=fix.altitude,
+        position_covariance_type=LocationFix.PositionCovarianceType.UNKNOWN,
+    )
+    _set_stamp(msg.timestamp, stamp_ns)
+    msg.position_covariance.extend([0.0] * 9)
+    if math.isfinite(fix.course):
+        msg.heading = fix.course
+        if math.isfinite(fix.speed):
+            msg.velocity.x = fix.speed * math.sin(fix.course)
+            msg.velocity.y = fix.speed * math.cos(fix.course)
+            msg.velocity.z = 0.0
+    try:
+        utc = dt.datetime.fromtimestamp(fix.utc_s, dt.UTC).isoformat(timespec="milliseconds")
+    except (ValueError, OverflowError, OSError):
+        utc = ""
+    values = {
+        "utc": utc.replace("+00:00", "Z"),
+        "utc_s": f"{fix.utc_s:.3f}",
+        "quality": str(fix.quality),
+        "satellites": str(fix.satellites),
+        "hdop": f"{fix.hdop:g}",
+        "geoid_separation_m": f"{fix.geoid_separation:g}",
+    }
+    msg.metadata.extend(KeyValuePair(key=k, value=v) for k, v in values.items())
+    return msg.SerializeToString()
+
+
 # --- acq.* messages -----------------------------------------------------------------------
 
 
@@ -486,7 +560,7 @@ class DeviceStatus:
     """One device's line in ``acq.Status`` (counts since start; times in s unless ``_ns``)."""
 
     name: str
-    kind: str  # "scanner" | "camera"
+    kind: str  # "scanner" | "camera" | "can" | "gnss"
     connected: bool = False
     rate_hz: float = 0.0
     received: int = 0
@@ -537,4 +611,38 @@ def status(
     for d in devices:
         ds = _device_status(d)
         msg.devices.add(**{k: getattr(ds, k) for k in _DEVICE_STATUS_KEYS})
+    return msg.SerializeToString()
+
+
+def odometry(odo: Odometry) -> bytes:
+    """``acq.Odometry`` for ``/vehicle/odometry``: ``timestamp`` is ``odo.stamp_ns`` (the
+    CAN receive stamp on the host monotonic clock); m/s, rad/s; NaN for what the CAN
+    message does not carry."""
+    msg = OdometryMsg(
+        recv_ns=odo.recv_ns,
+        speed_mps=odo.speed,
+        yaw_rate_rps=odo.yaw_rate,
+        wheel_speeds_mps=odo.wheel_speeds,
+        arbitration_id=odo.arbitration_id,
+    )
+    _set_stamp(msg.timestamp, odo.stamp_ns)
+    return msg.SerializeToString()
+
+
+def can_frame(frame: CanFrame) -> bytes:
+    """``acq.CanFrame`` for ``/vehicle/can``: the frame as received (re-decodable with any
+    DBC), ``timestamp`` its receive stamp on the host monotonic clock, ``wall_ns`` the
+    interface's own stamp."""
+    msg = CanFrameMsg(
+        recv_ns=frame.recv_ns,
+        wall_ns=frame.wall_ns,
+        arbitration_id=frame.arbitration_id,
+        is_extended=frame.is_extended,
+        is_remote=frame.is_remote,
+        is_error=frame.is_error,
+        is_fd=frame.is_fd,
+        data=frame.data,
+        channel=frame.channel,
+    )
+    _set_stamp(msg.timestamp, frame.stamp_ns)
     return msg.SerializeToString()

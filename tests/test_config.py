@@ -17,7 +17,7 @@ from acq import config
 from acq.config import CameraConfig, Config, ConfigError, ScannerConfig
 
 ROOT = Path(__file__).resolve().parents[1]
-SHIPPED = ["sim.yaml", "utm30lx.yaml", "lms111.yaml"]
+SHIPPED = ["sim.yaml", "utm30lx.yaml", "lms111.yaml", "vehicle_example.yaml"]
 
 GOOD: dict[str, Any] = {
     "version": 1,
@@ -90,6 +90,62 @@ def test_real_rig_examples() -> None:
     lms = config.load(ROOT / "config" / "lms111.yaml")
     assert (lms.scanners[0].driver, lms.scanners[0].protocol) == ("sick", "cola-b")
     assert lms.scanners[0].url == "tcp://192.168.0.1:2112"
+
+
+def test_vehicle_example() -> None:
+    cfg = config.load(ROOT / "config" / "vehicle_example.yaml")
+    assert cfg.can is not None and cfg.gnss is not None
+    assert (cfg.can.interface, cfg.can.channel) == ("socketcan", "can0")
+    assert cfg.can.dbc == ROOT / "sim" / "vehicle.dbc" and cfg.can.dbc.is_file()
+    assert cfg.can.wheel_speeds[3] == "WHEEL_SPEEDS.WHEEL_SPEED_RR" and cfg.can.speed is None
+    assert cfg.gnss.url.startswith("/dev/serial/by-id/") and cfg.gnss.baudrate == 115200
+    assert config.parse(yaml.safe_load(config.dump(cfg)), "dumped") == cfg.model_copy(
+        update={"source": None}
+    )
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (
+            {"interface": "socketcn"},
+            "rig.yaml: can.interface: unknown python-can interface 'socketcn'; "
+            "did you mean socketcan?",
+        ),
+        (
+            {"yaw_rate": "YAW"},
+            "rig.yaml: can.yaw_rate: expected MESSAGE.SIGNAL as named in the DBC, got 'YAW'",
+        ),
+        (
+            {"wheel_speeds": ["A.B"]},
+            "rig.yaml: can.wheel_speeds: expected 4 signals (front left, front right, "
+            "rear left, rear right), got 1",
+        ),
+        (
+            {"wheel_speeds": ["A.B", "A.C", "A.D", "A E"]},
+            "rig.yaml: can.wheel_speeds[3]: expected MESSAGE.SIGNAL as named in the DBC, got 'A E'",
+        ),
+        ({"bitrat": 500000}, "rig.yaml: can.bitrat: unknown key; did you mean bitrate?"),
+    ],
+)
+def test_bad_can_sections(change: dict[str, Any], message: str) -> None:
+    can = {"interface": "socketcan", "channel": "can0", "dbc": "car.dbc", **change}
+    assert error_of(changed(lambda d: d.update(can=can))) == message
+
+
+def test_gnss_section_and_reserved_names() -> None:
+    gnss = {"url": "tcp://192.168.1.5:2947", "latency_s": 0.05}
+    cfg = config.parse(changed(lambda d: d.update(gnss=gnss)))
+    assert cfg.gnss is not None and cfg.gnss.url == "socket://192.168.1.5:2947"
+    assert error_of(changed(lambda d: d.update(gnss={"url": "/dev/ttyUSB0", "latency_s": -1}))) == (
+        "rig.yaml: gnss.latency_s: must be >= 0, got -1"
+    )
+    clash = changed(lambda d: d.update(gnss={"url": "/dev/ttyUSB0"}))
+    clash["cameras"][0]["name"] = "gnss"
+    assert error_of(clash) == (
+        "rig.yaml: cameras[0].name: 'gnss' names the gnss section's topics (/gnss/...); "
+        "rename this device"
+    )
 
 
 def test_architecture_example_parses(shared_dir: Path) -> None:

@@ -15,7 +15,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from acq import schemas
 from acq.calibfile import Calibration, CameraCalib
 from acq.camera_models import Equidistant, KannalaBrandt, Pinhole
-from acq.records import Frame, Scan
+from acq.records import CanFrame, Fix, Frame, Odometry, Scan
 from acq.transforms import Rigid, rotation_from_euler
 
 FOXGLOVE = [
@@ -24,8 +24,17 @@ FOXGLOVE = [
     "foxglove.CameraCalibration",
     "foxglove.FrameTransforms",
     "foxglove.PointCloud",
+    "foxglove.LocationFix",
 ]
-ACQ = ["acq.RawTelegram", "acq.Timing", "acq.Clock", "acq.Status", "acq.DeviceStatus"]
+ACQ = [
+    "acq.RawTelegram",
+    "acq.Timing",
+    "acq.Clock",
+    "acq.Status",
+    "acq.DeviceStatus",
+    "acq.Odometry",
+    "acq.CanFrame",
+]
 STAMP = 1_234_567_890_123  # host monotonic ns
 
 
@@ -367,3 +376,50 @@ def test_status_from_dataclasses_and_dicts() -> None:
         schemas.status(
             timestamp_ns=0, uptime_s=0, devices=[{"name": "x", "kind": "camera", "ratee_hz": 1}]
         )
+
+
+# --- vehicle messages ----------------------------------------------------------------------
+
+
+def test_odometry_keeps_nan_for_what_the_message_lacks() -> None:
+    odo = Odometry(STAMP + 200_000, STAMP, 5.5, math.nan, (5.4, 5.6, 5.4, 5.6), 0x1A0)
+    data = schemas.odometry(odo)
+    for msg in (schemas.decode("acq.Odometry", data), decode_with_mcap("acq.Odometry", data)):
+        assert ts_ns(msg.timestamp) == STAMP and msg.recv_ns == STAMP + 200_000
+        assert msg.speed_mps == 5.5 and math.isnan(msg.yaw_rate_rps)
+        assert list(msg.wheel_speeds_mps) == [5.4, 5.6, 5.4, 5.6]
+        assert msg.arbitration_id == 0x1A0
+    yaw = schemas.decode("acq.Odometry", schemas.odometry(Odometry(1, 1, math.nan, -0.25)))
+    assert math.isnan(yaw.speed_mps) and yaw.yaw_rate_rps == -0.25 and not yaw.wheel_speeds_mps
+
+
+def test_can_frame_keeps_the_frame_as_received() -> None:
+    frame = CanFrame(STAMP + 90_000, STAMP, 1_795_000_000_123_456_789, 0x18FEF100,
+                     bytes(range(8)), is_extended=True, channel="can0")  # fmt: skip
+    data = schemas.can_frame(frame)
+    for msg in (schemas.decode("acq.CanFrame", data), decode_with_mcap("acq.CanFrame", data)):
+        assert ts_ns(msg.timestamp) == STAMP and msg.recv_ns == STAMP + 90_000
+        assert msg.wall_ns == frame.wall_ns and msg.arbitration_id == 0x18FEF100
+        assert msg.is_extended and not (msg.is_remote or msg.is_error or msg.is_fd)
+        assert msg.data == bytes(range(8)) and msg.channel == "can0"
+
+
+def test_location_fix_carries_the_fix_and_its_time() -> None:
+    fix = Fix(STAMP + 50_000_000, 1_795_337_897.4, 48.8584, 2.2945, 81.5, 4, 14, 0.7,
+              speed=10.0, course=math.radians(90.0), geoid_separation=44.6)  # fmt: skip
+    data = schemas.location_fix(fix, STAMP)
+    for msg in (
+        schemas.decode("foxglove.LocationFix", data),
+        decode_with_mcap("foxglove.LocationFix", data),
+    ):
+        assert ts_ns(msg.timestamp) == STAMP and msg.frame_id == "gnss"
+        assert (msg.latitude, msg.longitude, msg.altitude) == (48.8584, 2.2945, 81.5)
+        assert msg.heading == pytest.approx(math.pi / 2)
+        assert msg.velocity.x == pytest.approx(10.0) and msg.velocity.y == pytest.approx(0.0)
+        meta = {kv.key: kv.value for kv in msg.metadata}
+        assert meta["utc"] == "2026-11-22T08:58:17.400Z" and meta["utc_s"] == "1795337897.400"
+        assert (meta["quality"], meta["satellites"], meta["hdop"]) == ("4", "14", "0.7")
+    no_fix = Fix(1, 1_795_337_897.5, math.nan, math.nan, math.nan)
+    msg = schemas.decode("foxglove.LocationFix", schemas.location_fix(no_fix, 1))
+    assert math.isnan(msg.latitude) and not msg.HasField("heading")
+    assert not msg.HasField("velocity")

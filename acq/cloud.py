@@ -95,6 +95,8 @@ class DriveLog:
     clock: np.ndarray
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)  # what was missing and assumed
+    scan_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    frame_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def n_scans(self) -> int:
@@ -103,6 +105,29 @@ class DriveLog:
     @property
     def n_frames(self) -> int:
         return int(self.frame_ns.size)
+
+    def between(self, lo_ns: int, hi_ns: int) -> DriveLog:
+        """The scans and frames stamped in [lo_ns, hi_ns) (recorded stamps)."""
+        from dataclasses import replace
+
+        s = (self.scan_ns >= lo_ns) & (self.scan_ns < hi_ns)
+        f = np.flatnonzero((self.frame_ns >= lo_ns) & (self.frame_ns < hi_ns))
+
+        def part(a: np.ndarray, sel: np.ndarray) -> np.ndarray:
+            return a[sel] if a.size else a
+
+        return replace(
+            self,
+            scan_ns=self.scan_ns[s],
+            ranges=self.ranges[s],
+            intensities=self.intensities[s],
+            scan_ticks=part(self.scan_ticks, s),
+            scan_recv_ns=part(self.scan_recv_ns, s),
+            frame_ns=self.frame_ns[f],
+            frame_seq=part(self.frame_seq, f),
+            frame_recv_ns=part(self.frame_recv_ns, f),
+            jpegs=[self.jpegs[int(i)] for i in f],
+        )
 
 
 def _pick(found: Iterable[str], name: str | None, what: str, topic: str) -> str:
@@ -132,14 +157,25 @@ def _stamp(msg: Any) -> int:
     return int(msg.timestamp.seconds) * 10**9 + int(msg.timestamp.nanos)
 
 
+def _stamp_of(message: Any) -> int:
+    """An MCAP message's publish time: the recorder puts the stamp there."""
+    return int(message.publish_time)
+
+
 def read_log(
     paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     *,
     laser: str | None = None,
     camera: str | None = None,
+    start_ns: int | None = None,
+    end_ns: int | None = None,
+    jpegs: bool = True,
 ) -> DriveLog:
     """Scans, frames, clock pairs and metadata of a log (or of a session's files, in the
     order given). ``laser``/``camera`` name the devices where the log has several.
+    ``start_ns``/``end_ns``: only messages received (MCAP log time) in that span (the
+    clock pairs and metadata whatever their time); ``jpegs=False`` leaves the images'
+    bytes out (their stamps stay).
 
     Files whose writer was killed are read up to their last good record
     (:func:`acq.loginfo.read_messages`); undecodable messages are skipped (noted).
@@ -156,7 +192,9 @@ def read_log(
     metadata: dict[str, dict[str, str]] = {}
     scans: dict[str, list[_ScanMsg]] = {}
     frames: dict[str, list[tuple[int, bytes]]] = {}
-    timing: dict[str, dict[int, tuple[int, int]]] = {}  # device -> stamp -> (tick, seq)
+    timing: dict[str, dict[int, tuple[int, int, int]]] = {}  # stamp -> (tick, seq, recv)
+    lo = -(2**63) if start_ns is None else start_ns
+    hi = 2**63 - 1 if end_ns is None else end_ns
     clock: list[tuple[int, int]] = []
     bad = 0
     for path in files:
@@ -168,7 +206,13 @@ def read_log(
             wanted = topic.endswith(("/scan", "/image/compressed")) or topic.startswith(
                 ("/acq/clock", "/acq/timing/")
             )
-            if not wanted:
+            if not wanted or (
+                not lo <= message.log_time <= hi and not topic.startswith("/acq/clock")
+            ):
+                continue
+            if not jpegs and topic.endswith("/image/compressed"):
+                name = topic[1:].removesuffix("/image/compressed")
+                frames.setdefault(name, []).append((_stamp_of(message), b""))
                 continue
             try:
                 if channel.id not in decoders:
@@ -194,6 +238,7 @@ def read_log(
                     timing.setdefault(topic.removeprefix("/acq/timing/"), {})[int(msg.stamp_ns)] = (
                         int(ticks[0]) if ticks else -1,
                         int(msg.sequence),
+                        int(msg.recv_ns),
                     )
             except Exception:  # a garbled payload or schema: that message is lost
                 bad += 1
@@ -219,7 +264,7 @@ def _assemble(
     camera: str,
     scans: list[_ScanMsg],
     frames: list[tuple[int, bytes]],
-    timing: dict[str, dict[int, tuple[int, int]]],
+    timing: dict[str, dict[int, tuple[int, int, int]]],
     clock: list[tuple[int, int]],
     metadata: dict[str, dict[str, str]],
     notes: list[str],
@@ -251,11 +296,13 @@ def _assemble(
             "assumed from the scan rate (a full turn per scan)"
         )
     lt = timing.get(laser, {})
-    scan_ticks = np.array([lt.get(int(t), (-1, 0))[0] for t in scan_ns], dtype=np.int64)
+    scan_ticks = np.array([lt.get(int(t), (-1, 0, -1))[0] for t in scan_ns], dtype=np.int64)
+    scan_recv = np.array([lt.get(int(t), (-1, 0, -1))[2] for t in scan_ns], dtype=np.int64)
     frames.sort(key=lambda f: f[0])
     frame_ns = np.array([t for t, _ in frames], dtype=np.int64)
     ct = timing.get(camera, {})
-    frame_seq = np.array([ct.get(int(t), (0, -1))[1] for t in frame_ns], dtype=np.int64)
+    frame_seq = np.array([ct.get(int(t), (0, -1, -1))[1] for t in frame_ns], dtype=np.int64)
+    frame_recv = np.array([ct.get(int(t), (0, -1, -1))[2] for t in frame_ns], dtype=np.int64)
     return DriveLog(
         files=files,
         laser=laser,
@@ -273,6 +320,8 @@ def _assemble(
         clock=np.array(clock, dtype=np.int64).reshape(-1, 2),
         metadata=metadata,
         notes=notes,
+        scan_recv_ns=scan_recv,
+        frame_recv_ns=frame_recv,
     )
 
 

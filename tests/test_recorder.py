@@ -277,7 +277,7 @@ def _kill_loop(rig: Rig, tmp_path: Path, runs: range, seed: int) -> None:
     for i in runs:
         out = tmp_path / f"kill{i:02d}"
         started = time.monotonic_ns()
-        killed, path = _kill_once(rig, cfg.source, out, float(rng.uniform(2.2, 3.2)))
+        killed, path = _kill_once(rig, cfg.source, out, float(rng.uniform(2.0, 2.8)))
         try:
             n = _check_killed_file(rig, path, killed, started)
         except AssertionError as e:

@@ -1,0 +1,606 @@
+"""`acq colorize`: a drive's laser points placed in 3D and coloured from its frames.
+
+1. The log's light part (:func:`acq.cloud.read_log` without image bytes): scan and
+   frame stamps with the receipt times and device ticks of the timing records, clock
+   pairs, metadata.
+2. Offline re-timing (default; :mod:`acq.retime`): scans from their ticks over the
+   whole log, frames put back on the camera's frame grid.
+3. The trajectory (:mod:`acq.trajectory`): ``--trajectory CSV`` (a post-processed
+   GNSS/INS file), else the log's CAN odometry (fused with its GNSS fixes when there are
+   any), else none: then the points stay in the laser frame at their own time and are
+   coloured without motion compensation (right only for a rig standing still; said in
+   the report).
+4. Chunks of ``chunk_s`` seconds of scans, each read from the files on its own with the
+   frames around it and the laser points just outside it (for the depth buffers of
+   ``--view best``), coloured by :func:`acq.views.colour_points`; in this process, on
+   ``workers`` processes, or on a Dask cluster. The chunking does not depend on how the
+   chunks run, so the output bytes do not either.
+5. The cloud: every point with its own time (UTC in PLY, Adjusted Standard GPS time in
+   LAS), scan index, intensity, colour and whether it was coloured; ``--frame world``
+   (with a trajectory) or ``laser``; PLY or LAS by the output's extension; a preview PNG.
+
+Times host monotonic ns unless ``_s``; metres; colours RGB.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from acq import calibfile, cloud, retime, views
+from acq.calibfile import Calibration, CameraCalib
+from acq.loginfo import LogError
+from acq.transforms import Rigid
+
+__all__ = ["Chunk", "ChunkResult", "Job", "colour_chunk", "main_colorize", "plan", "run"]
+
+FORMATS = (".ply", ".las", ".laz")
+
+
+@dataclass(frozen=True)
+class Job:
+    """What every chunk needs (small, picklable): the files, the devices, the camera's
+    calibration, the re-timing maps (recorded stamp -> new, sorted by recorded stamp),
+    the trajectory (anything with ``pose_at``; None: laser frame) and the options."""
+
+    files: tuple[str, ...]
+    laser: str
+    camera: str
+    cam: CameraCalib
+    laser_to_vehicle: Rigid
+    scan_old: np.ndarray
+    scan_new: np.ndarray
+    frame_old: np.ndarray
+    frame_new: np.ndarray
+    time_offset_ns: int
+    trajectory: Any
+    options: views.Options
+    frame_world: bool
+    travel_m: float  # the rig's travel between two scans (m), for the points' size
+    want_uv: bool = False  # keep each point's pixel and frame (for accuracy checks)
+    threads: int = 1  # JPEG decoding threads per chunk
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Scans with (new) stamps in [start_ns, end_ns) of ``job``; ``index`` in the plan."""
+
+    index: int
+    start_ns: int
+    end_ns: int
+
+
+@dataclass
+class ChunkResult:
+    """One chunk's points (see :class:`acq.cloud.Cloud`) and its counters."""
+
+    index: int
+    xyz: np.ndarray
+    rgb: np.ndarray
+    coloured: np.ndarray
+    hidden: np.ndarray
+    time_ns: np.ndarray
+    scan: np.ndarray
+    step: np.ndarray
+    intensity: np.ndarray
+    dt_s: np.ndarray
+    theta: np.ndarray
+    scan_origin: np.ndarray
+    frame_stamp_ns: np.ndarray | None = None  # the recorded stamp of the frame used, -1
+    uv: np.ndarray | None = None  # (N,2) float32 px in that frame, NaN
+    frames_used: int = 0
+    frames_failed: int = 0
+    outside: int = 0  # points left out: outside the trajectory's span
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def _remap(old: np.ndarray, new: np.ndarray, stamps: np.ndarray) -> np.ndarray:
+    """``stamps`` through the (sorted ``old`` -> ``new``) map; unknown ones unchanged."""
+    if old.size == 0:
+        return stamps.copy()
+    i = np.clip(np.searchsorted(old, stamps), 0, old.size - 1)
+    return np.where(old[i] == stamps, new[i], stamps)
+
+
+def _margin_ns(job: Job) -> int:
+    period = 0.04  # a camera's frame period, s (the window is counted in frames)
+    o = job.options
+    return round((o.max_dt_s + o.window * period + o.context_s + 0.2) * 1e9)
+
+
+def colour_chunk(job: Job, chunk: Chunk, whole: cloud.DriveLog | None = None) -> ChunkResult:
+    """Read, place and colour one chunk (runs in a worker process or on a Dask worker);
+    ``whole``: the log already read (then only its part is used)."""
+    t0 = time.perf_counter()
+    margin = _margin_ns(job)
+    # the same scans and frames whether read here or cut from the whole log: those
+    # stamped within the margin (plus half a second), read by receipt time a second wider
+    lo, hi = chunk.start_ns - margin - 500_000_000, chunk.end_ns + margin + 500_000_000
+    if whole is None:
+        whole = cloud.read_log(
+            list(job.files), laser=job.laser, camera=job.camera or None,
+            start_ns=lo - 10**9, end_ns=hi + 10**9,
+        )  # fmt: skip
+    log = whole.between(lo, hi)
+    t_read = time.perf_counter()
+    scan_ns = _remap(job.scan_old, job.scan_new, log.scan_ns)
+    frame_ns = _remap(job.frame_old, job.frame_new, log.frame_ns) - job.time_offset_ns
+    keep_scan = (scan_ns >= chunk.start_ns - margin) & (scan_ns < chunk.end_ns + margin)
+    core_scan = (scan_ns >= chunk.start_ns) & (scan_ns < chunk.end_ns)
+    # the points, in time order
+    ranges = np.where(keep_scan[:, None], log.ranges, np.nan)
+    valid = np.isfinite(ranges)
+    scan_idx, step = np.nonzero(valid)
+    r = ranges[scan_idx, step].astype(np.float64)
+    a = log.angle_min + log.angle_increment * step
+    P_laser = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)], axis=1)
+    time_ns = scan_ns[scan_idx] + np.rint(step * (log.time_increment * 1e9)).astype(np.int64)
+    order = np.argsort(time_ns, kind="stable")
+    scan_idx, step, P_laser, time_ns, r = (
+        scan_idx[order], step[order], P_laser[order], time_ns[order], r[order]
+    )  # fmt: skip
+    cam, l2v = job.cam, job.laser_to_vehicle
+    pose_at = job.trajectory.pose_at if job.trajectory is not None else None
+    outside = 0
+    inside = np.ones(time_ns.size, dtype=bool)
+    if pose_at is not None:
+        inside = job.trajectory.covers(time_ns)
+        outside = int(np.count_nonzero(~inside & core_scan[scan_idx]))
+        P_world = np.full_like(P_laser, np.nan)  # no pose: not placed, not coloured
+        Rv, tv = pose_at(time_ns[inside])
+        P_world[inside] = np.einsum("nij,nj->ni", Rv, l2v.apply(P_laser[inside])) + tv
+    else:
+        P_world = P_laser
+    size = views.point_size(r, log.angle_increment, job.travel_m)
+    t_place = time.perf_counter()
+    usable = (
+        job.trajectory.covers(frame_ns) if pose_at is not None else np.ones(frame_ns.size, bool)
+    )
+    compensate = pose_at is not None and job.options.motion_compensation
+    col = views.colour_points(
+        P_world if compensate else P_laser, time_ns, size, frame_ns, log.jpegs, cam, l2v,
+        pose_at, job.options,
+        threads=job.threads, want_uv=job.want_uv, frame_ok=usable,
+    )  # fmt: skip
+    t_colour = time.perf_counter()
+    core = core_scan[scan_idx] & (inside if job.frame_world else True)
+    xyz = P_world if job.frame_world else P_laser
+    # the laser's position at each core scan's point 0
+    core_scans = np.flatnonzero(core_scan)
+    origin = np.zeros((core_scans.size, 3))
+    if pose_at is not None and core_scans.size:
+        ok = job.trajectory.covers(scan_ns[core_scans])
+        Rs, ts = pose_at(scan_ns[core_scans][ok])
+        origin[~ok] = np.nan
+        origin[ok] = np.einsum("nij,j->ni", Rs, l2v.translation) + ts
+    if not job.frame_world:
+        origin = np.zeros((core_scans.size, 3))
+    # scan indices global to the session: the chunk's scans come after the earlier ones
+    first_scan = int(np.searchsorted(job.scan_new, chunk.start_ns)) if job.scan_new.size else 0
+    local = np.cumsum(core_scan) - 1
+    return ChunkResult(
+        index=chunk.index,
+        xyz=xyz[core],
+        rgb=col.rgb[core],
+        coloured=col.coloured[core],
+        hidden=col.hidden[core],
+        time_ns=time_ns[core],
+        scan=(first_scan + local[scan_idx[core]]).astype(np.uint32),
+        step=step[core].astype(np.uint32),
+        intensity=log.intensities[scan_idx[core], step[core]].astype(np.float32),
+        dt_s=col.dt_s[core],
+        theta=col.theta[core],
+        scan_origin=origin,
+        frame_stamp_ns=(
+            np.where(col.frame >= 0, log.frame_ns[np.maximum(col.frame, 0)], -1)[core]
+            if job.want_uv
+            else None
+        ),
+        uv=col.uv[core] if col.uv is not None else None,
+        frames_used=col.frames_used,
+        frames_failed=col.frames_failed,
+        outside=outside,
+        seconds={
+            "read": t_read - t0,
+            "place": t_place - t_read,
+            "colour": t_colour - t_place,
+        },
+    )
+
+
+def plan(scan_ns: np.ndarray, chunk_s: float) -> list[Chunk]:
+    """Chunks of ``chunk_s`` seconds covering every scan time (sorted ``scan_ns``)."""
+    if scan_ns.size == 0:
+        return []
+    start, end = int(scan_ns[0]), int(scan_ns[-1]) + 1
+    step = max(1, round(chunk_s * 1e9))
+    edges = [*range(start, end, step), end]
+    return [Chunk(i, a, b) for i, (a, b) in enumerate(itertools.pairwise(edges))]
+
+
+def _run_chunks(
+    job: Job,
+    chunks: list[Chunk],
+    workers: int,
+    dask: str | None,
+    progress: bool,
+    whole: cloud.DriveLog | None = None,
+) -> list[ChunkResult]:
+    """Every chunk's result, in chunk order, however they run (``whole``: the log read
+    already, for running here)."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(chunks), unit="chunk", disable=not progress, file=sys.stderr)
+    results: list[ChunkResult] = []
+    try:
+        if dask:
+            from dask.distributed import Client, as_completed
+
+            with Client(dask) as client:
+                job_f = client.scatter(job, broadcast=True)
+                futures = [client.submit(colour_chunk, job_f, c, pure=False) for c in chunks]
+                for fut in as_completed(futures):
+                    results.append(fut.result())
+                    bar.update()
+        elif workers > 1:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+            from concurrent.futures import as_completed as done
+
+            ctx = multiprocessing.get_context("spawn")  # numba and threads: no fork
+            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+                pending = [pool.submit(colour_chunk, job, c) for c in chunks]
+                for fut in done(pending):
+                    results.append(fut.result())
+                    bar.update()
+        else:  # one process: the log is read once
+            if whole is None:
+                whole = cloud.read_log(list(job.files), laser=job.laser, camera=job.camera or None)
+            for c in chunks:
+                results.append(colour_chunk(job, c, whole))
+                bar.update()
+    finally:
+        bar.close()
+    return sorted(results, key=lambda r: r.index)
+
+
+@dataclass
+class Report:
+    """What `acq colorize` did, for the text or JSON report."""
+
+    output: str
+    points: int = 0
+    coloured: int = 0
+    hidden: int = 0
+    frames: int = 0
+    frames_used: int = 0
+    frames_failed: int = 0
+    scans: int = 0
+    duration_s: float = 0.0
+    frame: str = "world"
+    view: str = "nearest"
+    trajectory: str = ""
+    retiming: dict[str, Any] = field(default_factory=dict)
+    time_offset: dict[str, Any] = field(default_factory=dict)
+    chunks: int = 0
+    seconds: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        share = self.coloured / self.points if self.points else 0.0
+        rt = self.retiming
+        out = [
+            f"{self.points:,} points from {self.scans:,} scans ({self.duration_s:.1f} s), "
+            f"{100 * share:.1f} % coloured from {self.frames_used:,} of {self.frames:,} frames "
+            f"(--view {self.view}); {self.hidden:,} hidden from every candidate frame",
+            f"frame: {self.frame}; trajectory: {self.trajectory or 'none'}",
+        ]
+        if rt:
+            out.append(
+                f"re-timed offline: scans moved {rt.get('scan_shift_rms_ms', 0):.3f} ms RMS, "
+                f"frames {rt.get('frame_residual_rms_ms', 0):.2f} ms RMS receipt jitter removed"
+            )
+        total = sum(self.seconds.values())
+        if total:
+            parts = ", ".join(f"{k} {v:.1f} s" for k, v in self.seconds.items())
+            speed = self.duration_s / self.seconds.get("total", total) if total else 0.0
+            out.append(f"time: {parts} ({speed:.1f}x real time)")
+        out += [f"note: {n}" for n in self.notes]
+        out.append(f"wrote {self.output}")
+        return out
+
+
+def _retime(log: cloud.DriveLog, report: Report) -> tuple[np.ndarray, np.ndarray]:
+    """(scan_new, frame_new) for ``log``'s recorded stamps; notes in ``report``."""
+    from drivers.scanner import SCANNERS
+
+    scan_new, frame_new = log.scan_ns.copy(), log.frame_ns.copy()
+    driver = log.metadata.get(f"device.{log.laser}", {}).get("driver", "")
+    try:
+        cls = SCANNERS.get(driver)
+        rs = retime.retime_scans(
+            log.scan_ns, log.scan_ticks, log.scan_recv_ns, cls.tick_hz, cls.tick_bits
+        )
+        scan_new = rs.scan_ns
+        report.retiming.update(scan_shift_rms_ms=rs.shift_rms_ms, scan_shift_max_ms=rs.shift_max_ms)
+        if rs.note:
+            report.notes.append(f"scans not re-timed: {rs.note}")
+    except (KeyError, ValueError) as e:
+        report.notes.append(f"scans not re-timed: unknown scanner driver {driver!r} ({e})")
+    if log.n_frames:
+        rf = retime.retime_frames(log.frame_ns)
+        frame_new = rf.frame_ns
+        report.retiming.update(
+            frame_period_s=rf.period_s,
+            frame_residual_rms_ms=rf.residual_rms_ms,
+            frame_shift_max_ms=rf.shift_max_ms,
+        )
+        if rf.note:
+            report.notes.append(f"frames not re-timed: {rf.note}")
+    return scan_new, frame_new
+
+
+def _trajectory(
+    files: Sequence[Path], path: Path | None, log: cloud.DriveLog, report: Report
+) -> Any:
+    """The trajectory to place points with, or None (see the module docstring, step 3)."""
+    import importlib
+
+    try:
+        trajmod: Any = importlib.import_module("acq.trajectory")
+    except ImportError:  # pragma: no cover - the module lands with the issue
+        return None
+    if path is not None:
+        clock = log.clock
+        traj = trajmod.from_csv(path, utc_to_host_ns=lambda u: trajmod.host_ns_from_utc(u, clock))
+        report.trajectory = f"{path} ({len(traj.t_ns)} poses)"
+        return traj
+    try:
+        vehicle_log: Any = importlib.import_module("acq.vehicle_log")
+    except ImportError:  # pragma: no cover
+        return None
+    vehicle = vehicle_log.read_vehicle(list(files))
+    report.notes += vehicle.notes
+    odo = vehicle.odometry
+    if len(odo) < 2:
+        return None
+    fixes = vehicle.fixes
+    usable = np.isfinite(fixes.lat) & (fixes.quality > 0) if len(fixes) else np.zeros(0, bool)
+    if usable.sum() >= 5:
+        track = trajmod.gnss_track(
+            fixes.t_ns, fixes.lat, fixes.lon, fixes.alt, hdop=fixes.hdop, quality=fixes.quality
+        )
+        fusion = trajmod.fuse(odo.t_ns, odo.speed, odo.yaw_rate, track, on_gap="flag")
+        report.trajectory = (
+            f"CAN odometry ({len(odo)} samples) fused with {int(usable.sum())} GNSS fixes "
+            f"(residual {fusion.residual_rms_m:.2f} m RMS)"
+        )
+        return fusion.trajectory
+    traj = trajmod.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
+    report.trajectory = f"CAN odometry ({len(odo)} samples, dead reckoning)"
+    return traj
+
+
+def run(
+    logs: Sequence[Path],
+    calib: Calibration,
+    output: Path,
+    *,
+    camera: str | None = None,
+    frame: str | None = None,
+    options: views.Options | None = None,
+    trajectory: Path | None = None,
+    crs: str | None = None,
+    retime_offline: bool = True,
+    time_offset_s: float | None = None,
+    workers: int = 1,
+    dask: str | None = None,
+    chunk_s: float = 30.0,
+    preview: Path | None = None,
+    progress: bool = False,
+    results: list[ChunkResult] | None = None,
+    want_uv: bool = False,
+) -> Report:
+    """The whole command (module docstring); raises ValueError/LogError/OSError with a
+    one-line message for bad input. ``results``: a list to receive the chunks' results
+    (with each point's frame and pixel when ``want_uv``), for accuracy checks."""
+    t_start = time.perf_counter()
+    options = options or views.Options()
+    files = _session_files(logs)
+    report = Report(output=str(output), view=options.view)
+    # one process reads the log once; workers read their own parts, this one the light part
+    local = workers <= 1 and not dask
+    index = cloud.read_log(files, camera=camera, jpegs=local)
+    name, cam = cloud.camera_calib(index, calib, camera)
+    report.notes += index.notes
+    scan_new, frame_new = (
+        _retime(index, report) if retime_offline else (index.scan_ns, index.frame_ns)
+    )
+    traj = _trajectory(files, trajectory, index, report)
+    world = frame == "world" if frame is not None else traj is not None
+    if world and traj is None:
+        raise ValueError("--frame world needs a trajectory (CAN odometry in the log or "
+                         "--trajectory CSV); use --frame laser")  # fmt: skip
+    if traj is None:
+        report.notes.append(
+            "no trajectory: points in the laser frame at their own time, coloured without "
+            "motion compensation (right only while the rig stands still)"
+        )
+        options = replace(options, motion_compensation=False)
+    report.frame = "world" if world else "laser"
+    s_order = np.argsort(index.scan_ns)
+    f_order = np.argsort(index.frame_ns)
+    period = float(np.median(np.diff(np.sort(scan_new)))) * 1e-9 if scan_new.size > 1 else 0.025
+    speed = _median_speed(traj, scan_new)
+    offset = cam.time_offset_s if time_offset_s is None else float(time_offset_s)
+    job = Job(
+        files=tuple(str(f) for f in files),
+        laser=index.laser,
+        camera=name if index.camera else "",
+        cam=cam,
+        laser_to_vehicle=(
+            calib.laser_to_vehicle if calib.laser_to_vehicle is not None else Rigid.identity()
+        ),
+        scan_old=index.scan_ns[s_order],
+        scan_new=scan_new[s_order],
+        frame_old=index.frame_ns[f_order],
+        frame_new=frame_new[f_order],
+        time_offset_ns=round(offset * 1e9),
+        trajectory=traj,
+        options=options,
+        frame_world=world,
+        travel_m=speed * period,
+        want_uv=want_uv,
+        threads=(os.cpu_count() or 1) if workers <= 1 and not dask else 1,
+    )
+    report.time_offset["used_s"] = offset
+    chunks = plan(np.sort(scan_new), chunk_s)
+    t_plan = time.perf_counter()
+    done = _run_chunks(job, chunks, workers, dask, progress, index if local else None)
+    if results is not None:
+        results.extend(done)
+    results = done
+    t_colour = time.perf_counter()
+    pc = _cloud(results, index)
+    report.points, report.coloured = pc.size, int(pc.coloured.sum())
+    report.hidden = int(sum(int(r.hidden.sum()) for r in results))
+    report.frames, report.scans = index.n_frames, index.n_scans
+    report.frames_used = sum(r.frames_used for r in results)
+    report.frames_failed = sum(r.frames_failed for r in results)
+    report.duration_s = float(np.ptp(scan_new)) * 1e-9 if scan_new.size else 0.0
+    report.chunks = len(chunks)
+    outside = sum(r.outside for r in results)
+    if outside:
+        report.notes.append(
+            f"{outside:,} points measured outside the trajectory's span: "
+            + ("left out (no pose)" if world else "kept, not coloured")
+        )
+    _write(pc, output, crs, report)
+    if preview is not None:
+        cloud.preview_png(preview, pc, title=f"acq colorize {output.name}")
+    t_end = time.perf_counter()
+    parts: dict[str, float] = {"index": t_plan - t_start, "chunks": t_colour - t_plan}
+    for key in ("read", "place", "colour"):
+        parts[f"  {key} (summed over chunks)"] = sum(r.seconds.get(key, 0.0) for r in results)
+    parts["write"] = t_end - t_colour
+    parts["total"] = t_end - t_start
+    report.seconds = parts
+    return report
+
+
+def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
+    """The rig's median speed over the log (m/s), 0 without a trajectory."""
+    if traj is None or scan_ns.size < 2:
+        return 0.0
+    t = np.sort(scan_ns)[:: max(1, scan_ns.size // 200)]
+    t = t[traj.covers(t)]
+    if t.size < 2:
+        return 0.0
+    _, pos = traj.pose_at(t)
+    v = np.linalg.norm(np.diff(pos, axis=0), axis=1) / (np.diff(t) * 1e-9)
+    return float(np.median(v)) if v.size else 0.0
+
+
+def _cloud(results: list[ChunkResult], index: cloud.DriveLog) -> cloud.Cloud:
+    def cat(name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+        parts = [getattr(r, name) for r in results]
+        return np.concatenate(parts) if parts else np.zeros(shape, dtype)
+
+    return cloud.Cloud(
+        xyz=cat("xyz", (0, 3), np.float64),
+        rgb=cat("rgb", (0, 3), np.uint8),
+        coloured=cat("coloured", (0,), bool),
+        time_ns=cat("time_ns", (0,), np.int64),
+        scan=cat("scan", (0,), np.uint32),
+        step=cat("step", (0,), np.uint32),
+        intensity=cat("intensity", (0,), np.float32),
+        dt_s=cat("dt_s", (0,), np.float32),
+        scan_origin=cat("scan_origin", (0, 3), np.float64),
+        view_axis=np.array([0.0, 1.0, 0.0]),
+        clock=index.clock,
+        frames=index.n_frames,
+        frames_used=sum(r.frames_used for r in results),
+        frames_failed=sum(r.frames_failed for r in results),
+    )
+
+
+def _write(pc: cloud.Cloud, output: Path, crs: str | None, report: Report) -> None:
+    suffix = output.suffix.lower()
+    comments = [f"frame {report.frame}", f"view {report.view}", *(
+        [f"crs {crs}"] if crs else [])]  # fmt: skip
+    if suffix == ".ply":
+        cloud.write_ply(output, pc, comments=comments)
+        if crs:
+            report.notes.append("PLY has no CRS field: --crs written as a comment")
+    elif suffix in (".las", ".laz"):
+        from acq.las import write_las
+
+        write_las(
+            output, pc.xyz, pc.rgb, cloud.utc_seconds(pc.time_ns, pc.clock), pc.intensity,
+            pc.scan, pc.coloured, crs=crs, comments=comments,
+        )  # fmt: skip
+    else:
+        raise ValueError(f"{output}: unknown format; expected {', '.join(FORMATS)}")
+
+
+def _session_files(logs: Sequence[Path]) -> list[Path]:
+    """The MCAP files of ``logs`` (a folder stands for its *.mcap files, sorted)."""
+    out: list[Path] = []
+    for p in logs:
+        if p.is_dir():
+            found = sorted(p.glob("*.mcap"))
+            if not found:
+                raise ValueError(f"{p}: no .mcap files in this folder")
+            out += found
+        else:
+            out.append(p)
+    return out
+
+
+def main_colorize(args: Any) -> int:
+    """`acq colorize` from parsed arguments; exit 0, 2 for bad input (one line)."""
+    prog = "acq colorize"
+    try:
+        if args.output.suffix.lower() not in FORMATS:
+            raise ValueError(f"{args.output}: expected a {' or '.join(FORMATS)} file")
+        if args.crs:
+            import pyproj
+
+            try:
+                pyproj.CRS.from_user_input(args.crs)
+            except pyproj.exceptions.CRSError as e:
+                raise ValueError(f"--crs {args.crs}: {e}") from None
+        calib = calibfile.load(args.calib)
+        options = views.Options(
+            view=args.view,
+            motion_compensation=not args.no_motion_compensation,
+            max_dt_s=args.max_dt,
+            window=args.window,
+        )
+        preview = args.preview or args.output.with_name(args.output.stem + "_preview.png")
+        report = run(
+            args.logs, calib, args.output, camera=args.camera, frame=args.frame,
+            options=options, trajectory=args.trajectory, crs=args.crs,
+            retime_offline=not args.no_retime, time_offset_s=args.time_offset,
+            workers=args.workers, dask=args.dask, chunk_s=args.chunk,
+            preview=None if args.no_preview else preview,
+            progress=args.progress or (not args.json and sys.stderr.isatty()),
+        )  # fmt: skip
+    except (ValueError, KeyError, OSError, LogError) as e:
+        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
+        print(f"{prog}: {msg}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(asdict(report), indent=2))
+    else:
+        print("\n".join(report.lines()))
+    return 0

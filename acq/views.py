@@ -1,0 +1,304 @@
+"""Which camera frame colours each laser point (``acq colorize --view``), and its colour.
+
+Every point is placed at its own time; the frame it is coloured from was exposed at
+another instant, when the rig stood elsewhere. With a trajectory, the point goes back
+into the camera as the rig stood at the frame's time (motion compensation: world ->
+vehicle at the frame's time -> laser -> camera); without one (or with
+``motion_compensation=False``) the point stays where the laser saw it relative to the
+rig, which is right only for a rig standing still.
+
+- ``nearest``: the frame nearest in time, within ``max_dt_s``.
+- ``best``: among the ``window`` frames either side of the nearest (within
+  ``max_dt_s + window`` periods), the one that sees the point closest to its optical
+  axis (a fisheye's resolution and its calibration are best there), unless nearer laser
+  points hide it in that frame (:func:`occlusion_depths`: a depth buffer of the laser
+  points scanned around that frame's time, each splatted over the pixels its share of
+  surface covers). A point hidden in every candidate is not coloured.
+
+Points no frame sees (behind the camera, outside the image, too far in time, hidden)
+keep ``coloured = False``. Units: metres, host ns, pixels; colours RGB uint8.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+
+import cv2
+import numba
+import numpy as np
+
+from acq import projection, sync
+from acq.calibfile import CameraCalib
+from acq.transforms import Rigid
+
+__all__ = [
+    "VIEWS",
+    "Coloured",
+    "Options",
+    "PoseFn",
+    "colour_points",
+    "occlusion_depths",
+    "point_size",
+]
+
+PoseFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""Vehicle -> world at host ns (N,) int64: rotations (N,3,3), translations (N,3) m."""
+
+VIEWS = ("nearest", "best")
+
+
+@dataclass(frozen=True)
+class Options:
+    """How points pick their frame (see the module docstring). ``cell_px``: the depth
+    buffer's cell; ``margin_m`` + ``margin_rel`` x depth: how much nearer a laser point
+    must be to hide another; ``context_s``: laser points within this of a frame's time
+    go into its depth buffer."""
+
+    view: str = "nearest"
+    motion_compensation: bool = True
+    max_dt_s: float = 0.1
+    window: int = 3
+    bilinear: bool = True
+    cell_px: int = 2
+    margin_m: float = 0.2
+    margin_rel: float = 0.05
+    context_s: float = 0.4
+
+    def __post_init__(self) -> None:
+        if self.view not in VIEWS:
+            raise ValueError(f"view {self.view!r}: expected one of {', '.join(VIEWS)}")
+        if self.window < 0 or self.max_dt_s <= 0 or self.cell_px < 1:
+            raise ValueError("window >= 0, max_dt_s > 0 and cell_px >= 1 expected")
+
+
+@dataclass(frozen=True)
+class Coloured:
+    """Per point: ``rgb`` (N,3) uint8, ``coloured`` (N,) bool, ``frame`` (N,) int64 the
+    frame used (-1 none), ``dt_s`` (N,) float32 point time minus that frame's (NaN),
+    ``theta`` (N,) float32 angle from that frame's optical axis, rad (``best`` only; NaN
+    otherwise); and
+    ``hidden`` (N,) bool: seen by a candidate frame but hidden in all (``best``); ``uv``
+    (N,2) float32 the pixel in that frame (NaN; only when asked for)."""
+
+    rgb: np.ndarray
+    coloured: np.ndarray
+    frame: np.ndarray
+    dt_s: np.ndarray
+    theta: np.ndarray
+    hidden: np.ndarray
+    frames_used: int
+    frames_failed: int
+    uv: np.ndarray | None = None
+
+
+@numba.njit(cache=True, nogil=True)
+def _splat(cu, cv, depth, radius, width, height):  # type: ignore[no-untyped-def]
+    z = np.full((height, width), np.inf, dtype=np.float32)
+    for i in range(cu.size):
+        r = radius[i]
+        d = depth[i]
+        for v in range(max(cv[i] - r, 0), min(cv[i] + r + 1, height)):
+            for u in range(max(cu[i] - r, 0), min(cu[i] + r + 1, width)):
+                if d < z[v, u]:
+                    z[v, u] = d
+    return z
+
+
+def occlusion_depths(
+    uv: np.ndarray, depth: np.ndarray, size_m: np.ndarray, f_px: float, shape: tuple[int, int],
+    cell_px: int,
+) -> np.ndarray:  # fmt: skip
+    """(H/cell, W/cell) float32 depth buffer (m, +inf empty) of points at pixels ``uv``
+    (N,2) and ``depth`` (N,) m, each covering a square of ``size_m`` (N,) m of surface
+    (its share of the scan: the larger of its spacing along the scan and the rig's
+    travel between scans), i.e. about ``f_px * size_m / depth`` px each side."""
+    h, w = -(-shape[0] // cell_px), -(-shape[1] // cell_px)
+    cu = (uv[:, 0] / cell_px).astype(np.int64)
+    cv_ = (uv[:, 1] / cell_px).astype(np.int64)
+    r = np.minimum(np.floor(0.5 * f_px * size_m / np.maximum(depth, 1e-3) / cell_px), 8)
+    return np.asarray(_splat(cu, cv_, depth.astype(np.float32), r.astype(np.int64), w, h))
+
+
+def _decode(jpeg: bytes) -> np.ndarray | None:
+    image = cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
+    return image if image is not None and image.ndim == 3 else None
+
+
+def _decoded(jpegs: list[bytes], order: np.ndarray, threads: int) -> Iterator[np.ndarray | None]:
+    """The frames ``order`` decoded, in order, at most ``2 * threads`` ahead."""
+    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
+        pending: deque[Future[np.ndarray | None]] = deque()
+        todo = iter(order.tolist())
+        for j in itertools.islice(todo, 2 * max(1, threads)):
+            pending.append(pool.submit(_decode, jpegs[j]))
+        while pending:
+            done = pending.popleft()
+            for j in itertools.islice(todo, 1):
+                pending.append(pool.submit(_decode, jpegs[j]))
+            yield done.result()
+
+
+class _Rig:
+    """Camera poses: ``laser_frame(P_world, t_ns)`` -> the laser frame as the rig stood
+    at t (or the points as given without motion compensation)."""
+
+    def __init__(self, cam: CameraCalib, laser_to_vehicle: Rigid, pose_at: PoseFn | None) -> None:
+        self.cam, self.l2v, self.pose_at = cam, laser_to_vehicle, pose_at
+        self.v2l = laser_to_vehicle.inverse()
+
+    def laser_frame(self, P_world: np.ndarray, t_ns: int) -> np.ndarray:
+        if self.pose_at is None:
+            return P_world
+        R, t = self.pose_at(np.array([t_ns], dtype=np.int64))
+        return self.v2l.apply((P_world - t[0]) @ R[0])
+
+    def camera(self, P_laser: np.ndarray) -> np.ndarray:
+        return self.cam.camera_to_laser.inverse().apply(P_laser)
+
+
+def _theta(P_cam: np.ndarray) -> np.ndarray:
+    return np.arctan2(np.hypot(P_cam[:, 0], P_cam[:, 1]), P_cam[:, 2])
+
+
+def colour_points(
+    P: np.ndarray,
+    time_ns: np.ndarray,
+    size_m: np.ndarray,
+    frame_ns: np.ndarray,
+    jpegs: list[bytes],
+    cam: CameraCalib,
+    laser_to_vehicle: Rigid,
+    pose_at: PoseFn | None,
+    options: Options | None = None,
+    *,
+    threads: int = 2,
+    want_uv: bool = False,
+    frame_ok: np.ndarray | None = None,
+) -> Coloured:
+    """Colour points ``P`` (N,3) m measured at ``time_ns`` (N,) host ns, sorted by time:
+    in the world when ``pose_at`` is given and motion is compensated, else in the laser
+    frame at their own time. ``frame_ns`` (M,) the frames' mid-exposure times on the
+    laser's clock (the calibration's time offset already applied), ``jpegs`` their
+    bytes; ``size_m`` (N,) each point's share of surface (for the depth buffers);
+    ``frame_ok`` (M,) bool: frames that may be used (e.g. those the trajectory covers)."""
+    options = options or Options()
+    n = P.shape[0]
+    rig = _Rig(cam, laser_to_vehicle, pose_at if options.motion_compensation else None)
+    if options.view == "best" and rig.pose_at is None:
+        raise ValueError("--view best needs a trajectory (and motion compensation)")
+    frame = np.full(n, -1, dtype=np.int64)
+    theta = np.full(n, np.nan, dtype=np.float32)
+    hidden = np.zeros(n, dtype=bool)
+    rgb = np.zeros((n, 3), dtype=np.uint8)
+    coloured = np.zeros(n, dtype=bool)
+    uv = np.full((n, 2), np.nan, dtype=np.float32) if want_uv else None
+    if n == 0 or frame_ns.size == 0:
+        nan = np.full(n, np.nan, np.float32)
+        return Coloured(rgb, coloured, frame, nan, theta, hidden, 0, 0, uv)
+    if frame_ok is not None and not frame_ok.all():
+        keep = np.flatnonzero(frame_ok)
+        sub = colour_points(
+            P, time_ns, size_m, frame_ns[keep], [jpegs[int(k)] for k in keep], cam,
+            laser_to_vehicle, pose_at, options, threads=threads, want_uv=want_uv,
+        )  # fmt: skip
+        frame = np.where(sub.frame >= 0, keep[np.maximum(sub.frame, 0)], -1)
+        return Coloured(sub.rgb, sub.coloured, frame, sub.dt_s, sub.theta, sub.hidden,
+                        sub.frames_used, sub.frames_failed, sub.uv)  # fmt: skip
+    pairing = sync.pair_frames(time_ns, frame_ns)
+    near = np.where(np.abs(pairing.dt_s) <= options.max_dt_s, pairing.nearest, -1)
+    if options.view == "nearest":
+        frame = near
+    else:
+        frame, theta, hidden = _best(P, time_ns, size_m, frame_ns, near, rig, options)
+
+    # colour: every frame decoded once, its points sent back to where the rig stood
+    order = np.argsort(frame, kind="stable")
+    order = order[frame[order] >= 0]
+    used, first, counts = np.unique(frame[order], return_index=True, return_counts=True)
+    used_n = failed = 0
+    for j, lo, count, image in zip(
+        used, first, counts, _decoded(jpegs, used, threads), strict=True
+    ):
+        if image is None:
+            failed += 1
+            continue
+        used_n += 1
+        idx = order[lo : lo + count]
+        P_l = rig.laser_frame(P[idx], int(frame_ns[j]))
+        bgr, seen = projection.colorize(
+            P_l, cam.model, cam.camera_to_laser, image, bilinear=options.bilinear
+        )
+        rgb[idx[seen]] = bgr[seen][:, ::-1]
+        coloured[idx[seen]] = True
+        if uv is not None:
+            uv[idx[seen]] = projection.project(P_l[seen], cam.model, cam.camera_to_laser)[0]
+    frame = np.where(coloured, frame, -1)
+    dt = np.where(coloured, (time_ns - frame_ns[np.maximum(frame, 0)]) * 1e-9, np.nan)
+    theta = np.where(coloured, theta, np.nan).astype(np.float32)
+    return Coloured(rgb, coloured, frame, dt.astype(np.float32), theta, hidden, used_n, failed, uv)
+
+
+def _best(
+    P: np.ndarray,
+    time_ns: np.ndarray,
+    size_m: np.ndarray,
+    frame_ns: np.ndarray,
+    near: np.ndarray,
+    rig: _Rig,
+    options: Options,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frame, theta, hidden) per point for ``view="best"`` (module docstring)."""
+    n, W = P.shape[0], options.window
+    model = rig.cam.model
+    f_px = 0.5 * (model.fx + model.fy)
+    best = np.full(n, -1, dtype=np.int64)
+    best_theta = np.full(n, np.inf, dtype=np.float32)
+    candidate = np.zeros(n, dtype=bool)
+    order_f = np.argsort(frame_ns, kind="stable")
+    rank = np.empty_like(order_f)
+    rank[order_f] = np.arange(order_f.size)
+    near_rank = np.where(near >= 0, rank[np.maximum(near, 0)], -(10**9))
+    period = float(np.median(np.diff(frame_ns[order_f]))) * 1e-9 if frame_ns.size > 1 else 0.04
+    max_dt = options.max_dt_s + W * period
+    ctx = round(options.context_s * 1e9)
+    for r, j in enumerate(order_f.tolist()):
+        t_f = int(frame_ns[j])
+        lo, hi = np.searchsorted(time_ns, [t_f - max_dt * 1e9, t_f + max_dt * 1e9])
+        idx = np.arange(lo, hi)
+        idx = idx[np.abs(near_rank[idx] - r) <= W]
+        if idx.size == 0:
+            continue
+        # the depth buffer of the laser points around this frame's time
+        c_lo, c_hi = np.searchsorted(time_ns, [t_f - ctx, t_f + ctx])
+        ctx_idx = np.arange(c_lo, c_hi)
+        P_c = rig.camera(rig.laser_frame(P[ctx_idx], t_f))
+        uv_c, ok_c = projection.project(P_c, model, Rigid.identity())
+        depth_c = np.linalg.norm(P_c, axis=1)
+        zbuf = occlusion_depths(
+            uv_c[ok_c], depth_c[ok_c], size_m[ctx_idx][ok_c], f_px,
+            (model.height, model.width), options.cell_px,
+        )  # fmt: skip
+        P_p = rig.camera(rig.laser_frame(P[idx], t_f))
+        uv, ok = projection.project(P_p, model, Rigid.identity())
+        candidate[idx[ok]] = True
+        depth = np.linalg.norm(P_p, axis=1)
+        cu = np.clip((uv[:, 0] / options.cell_px).astype(np.int64), 0, zbuf.shape[1] - 1)
+        cv_ = np.clip((uv[:, 1] / options.cell_px).astype(np.int64), 0, zbuf.shape[0] - 1)
+        visible = ok & (depth <= zbuf[cv_, cu] + options.margin_m + options.margin_rel * depth)
+        th = _theta(P_p).astype(np.float32)
+        better = visible & (th < best_theta[idx])
+        best[idx[better]] = j
+        best_theta[idx[better]] = th[better]
+    hidden = candidate & (best < 0)
+    theta = np.where(best >= 0, best_theta, np.nan).astype(np.float32)
+    return best, theta, hidden
+
+
+def point_size(ranges: np.ndarray, angle_increment: float, travel_m: float) -> np.ndarray:
+    """Each point's share of surface, m: the larger of its spacing along the scan
+    (range x angle step) and the rig's travel between scans."""
+    return np.maximum(np.abs(ranges) * abs(angle_increment), travel_m).astype(np.float32)

@@ -1,0 +1,296 @@
+"""A simulated drive recorded as the recorder writes it, with the truth (issue 8).
+
+The simulated rig (``sim.world.default_rig``: UTM-30LX geometry, the 185-degree fisheye)
+drives the synthetic street (with the validation pattern at ``pattern_at`` m on the
+camera's side) in the lane at ``lane_y`` m, at ``speed_kmh``, along a gentle curve, with
+body vibration. Everything a recording carries is simulated, and the log holds only
+what a recorder would have:
+
+- scans: each cast step by step from the laser's pose at its own time; the scanner's
+  millisecond clock (24 bits) runs ``scanner_drift_ppm`` fast; each telegram arrives
+  ``scanner_latency_s`` plus an exponential jitter after the scan's end; the recorded
+  stamp is what the recorder computes online (:class:`acq.clocksync.DeviceClock` on the
+  ticks, minus the configured latency, which is the true constant part);
+- frames: exposed on the camera's own grid (``camera_drift_ppm``), ray-cast through the
+  TRUE lens, JPEG; each arrives ``camera_latency_s`` + half the exposure + an exponential
+  jitter (one stream: a late frame delays the next) after its middle of exposure, and is
+  stamped receipt minus ``configured_camera_latency_s`` — by default NOT the true value
+  (the configuration does not know the camera's latency);
+- odometry: the vehicle's true speed and yaw rate at 50 Hz on ``/vehicle/odometry``
+  (when :func:`acq.schemas` has the message), stamped on the host clock;
+- 1 Hz clock pairs; metadata: the scanner's geometry, the TRUE calibration.
+
+:class:`DriveTruth` holds the truth: the street, trajectory and rig, the true time of
+every scan's point 0 and every frame's middle of exposure, and every scan's noise-free
+world hit points. Host times are ns from ``start_ns``; the simulator's clock is seconds
+from the drive's start.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from acq import calibfile, schemas
+from acq.calibfile import Calibration, CameraCalib
+from acq.clocksync import DeviceClock
+from acq.mcap_log import LogWriter
+from acq.records import Frame, Odometry, Scan
+from sim.sensors import render_frame, render_scan
+from sim.world import Rig, Street, Trajectory, default_rig
+
+__all__ = ["DriveTruth", "write_drive_log"]
+
+
+@dataclass(frozen=True)
+class DriveTruth:
+    """What :func:`write_drive_log` wrote and the truth behind it (module docstring)."""
+
+    files: list[Path]
+    street: Street
+    trajectory: Trajectory
+    rig: Rig
+    calibration: Calibration  # the true one
+    start_ns: int  # host ns of the drive's t = 0
+    scan_t0_s: np.ndarray  # (S,) true time of each scan's point 0, s
+    scan_stamp_ns: np.ndarray  # (S,) the recorded (online) stamps
+    points: np.ndarray  # (S, N, 3) float32 noise-free world hit points (NaN none)
+    materials: np.ndarray  # (S, N) uint8 sim.world.Material of each hit
+    colours: np.ndarray  # (S, N, 3) uint8 BGR surface colour of each hit
+    frame_t_s: np.ndarray  # (F,) true middle of exposure, s
+    frame_stamp_ns: np.ndarray  # (F,) the recorded stamps
+    config: dict[str, float] = field(default_factory=dict)
+
+    def host_ns(self, t_s: np.ndarray) -> np.ndarray:
+        """Simulator seconds -> host ns."""
+        return self.start_ns + np.rint(np.asarray(t_s) * 1e9).astype(np.int64)
+
+    def true_pixels(
+        self, scan: np.ndarray, step: np.ndarray, frame_stamp_ns: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Where the noise-free hits of points (``scan``, ``step``) fall in the frames
+        with recorded stamps ``frame_stamp_ns`` (true lens, true pose at the frame's true
+        time): (N,2) px and (N,) valid (also False for an unknown frame or no hit)."""
+        from sim.sensors import camera_to_world
+
+        scan, step = np.asarray(scan, np.int64), np.asarray(step, np.int64)
+        k = np.clip(np.searchsorted(self.frame_stamp_ns, frame_stamp_ns), 0,
+                    self.frame_stamp_ns.size - 1)  # fmt: skip
+        known = self.frame_stamp_ns[k] == frame_stamp_ns
+        P = self.points[scan, step].astype(np.float64)
+        uv = np.full((scan.size, 2), np.nan)
+        valid = np.zeros(scan.size, dtype=bool)
+        for j in np.unique(k[known]):
+            sel = np.flatnonzero(known & (k == j))
+            pose = camera_to_world(self.trajectory, self.rig, float(self.frame_t_s[j]))
+            uv[sel], valid[sel] = self.rig.lens.project(pose.inverse().apply(P[sel]))
+        valid &= np.isfinite(P).all(axis=1)
+        return uv, valid
+
+
+def _geometry(rig: Rig) -> dict[str, float]:
+    return {
+        "angle_min": rig.angle_min,
+        "angle_increment": rig.angle_increment,
+        "n_points": rig.n_steps,
+        "time_increment": rig.time_increment,
+        "scan_period": rig.scan_period,
+        "range_min": rig.min_range,
+        "range_max": rig.max_range,
+        "stamp_offset_s": 0.0,
+    }
+
+
+def write_drive_log(
+    directory: Path,
+    seconds: float = 60.0,
+    *,
+    seed: int = 0,
+    speed_kmh: float = 20.0,
+    lane_y: float = 1.5,
+    pattern_at: float | None = 60.0,
+    curve_amplitude: float = 0.8,
+    vibration_rad: float = 0.002,
+    scanner_drift_ppm: float = 30.0,
+    scanner_latency_s: float = 0.002,
+    scanner_jitter_s: float = 0.001,
+    camera_drift_ppm: float = -20.0,
+    camera_latency_s: float = 0.030,
+    camera_jitter_s: float = 0.003,
+    configured_camera_latency_s: float | None = 0.025,
+    odometry_hz: float = 50.0,
+    jpeg_quality: int = 90,
+    start_ns: int = 2_000_000_000_000,
+    rig: Rig | None = None,
+) -> DriveTruth:
+    """Write the drive (module docstring) into ``directory``; returns the truth.
+
+    ``configured_camera_latency_s`` is what the recording's camera driver subtracts
+    (None: the true mean, ``camera_latency_s`` + half the exposure + the jitter's mean).
+    """
+    rig = rig or default_rig()
+    rng = np.random.default_rng(seed)
+    length = speed_kmh / 3.6 * seconds + 80.0
+    street = Street.generate(seed, length_m=length, pattern_at=pattern_at)
+    traj = Trajectory(
+        speed=speed_kmh / 3.6, x0=0.0, y0=lane_y, curve_amplitude=curve_amplitude,
+        curve_wavelength=90.0, vibration_rad=vibration_rad, seed=seed,
+    )  # fmt: skip
+    calib = Calibration(
+        cameras={"camera": CameraCalib(rig.lens, rig.camera_to_laser, method="truth")},
+        laser_to_vehicle=rig.laser_to_vehicle,
+    )
+    metadata = {
+        "device.laser": {"driver": "hokuyo", "geometry": json.dumps(_geometry(rig))},
+        "device.camera": {"driver": "sim"},
+        "calibration": {"yaml": calibfile.dump(calib)},
+    }
+    writer = LogWriter(directory, prefix="drive", metadata=metadata, split_s=seconds + 600.0)
+    for topic, schema in (
+        ("/laser/scan", "foxglove.LaserScan"),
+        ("/laser/raw", "acq.RawTelegram"),
+        ("/acq/timing/laser", "acq.Timing"),
+        ("/camera/image/compressed", "foxglove.CompressedImage"),
+        ("/acq/timing/camera", "acq.Timing"),
+        ("/acq/clock", "acq.Clock"),
+    ):
+        writer.add_channel(topic, schemas.SCHEMAS[schema])
+    odometry = getattr(schemas, "odometry", None)
+    if odometry_hz > 0 and odometry is not None and "acq.Odometry" in schemas.SCHEMAS:
+        writer.add_channel("/vehicle/odometry", schemas.SCHEMAS["acq.Odometry"])
+
+    def host(t: float) -> int:
+        return start_ns + round(t * 1e9)
+
+    events: list[tuple[int, int, str, bytes]] = []  # (log time, stamp, topic, payload)
+    # --- scans
+    period = rig.scan_period / (1 + scanner_drift_ppm * 1e-6)  # in host seconds
+    n_scans = int(seconds / period)
+    clock = DeviceClock(1000.0, 24)
+    tick0 = 123_456
+    scan_t0 = np.arange(n_scans) * period + 0.01
+    pts = np.full((n_scans, rig.n_steps, 3), np.nan, dtype=np.float32)
+    mats = np.zeros((n_scans, rig.n_steps), dtype=np.uint8)
+    cols = np.zeros((n_scans, rig.n_steps, 3), dtype=np.uint8)
+    scan_stamps = np.zeros(n_scans, dtype=np.int64)
+    recv_prev = 0
+    for k, t0 in enumerate(scan_t0.tolist()):
+        st = render_scan(street, traj, rig, t0, rng)
+        pts[k], mats[k], cols[k] = st.points, st.material, st.colours
+        tick = (tick0 + math.floor(t0 * 1000.0 * (1 + scanner_drift_ppm * 1e-6))) % (1 << 24)
+        end = t0 + rig.time_increment * (rig.n_steps - 1)
+        recv = max(host(end + scanner_latency_s + rng.exponential(scanner_jitter_s)),
+                   recv_prev + 100_000)  # fmt: skip
+        recv_prev = recv
+        clock.update(tick, recv)
+        # the recorder: the tick through the clock, minus the constant latency it knows
+        latency_const = scanner_latency_s + rig.time_increment * (rig.n_steps - 1)
+        stamp = clock.to_host_ns(tick) - round(latency_const * 1e9)
+        scan_stamps[k] = stamp
+        scan = Scan(
+            ranges=st.ranges, intensities=np.zeros(0, np.float32), angle_min=rig.angle_min,
+            angle_increment=rig.angle_increment, time_increment=rig.time_increment,
+            scan_period=rig.scan_period, recv_ns=recv, start_ns=stamp, sequence=k,
+            device_ticks=(tick,),
+        )  # fmt: skip
+        timing = schemas.timing(recv_ns=recv, stamp_ns=stamp, device_ticks=(tick,), sequence=k)
+        raw = schemas.raw_telegram(device="laser", data=b"", device_ticks=(tick,), sequence=k,
+                                   recv_ns=recv, stamp_ns=stamp)  # fmt: skip
+        events += [
+            (recv, stamp, "/laser/scan", schemas.laser_scan(scan, "laser", stamp)),
+            (recv, stamp, "/laser/raw", raw),
+            (recv, stamp, "/acq/timing/laser", timing),
+        ]
+    # --- frames
+    lens = rig.lens
+    fperiod = 1.0 / rig.fps / (1 + camera_drift_ppm * 1e-6)
+    n_frames = int((seconds - 0.05) / fperiod)
+    frame_t = 0.017 + np.arange(n_frames) * fperiod
+    jitter_mean = camera_jitter_s
+    configured = (
+        camera_latency_s + rig.exposure / 2 + jitter_mean
+        if configured_camera_latency_s is None
+        else configured_camera_latency_s
+    )
+    frame_stamps = np.zeros(n_frames, dtype=np.int64)
+    recv_prev = 0
+    for k, t in enumerate(frame_t.tolist()):
+        img = render_frame(street, traj, rig, t)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
+        if not ok:
+            raise RuntimeError("JPEG encoding failed")
+        late = camera_latency_s + rig.exposure / 2 + rng.exponential(camera_jitter_s)
+        recv = max(host(t + late), recv_prev + 1_000_000)
+        recv_prev = recv
+        stamp = recv - round(configured * 1e9)
+        frame_stamps[k] = stamp
+        frame = Frame(recv, stamp, k, lens.width, lens.height, jpeg=buf.tobytes())
+        timing = schemas.timing(recv_ns=recv, stamp_ns=stamp, sequence=k, received=k + 1)
+        events += [
+            (recv, stamp, "/camera/image/compressed", schemas.compressed_image(frame, "camera")),
+            (recv, stamp, "/acq/timing/camera", timing),
+        ]
+    # --- odometry (true speed and yaw rate, by central differences of the trajectory)
+    if odometry_hz > 0 and odometry is not None and "acq.Odometry" in schemas.SCHEMAS:
+        ts = np.arange(0.0, seconds + 0.2, 1.0 / odometry_hz)
+        h = 1e-3
+        _, pa = traj.poses(ts - h)
+        _, pb = traj.poses(ts + h)
+        Ra, _ = traj.poses(ts - h)
+        Rb, _ = traj.poses(ts + h)
+        speed = np.linalg.norm(pb - pa, axis=1) / (2 * h)
+        yaw_a = np.arctan2(Ra[:, 1, 0], Ra[:, 0, 0])
+        yaw_b = np.arctan2(Rb[:, 1, 0], Rb[:, 0, 0])
+        yaw_rate = np.angle(np.exp(1j * (yaw_b - yaw_a))) / (2 * h)
+        for t, v, w in zip(ts.tolist(), speed.tolist(), yaw_rate.tolist(), strict=True):
+            stamp = host(t)
+            recv = stamp + 300_000
+            odo = Odometry(recv_ns=recv, stamp_ns=stamp, speed=v, yaw_rate=w)
+            events.append((recv, stamp, "/vehicle/odometry", odometry(odo)))
+    # --- clock pairs, then everything in receipt order
+    for k in range(int(seconds) + 2):
+        stamp = host(float(k))
+        pair = schemas.clock(realtime_ns=1_800_000_000 * 10**9 + stamp, monotonic_ns=stamp)
+        events.append((stamp, stamp, "/acq/clock", pair))
+    events.sort(key=lambda e: e[0])
+    try:
+        for log_time, stamp, topic, payload in events:
+            writer.write(topic, payload, log_time, stamp)
+    finally:
+        writer.close()
+    return DriveTruth(
+        files=writer.files,
+        street=street,
+        trajectory=traj,
+        rig=rig,
+        calibration=calib,
+        start_ns=start_ns,
+        scan_t0_s=scan_t0,
+        scan_stamp_ns=scan_stamps,
+        points=pts,
+        materials=mats,
+        colours=cols,
+        frame_t_s=frame_t,
+        frame_stamp_ns=frame_stamps,
+        config={
+            "seconds": seconds,
+            "speed_kmh": speed_kmh,
+            "camera_latency_true_s": camera_latency_s + rig.exposure / 2 + jitter_mean,
+            "camera_latency_configured_s": configured,
+        },
+    )
+
+
+if __name__ == "__main__":  # a quick look: python -m sim.drive_log OUT_DIR [SECONDS]
+    import sys
+
+    out = Path(sys.argv[1])
+    out.mkdir(parents=True, exist_ok=True)
+    truth = write_drive_log(out, float(sys.argv[2]) if len(sys.argv) > 2 else 10.0)
+    calibfile.save(truth.calibration, out / "calib.yaml")
+    print(truth.files, len(truth.scan_t0_s), "scans", len(truth.frame_t_s), "frames")

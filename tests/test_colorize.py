@@ -1,0 +1,173 @@
+"""acq colorize on a simulated drive (sim/drive_log.py): outputs, views, scale-out."""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+from plyfile import PlyData
+
+from acq import calibfile, cloud
+from acq.cli import build_parser
+from acq.colorize import main_colorize, plan, run
+from acq.views import Options
+from sim.drive_log import DriveTruth, write_drive_log
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriveTruth, Path]:
+    d = tmp_path_factory.mktemp("drive")
+    truth = write_drive_log(d, 4.0, pattern_at=15.0)
+    calib = d / "calib.yaml"
+    calibfile.save(truth.calibration, calib)
+    return truth, calib
+
+
+def _args(*argv: str) -> argparse.Namespace:
+    return build_parser().parse_args(["colorize", *argv])
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_ply_and_las_carry_every_point_with_its_time(
+    drive: tuple[DriveTruth, Path], tmp_path: Path
+) -> None:
+    truth, calib = drive
+    ply, las = tmp_path / "c.ply", tmp_path / "c.las"
+    for out in (ply, las):
+        args = _args(*map(str, truth.files), "--calib", str(calib), "-o", str(out),
+                     "--crs", "EPSG:25832", "--frame", "laser")  # fmt: skip
+        assert main_colorize(args) == 0
+    v = PlyData.read(str(ply))["vertex"].data
+    n_valid = int(np.isfinite(cloud.read_log(truth.files).ranges).sum())
+    assert len(v) == n_valid
+    assert 0.2 < v["coloured"].mean() < 0.9  # the camera looks to one side
+    assert np.all(np.diff(v["time"]) >= -1e-9)  # UTC seconds, in time order
+    assert (tmp_path / "c_preview.png").stat().st_size > 0
+    pc = laspy.read(str(las))
+    assert pc.header.version == "1.4" and pc.header.point_format.id >= 7
+    assert pc.header.global_encoding.gps_time_type == laspy.header.GpsTimeType.STANDARD
+    assert pc.header.parse_crs().to_epsg() == 25832
+    assert len(pc.points) == len(v)
+    np.testing.assert_allclose(pc.x, v["x"], atol=6e-4)  # millimetres kept
+    # Adjusted Standard GPS time = UTC + leap seconds - GPS epoch - 1e9
+    gps = v["time"] - 315_964_800 + 18 - 1e9
+    np.testing.assert_allclose(pc.gps_time, gps, atol=1e-6)
+    assert np.array_equal(np.asarray(pc.coloured), v["coloured"])
+    assert np.array_equal(np.asarray(pc.red) // 257, v["red"])
+
+
+def test_offline_retiming_brings_stamps_to_the_truth(
+    drive: tuple[DriveTruth, Path], tmp_path: Path
+) -> None:
+    truth, calib = drive
+    results: list = []
+    report = run(truth.files, calibfile.load(calib), tmp_path / "c.ply", frame="laser",
+                 results=results, want_uv=True, preview=None)  # fmt: skip
+    assert report.retiming["frame_residual_rms_ms"] > 1.0  # the receipt jitter removed
+    stamps = np.concatenate([r.frame_stamp_ns for r in results])
+    used = stamps[stamps >= 0]
+    assert np.isin(used, truth.frame_stamp_ns).all()
+
+
+def test_same_bytes_with_workers_and_chunks(drive: tuple[DriveTruth, Path], tmp_path: Path) -> None:
+    truth, calib = drive
+    outs = []
+    for i, extra in enumerate((["--chunk", "1.5"], ["--chunk", "1.5", "--workers", "2"])):
+        out = tmp_path / f"c{i}.ply"
+        args = _args(*map(str, truth.files), "--calib", str(calib), "-o", str(out),
+                     "--frame", "laser", "--no-preview", *extra)  # fmt: skip
+        assert main_colorize(args) == 0
+        outs.append(_digest(out))
+    assert outs[0] == outs[1]
+    assert len(plan(np.arange(0, 4_000_000_000, 25_000_000), 1.5)) == 3
+
+
+def test_dask_local_cluster_gives_the_same_bytes(
+    drive: tuple[DriveTruth, Path], tmp_path: Path
+) -> None:
+    from dask.distributed import LocalCluster
+
+    truth, calib = drive
+    local = tmp_path / "local.ply"
+    common = ["--calib", str(calib), "--frame", "laser", "--no-preview", "--chunk", "1.5"]
+    assert main_colorize(_args(*map(str, truth.files), *common, "-o", str(local))) == 0
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster:  # fmt: skip
+        out = tmp_path / "dask.ply"
+        args = _args(*map(str, truth.files), *common, "-o", str(out), "--dask",
+                     cluster.scheduler_address)  # fmt: skip
+        assert main_colorize(args) == 0
+    assert _digest(out) == _digest(local)
+
+
+def test_bad_input_is_one_line_and_exit_2(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    truth, calib = drive
+    files = list(map(str, truth.files))
+    cases = [
+        (["--calib", str(calib), "-o", str(tmp_path / "x.xyz")], "expected a .ply"),
+        (["--calib", str(tmp_path / "none.yaml"), "-o", str(tmp_path / "x.ply")], "none.yaml"),
+        (["--calib", str(calib), "-o", str(tmp_path / "x.las"), "--crs", "EPSG:0"], "--crs"),
+    ]
+    for argv, expect in cases:
+        assert main_colorize(_args(*files, *argv)) == 2
+        err = capsys.readouterr().err
+        assert expect in err and err.count("\n") == 1, err
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file")
+    assert (
+        main_colorize(_args(str(junk), "--calib", str(calib), "-o", str(tmp_path / "j.ply"))) == 2
+    )
+    assert "junk.mcap" in capsys.readouterr().err
+
+
+def _pixel_errors(truth: DriveTruth, results: list) -> np.ndarray:
+    """Each coloured point's pixel minus its true pixel in the frame used, px."""
+    scan = np.concatenate([r.scan for r in results])
+    step = np.concatenate([r.step for r in results])
+    stamp = np.concatenate([r.frame_stamp_ns for r in results])
+    uv = np.concatenate([r.uv for r in results])
+    ok = stamp >= 0
+    true_uv, valid = truth.true_pixels(scan[ok], step[ok], stamp[ok])
+    return np.linalg.norm(uv[ok][valid] - true_uv[valid], axis=1)
+
+
+def test_world_frame_with_odometry_is_right_to_the_pixel(tmp_path: Path) -> None:
+    """The true calibration and the camera's true latency: what is left is the
+    pipeline's (re-timing, dead reckoning, motion compensation, JPEG, float32)."""
+    truth = write_drive_log(tmp_path, 3.0, pattern_at=12.0, configured_camera_latency_s=None,
+                            vibration_rad=0.0)  # fmt: skip
+    calib = truth.calibration
+    errors = {}
+    for name, options in (
+        ("nearest", Options()),
+        ("still", Options(motion_compensation=False)),
+        ("best", Options(view="best")),
+    ):
+        results: list = []
+        report = run(truth.files, calib, tmp_path / f"{name}.ply", options=options,
+                     results=results, want_uv=True, preview=None)  # fmt: skip
+        assert report.frame == "world" and "odometry" in report.trajectory
+        e = _pixel_errors(truth, results)
+        errors[name] = (float(np.sqrt(np.mean(e**2))), float(np.mean(e < 1.0)), e.size)
+        if name == "best":
+            assert report.hidden > 0
+    print(errors)
+    assert errors["nearest"][0] < 0.5 and errors["nearest"][1] > 0.97
+    assert errors["still"][0] > 3 * errors["nearest"][0]  # 20 km/h: motion matters
+    assert errors["best"][0] < 0.8
+
+
+def test_best_view_needs_a_trajectory(tmp_path: Path) -> None:
+    truth = write_drive_log(tmp_path, 0.5, odometry_hz=0.0)
+    with pytest.raises(ValueError, match="trajectory"):
+        run(truth.files, truth.calibration, tmp_path / "c.ply", frame="laser",
+            options=Options(view="best"), preview=None)  # fmt: skip

@@ -48,7 +48,7 @@ import numpy as np
 import numpy.typing as npt
 
 from acq import gpstime
-from acq.transforms import Rigid
+from acq.transforms import Rigid, euler_from_matrices, matrices_from_euler
 
 if TYPE_CHECKING:
     import pyproj
@@ -140,35 +140,6 @@ def matrix_from_quat(q: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndar
     R[..., 2, 1] = yz + wx
     R[..., 2, 2] = 1 - xx - yy
     return R
-
-
-def matrices_from_euler(
-    roll: npt.ArrayLike, pitch: npt.ArrayLike, yaw: npt.ArrayLike
-) -> np.ndarray:
-    """(N,3,3) ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (rad): the convention of
-    :func:`acq.transforms.rotation_from_euler`, for arrays."""
-    r, p, y = np.broadcast_arrays(
-        *(np.asarray(a, dtype=np.float64).reshape(-1) for a in (roll, pitch, yaw))
-    )
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    R = np.empty((r.size, 3, 3))
-    R[:, 0, 0] = cy * cp
-    R[:, 0, 1] = cy * sp * sr - sy * cr
-    R[:, 0, 2] = cy * sp * cr + sy * sr
-    R[:, 1, 0] = sy * cp
-    R[:, 1, 1] = sy * sp * sr + cy * cr
-    R[:, 1, 2] = sy * sp * cr - cy * sr
-    R[:, 2, 0] = -sp
-    R[:, 2, 1] = cp * sr
-    R[:, 2, 2] = cp * cr
-    return R
-
-
-def euler_from_matrices(R: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N,3,3) -> (roll, pitch, yaw) rad arrays, as :func:`acq.transforms.rotation_to_euler`."""
-    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
-    pitch = np.arcsin(np.clip(-R[:, 2, 0], -1.0, 1.0))
-    return np.arctan2(R[:, 2, 1], R[:, 2, 2]), pitch, np.arctan2(R[:, 1, 0], R[:, 0, 0])
 
 
 def _rot_z(yaw: np.ndarray) -> np.ndarray:

@@ -7,7 +7,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Rigid", "rotation_from_euler", "rotation_to_euler"]
+__all__ = [
+    "Rigid",
+    "euler_from_matrices",
+    "matrices_from_euler",
+    "rotation_from_euler",
+    "rotation_to_euler",
+]
 
 
 @dataclass(frozen=True)
@@ -86,3 +92,32 @@ def rotation_to_euler(R: npt.ArrayLike) -> tuple[float, float, float]:
     roll = float(np.arctan2(R[2, 1], R[2, 2]))
     yaw = float(np.arctan2(R[1, 0], R[0, 0]))
     return roll, pitch, yaw
+
+
+def matrices_from_euler(
+    roll: npt.ArrayLike, pitch: npt.ArrayLike, yaw: npt.ArrayLike
+) -> np.ndarray:
+    """(N,3,3) ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (rad): the convention of
+    :func:`acq.transforms.rotation_from_euler`, for arrays."""
+    r, p, y = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64).reshape(-1) for a in (roll, pitch, yaw))
+    )
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    R = np.empty((r.size, 3, 3))
+    R[:, 0, 0] = cy * cp
+    R[:, 0, 1] = cy * sp * sr - sy * cr
+    R[:, 0, 2] = cy * sp * cr + sy * sr
+    R[:, 1, 0] = sy * cp
+    R[:, 1, 1] = sy * sp * sr + cy * cr
+    R[:, 1, 2] = sy * sp * cr - cy * sr
+    R[:, 2, 0] = -sp
+    R[:, 2, 1] = cp * sr
+    R[:, 2, 2] = cp * cr
+    return R
+
+
+def euler_from_matrices(R: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N,3,3) -> (roll, pitch, yaw) rad arrays, as :func:`acq.transforms.rotation_to_euler`."""
+    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    pitch = np.arcsin(np.clip(-R[:, 2, 0], -1.0, 1.0))
+    return np.arctan2(R[:, 2, 1], R[:, 2, 2]), pitch, np.arctan2(R[:, 1, 0], R[:, 0, 0])

@@ -22,7 +22,7 @@ from enum import IntEnum
 import numpy as np
 
 from acq.camera_models import KannalaBrandt
-from acq.transforms import Rigid, rotation_from_euler
+from acq.transforms import Rigid, matrices_from_euler, rotation_from_euler
 
 __all__ = [
     "N_PARAMS",
@@ -495,20 +495,7 @@ class Trajectory:
             pitch = self.vibration_rad * np.sin(2 * math.pi * vib[1, 0] * ts + vib[1, 1])
         else:
             roll = pitch = np.zeros_like(ts)
-        cr, sr = np.cos(roll), np.sin(roll)
-        cp, sp = np.cos(pitch), np.sin(pitch)
-        cy, sy = np.cos(yaw), np.sin(yaw)
-        # Rz(yaw) @ Ry(pitch) @ Rx(roll), as acq.transforms.rotation_from_euler
-        R = np.empty((ts.size, 3, 3))
-        R[:, 0, 0] = cy * cp
-        R[:, 0, 1] = cy * sp * sr - sy * cr
-        R[:, 0, 2] = cy * sp * cr + sy * sr
-        R[:, 1, 0] = sy * cp
-        R[:, 1, 1] = sy * sp * sr + cy * cr
-        R[:, 1, 2] = sy * sp * cr - cy * sr
-        R[:, 2, 0] = -sp
-        R[:, 2, 1] = cp * sr
-        R[:, 2, 2] = cp * cr
+        R = matrices_from_euler(roll, pitch, yaw)
         t = np.stack([x, y, np.zeros_like(x)], axis=1)
         return R, t
 

@@ -177,11 +177,10 @@ def colour_chunk(job: Job, chunk: Chunk, whole: cloud.DriveLog | None = None) ->
     # the laser's position at each core scan's point 0
     core_scans = np.flatnonzero(core_scan)
     origin = np.zeros((core_scans.size, 3))
-    if pose_at is not None and core_scans.size:
+    if pose_at is not None and core_scans.size:  # scans with a pose only: the track
         ok = job.trajectory.covers(scan_ns[core_scans])
         Rs, ts = pose_at(scan_ns[core_scans][ok])
-        origin[~ok] = np.nan
-        origin[ok] = np.einsum("nij,j->ni", Rs, l2v.translation) + ts
+        origin = np.einsum("nij,j->ni", Rs, l2v.translation) + ts
     if not job.frame_world:
         origin = np.zeros((core_scans.size, 3))
     # scan indices global to the session: the chunk's scans come after the earlier ones

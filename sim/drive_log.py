@@ -124,6 +124,7 @@ def write_drive_log(
     camera_jitter_s: float = 0.003,
     configured_camera_latency_s: float | None = 0.025,
     odometry_hz: float = 50.0,
+    odometry_span_s: tuple[float, float] | None = None,
     jpeg_quality: int = 90,
     start_ns: int = 2_000_000_000_000,
     rig: Rig | None = None,
@@ -131,7 +132,8 @@ def write_drive_log(
     """Write the drive (module docstring) into ``directory``; returns the truth.
 
     ``configured_camera_latency_s`` is what the recording's camera driver subtracts
-    (None: the true mean, ``camera_latency_s`` + half the exposure + the jitter's mean).
+    (None: the true mean, ``camera_latency_s`` + half the exposure + the jitter's mean);
+    ``odometry_span_s`` (start, end) s limits the odometry (default: the whole drive).
     """
     rig = rig or default_rig()
     rng = np.random.default_rng(seed)
@@ -237,7 +239,8 @@ def write_drive_log(
         ]
     # --- odometry (true speed and yaw rate, by central differences of the trajectory)
     if odometry_hz > 0 and odometry is not None and "acq.Odometry" in schemas.SCHEMAS:
-        ts = np.arange(0.0, seconds + 0.2, 1.0 / odometry_hz)
+        first, last = odometry_span_s or (0.0, seconds + 0.2)
+        ts = np.arange(first, last, 1.0 / odometry_hz)
         h = 1e-3
         _, pa = traj.poses(ts - h)
         _, pb = traj.poses(ts + h)

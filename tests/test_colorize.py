@@ -166,6 +166,18 @@ def test_world_frame_with_odometry_is_right_to_the_pixel(tmp_path: Path) -> None
     assert errors["best"][0] < 0.8
 
 
+def test_points_outside_the_trajectory_are_left_out_not_fatal(tmp_path: Path) -> None:
+    """Odometry that starts late and stops early (a CAN reader stopped before the last
+    scan): those points have no pose; the rest is placed and the preview drawn."""
+    truth = write_drive_log(tmp_path, 2.0, odometry_span_s=(0.4, 1.5))
+    out = tmp_path / "c.ply"
+    report = run(truth.files, truth.calibration, out, preview=tmp_path / "p.png")
+    assert report.frame == "world" and (tmp_path / "p.png").stat().st_size > 0
+    assert any("outside the trajectory" in n for n in report.notes)
+    n_valid = int(np.isfinite(cloud.read_log(truth.files).ranges).sum())
+    assert 0.4 * n_valid < report.points < 0.7 * n_valid
+
+
 def test_best_view_needs_a_trajectory(tmp_path: Path) -> None:
     truth = write_drive_log(tmp_path, 0.5, odometry_hz=0.0)
     with pytest.raises(ValueError, match="trajectory"):

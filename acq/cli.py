@@ -226,13 +226,14 @@ def build_parser() -> argparse.ArgumentParser:
         "demo",
         help="record the simulated rig and colour its cloud, end to end",
         description="Start the simulated rig (a UTM-30LX speaking SCIP on a pseudo-terminal, "
-        "a 185-degree fisheye serving MJPEG over HTTP, both on the synthetic street), record "
-        "it through the real drivers and recorder for --seconds, then colour every laser "
-        "point with the fisheye frame nearest in time, using the rig's calibration. Writes "
-        "DIR/demo.mcap, DIR/cloud.ply (x y z, colour, UTC time, scan, intensity), "
-        "DIR/preview.png (the coloured facade and a top view), calib.yaml and config.yaml, "
-        "and prints a summary checked against the simulator's truth. The vehicle's path is "
-        "the simulator's (odometry comes with the CAN driver).",
+        "a 185-degree fisheye serving MJPEG over HTTP and the car's CAN odometry, all on the "
+        "synthetic street), record it through the real drivers and recorder for --seconds, "
+        "then colour every laser point with the fisheye frame nearest in time, using the "
+        "rig's calibration and the simulator's path. Writes DIR/demo.mcap, DIR/cloud.ply "
+        "(x y z, colour, UTC time, scan, intensity), DIR/preview.png (the coloured facade "
+        "and a top view), calib.yaml and config.yaml, and prints a summary checked against "
+        "the simulator's truth. `acq colorize DIR/demo.mcap --calib DIR/calib.yaml -o "
+        "OUT.ply` colours the same log from its recorded odometry.",
     )
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     demo.add_argument("--seconds", type=float, default=10.0, help="how long to record (default 10)")

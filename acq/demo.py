@@ -1,23 +1,28 @@
 """`acq demo`: the simulated rig, recorded through the real recorder, coloured into a cloud.
 
 The rig: a simulated Hokuyo UTM-30LX (SCIP 2.0 on a pseudo-terminal, its own drifting
-millisecond clock) and the simulated 185-degree fisheye (MJPEG over HTTP, in its own
-process so its JPEG encoding does not take the recorder's GIL), both driving down the
-synthetic street from one shared instant ``t_origin``. The real recorder (drivers, clock
-sync, MCAP writer) records them for ``seconds`` into ``DIR/demo.mcap``; the log is then
-coloured with the rig's true calibration (``DIR/calib.yaml``) into ``DIR/cloud.ply``
-and pictured in ``DIR/preview.png``.
+millisecond clock), the simulated 185-degree fisheye (MJPEG over HTTP, in its own
+process so its JPEG encoding does not take the recorder's GIL) and the simulated car
+(:mod:`sim.can_vehicle`: wheel speeds and yaw rate as CAN frames of ``sim/vehicle.dbc``
+on a python-can ``virtual`` bus, which reaches the recorder because both run in this
+process), all driving down the synthetic street from one shared instant ``t_origin``.
+The real recorder (drivers, clock sync, CAN odometry, MCAP writer) records them for
+``seconds`` into ``DIR/demo.mcap``, with ``/vehicle/odometry`` and ``/vehicle/can``;
+the log is then coloured with the rig's true calibration (``DIR/calib.yaml``) into
+``DIR/cloud.ply`` and pictured in ``DIR/preview.png``.
 
-There is no odometry yet (CAN odometry comes with its own issue): the simulator's
-trajectory stands in for it, evaluated at the host times of the points, modulo the
-street's loop. Because the demo owns the simulator, the summary also checks the chain
-against the simulator's truth: the scan and frame stamps, and each coloured point's
-colour against the true colour of the surface the laser hit.
+The demo's own colouring places the points with the simulator's trajectory, evaluated
+at the host times of the points, modulo the street's loop: because the demo owns the
+simulator, the summary checks the chain against the truth (the scan and frame stamps,
+the recorded odometry, and each coloured point's colour against the true colour of the
+surface the laser hit). ``acq colorize DIR/demo.mcap --calib DIR/calib.yaml`` colours
+the same log from the recorded CAN odometry instead (dead reckoning), as on a real drive.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import sys
 import tempfile
@@ -52,6 +57,8 @@ CAMERA_SIM: dict[str, Any] = {
 SCANNER_MODEL = "utm-30lx"
 SCANNER_DRIFT_PPM = 30.0  # the simulated scanner's clock runs fast by this much
 COLOUR_TOLERANCE = 24  # max |channel difference| for "the same colour as the truth"
+STOP_AHEAD_S = 0.005  # the recorder is stopped this long before a scan is due (see _record)
+CAN_INTERFACE = "virtual"  # python-can's in-process bus: the car and the recorder share it
 MAX_SECONDS = 170.0  # the simulated drive loops over its 1 km street every 180 s
 
 
@@ -90,11 +97,13 @@ class _Clock:
 
 
 class _SimRig:
-    """The simulated scanner (in process, on a pty) and camera (own process) sharing
-    ``t_origin`` (host monotonic s): the same place on the street at the same time."""
+    """The simulated scanner (in process, on a pty), camera (own process) and car (in
+    process, on a python-can ``virtual`` bus named ``can_channel``) sharing ``t_origin``
+    (host monotonic s): the same place on the street at the same time."""
 
     def __init__(self, t_origin: float) -> None:
         from sim.camera_device import MjpegServerProcess
+        from sim.can_vehicle import SimVehicle
         from sim.device_clock import SimClock
         from sim.scan_source import StreetSource
         from sim.scanner_models import MODELS
@@ -104,6 +113,9 @@ class _SimRig:
         self.t_origin = t_origin
         self.camera: Any = None
         self.server: Any = None
+        self.car: Any = None
+        # a virtual bus is one process's: a name of its own (two demos, the test suite)
+        self.can_channel = f"acq-demo-{os.getpid()}-{time.monotonic_ns()}"
         self._tmp: str | None = None  # holds the pty's link
         model = MODELS[SCANNER_MODEL]
         # the camera process starts (and loads its renderer) while the scanner is built
@@ -130,6 +142,14 @@ class _SimRig:
                 self._tmp = tempfile.mkdtemp(prefix="acq-demo-")
                 link = Path(self._tmp) / "ttyACM-sim"
                 self.server = PtyDeviceServer(self.scanner, link=link).start()
+                # the car: the scanner's trajectory, looping with the street
+                self.car = SimVehicle(
+                    CAN_INTERFACE,
+                    self.can_channel,
+                    trajectory=self.source.trajectory,
+                    t_origin=t_origin,
+                    loop_s=self.loop_s,
+                ).start()
             finally:
                 thread.join()
                 self.camera = started.get("camera")
@@ -151,6 +171,9 @@ class _SimRig:
         return self.source.trajectory.poses(t)
 
     def close(self) -> None:
+        if self.car is not None:
+            self.car.close()
+            self.car = None
         if self.server is not None:
             self.server.close()
             self.server = None
@@ -174,7 +197,11 @@ def _calibration() -> Calibration:
     )
 
 
-def _config(scanner_url: str, camera_url: str, calib: Path, seconds: float) -> dict[str, Any]:
+def _config(
+    scanner_url: str, camera_url: str, can_channel: str, calib: Path, seconds: float
+) -> dict[str, Any]:
+    from sim.can_vehicle import DBC_PATH
+
     return {
         "version": 1,
         "scanners": [
@@ -195,6 +222,11 @@ def _config(scanner_url: str, camera_url: str, calib: Path, seconds: float) -> d
                 "latency_s": round(camera_latency_s(), 6),
             }
         ],
+        "can": {  # the signals are the config's defaults, those of sim/vehicle.dbc
+            "interface": CAN_INTERFACE,
+            "channel": can_channel,
+            "dbc": str(DBC_PATH.resolve()),
+        },
         "calibration": str(calib),
         "output": {
             "dir": ".recording",
@@ -206,15 +238,28 @@ def _config(scanner_url: str, camera_url: str, calib: Path, seconds: float) -> d
     }
 
 
-def _record(recorder: Recorder, seconds: float, clock: _Clock) -> int:
-    """Run the recorder in a thread, printing progress; its exit code."""
+def _record(recorder: Recorder, rig: _SimRig, seconds: float, clock: _Clock) -> int:
+    """Run the recorder in a thread for ``seconds``, printing progress; its exit code.
+
+    The demo stops the recorder itself (it runs without a duration), between two scans:
+    a reader finishes the record it is receiving when told to stop, the scanner's up to
+    a scan period later, the car's within one CAN frame. Stopped just before a scan is
+    due, the last scan recorded began ~14 ms before the stop, when the odometry still
+    runs: the car's odometry spans every recorded scan (`acq colorize` has no pose for
+    points outside it and leaves them out).
+    """
     codes: list[int] = []
     thread = threading.Thread(target=lambda: codes.append(recorder.run()), name="recorder")
     thread.start()
     try:
         next_say = time.monotonic() + 2.0
         while thread.is_alive():
-            thread.join(timeout=0.2)
+            started = recorder.started_ns
+            left = (started + seconds * 1e9 - time.monotonic_ns()) * 1e-9 if started else 0.2
+            if left <= 0:
+                _stop_before_a_scan(rig)
+                break
+            thread.join(timeout=min(0.2, left))
             if time.monotonic() >= next_say and thread.is_alive():
                 next_say += 2.0
                 d = recorder.devices
@@ -222,6 +267,7 @@ def _record(recorder: Recorder, seconds: float, clock: _Clock) -> int:
                 clock.say(
                     f"recording {min(elapsed, seconds):4.1f} s of {seconds:g}: "
                     f"{d['laser'].received} scans, {d['camera'].received} frames"
+                    + (f", {d['vehicle'].received} odometry" if "vehicle" in d else "")
                 )
     finally:
         recorder.stop()
@@ -229,9 +275,57 @@ def _record(recorder: Recorder, seconds: float, clock: _Clock) -> int:
     return codes[0] if codes else EXIT_FAILURE
 
 
+def _stop_before_a_scan(rig: _SimRig, ahead_s: float = STOP_AHEAD_S) -> None:
+    """Return when the simulated scanner's next scan is due within ``ahead_s`` (or is
+    late, or none is): the scan then read after the stop began >= 18.75 - ``ahead_s``
+    ms before it (its points take the first 3/4 of the 25 ms period, then it is sent)."""
+    while True:
+        now = time.monotonic()
+        due = rig.scanner.next_due(now)
+        if due is None or due - now <= ahead_s:
+            return
+        time.sleep(due - now - 0.6 * ahead_s)
+
+
 def _size(path: Path) -> str:
     n = path.stat().st_size
     return f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.0f} kB" if n >= 1e3 else f"{n} B"
+
+
+def _odometry_truth(rig: _SimRig, mcap_path: Path) -> list[str]:
+    """Summary lines comparing the recorded CAN odometry with the car's true motion at
+    the odometry's stamps, and its dead reckoning with the true path over the log."""
+    from acq import trajectory
+    from acq.vehicle_log import read_vehicle
+    from sim.can_vehicle import true_motion
+
+    odo = read_vehicle([mcap_path]).odometry
+    if len(odo) < 2:
+        return ["WARNING: no CAN odometry in the log: `acq colorize` cannot place its points"]
+    t = odo.t_ns * 1e-9
+    drive = rig.source.trajectory
+    t_drive = (t - rig.t_origin) % rig.loop_s
+    speed, yaw_rate = true_motion(drive, t_drive)
+    m, ym = odo.speed_measured, odo.yaw_rate_measured
+    span = float(t[-1] - t[0])
+    speed_err = np.abs(odo.speed[m] - speed[m]).max(initial=0.0)
+    yaw_err = math.degrees(np.abs(odo.yaw_rate[ym] - yaw_rate[ym]).max(initial=0.0))
+    lines = [
+        f"odometry {len(odo)} samples ({(len(odo) - 1) / span:.0f} Hz): speed "
+        f"{speed_err * 1e3:.1f} mm/s, yaw rate {yaw_err:.3f} deg/s max off the truth at "
+        "its stamps"
+    ]
+    # dead reckoning (as `acq colorize` does) against the truth, from the first sample
+    path = trajectory.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
+    _, end = path.pose_at(odo.t_ns[-1:])
+    R, p = drive.poses(t_drive[[0, -1]])
+    true_end = R[0].T @ (p[1] - p[0])  # in the frame of the first pose, as the odometry
+    err = float(np.linalg.norm(end[0] - true_end))
+    lines.append(
+        f"  dead reckoned over {span:.1f} s: {np.linalg.norm(end[0]):.2f} m, "
+        f"the end {100 * err:.1f} cm off the true path's"
+    )
+    return lines
 
 
 def _truth(
@@ -435,17 +529,21 @@ def _run(result: DemoResult, seconds: float) -> int:
         result.steps_s["start"] = clock.lap()
         clock.say(f"simulated {SCANNER_MODEL.upper()} on {rig.server.url} (SCIP over a pty)")
         clock.say(f"simulated fisheye at {rig.camera.url} (MJPEG over HTTP, own process)")
+        clock.say(
+            f"simulated car on CAN bus {CAN_INTERFACE}:{rig.can_channel} (wheel speeds and "
+            "yaw rate, sim/vehicle.dbc)"
+        )
         config_path = out / "config.yaml"
-        data = _config(rig.server.url, rig.camera.url, calib_path, seconds)
+        data = _config(rig.server.url, rig.camera.url, rig.can_channel, calib_path, seconds)
         config_path.write_text(
             "# the demo's configuration (the devices lived only while it ran)\n"
             + yaml.safe_dump(data, sort_keys=False),
             encoding="utf-8",
         )
         config = configfile.load(config_path)
-        recorder = Recorder(config, out_dir=rec_dir, duration_s=seconds, notifier=Notifier({}))
+        recorder = Recorder(config, out_dir=rec_dir, notifier=Notifier({}))  # stopped by _record
         clock.say(f"recording {seconds:g} s through the recorder")
-        code = _record(recorder, seconds, clock)
+        code = _record(recorder, rig, seconds, clock)
         truth_frames = rig.camera.truth()
     finally:
         rig.close()
@@ -476,6 +574,7 @@ def _run(result: DemoResult, seconds: float) -> int:
 
     info = loginfo.info(mcap_path)
     truth_lines, result.colour_agreement = _truth(rig, log, pc, truth_frames)
+    truth_lines += _odometry_truth(rig, mcap_path)
     result.steps_s["check"] = clock.lap()
     result.steps_s["total"] = time.monotonic() - clock.t0
     result.files = {

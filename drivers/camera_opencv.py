@@ -14,7 +14,7 @@ Time: on V4L2, ``CAP_PROP_POS_MSEC`` is the kernel's buffer timestamp on the mon
 clock (``time_source="kernel"``); elsewhere the host time at which the frame's last byte
 arrived (``time_source="receipt"``). Either way ``latency_s`` (the nominal delay from
 the middle of the exposure to that instant) is subtracted, so ``stamp_ns`` is the middle
-of the exposure. Sequence numbers are the driver's own: a gap of more than 1.5 frame
+of the exposure. Sequence numbers are the driver's own: a gap of more than 1.75 frame
 periods since the previous frame advances them by the frames that may have been lost,
 which are counted in ``drops`` unless the next frames arrive bunched up (they were late,
 not lost: ``drops`` is then taken back).
@@ -114,7 +114,9 @@ class OpenCVCamera(Camera):
         missing = 0
         if self._last_ns is not None and period > 0:
             gap = (recv_ns - self._last_ns) / period
-            if gap > 1.5:
+            # a lost frame leaves a gap of two periods, give or take the jitter; a frame
+            # merely late (the sender or this host busy) rarely by as much as 3/4 period
+            if gap > 1.75:
                 missing = max(0, round(gap) - count)
             elif gap < 0.5 and self._suspect > 0:
                 # frames arriving in a bunch after a long gap were late, not lost: a

@@ -23,13 +23,10 @@ are metres in the frame ``pose_at`` maps to (``world``); colours RGB uint8.
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 import os
-from collections import deque
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,7 +35,7 @@ import cv2
 import numpy as np
 import yaml
 
-from acq import calibfile, loginfo, projection, sync
+from acq import calibfile, loginfo, projection, sync, views
 from acq.calibfile import Calibration
 from acq.transforms import Rigid
 
@@ -385,25 +382,6 @@ def _inverse_transform(R: np.ndarray, t: np.ndarray, P: np.ndarray) -> np.ndarra
     return np.einsum("nji,nj->ni", R, P - t)
 
 
-def _decode(jpeg: bytes) -> np.ndarray | None:
-    image = cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
-    return image if image is not None and image.ndim == 3 else None
-
-
-def _decoded(pool: ThreadPoolExecutor, jpegs: Iterable[bytes], ahead: int = 8) -> Iterator[Any]:
-    """The decoded images of ``jpegs`` in order, at most ``ahead`` decoded in advance."""
-    pending: deque[Future[np.ndarray | None]] = deque()
-    source = iter(jpegs)
-    for jpeg in itertools.islice(source, ahead):
-        pending.append(pool.submit(_decode, jpeg))
-    while pending:
-        done = pending.popleft()
-        more = next(source, None)
-        if more is not None:
-            pending.append(pool.submit(_decode, more))
-        yield done.result()
-
-
 def colorize(
     log: DriveLog,
     calib: Calibration,
@@ -462,17 +440,16 @@ def colorize(
         P_lf = l2v.inverse().apply(_inverse_transform(Rf[k], tf[k], xyz[order]))
         bgr = np.zeros((order.size, 3), dtype=np.uint8)
         seen = np.zeros(order.size, dtype=bool)
-        with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
-            images = _decoded(pool, (log.jpegs[j] for j in used))
-            for lo, count, image in zip(first, counts, images, strict=True):
-                if image is None:
-                    frames_failed += 1
-                    continue
-                frames_used += 1
-                hi = lo + count
-                bgr[lo:hi], seen[lo:hi] = projection.colorize(
-                    P_lf[lo:hi], cam.model, cam.camera_to_laser, image, bilinear=bilinear
-                )
+        images = views.decoded_frames(log.jpegs, used, threads)
+        for lo, count, image in zip(first, counts, images, strict=True):
+            if image is None:
+                frames_failed += 1
+                continue
+            frames_used += 1
+            hi = lo + count
+            bgr[lo:hi], seen[lo:hi] = projection.colorize(
+                P_lf[lo:hi], cam.model, cam.camera_to_laser, image, bilinear=bilinear
+            )
         hit = order[seen]
         rgb[hit] = bgr[seen][:, ::-1]
         coloured[hit] = True

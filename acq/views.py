@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import itertools
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -41,6 +41,8 @@ __all__ = [
     "Options",
     "PoseFn",
     "colour_points",
+    "decode_jpeg",
+    "decoded_frames",
     "occlusion_depths",
     "point_size",
 ]
@@ -123,22 +125,25 @@ def occlusion_depths(
     return np.asarray(_splat(cu, cv_, depth.astype(np.float32), r.astype(np.int64), w, h))
 
 
-def _decode(jpeg: bytes) -> np.ndarray | None:
+def decode_jpeg(jpeg: bytes) -> np.ndarray | None:
+    """A colour JPEG as an (H,W,3) BGR uint8 image, or None when it does not decode."""
     image = cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
     return image if image is not None and image.ndim == 3 else None
 
 
-def _decoded(jpegs: list[bytes], order: np.ndarray, threads: int) -> Iterator[np.ndarray | None]:
+def decoded_frames(
+    jpegs: Sequence[bytes], order: np.ndarray, threads: int
+) -> Iterator[np.ndarray | None]:
     """The frames ``order`` decoded, in order, at most ``2 * threads`` ahead."""
     with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
         pending: deque[Future[np.ndarray | None]] = deque()
         todo = iter(order.tolist())
         for j in itertools.islice(todo, 2 * max(1, threads)):
-            pending.append(pool.submit(_decode, jpegs[j]))
+            pending.append(pool.submit(decode_jpeg, jpegs[j]))
         while pending:
             done = pending.popleft()
             for j in itertools.islice(todo, 1):
-                pending.append(pool.submit(_decode, jpegs[j]))
+                pending.append(pool.submit(decode_jpeg, jpegs[j]))
             yield done.result()
 
 
@@ -221,7 +226,7 @@ def colour_points(
     used, first, counts = np.unique(frame[order], return_index=True, return_counts=True)
     used_n = failed = 0
     for j, lo, count, image in zip(
-        used, first, counts, _decoded(jpegs, used, threads), strict=True
+        used, first, counts, decoded_frames(jpegs, used, threads), strict=True
     ):
         if image is None:
             failed += 1

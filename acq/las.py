@@ -67,12 +67,19 @@ def write_las(
     a["red"], a["green"], a["blue"] = rgb16[:, 0], rgb16[:, 1], rgb16[:, 2]
     a["intensity"] = np.clip(np.nan_to_num(intensity), 0, 65535).astype(np.uint16)
     a["gps_time"] = gps_adjusted_standard_time(utc_s)
+    # one return per pulse (a 2D scanner's first echo): valid per the specification,
+    # whose return numbers start at 1
+    a["bit_fields"] = 0b0001_0001  # return number 1 of 1
     a["user_data"] = coloured.astype(np.uint8)
     a["scan_index"] = scan.astype(np.uint32)
     a["coloured"] = coloured.astype(np.uint8)
     las = laspy.LasData(header, points=record)
+    # the header's extent and counts from the data we have (laspy's update_header
+    # reduces every column again and sorts the returns)
+    header.point_count = n
+    header.number_of_points_by_return = np.array([n] + [0] * 14)
     if n:
-        las.update_header()
+        header.mins, header.maxs = xyz.min(axis=0), xyz.max(axis=0)
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     las.write(str(tmp), do_compress=False)

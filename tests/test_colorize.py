@@ -61,6 +61,9 @@ def test_ply_and_las_carry_every_point_with_its_time(
     np.testing.assert_allclose(pc.gps_time, gps, atol=1e-6)
     assert np.array_equal(np.asarray(pc.coloured), v["coloured"])
     assert np.array_equal(np.asarray(pc.red) // 257, v["red"])
+    assert np.all(np.asarray(pc.return_number) == 1) and pc.header.point_count == len(v)
+    np.testing.assert_allclose(pc.header.mins, [v["x"].min(), v["y"].min(), v["z"].min()],
+                               atol=1e-3)  # fmt: skip
 
 
 def test_offline_retiming_brings_stamps_to_the_truth(

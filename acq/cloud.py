@@ -27,7 +27,7 @@ import json
 import math
 import os
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -105,8 +105,6 @@ class DriveLog:
 
     def between(self, lo_ns: int, hi_ns: int) -> DriveLog:
         """The scans and frames stamped in [lo_ns, hi_ns) (recorded stamps)."""
-        from dataclasses import replace
-
         s = (self.scan_ns >= lo_ns) & (self.scan_ns < hi_ns)
         f = np.flatnonzero((self.frame_ns >= lo_ns) & (self.frame_ns < hi_ns))
 

@@ -174,15 +174,13 @@ def colour_chunk(job: Job, chunk: Chunk, whole: cloud.DriveLog | None = None) ->
     t_colour = time.perf_counter()
     core = core_scan[scan_idx] & (inside if job.frame_world else True)
     xyz = P_world if job.frame_world else P_laser
-    # the laser's position at each core scan's point 0
+    # the laser's position at each core scan's point 0 (the track; scans with a pose)
     core_scans = np.flatnonzero(core_scan)
     origin = np.zeros((core_scans.size, 3))
-    if pose_at is not None and core_scans.size:  # scans with a pose only: the track
+    if job.frame_world and core_scans.size:
         ok = job.trajectory.covers(scan_ns[core_scans])
-        Rs, ts = pose_at(scan_ns[core_scans][ok])
+        Rs, ts = job.trajectory.pose_at(scan_ns[core_scans][ok])
         origin = np.einsum("nij,j->ni", Rs, l2v.translation) + ts
-    if not job.frame_world:
-        origin = np.zeros((core_scans.size, 3))
     # scan indices global to the session: the chunk's scans come after the earlier ones
     first_scan = int(np.searchsorted(job.scan_new, chunk.start_ns)) if job.scan_new.size else 0
     local = np.cumsum(core_scan) - 1

@@ -7,6 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 
 from acq import config as configfile
 from sim.camera_device import MjpegServerProcess
@@ -65,3 +67,15 @@ class Rig:
     def close(self) -> None:
         self.scanner_server.close()
         self.camera.close()
+
+
+def read_log(path: Path) -> dict[str, list[tuple[int, int, object]]]:
+    """topic -> [(log_time, publish_time, decoded message)] with the seeking reader."""
+    out: dict[str, list[tuple[int, int, object]]] = {}
+    with path.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _schema, channel, message, decoded in reader.iter_decoded_messages():
+            out.setdefault(channel.topic, []).append(
+                (message.log_time, message.publish_time, decoded)
+            )
+    return out

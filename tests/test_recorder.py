@@ -15,10 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from mcap_protobuf.decoder import DecoderFactory
 
 from acq.recorder import EXIT_DISK_FULL, Recorder
-from tests.sim_rig import Rig
+from tests.sim_rig import Rig, read_log
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,18 +29,6 @@ def rig() -> Iterator[Rig]:
         yield r.warm_up()
     finally:
         r.close()
-
-
-def read_log(path: Path) -> dict[str, list[tuple[int, int, object]]]:
-    """topic -> [(log_time, publish_time, decoded message)] with the seeking reader."""
-    out: dict[str, list[tuple[int, int, object]]] = {}
-    with path.open("rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _schema, channel, message, decoded in reader.iter_decoded_messages():
-            out.setdefault(channel.topic, []).append(
-                (message.log_time, message.publish_time, decoded)
-            )
-    return out
 
 
 def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:

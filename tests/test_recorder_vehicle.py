@@ -15,8 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from mcap.reader import make_reader
-from mcap_protobuf.decoder import DecoderFactory
 
 from acq import config as configfile
 from acq import loginfo, replay
@@ -28,6 +26,7 @@ from sim.scanner_models import MODELS
 from sim.scip_device import ScipDevice
 from sim.transport import TcpDeviceServer
 from sim.world import Trajectory
+from tests.sim_rig import read_log
 
 CURVY = Trajectory(curve_amplitude=2.0, curve_wavelength=60.0)
 SECONDS = 4.0
@@ -78,18 +77,6 @@ def rig() -> Iterator[VehicleRig]:
         yield r
     finally:
         r.close()
-
-
-def read_log(path: Path) -> dict[str, list[tuple[int, int, object]]]:
-    """topic -> [(log_time, publish_time, decoded message)]."""
-    out: dict[str, list[tuple[int, int, object]]] = {}
-    with path.open("rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _schema, channel, message, decoded in reader.iter_decoded_messages():
-            out.setdefault(channel.topic, []).append(
-                (message.log_time, message.publish_time, decoded)
-            )
-    return out
 
 
 def stamp(msg: object) -> int:

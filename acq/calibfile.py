@@ -14,9 +14,11 @@ valid::
       rotation_deg: [0.05, 0.04, 0.06]        # small rotations about the LASER x, y, z
                                               # axes (R = exp([w]x) R_hat), degrees
       translation_m: [0.002, 0.003, 0.002]    # of camera_to_laser's translation, m
+      time_offset_s: 0.0002                   # of time_offset_s, s
 
 ``acq calibrate fisheye --board`` writes fx, fy, cx, cy and k, ``acq calibrate
-extrinsic`` rotation_deg and translation_m; each keeps the other's part.
+extrinsic`` rotation_deg and translation_m, ``acq calibrate time-offset``
+time_offset_s; each keeps the others' part.
 
 Every problem is reported as a :class:`CalibFileError` naming the file and the key
 path, e.g. ``calib.yaml: cameras.camera.fxx: unknown key; did you mean fx?``.
@@ -66,7 +68,7 @@ _CAMERA_KEYS = {
     "std",
 }
 _RIGID_KEYS = {"rotation", "translation"}
-_STD_KEYS = {"fx", "fy", "cx", "cy", "k", "rotation_deg", "translation_m"}
+_STD_KEYS = {"fx", "fy", "cx", "cy", "k", "rotation_deg", "translation_m", "time_offset_s"}
 
 
 class CalibFileError(ValueError):
@@ -89,7 +91,8 @@ class CalibStd:
     fx, fy, cx, cy px; ``k`` as the model's k (4 for kannala_brandt, 5 for pinhole);
     ``rotation_deg`` (3,) degrees of small rotations about the LASER x, y, z axes,
     ``R = exp([w]x) R_hat`` (as :class:`acq.extrinsic.ExtrinsicResult`'s ``std``, not
-    Euler angles: the default rig is near their gimbal lock); ``translation_m`` (3,) m.
+    Euler angles: the default rig is near their gimbal lock); ``translation_m`` (3,) m;
+    ``time_offset_s`` s.
     """
 
     INTRINSICS: ClassVar[tuple[str, ...]] = ("fx", "fy", "cx", "cy", "k")
@@ -102,9 +105,10 @@ class CalibStd:
     k: tuple[float, ...] | None = None
     rotation_deg: tuple[float, ...] | None = None
     translation_m: tuple[float, ...] | None = None
+    time_offset_s: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("fx", "fy", "cx", "cy"):
+        for name in ("fx", "fy", "cx", "cy", "time_offset_s"):
             v = getattr(self, name)
             if v is not None:
                 object.__setattr__(self, name, _std_values([v], 1)[0])
@@ -296,7 +300,7 @@ class _Reader:
     def std(self, value: Any, path: str, model: str) -> CalibStd:
         d = self.mapping(value, path, _STD_KEYS, set())
         out: dict[str, Any] = {}
-        for key in ("fx", "fy", "cx", "cy"):
+        for key in ("fx", "fy", "cx", "cy", "time_offset_s"):
             if key in d:
                 out[key] = self.number(d[key], _join(path, key))
         if "k" in d:

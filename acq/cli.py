@@ -183,6 +183,21 @@ def _calibrate_extrinsic(args: argparse.Namespace) -> int:
     )  # fmt: skip
 
 
+def _calibrate_time_offset(args: argparse.Namespace) -> int:
+    from acq.time_offset import main_time_offset
+
+    return main_time_offset(args)
+
+
+def _time_offset_arg(text: str) -> float | str:
+    if text == "auto":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds or 'auto', got {text!r}") from None
+
+
 def _calibrate_validate(args: argparse.Namespace) -> int:
     from acq.validate import main_validate
 
@@ -467,9 +482,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="farthest frame from a point's time, seconds (default 0.1)",
     )  # fmt: skip
     col.add_argument(
-        "--time-offset", type=float, metavar="S",
+        "--time-offset", type=_time_offset_arg, metavar="S|auto",
         help="camera time minus laser time, seconds (default: CALIB's time_offset_s): what "
-        "the camera's configured latency got wrong; at 20 km/h 10 ms move colours 5.6 cm",
+        "the camera's configured latency got wrong; at 20 km/h 10 ms move colours 5.6 cm. "
+        "'auto': estimate it from this log first, as 'acq calibrate time-offset' does "
+        "(needs motion and the laser's return strengths; CALIB's value is kept when it "
+        "finds no clear peak)",
     )  # fmt: skip
     col.add_argument("--no-retime", action="store_true", help="use the stamps as recorded (online)")
     col.add_argument(
@@ -593,6 +611,51 @@ def build_parser() -> argparse.ArgumentParser:
         "assumption)",
     )  # fmt: skip
     ext.set_defaults(handler=_calibrate_extrinsic)
+
+    tof = cal_sub.add_parser(
+        "time-offset",
+        help="the camera's time offset from a drive (the latency its stamps got wrong)",
+        description="Estimate the camera's time offset (camera time minus laser time: what "
+        "the camera's configured latency got wrong) from a drive: every laser point goes "
+        "into the frame nearest its time, motion-compensated, as the rig stood at the "
+        "frame's candidate instant, and the offset that makes the image's grey levels there "
+        "most informative of the laser's return strengths (mutual information) wins. Needs "
+        "the rig moving (CAN odometry in the log or --trajectory), textured surfaces "
+        "(facades, road markings) and return strengths in the log (SCIP ME / CoLa RSSI1). "
+        "Writes OUT: a copy of CALIB with the camera's time_offset_s and its standard "
+        "deviation set. Exit status: 0 written, 1 no clear estimate (why is printed), 2 bad "
+        "input.",
+    )
+    tof.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files or a folder")
+    tof.add_argument(
+        "--calib", type=Path, required=True, help="calib.yaml (intrinsics, extrinsics)"
+    )
+    tof.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="OUT", help="calib.yaml to write"
+    )
+    tof.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    tof.add_argument(
+        "--trajectory", type=Path, metavar="CSV",
+        help="post-processed GNSS/INS trajectory (default: the log's CAN odometry)",
+    )  # fmt: skip
+    tof.add_argument(
+        "--start", type=float, metavar="S",
+        help="use the log from S seconds after its first scan (default: its middle part)",
+    )  # fmt: skip
+    tof.add_argument(
+        "--seconds", type=float, default=60.0, metavar="S",
+        help="how much of the log to use, seconds (default 60)",
+    )  # fmt: skip
+    tof.add_argument(
+        "--search", type=float, default=0.06, metavar="S",
+        help="search CALIB's offset +- S seconds (default 0.06)",
+    )  # fmt: skip
+    tof.add_argument(
+        "--frames", type=int, default=1500, metavar="N",
+        help="at most N frames, spread over the part used (default 1500)",
+    )  # fmt: skip
+    tof.add_argument("--json", action="store_true", help="JSON (with the curve) instead of text")
+    tof.set_defaults(handler=_calibrate_time_offset)
 
     val = cal_sub.add_parser(
         "validate",

@@ -38,6 +38,7 @@ import yaml
 from acq import calibfile, loginfo, projection, sync, views
 from acq.calibfile import Calibration
 from acq.transforms import Rigid
+from acq.vehicle_log import VehicleLog, VehicleReader
 
 __all__ = [
     "Cloud",
@@ -73,7 +74,8 @@ class DriveLog:
     ``frame_ns`` (F,) host ns of the middle of exposure, ``frame_seq`` (F,) the
     driver's sequence numbers (-1 where unknown; they restart on a reconnect), ``jpegs``
     the bytes as the camera sent them. ``clock`` (K,2) int64 pairs (monotonic ns,
-    realtime ns). ``metadata`` by name (the last record of each name).
+    realtime ns). ``metadata`` by name (the last record of each name). ``vehicle``: the
+    odometry and GNSS fixes (:class:`acq.vehicle_log.VehicleLog`) when read with them.
     """
 
     files: tuple[Path, ...]
@@ -94,6 +96,7 @@ class DriveLog:
     notes: list[str] = field(default_factory=list)  # what was missing and assumed
     scan_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     frame_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    vehicle: VehicleLog | None = None
 
     @property
     def n_scans(self) -> int:
@@ -165,12 +168,14 @@ def read_log(
     start_ns: int | None = None,
     end_ns: int | None = None,
     jpegs: bool = True,
+    vehicle: bool = False,
 ) -> DriveLog:
     """Scans, frames, clock pairs and metadata of a log (or of a session's files, in the
     order given). ``laser``/``camera`` name the devices where the log has several.
     ``start_ns``/``end_ns``: only messages received (MCAP log time) in that span (the
     clock pairs and metadata whatever their time); ``jpegs=False`` leaves the images'
-    bytes out (their stamps stay).
+    bytes out (their stamps stay); ``vehicle``: also the odometry and GNSS fixes, in
+    the same pass (whatever their time), as :func:`acq.vehicle_log.read_vehicle`.
 
     Files whose writer was killed are read up to their last good record
     (:func:`acq.loginfo.read_messages`); undecodable messages are skipped (noted).
@@ -192,12 +197,22 @@ def read_log(
     hi = 2**63 - 1 if end_ns is None else end_ns
     clock: list[tuple[int, int]] = []
     bad = 0
+    vehicle_reader = VehicleReader() if vehicle else None
+    vehicle_topics = VehicleReader.TOPICS if vehicle else ()
     for path in files:
         metadata.update(loginfo.read_metadata(path))
         factory = DecoderFactory()
         decoders: dict[int, Any] = {}
         for schema, channel, message in loginfo.read_messages(path):
             topic = channel.topic
+            if topic in vehicle_topics and vehicle_reader is not None:
+                try:
+                    if channel.id not in decoders:
+                        decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
+                    vehicle_reader.add(topic, decoders[channel.id](message.data))
+                except Exception:  # a garbled payload or schema: that message is lost
+                    vehicle_reader.bad += 1
+                continue
             wanted = topic.endswith(("/scan", "/image/compressed")) or topic.startswith(
                 ("/acq/clock", "/acq/timing/")
             )
@@ -240,7 +255,7 @@ def read_log(
     laser = _pick(scans, laser, "laser scanner", "/scan")
     camera = "" if camera is None and not frames else _pick(frames, camera, "camera", "/image")
     notes = [f"{bad} undecodable messages skipped"] if bad else []
-    return _assemble(
+    log = _assemble(
         files,
         laser,
         camera,
@@ -251,6 +266,9 @@ def read_log(
         metadata,
         notes,
     )
+    if vehicle_reader is not None:
+        log = replace(log, vehicle=vehicle_reader.result(files))
+    return log
 
 
 def _assemble(

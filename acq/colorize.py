@@ -39,6 +39,7 @@ import numpy as np
 from acq import calibfile, cloud, retime, views
 from acq.calibfile import Calibration, CameraCalib
 from acq.loginfo import LogError
+from acq.time_offset import OffsetEstimate, estimate_time_offset
 from acq.transforms import Rigid
 
 __all__ = ["Chunk", "ChunkResult", "Job", "colour_chunk", "main_colorize", "plan", "run"]
@@ -97,9 +98,10 @@ class ChunkResult:
     scan_origin: np.ndarray
     frame_stamp_ns: np.ndarray | None = None  # the recorded stamp of the frame used, -1
     uv: np.ndarray | None = None  # (N,2) float32 px in that frame, NaN
-    frames_used: int = 0
+    frames_used: int = 0  # decoded and used for this chunk (its margins included)
     frames_failed: int = 0
     outside: int = 0  # points left out: outside the trajectory's span
+    used_stamps: np.ndarray | None = None  # recorded stamps of the frames its points used
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -115,6 +117,51 @@ def _margin_ns(job: Job) -> int:
     period = 0.04  # a camera's frame period, s (the window is counted in frames)
     o = job.options
     return round((o.max_dt_s + o.window * period + o.context_s + 0.2) * 1e9)
+
+
+@dataclass(frozen=True)
+class Placed:
+    """A log part's points in time order: ``scan`` and ``step`` (N,) indices into the
+    log's scans and beams, ``r`` (N,) m, ``time_ns`` (N,), ``P_laser`` (N,3) in the laser
+    frame at their own time, ``P_world`` (N,3) placed with the trajectory (NaN without a
+    pose there; ``P_laser`` without a trajectory), ``inside`` (N,) whether it had one."""
+
+    scan: np.ndarray
+    step: np.ndarray
+    r: np.ndarray
+    time_ns: np.ndarray
+    P_laser: np.ndarray
+    P_world: np.ndarray
+    inside: np.ndarray
+
+
+def place(
+    log: cloud.DriveLog, scan_ns: np.ndarray, keep: np.ndarray, trajectory: Any,
+    laser_to_vehicle: Rigid,
+) -> Placed:  # fmt: skip
+    """The valid points of the scans ``keep`` (S,) bool of ``log``, whose point 0 was
+    measured at ``scan_ns`` (S,), each at its own time (:class:`Placed`)."""
+    ranges = np.where(keep[:, None], log.ranges, np.nan)
+    scan_idx, step = np.nonzero(np.isfinite(ranges))
+    r = ranges[scan_idx, step].astype(np.float64)
+    beams = log.angle_min + log.angle_increment * np.arange(log.ranges.shape[1])
+    cos, sin = np.cos(beams)[step], np.sin(beams)[step]
+    P_laser = np.stack([r * cos, r * sin, np.zeros_like(r)], axis=1)
+    offsets = np.rint(np.arange(log.ranges.shape[1]) * (log.time_increment * 1e9)).astype(np.int64)
+    time_ns = scan_ns[scan_idx] + offsets[step]
+    if time_ns.size and np.any(np.diff(time_ns) < 0):  # scans out of order, or overlapping
+        order = np.argsort(time_ns, kind="stable")
+        scan_idx, step, P_laser, time_ns, r = (
+            scan_idx[order], step[order], P_laser[order], time_ns[order], r[order]
+        )  # fmt: skip
+    inside = np.ones(time_ns.size, dtype=bool)
+    P_world = P_laser
+    if trajectory is not None:
+        inside = trajectory.covers(time_ns)
+        P_world = np.full_like(P_laser, np.nan)  # no pose: not placed, not coloured
+        Rv, tv = trajectory.pose_at(time_ns[inside])
+        P_world[inside] = np.einsum("nij,nj->ni", Rv, laser_to_vehicle.apply(P_laser[inside])) + tv
+    return Placed(scan_idx, step, r, time_ns, P_laser, P_world, inside)
 
 
 def colour_chunk(job: Job, chunk: Chunk, whole: cloud.DriveLog | None = None) -> ChunkResult:
@@ -136,30 +183,12 @@ def colour_chunk(job: Job, chunk: Chunk, whole: cloud.DriveLog | None = None) ->
     frame_ns = _remap(job.frame_old, job.frame_new, log.frame_ns) - job.time_offset_ns
     keep_scan = (scan_ns >= chunk.start_ns - margin) & (scan_ns < chunk.end_ns + margin)
     core_scan = (scan_ns >= chunk.start_ns) & (scan_ns < chunk.end_ns)
-    # the points, in time order
-    ranges = np.where(keep_scan[:, None], log.ranges, np.nan)
-    valid = np.isfinite(ranges)
-    scan_idx, step = np.nonzero(valid)
-    r = ranges[scan_idx, step].astype(np.float64)
-    a = log.angle_min + log.angle_increment * step
-    P_laser = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)], axis=1)
-    time_ns = scan_ns[scan_idx] + np.rint(step * (log.time_increment * 1e9)).astype(np.int64)
-    order = np.argsort(time_ns, kind="stable")
-    scan_idx, step, P_laser, time_ns, r = (
-        scan_idx[order], step[order], P_laser[order], time_ns[order], r[order]
-    )  # fmt: skip
     cam, l2v = job.cam, job.laser_to_vehicle
+    pts = place(log, scan_ns, keep_scan, job.trajectory, l2v)
+    scan_idx, step, r, time_ns = pts.scan, pts.step, pts.r, pts.time_ns
+    P_laser, P_world, inside = pts.P_laser, pts.P_world, pts.inside
     pose_at = job.trajectory.pose_at if job.trajectory is not None else None
-    outside = 0
-    inside = np.ones(time_ns.size, dtype=bool)
-    if pose_at is not None:
-        inside = job.trajectory.covers(time_ns)
-        outside = int(np.count_nonzero(~inside & core_scan[scan_idx]))
-        P_world = np.full_like(P_laser, np.nan)  # no pose: not placed, not coloured
-        Rv, tv = pose_at(time_ns[inside])
-        P_world[inside] = np.einsum("nij,nj->ni", Rv, l2v.apply(P_laser[inside])) + tv
-    else:
-        P_world = P_laser
+    outside = int(np.count_nonzero(~inside & core_scan[scan_idx]))
     size = views.point_size(r, log.angle_increment, job.travel_m)
     t_place = time.perf_counter()
     usable = (
@@ -206,6 +235,7 @@ def colour_chunk(job: Job, chunk: Chunk, whole: cloud.DriveLog | None = None) ->
         frames_used=col.frames_used,
         frames_failed=col.frames_failed,
         outside=outside,
+        used_stamps=np.unique(log.frame_ns[col.frame[core][col.frame[core] >= 0]]),
         seconds={
             "read": t_read - t0,
             "place": t_place - t_read,
@@ -350,22 +380,18 @@ def _trajectory(
     files: Sequence[Path], path: Path | None, log: cloud.DriveLog, report: Report
 ) -> Any:
     """The trajectory to place points with, or None (see the module docstring, step 3)."""
-    import importlib
+    from acq import trajectory as trajmod
 
-    try:
-        trajmod: Any = importlib.import_module("acq.trajectory")
-    except ImportError:  # pragma: no cover - the module lands with the issue
-        return None
     if path is not None:
         clock = log.clock
         traj = trajmod.from_csv(path, utc_to_host_ns=lambda u: trajmod.host_ns_from_utc(u, clock))
         report.trajectory = f"{path} ({len(traj.t_ns)} poses)"
         return traj
-    try:
-        vehicle_log: Any = importlib.import_module("acq.vehicle_log")
-    except ImportError:  # pragma: no cover
-        return None
-    vehicle = vehicle_log.read_vehicle(list(files))
+    vehicle = log.vehicle
+    if vehicle is None:
+        from acq.vehicle_log import read_vehicle
+
+        vehicle = read_vehicle(list(files))
     report.notes += vehicle.notes
     odo = vehicle.odometry
     if len(odo) < 2:
@@ -387,36 +413,25 @@ def _trajectory(
     return traj
 
 
-def run(
+def prepare(
     logs: Sequence[Path],
     calib: Calibration,
-    output: Path,
+    report: Report,
     *,
     camera: str | None = None,
     frame: str | None = None,
     options: views.Options | None = None,
     trajectory: Path | None = None,
-    crs: str | None = None,
     retime_offline: bool = True,
     time_offset_s: float | None = None,
-    workers: int = 1,
-    dask: str | None = None,
-    chunk_s: float = 30.0,
-    preview: Path | None = None,
-    progress: bool = False,
-    results: list[ChunkResult] | None = None,
-    want_uv: bool = False,
-) -> Report:
-    """The whole command (module docstring); raises ValueError/LogError/OSError with a
-    one-line message for bad input. ``results``: a list to receive the chunks' results
-    (with each point's frame and pixel when ``want_uv``), for accuracy checks."""
-    t_start = time.perf_counter()
+    jpegs: bool = False,
+    threads: int = 1,
+) -> tuple[Job, cloud.DriveLog]:
+    """The :class:`Job` for ``logs`` (steps 1-3 of the module docstring) and the log's
+    light part (with the images when ``jpegs``); notes go into ``report``."""
     options = options or views.Options()
     files = _session_files(logs)
-    report = Report(output=str(output), view=options.view)
-    # one process reads the log once; workers read their own parts, this one the light part
-    local = workers <= 1 and not dask
-    index = cloud.read_log(files, camera=camera, jpegs=local)
+    index = cloud.read_log(files, camera=camera, jpegs=jpegs, vehicle=trajectory is None)
     name, cam = cloud.camera_calib(index, calib, camera)
     report.notes += index.notes
     scan_new, frame_new = (
@@ -456,11 +471,111 @@ def run(
         options=options,
         frame_world=world,
         travel_m=speed * period,
-        want_uv=want_uv,
-        threads=(os.cpu_count() or 1) if workers <= 1 and not dask else 1,
+        threads=threads,
     )
-    report.time_offset["used_s"] = offset
-    chunks = plan(np.sort(scan_new), chunk_s)
+    return job, index
+
+
+def estimate_offset(
+    job: Job,
+    *,
+    whole: cloud.DriveLog | None = None,
+    start_s: float | None = None,
+    seconds: float = 60.0,
+    search_s: float = 0.06,
+    max_frames: int = 1500,
+    threads: int = 1,
+) -> OffsetEstimate:
+    """The camera's time offset (:mod:`acq.time_offset`) from ``seconds`` of the job's
+    log from ``start_s`` after its first scan (default: the middle ``seconds``), with
+    CALIB's offset as the prior; ``whole``: the log already read, with its images."""
+    if job.trajectory is None:
+        return OffsetEstimate.not_found(
+            "needs the rig's motion: CAN odometry in the log or --trajectory"
+        )
+    if not job.camera:
+        return OffsetEstimate.not_found("the log has no camera frames")
+    first, last = int(job.scan_new[0]), int(job.scan_new[-1])
+    span = round(seconds * 1e9)
+    lo = first + (max(0, (last - first - span) // 2) if start_s is None else round(start_s * 1e9))
+    hi = lo + span
+    if whole is None:
+        whole = cloud.read_log(
+            list(job.files), laser=job.laser, camera=job.camera,
+            start_ns=lo - 2 * 10**9, end_ns=hi + 2 * 10**9,
+        )  # fmt: skip
+    scan_ns = _remap(job.scan_old, job.scan_new, whole.scan_ns)
+    frame_ns = _remap(job.frame_old, job.frame_new, whole.frame_ns)
+    keep = (scan_ns >= lo) & (scan_ns < hi)
+    pts = place(whole, scan_ns, keep, job.trajectory, job.laser_to_vehicle)
+    strength = whole.intensities[pts.scan, pts.step] if whole.intensities.size else None
+    if strength is None or not np.any(strength > 0):
+        return OffsetEstimate.not_found(
+            "no laser return strengths in the log (record them: SCIP ME, CoLa RSSI1)"
+        )
+    in_span = (frame_ns - job.time_offset_ns >= lo) & (frame_ns - job.time_offset_ns < hi)
+    sel = np.flatnonzero(in_span)
+    return estimate_time_offset(
+        pts.P_world, pts.time_ns, strength.astype(np.float64), frame_ns[sel],
+        [whole.jpegs[int(i)] for i in sel], job.cam, job.laser_to_vehicle,
+        job.trajectory.pose_at, job.trajectory.covers, prior_s=job.cam.time_offset_s,
+        search_s=search_s, max_frames=max_frames, threads=threads,
+    )  # fmt: skip
+
+
+def run(
+    logs: Sequence[Path],
+    calib: Calibration,
+    output: Path,
+    *,
+    camera: str | None = None,
+    frame: str | None = None,
+    options: views.Options | None = None,
+    trajectory: Path | None = None,
+    crs: str | None = None,
+    retime_offline: bool = True,
+    time_offset_s: float | str | None = None,
+    workers: int = 1,
+    dask: str | None = None,
+    chunk_s: float = 30.0,
+    preview: Path | None = None,
+    progress: bool = False,
+    results: list[ChunkResult] | None = None,
+    want_uv: bool = False,
+) -> Report:
+    """The whole command (module docstring); raises ValueError/LogError/OSError with a
+    one-line message for bad input. ``results``: a list to receive the chunks' results
+    (with each point's frame and pixel when ``want_uv``), for accuracy checks.
+    ``time_offset_s``: seconds, None for CALIB's, or "auto" (:func:`estimate_offset`)."""
+    t_start = time.perf_counter()
+    options = options or views.Options()
+    report = Report(output=str(output), view=options.view)
+    local = workers <= 1 and not dask
+    auto = isinstance(time_offset_s, str)
+    if auto and time_offset_s != "auto":
+        raise ValueError(f"--time-offset {time_offset_s}: expected seconds or 'auto'")
+    job, index = prepare(
+        logs, calib, report, camera=camera, frame=frame, options=options,
+        trajectory=trajectory, retime_offline=retime_offline,
+        time_offset_s=None if isinstance(time_offset_s, str) else time_offset_s, jpegs=local,
+        threads=(os.cpu_count() or 1) if local else 1,
+    )  # fmt: skip
+    job = replace(job, want_uv=want_uv)
+    t_offset = time.perf_counter()
+    if auto:
+        est = estimate_offset(job, whole=index if local else None, threads=job.threads)
+        report.time_offset.update(
+            estimated_s=est.offset_s, std_s=est.std_s, points=est.points, frames=est.frames,
+            contrast=round(est.contrast, 3), found=est.found,
+        )  # fmt: skip
+        if est.found:
+            job = replace(job, time_offset_ns=round(est.offset_s * 1e9))
+        else:
+            report.notes.append(f"--time-offset auto: {est.note}; CALIB's time_offset_s used")
+    world = job.frame_world
+    report.time_offset["used_s"] = job.time_offset_ns * 1e-9
+    scan_new = np.sort(job.scan_new)
+    chunks = plan(scan_new, chunk_s)
     t_plan = time.perf_counter()
     done = _run_chunks(job, chunks, workers, dask, progress, index if local else None)
     if results is not None:
@@ -471,7 +586,7 @@ def run(
     report.points, report.coloured = pc.size, int(pc.coloured.sum())
     report.hidden = int(sum(int(r.hidden.sum()) for r in results))
     report.frames, report.scans = index.n_frames, index.n_scans
-    report.frames_used = sum(r.frames_used for r in results)
+    report.frames_used = _frames_used(results)
     report.frames_failed = sum(r.frames_failed for r in results)
     report.duration_s = float(np.ptp(scan_new)) * 1e-9 if scan_new.size else 0.0
     report.chunks = len(chunks)
@@ -485,7 +600,10 @@ def run(
     if preview is not None:
         cloud.preview_png(preview, pc, title=f"acq colorize {output.name}")
     t_end = time.perf_counter()
-    parts: dict[str, float] = {"index": t_plan - t_start, "chunks": t_colour - t_plan}
+    parts: dict[str, float] = {"index": t_offset - t_start}
+    if auto:
+        parts["time offset"] = t_plan - t_offset
+    parts["chunks"] = t_colour - t_plan
     for key in ("read", "place", "colour"):
         parts[f"  {key} (summed over chunks)"] = sum(r.seconds.get(key, 0.0) for r in results)
     parts["write"] = t_end - t_colour
@@ -507,6 +625,12 @@ def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
     return float(np.median(v)) if v.size else 0.0
 
 
+def _frames_used(results: list[ChunkResult]) -> int:
+    """Frames the cloud's points were coloured from (a frame two chunks share, once)."""
+    stamps = [r.used_stamps for r in results if r.used_stamps is not None]
+    return int(np.unique(np.concatenate(stamps)).size) if stamps else 0
+
+
 def _cloud(results: list[ChunkResult], index: cloud.DriveLog) -> cloud.Cloud:
     def cat(name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
         parts = [getattr(r, name) for r in results]
@@ -525,7 +649,7 @@ def _cloud(results: list[ChunkResult], index: cloud.DriveLog) -> cloud.Cloud:
         view_axis=np.array([0.0, 1.0, 0.0]),
         clock=index.clock,
         frames=index.n_frames,
-        frames_used=sum(r.frames_used for r in results),
+        frames_used=_frames_used(results),
         frames_failed=sum(r.frames_failed for r in results),
     )
 

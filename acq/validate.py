@@ -58,6 +58,7 @@ __all__ = [
     "find_sets",
     "main_validate",
     "occluded",
+    "palette_of",
     "validate",
 ]
 
@@ -223,7 +224,8 @@ def find_sets(
 # --- colour -------------------------------------------------------------------------------
 
 
-def _palette(colours: dict[str, tuple[int, int, int]]) -> tuple[list[str], np.ndarray]:
+def palette_of(colours: dict[str, tuple[int, int, int]]) -> tuple[list[str], np.ndarray]:
+    """(names, (K,3) BGR float32) of the pattern's ``colours`` (RGB) and the neutrals."""
     names = list(colours) + list(NEUTRALS)
     rgb = np.array([*colours.values(), *NEUTRALS.values()], np.float32)
     return names, rgb[:, ::-1].copy()  # BGR
@@ -340,7 +342,7 @@ def validate(
     if not log.n_frames:
         raise ValueError("the log has no camera frames")
     colours = colours or DEFAULT_COLOURS
-    names, palette = _palette(colours)
+    names, palette = palette_of(colours)
     in_front = np.array([n in FRONT for n in names])
     in_back = np.array([n in BACK for n in names])
     sets = find_sets(log, camera)

@@ -28,7 +28,15 @@ import numpy as np
 
 from acq import loginfo
 
-__all__ = ["FIX_TOPIC", "ODOMETRY_TOPIC", "Fixes", "Odometry", "VehicleLog", "read_vehicle"]
+__all__ = [
+    "FIX_TOPIC",
+    "ODOMETRY_TOPIC",
+    "Fixes",
+    "Odometry",
+    "VehicleLog",
+    "VehicleReader",
+    "read_vehicle",
+]
 
 ODOMETRY_TOPIC = "/vehicle/odometry"
 FIX_TOPIC = "/gnss/fix"
@@ -169,6 +177,38 @@ def _fixes(rows: list[tuple[Any, ...]]) -> Fixes:
     )
 
 
+class VehicleReader:
+    """Collects the vehicle topics' decoded messages (one pass over a log can feed it
+    beside other readers, as :func:`acq.cloud.read_log` does)."""
+
+    TOPICS = (ODOMETRY_TOPIC, FIX_TOPIC)
+
+    def __init__(self) -> None:
+        self.odometry: list[tuple[int, int, float, float, tuple[float, ...]]] = []
+        self.fixes: list[tuple[Any, ...]] = []
+        self.bad = 0
+
+    def add(self, topic: str, msg: Any) -> None:
+        """One decoded message of :attr:`TOPICS`; a garbled one is counted, not raised."""
+        try:
+            if topic == ODOMETRY_TOPIC:
+                speed, yaw = float(msg.speed_mps), float(msg.yaw_rate_rps)
+                wheels = tuple(float(w) for w in msg.wheel_speeds_mps)
+                self.odometry.append((_stamp(msg), int(msg.arbitration_id), speed, yaw, wheels))
+            elif topic == FIX_TOPIC:
+                self.fixes.append(_fix_row(msg))
+        except Exception:  # a payload that decoded to something else: that message is lost
+            self.bad += 1
+
+    def result(self, files: tuple[Path, ...]) -> VehicleLog:
+        notes = [f"{self.bad} undecodable vehicle messages skipped"] if self.bad else []
+        if not self.odometry:
+            notes.append(f"no {ODOMETRY_TOPIC} messages")
+        if not self.fixes:
+            notes.append(f"no {FIX_TOPIC} messages")
+        return VehicleLog(files, _odometry(self.odometry), _fixes(self.fixes), notes)
+
+
 def read_vehicle(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str]) -> VehicleLog:
     """Odometry and fixes of one log or of the files of a session (any order).
 
@@ -181,31 +221,19 @@ def read_vehicle(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str
         files: tuple[Path, ...] = (Path(paths),)
     else:
         files = tuple(Path(p) for p in paths)
-    odometry: list[tuple[int, int, float, float, tuple[float, ...]]] = []
-    fixes: list[tuple[Any, ...]] = []
-    bad = 0
+    reader = VehicleReader()
     for path in files:
         factory = DecoderFactory()
         decoders: dict[int, Any] = {}
         for schema, channel, message in loginfo.read_messages(path):
-            topic = channel.topic
-            if topic not in (ODOMETRY_TOPIC, FIX_TOPIC):
+            if channel.topic not in reader.TOPICS:
                 continue
             try:
                 if channel.id not in decoders:
                     decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
                 msg = decoders[channel.id](message.data)
-                if topic == ODOMETRY_TOPIC:
-                    speed, yaw = float(msg.speed_mps), float(msg.yaw_rate_rps)
-                    wheels = tuple(float(w) for w in msg.wheel_speeds_mps)
-                    odometry.append((_stamp(msg), int(msg.arbitration_id), speed, yaw, wheels))
-                else:
-                    fixes.append(_fix_row(msg))
             except Exception:  # a garbled payload or schema: that message is lost
-                bad += 1
-    notes = [f"{bad} undecodable messages skipped"] if bad else []
-    if not odometry:
-        notes.append(f"no {ODOMETRY_TOPIC} messages")
-    if not fixes:
-        notes.append(f"no {FIX_TOPIC} messages")
-    return VehicleLog(files, _odometry(odometry), _fixes(fixes), notes)
+                reader.bad += 1
+                continue
+            reader.add(channel.topic, msg)
+    return reader.result(files)

@@ -154,12 +154,22 @@ class _Rig:
     def __init__(self, cam: CameraCalib, laser_to_vehicle: Rigid, pose_at: PoseFn | None) -> None:
         self.cam, self.l2v, self.pose_at = cam, laser_to_vehicle, pose_at
         self.v2l = laser_to_vehicle.inverse()
+        self._poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def prepare(self, t_ns: np.ndarray) -> None:
+        """Look up the poses at ``t_ns`` (the frames' times) in one call."""
+        if self.pose_at is not None and t_ns.size:
+            R, t = self.pose_at(np.asarray(t_ns, dtype=np.int64))
+            self._poses.update(zip(np.asarray(t_ns).tolist(), zip(R, t, strict=True), strict=True))
 
     def laser_frame(self, P_world: np.ndarray, t_ns: int) -> np.ndarray:
         if self.pose_at is None:
             return P_world
-        R, t = self.pose_at(np.array([t_ns], dtype=np.int64))
-        return self.v2l.apply((P_world - t[0]) @ R[0])
+        pose = self._poses.get(t_ns)
+        if pose is None:
+            R, t = self.pose_at(np.array([t_ns], dtype=np.int64))
+            pose = R[0], t[0]
+        return self.v2l.apply((P_world - pose[1]) @ pose[0])
 
     def camera(self, P_laser: np.ndarray) -> np.ndarray:
         return self.cam.camera_to_laser.inverse().apply(P_laser)
@@ -213,6 +223,7 @@ def colour_points(
         frame = np.where(sub.frame >= 0, keep[np.maximum(sub.frame, 0)], -1)
         return Coloured(sub.rgb, sub.coloured, frame, sub.dt_s, sub.theta, sub.hidden,
                         sub.frames_used, sub.frames_failed, sub.uv)  # fmt: skip
+    rig.prepare(frame_ns)
     pairing = sync.pair_frames(time_ns, frame_ns)
     near = np.where(np.abs(pairing.dt_s) <= options.max_dt_s, pairing.nearest, -1)
     if options.view == "nearest":

@@ -6,7 +6,8 @@ camera's side) in the lane at ``lane_y`` m, at ``speed_kmh``, along a gentle cur
 body vibration. Everything a recording carries is simulated, and the log holds only
 what a recorder would have:
 
-- scans: each cast step by step from the laser's pose at its own time; the scanner's
+- scans: each cast step by step from the laser's pose at its own time, with a return
+  strength per point (:func:`sim.sensors.return_strength`, 5 % noise); the scanner's
   millisecond clock (24 bits) runs ``scanner_drift_ppm`` fast; each telegram arrives
   ``scanner_latency_s`` plus an exponential jitter after the scan's end; the recorded
   stamp is what the recorder computes online (:class:`acq.clocksync.DeviceClock` on the
@@ -41,7 +42,7 @@ from acq.calibfile import Calibration, CameraCalib
 from acq.clocksync import DeviceClock
 from acq.mcap_log import LogWriter
 from acq.records import Frame, Odometry, Scan
-from sim.sensors import render_frame, render_scan
+from sim.sensors import render_frame, render_scan, return_strength
 from sim.world import Rig, Street, Trajectory, default_rig
 
 __all__ = ["DriveTruth", "write_drive_log"]
@@ -126,6 +127,8 @@ def write_drive_log(
     odometry_hz: float = 50.0,
     odometry_span_s: tuple[float, float] | None = None,
     jpeg_quality: int = 90,
+    intensity_noise: float = 0.05,
+    intensities: bool = True,
     start_ns: int = 2_000_000_000_000,
     rig: Rig | None = None,
 ) -> DriveTruth:
@@ -133,10 +136,13 @@ def write_drive_log(
 
     ``configured_camera_latency_s`` is what the recording's camera driver subtracts
     (None: the true mean, ``camera_latency_s`` + half the exposure + the jitter's mean);
-    ``odometry_span_s`` (start, end) s limits the odometry (default: the whole drive).
+    ``odometry_span_s`` (start, end) s limits the odometry (default: the whole drive);
+    ``intensity_noise``: the relative spread of the scans' return strengths;
+    ``intensities=False``: scans without them (a scanner asked for ranges only).
     """
     rig = rig or default_rig()
     rng = np.random.default_rng(seed)
+    intensity_rng = np.random.default_rng([seed, 1])  # apart: the other draws stay as they were
     length = speed_kmh / 3.6 * seconds + 80.0
     street = Street.generate(seed, length_m=length, pattern_at=pattern_at)
     traj = Trajectory(
@@ -184,6 +190,7 @@ def write_drive_log(
     for k, t0 in enumerate(scan_t0.tolist()):
         st = render_scan(street, traj, rig, t0, rng)
         pts[k], mats[k], cols[k] = st.points, st.material, st.colours
+        strength = return_strength(st.ranges, st.colours, intensity_rng, intensity_noise)
         tick = (tick0 + math.floor(t0 * 1000.0 * (1 + scanner_drift_ppm * 1e-6))) % (1 << 24)
         end = t0 + rig.time_increment * (rig.n_steps - 1)
         recv = max(host(end + scanner_latency_s + rng.exponential(scanner_jitter_s)),
@@ -195,7 +202,9 @@ def write_drive_log(
         stamp = clock.to_host_ns(tick) - round(latency_const * 1e9)
         scan_stamps[k] = stamp
         scan = Scan(
-            ranges=st.ranges, intensities=np.zeros(0, np.float32), angle_min=rig.angle_min,
+            ranges=st.ranges,
+            intensities=strength.astype(np.float32) if intensities else np.zeros(0, np.float32),
+            angle_min=rig.angle_min,
             angle_increment=rig.angle_increment, time_increment=rig.time_increment,
             scan_period=rig.scan_period, recv_ns=recv, start_ns=stamp, sequence=k,
             device_ticks=(tick,),

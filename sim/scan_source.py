@@ -62,8 +62,4 @@ class StreetSource:
         t_drive = (t0 - self.t_origin) % loop
         truth = sensors.render_scan(self.street, self.trajectory, self.rig, t_drive, self.rng)
         ranges = truth.ranges.astype(np.float64)
-        brightness = truth.colours.astype(np.float64).mean(axis=1) / 255.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            strength = 8000.0 * (0.2 + brightness) / np.maximum(ranges, 1.0) ** 0.5
-        intensities = np.where(np.isfinite(ranges), strength, 0.0)
-        return ranges, intensities
+        return ranges, sensors.return_strength(ranges, truth.colours)

@@ -147,6 +147,24 @@ def render_scan(
     )
 
 
+def return_strength(
+    ranges: np.ndarray,
+    colours: np.ndarray,
+    rng: np.random.Generator | None = None,
+    noise: float = 0.0,
+) -> np.ndarray:
+    """A plausible return strength (device units, float64; 0 without an echo) of hits at
+    ``ranges`` (m) on surfaces of BGR ``colours`` (N,3) uint8: brighter and nearer
+    surfaces return more; ``noise`` a relative Gaussian spread drawn from ``rng``."""
+    ranges = np.asarray(ranges, dtype=np.float64)
+    brightness = np.asarray(colours, dtype=np.float64).mean(axis=-1) / 255.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        strength = 8000.0 * (0.2 + brightness) / np.maximum(ranges, 1.0) ** 0.5
+    if noise and rng is not None:
+        strength = strength * (1.0 + rng.normal(0.0, noise, strength.shape))
+    return np.where(np.isfinite(ranges), np.maximum(strength, 0.0), 0.0)
+
+
 def true_pixels(
     world_points: np.ndarray, trajectory: Trajectory, rig: Rig, t: float
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -136,6 +136,7 @@ STD = {
     "k": [0.001, 0.002, 0.001, 0.0005],
     "rotation_deg": [0.05, 0.04, 0.06],
     "translation_m": [0.002, 0.003, 0.002],
+    "time_offset_s": 0.0002,
 }
 
 
@@ -202,6 +203,8 @@ def _with_std(std: object) -> dict:
         ({"rotation": [0.1] * 3}, r"rotation: unknown key; did you mean rotation_deg\?"),
         ({"translation": [0.1] * 3}, r"translation: unknown key; did you mean translation_m\?"),
         ({"fx": -0.1}, r"fx: a standard deviation must be >= 0"),
+        ({"time_offset_s": -0.001}, r"time_offset_s: a standard deviation must be >= 0"),
+        ({"time_offset": 0.001}, r"time_offset: unknown key; did you mean time_offset_s\?"),
         ({"cx": "big"}, r"cx: expected a number"),
         ({"translation_m": [0.1, 0.2]}, r"translation_m: expected a list of 3 numbers"),
         ({"rotation_deg": [0.1, float("nan"), 0.1]}, r"rotation_deg\[1\]: expected a finite"),

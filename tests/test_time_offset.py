@@ -1,0 +1,129 @@
+"""The camera's time offset from a drive (acq/time_offset.py): `acq calibrate time-offset`
+and `acq colorize --time-offset auto` on simulated drives whose camera latency the
+configuration gets 10 ms wrong."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from acq import calibfile
+from acq.cli import main as acq_main
+from acq.colorize import run
+from acq.time_offset import mutual_information
+from sim.drive_log import DriveTruth, write_drive_log
+
+
+def _true_error(truth: DriveTruth) -> float:
+    return truth.config["camera_latency_true_s"] - truth.config["camera_latency_configured_s"]
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriveTruth, Path]:
+    d = tmp_path_factory.mktemp("drive")
+    truth = write_drive_log(d, 8.0, pattern_at=None, seed=2)
+    calib = d / "calib.yaml"
+    calibfile.save(truth.calibration, calib)  # the true calibration: offset 0
+    return truth, calib
+
+
+def test_mutual_information_of_equal_and_independent_samples() -> None:
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 16, 200_000)
+    assert mutual_information(a, a, 16) == pytest.approx(np.log(16), rel=1e-3)
+    assert mutual_information(a, rng.integers(0, 16, a.size), 16) < 2e-3
+    assert mutual_information(a, (a + rng.integers(0, 2, a.size)) % 16, 16) > 1.5
+
+
+def test_calibrate_time_offset_finds_the_latency_error(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    truth, calib = drive
+    out = tmp_path / "calib.yaml"
+    argv = ["calibrate", "time-offset", *map(str, truth.files), "--calib", str(calib),
+            "-o", str(out), "--json"]  # fmt: skip
+    assert acq_main(argv) == 0
+    report = json.loads(capsys.readouterr().out)
+    cam = calibfile.load(out).camera("camera")
+    err = _true_error(truth)
+    assert abs(err) > 0.009  # the configuration is 10 ms wrong
+    print(cam.time_offset_s, cam.std.time_offset_s, err)
+    assert cam.time_offset_s == pytest.approx(err, abs=0.0015)
+    assert cam.std.time_offset_s is not None and 0 < cam.std.time_offset_s < 0.002
+    assert report["found"] and report["frames"] > 100 and report["contrast"] > 0.1
+    # the curve peaks at the estimate, and the rest of CALIB is kept
+    curve = report["curve"]
+    assert abs(curve["offset_s"][int(np.argmax(curve["mi_nats"]))] - err) <= 0.003
+    kept = truth.calibration.camera("camera").camera_to_laser
+    np.testing.assert_allclose(cam.camera_to_laser.matrix(), kept.matrix(), atol=1e-12)
+
+
+def test_colorize_auto_uses_the_estimate_and_gets_the_pixels_right(
+    drive: tuple[DriveTruth, Path], tmp_path: Path
+) -> None:
+    truth, calib = drive
+    errors = {}
+    for name, offset in (("configured", None), ("auto", "auto")):
+        results: list = []
+        report = run(truth.files, calibfile.load(calib), tmp_path / f"{name}.ply",
+                     time_offset_s=offset, results=results, want_uv=True, preview=None)  # fmt: skip
+        scan = np.concatenate([r.scan for r in results]).astype(np.int64)
+        step = np.concatenate([r.step for r in results]).astype(np.int64)
+        stamp = np.concatenate([r.frame_stamp_ns for r in results])
+        uv = np.concatenate([r.uv for r in results])
+        ok = stamp >= 0
+        true_uv, valid = truth.true_pixels(scan[ok], step[ok], stamp[ok])
+        e = np.linalg.norm(uv[ok][valid] - true_uv[valid], axis=1)
+        errors[name] = float(np.sqrt(np.mean(e**2)))
+        if offset == "auto":
+            assert report.time_offset["found"]
+            assert report.time_offset["used_s"] == pytest.approx(_true_error(truth), abs=0.0015)
+            assert "time offset" in report.seconds
+    print(errors)
+    assert errors["configured"] > 1.5 and errors["auto"] < 0.5
+
+
+def test_no_estimate_without_motion_or_return_strengths(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cases = {
+        "still": (dict(speed_kmh=0.0), "does not move"),
+        "no_strengths": (dict(intensities=False), "return strengths"),
+        "no_odometry": (dict(odometry_hz=0.0), "motion"),
+    }
+    for name, (kwargs, message) in cases.items():
+        truth = write_drive_log(tmp_path / name, 1.0, pattern_at=None, **kwargs)  # type: ignore[arg-type]
+        calib = tmp_path / name / "calib.yaml"
+        calibfile.save(truth.calibration, calib)
+        out = tmp_path / name / "out.yaml"
+        argv = ["calibrate", "time-offset", *map(str, truth.files), "--calib", str(calib),
+                "-o", str(out)]  # fmt: skip
+        assert acq_main(argv) == 1, name
+        err = capsys.readouterr().err
+        assert message in err and err.startswith("acq calibrate time-offset: no estimate"), err
+        assert not out.exists()
+        # colorize keeps CALIB's offset and says why
+        report = run(truth.files, truth.calibration, tmp_path / name / "c.ply",
+                     time_offset_s="auto", preview=None,
+                     frame="laser" if name == "no_odometry" else None)  # fmt: skip
+        assert report.time_offset["used_s"] == 0.0 and not report.time_offset["found"]
+        assert any(message in n for n in report.notes), report.notes
+
+
+def test_bad_input_is_one_line_and_exit_2(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    truth, calib = drive
+    missing = tmp_path / "nope.yaml"
+    argv = ["calibrate", "time-offset", *map(str, truth.files), "--calib", str(missing),
+            "-o", str(tmp_path / "o.yaml")]  # fmt: skip
+    assert acq_main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "nope.yaml" in err and len(err.splitlines()) == 1
+    with pytest.raises(SystemExit):
+        acq_main(["colorize", str(truth.files[0]), "--calib", str(calib), "-o", "x.ply",
+                  "--time-offset", "soon"])  # fmt: skip
+    assert "expected seconds or 'auto'" in capsys.readouterr().err

@@ -73,6 +73,49 @@ _SLOW_PERIOD_S = 0.5  # topics at 2 Hz or slower (status, clock): gap = period +
 # What mcap's record parsers raise on a cut or garbled record or chunk, and nothing else:
 # EndOfFile / RecordLengthLimitExceeded / UnsupportedCompressionError are McapErrors, a short
 # read of a fixed field is a struct.error, a cut string a UnicodeDecodeError.
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+
+
+def _chunk_messages(chunk: Chunk) -> list[McapRecord]:
+    """The messages of a zstd or uncompressed chunk, its CRC checked: what mcap's
+    ``breakup_chunk`` gives (less the schema and channel records, which a closed file's
+    summary holds), parsed with struct (a 60 s drive's 13,000 messages: 0.2 s less)."""
+    data = chunk.data
+    if chunk.compression == "zstd":
+        data = zstandard.ZstdDecompressor().decompress(
+            chunk.data, max_output_size=chunk.uncompressed_size
+        )
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise McapError(f"bad chunk CRC (expected {chunk.uncompressed_crc})")
+    out: list[McapRecord] = []
+    view = memoryview(data)
+    pos, end = 0, len(data)
+    head = _MESSAGE_HEAD.size
+    while pos < end:
+        if pos + 9 > end:
+            raise McapError(f"a record cut at byte {pos} of the chunk")
+        opcode = data[pos]
+        (length,) = struct.unpack_from("<Q", data, pos + 1)
+        body = pos + 9
+        pos = body + length
+        if pos > end:
+            raise McapError(f"a record of {length} bytes runs past the chunk's end")
+        if opcode == Opcode.MESSAGE:
+            if length < head:
+                raise McapError(f"a message record of {length} bytes")
+            channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(data, body)
+            out.append(
+                Message(
+                    channel_id=channel_id,
+                    log_time=log_time,
+                    data=bytes(view[body + head : pos]),
+                    publish_time=publish_time,
+                    sequence=sequence,
+                )
+            )
+    return out
+
+
 _RECORD_ERRORS: tuple[type[BaseException], ...] = (
     McapError,
     CRCValidationError,
@@ -316,7 +359,7 @@ class _Scan:
                 record = next(StreamReader(f, skip_magic=True, emit_chunks=True).records)
                 if not isinstance(record, Chunk):
                     raise McapError(f"expected a chunk, found {type(record).__name__}")
-                inner = self._chunk_records(record)
+                inner = self._chunk_records(record, messages_only=True)
             except _RECORD_ERRORS as e:
                 self.notes.append(f"corrupt chunk at byte {at} skipped ({e})")
                 continue
@@ -332,9 +375,13 @@ class _Scan:
             )
 
     @staticmethod
-    def _chunk_records(chunk: Chunk) -> list[McapRecord]:
+    def _chunk_records(chunk: Chunk, messages_only: bool = False) -> list[McapRecord]:
+        """A chunk's records; ``messages_only`` (a closed file, whose summary holds the
+        schemas and channels): only its messages, by the faster parser."""
         if chunk.uncompressed_size > _MAX_CHUNK_BYTES:
             raise McapError(f"implausible uncompressed size {chunk.uncompressed_size}")
+        if messages_only and chunk.compression in ("zstd", ""):
+            return _chunk_messages(chunk)
         return breakup_chunk(chunk, validate_crc=True)
 
     # -- anything else: a linear scan that stops at the cut ---------------------------

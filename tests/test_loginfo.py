@@ -30,6 +30,8 @@ from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
 from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
 from google.protobuf.message_factory import GetMessageClass
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader, make_reader
 from mcap.writer import IndexType, Writer
@@ -664,3 +666,49 @@ def test_garbage_after_the_magic_stops_cleanly(tmp_path: Path) -> None:
     i = info(path)
     assert not i.closed and i.messages == 0 and i.problem is not None
     assert os.path.getsize(path) == i.bytes_total
+
+
+# --- the chunk parser of closed files --------------------------------------------------
+
+
+def _chunk_of(records: bytes, compression: str = "") -> Any:
+    import zlib
+
+    import zstandard
+    from mcap.records import Chunk
+
+    data = zstandard.ZstdCompressor().compress(records) if compression == "zstd" else records
+    return Chunk(compression=compression, data=data, message_end_time=0, message_start_time=0,
+                 uncompressed_crc=zlib.crc32(records), uncompressed_size=len(records))  # fmt: skip
+
+
+def test_chunk_messages_match_mcaps_own_parser() -> None:
+    from mcap.records import Message
+    from mcap.stream_reader import breakup_chunk
+
+    from acq.loginfo import _chunk_messages
+
+    rng = random.Random(3)
+    body = b""
+    for i in range(200):
+        payload = rng.randbytes(rng.randrange(0, 300))
+        msg = struct.pack("<HIQQ", i % 3, i, 10**9 + i, 2 * 10**9 + i) + payload
+        body += struct.pack("<BQ", 0x05, len(msg)) + msg
+        if i % 50 == 0:  # a record of another kind in between
+            body += struct.pack("<BQ", 0x7F, 4) + b"abcd"
+    for compression in ("", "zstd"):
+        chunk = _chunk_of(body, compression)
+        ours = _chunk_messages(chunk)
+        theirs = [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, Message)]
+        assert ours == theirs and len(ours) == 200
+
+
+@given(st.binary(max_size=400))
+@settings(max_examples=300, deadline=None)
+def test_chunk_messages_of_any_bytes_are_messages_or_a_typed_error(data: bytes) -> None:
+    from acq.loginfo import _chunk_messages
+
+    try:
+        _chunk_messages(_chunk_of(data))
+    except McapError:
+        pass

@@ -17,8 +17,8 @@ what a recorder would have:
   jitter (one stream: a late frame delays the next) after its middle of exposure, and is
   stamped receipt minus ``configured_camera_latency_s`` — by default NOT the true value
   (the configuration does not know the camera's latency);
-- odometry: the vehicle's true speed and yaw rate at 50 Hz on ``/vehicle/odometry``
-  (when :func:`acq.schemas` has the message), stamped on the host clock;
+- odometry: the vehicle's true speed and yaw rate at 50 Hz on ``/vehicle/odometry``,
+  stamped on the host clock; optionally GNSS fixes on ``/gnss/fix`` (RTK-like noise);
 - 1 Hz clock pairs; metadata: the scanner's geometry, the TRUE calibration.
 
 :class:`DriveTruth` holds the truth: the street, trajectory and rig, the true time of
@@ -41,7 +41,7 @@ from acq import calibfile, schemas
 from acq.calibfile import Calibration, CameraCalib
 from acq.clocksync import DeviceClock
 from acq.mcap_log import LogWriter
-from acq.records import Frame, Odometry, Scan
+from acq.records import Fix, Frame, Odometry, Scan
 from sim.sensors import render_frame, render_scan, return_strength
 from sim.world import Rig, Street, Trajectory, default_rig
 
@@ -129,6 +129,8 @@ def write_drive_log(
     jpeg_quality: int = 90,
     intensity_noise: float = 0.05,
     intensities: bool = True,
+    gnss_hz: float = 0.0,
+    gnss_noise_m: float = 0.02,
     start_ns: int = 2_000_000_000_000,
     rig: Rig | None = None,
 ) -> DriveTruth:
@@ -138,7 +140,8 @@ def write_drive_log(
     (None: the true mean, ``camera_latency_s`` + half the exposure + the jitter's mean);
     ``odometry_span_s`` (start, end) s limits the odometry (default: the whole drive);
     ``intensity_noise``: the relative spread of the scans' return strengths;
-    ``intensities=False``: scans without them (a scanner asked for ranges only).
+    ``intensities=False``: scans without them (a scanner asked for ranges only);
+    ``gnss_hz`` > 0: GNSS fixes of the true position with ``gnss_noise_m`` (m) noise.
     """
     rig = rig or default_rig()
     rng = np.random.default_rng(seed)
@@ -168,9 +171,10 @@ def write_drive_log(
         ("/acq/clock", "acq.Clock"),
     ):
         writer.add_channel(topic, schemas.SCHEMAS[schema])
-    odometry = getattr(schemas, "odometry", None)
-    if odometry_hz > 0 and odometry is not None and "acq.Odometry" in schemas.SCHEMAS:
+    if odometry_hz > 0:
         writer.add_channel("/vehicle/odometry", schemas.SCHEMAS["acq.Odometry"])
+    if gnss_hz > 0:
+        writer.add_channel("/gnss/fix", schemas.SCHEMAS["foxglove.LocationFix"])
 
     def host(t: float) -> int:
         return start_ns + round(t * 1e9)
@@ -247,7 +251,7 @@ def write_drive_log(
             (recv, stamp, "/acq/timing/camera", timing),
         ]
     # --- odometry (true speed and yaw rate, by central differences of the trajectory)
-    if odometry_hz > 0 and odometry is not None and "acq.Odometry" in schemas.SCHEMAS:
+    if odometry_hz > 0:
         first, last = odometry_span_s or (0.0, seconds + 0.2)
         ts = np.arange(first, last, 1.0 / odometry_hz)
         h = 1e-3
@@ -263,7 +267,23 @@ def write_drive_log(
             stamp = host(t)
             recv = stamp + 300_000
             odo = Odometry(recv_ns=recv, stamp_ns=stamp, speed=v, yaw_rate=w)
-            events.append((recv, stamp, "/vehicle/odometry", odometry(odo)))
+            events.append((recv, stamp, "/vehicle/odometry", schemas.odometry(odo)))
+    # --- GNSS: the vehicle's true position (the antenna at its origin), street x east and
+    # y north of ORIGIN, with Gaussian noise; stamped at the fix instant, received later
+    if gnss_hz > 0:
+        from sim.nmea_device import DEFAULT_ORIGIN, enu_to_wgs84
+
+        gnss_rng = np.random.default_rng([seed, 2])
+        ts = np.arange(0.0, seconds + 0.2, 1.0 / gnss_hz)
+        _, pos = traj.poses(ts)
+        noisy = pos + gnss_rng.normal(0.0, gnss_noise_m, pos.shape)
+        for t, p in zip(ts.tolist(), noisy.tolist(), strict=True):
+            lat, lon, h = enu_to_wgs84((p[0], p[1], p[2]), DEFAULT_ORIGIN)
+            stamp = host(t)
+            fix = Fix(recv_ns=stamp + 45_000_000, utc_s=1_800_000_000 + stamp * 1e-9,
+                      latitude=lat, longitude=lon, altitude=h, quality=4, satellites=14,
+                      hdop=0.7)  # fmt: skip
+            events.append((fix.recv_ns, stamp, "/gnss/fix", schemas.location_fix(fix, stamp)))
     # --- clock pairs, then everything in receipt order
     for k in range(int(seconds) + 2):
         stamp = host(float(k))

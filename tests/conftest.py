@@ -33,7 +33,6 @@ REALTIME_MODULES = frozenset(
         "test_replay",
         "test_scanner_faults",
         "test_scip",
-        "test_sensitivity",  # its fixture records the live demo rig
         "test_sim_camera",
         "test_soak",
         "test_transport",

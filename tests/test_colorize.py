@@ -186,3 +186,26 @@ def test_best_view_needs_a_trajectory(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="trajectory"):
         run(truth.files, truth.calibration, tmp_path / "c.ply", frame="laser",
             options=Options(view="best"), preview=None)  # fmt: skip
+
+
+def test_gnss_fixes_are_fused_and_place_the_cloud_in_their_frame(tmp_path: Path) -> None:
+    """CAN odometry and 10 Hz RTK-like fixes: the trajectory is their fusion, the cloud
+    lies in the ENU frame at the first fix (the street's own axes here) and the colours
+    stay right to the pixel."""
+    truth = write_drive_log(tmp_path, 3.0, pattern_at=12.0, configured_camera_latency_s=None,
+                            vibration_rad=0.0, gnss_hz=10.0)  # fmt: skip
+    results: list = []
+    report = run(truth.files, truth.calibration, tmp_path / "c.ply", results=results,
+                 want_uv=True, preview=None)  # fmt: skip
+    assert "fused with 32 GNSS fixes" in report.trajectory, report.trajectory  # 0 to 3.1 s
+    e = _pixel_errors(truth, results)
+    assert float(np.sqrt(np.mean(e**2))) < 0.5 and float(np.mean(e < 1.0)) > 0.97
+    scan = np.concatenate([r.scan for r in results]).astype(np.int64)
+    step = np.concatenate([r.step for r in results]).astype(np.int64)
+    xyz = np.concatenate([r.xyz for r in results])
+    _, start = truth.trajectory.poses(np.array([0.0]))
+    true_xyz = truth.points[scan, step].astype(np.float64) - start[0]
+    ok = np.isfinite(true_xyz).all(axis=1)
+    d = np.linalg.norm(xyz[ok] - true_xyz[ok], axis=1)
+    print(np.median(d), np.percentile(d, 99))
+    assert np.median(d) < 0.05 and np.percentile(d, 99) < 0.1

@@ -326,9 +326,9 @@ def test_files_roll_over_with_nothing_lost_or_repeated(rig: Rig, tmp_path: Path)
         laser_to_vehicle=truth.laser_to_vehicle,
     )
     calibfile.save(calib, tmp_path / "calib.yaml")
-    cfg = rig.config(tmp_path, split_megabytes=3)
+    cfg = rig.config(tmp_path, split_megabytes=1.5)
     cfg = cfg.model_copy(update={"calibration": tmp_path / "calib.yaml"})
-    assert Recorder(cfg, duration_s=7.0).run() == 0
+    assert Recorder(cfg, duration_s=4.0).run() == 0
     files = sorted((tmp_path / "logs").glob("*.mcap"))
     assert len(files) >= 3
     ticks: list[int] = []

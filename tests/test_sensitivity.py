@@ -168,13 +168,15 @@ def test_plot_has_the_size_and_draws_every_series(tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def rig_files(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """calib.yaml of the simulated rig and a short MCAP log of its scans (written by the
-    recorder's own MCAP writer through ``acq.demo``, 2 s)."""
-    from acq.demo import run
+    """calib.yaml of the simulated rig and a short MCAP log of its drive (1.5 s, written
+    as the recorder writes, by ``sim.drive_log``: no live devices, so not a real-time
+    test)."""
+    from sim.drive_log import write_drive_log
 
-    out = tmp_path_factory.mktemp("sensitivity_demo")
-    assert run(out, seconds=2.0) == 0
-    return out / "calib.yaml", out / "demo.mcap"
+    out = tmp_path_factory.mktemp("sensitivity_drive")
+    truth = write_drive_log(out, 1.5, pattern_at=None)
+    calibfile.save(truth.calibration, out / "calib.yaml")
+    return out / "calib.yaml", truth.files[0]
 
 
 def test_main_sensitivity_on_a_simulated_log(

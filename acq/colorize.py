@@ -51,7 +51,8 @@ FORMATS = (".ply", ".las", ".laz")
 class Job:
     """What every chunk needs (small, picklable): the files, the devices, the camera's
     calibration, the re-timing maps (recorded stamp -> new, sorted by recorded stamp),
-    the trajectory (anything with ``pose_at``; None: laser frame) and the options."""
+    the trajectory (an :class:`acq.trajectory.Trajectory`; None: laser frame) and the
+    options."""
 
     files: tuple[str, ...]
     laser: str
@@ -159,8 +160,9 @@ def place(
     if trajectory is not None:
         inside = trajectory.covers(time_ns)
         P_world = np.full_like(P_laser, np.nan)  # no pose: not placed, not coloured
-        Rv, tv = trajectory.pose_at(time_ns[inside])
-        P_world[inside] = np.einsum("nij,nj->ni", Rv, laser_to_vehicle.apply(P_laser[inside])) + tv
+        P_world[inside] = trajectory.transform(
+            time_ns[inside], laser_to_vehicle.apply(P_laser[inside])
+        )
     return Placed(scan_idx, step, r, time_ns, P_laser, P_world, inside)
 
 

@@ -394,6 +394,25 @@ class Trajectory:
 
     __call__ = pose_at
 
+    def transform(self, t_ns: npt.ArrayLike, points: npt.ArrayLike) -> np.ndarray:
+        """Vehicle-frame ``points`` (N,3) m, each measured at its host ns ``t_ns`` (N,),
+        into the world: ``R(t) p + t(t)`` as :meth:`pose_at` gives, without the (N,3,3)
+        rotations in memory (2 M points: a fifth of the time). Raises
+        :class:`OutOfSpanError` as :meth:`pose_at`."""
+        t = np.asarray(t_ns)
+        if t.dtype.kind not in "iu":
+            raise TypeError(f"t_ns must be integer host ns, got {t.dtype}")
+        flat = t.astype(np.int64, copy=False).reshape(-1)
+        P = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        if P.shape[0] != flat.size:
+            raise ValueError(f"{flat.size} times but {P.shape[0]} points")
+        idx, bad = self._locate(flat)
+        if bad.any():
+            raise OutOfSpanError(self._describe(flat, bad))
+        out = np.empty_like(P)
+        _slerp_apply(flat, idx, self.t_ns, self._table, P, out)
+        return out
+
     def _describe(self, t: np.ndarray, bad: np.ndarray) -> str:
         i = int(np.argmax(bad))
         t0, t1 = self.start_ns, self.end_ns
@@ -483,6 +502,33 @@ def _slerp_lerp(t, idx, t_samples, tab, R, p):  # type: ignore[no-untyped-def]
         p[n, 0] = b * tab[i, 9] + a * tab[i, 12]
         p[n, 1] = b * tab[i, 10] + a * tab[i, 13]
         p[n, 2] = b * tab[i, 11] + a * tab[i, 14]
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _slerp_apply(t, idx, t_samples, tab, P, out):  # type: ignore[no-untyped-def]
+    """out[n] = R(t[n]) P[n] + p(t[n]), the pose as in _slerp_lerp."""
+    for n in range(t.size):
+        i = idx[n]
+        a = np.float64(t[n] - t_samples[i]) / tab[i, 15]
+        ang = a * tab[i, 8]
+        c = np.cos(ang)
+        s = np.sin(ang)
+        w = c * tab[i, 0] + s * tab[i, 4]
+        x = c * tab[i, 1] + s * tab[i, 5]
+        y = c * tab[i, 2] + s * tab[i, 6]
+        z = c * tab[i, 3] + s * tab[i, 7]
+        x2, y2, z2 = 2.0 * x, 2.0 * y, 2.0 * z
+        xx, yy, zz = x * x2, y * y2, z * z2
+        xy, xz, yz = x * y2, x * z2, y * z2
+        wx, wy, wz = w * x2, w * y2, w * z2
+        px, py, pz = P[n, 0], P[n, 1], P[n, 2]
+        b = 1.0 - a
+        out[n, 0] = (1.0 - yy - zz) * px + (xy - wz) * py + (xz + wy) * pz + (
+            b * tab[i, 9] + a * tab[i, 12])  # fmt: skip
+        out[n, 1] = (xy + wz) * px + (1.0 - xx - zz) * py + (yz - wx) * pz + (
+            b * tab[i, 10] + a * tab[i, 13])  # fmt: skip
+        out[n, 2] = (xz - wy) * px + (yz + wx) * py + (1.0 - xx - yy) * pz + (
+            b * tab[i, 11] + a * tab[i, 14])  # fmt: skip
 
 
 def laser_poses(

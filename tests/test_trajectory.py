@@ -645,3 +645,20 @@ def test_csv_frame_errors(tmp_path: Path) -> None:
         tj.from_csv(path, utc_to_host_ns=to_host)
     with pytest.raises(TrajectoryFileError, match=r"xyz\.csv:1: the file's frame is 'EPSG:25832'"):
         tj.from_csv(path, utc_to_host_ns=to_host, frame="EPSG:32632")
+
+
+def test_transform_is_pose_at_applied_to_the_points() -> None:
+    rng = np.random.default_rng(5)
+    n = 50
+    t = T0 + np.cumsum(rng.integers(10**6, 10**8, n))
+    traj = Trajectory(t, tj.matrices_from_euler(*rng.uniform(-3, 3, (3, n))),
+                      rng.normal(0, 100, (n, 3)))  # fmt: skip
+    t_q = rng.integers(t[0], t[-1], 10_000)
+    P = rng.normal(0, 20, (t_q.size, 3))
+    R, p = traj.pose_at(t_q)
+    np.testing.assert_allclose(traj.transform(t_q, P), np.einsum("nij,nj->ni", R, P) + p,
+                               atol=1e-9)  # fmt: skip
+    with pytest.raises(tj.OutOfSpanError):
+        traj.transform(np.array([t[0] - 10**9]), np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="2 times but 1 points"):
+        traj.transform(t[:2], np.zeros((1, 3)))

@@ -86,6 +86,20 @@ def test_colorize_auto_uses_the_estimate_and_gets_the_pixels_right(
     assert errors["configured"] > 1.5 and errors["auto"] < 0.5
 
 
+def test_the_estimate_reads_its_window_itself_for_workers(drive: tuple[DriveTruth, Path]) -> None:
+    """With workers or Dask the log's images are not in this process: the estimate reads
+    the part it uses, and gets what it gets from the log read whole."""
+    from acq.colorize import Report, estimate_offset, prepare
+
+    truth, calib = drive
+    job, whole = prepare(truth.files, calibfile.load(calib), Report(output="x"), jpegs=True)
+    mine = estimate_offset(job, seconds=4.0)
+    given = estimate_offset(job, whole=whole, seconds=4.0)
+    assert mine.found and mine.frames == given.frames and mine.points == given.points
+    assert mine.offset_s == given.offset_s
+    assert mine.offset_s == pytest.approx(_true_error(truth), abs=0.003)
+
+
 def test_no_estimate_without_motion_or_return_strengths(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

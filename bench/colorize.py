@@ -21,7 +21,7 @@ One JSON line per result:
   for colours sampled at each point's TRUE pixel in its frame (``pattern_right_ceiling``:
   what the frame, its JPEG and its resolution allow any method colouring from it), over
   all pattern points, over those the camera sees in that frame (``_visible``: from the
-  camera, nearer parts of the pattern hide some of the back set that the laser, 40 cm
+  camera, nearer parts of the pattern hide some of the back set that the laser, half a metre
   away, sees) and over those away from colour edges (``_interior``). Variants: ``nearest`` (the
   calibration above, time offset included), ``nearest_time_offset_auto`` (the offset
   estimated from the log itself, ``--time-offset auto``), ``nearest_configured_latency``

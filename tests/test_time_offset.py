@@ -24,7 +24,7 @@ def _true_error(truth: DriveTruth) -> float:
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriveTruth, Path]:
     d = tmp_path_factory.mktemp("drive")
-    truth = write_drive_log(d, 8.0, pattern_at=None, seed=2)
+    truth = write_drive_log(d, 6.0, pattern_at=None, seed=2)
     calib = d / "calib.yaml"
     calibfile.save(truth.calibration, calib)  # the true calibration: offset 0
     return truth, calib

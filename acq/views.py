@@ -126,8 +126,14 @@ def occlusion_depths(
 
 
 def decode_jpeg(jpeg: bytes) -> np.ndarray | None:
-    """A colour JPEG as an (H,W,3) BGR uint8 image, or None when it does not decode."""
-    image = cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
+    """A colour JPEG as an (H,W,3) BGR uint8 image, or None when it does not decode
+    (empty bytes included: a garbled message in a log)."""
+    if not jpeg:
+        return None
+    try:
+        image = cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
+    except cv2.error:
+        return None
     return image if image is not None and image.ndim == 3 else None
 
 

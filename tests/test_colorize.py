@@ -209,3 +209,9 @@ def test_gnss_fixes_are_fused_and_place_the_cloud_in_their_frame(tmp_path: Path)
     d = np.linalg.norm(xyz[ok] - true_xyz[ok], axis=1)
     print(np.median(d), np.percentile(d, 99))
     assert np.median(d) < 0.05 and np.percentile(d, 99) < 0.1
+
+
+def test_undecodable_frames_are_none_not_an_error() -> None:
+    from acq.views import decode_jpeg
+
+    assert decode_jpeg(b"") is None and decode_jpeg(b"\xff\xd8 not a jpeg") is None

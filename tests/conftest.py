@@ -1,9 +1,10 @@
 """Shared fixtures (paths to the real device data in ../shared/data/) and the
 ``realtime`` marker.
 
-Tests in :data:`REALTIME_MODULES` drive simulated devices, recorders and clocks in real
-time (frame rates, stall timeouts, kills at a moment): CPU load from other tests makes
-them miss deadlines that a real rig would meet. `make test` runs them alone, then the
+Tests in :data:`REALTIME_MODULES`, and tests marked ``realtime`` elsewhere, drive
+simulated devices, recorders and clocks in real time (frame rates, stall timeouts,
+kills at a moment): CPU load from other tests makes them miss deadlines that a real rig
+would meet. `make test` runs them alone, then the
 rest on both cores (pytest-xdist).
 """
 
@@ -23,7 +24,6 @@ REALTIME_MODULES = frozenset(
         "test_can_odometry",
         "test_cola_sim",
         "test_demo",
-        "test_loginfo",
         "test_mcap_log",
         "test_nmea",
         "test_probe",

@@ -540,6 +540,7 @@ while True:
 """
 
 
+@pytest.mark.realtime  # killed between two syncs: the rest of this module keeps no time
 def test_sigkilled_writer(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     proc = subprocess.Popen(

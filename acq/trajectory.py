@@ -472,63 +472,56 @@ def _interval_table(t: np.ndarray, R: np.ndarray, p: np.ndarray) -> np.ndarray:
     return tab
 
 
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+def _pose_in(t, t_samples, tab, i):  # type: ignore[no-untyped-def]
+    """The pose at time t in interval i of the table (see _interval_table): the rotation
+    matrix's nine entries row by row, then the position's three."""
+    a = np.float64(t - t_samples[i]) / tab[i, 15]  # exactly 1 at the end
+    ang = a * tab[i, 8]
+    c = np.cos(ang)
+    s = np.sin(ang)
+    w = c * tab[i, 0] + s * tab[i, 4]
+    x = c * tab[i, 1] + s * tab[i, 5]
+    y = c * tab[i, 2] + s * tab[i, 6]
+    z = c * tab[i, 3] + s * tab[i, 7]
+    x2, y2, z2 = 2.0 * x, 2.0 * y, 2.0 * z
+    xx, yy, zz = x * x2, y * y2, z * z2
+    xy, xz, yz = x * y2, x * z2, y * z2
+    wx, wy, wz = w * x2, w * y2, w * z2
+    b = 1.0 - a  # exact at both ends
+    return (
+        1.0 - yy - zz, xy - wz, xz + wy,
+        xy + wz, 1.0 - xx - zz, yz - wx,
+        xz - wy, yz + wx, 1.0 - xx - yy,
+        b * tab[i, 9] + a * tab[i, 12], b * tab[i, 10] + a * tab[i, 13],
+        b * tab[i, 11] + a * tab[i, 14],
+    )  # fmt: skip
+
+
 @numba.njit(nogil=True, cache=True, error_model="numpy")
 def _slerp_lerp(t, idx, t_samples, tab, R, p):  # type: ignore[no-untyped-def]
     """Pose n at time t[n] in interval idx[n] of the table (see _interval_table)."""
     for n in range(t.size):
-        i = idx[n]
-        a = np.float64(t[n] - t_samples[i]) / tab[i, 15]  # exactly 1 at the end
-        ang = a * tab[i, 8]
-        c = np.cos(ang)
-        s = np.sin(ang)
-        w = c * tab[i, 0] + s * tab[i, 4]
-        x = c * tab[i, 1] + s * tab[i, 5]
-        y = c * tab[i, 2] + s * tab[i, 6]
-        z = c * tab[i, 3] + s * tab[i, 7]
-        x2, y2, z2 = 2.0 * x, 2.0 * y, 2.0 * z
-        xx, yy, zz = x * x2, y * y2, z * z2
-        xy, xz, yz = x * y2, x * z2, y * z2
-        wx, wy, wz = w * x2, w * y2, w * z2
-        R[n, 0, 0] = 1.0 - yy - zz
-        R[n, 0, 1] = xy - wz
-        R[n, 0, 2] = xz + wy
-        R[n, 1, 0] = xy + wz
-        R[n, 1, 1] = 1.0 - xx - zz
-        R[n, 1, 2] = yz - wx
-        R[n, 2, 0] = xz - wy
-        R[n, 2, 1] = yz + wx
-        R[n, 2, 2] = 1.0 - xx - yy
-        b = 1.0 - a  # exact at both ends
-        p[n, 0] = b * tab[i, 9] + a * tab[i, 12]
-        p[n, 1] = b * tab[i, 10] + a * tab[i, 13]
-        p[n, 2] = b * tab[i, 11] + a * tab[i, 14]
+        r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = _pose_in(
+            t[n], t_samples, tab, idx[n]
+        )
+        R[n, 0, 0], R[n, 0, 1], R[n, 0, 2] = r00, r01, r02
+        R[n, 1, 0], R[n, 1, 1], R[n, 1, 2] = r10, r11, r12
+        R[n, 2, 0], R[n, 2, 1], R[n, 2, 2] = r20, r21, r22
+        p[n, 0], p[n, 1], p[n, 2] = px, py, pz
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
 def _slerp_apply(t, idx, t_samples, tab, P, out):  # type: ignore[no-untyped-def]
     """out[n] = R(t[n]) P[n] + p(t[n]), the pose as in _slerp_lerp."""
     for n in range(t.size):
-        i = idx[n]
-        a = np.float64(t[n] - t_samples[i]) / tab[i, 15]
-        ang = a * tab[i, 8]
-        c = np.cos(ang)
-        s = np.sin(ang)
-        w = c * tab[i, 0] + s * tab[i, 4]
-        x = c * tab[i, 1] + s * tab[i, 5]
-        y = c * tab[i, 2] + s * tab[i, 6]
-        z = c * tab[i, 3] + s * tab[i, 7]
-        x2, y2, z2 = 2.0 * x, 2.0 * y, 2.0 * z
-        xx, yy, zz = x * x2, y * y2, z * z2
-        xy, xz, yz = x * y2, x * z2, y * z2
-        wx, wy, wz = w * x2, w * y2, w * z2
-        px, py, pz = P[n, 0], P[n, 1], P[n, 2]
-        b = 1.0 - a
-        out[n, 0] = (1.0 - yy - zz) * px + (xy - wz) * py + (xz + wy) * pz + (
-            b * tab[i, 9] + a * tab[i, 12])  # fmt: skip
-        out[n, 1] = (xy + wz) * px + (1.0 - xx - zz) * py + (yz - wx) * pz + (
-            b * tab[i, 10] + a * tab[i, 13])  # fmt: skip
-        out[n, 2] = (xz - wy) * px + (yz + wx) * py + (1.0 - xx - yy) * pz + (
-            b * tab[i, 11] + a * tab[i, 14])  # fmt: skip
+        r00, r01, r02, r10, r11, r12, r20, r21, r22, px, py, pz = _pose_in(
+            t[n], t_samples, tab, idx[n]
+        )
+        x, y, z = P[n, 0], P[n, 1], P[n, 2]
+        out[n, 0] = r00 * x + r01 * y + r02 * z + px
+        out[n, 1] = r10 * x + r11 * y + r12 * z + py
+        out[n, 2] = r20 * x + r21 * y + r22 * z + pz
 
 
 def laser_poses(

@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from acq import projection
-from acq.calibfile import CameraCalib
+from acq.calibfile import CalibStd, CameraCalib
 from acq.loginfo import LogError
 from acq.transforms import Rigid
 from acq.views import PoseFn, decoded_frames
@@ -274,10 +274,10 @@ def main_time_offset(args: Any) -> int:
     if not est.found:
         print(f"{prog}: no estimate: {est.note}", file=sys.stderr)
         return 1
-    name = job.camera
-    cam = calib.camera(name)
-    std = replace(cam.std, time_offset_s=float(f"{est.std_s:.3g}")) if np.isfinite(est.std_s) \
-        else cam.std  # fmt: skip
+    name, cam = job.camera, job.cam
+    std = cam.std
+    if np.isfinite(est.std_s):
+        std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
     cams = dict(calib.cameras)
     cams[name] = replace(cam, time_offset_s=round(est.offset_s, 6), std=std)
     calibfile.save(replace(calib, cameras=cams), args.output)

@@ -11,13 +11,18 @@
    coloured without motion compensation (right only for a rig standing still; said in
    the report).
 4. Chunks of ``chunk_s`` seconds of scans, each read from the files on its own with the
-   frames around it and the laser points just outside it (for the depth buffers of
-   ``--view best``), coloured by :func:`acq.views.colour_points`; in this process, on
-   ``workers`` processes, or on a Dask cluster. The chunking does not depend on how the
-   chunks run, so the output bytes do not either.
-5. The cloud: every point with its own time (UTC in PLY, Adjusted Standard GPS time in
-   LAS), scan index, intensity, colour and whether it was coloured; ``--frame world``
-   (with a trajectory) or ``laser``; PLY or LAS by the output's extension; a preview PNG.
+   frames around it (and, for ``--view best``, the laser points just outside it, for
+   the depth buffers), coloured by :func:`acq.views.start_colouring`; in this process,
+   on ``workers`` processes, or on a Dask cluster. The chunking does not depend on how
+   the chunks run, so the output bytes do not either. In this process a chunk's frames
+   decode on a pool of threads (one per core) while the next chunk is placed and the
+   last one written.
+5. The cloud, written chunk by chunk in chunk order (:class:`acq.cloud.PlyStream`,
+   :class:`acq.las.LasStream`) under a temporary name renamed at the end (a failure
+   leaves no partial file and an earlier output untouched): every point with its own
+   time (UTC in PLY, Adjusted Standard GPS time in LAS), scan index, intensity, colour
+   and whether it was coloured; ``--frame world`` (with a trajectory) or ``laser``; PLY
+   or LAS by the output's extension; a preview PNG.
 
 Times host monotonic ns unless ``_s``; metres; colours RGB.
 """
@@ -29,7 +34,9 @@ import json
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -38,6 +45,7 @@ import numpy as np
 
 from acq import calibfile, cloud, retime, views
 from acq.calibfile import Calibration, CameraCalib
+from acq.las import LasStream
 from acq.loginfo import LogError
 from acq.time_offset import OffsetEstimate, estimate_time_offset
 from acq.transforms import Rigid
@@ -169,6 +177,15 @@ def place(
 def colour_chunk(job: Job, chunk: Chunk, whole: cloud.DriveLog | None = None) -> ChunkResult:
     """Read, place and colour one chunk (runs in a worker process or on a Dask worker);
     ``whole``: the log already read (then only its part is used)."""
+    with ThreadPoolExecutor(max_workers=max(1, job.threads)) as pool:
+        return start_chunk(job, chunk, whole, pool).result()
+
+
+def start_chunk(
+    job: Job, chunk: Chunk, whole: cloud.DriveLog | None, pool: Executor
+) -> ChunkColouring:
+    """Read and place one chunk and queue its frames on ``pool`` (:func:`colour_chunk`
+    without waiting: :meth:`ChunkColouring.result` does)."""
     t0 = time.perf_counter()
     margin = _margin_ns(job)
     # the same scans and frames whether read here or cut from the whole log: those
@@ -183,67 +200,95 @@ def colour_chunk(job: Job, chunk: Chunk, whole: cloud.DriveLog | None = None) ->
     t_read = time.perf_counter()
     scan_ns = _remap(job.scan_old, job.scan_new, log.scan_ns)
     frame_ns = _remap(job.frame_old, job.frame_new, log.frame_ns) - job.time_offset_ns
-    keep_scan = (scan_ns >= chunk.start_ns - margin) & (scan_ns < chunk.end_ns + margin)
     core_scan = (scan_ns >= chunk.start_ns) & (scan_ns < chunk.end_ns)
-    cam, l2v = job.cam, job.laser_to_vehicle
+    # the margins' scans only fill best's depth buffers
+    keep_scan = (
+        (scan_ns >= chunk.start_ns - margin) & (scan_ns < chunk.end_ns + margin)
+        if job.options.view == "best"
+        else core_scan
+    )
+    l2v = job.laser_to_vehicle
     pts = place(log, scan_ns, keep_scan, job.trajectory, l2v)
-    scan_idx, step, r, time_ns = pts.scan, pts.step, pts.r, pts.time_ns
-    P_laser, P_world, inside = pts.P_laser, pts.P_world, pts.inside
     pose_at = job.trajectory.pose_at if job.trajectory is not None else None
-    outside = int(np.count_nonzero(~inside & core_scan[scan_idx]))
-    size = views.point_size(r, log.angle_increment, job.travel_m)
-    t_place = time.perf_counter()
+    # the chunk's own points are coloured; those of its margins only hide others
+    core = core_scan[pts.scan] & (pts.inside if job.frame_world else True)
+    size = views.point_size(pts.r, log.angle_increment, job.travel_m)
     usable = (
         job.trajectory.covers(frame_ns) if pose_at is not None else np.ones(frame_ns.size, bool)
     )
     compensate = pose_at is not None and job.options.motion_compensation
-    col = views.colour_points(
-        P_world if compensate else P_laser, time_ns, size, frame_ns, log.jpegs, cam, l2v,
-        pose_at, job.options,
-        threads=job.threads, want_uv=job.want_uv, frame_ok=usable,
+    colouring = views.start_colouring(
+        pts.P_world if compensate else pts.P_laser, pts.time_ns, size, frame_ns, log.jpegs,
+        job.cam, l2v, pose_at, job.options,
+        pool=pool, want_uv=job.want_uv, frame_ok=usable, need=core,
     )  # fmt: skip
-    t_colour = time.perf_counter()
-    core = core_scan[scan_idx] & (inside if job.frame_world else True)
-    xyz = P_world if job.frame_world else P_laser
-    # the laser's position at each core scan's point 0 (the track; scans with a pose)
-    core_scans = np.flatnonzero(core_scan)
-    origin = np.zeros((core_scans.size, 3))
-    if job.frame_world and core_scans.size:
-        ok = job.trajectory.covers(scan_ns[core_scans])
-        Rs, ts = job.trajectory.pose_at(scan_ns[core_scans][ok])
-        origin = np.einsum("nij,j->ni", Rs, l2v.translation) + ts
-    # scan indices global to the session: the chunk's scans come after the earlier ones
-    first_scan = int(np.searchsorted(job.scan_new, chunk.start_ns)) if job.scan_new.size else 0
-    local = np.cumsum(core_scan) - 1
-    return ChunkResult(
-        index=chunk.index,
-        xyz=xyz[core],
-        rgb=col.rgb[core],
-        coloured=col.coloured[core],
-        hidden=col.hidden[core],
-        time_ns=time_ns[core],
-        scan=(first_scan + local[scan_idx[core]]).astype(np.uint32),
-        step=step[core].astype(np.uint32),
-        intensity=log.intensities[scan_idx[core], step[core]].astype(np.float32),
-        dt_s=col.dt_s[core],
-        theta=col.theta[core],
-        scan_origin=origin,
-        frame_stamp_ns=(
-            np.where(col.frame >= 0, log.frame_ns[np.maximum(col.frame, 0)], -1)[core]
-            if job.want_uv
-            else None
-        ),
-        uv=col.uv[core] if col.uv is not None else None,
-        frames_used=col.frames_used,
-        frames_failed=col.frames_failed,
-        outside=outside,
-        used_stamps=np.unique(log.frame_ns[col.frame[core][col.frame[core] >= 0]]),
-        seconds={
-            "read": t_read - t0,
-            "place": t_place - t_read,
-            "colour": t_colour - t_place,
-        },
-    )
+    seconds = {"read": t_read - t0, "place": time.perf_counter() - t_read}
+    return ChunkColouring(job, chunk, log, scan_ns, core_scan, core, pts, colouring, seconds)
+
+
+@dataclass
+class ChunkColouring:
+    """A chunk read and placed, its frames decoding (:func:`start_chunk`)."""
+
+    job: Job
+    chunk: Chunk
+    log: cloud.DriveLog
+    scan_ns: np.ndarray
+    core_scan: np.ndarray
+    core: np.ndarray
+    pts: Placed
+    colouring: views.Colouring
+    seconds: dict[str, float]
+
+    def result(self) -> ChunkResult:
+        """Wait for the chunk's frames; its points (:class:`ChunkResult`)."""
+        t0 = time.perf_counter()
+        job, chunk, log, pts, core = self.job, self.chunk, self.log, self.pts, self.core
+        col = self.colouring.result()
+        t_colour = time.perf_counter()
+        l2v = job.laser_to_vehicle
+        xyz = pts.P_world if job.frame_world else pts.P_laser
+        # the laser's position at each core scan's point 0 (the track; scans with a pose)
+        core_scans = np.flatnonzero(self.core_scan)
+        origin = np.zeros((core_scans.size, 3))
+        if job.frame_world and core_scans.size:
+            ok = job.trajectory.covers(self.scan_ns[core_scans])
+            Rs, ts = job.trajectory.pose_at(self.scan_ns[core_scans][ok])
+            origin = np.einsum("nij,j->ni", Rs, l2v.translation) + ts
+        # scan indices global to the session: the chunk's scans come after the earlier ones
+        first_scan = int(np.searchsorted(job.scan_new, chunk.start_ns)) if job.scan_new.size else 0
+        local = np.cumsum(self.core_scan) - 1
+        scan_idx, step = pts.scan[core], pts.step[core]
+        frame = col.frame[core]
+        return ChunkResult(
+            index=chunk.index,
+            xyz=xyz[core],
+            rgb=col.rgb[core],
+            coloured=col.coloured[core],
+            hidden=col.hidden[core],
+            time_ns=pts.time_ns[core],
+            scan=(first_scan + local[scan_idx]).astype(np.uint32),
+            step=step.astype(np.uint32),
+            intensity=log.intensities[scan_idx, step].astype(np.float32),
+            dt_s=col.dt_s[core],
+            theta=col.theta[core],
+            scan_origin=origin,
+            frame_stamp_ns=(
+                np.where(frame >= 0, log.frame_ns[np.maximum(frame, 0)], -1)
+                if job.want_uv
+                else None
+            ),
+            uv=col.uv[core] if col.uv is not None else None,
+            frames_used=col.frames_used,
+            frames_failed=col.frames_failed,
+            outside=int(np.count_nonzero(~pts.inside & self.core_scan[pts.scan])),
+            used_stamps=np.unique(log.frame_ns[frame[frame >= 0]]),
+            seconds={
+                **self.seconds,
+                "colour": t_colour - t0,
+                "finish": time.perf_counter() - t_colour,
+            },
+        )
 
 
 def plan(scan_ns: np.ndarray, chunk_s: float) -> list[Chunk]:
@@ -262,14 +307,24 @@ def _run_chunks(
     workers: int,
     dask: str | None,
     progress: bool,
+    emit: Callable[[ChunkResult], None],
     whole: cloud.DriveLog | None = None,
-) -> list[ChunkResult]:
-    """Every chunk's result, in chunk order, however they run (``whole``: the log read
-    already, for running here)."""
+) -> None:
+    """Every chunk's result to ``emit``, in chunk order, however they run (``whole``:
+    the log read already, for running here). Here, the next chunk is placed and the
+    last one emitted (written) while a chunk's frames decode."""
     from tqdm import tqdm
 
     bar = tqdm(total=len(chunks), unit="chunk", disable=not progress, file=sys.stderr)
-    results: list[ChunkResult] = []
+    waiting: dict[int, ChunkResult] = {}  # done out of order
+    expected = deque(c.index for c in chunks)
+
+    def done(result: ChunkResult) -> None:
+        waiting[result.index] = result
+        while expected and expected[0] in waiting:
+            emit(waiting.pop(expected.popleft()))
+            bar.update()
+
     try:
         if dask:
             from dask.distributed import Client, as_completed
@@ -278,28 +333,31 @@ def _run_chunks(
                 job_f = client.scatter(job, broadcast=True)
                 futures = [client.submit(colour_chunk, job_f, c, pure=False) for c in chunks]
                 for fut in as_completed(futures):
-                    results.append(fut.result())
-                    bar.update()
+                    done(fut.result())
         elif workers > 1:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
-            from concurrent.futures import as_completed as done
+            from concurrent.futures import as_completed as completed
 
             ctx = multiprocessing.get_context("spawn")  # numba and threads: no fork
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
                 pending = [pool.submit(colour_chunk, job, c) for c in chunks]
-                for fut in done(pending):
-                    results.append(fut.result())
-                    bar.update()
+                for fut in completed(pending):
+                    done(fut.result())
         else:  # one process: the log is read once
             if whole is None:
                 whole = cloud.read_log(list(job.files), laser=job.laser, camera=job.camera or None)
-            for c in chunks:
-                results.append(colour_chunk(job, c, whole))
-                bar.update()
+            with ThreadPoolExecutor(max_workers=max(1, job.threads)) as threads:
+                started: ChunkColouring | None = None
+                for c in chunks:
+                    following = start_chunk(job, c, whole, threads)
+                    if started is not None:
+                        done(started.result())
+                    started = following
+                if started is not None:
+                    done(started.result())
     finally:
         bar.close()
-    return sorted(results, key=lambda r: r.index)
 
 
 @dataclass
@@ -321,6 +379,7 @@ class Report:
     retiming: dict[str, Any] = field(default_factory=dict)
     time_offset: dict[str, Any] = field(default_factory=dict)
     chunks: int = 0
+    bytes: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
@@ -579,36 +638,48 @@ def run(
     scan_new = np.sort(job.scan_new)
     chunks = plan(scan_new, chunk_s)
     t_plan = time.perf_counter()
-    done = _run_chunks(job, chunks, workers, dask, progress, index if local else None)
+    out = _Writer(output, crs, index.clock, report)
+    done: list[ChunkResult] = []
+
+    def emit(r: ChunkResult) -> None:
+        out.write(r)
+        done.append(r)
+
+    try:
+        _run_chunks(job, chunks, workers, dask, progress, emit, index if local else None)
+        t_colour = time.perf_counter()
+        size = out.stream.close()
+    except BaseException:
+        out.stream.abort()
+        raise
     if results is not None:
         results.extend(done)
-    results = done
-    t_colour = time.perf_counter()
-    pc = _cloud(results, index)
-    report.points, report.coloured = pc.size, int(pc.coloured.sum())
-    report.hidden = int(sum(int(r.hidden.sum()) for r in results))
+    report.points = sum(r.time_ns.size for r in done)
+    report.coloured = sum(int(np.count_nonzero(r.coloured)) for r in done)
+    report.hidden = sum(int(np.count_nonzero(r.hidden)) for r in done)
     report.frames, report.scans = index.n_frames, index.n_scans
-    report.frames_used = _frames_used(results)
-    report.frames_failed = sum(r.frames_failed for r in results)
+    report.frames_used = _frames_used(done)
+    report.frames_failed = sum(r.frames_failed for r in done)
     report.duration_s = float(np.ptp(scan_new)) * 1e-9 if scan_new.size else 0.0
     report.chunks = len(chunks)
-    outside = sum(r.outside for r in results)
+    report.bytes = size
+    outside = sum(r.outside for r in done)
     if outside:
         report.notes.append(
             f"{outside:,} points measured outside the trajectory's span: "
             + ("left out (no pose)" if world else "kept, not coloured")
         )
-    _write(pc, output, crs, report)
     if preview is not None:
-        cloud.preview_png(preview, pc, title=f"acq colorize {output.name}")
+        cloud.preview_png(preview, _cloud(done, index), title=f"acq colorize {output.name}")
     t_end = time.perf_counter()
     parts: dict[str, float] = {"index": t_offset - t_start}
     if auto:
         parts["time offset"] = t_plan - t_offset
-    parts["chunks"] = t_colour - t_plan
-    for key in ("read", "place", "colour"):
-        parts[f"  {key} (summed over chunks)"] = sum(r.seconds.get(key, 0.0) for r in results)
-    parts["write"] = t_end - t_colour
+    parts["chunks and writing"] = t_colour - t_plan
+    for key in ("read", "place", "colour", "finish"):
+        parts[f"  {key} (summed over chunks)"] = sum(r.seconds.get(key, 0.0) for r in done)
+    parts["  writing"] = out.seconds
+    parts["closing"] = t_end - t_colour
     parts["total"] = t_end - t_start
     report.seconds = parts
     return report
@@ -656,23 +727,31 @@ def _cloud(results: list[ChunkResult], index: cloud.DriveLog) -> cloud.Cloud:
     )
 
 
-def _write(pc: cloud.Cloud, output: Path, crs: str | None, report: Report) -> None:
-    suffix = output.suffix.lower()
-    comments = [f"frame {report.frame}", f"view {report.view}", *(
-        [f"crs {crs}"] if crs else [])]  # fmt: skip
-    if suffix == ".ply":
-        cloud.write_ply(output, pc, comments=comments)
-        if crs:
-            report.notes.append("PLY has no CRS field: --crs written as a comment")
-    elif suffix in (".las", ".laz"):
-        from acq.las import write_las
+class _Writer:
+    """The output file, written chunk by chunk in chunk order: PLY or LAS by
+    ``output``'s extension; ``seconds`` spent writing."""
 
-        write_las(
-            output, pc.xyz, pc.rgb, cloud.utc_seconds(pc.time_ns, pc.clock), pc.intensity,
-            pc.scan, pc.coloured, crs=crs, comments=comments,
-        )  # fmt: skip
-    else:
-        raise ValueError(f"{output}: unknown format; expected {', '.join(FORMATS)}")
+    def __init__(self, output: Path, crs: str | None, clock: np.ndarray, report: Report) -> None:
+        suffix = output.suffix.lower()
+        comments = [f"frame {report.frame}", f"view {report.view}", *(
+            [f"crs {crs}"] if crs else [])]  # fmt: skip
+        self.stream: cloud.PlyStream | LasStream
+        if suffix == ".ply":
+            self.stream = cloud.PlyStream(output, comments)
+            if crs:
+                report.notes.append("PLY has no CRS field: --crs written as a comment")
+        elif suffix in (".las", ".laz"):
+            self.stream = LasStream(output, crs=crs, comments=comments)
+        else:
+            raise ValueError(f"{output}: unknown format; expected {', '.join(FORMATS)}")
+        self.clock = clock
+        self.seconds = 0.0
+
+    def write(self, r: ChunkResult) -> None:
+        t0 = time.perf_counter()
+        utc = cloud.utc_seconds(r.time_ns, self.clock)
+        self.stream.write(r.xyz, r.rgb, utc, r.intensity, r.scan, r.coloured)
+        self.seconds += time.perf_counter() - t0
 
 
 def _session_files(logs: Sequence[Path]) -> list[Path]:

@@ -26,6 +26,7 @@ from acq.transforms import Rigid
 
 __all__ = [
     "colorize",
+    "colour_into",
     "laser_to_camera",
     "project",
 ]
@@ -191,6 +192,33 @@ def _colorize_range(Pf, lo, hi, R, t, intr, pinhole, image, bilinear, out, valid
                 _sample(image, uvf[2 * (i - blo)], uvf[2 * (i - blo) + 1], bilinear, out, i)
 
 
+@numba.njit(nogil=True, fastmath=True, cache=True, error_model="numpy")
+def _colour_into(P, idx, R, t, intr, pinhole, image, bilinear, out, valid, uv):  # type: ignore[no-untyped-def]
+    w = np.float32(image.shape[1])
+    h = np.float32(image.shape[0])
+    zero = np.zeros(3, dtype=np.float32)
+    Pf = np.empty(3 * _BLOCK, dtype=np.float32)
+    uvf = np.empty(2 * _BLOCK, dtype=np.float32)
+    ok = np.empty(_BLOCK, dtype=np.bool_)
+    for blo in range(0, idx.size, _BLOCK):
+        m = min(blo + _BLOCK, idx.size) - blo
+        # gathered relative to the camera in float64 (world coordinates can be large)
+        for i in range(m):
+            k = idx[blo + i]
+            Pf[3 * i] = P[k, 0] - t[0]
+            Pf[3 * i + 1] = P[k, 1] - t[1]
+            Pf[3 * i + 2] = P[k, 2] - t[2]
+        _project_block(Pf[: 3 * m], R, zero, intr, pinhole, w, h, uvf[: 2 * m], ok[:m])
+        for i in range(m):
+            if ok[i]:
+                k = idx[blo + i]
+                _sample(image, uvf[2 * i], uvf[2 * i + 1], bilinear, out, k)
+                valid[k] = True
+                if uv.shape[0]:
+                    uv[k, 0] = uvf[2 * i]
+                    uv[k, 1] = uvf[2 * i + 1]
+
+
 _MIN_SPLIT = 65536  # below this many points one thread is faster than two
 _pool: ThreadPoolExecutor | None = None
 
@@ -223,12 +251,17 @@ def _kernel_args(
     """(R, t, intrinsics, is_pinhole) as float32 arrays for the kernels."""
     R = np.ascontiguousarray(camera_to_laser.rotation, dtype=np.float32)
     t = np.ascontiguousarray(camera_to_laser.translation, dtype=np.float32)
+    return (R, t, *_intrinsics(model))
+
+
+def _intrinsics(model: CameraModel) -> tuple[np.ndarray, bool]:
+    """(intrinsics as float32, is_pinhole) for the kernels."""
     if isinstance(model, KannalaBrandt):
         intr = [model.fx, model.fy, model.cx, model.cy, *model.k, model.theta_max]
-        return R, t, np.array(intr, dtype=np.float32), False
+        return np.array(intr, dtype=np.float32), False
     if isinstance(model, Pinhole):
         intr = [model.fx, model.fy, model.cx, model.cy, *model.dist]
-        return R, t, np.array(intr, dtype=np.float32), True
+        return np.array(intr, dtype=np.float32), True
     raise TypeError(f"no projection kernel for {type(model).__name__}")
 
 
@@ -296,3 +329,29 @@ def colorize(
         _colorize_range, P.shape[0], P.reshape(-1), R, t, intr, pinhole, img, bilinear, out, valid
     )
     return out, valid
+
+
+def colour_into(
+    P: np.ndarray,
+    idx: np.ndarray,
+    model: CameraModel,
+    camera_to_points: tuple[np.ndarray, np.ndarray],
+    image: np.ndarray,
+    out: np.ndarray,
+    valid: np.ndarray,
+    uv: np.ndarray | None = None,
+    bilinear: bool = True,
+) -> None:
+    """Colour the points ``P[idx]`` (``P`` (N,3) float64 m, ``idx`` (K,) int64) in place:
+    ``out[idx]`` (N,C) uint8 gets the colour in ``image`` (the image's channel order)
+    where the point is on the sensor, ``valid[idx]`` (N,) bool True there, and ``uv``
+    (N,2) float32 the pixel when given. ``camera_to_points``: the camera's rotation and
+    position (m) in P's frame. Other rows are left as they were. One thread, no GIL (for
+    frames coloured on a pool's threads)."""
+    R, t = camera_to_points
+    intr, pinhole = _intrinsics(model)
+    _colour_into(
+        P, idx, np.ascontiguousarray(R, dtype=np.float32), np.asarray(t, dtype=np.float64),
+        intr, pinhole, image, bilinear, out, valid,
+        uv if uv is not None else np.empty((0, 2), dtype=np.float32),
+    )  # fmt: skip

@@ -24,7 +24,7 @@ from __future__ import annotations
 import itertools
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -33,11 +33,13 @@ import numpy as np
 
 from acq import projection, sync
 from acq.calibfile import CameraCalib
+from acq.camera_models import CameraModel
 from acq.transforms import Rigid
 
 __all__ = [
     "VIEWS",
     "Coloured",
+    "Colouring",
     "Options",
     "PoseFn",
     "colour_points",
@@ -45,6 +47,7 @@ __all__ = [
     "decoded_frames",
     "occlusion_depths",
     "point_size",
+    "start_colouring",
 ]
 
 PoseFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -168,14 +171,31 @@ class _Rig:
             R, t = self.pose_at(np.asarray(t_ns, dtype=np.int64))
             self._poses.update(zip(np.asarray(t_ns).tolist(), zip(R, t, strict=True), strict=True))
 
+    def _pose(self, pose_at: PoseFn, t_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        pose = self._poses.get(t_ns)
+        if pose is None:
+            R, t = pose_at(np.array([t_ns], dtype=np.int64))
+            pose = R[0], t[0]
+        return pose
+
     def laser_frame(self, P_world: np.ndarray, t_ns: int) -> np.ndarray:
         if self.pose_at is None:
             return P_world
-        pose = self._poses.get(t_ns)
-        if pose is None:
-            R, t = self.pose_at(np.array([t_ns], dtype=np.int64))
-            pose = R[0], t[0]
-        return self.v2l.apply((P_world - pose[1]) @ pose[0])
+        R, t = self._pose(self.pose_at, t_ns)
+        return self.v2l.apply((P_world - t) @ R)
+
+    def camera_poses(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's rotations (M,3,3) and positions (M,3) m in the points' frame at
+        ``t_ns`` (M,): the world as the rig stood then (the laser without motion
+        compensation)."""
+        c2l = self.cam.camera_to_laser
+        if self.pose_at is None:
+            return np.broadcast_to(c2l.rotation, (t_ns.size, 3, 3)), np.broadcast_to(
+                c2l.translation, (t_ns.size, 3)
+            )
+        c2v = self.l2v @ c2l
+        R, t = self.pose_at(np.asarray(t_ns, dtype=np.int64))
+        return R @ c2v.rotation, np.einsum("nij,j->ni", R, c2v.translation) + t
 
     def camera(self, P_laser: np.ndarray) -> np.ndarray:
         return self.cam.camera_to_laser.inverse().apply(P_laser)
@@ -190,7 +210,7 @@ def colour_points(
     time_ns: np.ndarray,
     size_m: np.ndarray,
     frame_ns: np.ndarray,
-    jpegs: list[bytes],
+    jpegs: Sequence[bytes],
     cam: CameraCalib,
     laser_to_vehicle: Rigid,
     pose_at: PoseFn | None,
@@ -199,69 +219,130 @@ def colour_points(
     threads: int = 2,
     want_uv: bool = False,
     frame_ok: np.ndarray | None = None,
+    need: np.ndarray | None = None,
 ) -> Coloured:
     """Colour points ``P`` (N,3) m measured at ``time_ns`` (N,) host ns, sorted by time:
     in the world when ``pose_at`` is given and motion is compensated, else in the laser
     frame at their own time. ``frame_ns`` (M,) the frames' mid-exposure times on the
     laser's clock (the calibration's time offset already applied), ``jpegs`` their
     bytes; ``size_m`` (N,) each point's share of surface (for the depth buffers);
-    ``frame_ok`` (M,) bool: frames that may be used (e.g. those the trajectory covers)."""
+    ``frame_ok`` (M,) bool: frames that may be used (e.g. those the trajectory covers);
+    ``need`` (N,) bool: the points to colour (default all; the others only hide points
+    in ``best``'s depth buffers). The frames are decoded on ``threads`` threads."""
+    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
+        return start_colouring(
+            P, time_ns, size_m, frame_ns, jpegs, cam, laser_to_vehicle, pose_at, options,
+            pool=pool, want_uv=want_uv, frame_ok=frame_ok, need=need,
+        ).result()  # fmt: skip
+
+
+class Colouring:
+    """Points being coloured on a pool's threads (:func:`start_colouring`): every frame
+    decoded once on a thread, its points sent back to where the rig stood and sampled
+    there; :meth:`result` waits for them. The arrays are filled in place."""
+
+    def __init__(
+        self, P: np.ndarray, frame: np.ndarray, theta: np.ndarray, hidden: np.ndarray,
+        time_ns: np.ndarray, frame_ns: np.ndarray, model: CameraModel, bilinear: bool,
+        want_uv: bool,
+    ) -> None:  # fmt: skip
+        n = P.shape[0]
+        self.P = np.ascontiguousarray(P, dtype=np.float64)
+        self.bgr = np.zeros((n, 3), dtype=np.uint8)
+        self.coloured = np.zeros(n, dtype=bool)
+        self.uv = np.full((n, 2), np.nan, dtype=np.float32) if want_uv else None
+        self.frame, self.theta, self.hidden = frame, theta, hidden
+        self.time_ns, self.frame_ns = time_ns, frame_ns
+        self.model, self.bilinear = model, bilinear
+        self.futures: list[Future[bool]] = []
+        self.frame_map: np.ndarray | None = None  # frame indices of a subset -> the caller's
+
+    def colour_frame(self, jpeg: bytes, idx: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:
+        """Decode one frame and colour its points ``idx`` (the camera at rotation ``R``
+        and position ``t`` in the points' frame); False when it does not decode."""
+        image = decode_jpeg(jpeg)
+        if image is None:
+            return False
+        projection.colour_into(
+            self.P, idx, self.model, (R, t), image, self.bgr, self.coloured, self.uv,
+            bilinear=self.bilinear,
+        )  # fmt: skip
+        return True
+
+    def result(self) -> Coloured:
+        """Wait for every frame; the points' colours (see :class:`Coloured`)."""
+        done = [f.result() for f in self.futures]
+        used_n, failed = sum(done), len(done) - sum(done)
+        coloured = self.coloured
+        frame = np.where(coloured, self.frame, -1)
+        dt = np.where(coloured, (self.time_ns - self.frame_ns[np.maximum(frame, 0)]) * 1e-9, np.nan)
+        theta = np.where(coloured, self.theta, np.nan).astype(np.float32)
+        if self.frame_map is not None:
+            frame = np.where(frame >= 0, self.frame_map[np.maximum(frame, 0)], -1)
+        return Coloured(
+            self.bgr[:, ::-1], coloured, frame, dt.astype(np.float32), theta, self.hidden,
+            used_n, failed, self.uv,
+        )  # fmt: skip
+
+
+def start_colouring(
+    P: np.ndarray,
+    time_ns: np.ndarray,
+    size_m: np.ndarray,
+    frame_ns: np.ndarray,
+    jpegs: Sequence[bytes],
+    cam: CameraCalib,
+    laser_to_vehicle: Rigid,
+    pose_at: PoseFn | None,
+    options: Options | None = None,
+    *,
+    pool: Executor,
+    want_uv: bool = False,
+    frame_ok: np.ndarray | None = None,
+    need: np.ndarray | None = None,
+) -> Colouring:
+    """:func:`colour_points` with its frames queued on ``pool`` (first come, first
+    served) and not waited for: the caller goes on (placing the next points, writing
+    the last ones) while they decode."""
     options = options or Options()
     n = P.shape[0]
     rig = _Rig(cam, laser_to_vehicle, pose_at if options.motion_compensation else None)
     if options.view == "best" and rig.pose_at is None:
         raise ValueError("--view best needs a trajectory (and motion compensation)")
+    if frame_ok is not None and not frame_ok.all():
+        keep = np.flatnonzero(frame_ok)
+        sub = start_colouring(
+            P, time_ns, size_m, frame_ns[keep], [jpegs[int(k)] for k in keep], cam,
+            laser_to_vehicle, pose_at, options, pool=pool, want_uv=want_uv, need=need,
+        )  # fmt: skip
+        sub.frame_map = keep
+        return sub
     frame = np.full(n, -1, dtype=np.int64)
     theta = np.full(n, np.nan, dtype=np.float32)
     hidden = np.zeros(n, dtype=bool)
-    rgb = np.zeros((n, 3), dtype=np.uint8)
-    coloured = np.zeros(n, dtype=bool)
-    uv = np.full((n, 2), np.nan, dtype=np.float32) if want_uv else None
     if n == 0 or frame_ns.size == 0:
-        nan = np.full(n, np.nan, np.float32)
-        return Coloured(rgb, coloured, frame, nan, theta, hidden, 0, 0, uv)
-    if frame_ok is not None and not frame_ok.all():
-        keep = np.flatnonzero(frame_ok)
-        sub = colour_points(
-            P, time_ns, size_m, frame_ns[keep], [jpegs[int(k)] for k in keep], cam,
-            laser_to_vehicle, pose_at, options, threads=threads, want_uv=want_uv,
-        )  # fmt: skip
-        frame = np.where(sub.frame >= 0, keep[np.maximum(sub.frame, 0)], -1)
-        return Coloured(sub.rgb, sub.coloured, frame, sub.dt_s, sub.theta, sub.hidden,
-                        sub.frames_used, sub.frames_failed, sub.uv)  # fmt: skip
-    rig.prepare(frame_ns)
+        return Colouring(P, frame, theta, hidden, time_ns, frame_ns, cam.model, True, want_uv)
+    need = np.ones(n, dtype=bool) if need is None else need
     pairing = sync.pair_frames(time_ns, frame_ns)
     near = np.where(np.abs(pairing.dt_s) <= options.max_dt_s, pairing.nearest, -1)
     if options.view == "nearest":
-        frame = near
+        frame = np.where(need, near, -1)
     else:
-        frame, theta, hidden = _best(P, time_ns, size_m, frame_ns, near, rig, options)
-
-    # colour: every frame decoded once, its points sent back to where the rig stood
+        rig.prepare(frame_ns)
+        frame, theta, hidden = _best(P, time_ns, size_m, frame_ns, near, rig, options, need)
+    out = Colouring(
+        P, frame, theta, hidden, time_ns, frame_ns, cam.model, options.bilinear, want_uv
+    )
     order = np.argsort(frame, kind="stable")
     order = order[frame[order] >= 0]
     used, first, counts = np.unique(frame[order], return_index=True, return_counts=True)
-    used_n = failed = 0
-    for j, lo, count, image in zip(
-        used, first, counts, decoded_frames(jpegs, used, threads), strict=True
+    Rs, ts = rig.camera_poses(frame_ns[used])
+    for k, (j, lo, count) in enumerate(
+        zip(used.tolist(), first.tolist(), counts.tolist(), strict=True)
     ):
-        if image is None:
-            failed += 1
-            continue
-        used_n += 1
-        idx = order[lo : lo + count]
-        P_l = rig.laser_frame(P[idx], int(frame_ns[j]))
-        bgr, seen = projection.colorize(
-            P_l, cam.model, cam.camera_to_laser, image, bilinear=options.bilinear
-        )
-        rgb[idx[seen]] = bgr[seen][:, ::-1]
-        coloured[idx[seen]] = True
-        if uv is not None:
-            uv[idx[seen]] = projection.project(P_l[seen], cam.model, cam.camera_to_laser)[0]
-    frame = np.where(coloured, frame, -1)
-    dt = np.where(coloured, (time_ns - frame_ns[np.maximum(frame, 0)]) * 1e-9, np.nan)
-    theta = np.where(coloured, theta, np.nan).astype(np.float32)
-    return Coloured(rgb, coloured, frame, dt.astype(np.float32), theta, hidden, used_n, failed, uv)
+        task = pool.submit(out.colour_frame, jpegs[j], order[lo : lo + count], Rs[k], ts[k])
+        out.futures.append(task)
+    return out
 
 
 def _best(
@@ -272,8 +353,10 @@ def _best(
     near: np.ndarray,
     rig: _Rig,
     options: Options,
+    need: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(frame, theta, hidden) per point for ``view="best"`` (module docstring)."""
+    """(frame, theta, hidden) per point for ``view="best"`` (module docstring), for the
+    points ``need``."""
     n, W = P.shape[0], options.window
     model = rig.cam.model
     f_px = 0.5 * (model.fx + model.fy)
@@ -291,7 +374,7 @@ def _best(
         t_f = int(frame_ns[j])
         lo, hi = np.searchsorted(time_ns, [t_f - max_dt * 1e9, t_f + max_dt * 1e9])
         idx = np.arange(lo, hi)
-        idx = idx[np.abs(near_rank[idx] - r) <= W]
+        idx = idx[(np.abs(near_rank[idx] - r) <= W) & need[idx]]
         if idx.size == 0:
             continue
         # the depth buffer of the laser points around this frame's time

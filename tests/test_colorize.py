@@ -110,6 +110,30 @@ def test_dask_local_cluster_gives_the_same_bytes(
     assert _digest(out) == _digest(local)
 
 
+def test_a_full_disk_midway_is_one_line_and_leaves_the_old_output(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    truth, calib = drive
+    out = tmp_path / "c.ply"
+    out.write_bytes(b"an earlier cloud")
+    real, calls = cloud.PlyStream.write, []
+
+    def write(self: cloud.PlyStream, *columns: np.ndarray) -> None:
+        calls.append(1)
+        if len(calls) == 2:  # the second chunk
+            raise OSError(28, "No space left on device", str(out) + ".tmp")
+        real(self, *columns)
+
+    monkeypatch.setattr(cloud.PlyStream, "write", write)
+    args = _args(*map(str, truth.files), "--calib", str(calib), "-o", str(out), "--frame",
+                 "laser", "--no-preview", "--chunk", "1.5")  # fmt: skip
+    assert main_colorize(args) == 2
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and err.count("\n") == 1
+    assert out.read_bytes() == b"an earlier cloud" and sorted(tmp_path.iterdir()) == [out]
+
+
 def test_bad_input_is_one_line_and_exit_2(
     drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

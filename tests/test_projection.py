@@ -97,6 +97,31 @@ def test_colorize_nearest_and_bilinear(model: CameraModel) -> None:
     assert np.abs(colours_b[inner] - expect).max() <= 1.0
 
 
+@pytest.mark.parametrize("model", [KB, PH], ids=["kannala_brandt", "pinhole"])
+def test_colour_into_is_colorize_on_the_rows_it_is_given_far_from_the_origin(
+    model: CameraModel,
+) -> None:
+    rng = np.random.default_rng(6)
+    image = rng.integers(0, 256, (model.height, model.width, 3), dtype=np.uint8)
+    P = street_points(20_000, seed=2)
+    colours, valid = projection.colorize(P, model, EXTR, image, bilinear=True)
+    uv_ref, _ = projection.project(P, model, EXTR)
+    # the same scene 200 km from the origin: float32 alone would be off by centimetres
+    far = np.array([2.0e5, -1.5e5, 30.0])
+    idx = np.flatnonzero(rng.random(P.shape[0]) < 0.5)
+    out = np.full((P.shape[0], 3), 7, dtype=np.uint8)
+    seen = np.zeros(P.shape[0], dtype=bool)
+    uv = np.full((P.shape[0], 2), np.nan, dtype=np.float32)
+    pose = (EXTR.rotation, EXTR.translation + far)
+    projection.colour_into(P + far, idx, model, pose, image, out, seen, uv)
+    assert not seen[np.setdiff1d(np.arange(P.shape[0]), idx)].any()
+    np.testing.assert_array_equal(seen[idx], valid[idx])
+    both = idx[valid[idx]]
+    assert np.abs(out[both].astype(int) - colours[both]).max() <= 1
+    assert np.abs(uv[both] - uv_ref[both]).max() < 2e-3
+    assert (out[~seen] == 7).all()
+
+
 def test_colorize_grey_image_and_keeps_out_for_invalid_points() -> None:
     grey = np.full((EQ.height, EQ.width), 77, dtype=np.uint8)
     P = np.vstack([EXTR.apply(np.array([[0.0, 0.0, 4.0]])), [[np.inf, 0, 0]]])

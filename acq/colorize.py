@@ -33,6 +33,7 @@ import itertools
 import json
 import os
 import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -45,6 +46,7 @@ import numpy as np
 
 from acq import calibfile, cloud, retime, views
 from acq.calibfile import Calibration, CameraCalib
+from acq.camera_models import CameraModel
 from acq.las import LasStream
 from acq.loginfo import LogError
 from acq.time_offset import OffsetEstimate, estimate_time_offset
@@ -167,10 +169,13 @@ def place(
     P_world = P_laser
     if trajectory is not None:
         inside = trajectory.covers(time_ns)
-        P_world = np.full_like(P_laser, np.nan)  # no pose: not placed, not coloured
-        P_world[inside] = trajectory.transform(
-            time_ns[inside], laser_to_vehicle.apply(P_laser[inside])
-        )
+        if inside.all():
+            P_world = trajectory.transform(time_ns, laser_to_vehicle.apply(P_laser))
+        else:
+            P_world = np.full_like(P_laser, np.nan)  # no pose: not placed, not coloured
+            P_world[inside] = trajectory.transform(
+                time_ns[inside], laser_to_vehicle.apply(P_laser[inside])
+            )
     return Placed(scan_idx, step, r, time_ns, P_laser, P_world, inside)
 
 
@@ -243,7 +248,8 @@ class ChunkColouring:
     def result(self) -> ChunkResult:
         """Wait for the chunk's frames; its points (:class:`ChunkResult`)."""
         t0 = time.perf_counter()
-        job, chunk, log, pts, core = self.job, self.chunk, self.log, self.pts, self.core
+        job, chunk, log, pts = self.job, self.chunk, self.log, self.pts
+        core: slice | np.ndarray = slice(None) if self.core.all() else self.core  # no copies
         col = self.colouring.result()
         t_colour = time.perf_counter()
         l2v = job.laser_to_vehicle
@@ -474,6 +480,27 @@ def _trajectory(
     return traj
 
 
+def _warm_kernels(model: CameraModel) -> None:
+    """Load the compiled kernels colorize calls, each on a tiny input of the real types
+    (numba's first call of a cached kernel costs a tenth of a second or more, part of it
+    without the GIL): run on a thread while the log is read."""
+    from acq import projection
+    from acq.trajectory import Trajectory
+
+    try:
+        traj = Trajectory(np.array([0, 10**8]), np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
+        t = np.array([5 * 10**7], dtype=np.int64)
+        traj.pose_at(t)
+        traj.transform(t, np.zeros((1, 3)))
+        image = np.zeros((model.height, model.width, 3), dtype=np.uint8)
+        projection.colour_into(
+            np.zeros((1, 3)), np.zeros(1, dtype=np.int64), model, (np.eye(3), np.zeros(3)),
+            image, np.zeros((1, 3), dtype=np.uint8), np.zeros(1, dtype=bool),
+        )  # fmt: skip
+    except Exception:  # only a head start: the real calls report any problem
+        pass
+
+
 def prepare(
     logs: Sequence[Path],
     calib: Calibration,
@@ -492,6 +519,9 @@ def prepare(
     light part (with the images when ``jpegs``); notes go into ``report``."""
     options = options or views.Options()
     files = _session_files(logs)
+    first = calib.cameras.get(camera) if camera else next(iter(calib.cameras.values()), None)
+    if first is not None:
+        threading.Thread(target=_warm_kernels, args=(first.model,), daemon=True).start()
     index = cloud.read_log(files, camera=camera, jpegs=jpegs, vehicle=trajectory is None)
     name, cam = cloud.camera_calib(index, calib, camera)
     report.notes += index.notes

@@ -23,7 +23,9 @@ import math
 import os
 import struct
 import zlib
+from collections import deque
 from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -352,21 +354,37 @@ class _Scan:
             self.notes.append(f"unreadable metadata or attachments ({e})")
         yield from extras
         count = 0
-        for index in sorted(summary.chunk_indexes, key=lambda i: i.chunk_start_offset):
-            at = index.chunk_start_offset
-            try:
-                f.seek(at)
-                record = next(StreamReader(f, skip_magic=True, emit_chunks=True).records)
-                if not isinstance(record, Chunk):
-                    raise McapError(f"expected a chunk, found {type(record).__name__}")
-                inner = self._chunk_records(record, messages_only=True)
-            except _RECORD_ERRORS as e:
-                self.notes.append(f"corrupt chunk at byte {at} skipped ({e})")
-                continue
-            for rec in inner:
-                if isinstance(rec, Message):
-                    count += 1
-                    yield rec
+        starts = sorted(index.chunk_start_offset for index in summary.chunk_indexes)
+        # each chunk read here, decompressed and parsed on a thread two chunks ahead of
+        # the caller (the decompression and its CRC run without the GIL)
+        with ThreadPoolExecutor(max_workers=1) as pool:
+
+            def ahead(at: int) -> Future[list[McapRecord]]:
+                try:
+                    f.seek(at)
+                    record = next(StreamReader(f, skip_magic=True, emit_chunks=True).records)
+                    if not isinstance(record, Chunk):
+                        raise McapError(f"expected a chunk, found {type(record).__name__}")
+                    return pool.submit(self._chunk_records, record, True)
+                except _RECORD_ERRORS as e:
+                    failed: Future[list[McapRecord]] = Future()
+                    failed.set_exception(e)
+                    return failed
+
+            queued = deque(ahead(at) for at in starts[:2])
+            for k, at in enumerate(starts):
+                done = queued.popleft()
+                if k + 2 < len(starts):
+                    queued.append(ahead(starts[k + 2]))
+                try:
+                    inner = done.result()
+                except _RECORD_ERRORS as e:
+                    self.notes.append(f"corrupt chunk at byte {at} skipped ({e})")
+                    continue
+                for rec in inner:
+                    if isinstance(rec, Message):
+                        count += 1
+                        yield rec
         self.bytes_read = self.size
         damaged = bool(self.notes)
         if self.expected_messages not in (None, count) and not damaged:

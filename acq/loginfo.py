@@ -29,7 +29,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 import zstandard
@@ -49,8 +49,10 @@ from mcap.records import (
 )
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.summary import Summary
-from mcap.writer import CompressionType, Writer
 from mcap_protobuf.decoder import DecoderFactory
+
+if TYPE_CHECKING:
+    from mcap.writer import Writer
 
 __all__ = [
     "ChannelInfo",
@@ -954,6 +956,8 @@ def repair(
     pending: dict[int, Channel] = {}
     count = 0
     with dst.open("xb") as out:
+        from mcap.writer import CompressionType, Writer  # here: it imports importlib.metadata
+
         writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         started = False
         try:

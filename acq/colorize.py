@@ -353,7 +353,8 @@ def _run_chunks(
         else:  # one process: the log is read once
             if whole is None:
                 whole = cloud.read_log(list(job.files), laser=job.laser, camera=job.camera or None)
-            with ThreadPoolExecutor(max_workers=max(1, job.threads)) as threads:
+            threads = ThreadPoolExecutor(max_workers=max(1, job.threads))
+            try:
                 started: ChunkColouring | None = None
                 for c in chunks:
                     following = start_chunk(job, c, whole, threads)
@@ -362,6 +363,8 @@ def _run_chunks(
                     started = following
                 if started is not None:
                     done(started.result())
+            finally:  # on an error (a full disk, Ctrl-C) the queued frames are dropped
+                threads.shutdown(cancel_futures=True)
     finally:
         bar.close()
 

@@ -29,11 +29,12 @@ One JSON line per result:
   ``nearest_time_offset_known`` (the true latency error as the time offset), ``best``,
   without motion compensation, with a 10 ms clock error on top, and with the true
   calibration;
-- ``speed``: `acq colorize` on the log in a new process (median of 3 runs), its own time
+- ``speed``: `acq colorize` on the log in a new process (median of 5 runs), its own time
   (reading to writing, decoding included) and the process's wall time as multiples of
   real time, with 1 and 2 workers, and where the time goes;
 - ``targets`` (``nearest``, everything from `acq calibrate`): RMS <= 0.3 px, >= 99 %
-  within 1 px, >= 99 % right colour on the pattern, >= 20x real time.
+  within 1 px, >= 99 % right colour on the pattern, >= 20x real time (the whole process,
+  its best configuration).
 
 Run as a script: ``python bench/colorize.py [--seconds S] [--work DIR]``.
 """
@@ -276,11 +277,13 @@ def _interior(
     return out
 
 
-def _speed(truth: DriveTruth, calib: Path, out: Path, workers: int, repeat: int = 3) -> float:
+def _speed(
+    truth: DriveTruth, calib: Path, out: Path, workers: int, repeat: int = 5
+) -> tuple[float, float]:
     """`acq colorize` as a user runs it, in a new process each time (``repeat`` runs, the
     median kept): its own time (reading to writing) and the process's wall time
     (interpreter start, imports and compiled-code loading included); one ``speed`` line.
-    Returns the real-time multiple of its own time."""
+    Returns the real-time multiples of its own time and of the whole process."""
     import statistics
     import subprocess
     import sys
@@ -306,7 +309,7 @@ def _speed(truth: DriveTruth, calib: Path, out: Path, workers: int, repeat: int 
           points=report["points"], frames_used=report["frames_used"],
           breakdown_s={key.strip(): round(v, 2)
                        for key, v in report["seconds"].items()})  # fmt: skip
-    return float(duration / own[k])
+    return float(duration / own[k]), float(duration / statistics.median(wall))
 
 
 def main() -> None:
@@ -369,7 +372,7 @@ def main() -> None:
                   time_offset_used_ms=round(used * 1e3, 3),
                   time_offset_error_ms=round((used - known) * 1e3, 3), **summary[name],
                   notes=report.notes)  # fmt: skip
-        speeds: dict[tuple[str, int], float] = {}
+        speeds: dict[tuple[str, int], tuple[float, float]] = {}
         calib_file = work / "calibration" / "calib_time_offset.yaml"
         for fmt, workers in (("ply", 1), ("las", 1), ("las", 2)):
             speeds[fmt, workers] = _speed(truth, calib_file, work / f"speed.{fmt}", workers)
@@ -378,8 +381,10 @@ def main() -> None:
               rms_px=n["rms_px"], rms_ok=n["rms_px"] <= 0.3,
               within_1px=n["within_1px"], within_1px_ok=n["within_1px"] >= 0.99,
               pattern_right=n["pattern_right"], pattern_ok=n["pattern_right"] >= 0.99,
-              real_time_multiple={f"{k[0]}_{k[1]}": round(v, 1) for k, v in speeds.items()},
-              speed_ok=max(speeds.values()) >= 20.0)  # fmt: skip
+              real_time_multiple={f"{k[0]}_{k[1]}": round(v[0], 1) for k, v in speeds.items()},
+              process_real_time_multiple={f"{k[0]}_{k[1]}": round(v[1], 1)
+                                          for k, v in speeds.items()},
+              speed_ok=max(v[1] for v in speeds.values()) >= 20.0)  # fmt: skip
 
 
 if __name__ == "__main__":

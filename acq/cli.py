@@ -7,6 +7,7 @@ Exit codes: 0 success, 2 bad usage or bad input (one line naming the file and th
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -731,6 +732,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     handler: Handler = args.handler
+    # what the imports made lives as long as the process: out of the collector's scans
+    # (its full collections otherwise walk it again while a log's messages are read)
+    gc.freeze()
     try:
         return handler(args)
     except UsageError as e:

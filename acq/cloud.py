@@ -173,10 +173,13 @@ def read_log(
 ) -> DriveLog:
     """Scans, frames, clock pairs and metadata of a log (or of a session's files, in the
     order given). ``laser``/``camera`` name the devices where the log has several.
-    ``start_ns``/``end_ns``: only messages received (MCAP log time) in that span (the
-    clock pairs and metadata whatever their time); ``jpegs=False`` leaves the images'
-    bytes out (their stamps stay); ``vehicle``: also the odometry and GNSS fixes, in
-    the same pass (whatever their time), as :func:`acq.vehicle_log.read_vehicle`.
+    ``start_ns``/``end_ns``: only messages received (MCAP log time) in that span, and
+    only the chunks of a closed file that hold some (a long log's part reads in the
+    time of that part): the clock pairs, and with ``vehicle`` the odometry and GNSS
+    fixes, whatever their time in those chunks; metadata whatever their time.
+    ``jpegs=False`` leaves the images' bytes out (their stamps stay); ``vehicle``: also
+    the odometry and GNSS fixes, in the same pass, as
+    :func:`acq.vehicle_log.read_vehicle`.
 
     Files whose writer was killed are read up to their last good record
     (:func:`acq.loginfo.read_messages`); undecodable messages are skipped (noted).
@@ -204,7 +207,8 @@ def read_log(
         metadata.update(loginfo.read_metadata(path))
         factory = DecoderFactory()
         decoders: dict[int, Any] = {}
-        for schema, channel, message in loginfo.read_messages(path):
+        span = None if start_ns is None and end_ns is None else (lo, hi)
+        for schema, channel, message in loginfo.read_messages(path, span):
             topic = channel.topic
             if topic in vehicle_topics and vehicle_reader is not None:
                 try:

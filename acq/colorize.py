@@ -55,6 +55,7 @@ from acq.transforms import Rigid
 __all__ = ["Chunk", "ChunkResult", "Job", "colour_chunk", "main_colorize", "plan", "run"]
 
 FORMATS = (".ply", ".las", ".laz")
+READ_ONCE_BYTES = 2 * 2**30  # logs up to this size are read once, images included
 
 
 @dataclass(frozen=True)
@@ -317,8 +318,9 @@ def _run_chunks(
     whole: cloud.DriveLog | None = None,
 ) -> None:
     """Every chunk's result to ``emit``, in chunk order, however they run (``whole``:
-    the log read already, for running here). Here, the next chunk is placed and the
-    last one emitted (written) while a chunk's frames decode."""
+    the log read already with its images, for running here; else each chunk reads its
+    part). Here, the next chunk is read and placed and the last one emitted (written)
+    while a chunk's frames decode."""
     from tqdm import tqdm
 
     bar = tqdm(total=len(chunks), unit="chunk", disable=not progress, file=sys.stderr)
@@ -350,9 +352,7 @@ def _run_chunks(
                 pending = [pool.submit(colour_chunk, job, c) for c in chunks]
                 for fut in completed(pending):
                     done(fut.result())
-        else:  # one process: the log is read once
-            if whole is None:
-                whole = cloud.read_log(list(job.files), laser=job.laser, camera=job.camera or None)
+        else:  # one process: the log read once (whole), or each chunk its part
             threads = ThreadPoolExecutor(max_workers=max(1, job.threads))
             try:
                 started: ChunkColouring | None = None
@@ -644,20 +644,24 @@ def run(
     t_start = time.perf_counter()
     options = options or views.Options()
     report = Report(output=str(output), view=options.view)
+    # here, a log up to READ_ONCE_BYTES is read once with its images; a longer one's
+    # chunks read their own part (its images never all in memory), as workers do
+    size = sum(f.stat().st_size for f in _session_files(logs) if f.is_file())
     local = workers <= 1 and not dask
+    once = local and size <= READ_ONCE_BYTES
     auto = isinstance(time_offset_s, str)
     if auto and time_offset_s != "auto":
         raise ValueError(f"--time-offset {time_offset_s}: expected seconds or 'auto'")
     job, index = prepare(
         logs, calib, report, camera=camera, frame=frame, options=options,
         trajectory=trajectory, retime_offline=retime_offline,
-        time_offset_s=None if isinstance(time_offset_s, str) else time_offset_s, jpegs=local,
+        time_offset_s=None if isinstance(time_offset_s, str) else time_offset_s, jpegs=once,
         threads=(os.cpu_count() or 1) if local else 1,
     )  # fmt: skip
     job = replace(job, want_uv=want_uv)
     t_offset = time.perf_counter()
     if auto:
-        est = estimate_offset(job, whole=index if local else None, threads=job.threads)
+        est = estimate_offset(job, whole=index if once else None, threads=job.threads)
         report.time_offset.update(
             estimated_s=est.offset_s, std_s=est.std_s, points=est.points, frames=est.frames,
             contrast=round(est.contrast, 3), found=est.found,
@@ -679,7 +683,7 @@ def run(
         done.append(r)
 
     try:
-        _run_chunks(job, chunks, workers, dask, progress, emit, index if local else None)
+        _run_chunks(job, chunks, workers, dask, progress, emit, index if once else None)
         t_colour = time.perf_counter()
         size = out.stream.close()
     except BaseException:
@@ -712,7 +716,7 @@ def run(
     for key in ("read", "place", "colour", "finish"):
         parts[f"  {key} (summed over chunks)"] = sum(r.seconds.get(key, 0.0) for r in done)
     parts["  writing"] = out.seconds
-    parts["closing"] = t_end - t_colour
+    parts["closing, preview"] = t_end - t_colour
     parts["total"] = t_end - t_start
     report.seconds = parts
     return report

@@ -255,8 +255,11 @@ class _Scan:
     """One pass over a log; ``records()`` yields its Header, Schema, Channel, Message,
     Metadata and Attachment records in file order and fills in how the pass went."""
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    def __init__(
+        self, path: str | os.PathLike[str], log_time: tuple[int, int] | None = None
+    ) -> None:
         self.path = Path(path)
+        self.log_time = log_time  # a closed file's chunks wholly outside it are not read
         self.size = _check_magic(self.path)
         self.closed = False
         self.bytes_read = len(MAGIC)
@@ -356,7 +359,12 @@ class _Scan:
             self.notes.append(f"unreadable metadata or attachments ({e})")
         yield from extras
         count = 0
-        starts = sorted(index.chunk_start_offset for index in summary.chunk_indexes)
+        lo, hi = self.log_time or (-1, 2**64)
+        starts = sorted(
+            index.chunk_start_offset
+            for index in summary.chunk_indexes
+            if index.message_end_time >= lo and index.message_start_time <= hi
+        )
         # each chunk read here, decompressed and parsed on a thread two chunks ahead of
         # the caller (the decompression and its CRC run without the GIL)
         with ThreadPoolExecutor(max_workers=1) as pool:
@@ -389,7 +397,8 @@ class _Scan:
                         yield rec
         self.bytes_read = self.size
         damaged = bool(self.notes)
-        if self.expected_messages not in (None, count) and not damaged:
+        whole = len(starts) == len(summary.chunk_indexes)
+        if self.expected_messages not in (None, count) and whole and not damaged:
             self.notes.append(
                 f"the summary counts {self.expected_messages} messages, the chunks hold {count}"
             )
@@ -506,15 +515,17 @@ def _messages(scan: _Scan) -> Iterator[tuple[Schema | None, Channel, Message]]:
 
 
 def read_messages(
-    path: str | os.PathLike[str],
+    path: str | os.PathLike[str], log_time: tuple[int, int] | None = None
 ) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """Every readable message of a log as (schema, channel, message), in file order.
 
     The seeking reader is used when the file is closed, a linear scan otherwise; the scan
-    stops cleanly at a cut, a zero-filled tail or garbage. Raises :class:`LogError` at
-    once (not on first iteration) for a missing file or one that is not MCAP.
+    stops cleanly at a cut, a zero-filled tail or garbage. ``log_time`` (first, last)
+    ns: a closed file's chunks whose messages all lie outside it are not read (others
+    may still yield messages outside it: the caller filters). Raises :class:`LogError`
+    at once (not on first iteration) for a missing file or one that is not MCAP.
     """
-    return _messages(_Scan(path))
+    return _messages(_Scan(path, log_time))
 
 
 # --- summarising --------------------------------------------------------------------

@@ -330,6 +330,26 @@ def test_closed_file_exact_counts_rates_gaps(rig: Built) -> None:
     assert i.metadata == rig.metadata and i.attachments == 1
 
 
+def test_a_time_span_reads_only_the_chunks_that_hold_it(
+    rig: Built, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import acq.loginfo
+
+    parsed: list[int] = []
+    real = acq.loginfo._chunk_messages
+
+    def counted(chunk: Any) -> Any:
+        parsed.append(chunk.message_start_time)
+        return real(chunk)
+
+    monkeypatch.setattr(acq.loginfo, "_chunk_messages", counted)
+    span = (T0 + 3 * S + S // 2, T0 + 4 * S + S // 2)  # in chunks 3 and 4 only
+    got = [(c.topic, m.log_time, m.data) for _, c, m in read_messages(rig.path, span)]
+    first = sum(rig.chunk_sizes[:3])
+    assert got == rig.messages[first : first + sum(rig.chunk_sizes[3:5])]
+    assert [(t - T0) // S for t in parsed] == [3, 4]
+
+
 def test_devices_drops_and_clock_quality(rig: Built) -> None:
     i = info(rig.path)
     assert i.drops == {"laser": 9, "camera": 18}  # the last status, second 9

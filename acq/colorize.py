@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import os
 import sys
 import threading
@@ -56,6 +57,9 @@ __all__ = ["Chunk", "ChunkResult", "Job", "colour_chunk", "main_colorize", "plan
 
 FORMATS = (".ply", ".las", ".laz")
 READ_ONCE_BYTES = 2 * 2**30  # logs up to this size are read once, images included
+PREVIEW_POINTS = 4_000_000  # at most about this many points kept for the preview
+_PER_POINT = ("xyz", "rgb", "coloured", "hidden", "time_ns", "scan", "step", "intensity",
+              "dt_s", "theta")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -676,11 +680,15 @@ def run(
     chunks = plan(scan_new, chunk_s)
     t_plan = time.perf_counter()
     out = _Writer(output, crs, index.clock, report)
-    done: list[ChunkResult] = []
+    # a long log's cloud is not held: counts, and every k-th scan for the preview
+    every = max(1, math.ceil(index.ranges.size / PREVIEW_POINTS))
+    tally = _Tally(every if preview is not None else 0)
 
     def emit(r: ChunkResult) -> None:
         out.write(r)
-        done.append(r)
+        tally.add(r)
+        if results is not None:
+            results.append(r)
 
     try:
         _run_chunks(job, chunks, workers, dask, progress, emit, index if once else None)
@@ -689,37 +697,68 @@ def run(
     except BaseException:
         out.stream.abort()
         raise
-    if results is not None:
-        results.extend(done)
-    report.points = sum(r.time_ns.size for r in done)
-    report.coloured = sum(int(np.count_nonzero(r.coloured)) for r in done)
-    report.hidden = sum(int(np.count_nonzero(r.hidden)) for r in done)
+    report.points, report.coloured, report.hidden = tally.points, tally.coloured, tally.hidden
     report.frames, report.scans = index.n_frames, index.n_scans
-    report.frames_used = _frames_used(done)
-    report.frames_failed = sum(r.frames_failed for r in done)
+    report.frames_used = _frames_used(tally.used)
+    report.frames_failed = tally.failed
     report.duration_s = float(np.ptp(scan_new)) * 1e-9 if scan_new.size else 0.0
     report.chunks = len(chunks)
     report.bytes = size
-    outside = sum(r.outside for r in done)
-    if outside:
+    if tally.outside:
         report.notes.append(
-            f"{outside:,} points measured outside the trajectory's span: "
+            f"{tally.outside:,} points measured outside the trajectory's span: "
             + ("left out (no pose)" if world else "kept, not coloured")
         )
     if preview is not None:
-        cloud.preview_png(preview, _cloud(done, index), title=f"acq colorize {output.name}")
+        pc = _cloud(tally.preview, index)
+        cloud.preview_png(preview, pc, title=f"acq colorize {output.name}")
+        if every > 1:
+            report.notes.append(f"the preview shows one scan in {every}")
     t_end = time.perf_counter()
     parts: dict[str, float] = {"index": t_offset - t_start}
     if auto:
         parts["time offset"] = t_plan - t_offset
     parts["chunks and writing"] = t_colour - t_plan
     for key in ("read", "place", "colour", "finish"):
-        parts[f"  {key} (summed over chunks)"] = sum(r.seconds.get(key, 0.0) for r in done)
+        parts[f"  {key} (summed over chunks)"] = tally.seconds.get(key, 0.0)
     parts["  writing"] = out.seconds
     parts["closing, preview"] = t_end - t_colour
     parts["total"] = t_end - t_start
     report.seconds = parts
     return report
+
+
+@dataclass
+class _Tally:
+    """What the report and the preview keep of the chunks written: counts, the frames
+    used, and every ``every``-th scan's points for the preview (0: none)."""
+
+    every: int
+    points: int = 0
+    coloured: int = 0
+    hidden: int = 0
+    failed: int = 0
+    outside: int = 0
+    used: list[np.ndarray] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+    preview: list[ChunkResult] = field(default_factory=list)
+
+    def add(self, r: ChunkResult) -> None:
+        self.points += r.time_ns.size
+        self.coloured += int(np.count_nonzero(r.coloured))
+        self.hidden += int(np.count_nonzero(r.hidden))
+        self.failed += r.frames_failed
+        self.outside += r.outside
+        if r.used_stamps is not None:
+            self.used.append(r.used_stamps)
+        for key, v in r.seconds.items():
+            self.seconds[key] = self.seconds.get(key, 0.0) + v
+        if self.every == 1:
+            self.preview.append(r)
+        elif self.every > 1:
+            k = r.scan % self.every == 0
+            thin = {name: getattr(r, name)[k] for name in _PER_POINT}
+            self.preview.append(replace(r, **thin, uv=None, frame_stamp_ns=None))
 
 
 def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
@@ -735,10 +774,10 @@ def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
     return float(np.median(v)) if v.size else 0.0
 
 
-def _frames_used(results: list[ChunkResult]) -> int:
-    """Frames the cloud's points were coloured from (a frame two chunks share, once)."""
-    stamps = [r.used_stamps for r in results if r.used_stamps is not None]
-    return int(np.unique(np.concatenate(stamps)).size) if stamps else 0
+def _frames_used(used: list[np.ndarray]) -> int:
+    """Frames the cloud's points were coloured from, given each chunk's (a frame two
+    chunks share, once)."""
+    return int(np.unique(np.concatenate(used)).size) if used else 0
 
 
 def _cloud(results: list[ChunkResult], index: cloud.DriveLog) -> cloud.Cloud:
@@ -759,7 +798,7 @@ def _cloud(results: list[ChunkResult], index: cloud.DriveLog) -> cloud.Cloud:
         view_axis=np.array([0.0, 1.0, 0.0]),
         clock=index.clock,
         frames=index.n_frames,
-        frames_used=_frames_used(results),
+        frames_used=_frames_used([r.used_stamps for r in results if r.used_stamps is not None]),
         frames_failed=sum(r.frames_failed for r in results),
     )
 

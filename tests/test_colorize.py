@@ -97,6 +97,18 @@ def test_same_bytes_with_workers_and_chunks(
     assert len(plan(np.arange(0, 4_000_000_000, 25_000_000), 1.5)) == 3
 
 
+def test_a_long_logs_preview_thins_its_scans_not_the_cloud(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    truth, calib = drive
+    monkeypatch.setattr(colorize, "PREVIEW_POINTS", 20_000)
+    out, png = tmp_path / "c.ply", tmp_path / "c.png"
+    report = run(truth.files, calibfile.load(calib), out, frame="laser", preview=png)
+    every = [n for n in report.notes if n.startswith("the preview shows one scan in")]
+    assert every and png.stat().st_size > 0
+    assert len(PlyData.read(str(out))["vertex"]) == report.points > 20_000
+
+
 def test_dask_local_cluster_gives_the_same_bytes(
     drive: tuple[DriveTruth, Path], tmp_path: Path
 ) -> None:

@@ -161,8 +161,9 @@ def place(
     scan_idx, step = np.nonzero(np.isfinite(ranges))
     r = ranges[scan_idx, step].astype(np.float64)
     beams = log.angle_min + log.angle_increment * np.arange(log.ranges.shape[1])
-    cos, sin = np.cos(beams)[step], np.sin(beams)[step]
-    P_laser = np.stack([r * cos, r * sin, np.zeros_like(r)], axis=1)
+    P_laser = np.zeros((r.size, 3))  # filled in place: no (N,) temporaries
+    np.multiply(r, np.cos(beams)[step], out=P_laser[:, 0])
+    np.multiply(r, np.sin(beams)[step], out=P_laser[:, 1])
     offsets = np.rint(np.arange(log.ranges.shape[1]) * (log.time_increment * 1e9)).astype(np.int64)
     time_ns = scan_ns[scan_idx] + offsets[step]
     if time_ns.size and np.any(np.diff(time_ns) < 0):  # scans out of order, or overlapping

@@ -42,7 +42,6 @@ __all__ = [
     "Colouring",
     "Options",
     "PoseFn",
-    "colour_points",
     "decode_jpeg",
     "decoded_frames",
     "occlusion_depths",
@@ -205,37 +204,6 @@ def _theta(P_cam: np.ndarray) -> np.ndarray:
     return np.arctan2(np.hypot(P_cam[:, 0], P_cam[:, 1]), P_cam[:, 2])
 
 
-def colour_points(
-    P: np.ndarray,
-    time_ns: np.ndarray,
-    size_m: np.ndarray,
-    frame_ns: np.ndarray,
-    jpegs: Sequence[bytes],
-    cam: CameraCalib,
-    laser_to_vehicle: Rigid,
-    pose_at: PoseFn | None,
-    options: Options | None = None,
-    *,
-    threads: int = 2,
-    want_uv: bool = False,
-    frame_ok: np.ndarray | None = None,
-    need: np.ndarray | None = None,
-) -> Coloured:
-    """Colour points ``P`` (N,3) m measured at ``time_ns`` (N,) host ns, sorted by time:
-    in the world when ``pose_at`` is given and motion is compensated, else in the laser
-    frame at their own time. ``frame_ns`` (M,) the frames' mid-exposure times on the
-    laser's clock (the calibration's time offset already applied), ``jpegs`` their
-    bytes; ``size_m`` (N,) each point's share of surface (for the depth buffers);
-    ``frame_ok`` (M,) bool: frames that may be used (e.g. those the trajectory covers);
-    ``need`` (N,) bool: the points to colour (default all; the others only hide points
-    in ``best``'s depth buffers). The frames are decoded on ``threads`` threads."""
-    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
-        return start_colouring(
-            P, time_ns, size_m, frame_ns, jpegs, cam, laser_to_vehicle, pose_at, options,
-            pool=pool, want_uv=want_uv, frame_ok=frame_ok, need=need,
-        ).result()  # fmt: skip
-
-
 class Colouring:
     """Points being coloured on a pool's threads (:func:`start_colouring`): every frame
     decoded once on a thread, its points sent back to where the rig stood and sampled
@@ -301,9 +269,18 @@ def start_colouring(
     frame_ok: np.ndarray | None = None,
     need: np.ndarray | None = None,
 ) -> Colouring:
-    """:func:`colour_points` with its frames queued on ``pool`` (first come, first
-    served) and not waited for: the caller goes on (placing the next points, writing
-    the last ones) while they decode."""
+    """Colour points ``P`` (N,3) m measured at ``time_ns`` (N,) host ns, sorted by time:
+    in the world when ``pose_at`` is given and motion is compensated, else in the laser
+    frame at their own time. ``frame_ns`` (M,) the frames' mid-exposure times on the
+    laser's clock (the calibration's time offset already applied), ``jpegs`` their
+    bytes; ``size_m`` (N,) each point's share of surface (for the depth buffers);
+    ``frame_ok`` (M,) bool: frames that may be used (e.g. those the trajectory covers);
+    ``need`` (N,) bool: the points to colour (default all; the others only hide points
+    in ``best``'s depth buffers).
+
+    The frames go on ``pool`` (first come, first served), one task each, and are not
+    waited for: the caller goes on (placing the next points, writing the last ones)
+    while they decode; :meth:`Colouring.result` waits."""
     options = options or Options()
     n = P.shape[0]
     rig = _Rig(cam, laser_to_vehicle, pose_at if options.motion_compensation else None)

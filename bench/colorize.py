@@ -32,6 +32,8 @@ One JSON line per result:
 - ``speed``: `acq colorize` on the log in a new process (median of 5 runs), its own time
   (reading to writing, decoding included) and the process's wall time as multiples of
   real time, with 1 and 2 workers, and where the time goes;
+- ``decoding``: every frame of the log decoded once on one core (CPU-seconds): the
+  largest part of the work;
 - ``targets`` (``nearest``, everything from `acq calibrate`): RMS <= 0.3 px, >= 99 %
   within 1 px, >= 99 % right colour on the pattern, >= 20x real time (the whole process,
   its best configuration).
@@ -312,6 +314,23 @@ def _speed(
     return float(duration / own[k]), float(duration / statistics.median(wall))
 
 
+def _decoding(jpegs: list[bytes], duration_s: float) -> None:
+    """Where most of the time goes: decoding every frame of the log once on one core
+    (acq.views.decode_jpeg, OpenCV's libjpeg-turbo), the best of 3; one ``decoding``
+    line, with the CPU-seconds it costs a second of log."""
+    from acq.views import decode_jpeg
+
+    best = math.inf
+    for _ in range(3):
+        t0 = time.process_time()
+        for jpeg in jpegs:
+            decode_jpeg(jpeg)
+        best = min(best, time.process_time() - t0)
+    _line("decoding", frames=len(jpegs), cpu_s=round(best, 2),
+          ms_per_frame=round(best / len(jpegs) * 1e3, 3),
+          cpu_s_per_log_second=round(best / duration_s, 4))  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0)
@@ -372,6 +391,7 @@ def main() -> None:
                   time_offset_used_ms=round(used * 1e3, 3),
                   time_offset_error_ms=round((used - known) * 1e3, 3), **summary[name],
                   notes=report.notes)  # fmt: skip
+        _decoding(log.jpegs, report.duration_s)
         speeds: dict[tuple[str, int], tuple[float, float]] = {}
         calib_file = work / "calibration" / "calib_time_offset.yaml"
         for fmt, workers in (("ply", 1), ("las", 1), ("las", 2)):

@@ -265,6 +265,13 @@ def _intrinsics(model: CameraModel) -> tuple[np.ndarray, bool]:
     raise TypeError(f"no projection kernel for {type(model).__name__}")
 
 
+def _check_size(img: np.ndarray, model: CameraModel) -> None:
+    if img.shape[:2] != (model.height, model.width):
+        raise ValueError(
+            f"image is {img.shape[1]}x{img.shape[0]}, the camera model {model.width}x{model.height}"
+        )
+
+
 def _as_points(P: np.ndarray) -> np.ndarray:
     P = np.asarray(P)
     if P.ndim != 2 or P.shape[1] != 3:
@@ -314,10 +321,7 @@ def colorize(
         img = img[:, :, None]
     if img.dtype != np.uint8 or img.ndim != 3:
         raise ValueError(f"expected an (H,W[,C]) uint8 image, got {img.dtype} {img.shape}")
-    if img.shape[:2] != (model.height, model.width):
-        raise ValueError(
-            f"image is {img.shape[1]}x{img.shape[0]}, the camera model {model.width}x{model.height}"
-        )
+    _check_size(img, model)
     R, t, intr, pinhole = _kernel_args(model, camera_to_laser)
     if out is None:
         out = np.zeros((P.shape[0], img.shape[2]), dtype=np.uint8)
@@ -348,6 +352,7 @@ def colour_into(
     (N,2) float32 the pixel when given. ``camera_to_points``: the camera's rotation and
     position (m) in P's frame. Other rows are left as they were. One thread, no GIL (for
     frames coloured on a pool's threads)."""
+    _check_size(image, model)
     R, t = camera_to_points
     intr, pinhole = _intrinsics(model)
     _colour_into(

@@ -135,6 +135,11 @@ def test_colorize_grey_image_and_keeps_out_for_invalid_points() -> None:
 def test_colorize_refuses_an_image_of_another_size() -> None:
     with pytest.raises(ValueError, match="image is 100x50, the camera model 780x582"):
         projection.colorize(np.zeros((1, 3)), EQ, EXTR, np.zeros((50, 100, 3), np.uint8))
+    with pytest.raises(ValueError, match="image is 100x50, the camera model 780x582"):
+        projection.colour_into(
+            np.zeros((1, 3)), np.zeros(1, np.int64), KB, (np.eye(3), np.zeros(3)),
+            np.zeros((50, 100, 3), np.uint8), np.zeros((1, 3), np.uint8), np.zeros(1, bool),
+        )  # fmt: skip
 
 
 def test_atan_kernel_is_accurate_over_the_whole_range() -> None:

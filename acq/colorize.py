@@ -233,7 +233,7 @@ def start_chunk(
         job.cam, l2v, pose_at, job.options,
         pool=pool, want_uv=job.want_uv, frame_ok=usable, need=core,
     )  # fmt: skip
-    seconds = {"read": t_read - t0, "place": time.perf_counter() - t_read}
+    seconds = {"read": t_read - t0, "place, queue": time.perf_counter() - t_read}
     return ChunkColouring(job, chunk, log, scan_ns, core_scan, core, pts, colouring, seconds)
 
 
@@ -297,7 +297,7 @@ class ChunkColouring:
             used_stamps=np.unique(log.frame_ns[frame[frame >= 0]]),
             seconds={
                 **self.seconds,
-                "colour": t_colour - t0,
+                "waiting for frames": t_colour - t0,
                 "finish": time.perf_counter() - t_colour,
             },
         )
@@ -720,7 +720,8 @@ def run(
     if auto:
         parts["time offset"] = t_plan - t_offset
     parts["chunks and writing"] = t_colour - t_plan
-    for key in ("read", "place", "colour", "finish"):
+    # the chunks' frames decode on threads meanwhile: "waiting" is what they add
+    for key in ("read", "place, queue", "waiting for frames", "finish"):
         parts[f"  {key} (summed over chunks)"] = tally.seconds.get(key, 0.0)
     parts["  writing"] = out.seconds
     parts["closing, preview"] = t_end - t_colour

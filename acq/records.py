@@ -130,7 +130,7 @@ class CanFrame:
     ``wall_ns`` is the interface's receive stamp as sent (socketcan: the kernel's
     ``CLOCK_REALTIME`` stamp, ns since the Unix epoch; 0 where the interface gives none);
     ``stamp_ns`` is that instant on the host monotonic clock (see
-    :mod:`drivers.can_odometry`), ``recv_ns`` when the stamp could not be used.
+    :mod:`acq.drivers.can_odometry`), ``recv_ns`` when the stamp could not be used.
     """
 
     recv_ns: int  # host monotonic ns when the driver got the frame

@@ -20,11 +20,10 @@ import time
 
 import cv2
 import numpy as np
-
-from drivers.camera_opencv import OpenCVCamera
-from drivers.mjpeg import jpeg_size
-from sim.camera_device import MjpegServerProcess, SimCamera
-from sim.world import Street
+from acq.drivers.camera_opencv import OpenCVCamera
+from acq.drivers.mjpeg import jpeg_size
+from acq.sim.camera_device import MjpegServerProcess, SimCamera
+from acq.sim.world import Street
 
 FPS = 25.0
 

@@ -9,7 +9,7 @@ spikes of 20-80 ms, and bursts (the host stalls 0.3 s every 30 s and gets the he
 telegrams at once); plus one latency law the estimator was not designed on (lognormal).
 Methods, all in the same run: (a) stamping on receipt, (b) an exponential moving
 average of the offset (alpha 0.01), (c) a 7-sample least-squares line anchored at its
-first sample, (d) acq.clocksync.DeviceClock online, (e) acq.clocksync.retime_offline
+first sample, (d) acq.time.clocksync.DeviceClock online, (e) acq.time.clocksync.retime_offline
 (the whole log, past and future). The constant part of the latency is invisible to
 one-way timing: it is reported apart as the bias (the median error); RMS and max are
 about it, after a 10 s warm-up.
@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from acq.clocksync import DeviceClock, Unwrapper, retime_offline
+from acq.time.clocksync import DeviceClock, Unwrapper, retime_offline
 
 DURATION_S = 600.0
 WARMUP_S = 10.0

@@ -3,11 +3,11 @@ per figure group.
 
 The capture (``../shared/data/sick/20210302_lms111.pcapng.json``) is a CoLa-B session
 with a real LMS111 recorded on the host. The device's stream is reassembled without its
-TCP retransmissions (``acq.wireshark_json``) and framed; each scan's device stamp is its
+TCP retransmissions (``tests.wireshark_json``) and framed; each scan's device stamp is its
 ``time_since_startup`` (32-bit µs) and its host time is the capture time at which its
-last byte arrived. Reported: the scans, ``acq.clocksync.fit_drift`` (drift with its 95 %
+last byte arrived. Reported: the scans, ``acq.time.clocksync.fit_drift`` (drift with its 95 %
 interval, the delays above the lower envelope), the scan period on both clocks, and the
-delays left by ``acq.clocksync.retime_offline`` (receipt minus re-timed stamp; the
+delays left by ``acq.time.clocksync.retime_offline`` (receipt minus re-timed stamp; the
 constant latency is invisible to one-way timing, so the minimum is about 0). Absent
 capture: one line saying so.
 """
@@ -20,10 +20,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from acq.drivers.cola_codec import ColaFramer, Telegram, parse_scandata
 
-from acq.clocksync import fit_drift, retime_offline
-from acq.wireshark_json import read_packets, reassemble, split_directions
-from drivers.cola_codec import ColaFramer, Telegram, parse_scandata
+from acq.time.clocksync import fit_drift, retime_offline
+from tests.wireshark_json import read_packets, reassemble, split_directions
 
 CAPTURE = (
     Path(__file__).resolve().parents[2] / "shared" / "data" / "sick" / "20210302_lms111.pcapng.json"

@@ -1,6 +1,6 @@
 """Accuracy and speed of `acq colorize` on a simulated drive (issue 8).
 
-Data: ``sim.drive_log.write_drive_log`` — ``--seconds`` (60) of the synthetic street at
+Data: ``acq.sim.drive_log.write_drive_log`` — ``--seconds`` (60) of the synthetic street at
 20 km/h in the lane nearest the camera's side, past the validation pattern, with body
 vibration; scans re-timed from their logged ticks (not the true clocks); frames stamped
 with a camera latency the configuration gets wrong by 10 ms; odometry on the CAN topic.
@@ -56,19 +56,19 @@ from typing import Any
 
 import cv2
 import numpy as np
+from acq.sim.board_log import BOARD, render_frame, write_board_log
+from acq.sim.board_poses import simulate
+from acq.sim.drive_log import DriveTruth, write_drive_log
+from acq.sim.world import Material, default_rig
 
-from acq import calibfile
-from acq.calibfile import Calibration
-from acq.colorize import ChunkResult, run
-from acq.extrinsic import rotation_angle
-from acq.extrinsic_log import main_extrinsic
-from acq.fisheye_calib import main_fisheye
-from acq.validate import DEFAULT_COLOURS
-from acq.views import Options
-from sim.board_log import BOARD, render_frame, write_board_log
-from sim.board_poses import simulate
-from sim.drive_log import DriveTruth, write_drive_log
-from sim.world import Material, default_rig
+from acq.calib.extrinsic import rotation_angle
+from acq.calib.extrinsic_log import main_extrinsic
+from acq.calib.fisheye_calib import main_fisheye
+from acq.calib.validate import DEFAULT_COLOURS
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration
+from acq.cloud.colorize import ChunkResult, run
+from acq.cloud.views import Options
 
 FRONT = ("red", "green")
 BACK = ("blue", "yellow")
@@ -220,8 +220,8 @@ def _visible(
 ) -> np.ndarray:
     """Whether each point is seen by the camera in its frame: the ray from the camera's
     true position at the frame's true time to the point hits nothing 2 cm nearer."""
-    from sim.raycast import cast
-    from sim.sensors import camera_to_world
+    from acq.sim.raycast import cast
+    from acq.sim.sensors import camera_to_world
 
     k = np.clip(np.searchsorted(truth.frame_stamp_ns, stamp), 0, truth.frame_t_s.size - 1)
     P = truth.points[scan, step].astype(np.float64)
@@ -242,7 +242,7 @@ def _right_at_true_pixels(
 ) -> np.ndarray:  # fmt: skip
     """The right-set test for each point's colour sampled (bilinear) at its TRUE pixel in
     its frame: the ceiling of the pattern criterion for this image and resolution."""
-    from acq.views import decode_jpeg
+    from acq.cloud.views import decode_jpeg
 
     uv, valid = truth.true_pixels(scan, step, stamp)
     rgb = np.zeros((scan.size, 3), np.uint8)
@@ -261,8 +261,8 @@ def _interior(
 ) -> np.ndarray:
     """Whether the true scene ``px`` pixels left, right, up and down of each point's true
     pixel (in its frame, at the frame's true time) lies on the point's own set."""
-    from sim.raycast import cast
-    from sim.sensors import camera_to_world
+    from acq.sim.raycast import cast
+    from acq.sim.sensors import camera_to_world
 
     uv, valid = truth.true_pixels(scan, step, stamp)
     k = np.clip(np.searchsorted(truth.frame_stamp_ns, stamp), 0, truth.frame_t_s.size - 1)
@@ -316,9 +316,9 @@ def _speed(
 
 def _decoding(jpegs: list[bytes], duration_s: float) -> None:
     """Where most of the time goes: decoding every frame of the log once on one core
-    (acq.views.decode_jpeg, OpenCV's libjpeg-turbo), the best of 3; one ``decoding``
+    (acq.cloud.views.decode_jpeg, OpenCV's libjpeg-turbo), the best of 3; one ``decoding``
     line, with the CPU-seconds it costs a second of log."""
-    from acq.views import decode_jpeg
+    from acq.cloud.views import decode_jpeg
 
     best = math.inf
     for _ in range(3):

@@ -1,8 +1,8 @@
 """Accuracy of the camera–laser calibration (issue 7, paper §3.2) on simulated boards.
 
-Data: ``sim.board_poses.simulate`` — a 1 m board (9 x 7 corners of 0.1 m) 1–4 m from the
+Data: ``acq.sim.board_poses.simulate`` — a 1 m board (9 x 7 corners of 0.1 m) 1–4 m from the
 rig, tilted up to ±30 degrees about each axis, seen by the 185-degree fisheye of
-``sim.world.default_rig`` (corners with 0.2 px noise, plane by PnP) and cut by the scan
+``acq.sim.world.default_rig`` (corners with 0.2 px noise, plane by PnP) and cut by the scan
 plane (0.25 degree steps, 10 mm range noise). One JSON line per result:
 
 - ``poses20``: over ``--seeds`` seeds with 20 poses, the geodesic rotation error (deg) and
@@ -40,12 +40,12 @@ import warnings
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from acq.sim.board_poses import BoardData, simulate
+from acq.sim.world import default_rig
 
-from acq import extrinsic as ex
-from acq.camera_models import Pinhole
-from acq.transforms import Rigid
-from sim.board_poses import BoardData, simulate
-from sim.world import default_rig
+from acq.calib import extrinsic as ex
+from acq.camera.camera_models import Pinhole
+from acq.geometry.transforms import Rigid
 
 POSE_COUNTS = (5, 8, 10, 15, 20, 30)
 STILL = ((1, 1), (4, 6), (10, 16), (25, 40))  # (frames, scans) per pose: 1 s = 25 and 40

@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from acq.sim.fisheye_images import random_image
 
-from acq import image_circle
-from sim.fisheye_images import random_image
+from acq.calib import image_circle
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "fisheye"
 REFERENCE_PP = (384.8, 240.0)  # px, data README (Kannala-Brandt checkerboard fit)
@@ -79,7 +79,7 @@ def run_set(n: int, seed: int, aspect: float, label: str) -> None:
 
 
 def run_real(fov_deg: float) -> None:
-    from acq import fisheye_calib
+    from acq.calib import fisheye_calib
 
     paths = sorted(REAL.glob("*.jpg"))
     if not paths:

@@ -3,7 +3,7 @@ line per condition.
 
 A simulated UTM-30LX (SCIP 2.0, 40 Hz, 24-bit ms clock running ``SIM_DRIFT_PPM`` fast)
 runs in its own process (``acq sim scanner``); a thread of this process reads it with
-the real driver (``drivers.scip.ScipScanner``) for ``--seconds``, in three conditions:
+the real driver (``acq.drivers.scip.ScipScanner``) for ``--seconds``, in three conditions:
 ``idle``; ``busy_gil``, one more thread doing pure-Python work that holds the GIL (a
 writer serialising messages by hand); ``busy_nogil``, one more thread doing zlib and
 numpy work that releases the GIL (compression); ``busy_gil_switch_1ms``, the first
@@ -12,7 +12,7 @@ CPython hands the GIL to a waiting thread only every ``sys.getswitchinterval()``
 by default), and the reader waits for it after each blocking call.
 
 Per condition: the delays above the lower envelope of (device s, host receive s), from
-``acq.clocksync.fit_drift``'s line (``jitter_*``: on the raw ms ticks, which quantise
+``acq.time.clocksync.fit_drift``'s line (``jitter_*``: on the raw ms ticks, which quantise
 the stamp by up to a tick; ``jitter_turns_*``: on device times fitted to the turn
 numbers, which do not), p50/p95/p99/max in ms; scans and lost scans; and the cost:
 the RMS and max of ``DeviceClock`` online estimates (update, then ``to_host_ns`` of the
@@ -37,9 +37,9 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
+from acq.drivers.scip import ScipScanner
 
-from acq.clocksync import DeviceClock, fit_drift, retime_offline
-from drivers.scip import ScipScanner
+from acq.time.clocksync import DeviceClock, fit_drift, retime_offline
 
 MODEL = "utm-30lx"
 SIM_DRIFT_PPM = 50.0  # a real crystal's order; the fit should find about -50

@@ -17,7 +17,7 @@ the machine has 2 cores and may be busy with other work.
     10 %.
 (2) ``record_rate``: both devices sped up ``k`` times (the scanner a ``ScannerModel``
     with ``k``x the scan rate, the camera ``k``x25 fps cycling 50 JPEGs rendered once,
-    both from ``python -m sim.prerendered`` in processes of their own), 20 s per step
+    both from ``python -m acq.sim.prerendered`` in processes of their own), 20 s per step
     from 2 s after both connected, k = 1, 2, 5, 10, 15, 20, 25, 30, 40 until a step
     fails. ``zero_drops``: the scanner's queue drops (``/acq/status``) are 0, neither
     device disconnected, and every record the devices sent between the first written and
@@ -34,7 +34,7 @@ the machine has 2 cores and may be busy with other work.
     ``output.split_megabytes`` 50 so the file rolls over every 30-odd seconds (the exit
     rusage's maxrss is not used: a forked child starts with its parent's). The files are
     checked across boundaries:
-    per-file counts (``acq.loginfo.info_many``) add up to the session's, and the
+    per-file counts (``acq.log.loginfo.info_many``) add up to the session's, and the
     ``/laser/raw`` sequence numbers run on with no duplicate and no gap (a reconnection
     restarts them: counted apart). Target: under 5 MB growth.
 
@@ -68,10 +68,10 @@ from pathlib import Path
 from typing import IO, Any
 
 import yaml
+from acq.sim.camera_device import MjpegServerProcess, jpeg_digest
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
-from acq import loginfo, schemas
-from sim.camera_device import MjpegServerProcess, jpeg_digest
+from acq.log import loginfo, schemas
 
 ROOT = Path(__file__).resolve().parents[1]
 SCAN_HZ = 40.0  # UTM-30LX
@@ -220,11 +220,11 @@ def camera_lag(truth: list[Any]) -> dict[str, Any]:
 
 
 class Prerendered:
-    """``python -m sim.prerendered ...`` in its own process, asked for its stats on stdin."""
+    """``python -m acq.sim.prerendered ...`` in its own process, asked for its stats on stdin."""
 
     def __init__(self, procs: Procs, stderr: IO[str], *args: str) -> None:
         self.proc = procs.start(
-            [sys.executable, "-m", "sim.prerendered", *args],
+            [sys.executable, "-m", "acq.sim.prerendered", *args],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=stderr,
@@ -330,8 +330,9 @@ class Run:
 def _true_calibration(work: Path) -> Path:
     """The simulated rig's true calibration as a file (so every log file starts with its
     camera calibration and transforms, as on a real rig)."""
-    from acq import calibfile
-    from sim import world
+    from acq.sim import world
+
+    from acq.camera import calibfile
 
     rig = world.default_rig()
     calib = calibfile.Calibration(

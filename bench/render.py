@@ -15,9 +15,8 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-
-from sim.sensors import pixel_rays, render_frame, render_scan
-from sim.world import Street, Trajectory, default_rig
+from acq.sim.sensors import pixel_rays, render_frame, render_scan
+from acq.sim.world import Street, Trajectory, default_rig
 
 REPEATS = 9
 CALLS = 10  # per repeat

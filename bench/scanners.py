@@ -2,8 +2,8 @@
 
 A UTM-30LX ME telegram (1081 steps, range + intensity; the real capture in
 ../shared/data/hokuyo when present, else one from the simulated device) through
-``drivers.scip_codec.parse_scan``, and a simulated LMS511 LMDscandata telegram (1141
-points, DIST1 + RSSI1) in CoLa-B and CoLa-A through ``drivers.cola_codec.parse_scandata``
+``acq.drivers.scip_codec.parse_scan``, and a simulated LMS511 LMDscandata telegram (1141
+points, DIST1 + RSSI1) in CoLa-B and CoLa-A through ``acq.drivers.cola_codec.parse_scandata``
 plus the conversion to metres. One JSON line per telegram: median scans per second
 over the repeats, against the target of 2,000 scans/s (50 times the fastest device).
 """
@@ -17,10 +17,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from drivers import cola_codec, scip_codec
-from sim.cola_device import ColaDevice
-from sim.scanner_models import model
-from sim.scip_device import ScipDevice
+from acq.drivers import cola_codec, scip_codec
+from acq.sim.cola_device import ColaDevice
+from acq.sim.scanner_models import model
+from acq.sim.scip_device import ScipDevice
 
 HOKUYO = Path(__file__).resolve().parents[2] / "shared" / "data" / "hokuyo"
 REPEATS = 7

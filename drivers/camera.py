@@ -6,7 +6,7 @@ and applies the requested format (reading back what the device really applied),
 the next :class:`acq.records.Frame`. Every frame carries its time source (``kernel``
 buffer timestamps, or ``receipt`` less the configured latency) and its sequence number;
 drivers count the frames they know were dropped in ``drops``. Reconnection lives in
-:class:`drivers.reconnect.Relink`, as for the scanners.
+:class:`acq.drivers.reconnect.Relink`, as for the scanners.
 """
 
 from __future__ import annotations
@@ -15,9 +15,10 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from acq.drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
+from acq.drivers.registry import Registry
+
 from acq.records import DeviceInfo, Frame
-from drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
-from drivers.registry import Registry
 
 __all__ = [
     "CAMERAS",
@@ -118,7 +119,10 @@ class Camera(ABC):
 CAMERAS: Registry[Camera] = Registry(
     "camera",
     Camera,
-    {"opencv": "drivers.camera_opencv:OpenCVCamera", "v4l2": "drivers.camera_v4l2:V4L2Camera"},
+    {
+        "opencv": "acq.drivers.camera_opencv:OpenCVCamera",
+        "v4l2": "acq.drivers.camera_v4l2:V4L2Camera",
+    },
 )
 
 

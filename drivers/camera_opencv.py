@@ -4,7 +4,7 @@ Sources: a camera index (``"0"``), a V4L2 node (``/dev/videoN``), an RTSP or HTT
 video file or image-sequence pattern, or a GStreamer pipeline (any text with ``!``).
 
 ``http://`` and ``https://`` sources are read here, not by OpenCV: the
-``multipart/x-mixed-replace`` stream is parsed (:mod:`drivers.mjpeg`) so every JPEG is
+``multipart/x-mixed-replace`` stream is parsed (:mod:`acq.drivers.mjpeg`) so every JPEG is
 kept byte for byte as the camera sent it (``Frame.jpeg``) and never decoded; its size
 comes from its SOF header, and a JPEG whose markers are broken is counted in
 ``corrupt`` and skipped. Other sources give decoded BGR images (``Frame.image``); a
@@ -33,11 +33,9 @@ from urllib.parse import unquote, urlsplit
 
 import cv2
 import numpy as np
-
-from acq.records import DeviceInfo, Frame
-from drivers.camera import Camera, FrameFormat, FrameTimeout
-from drivers.errors import ConnectionLost, DeviceError, ProtocolError
-from drivers.mjpeg import (
+from acq.drivers.camera import Camera, FrameFormat, FrameTimeout
+from acq.drivers.errors import ConnectionLost, DeviceError, ProtocolError
+from acq.drivers.mjpeg import (
     MAX_HEAD,
     MultipartReader,
     Part,
@@ -45,6 +43,8 @@ from drivers.mjpeg import (
     jpeg_size,
     parse_response_head,
 )
+
+from acq.records import DeviceInfo, Frame
 
 __all__ = ["OpenCVCamera", "fourcc_text"]
 

@@ -46,11 +46,11 @@ from typing import Any, Protocol
 
 import cv2
 import numpy as np
+from acq.drivers import v4l2_abi as abi
+from acq.drivers.camera import Camera, FrameFormat, FrameTimeout
+from acq.drivers.errors import ConnectionLost, DeviceError
 
 from acq.records import DeviceInfo, Frame
-from drivers import v4l2_abi as abi
-from drivers.camera import Camera, FrameFormat, FrameTimeout
-from drivers.errors import ConnectionLost, DeviceError
 
 __all__ = ["ControlInfo", "OsV4L2", "V4L2Camera", "V4L2System", "jpeg_has_dht"]
 
@@ -175,7 +175,7 @@ def _text(raw: bytes) -> str:
 class V4L2Camera(Camera):
     """One V4L2 capture device, read through mmap buffers (see the module docstring).
 
-    Options beyond :class:`drivers.camera.Camera`'s: ``exposure_s`` (manual exposure,
+    Options beyond :class:`acq.drivers.camera.Camera`'s: ``exposure_s`` (manual exposure,
     seconds; None leaves the camera's automatic exposure), ``gain`` (device units),
     ``white_balance_k`` (manual white balance, kelvin), ``buffers`` (mmap buffers to ask
     for, 4), ``encode_jpeg`` (YUYV frames also JPEG-encoded, at ``jpeg_quality``), and

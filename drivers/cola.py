@@ -19,9 +19,7 @@ import time
 from typing import Any
 
 import numpy as np
-
-from acq.records import DeviceInfo, Scan
-from drivers.cola_codec import (
+from acq.drivers.cola_codec import (
     ArgReader,
     ColaFramer,
     ProtocolError,
@@ -32,7 +30,9 @@ from drivers.cola_codec import (
     frame,
     parse_scandata,
 )
-from drivers.scanner import ConnectionLost, DeviceError, ScanGeometry, Scanner, ScanTimeout
+from acq.drivers.scanner import ConnectionLost, DeviceError, ScanGeometry, Scanner, ScanTimeout
+
+from acq.records import DeviceInfo, Scan
 
 __all__ = ["DEFAULT_PORT", "ColaScanner", "parse_url"]
 

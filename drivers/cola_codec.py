@@ -1,7 +1,7 @@
 """SICK CoLa-A / CoLa-B: framing, argument coding, and the ``LMDscandata`` telegram.
 
-Pure functions and small classes, no I/O: the driver (:mod:`drivers.cola`) and the
-simulated device (:mod:`sim.cola_device`) share them, and the tests check them against a
+Pure functions and small classes, no I/O: the driver (:mod:`acq.drivers.cola`) and the
+simulated device (:mod:`acq.sim.cola_device`) share them, and the tests check them against a
 real LMS111 capture.
 
 Wire formats
@@ -34,8 +34,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-
-from drivers.scanner import DeviceError, ProtocolError
+from acq.drivers.scanner import DeviceError, ProtocolError
 
 __all__ = [
     "MAX_LENGTH",

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from drivers.errors import ProtocolError
+from acq.drivers.errors import ProtocolError
 
 __all__ = [
     "MAX_HEAD",

@@ -15,7 +15,7 @@ Three parts, the first two sans-I/O (any bytes give sentences, fixes, None or a 
 - :class:`NmeaReceiver` reads the port (one thread) and hands out sentences and fixes.
 
 The fix time is the receiver's measurement instant in UTC, not the host's clock: the
-recorder maps it to host monotonic time like a device clock (see :mod:`acq.recorder`).
+recorder maps it to host monotonic time like a device clock (see :mod:`acq.record.recorder`).
 """
 
 from __future__ import annotations
@@ -31,9 +31,9 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import serial
+from acq.drivers.errors import ConnectionLost, ProtocolError, ReadTimeout
 
 from acq.records import DeviceInfo, Fix, Sentence
-from drivers.errors import ConnectionLost, ProtocolError, ReadTimeout
 
 __all__ = [
     "MAX_LINE",
@@ -343,7 +343,7 @@ class NmeaReceiver:
             self._ser = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=_POLL_S)
         except (serial.SerialException, OSError, ValueError) as e:
             raise ConnectionLost(f"{self.url}: cannot open: {e}") from e
-        # a socket or a POSIX serial port: read the descriptor directly (as drivers.scip)
+        # a socket or a POSIX serial port: read the descriptor directly (as acq.drivers.scip)
         fd = getattr(self._ser, "fd", None) if "://" not in self.url else None
         self._fd = self._ser.fileno() if self.url.startswith("socket://") else fd
         self.framer = LineFramer()

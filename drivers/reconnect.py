@@ -1,6 +1,6 @@
 """Keeping a scanner streaming through cable pulls, reboots and stalls.
 
-:class:`Reconnecting` wraps any :class:`drivers.scanner.Scanner`: it connects, starts
+:class:`Reconnecting` wraps any :class:`acq.drivers.scanner.Scanner`: it connects, starts
 measurement and yields scans; when the link fails (an I/O error, end of stream, a
 device error, or nothing complete for ``stall_periods`` record periods) it closes
 the driver and tries again with exponential backoff (0.5 s doubling to 5 s). While it
@@ -22,11 +22,12 @@ from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 from urllib.parse import urlsplit
 
-from acq.clocksync import Unwrapper
+from acq.drivers.camera import Camera
+from acq.drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
+from acq.drivers.scanner import Scanner
+
 from acq.records import DeviceInfo, Frame, Scan
-from drivers.camera import Camera
-from drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
-from drivers.scanner import Scanner
+from acq.time.clocksync import Unwrapper
 
 __all__ = ["Backoff", "CameraLink", "LinkEvent", "Reconnecting", "Relink", "url_reachable"]
 

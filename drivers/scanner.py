@@ -3,7 +3,7 @@
 A driver owns one connection and is used from one thread: ``connect()`` identifies the
 device and reads its geometry, ``start()`` begins continuous measurement, and
 ``read_scan()`` blocks (at most ``timeout`` seconds) for the next :class:`acq.records.Scan`.
-Reconnection lives in :mod:`drivers.reconnect`, not in the drivers. The registry maps a
+Reconnection lives in :mod:`acq.drivers.reconnect`, not in the drivers. The registry maps a
 configuration's ``driver:`` key to a class, the way python-can maps an interface name.
 """
 
@@ -13,9 +13,10 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from acq.drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
+from acq.drivers.registry import Registry
+
 from acq.records import DeviceInfo, Scan
-from drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
-from drivers.registry import Registry
 
 __all__ = [
     "SCANNERS",
@@ -106,7 +107,7 @@ class Scanner(ABC):
 SCANNERS: Registry[Scanner] = Registry(
     "scanner",
     Scanner,
-    {"hokuyo": "drivers.scip:ScipScanner", "sick": "drivers.cola:ColaScanner"},
+    {"hokuyo": "acq.drivers.scip:ScipScanner", "sick": "acq.drivers.cola:ColaScanner"},
 )
 
 

@@ -4,7 +4,7 @@
 through :func:`serial.serial_for_url`. ``connect()`` stops any running stream (QT),
 identifies the device (VV, PP, II) and takes the geometry from PP; ``start()`` requests an
 endless MD/ME/ND/NE stream; ``read_scan()`` returns one :class:`acq.records.Scan` per
-telegram. The wire format lives in :mod:`drivers.scip_codec`; this module only does I/O.
+telegram. The wire format lives in :mod:`acq.drivers.scip_codec`; this module only does I/O.
 """
 
 from __future__ import annotations
@@ -16,15 +16,13 @@ import time
 from dataclasses import dataclass
 
 import serial
-
-from acq.records import DeviceInfo, Scan
-from drivers.scanner import (
+from acq.drivers.scanner import (
     ConnectionLost,
     ProtocolError,
     Scanner,
     ScanTimeout,
 )
-from drivers.scip_codec import (
+from acq.drivers.scip_codec import (
     Reply,
     ScanEcho,
     ScipParams,
@@ -37,6 +35,8 @@ from drivers.scip_codec import (
     parse_time_field,
     raise_for_status,
 )
+
+from acq.records import DeviceInfo, Scan
 
 __all__ = ["LatencyEstimate", "ScipScanner", "parse_scan"]
 
@@ -52,7 +52,7 @@ class LatencyEstimate:
     ``spread`` = median - min RTT (jitter); ``offset_s`` = device time minus host time at
     the min-RTT sample (device ms counter, not unwrapped), for information. ``samples``
     holds every round trip as (host ns sent, device tick, host ns received), for
-    :func:`acq.clocksync.latency_bounds`.
+    :func:`acq.time.clocksync.latency_bounds`.
     """
 
     n: int

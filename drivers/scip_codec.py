@@ -5,8 +5,8 @@ line (LF LF): the echo of the command, a status line (2 chars + checksum), then 
 lines, each followed by its 1-char checksum (``(sum of bytes & 0x3F) + 0x30``). Measured
 values are 2/3/4-character encoded: 6 bits per character, ``char - 0x30``, big-endian.
 Scan data lines hold at most 64 data characters and a value may continue on the next line.
-Everything malformed raises :class:`drivers.scanner.ProtocolError`; a status the device
-sends as an error raises :class:`drivers.scanner.DeviceError`.
+Everything malformed raises :class:`acq.drivers.scanner.ProtocolError`; a status the device
+sends as an error raises :class:`acq.drivers.scanner.DeviceError`.
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from acq.drivers.scanner import DeviceError, ProtocolError, ScanGeometry
 
 from acq.records import Scan
-from drivers.scanner import DeviceError, ProtocolError, ScanGeometry
 
 __all__ = [
     "SCAN_COMMANDS",

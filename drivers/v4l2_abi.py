@@ -5,7 +5,7 @@ pointers are 8 bytes, so ``struct timeval`` is 16 bytes and the unions holding p
 are 8-byte aligned). Sizes on x86_64, checked by the tests against the kernel's:
 ``v4l2_capability`` 104, ``v4l2_fmtdesc`` 64, ``v4l2_format`` 208, ``v4l2_requestbuffers``
 20, ``v4l2_buffer`` 88, ``v4l2_streamparm`` 204, ``v4l2_control`` 8, ``v4l2_queryctrl`` 68.
-Only what :mod:`drivers.camera_v4l2` needs is here; single-planar capture, mmap memory.
+Only what :mod:`acq.drivers.camera_v4l2` needs is here; single-planar capture, mmap memory.
 """
 
 from __future__ import annotations

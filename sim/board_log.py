@@ -1,12 +1,12 @@
 """A simulated camera–laser calibration recording (MCAP), with the truth (paper §3.2).
 
 A checkerboard (default 9x7 inner corners of 0.1 m, a white margin) is held still in
-``n_poses`` poses (placed as :func:`sim.board_poses.simulate` does: 1–2.5 m from the
+``n_poses`` poses (placed as :func:`acq.sim.board_poses.simulate` does: 1–2.5 m from the
 scanner, facing the camera, tilted up to ±30 degrees) for ``hold_s`` seconds each and
 carried from one to the next in ``move_s`` seconds. Behind it a wall (``wall_m`` m to the
 camera's side of the vehicle) and the ground, so the scanner sees more than the board.
 
-Sensors (``sim.world.default_rig``, the truth): the camera at ``fps`` Hz, every pixel
+Sensors (``acq.sim.world.default_rig``, the truth): the camera at ``fps`` Hz, every pixel
 ray-cast through the TRUE lens (2x2 supersampled for still poses), blurred (sigma
 ``blur_px``), grey noise, JPEG; the scanner at 1 / ``scan_period`` Hz with the UTM-30LX
 geometry (-135..135 degrees, 0.25 degree steps, laser frame), 10 mm range noise. Topics as
@@ -27,14 +27,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from acq import calibfile, schemas
-from acq.calibfile import Calibration, CameraCalib
-from acq.camera_models import CameraModel
-from acq.mcap_log import LogWriter
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.camera.camera_models import CameraModel
+from acq.geometry.transforms import Rigid
+from acq.log import schemas
+from acq.log.mcap_log import LogWriter
 from acq.records import Frame, Scan
-from acq.transforms import Rigid
-from sim.board_poses import Checkerboard, simulate
-from sim.world import Rig, default_rig
+from acq.sim.board_poses import Checkerboard, simulate
+from acq.sim.world import Rig, default_rig
 
 __all__ = ["BoardLog", "board_at", "pixel_rays", "render_frame", "simulate_scan", "write_board_log"]
 
@@ -309,7 +310,7 @@ def write_board_log(
     return BoardLog(writer.files, truth, boards, holds, board, spec, calib, start_ns)
 
 
-if __name__ == "__main__":  # a quick look: python -m sim.board_log OUT_DIR
+if __name__ == "__main__":  # a quick look: python -m acq.sim.board_log OUT_DIR
     import sys
 
     log = write_board_log(Path(sys.argv[1]))

@@ -8,8 +8,8 @@ its axes. For each pose:
 - the laser points: the scan plane (laser z = 0) cut by the board, one ray every
   ``rig.angle_increment`` (0.25 degrees), Gaussian range noise (10 mm);
 - the camera's plane: the inner corners projected with the rig's fisheye lens
-  (``sim.world.default_rig``), Gaussian pixel noise (0.2 px), then the board's pose
-  estimated by :func:`acq.extrinsic.board_pose_from_corners` — so the plane (n, d) has
+  (``acq.sim.world.default_rig``), Gaussian pixel noise (0.2 px), then the board's pose
+  estimated by :func:`acq.calib.extrinsic.board_pose_from_corners` — so the plane (n, d) has
   the errors of a real detection.
 
 Outlier poses (``n_outliers``) are boards that moved between the image and the scan:
@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acq.camera_models import CameraModel
-from acq.extrinsic import BoardFit, BoardPose, board_pose_from_corners, rotvec_to_matrix
-from acq.transforms import Rigid, rotation_from_euler
-from sim.world import Rig, default_rig
+from acq.calib.extrinsic import BoardFit, BoardPose, board_pose_from_corners, rotvec_to_matrix
+from acq.camera.camera_models import CameraModel
+from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.sim.world import Rig, default_rig
 
 __all__ = ["BoardData", "Checkerboard", "laser_points_on_board", "simulate"]
 

@@ -34,8 +34,8 @@ from urllib.parse import urlsplit
 import cv2
 import numpy as np
 
-from sim import sensors
-from sim.world import Rig, Street, Trajectory, default_rig
+from acq.sim import sensors
+from acq.sim.world import Rig, Street, Trajectory, default_rig
 
 __all__ = [
     "FrameTruth",
@@ -543,7 +543,7 @@ def serve_camera(listen: str | None = None, **options: Any) -> MjpegServer:
 
 
 def _child_main() -> None:
-    """``python -m sim.camera_device --child``: JSON commands on stdin, replies on stdout."""
+    """``python -m acq.sim.camera_device --child``: JSON commands on stdin, replies on stdout."""
     import json
     import sys
 
@@ -579,14 +579,11 @@ class MjpegServerProcess:
         import json
         import subprocess
         import sys
-        from pathlib import Path
 
-        root = str(Path(__file__).resolve().parents[1])
         self._proc = subprocess.Popen(
-            [sys.executable, "-m", "sim.camera_device", "--child"],
+            [sys.executable, "-m", "acq.sim.camera_device", "--child"],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
-            cwd=root,
             text=True,
         )
         self._json = json

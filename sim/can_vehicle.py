@@ -1,6 +1,6 @@
 """A simulated car publishing its true motion as CAN frames on a python-can bus.
 
-The car drives a :class:`sim.world.Trajectory` from ``t_origin`` (host monotonic s; by
+The car drives a :class:`acq.sim.world.Trajectory` from ``t_origin`` (host monotonic s; by
 default when it is made, like the other simulated devices), looping every ``loop_s``
 when given. Its ECUs send, in real time from one thread, the frames of
 ``sim/vehicle.dbc``:
@@ -29,16 +29,17 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sim.world import Trajectory
+from acq.sim.world import Trajectory
 
 __all__ = ["DBC_PATH", "SentFrame", "SimVehicle", "true_motion"]
 
-DBC_PATH = Path(__file__).with_name("vehicle.dbc")
+DBC_PATH = Path(str(resources.files("acq.sim").joinpath("vehicle.dbc")))
 WHEEL_SPEEDS_ID = 0x1A0
 YAW_RATE_ID = 0x1B0
 STEERING_ID = 0x025
@@ -114,7 +115,9 @@ class SimVehicle:
         self.t_origin = time.monotonic() if t_origin is None else t_origin
         self.loop_s = loop_s
         self.bus_options = dict(bus_options or {})
-        self.db = cantools.database.load_file(str(DBC_PATH))
+        db = cantools.database.load_file(str(DBC_PATH))
+        assert isinstance(db, cantools.database.can.Database)
+        self.db = db
         self.truth: deque[SentFrame] = deque(maxlen=truth_limit)
         self.sent = 0
         self._bus: Any = None

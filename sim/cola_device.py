@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.cola_codec import (
+from acq.drivers.cola_codec import (
     Channel,
     ColaFramer,
     ScanData,
@@ -30,10 +30,10 @@ from drivers.cola_codec import (
     encode_scandata,
     frame,
 )
-from drivers.scanner import ProtocolError
-from sim.device_clock import SimClock
-from sim.scan_source import StreetSource
-from sim.scanner_models import ScannerModel
+from acq.drivers.scanner import ProtocolError
+from acq.sim.device_clock import SimClock
+from acq.sim.scan_source import StreetSource
+from acq.sim.scanner_models import ScannerModel
 
 __all__ = ["PASSWORDS", "ColaDevice", "SentScan"]
 
@@ -54,7 +54,7 @@ class SentScan:
 
 
 class ColaDevice:
-    """SICK scanner protocol state machine; serve it with ``sim.transport.TcpDeviceServer``."""
+    """SICK scanner protocol state machine; serve it with ``acq.sim.transport.TcpDeviceServer``."""
 
     def __init__(
         self,

@@ -5,10 +5,10 @@ from __future__ import annotations
 import time
 from urllib.parse import urlsplit
 
-from sim.device_clock import SimClock
-from sim.scan_source import StreetSource
-from sim.scanner_models import ScannerModel, model
-from sim.transport import DeviceServer, PtyDeviceServer, SimDevice, TcpDeviceServer
+from acq.sim.device_clock import SimClock
+from acq.sim.scan_source import StreetSource
+from acq.sim.scanner_models import ScannerModel, model
+from acq.sim.transport import DeviceServer, PtyDeviceServer, SimDevice, TcpDeviceServer
 
 __all__ = ["make_scanner", "parse_listen", "serve_scanner"]
 
@@ -35,10 +35,10 @@ def make_scanner(
     )
     source = StreetSource(m, seed=seed)
     if m.vendor == "hokuyo":
-        from sim.scip_device import ScipDevice
+        from acq.sim.scip_device import ScipDevice
 
         return m, ScipDevice(m, source=source, clock=clock)
-    from sim.cola_device import ColaDevice
+    from acq.sim.cola_device import ColaDevice
 
     return m, ColaDevice(m, source=source, clock=clock, protocol=protocol)
 

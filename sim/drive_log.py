@@ -1,16 +1,16 @@
 """A simulated drive recorded as the recorder writes it, with the truth (issue 8).
 
-The simulated rig (``sim.world.default_rig``: UTM-30LX geometry, the 185-degree fisheye)
+The simulated rig (``acq.sim.world.default_rig``: UTM-30LX geometry, the 185-degree fisheye)
 drives the synthetic street (with the validation pattern at ``pattern_at`` m on the
 camera's side) in the lane at ``lane_y`` m, at ``speed_kmh``, along a gentle curve, with
 body vibration. Everything a recording carries is simulated, and the log holds only
 what a recorder would have:
 
 - scans: each cast step by step from the laser's pose at its own time, with a return
-  strength per point (:func:`sim.sensors.return_strength`, 5 % noise); the scanner's
+  strength per point (:func:`acq.sim.sensors.return_strength`, 5 % noise); the scanner's
   millisecond clock (24 bits) runs ``scanner_drift_ppm`` fast; each telegram arrives
   ``scanner_latency_s`` plus an exponential jitter after the scan's end; the recorded
-  stamp is what the recorder computes online (:class:`acq.clocksync.DeviceClock` on the
+  stamp is what the recorder computes online (:class:`acq.time.clocksync.DeviceClock` on the
   ticks, minus the configured latency, which is the true constant part);
 - frames: exposed on the camera's own grid (``camera_drift_ppm``), ray-cast through the
   TRUE lens, JPEG; each arrives ``camera_latency_s`` + half the exposure + an exponential
@@ -37,13 +37,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from acq import calibfile, schemas
-from acq.calibfile import Calibration, CameraCalib
-from acq.clocksync import DeviceClock
-from acq.mcap_log import LogWriter
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.log import schemas
+from acq.log.mcap_log import LogWriter
 from acq.records import Fix, Frame, Odometry, Scan
-from sim.sensors import render_frame, render_scan, return_strength
-from sim.world import Rig, Street, Trajectory, default_rig
+from acq.sim.sensors import render_frame, render_scan, return_strength
+from acq.sim.world import Rig, Street, Trajectory, default_rig
+from acq.time.clocksync import DeviceClock
 
 __all__ = ["DriveTruth", "write_drive_log"]
 
@@ -61,7 +62,7 @@ class DriveTruth:
     scan_t0_s: np.ndarray  # (S,) true time of each scan's point 0, s
     scan_stamp_ns: np.ndarray  # (S,) the recorded (online) stamps
     points: np.ndarray  # (S, N, 3) float32 noise-free world hit points (NaN none)
-    materials: np.ndarray  # (S, N) uint8 sim.world.Material of each hit
+    materials: np.ndarray  # (S, N) uint8 acq.sim.world.Material of each hit
     colours: np.ndarray  # (S, N, 3) uint8 BGR surface colour of each hit
     frame_t_s: np.ndarray  # (F,) true middle of exposure, s
     frame_stamp_ns: np.ndarray  # (F,) the recorded stamps
@@ -77,7 +78,7 @@ class DriveTruth:
         """Where the noise-free hits of points (``scan``, ``step``) fall in the frames
         with recorded stamps ``frame_stamp_ns`` (true lens, true pose at the frame's true
         time): (N,2) px and (N,) valid (also False for an unknown frame or no hit)."""
-        from sim.sensors import camera_to_world
+        from acq.sim.sensors import camera_to_world
 
         scan, step = np.asarray(scan, np.int64), np.asarray(step, np.int64)
         k = np.clip(np.searchsorted(self.frame_stamp_ns, frame_stamp_ns), 0,
@@ -271,7 +272,7 @@ def write_drive_log(
     # --- GNSS: the vehicle's true position (the antenna at its origin), street x east and
     # y north of ORIGIN, with Gaussian noise; stamped at the fix instant, received later
     if gnss_hz > 0:
-        from sim.nmea_device import DEFAULT_ORIGIN, enu_to_wgs84
+        from acq.sim.nmea_device import DEFAULT_ORIGIN, enu_to_wgs84
 
         gnss_rng = np.random.default_rng([seed, 2])
         ts = np.arange(0.0, seconds + 0.2, 1.0 / gnss_hz)
@@ -318,7 +319,7 @@ def write_drive_log(
     )
 
 
-if __name__ == "__main__":  # a quick look: python -m sim.drive_log OUT_DIR [SECONDS]
+if __name__ == "__main__":  # a quick look: python -m acq.sim.drive_log OUT_DIR [SECONDS]
     import sys
 
     out = Path(sys.argv[1])

@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from acq.camera_models import KannalaBrandt
+from acq.camera.camera_models import KannalaBrandt
 
 __all__ = ["CircleTruth", "fisheye_image", "random_image"]
 
@@ -74,7 +74,7 @@ def _street(
 ) -> np.ndarray:
     """(H,W) float64 grey street view (0..255) through an equidistant lens whose 185-degree
     circle has u semi-axis ``a``; rendered out to 240 degrees, so it covers the rim."""
-    from sim import sensors, world
+    from acq.sim import sensors, world
 
     f = a / math.radians(92.5)
     lens = KannalaBrandt(width, height, f, f * aspect, cx, cy, fov_deg=240.0)

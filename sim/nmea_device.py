@@ -1,6 +1,6 @@
 """A simulated GNSS receiver: NMEA 0183 from the vehicle's true trajectory, on a pty.
 
-The receiver's antenna rides on the vehicle of a :class:`sim.world.Trajectory` (from
+The receiver's antenna rides on the vehicle of a :class:`acq.sim.world.Trajectory` (from
 ``t_origin``, host monotonic s, like the other simulated devices; looping every
 ``loop_s`` when given). The street's world frame (x along the street, y left, z up)
 lies on the local tangent plane at ``origin`` (WGS-84 latitude, longitude in degrees,
@@ -15,7 +15,7 @@ Each epoch's sentences (RMC, VTG, GGA) go out ``latency_s`` plus an exponential 
 of mean ``jitter_s`` after the epoch. Optional Gaussian noise (``noise_m`` east and
 north, ``noise_up_m`` up) is added to the reported position, not to the truth.
 
-:class:`NmeaPtyServer` serves it on a pseudo-terminal (``sim.transport``'s
+:class:`NmeaPtyServer` serves it on a pseudo-terminal (``acq.sim.transport``'s
 machinery); output that no client reads is dropped, as a UART overruns, rather than
 queued, so a client that opens the port gets current fixes.
 """
@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.transport import PtyDeviceServer
-from sim.world import Trajectory
+from acq.sim.transport import PtyDeviceServer
+from acq.sim.world import Trajectory
 
 __all__ = ["DEFAULT_ORIGIN", "FixTruth", "NmeaDevice", "NmeaPtyServer", "enu_to_wgs84"]
 
@@ -105,7 +105,7 @@ def sentence(body: str, corrupt: bool = False) -> bytes:
 
 
 class NmeaDevice:
-    """The receiver's protocol side (a :class:`sim.transport.SimDevice`): it streams, it
+    """The receiver's protocol side (a :class:`acq.sim.transport.SimDevice`): it streams, it
     ignores what it is sent. :attr:`truth` keeps the last ``truth_limit`` epochs."""
 
     def __init__(

@@ -3,13 +3,13 @@
 Rendering the street costs about 0.6 ms per scan and 21 ms per camera frame, so the live
 simulators cannot run at many times the nominal rates. Here the data is rendered once
 (``n`` scans or frames of the drive, at the nominal spacing) and then cycled; the wire
-protocols and their timing are the real simulators' (:class:`sim.scip_device.ScipDevice`
-on :class:`sim.transport.TcpDeviceServer`, :class:`sim.camera_device.MjpegServer`).
+protocols and their timing are the real simulators' (:class:`acq.sim.scip_device.ScipDevice`
+on :class:`acq.sim.transport.TcpDeviceServer`, :class:`acq.sim.camera_device.MjpegServer`).
 
 - :class:`PrerenderedScanSource`: a ``StreetSource`` stand-in for ``ScipDevice``.
 - :class:`PrerenderedCamera`: a ``SimCamera`` whose frames are ``n`` JPEGs encoded once.
 - :class:`CountingScipDevice`: a ``ScipDevice`` that lists the ticks of every streamed scan.
-- ``python -m sim.prerendered scanner|camera ...``: one of them in its own process; it
+- ``python -m acq.sim.prerendered scanner|camera ...``: one of them in its own process; it
   prints ``{"url": ...}`` and then answers JSON commands on stdin, one per line:
   ``"stats"`` (what it sent so far, and its CPU seconds), ``"close"``.
 """
@@ -25,12 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from sim.camera_device import FrameTruth, MjpegServer, SimCamera, SimFrame, jpeg_digest
-from sim.device_clock import SimClock
-from sim.scan_source import StreetSource
-from sim.scanner_models import ScannerModel, model
-from sim.scip_device import ScipDevice
-from sim.transport import TcpDeviceServer
+from acq.sim.camera_device import FrameTruth, MjpegServer, SimCamera, SimFrame, jpeg_digest
+from acq.sim.device_clock import SimClock
+from acq.sim.scan_source import StreetSource
+from acq.sim.scanner_models import ScannerModel, model
+from acq.sim.scip_device import ScipDevice
+from acq.sim.transport import TcpDeviceServer
 
 __all__ = [
     "CountingScipDevice",
@@ -146,7 +146,9 @@ def _serve_camera(args: argparse.Namespace) -> tuple[Any, Any]:
             "sent": len(sent),
             "frames": [(t.sequence, t.digest, t.t_sent) for t in sent],
             "late": sum(t.status == "late" for t in truth),
-            "max_send_delay_s": max((t.t_sent - t.t_available for t in sent), default=0.0),
+            "max_send_delay_s": max(
+                (t.t_sent - t.t_available for t in sent if t.t_sent is not None), default=0.0
+            ),
             "connections": server.connections,
         }
 
@@ -154,7 +156,7 @@ def _serve_camera(args: argparse.Namespace) -> tuple[Any, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m sim.prerendered", description=__doc__)
+    p = argparse.ArgumentParser(prog="python -m acq.sim.prerendered", description=__doc__)
     sub = p.add_subparsers(dest="device", required=True)
     s = sub.add_parser("scanner", help="a SCIP scanner, sped up, pre-rendered scans, on TCP")
     s.add_argument("--model", default="utm-30lx")

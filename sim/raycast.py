@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import math
 import weakref
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numba as nb
 import numpy as np
 
-from sim.world import N_PARAMS, Material, Street
+from acq.sim.world import N_PARAMS, Material, Street
 
 __all__ = ["NO_RAY", "CastResult", "PackedScene", "cast", "pack"]
 
@@ -32,7 +32,8 @@ _FM = {"nsz", "arcp", "contract", "afn", "reassoc"}
 # The kernels allocate nothing, so they run without numba's reference counting
 # (``_nrt=False``): passing a dozen arrays to an inlined helper otherwise costs two atomic
 # operations per array per ray, more than the tracing itself. Helpers are inlined at the
-# numba IR level (``inline="always"``).
+# numba IR level (``inline="always"``). (A private option, which numba's stubs omit.)
+_NO_NRT: dict[str, Any] = {"_nrt": False}
 
 _SKY = int(Material.SKY)
 _ROAD = int(Material.ROAD)
@@ -205,7 +206,7 @@ def pack(street: Street) -> PackedScene:
 # --- the kernels ------------------------------------------------------------------------
 
 
-@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", _nrt=False)
+@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", **_NO_NRT)
 def _slab(o, d, lo, hi, t0, t1):  # type: ignore[no-untyped-def]
     """Clip [t0, t1] to where o + t d lies in [lo, hi] (empty: t0 > t1)."""
     if d != 0.0:
@@ -219,7 +220,7 @@ def _slab(o, d, lo, hi, t0, t1):  # type: ignore[no-untyped-def]
     return 1.0, 0.0
 
 
-@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", _nrt=False)
+@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", **_NO_NRT)
 def _march(  # type: ignore[no-untyped-def]
     ox,
     oy,
@@ -354,7 +355,7 @@ def _march(  # type: ignore[no-untyped-def]
     return best, kind, idx, face
 
 
-@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", _nrt=False)
+@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", **_NO_NRT)
 def _trace(  # type: ignore[no-untyped-def]
     ox,
     oy,
@@ -432,14 +433,14 @@ def _trace(  # type: ignore[no-untyped-def]
     return best, kind, idx, face
 
 
-@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", _nrt=False)
+@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", **_NO_NRT)
 def _hash(ix, iy):  # type: ignore[no-untyped-def]
     h = (ix * 73856093) ^ (iy * 19349663)
     h = (h ^ (h >> 13)) * 1274126177
     return (h >> 7) & 3
 
 
-@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", _nrt=False)
+@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", **_NO_NRT)
 def _facade(P, i, u, z, is_front):  # type: ignore[no-untyped-def]
     """Facade texture at (u along the wall, z) m: 0 wall, 1 frame, 2 glass, 3 band."""
     floor_h = P[i, 10]
@@ -476,7 +477,7 @@ def _facade(P, i, u, z, is_front):  # type: ignore[no-untyped-def]
     return 0
 
 
-@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", _nrt=False)
+@nb.njit(cache=True, fastmath=_FM, error_model="numpy", inline="always", **_NO_NRT)
 def _shade(  # type: ignore[no-untyped-def]
     ox,
     oy,
@@ -591,7 +592,7 @@ def _shade(  # type: ignore[no-untyped-def]
     return p[idx, 0], p[idx, 1], p[idx, 2], mat
 
 
-@nb.njit(cache=True, fastmath=_FM, error_model="numpy", _nrt=False)
+@nb.njit(cache=True, fastmath=_FM, error_model="numpy", **_NO_NRT)
 def _kernel(origins, dirs, R, index, sc, dist, colour, material):  # type: ignore[no-untyped-def]
     """Trace rays ``R @ dirs[i]`` from ``origins[i]`` (or the single origin ``origins[0]``)
     and write distance, colour and material at position ``index[i]`` of the outputs."""

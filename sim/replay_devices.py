@@ -14,7 +14,7 @@ JPEG bytes; only the receive times are new.
   reconnects, gets what is due from then on, not what it missed.
 - :class:`ReplayStream` is one device's records on that axis.
 - :class:`ScipReplayDevice` and :class:`ColaReplayDevice` are ``SimDevice``s (serve them
-  with :class:`sim.transport.TcpDeviceServer` or ``PtyDeviceServer``): they answer the
+  with :class:`acq.sim.transport.TcpDeviceServer` or ``PtyDeviceServer``): they answer the
   start-up like the simulated devices (identity as recorded), and once the client starts
   the recorded measurement they stream the recorded telegrams. A client asking for a
   different measurement (another scan command or steps, the other CoLa encoding) is
@@ -38,14 +38,14 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from drivers.cola_codec import STX4, Telegram, unframe
-from drivers.scanner import ProtocolError
-from drivers.scip_codec import SCAN_COMMANDS, decode_int
-from sim.camera_device import MjpegServer, SimFrame
-from sim.cola_device import ColaDevice
-from sim.device_clock import SimClock
-from sim.scanner_models import ScannerModel
-from sim.scip_device import ScipDevice
+from acq.drivers.cola_codec import STX4, Telegram, unframe
+from acq.drivers.scanner import ProtocolError
+from acq.drivers.scip_codec import SCAN_COMMANDS, decode_int
+from acq.sim.camera_device import MjpegServer, SimFrame
+from acq.sim.cola_device import ColaDevice
+from acq.sim.device_clock import SimClock
+from acq.sim.scanner_models import ScannerModel
+from acq.sim.scip_device import ScipDevice
 
 __all__ = [
     "ColaReplayDevice",
@@ -185,7 +185,7 @@ class _NoSource:
 
 def scip_model(info: dict[str, Any], params: dict[str, Any]) -> ScannerModel:
     """The model a recorded Hokuyo describes: ``info`` (acq.records.DeviceInfo as a dict)
-    and ``params`` (drivers.scip_codec.ScipParams as a dict: PP in mm, steps, rpm)."""
+    and ``params`` (acq.drivers.scip_codec.ScipParams as a dict: PP in mm, steps, rpm)."""
     extra = info.get("extra", {})
     modl = str(params.get("model") or extra.get("PP.MODL") or "hokuyo")
     return ScannerModel(
@@ -215,7 +215,7 @@ class _RecordedTicks:
     The latest tick consistent with every telegram's receipt (of the first 200): the
     stamp of the least delayed telegram plus the log time since its receipt, on the
     replay's time axis (so it runs ``speed`` times fast in host time). Duck-types
-    :class:`sim.device_clock.SimClock` as far as :class:`ScipDevice` uses it.
+    :class:`acq.sim.device_clock.SimClock` as far as :class:`ScipDevice` uses it.
     """
 
     epoch = 0.0
@@ -343,7 +343,7 @@ class ScipReplayDevice(ScipDevice):
 
 def cola_model(info: dict[str, Any], geometry: dict[str, Any]) -> ScannerModel:
     """The model a recorded SICK describes: ``info`` (DeviceInfo as a dict) and
-    ``geometry`` (drivers.scanner.ScanGeometry as a dict: rad, s, m)."""
+    ``geometry`` (acq.drivers.scanner.ScanGeometry as a dict: rad, s, m)."""
     product = str(info.get("model", "")) or "LMS1xx"
     return ScannerModel(
         name=product.lower(),
@@ -370,7 +370,7 @@ class ColaReplayDevice(ColaDevice):
     as recorded: it powers up in the recorded encoding).
 
     The start-up (login, identity, scan configuration) is answered as
-    :class:`sim.cola_device.ColaDevice` does, from the recorded identity and geometry;
+    :class:`acq.sim.cola_device.ColaDevice` does, from the recorded identity and geometry;
     ``sEN LMDscandata 1`` starts the recorded stream, ``sRN LMDscandata`` answers the
     latest recorded scan as ``sRA``.
     """
@@ -452,7 +452,7 @@ class _Sent:
 class ReplayMjpegServer(MjpegServer):
     """Serves a camera's recorded JPEG bytes as MJPEG over HTTP at their recorded times.
 
-    As :class:`sim.camera_device.MjpegServer` (several clients, the same faults): every
+    As :class:`acq.sim.camera_device.MjpegServer` (several clients, the same faults): every
     connected client gets each frame due while it is connected. The first client starts
     the shared clock; with no client connected, frames are not sent (and not kept).
     """

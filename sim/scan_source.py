@@ -11,9 +11,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from sim import sensors
-from sim.scanner_models import ScannerModel
-from sim.world import Rig, Street, Trajectory, default_rig
+from acq.sim import sensors
+from acq.sim.scanner_models import ScannerModel
+from acq.sim.world import Rig, Street, Trajectory, default_rig
 
 __all__ = ["StreetSource"]
 

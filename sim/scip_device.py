@@ -3,7 +3,7 @@
 It answers like the real devices: the command echoed, a checksummed status, data lines
 with checksums, LF LF at the end; VV/PP/II in the devices' own format; scans of the
 synthetic street (``StreetSource``) at the model's rate, time-stamped by the device's own
-24-bit millisecond clock (``SimClock``). Serve it with ``sim.transport.TcpDeviceServer`` or
+24-bit millisecond clock (``SimClock``). Serve it with ``acq.sim.transport.TcpDeviceServer`` or
 ``PtyDeviceServer``.
 
 Differences between the models follow the real ones: ME/GE only where the model has
@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.scip_codec import checksum, encode, encode_lines
-from sim.device_clock import SimClock
-from sim.scan_source import StreetSource
-from sim.scanner_models import ScannerModel
+from acq.drivers.scip_codec import checksum, encode, encode_lines
+from acq.sim.device_clock import SimClock
+from acq.sim.scan_source import StreetSource
+from acq.sim.scanner_models import ScannerModel
 
 __all__ = ["ScipDevice", "SentScan"]
 
@@ -68,6 +68,9 @@ def _status(code: str) -> bytes:
 
 class ScipDevice:
     """``SimDevice`` for a Hokuyo model (see module doc). ``now`` is time.monotonic() s."""
+
+    _stream: _Stream | None
+    _finite: bool
 
     def __init__(
         self,
@@ -168,7 +171,7 @@ class ScipDevice:
         self.tm_mode = False
         self.high_sensitivity = False
         self.bitrate = 19200
-        self._stream: _Stream | None = None
+        self._stream = None
         self._finite = False
         self._rb_at = -math.inf
 

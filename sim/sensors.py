@@ -2,7 +2,7 @@
 
 A frame is rendered instantaneously at its time (the middle of its exposure). A scan
 casts step i from the laser's pose at ``t0 + i * time_increment``, so the vehicle's motion
-during the scan is in the data. World frame and units as in ``sim.world``.
+during the scan is in the data. World frame and units as in ``acq.sim.world``.
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from acq.camera_models import KannalaBrandt
-from acq.transforms import Rigid
-from sim.raycast import cast
-from sim.world import Rig, Street, Trajectory
+from acq.camera.camera_models import KannalaBrandt
+from acq.geometry.transforms import Rigid
+from acq.sim.raycast import cast
+from acq.sim.world import Rig, Street, Trajectory
 
 __all__ = [
     "FrameTruth",
@@ -68,7 +68,7 @@ class FrameTruth:
     t: float  # s, the middle of the exposure
     image: np.ndarray  # (H,W,3) uint8 BGR, black outside the image circle
     depth: np.ndarray  # (H,W) float64 m along the ray; +inf sky, NaN outside the circle
-    material: np.ndarray  # (H,W) uint8 sim.world.Material, raycast.NO_RAY outside
+    material: np.ndarray  # (H,W) uint8 acq.sim.world.Material, raycast.NO_RAY outside
 
 
 def render_frame_truth(street: Street, trajectory: Trajectory, rig: Rig, t: float) -> FrameTruth:
@@ -98,7 +98,7 @@ class ScanTruth:
     ``ranges`` are what the device reports (m, noisy, float32; +inf no echo or beyond
     ``max_range``, -inf closer than ``min_range``). ``points`` are the noise-free world hit
     points (m, NaN where there is no echo), ``colours`` the BGR surface colour there (sky
-    colour where there is none), ``material`` the ``sim.world.Material`` id.
+    colour where there is none), ``material`` the ``acq.sim.world.Material`` id.
     """
 
     t0: float  # s, time of step 0

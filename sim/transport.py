@@ -31,7 +31,7 @@ __all__ = ["DeviceServer", "PtyDeviceServer", "SimDevice", "TcpDeviceServer"]
 
 
 class SimDevice(Protocol):
-    """A simulated device's protocol side (implemented by sim.scip_device, sim.cola_device)."""
+    """A simulated device's protocol side (acq.sim.scip_device, acq.sim.cola_device)."""
 
     def handle(self, data: bytes, now: float) -> bytes:
         """Bytes from the client (any split) -> the bytes the device answers."""

@@ -1,7 +1,7 @@
 """A simulated validation recording (MCAP) of the paper's §4.2 pattern in the synthetic
 street, with the truth.
 
-The pattern (:func:`sim.world.validation_pattern`) stands on the left sidewalk of a
+The pattern (:func:`acq.sim.world.validation_pattern`) stands on the left sidewalk of a
 street (``Street.generate(seed, pattern_at=at_m)``, that stretch cleared of parked cars,
 poles and buildings): six red/green horizontal bars at |y| = 5 m (0.8-3.3 m above the
 road), a raised panel of blue/yellow squares behind them at |y| = 6 m (0.5-4.1 m). The
@@ -10,13 +10,13 @@ left) with its scan plane x = ``at_m`` through the middle of the pattern: the ba
 from the scanner, the panel 2.8 m, the laser line crossing every bar and, through the
 gaps, the panel (through square centres). It stands still for ``duration_s`` s.
 
-Rendering with the street's ray caster (:mod:`sim.raycast`), in colour: every pixel
+Rendering with the street's ray caster (:mod:`acq.sim.raycast`), in colour: every pixel
 cast through the TRUE lens from the TRUE camera pose (2x2 supersampled), blurred (sigma
-``blur_px``), RGB noise, JPEG; every scan cast by :func:`sim.sensors.render_scan` with the
-rig's 10 mm range noise. Topics and metadata as :func:`sim.board_log.write_board_log`
+``blur_px``), RGB noise, JPEG; every scan cast by :func:`acq.sim.sensors.render_scan` with the
+rig's 10 mm range noise. Topics and metadata as :func:`acq.sim.board_log.write_board_log`
 writes them (the stored calibration holds the true intrinsics and the TRUE
 camera_to_laser). The truth per beam (:data:`LABELS`) is what the caster hit: its
-material and colour. World frame and units as in :mod:`sim.world`.
+material and colour. World frame and units as in :mod:`acq.sim.world`.
 """
 
 from __future__ import annotations
@@ -27,15 +27,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from acq import schemas
-from acq.calibfile import Calibration, CameraCalib
+from acq.calib.validate import DEFAULT_COLOURS
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.geometry.transforms import Rigid
+from acq.log import schemas
 from acq.records import Frame
-from acq.transforms import Rigid
-from acq.validate import DEFAULT_COLOURS
-from sim.board_log import open_sim_log, pixel_rays, scan_events, write_events
-from sim.raycast import NO_RAY, cast
-from sim.sensors import camera_to_world, render_scan
-from sim.world import Material, Rig, Street, Trajectory, default_rig
+from acq.sim.board_log import open_sim_log, pixel_rays, scan_events, write_events
+from acq.sim.raycast import NO_RAY, cast
+from acq.sim.sensors import camera_to_world, render_scan
+from acq.sim.world import Material, Rig, Street, Trajectory, default_rig
 
 __all__ = [
     "LABELS",
@@ -166,10 +166,10 @@ def write_validation_log(
     )
 
 
-if __name__ == "__main__":  # a quick look: python -m sim.validation_log OUT_DIR
+if __name__ == "__main__":  # a quick look: python -m acq.sim.validation_log OUT_DIR
     import sys
 
-    from acq import calibfile
+    from acq.camera import calibfile
 
     out = Path(sys.argv[1])
     log = write_validation_log(out)

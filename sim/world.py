@@ -3,7 +3,7 @@
 World frame: x along the street (the vehicle drives +x), y left, z up, metres; the road
 surface is the plane z = 0 and the street's centre line is y = 0. Every object is an
 axis-aligned box standing in the street, a vertical cylinder, or a free textured quad
-(for calibration boards and validation patterns), so the ray caster (``sim.raycast``)
+(for calibration boards and validation patterns), so the ray caster (``acq.sim.raycast``)
 can cut the street into slices along x. Colours are BGR uint8.
 
 The paper's §4.2 validation pattern (:func:`validation_pattern`) can stand in the street:
@@ -21,8 +21,8 @@ from enum import IntEnum
 
 import numpy as np
 
-from acq.camera_models import KannalaBrandt
-from acq.transforms import Rigid, matrices_from_euler, rotation_from_euler
+from acq.camera.camera_models import KannalaBrandt
+from acq.geometry.transforms import Rigid, matrices_from_euler, rotation_from_euler
 
 __all__ = [
     "N_PARAMS",
@@ -196,11 +196,11 @@ def validation_pattern(
     ``panel_bottom_m`` above the road up (raised, so no laser point where it meets the
     ground lies on its plane); a square's centre lies on x = x_m (odd ``panel_cols``), so
     a scan plane x = x_m runs through square centres, not along a colour edge. The stands
-    are not modelled. ``colours``: RGB by name as ``acq.validate.DEFAULT_COLOURS`` (the
+    are not modelled. ``colours``: RGB by name as ``acq.calib.validate.DEFAULT_COLOURS`` (the
     default); metres.
     """
     if colours is None:
-        from acq.validate import DEFAULT_COLOURS  # here: it imports cv2, slow
+        from acq.calib.validate import DEFAULT_COLOURS  # here: it imports cv2, slow
 
         colours = DEFAULT_COLOURS
     rgb = colours

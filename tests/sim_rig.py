@@ -10,11 +10,11 @@ import yaml
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from acq import config as configfile
-from sim.camera_device import MjpegServerProcess
-from sim.scanner_models import MODELS
-from sim.scip_device import ScipDevice
-from sim.transport import TcpDeviceServer
+from acq.record import config as configfile
+from acq.sim.camera_device import MjpegServerProcess
+from acq.sim.scanner_models import MODELS
+from acq.sim.scip_device import ScipDevice
+from acq.sim.transport import TcpDeviceServer
 
 
 class Rig:
@@ -46,8 +46,8 @@ class Rig:
 
     def warm_up(self) -> Rig:
         """Read a few frames and scans, so no test pays for the simulators' first frames."""
-        from drivers.camera_opencv import OpenCVCamera
-        from drivers.scip import ScipScanner
+        from acq.drivers.camera_opencv import OpenCVCamera
+        from acq.drivers.scip import ScipScanner
 
         with OpenCVCamera(self.camera.url, timeout=30.0) as cam:
             cam.connect()

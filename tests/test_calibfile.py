@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 import yaml
 
-from acq import calibfile, camera_models
-from acq.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
-from acq.camera_models import Equidistant, KannalaBrandt
-from acq.transforms import Rigid, rotation_from_euler
+from acq import camera_models  # the API name of ARCHITECTURE.md
+from acq.camera import calibfile
+from acq.camera.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
+from acq.camera.camera_models import Equidistant, KannalaBrandt
+from acq.geometry.transforms import Rigid, rotation_from_euler
 
 GOOD = {
     "version": 1,

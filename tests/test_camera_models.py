@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acq.camera_models import Equidistant, KannalaBrandt, Pinhole, from_dict
+from acq.camera.camera_models import Equidistant, KannalaBrandt, Pinhole, from_dict
 
 KB = KannalaBrandt(
     width=780, height=582, fx=169.0, fy=170.2, cx=390.2, cy=291.1,

@@ -14,13 +14,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.camera import FrameTimeout, camera_for
-from drivers.camera_opencv import OpenCVCamera
-from drivers.errors import ConnectionLost, DeviceError, ProtocolError
-from drivers.mjpeg import MultipartReader, jpeg_size
-from drivers.reconnect import Backoff, CameraLink
-from sim.camera_device import MjpegServer, MjpegServerProcess, SimCamera, jpeg_digest
-from sim.world import Street
+from acq.drivers.camera import FrameTimeout, camera_for
+from acq.drivers.camera_opencv import OpenCVCamera
+from acq.drivers.errors import ConnectionLost, DeviceError, ProtocolError
+from acq.drivers.mjpeg import MultipartReader, jpeg_size
+from acq.drivers.reconnect import Backoff, CameraLink
+from acq.sim.camera_device import MjpegServer, MjpegServerProcess, SimCamera, jpeg_digest
+from acq.sim.world import Street
 
 EXPOSURE = 0.004
 LATENCY = 0.02

@@ -2,7 +2,7 @@
 
 No kernel video device exists on the test machine (no /dev/video*, and vivid cannot be
 loaded in a container), so :class:`FakeSystem` plays the kernel's side of every ioctl
-the driver makes, on the real ctypes structures of :mod:`drivers.v4l2_abi`: format
+the driver makes, on the real ctypes structures of :mod:`acq.drivers.v4l2_abi`: format
 negotiation (nearest size, refused sizes), frame intervals, controls with ranges, the
 mmap buffer queue (QBUF/DQBUF, EAGAIN when nothing is done), sequence numbers with
 injected gaps, timestamps with their clock and source flags, and ENODEV after an
@@ -26,11 +26,11 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers import v4l2_abi as abi
-from drivers.camera import FrameTimeout, camera_class
-from drivers.camera_v4l2 import OsV4L2, V4L2Camera, jpeg_has_dht
-from drivers.errors import ConnectionLost, DeviceError
-from drivers.reconnect import Backoff, CameraLink, LinkEvent
+from acq.drivers import v4l2_abi as abi
+from acq.drivers.camera import FrameTimeout, camera_class
+from acq.drivers.camera_v4l2 import OsV4L2, V4L2Camera, jpeg_has_dht
+from acq.drivers.errors import ConnectionLost, DeviceError
+from acq.drivers.reconnect import Backoff, CameraLink, LinkEvent
 
 PAGE = 4096
 SOE = abi.V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC | abi.V4L2_BUF_FLAG_TSTAMP_SRC_SOE

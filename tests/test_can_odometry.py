@@ -19,8 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from acq.records import CanFrame, Odometry
-from drivers.can_odometry import (
+from acq.drivers.can_odometry import (
     MAX_STAMP_AGE_S,
     CanDecodeError,
     CanOdometry,
@@ -28,8 +27,9 @@ from drivers.can_odometry import (
     OdometryDecoder,
     map_stamp,
 )
-from drivers.errors import ReadTimeout
-from sim.can_vehicle import (
+from acq.drivers.errors import ReadTimeout
+from acq.records import CanFrame, Odometry
+from acq.sim.can_vehicle import (
     DBC_PATH,
     STEERING_ID,
     WHEEL_SPEEDS_ID,
@@ -38,7 +38,7 @@ from sim.can_vehicle import (
     SimVehicle,
     true_motion,
 )
-from sim.world import Trajectory
+from acq.sim.world import Trajectory
 
 CURVY = Trajectory(curve_amplitude=2.0, curve_wavelength=60.0)
 SPEED_LSB = 0.01 / 3.6  # m/s, one step of a wheel speed (0.01 km/h)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acq.clocksync import DeviceClock, TurnFit, Unwrapper, fit_drift, retime_offline
+from acq.time.clocksync import DeviceClock, TurnFit, Unwrapper, fit_drift, retime_offline
 
 
 def stream(

@@ -12,7 +12,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from acq.clocksync import fit_drift
+from acq.time.clocksync import fit_drift
 
 BENCH = Path(__file__).resolve().parents[1] / "bench" / "clocksync_capture.py"
 

@@ -1,4 +1,4 @@
-"""PLY and LAS written part by part (acq.cloud.PlyStream, acq.las.LasStream)."""
+"""PLY and LAS written part by part (acq.cloud.PlyStream, acq.cloud.las.LasStream)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from plyfile import PlyData
 
 from acq.cloud import PlyStream
-from acq.las import LasStream
+from acq.cloud.las import LasStream
 
 
 def _points(n: int, seed: int) -> tuple[np.ndarray, ...]:

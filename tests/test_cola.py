@@ -19,9 +19,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from acq.wireshark_json import Packet, Stream, read_packets, reassemble, split_directions
-from drivers.cola import ColaScanner, parse_url
-from drivers.cola_codec import (
+from acq.drivers.cola import ColaScanner, parse_url
+from acq.drivers.cola_codec import (
     ArgReader,
     ColaFramer,
     ScanData,
@@ -33,8 +32,9 @@ from drivers.cola_codec import (
     parse_scandata,
     unframe,
 )
-from drivers.scanner import DeviceError, ProtocolError
-from sim.transport import TcpDeviceServer
+from acq.drivers.scanner import DeviceError, ProtocolError
+from acq.sim.transport import TcpDeviceServer
+from tests.wireshark_json import Packet, Stream, read_packets, reassemble, split_directions
 
 CAPTURE = (
     Path(__file__).resolve().parents[1].parent
@@ -341,7 +341,7 @@ def test_scandata_optional_blocks_roundtrip(real_scans: list[ScanData]) -> None:
     rssi = np.arange(541, dtype=np.uint16)
     from dataclasses import replace
 
-    from drivers.cola_codec import Channel
+    from acq.drivers.cola_codec import Channel
 
     full = replace(
         s,
@@ -429,7 +429,7 @@ def test_fuzz_mutated_real_telegrams(real_scans: list[ScanData], data: st.DataOb
 def test_parse_throughput_smoke() -> None:
     """An LMS511 telegram (1141 points, DIST1 + RSSI1) parses quickly (bench/ times it)."""
     n = 1141
-    from drivers.cola_codec import Channel
+    from acq.drivers.cola_codec import Channel
 
     dist = Channel("DIST1", 1.0, 0.0, -50000, 1667, np.arange(n, dtype=np.uint16))
     rssi = Channel("RSSI1", 1.0, 0.0, -50000, 1667, np.arange(n, dtype=np.uint16))

@@ -10,13 +10,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.cola import ColaScanner
-from drivers.cola_codec import build, frame
-from drivers.scanner import ConnectionLost, DeviceError, ProtocolError, ScanTimeout
-from sim.cola_device import ColaDevice
-from sim.device_clock import SimClock
-from sim.scanner_models import MODELS
-from sim.transport import TcpDeviceServer
+from acq.drivers.cola import ColaScanner
+from acq.drivers.cola_codec import build, frame
+from acq.drivers.scanner import ConnectionLost, DeviceError, ProtocolError, ScanTimeout
+from acq.sim.cola_device import ColaDevice
+from acq.sim.device_clock import SimClock
+from acq.sim.scanner_models import MODELS
+from acq.sim.transport import TcpDeviceServer
 
 
 @pytest.fixture

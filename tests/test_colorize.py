@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
-from acq import calibfile, cloud, colorize
+from acq import cloud
+from acq.camera import calibfile
 from acq.cli import build_parser
-from acq.colorize import main_colorize, plan, run
-from acq.views import Options
-from sim.drive_log import DriveTruth, write_drive_log
+from acq.cloud import colorize
+from acq.cloud.colorize import main_colorize, plan, run
+from acq.cloud.views import Options
+from acq.sim.drive_log import DriveTruth, write_drive_log
 
 
 @pytest.fixture(scope="module")
@@ -253,6 +255,6 @@ def test_gnss_fixes_are_fused_and_place_the_cloud_in_their_frame(tmp_path: Path)
 
 
 def test_undecodable_frames_are_none_not_an_error() -> None:
-    from acq.views import decode_jpeg
+    from acq.cloud.views import decode_jpeg
 
     assert decode_jpeg(b"") is None and decode_jpeg(b"\xff\xd8 not a jpeg") is None

@@ -13,8 +13,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from acq import config
-from acq.config import CameraConfig, Config, ConfigError, ScannerConfig
+from acq.record import config
+from acq.record.config import CameraConfig, Config, ConfigError, ScannerConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ["sim.yaml", "utm30lx.yaml", "lms111.yaml", "vehicle_example.yaml"]
@@ -63,16 +63,27 @@ def write(tmp_path: Path, text: str, name: str = "rig.yaml") -> Path:
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_shipped_configs_load(name: str) -> None:
-    path = ROOT / "config" / name
+    path = config.shipped(name)  # package data, the repository's config/ folder
+    assert path == ROOT / "config" / name
     cfg = config.load(path)
     assert cfg.source == path
     assert cfg.devices() == ["laser", "camera"]
-    assert cfg.calibration == ROOT / "config" / "calib.yaml"
+    calib = "sim_calib.yaml" if name == config.DEFAULT else "calib.yaml"
+    assert cfg.calibration == ROOT / "config" / calib
     assert cfg.output.dir.is_absolute()
 
 
+def test_the_default_records_the_simulated_rigs_true_calibration() -> None:
+    from acq.camera import calibfile
+    from acq.sim.demo import true_calibration
+
+    cfg = config.load(config.shipped())
+    assert cfg.calibration is not None
+    assert calibfile.dump(calibfile.load(cfg.calibration)) == calibfile.dump(true_calibration())
+
+
 def test_sim_is_the_simulated_rig() -> None:
-    cfg = config.load(ROOT / "config" / "sim.yaml")
+    cfg = config.load(config.shipped())
     (laser,) = cfg.scanners
     (camera,) = cfg.cameras
     assert (laser.driver, laser.url, laser.protocol) == ("hokuyo", "socket://127.0.0.1:10940", None)

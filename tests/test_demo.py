@@ -20,8 +20,11 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from plyfile import PlyData
 
-from acq import calibfile, cloud, colorize, loginfo
-from acq.demo import COLOUR_TOLERANCE, colour_check, run
+from acq import cloud
+from acq.camera import calibfile
+from acq.cloud import colorize
+from acq.log import loginfo
+from acq.sim.demo import COLOUR_TOLERANCE, colour_check, run
 
 SECONDS = 3.0
 PLY_PROPERTIES = [
@@ -114,7 +117,7 @@ def _laser_rays(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     y = -1.5, the laser 2.2 m up scanning the plane across the street. The ray to a
     point therefore lies in the plane x = x_point and starts at (x_point, -1.5, 2.2).
     """
-    from sim.world import Trajectory, default_rig
+    from acq.sim.world import Trajectory, default_rig
 
     traj, rig = Trajectory(), default_rig()
     assert traj.curve_amplitude == 0 and traj.vibration_rad == 0
@@ -159,7 +162,7 @@ def test_log_and_cloud_agree(demo: Demo) -> None:
 
 
 def test_colours_are_the_true_surface_colours(demo: Demo) -> None:
-    from sim.world import Street, default_rig
+    from acq.sim.world import Street, default_rig
 
     out, code, _, _ = demo
     assert code == 0
@@ -211,7 +214,7 @@ def test_colorize_places_the_demo_log_with_its_can_odometry(demo: Demo, tmp_path
     recorded CAN odometry (the world frame is its first pose) and coloured with motion
     compensation, point for point against the demo's cloud (placed and coloured with the
     simulator's trajectory) and the true surface colours."""
-    from sim.world import Street, Trajectory, default_rig
+    from acq.sim.world import Street, Trajectory, default_rig
 
     out, code, _, _ = demo
     assert code == 0

@@ -14,7 +14,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from acq.devices import (
+from acq.record.devices import (
     NOTHING_FOUND,
     ResetError,
     format_devices,

@@ -1,4 +1,4 @@
-"""Camera–laser extrinsic calibration (acq.extrinsic, paper §3.2) on simulated boards."""
+"""Camera–laser extrinsic calibration (acq.calib.extrinsic, paper §3.2) on simulated boards."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
-from acq import extrinsic as ex
-from acq.extrinsic import BoardPose
-from acq.transforms import Rigid, rotation_from_euler
-from sim.board_poses import Checkerboard, simulate
-from sim.world import default_lens
+from acq.calib import extrinsic as ex
+from acq.calib.extrinsic import BoardPose
+from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.sim.board_poses import Checkerboard, simulate
+from acq.sim.world import default_lens
 
 
 def _errors(estimate: Rigid, truth: Rigid) -> tuple[float, float]:

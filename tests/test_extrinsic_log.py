@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq import calibfile, cloud
-from acq.calibfile import Calibration, CameraCalib
-from acq.extrinsic import rotation_angle
-from acq.extrinsic_log import average_corners, main_extrinsic, parse_poses, still_intervals
-from acq.transforms import Rigid
-from sim.board_log import BoardLog, write_board_log
+from acq import cloud
+from acq.calib.extrinsic import rotation_angle
+from acq.calib.extrinsic_log import average_corners, main_extrinsic, parse_poses, still_intervals
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.geometry.transforms import Rigid
+from acq.sim.board_log import BoardLog, write_board_log
 
 
 @pytest.fixture(scope="module")
@@ -138,7 +139,7 @@ def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std(
 ) -> None:
     from dataclasses import replace
 
-    from acq.calibfile import CalibStd
+    from acq.camera.calibfile import CalibStd
 
     log, _ = rec
     intr_std = CalibStd(fx=0.08, fy=0.09, cx=0.07, cy=0.07, k=(2e-3, 4e-3, 3e-3, 1e-3))

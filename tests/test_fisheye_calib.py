@@ -12,12 +12,14 @@ import cv2
 import numpy as np
 import pytest
 
-from acq import calibfile, camera_models, fisheye_calib, image_circle
-from acq.calibfile import Calibration, CalibStd, CameraCalib
-from acq.camera_models import Equidistant, KannalaBrandt
-from acq.transforms import Rigid, rotation_from_euler
-from sim.fisheye_images import CircleTruth, fisheye_image
-from sim.world import default_lens
+from acq import camera_models  # the API name of ARCHITECTURE.md
+from acq.calib import fisheye_calib, image_circle
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
+from acq.camera.camera_models import Equidistant, KannalaBrandt
+from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.sim.fisheye_images import CircleTruth, fisheye_image
+from acq.sim.world import default_lens
 
 THETA_MAX = math.radians(185.0) / 2
 REFERENCE_PP = (384.8, 240.0)  # ../shared/data/README.md, fisheye/

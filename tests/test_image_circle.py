@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq import image_circle
-from acq.image_circle import CircleResult, ImageCircle
-from sim.fisheye_images import CircleTruth, fisheye_image
+from acq.calib import image_circle
+from acq.calib.image_circle import CircleResult, ImageCircle
+from acq.sim.fisheye_images import CircleTruth, fisheye_image
 
 REFERENCE_PP = (384.8, 240.0)  # ../shared/data/README.md, fisheye/
 
@@ -173,7 +173,7 @@ def test_bad_input_is_refused() -> None:
 
 
 def real_images(shared_dir: Path) -> list[np.ndarray]:
-    from acq.fisheye_calib import read_images
+    from acq.calib.fisheye_calib import read_images
 
     folder = shared_dir / "data" / "fisheye"
     paths = sorted(folder.glob("Fisheye2_*.jpg"))

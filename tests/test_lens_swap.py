@@ -16,14 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq import calibfile
-from acq.calibfile import Calibration, CameraCalib
-from acq.camera_models import Pinhole
-from acq.extrinsic import rotation_angle
-from acq.extrinsic_log import main_extrinsic
-from acq.transforms import Rigid
-from sim.board_log import BoardLog, write_board_log
-from sim.world import default_rig
+from acq.calib.extrinsic import rotation_angle
+from acq.calib.extrinsic_log import main_extrinsic
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.camera.camera_models import Pinhole
+from acq.geometry.transforms import Rigid
+from acq.sim.board_log import BoardLog, write_board_log
+from acq.sim.world import default_rig
 
 SHIFT_M = 0.02  # the fisheye's projection centre, ahead of the regular lens's
 

@@ -1,4 +1,4 @@
-"""acq.mcap_log: standalone rolling files, sync survives a kill, a full disk is reported."""
+"""acq.log.mcap_log: standalone rolling files, sync survives a kill, a full disk is reported."""
 
 from __future__ import annotations
 
@@ -22,10 +22,10 @@ from mcap.records import Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_protobuf.decoder import DecoderFactory
 
-from acq import mcap_log, schemas
-from acq.calibfile import Calibration, CameraCalib
-from acq.camera_models import Equidistant
-from acq.mcap_log import LogWriter
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.camera.camera_models import Equidistant
+from acq.log import mcap_log, schemas
+from acq.log.mcap_log import LogWriter
 
 ROOT = Path(__file__).resolve().parents[1]
 CLOCK = "/acq/clock"
@@ -158,7 +158,7 @@ def test_a_file_opens_decodes_and_is_named(tmp_path: Path) -> None:
     assert latched[TF][:2] == (5, 5) and latched[CALIB][:2] == (5, 5)
     assert latched[TF][2].transforms[0].child_frame_id == "camera"
     assert latched[CALIB][2].distortion_model == "kannala_brandt"
-    # the same bytes decode with acq.schemas
+    # the same bytes decode with acq.log.schemas
     with open(path, "rb") as f:
         for schema, _, message in make_reader(f).iter_messages():
             assert schema is not None
@@ -255,8 +255,8 @@ def test_a_cut_file_keeps_everything_synced(tmp_path: Path) -> None:
 CHILD = """
 import sys
 from pathlib import Path
-from acq import schemas
-from acq.mcap_log import LogWriter
+from acq.log import schemas
+from acq.log.mcap_log import LogWriter
 
 w = LogWriter(Path(sys.argv[1]), chunk_size=1 << 20)
 w.add_channel("/acq/clock", schemas.SCHEMAS["acq.Clock"])

@@ -14,9 +14,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from acq.records import Fix, Sentence
-from drivers.errors import ConnectionLost
-from drivers.nmea import (
+from acq.drivers.errors import ConnectionLost
+from acq.drivers.nmea import (
     MAX_LINE,
     LineFramer,
     NmeaChecksumError,
@@ -24,9 +23,10 @@ from drivers.nmea import (
     NmeaError,
     NmeaReceiver,
 )
-from drivers.reconnect import Backoff, Relink
-from sim.nmea_device import DEFAULT_ORIGIN, NmeaDevice, NmeaPtyServer, enu_to_wgs84, sentence
-from sim.world import Trajectory
+from acq.drivers.reconnect import Backoff, Relink
+from acq.records import Fix, Sentence
+from acq.sim.nmea_device import DEFAULT_ORIGIN, NmeaDevice, NmeaPtyServer, enu_to_wgs84, sentence
+from acq.sim.world import Trajectory
 
 CURVY = Trajectory(curve_amplitude=2.0, curve_wavelength=60.0)
 GGA = b"$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47"
@@ -307,7 +307,7 @@ def test_fuzz_checksummed_sentences_give_fixes_none_or_typed_errors(
 @settings(max_examples=200, deadline=None)
 @given(lat=st.floats(-89.9, 89.9), lon=st.floats(-179.9, 179.9), alt=st.floats(-400, 9000))
 def test_fuzz_what_the_sim_sends_the_driver_reads(lat: float, lon: float, alt: float) -> None:
-    from sim.nmea_device import _ddmm
+    from acq.sim.nmea_device import _ddmm
 
     la, ns = _ddmm(lat, 2, 7, "NS")
     lo, ew = _ddmm(lon, 3, 7, "EW")

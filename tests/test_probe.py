@@ -9,8 +9,8 @@ import json
 import pytest
 
 from acq import cli
-from sim.devices import make_scanner, serve_scanner
-from sim.scanner_models import MODELS
+from acq.sim.devices import make_scanner, serve_scanner
+from acq.sim.scanner_models import MODELS
 
 CASES = [(name, False) for name in MODELS] + [
     (name, True) for name, m in MODELS.items() if m.serial_port

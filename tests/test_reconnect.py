@@ -2,7 +2,7 @@
 
 The scanner here is a minimal driver for the line device of ``tests.line_device`` (one
 ``tick N`` line per scan, the device clock N * 20 ms), so what is tested is
-``drivers.reconnect`` itself; the SCIP and CoLa drivers are run through it in their
+``acq.drivers.reconnect`` itself; the SCIP and CoLa drivers are run through it in their
 own tests.
 """
 
@@ -15,16 +15,16 @@ import time
 import numpy as np
 import pytest
 
-from acq.records import DeviceInfo, Scan
-from drivers.reconnect import Backoff, LinkEvent, Reconnecting, url_reachable
-from drivers.scanner import (
+from acq.drivers.reconnect import Backoff, LinkEvent, Reconnecting, url_reachable
+from acq.drivers.scanner import (
     ConnectionLost,
     ProtocolError,
     ScanGeometry,
     Scanner,
     ScanTimeout,
 )
-from sim.transport import TcpDeviceServer
+from acq.records import DeviceInfo, Scan
+from acq.sim.transport import TcpDeviceServer
 from tests.line_device import LineDevice
 
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from acq.recorder import EXIT_DISK_FULL, Recorder
+from acq.record.recorder import EXIT_DISK_FULL, Recorder
 from tests.sim_rig import Rig, read_log
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,7 +66,7 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     assert len(first.ranges) == 1081 and len(first.intensities) == 1081
     assert first.start_angle == pytest.approx(np.radians(-135.0))
     jpeg_digests = {t.digest for t in rig.camera.truth() if t.status == "sent"}
-    from sim.camera_device import jpeg_digest
+    from acq.sim.camera_device import jpeg_digest
 
     assert all(jpeg_digest(m.data) in jpeg_digests for _, _, m in images)
     assert images[0][2].format == "jpeg"
@@ -219,7 +219,7 @@ def _kill_once(rig: Rig, cfg_path: Path, out: Path, delay_s: float) -> tuple[int
 def _check_killed_file(rig: Rig, path: Path, killed_ns: int, started_ns: int) -> int:
     """Every scan and frame the devices sent more than 1.2 s before the kill, after the
     first one recorded, is read back from the killed file; returns how many."""
-    from acq import loginfo
+    from acq.log import loginfo
 
     ticks: set[int] = set()
     jpegs: set[bytes] = set()
@@ -249,19 +249,19 @@ def _check_killed_file(rig: Rig, path: Path, killed_ns: int, started_ns: int) ->
 
 
 def schemas_decode(name: str, data: bytes) -> object:
-    from acq import schemas
+    from acq.log import schemas
 
     return schemas.decode(name, data)
 
 
 def jpeg_digest(data: bytes) -> bytes:
-    from sim.camera_device import jpeg_digest as digest
+    from acq.sim.camera_device import jpeg_digest as digest
 
     return digest(data)
 
 
 def _kill_loop(rig: Rig, tmp_path: Path, runs: range, seed: int) -> None:
-    from acq import loginfo
+    from acq.log import loginfo
 
     cfg = rig.config(tmp_path / f"rig{seed}", latency=0.0)  # no TM queries: a quicker start
     assert cfg.source is not None
@@ -315,9 +315,9 @@ def test_sigkill_at_random_moments_loses_at_most_the_last_second(rig: Rig, tmp_p
 
 
 def test_files_roll_over_with_nothing_lost_or_repeated(rig: Rig, tmp_path: Path) -> None:
-    from acq import calibfile
-    from acq.calibfile import Calibration, CameraCalib
-    from sim.world import default_rig
+    from acq.camera import calibfile
+    from acq.camera.calibfile import Calibration, CameraCalib
+    from acq.sim.world import default_rig
 
     truth = default_rig()
     calib = Calibration(

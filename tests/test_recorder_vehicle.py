@@ -2,7 +2,7 @@
 car on a python-can ``virtual`` bus (in this process, where the recorder runs) and the
 simulated GNSS receiver on a pty, all driving one trajectory from one instant; the MCAP
 holds /vehicle/odometry, /vehicle/can, /gnss/fix, /gnss/raw with their rates and true
-values, and :func:`acq.vehicle_log.read_vehicle` reads them back. Nothing is mocked."""
+values, and :func:`acq.motion.vehicle_log.read_vehicle` reads them back. Nothing is mocked."""
 
 from __future__ import annotations
 
@@ -16,16 +16,17 @@ import numpy as np
 import pytest
 import yaml
 
-from acq import config as configfile
-from acq import loginfo, replay
-from acq.recorder import Recorder, RecorderError
-from acq.vehicle_log import read_vehicle
-from sim.can_vehicle import DBC_PATH, WHEEL_SPEEDS_ID, YAW_RATE_ID, SentFrame, SimVehicle
-from sim.nmea_device import NmeaDevice, NmeaPtyServer
-from sim.scanner_models import MODELS
-from sim.scip_device import ScipDevice
-from sim.transport import TcpDeviceServer
-from sim.world import Trajectory
+from acq.log import loginfo
+from acq.motion.vehicle_log import read_vehicle
+from acq.record import config as configfile
+from acq.record.recorder import Recorder, RecorderError
+from acq.sim import replay
+from acq.sim.can_vehicle import DBC_PATH, WHEEL_SPEEDS_ID, YAW_RATE_ID, SentFrame, SimVehicle
+from acq.sim.nmea_device import NmeaDevice, NmeaPtyServer
+from acq.sim.scanner_models import MODELS
+from acq.sim.scip_device import ScipDevice
+from acq.sim.transport import TcpDeviceServer
+from acq.sim.world import Trajectory
 from tests.sim_rig import read_log
 
 CURVY = Trajectory(curve_amplitude=2.0, curve_wavelength=60.0)

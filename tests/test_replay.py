@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from mcap.writer import Writer as McapWriter
 
-from acq import config as configfile
-from acq import loginfo, schemas
-from acq.recorder import Recorder
-from acq.replay import Replay, replay_main
-from sim.transport import TcpDeviceServer
+from acq.log import loginfo, schemas
+from acq.record import config as configfile
+from acq.record.recorder import Recorder
+from acq.sim.replay import Replay, replay_main
+from acq.sim.transport import TcpDeviceServer
 from tests.sim_rig import Rig
 
 RECORD_S = 4.0
@@ -163,7 +163,7 @@ def test_round_trip_reproduces_scans_and_frames(recorded: list[Path], tmp_path: 
 
 
 def test_speed_2_serves_twice_as_fast(recorded: list[Path]) -> None:
-    from drivers.scip import ScipScanner
+    from acq.drivers.scip import ScipScanner
 
     one = read(recorded)
     with Replay(recorded, speed=2.0) as replay:
@@ -219,8 +219,8 @@ def test_a_bad_log_exits_2_with_one_line(
 
 @pytest.mark.parametrize("protocol", ["cola-b", "cola-a"])
 def test_a_sick_scanner_replays_byte_for_byte(protocol: str, tmp_path: Path) -> None:
-    from drivers.cola import ColaScanner
-    from sim.devices import make_scanner
+    from acq.drivers.cola import ColaScanner
+    from acq.sim.devices import make_scanner
 
     _model, device = make_scanner("lms111", protocol=protocol)
     with TcpDeviceServer(device) as server:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from acq.retime import retime_frames, retime_scans
+from acq.time.retime import retime_frames, retime_scans
 
 
 def _camera(seed: int, n: int = 1500, period: float = 0.04, drift_ppm: float = 40.0):

@@ -15,9 +15,9 @@ import time
 import pytest
 
 from acq import cli
-from drivers.reconnect import LinkEvent, Reconnecting
-from drivers.scanner import scanner_for
-from sim.devices import make_scanner, serve_scanner
+from acq.drivers.reconnect import LinkEvent, Reconnecting
+from acq.drivers.scanner import scanner_for
+from acq.sim.devices import make_scanner, serve_scanner
 
 
 @pytest.mark.parametrize(("name", "pty"), [("lms111", False), ("utm-30lx", True)])

@@ -1,4 +1,4 @@
-"""acq.schemas: the Foxglove and acq.* encoders round trip and carry what they promise."""
+"""acq.log.schemas: the Foxglove and acq.* encoders round trip and carry what they promise."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from google.protobuf import descriptor_pb2
 from mcap.records import Schema as McapSchema
 from mcap_protobuf.decoder import DecoderFactory
 
-from acq import schemas
-from acq.calibfile import Calibration, CameraCalib
-from acq.camera_models import Equidistant, KannalaBrandt, Pinhole
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.camera.camera_models import Equidistant, KannalaBrandt, Pinhole
+from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.log import schemas
 from acq.records import CanFrame, Fix, Frame, Odometry, Scan
-from acq.transforms import Rigid, rotation_from_euler
 
 FOXGLOVE = [
     "foxglove.LaserScan",

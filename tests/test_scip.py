@@ -15,9 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from acq.clocksync import DeviceClock, latency_bounds
-from drivers import scip_codec as codec
-from drivers.scanner import (
+from acq.drivers import scip_codec as codec
+from acq.drivers.scanner import (
     ConnectionLost,
     DeviceError,
     ProtocolError,
@@ -25,10 +24,11 @@ from drivers.scanner import (
     ScanTimeout,
     scanner_for,
 )
-from drivers.scip import ScipScanner
-from sim.scanner_models import MODELS
-from sim.scip_device import ScipDevice
-from sim.transport import PtyDeviceServer, TcpDeviceServer
+from acq.drivers.scip import ScipScanner
+from acq.sim.scanner_models import MODELS
+from acq.sim.scip_device import ScipDevice
+from acq.sim.transport import PtyDeviceServer, TcpDeviceServer
+from acq.time.clocksync import DeviceClock, latency_bounds
 
 HOKUYO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hokuyo"
 PARSE_ERRORS = (ProtocolError, DeviceError)

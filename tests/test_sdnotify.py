@@ -1,4 +1,4 @@
-"""acq.sdnotify against real AF_UNIX datagram sockets, as systemd's PID 1 listens."""
+"""acq.record.sdnotify against real AF_UNIX datagram sockets, as systemd's PID 1 listens."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from acq.sdnotify import JournalFormatter, Notifier, journal_prefix, use_journal_format
+from acq.record.sdnotify import JournalFormatter, Notifier, journal_prefix, use_journal_format
 
 
 @pytest.fixture
@@ -89,7 +89,7 @@ def test_send_failure_returns_false_and_logs(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     n = Notifier({"NOTIFY_SOCKET": str(tmp_path / "nobody-listens")})
-    with caplog.at_level(logging.DEBUG, logger="acq.sdnotify"):
+    with caplog.at_level(logging.DEBUG, logger="acq.record.sdnotify"):
         assert n.watchdog() is False
     assert any("sd_notify" in r.getMessage() for r in caplog.records)
     assert all(r.levelno == logging.DEBUG for r in caplog.records)

@@ -15,12 +15,13 @@ import cv2
 import numpy as np
 import pytest
 
-from acq import calibfile, sensitivity
-from acq.calibfile import Calibration, CalibStd, CameraCalib
-from acq.extrinsic import rotvec_to_matrix
-from acq.sensitivity import PARAMS
-from acq.transforms import Rigid, rotation_from_euler, rotation_to_euler
-from sim.world import default_rig
+from acq.calib import sensitivity
+from acq.calib.extrinsic import rotvec_to_matrix
+from acq.calib.sensitivity import PARAMS
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
+from acq.geometry.transforms import Rigid, rotation_from_euler, rotation_to_euler
+from acq.sim.world import default_rig
 
 
 def _rig_params() -> tuple[np.ndarray, CameraCalib]:
@@ -169,9 +170,9 @@ def test_plot_has_the_size_and_draws_every_series(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def rig_files(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """calib.yaml of the simulated rig and a short MCAP log of its drive (1.5 s, written
-    as the recorder writes, by ``sim.drive_log``: no live devices, so not a real-time
+    as the recorder writes, by ``acq.sim.drive_log``: no live devices, so not a real-time
     test)."""
-    from sim.drive_log import write_drive_log
+    from acq.sim.drive_log import write_drive_log
 
     out = tmp_path_factory.mktemp("sensitivity_drive")
     truth = write_drive_log(out, 1.5, pattern_at=None)

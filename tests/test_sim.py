@@ -8,15 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from sim import raycast
-from sim.sensors import (
+from acq.sim import raycast
+from acq.sim.sensors import (
     camera_to_world,
     render_frame,
     render_frame_truth,
     render_scan,
     true_pixels,
 )
-from sim.world import (
+from acq.sim.world import (
     Box,
     Material,
     Street,
@@ -329,7 +329,7 @@ def test_a_new_street_with_a_dead_streets_id_is_packed_afresh() -> None:
     # street the old one's scene (the flaky sim-render test)
     import gc
 
-    from sim import raycast, world
+    from acq.sim import raycast, world
 
     old = world.Street.generate(seed=1)
     stale = raycast.pack(old)

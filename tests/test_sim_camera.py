@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from sim.camera_device import MjpegServer, SimCamera, jpeg_digest, serve_camera
-from sim.world import Street
+from acq.sim.camera_device import MjpegServer, SimCamera, jpeg_digest, serve_camera
+from acq.sim.world import Street
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +28,7 @@ def server(camera_args: dict[str, object]) -> Iterator[MjpegServer]:
 
 
 class PlainReader:
-    """A deliberately simple multipart reader, independent of drivers.mjpeg."""
+    """A deliberately simple multipart reader, independent of acq.drivers.mjpeg."""
 
     def __init__(self, url_port: int, path: str = "/stream.mjpg", method: str = "GET"):
         self.sock = socket.create_connection(("127.0.0.1", url_port), timeout=3.0)

@@ -11,8 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
-from acq import calibfile, cli
-from acq.sim_render import render_overlay
+from acq import cli
+from acq.camera import calibfile
+from acq.sim.render import render_overlay
 
 
 @pytest.mark.parametrize(
@@ -29,7 +30,7 @@ def test_core_pixels_and_colours_equal_truth_with_exact_ranges(
     # laser frame, eq. (2), the lens model, float32 kernels.
     assert r.stats.pixel_error_max_px < 1e-3
     assert r.stats.colour_agreement > 0.8
-    from sim import raycast, sensors, world
+    from acq.sim import raycast, sensors, world
 
     street, traj = world.Street.generate(seed=seed), world.Trajectory()
     # the same exact ranges as the overlay (with noise, returns near the 30 m limit differ)

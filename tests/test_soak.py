@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from drivers.reconnect import LinkEvent, Reconnecting
-from drivers.scanner import scanner_for
-from sim.devices import make_scanner, serve_scanner
+from acq.drivers.reconnect import LinkEvent, Reconnecting
+from acq.drivers.scanner import scanner_for
+from acq.sim.devices import make_scanner, serve_scanner
 
 
 @dataclass

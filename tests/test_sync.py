@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acq.clocksync import DeviceClock
 from acq.records import Scan
-from acq.sync import (
+from acq.time.clocksync import DeviceClock
+from acq.time.sync import (
     Gap,
     Pairing,
     frame_mid_exposure_ns,

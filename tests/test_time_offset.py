@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq import calibfile
+from acq.calib.time_offset import mutual_information
+from acq.camera import calibfile
 from acq.cli import main as acq_main
-from acq.colorize import run
-from acq.time_offset import mutual_information
-from sim.drive_log import DriveTruth, write_drive_log
+from acq.cloud.colorize import run
+from acq.sim.drive_log import DriveTruth, write_drive_log
 
 
 def _true_error(truth: DriveTruth) -> float:
@@ -89,7 +89,7 @@ def test_colorize_auto_uses_the_estimate_and_gets_the_pixels_right(
 def test_the_estimate_reads_its_window_itself_for_workers(drive: tuple[DriveTruth, Path]) -> None:
     """With workers or Dask the log's images are not in this process: the estimate reads
     the part it uses, and gets what it gets from the log read whole."""
-    from acq.colorize import Report, estimate_offset, prepare
+    from acq.cloud.colorize import Report, estimate_offset, prepare
 
     truth, calib = drive
     job, whole = prepare(truth.files, calibfile.load(calib), Report(output="x"), jpegs=True)

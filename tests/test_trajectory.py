@@ -12,16 +12,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acq import gpstime
-from acq import trajectory as tj
-from acq.cloud import utc_seconds
-from acq.trajectory import (
+from acq.geometry.transforms import Rigid, rotation_from_euler, rotation_to_euler
+from acq.motion import trajectory as tj
+from acq.motion.trajectory import (
     OutOfSpanError,
     Trajectory,
     TrajectoryFileError,
     WorldFrame,
 )
-from acq.transforms import Rigid, rotation_from_euler, rotation_to_euler
+from acq.time import gpstime
+from acq.time.utc import utc_seconds
 
 T0 = 5_000_000_000_000  # ns, an arbitrary host time
 S = 1_000_000_000  # ns per second
@@ -103,7 +103,7 @@ def test_slerp_is_exact_for_a_constant_rate_turn() -> None:
 
 
 def test_interpolates_the_simulated_drive_to_well_under_a_millimetre() -> None:
-    from sim.world import Trajectory as SimTrajectory
+    from acq.sim.world import Trajectory as SimTrajectory
 
     sim = SimTrajectory(curve_amplitude=2.0, curve_wavelength=60.0, vibration_rad=0.01, seed=4)
     ts = np.arange(0.0, 20.0, 0.01)  # 100 Hz

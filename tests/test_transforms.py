@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acq.transforms import Rigid, rotation_from_euler, rotation_to_euler
+from acq.geometry.transforms import Rigid, rotation_from_euler, rotation_to_euler
 
 
 def test_inverse_and_composition() -> None:

@@ -9,7 +9,7 @@ import time
 import pytest
 import serial
 
-from sim.transport import DeviceServer, PtyDeviceServer, TcpDeviceServer
+from acq.sim.transport import DeviceServer, PtyDeviceServer, TcpDeviceServer
 from tests.line_device import LineDevice
 
 

@@ -12,12 +12,13 @@ import cv2
 import numpy as np
 import pytest
 
-from acq import calibfile, cloud
-from acq.calibfile import Calibration, CameraCalib
-from acq.transforms import Rigid
-from acq.validate import DEFAULT_COLOURS, main_validate, validate
-from sim.raycast import NO_RAY
-from sim.validation_log import (
+from acq import cloud
+from acq.calib.validate import DEFAULT_COLOURS, main_validate, validate
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.geometry.transforms import Rigid
+from acq.sim.raycast import NO_RAY
+from acq.sim.validation_log import (
     LABELS,
     PARK_Y,
     PATTERN_AT,
@@ -25,7 +26,7 @@ from sim.validation_log import (
     labels,
     write_validation_log,
 )
-from sim.world import (
+from acq.sim.world import (
     PATTERN_BACK_Y,
     PATTERN_CLEAR_M,
     PATTERN_FRONT_Y,

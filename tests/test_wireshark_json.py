@@ -1,4 +1,4 @@
-"""acq.wireshark_json: Wireshark JSON exports of TCP sessions, synthetic and real.
+"""tests.wireshark_json: Wireshark JSON exports of TCP sessions, synthetic and real.
 
 The synthetic exports follow ``tshark -T json`` (full dissection: frame, ip, tcp with
 its analysis and Timestamps subtrees) and ``tshark -T json -e FIELD`` (flat lists); the
@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from acq.wireshark_json import (
+from acq.drivers.cola_codec import ColaFramer, Telegram
+from tests.wireshark_json import (
     CaptureFormatError,
     Endpoint,
     Packet,
@@ -22,7 +23,6 @@ from acq.wireshark_json import (
     reassemble,
     split_directions,
 )
-from drivers.cola_codec import ColaFramer, Telegram
 
 HOST = ("192.168.0.10", 40000)
 DEVICE = ("192.168.0.1", 2112)

@@ -1,0 +1,957 @@
+"""Camera–laser extrinsic calibration with a checkerboard (paper §3.2, Zhang & Pless).
+
+Per board pose i the camera gives the board plane in the CAMERA frame, ``n_i · X = d_i``
+(unit normal, metres), and the scanner gives laser points ``P_ij`` (laser frame, metres)
+that hit the board. With paper eq. (2), ``P_laser = R @ P_camera + t``, a laser point
+maps to the camera as ``R^T (P_ij - t)``, which must lie on the plane::
+
+    r_ij = n_i · R^T (P_ij - t) - d_i        (metres)
+
+(the paper's eq. 3 as printed applies the inverse rotation and the translation the wrong
+way round; this follows eq. 2). The result is ``camera_to_laser`` as calib.yaml stores it.
+
+Pipeline (:func:`calibrate`): Zhang & Pless's linear solution as initial guess (at least 5
+poses), Levenberg–Marquardt with a robust loss over 6 parameters, poses whose RMS residual
+is far above the others reported and dropped, Levenberg–Marquardt again. When the planes
+come with their covariance (:meth:`BoardPose.from_fit`), the last refinement also
+estimates a correction of each plane held by that covariance, so that the result and its
+standard deviations account for the camera's errors, which dominate with a low-resolution
+fisheye (see :func:`refine`).
+
+The board planes come from :func:`board_pose_from_corners`, a PnP on reprojection error
+with any of our camera models (fisheye points past 90 degrees included).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from acq.camera.camera_models import CameraModel
+from acq.geometry.transforms import Rigid, rotation_to_euler
+
+__all__ = [
+    "MIN_POSES",
+    "BoardFit",
+    "BoardPose",
+    "ExtrinsicResult",
+    "board_pose_from_corners",
+    "calibrate",
+    "check_geometry",
+    "laser_noise",
+    "linear_solution",
+    "point_residuals",
+    "refine",
+    "residual_plot",
+    "rotation_angle",
+    "rotvec_to_matrix",
+]
+
+MIN_POSES = 5  # 9 unknowns in the linear solution, 2 independent constraints per pose
+Loss = Literal["linear", "huber", "cauchy"]
+
+# board normals (rows of an (n,3) matrix) must span 3-D: singular value ratios below these
+# raise (degenerate), below _WARN_SPREAD warn (poorly conditioned)
+_DEGENERATE_SPREAD = 0.02  # ~1 degree
+_WARN_SPREAD = 0.08  # ~5 degrees
+
+
+# ----------------------------------------------------------------------------- rotations
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def rotvec_to_matrix(w: npt.ArrayLike) -> np.ndarray:
+    """Rotation vector (axis · angle, rad) -> 3x3 rotation matrix (Rodrigues)."""
+    w = np.asarray(w, dtype=np.float64).reshape(3)
+    theta = float(np.linalg.norm(w))
+    K = _skew(w)
+    if theta < 1e-8:
+        return np.eye(3) + K + 0.5 * K @ K
+    return np.eye(3) + math.sin(theta) / theta * K + (1.0 - math.cos(theta)) / theta**2 * K @ K
+
+
+def _orthonormalise(R: np.ndarray) -> np.ndarray:
+    U, _, Vt = np.linalg.svd(R)
+    Q = U @ Vt
+    if np.linalg.det(Q) < 0:
+        Q = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    return Q
+
+
+def rotation_angle(R: npt.ArrayLike) -> float:
+    """Geodesic angle of a rotation matrix, rad (accurate near 0 and near pi)."""
+    R = np.asarray(R, dtype=np.float64)
+    s = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    c = 0.5 * (np.trace(R) - 1.0)
+    return float(math.atan2(s, c))
+
+
+# ----------------------------------------------------------------------------- data
+
+
+@dataclass(frozen=True)
+class BoardPose:
+    """One board pose: its plane in the camera frame and the laser points on it.
+
+    ``normal`` (3,) and ``distance`` (m) give the plane ``normal · X = distance`` in the
+    camera frame (the normal is normalised here, the distance scaled with it);
+    ``points`` (N,3) are the laser-frame points (m, z = 0 for a 2-D scanner) that hit
+    the board, at least 2. ``weight`` scales the pose's residuals in the fit; ``id``
+    names it in reports (e.g. the image's timestamp). ``plane_cov`` (4,4), optional: the
+    covariance of ``(n_x, n_y, n_z, d)`` from the camera's board estimate (see
+    :meth:`BoardFit.plane_covariance`); with it :func:`refine` accounts for the plane's
+    errors instead of taking the plane as exact.
+    """
+
+    normal: np.ndarray
+    distance: float
+    points: np.ndarray
+    weight: float = 1.0
+    id: str = ""
+    plane_cov: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        n = np.array(self.normal, dtype=np.float64).reshape(-1)
+        P = np.array(self.points, dtype=np.float64)
+        if n.shape != (3,):
+            raise ValueError(f"normal must have 3 values, got {n.size}")
+        norm = float(np.linalg.norm(n))
+        if not (np.isfinite(norm) and norm > 0):
+            raise ValueError(f"normal must be finite and non-zero, got {n}")
+        if P.ndim != 2 or P.shape[1] != 3:
+            raise ValueError(f"points must be (N,3), got shape {P.shape}")
+        if len(P) < 2:
+            raise ValueError(f"a board pose needs at least 2 laser points, got {len(P)}")
+        if not np.isfinite(P).all() or not math.isfinite(self.distance):
+            raise ValueError("points and distance must be finite")
+        if not self.weight > 0:
+            raise ValueError(f"weight must be > 0, got {self.weight}")
+        if self.plane_cov is not None:
+            C = np.array(self.plane_cov, dtype=np.float64)
+            if C.shape != (4, 4) or not np.isfinite(C).all():
+                raise ValueError(f"plane_cov must be a finite 4x4 matrix, got {C.shape}")
+            C = 0.5 * (C + C.T) / norm**2
+            C.flags.writeable = False
+            object.__setattr__(self, "plane_cov", C)
+        n = n / norm
+        n.flags.writeable = False
+        P.flags.writeable = False
+        object.__setattr__(self, "normal", n)
+        object.__setattr__(self, "distance", float(self.distance) / norm)
+        object.__setattr__(self, "points", P)
+
+    @classmethod
+    def from_board(
+        cls, board_to_camera: Rigid, points: npt.ArrayLike, weight: float = 1.0, id: str = ""
+    ) -> BoardPose:
+        """The pose of a board whose plane is its frame's z = 0 (``board_to_camera``)."""
+        n = board_to_camera.rotation[:, 2]
+        return cls(n, float(n @ board_to_camera.translation), np.asarray(points), weight, id)
+
+    @classmethod
+    def from_fit(
+        cls, fit: BoardFit, points: npt.ArrayLike, weight: float = 1.0, id: str = ""
+    ) -> BoardPose:
+        """The pose from :func:`board_pose_from_corners`, with its plane covariance."""
+        n, d = fit.plane()
+        return cls(n, d, np.asarray(points), weight, id, fit.plane_covariance())
+
+
+@dataclass(frozen=True)
+class ExtrinsicResult:
+    """The calibrated ``camera_to_laser`` (P_laser = R @ P_camera + t) and its quality.
+
+    ``std``: standard deviations of the 6 parameters, a small rotation about the laser
+    axes x, y, z (rad, ``R = exp([w]x) R_hat``) then tx, ty, tz (m); ``std_rot_deg`` the
+    rotation part in degrees, ``std_rpy_deg`` that of ``acq.geometry.transforms.rotation_to_euler``
+    (degrees; meaningless near pitch ±90°, where roll and yaw are coupled — the default
+    rig is there, use ``std_rot_deg``) and ``std_t_mm`` the translation in mm.
+    ``covariance`` (6,6) is in the units of ``std``. ``residuals_per_pose``: RMS
+    point-to-plane residual ``n · R^T (P - t) - d`` (m, with the camera's planes as
+    measured) of every input pose at the solution, dropped ones included; ``outliers``:
+    indices of the dropped poses; ``rms_m`` over the kept poses' points;
+    ``outlier_threshold_m``: the per-pose RMS above which a pose was dropped.
+    ``plane_errors``: whether the fit modelled the planes' errors (``BoardPose.plane_cov``);
+    ``laser_noise_m``: then the laser's range noise estimated for each kept pose (m).
+    """
+
+    camera_to_laser: Rigid
+    std: np.ndarray
+    std_rot_deg: np.ndarray
+    std_rpy_deg: np.ndarray
+    std_t_mm: np.ndarray
+    covariance: np.ndarray
+    residuals_per_pose: np.ndarray
+    outliers: tuple[int, ...]
+    rms_m: float
+    iterations: int
+    converged: bool
+    n_points: int
+    loss: str = "huber"
+    f_scale: float = 0.01
+    outlier_threshold_m: float = math.inf
+    plane_errors: bool = False
+    laser_noise_m: np.ndarray | None = None
+    initial: Rigid | None = field(default=None, compare=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON/YAML-ready report (calib.yaml's ``camera_to_laser`` plus statistics)."""
+        rpy = np.degrees(rotation_to_euler(self.camera_to_laser.rotation))
+        return {
+            "camera_to_laser": self.camera_to_laser.to_dict(),
+            "rpy_deg": [float(x) for x in rpy],
+            "std_rot_deg": [float(x) for x in self.std_rot_deg],
+            "std_rpy_deg": [float(x) for x in self.std_rpy_deg],
+            "std_t_mm": [float(x) for x in self.std_t_mm],
+            "std": [float(x) for x in self.std],
+            "rms_mm": self.rms_m * 1e3,
+            "residuals_per_pose_mm": [float(x) * 1e3 for x in self.residuals_per_pose],
+            "outliers": list(self.outliers),
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "n_points": self.n_points,
+            "loss": self.loss,
+            "f_scale_m": self.f_scale,
+            "plane_errors": self.plane_errors,
+            "laser_range_noise_mm": (
+                None if self.laser_noise_m is None else float(np.median(self.laser_noise_m)) * 1e3
+            ),
+        }
+
+
+# ----------------------------------------------------------------------------- linear
+
+
+def check_geometry(poses: Sequence[BoardPose]) -> None:
+    """Raise ValueError when the poses cannot determine the transform; warn when weak.
+
+    At least :data:`MIN_POSES` poses, and board normals that span 3-D: all normals
+    parallel leaves the rotation about the normal and two translations free; normals all
+    perpendicular to one direction (boards only turned about one axis) leave the
+    translation along that direction free.
+    """
+    if len(poses) < MIN_POSES:
+        raise ValueError(
+            f"the camera-laser calibration needs at least {MIN_POSES} board poses "
+            f"(the linear solution has 9 unknowns, each pose gives 2 constraints), "
+            f"got {len(poses)}; the paper recommends 15 or more"
+        )
+    N = np.array([p.normal for p in poses])
+    s = np.linalg.svd(N, compute_uv=False)
+    if s[1] / s[0] < _DEGENERATE_SPREAD:
+        raise ValueError(
+            f"degenerate board poses: all {len(poses)} board normals are parallel "
+            f"(spread ratio {s[1] / s[0]:.3g}); tilt the board about different axes "
+            f"between poses (±30 degrees)"
+        )
+    if s[2] / s[0] < _DEGENERATE_SPREAD:
+        raise ValueError(
+            f"degenerate board poses: the board normals all lie in one plane (spread ratio "
+            f"{s[2] / s[0]:.3g}), so the translation along its normal is undetermined; tilt "
+            f"the board about a second axis too"
+        )
+    if s[2] / s[0] < _WARN_SPREAD:
+        warnings.warn(
+            f"board normals span 3-D poorly (spread ratio {s[2] / s[0]:.3g} < "
+            f"{_WARN_SPREAD}); the result will be imprecise, tilt the board more",
+            stacklevel=2,
+        )
+
+
+def linear_solution(poses: Sequence[BoardPose]) -> Rigid:
+    """Zhang & Pless's linear least-squares estimate of ``camera_to_laser``.
+
+    For a laser point ``p = (x, y, 0)``, ``n · R^T (p - t) = d`` is ``n^T H (x, y, 1)^T =
+    d`` with ``H = R^T [e1 e2 -t]``: linear in the 9 entries of H. R^T's first two columns
+    are orthonormalised (closest orthonormal pair by SVD), the third is their cross
+    product, and ``t = -R h3``. Needs at least 5 poses with normals spanning 3-D and laser
+    points in the plane z = 0 (|z| <= 1 mm).
+    """
+    check_geometry(poses)
+    rows, rhs, wts = [], [], []
+    for p in poses:
+        if np.abs(p.points[:, 2]).max() > 1e-3:
+            raise ValueError("the linear solution needs laser points in the scan plane z = 0")
+        q = np.column_stack([p.points[:, :2], np.ones(len(p.points))])  # (N,3) = (x, y, 1)
+        # n^T H q = sum_{a,b} n_a H_ab q_b: row-major vec(H) coefficients n_a q_b
+        rows.append((p.normal[None, :, None] * q[:, None, :]).reshape(len(q), 9))
+        rhs.append(np.full(len(q), p.distance))
+        wts.append(np.full(len(q), math.sqrt(p.weight / len(q))))  # each pose counts alike
+    w = np.concatenate(wts)
+    A = np.concatenate(rows) * w[:, None]
+    b = np.concatenate(rhs) * w
+    h, *_ = np.linalg.lstsq(A, b, rcond=None)
+    H = h.reshape(3, 3)
+    U, _, Vt = np.linalg.svd(H[:, :2], full_matrices=False)
+    c12 = U @ Vt  # closest 3x2 matrix with orthonormal columns
+    Rt = np.column_stack([c12, np.cross(c12[:, 0], c12[:, 1])])
+    R = _orthonormalise(Rt.T)
+    return Rigid(R, -R @ H[:, 2])
+
+
+# ----------------------------------------------------------------------------- refinement
+
+_PRIOR_HUBER = 3.0  # plane corrections beyond 3 sigma (Mahalanobis) are down-weighted
+_MIN_PLANE_STD = (1e-7, 1e-7)  # rad, m: keeps the plane priors invertible on exact data
+_MIN_LASER_NOISE = 1e-4  # m (0.1 mm: no scanner is better; keeps exact data well posed)
+
+
+def _rho(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray]:
+    """scipy's robust losses of z = (r / f_scale)^2: rho(z) and the IRLS weight rho'(z)."""
+    if loss == "linear":
+        return z, np.ones_like(z)
+    if loss == "huber":
+        big = z > 1.0
+        sq = np.sqrt(np.where(big, z, 1.0))
+        return np.where(big, 2.0 * sq - 1.0, z), np.where(big, 1.0 / sq, 1.0)
+    if loss == "cauchy":
+        return np.log1p(z), 1.0 / (1.0 + z)
+    raise ValueError(f"unknown loss {loss!r}; expected 'linear', 'huber' or 'cauchy'")
+
+
+def point_residuals(poses: Sequence[BoardPose], camera_to_laser: Rigid) -> list[np.ndarray]:
+    """Per pose, the point-to-plane residuals ``n · R^T (P - t) - d`` (m)."""
+    R, t = camera_to_laser.rotation, camera_to_laser.translation
+    return [(p.points - t) @ (R @ p.normal) - p.distance for p in poses]
+
+
+def _pose_rms(poses: Sequence[BoardPose], camera_to_laser: Rigid) -> np.ndarray:
+    return np.array([math.sqrt(np.mean(r * r)) for r in point_residuals(poses, camera_to_laser)])
+
+
+def _safe_cos(c: np.ndarray) -> np.ndarray:
+    """Cosines of incidence kept away from 0 (grazing rays, > 87 degrees)."""
+    return np.where(c < 0, np.minimum(c, -0.05), np.maximum(c, 0.05))
+
+
+def laser_noise(poses: Sequence[BoardPose], camera_to_laser: Rigid) -> np.ndarray:
+    """Per pose, the laser's range noise (m, along its rays), from the data alone.
+
+    A pose's point-to-plane residuals are an affine function of the points, so along the
+    pose's laser line (a straight segment) any error of the transform or of the plane is
+    a straight line: what a straight-line fit leaves is the laser's noise, here divided
+    by the cosine of incidence to give the range noise. Robust (MAD) per pose; poses with
+    fewer than 10 points get the median of the others.
+    """
+    out = np.full(len(poses), np.nan)
+    R = camera_to_laser.rotation
+    for i, (p, r) in enumerate(zip(poses, point_residuals(poses, camera_to_laser), strict=True)):
+        if len(r) < 10:
+            continue
+        xy = p.points[:, :2] - p.points[:, :2].mean(axis=0)
+        _, _, Vt = np.linalg.svd(xy, full_matrices=False)
+        s = xy @ Vt[0]
+        A = np.column_stack([np.ones_like(s), s])
+        e = r - A @ np.linalg.lstsq(A, r, rcond=None)[0]
+        u = p.points / np.linalg.norm(p.points, axis=1, keepdims=True)
+        e = e / np.abs(_safe_cos(u @ (R @ p.normal)))
+        mad = 1.4826 * float(np.median(np.abs(e - np.median(e))))
+        out[i] = mad * math.sqrt(len(r) / (len(r) - 2))
+    fill = float(np.nanmedian(out)) if np.isfinite(out).any() else _MIN_LASER_NOISE
+    out = np.where(np.isfinite(out), out, fill)
+    return np.maximum(out, _MIN_LASER_NOISE)
+
+
+def _tangent_basis(n: np.ndarray) -> np.ndarray:
+    """(2,3): two unit vectors orthogonal to the unit vector n and to each other."""
+    a = np.zeros(3)
+    a[int(np.argmin(np.abs(n)))] = 1.0
+    e1 = np.cross(n, a)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(n, e1)])
+
+
+def _euler_std_deg(R: np.ndarray, cov_w: np.ndarray) -> np.ndarray:
+    """Std of (roll, pitch, yaw) in degrees from the covariance of w in R = exp([w]x) R."""
+    eps = 1e-6
+    Jr = np.empty((3, 3))
+    for k in range(3):
+        dw = np.zeros(3)
+        dw[k] = eps
+        a = np.array(rotation_to_euler(rotvec_to_matrix(dw) @ R))
+        b = np.array(rotation_to_euler(rotvec_to_matrix(-dw) @ R))
+        diff = (a - b + math.pi) % (2 * math.pi) - math.pi
+        Jr[:, k] = diff / (2 * eps)
+    return np.degrees(np.sqrt(np.clip(np.diag(Jr @ cov_w @ Jr.T), 0.0, None)))
+
+
+class _Problem:
+    """The point-to-plane least-squares problem, optionally with per-pose plane corrections.
+
+    Parameters: ``w`` (3, rad, ``R = exp([w]x) R``), ``t`` (3, m) and, with plane errors,
+    per pose ``(a, b, dd)``: ``n = normalise(n0 + a e1 + b e2)``, ``d = d0 + dd``, held by
+    a Gaussian prior from ``plane_cov`` (Huber beyond 3 sigma).
+
+    Without plane errors the residuals are the point-to-plane distances, weighted so that
+    every pose counts alike. With them, the residuals are measured along the laser rays
+    (``r / cos(incidence)``, the range error: the scanner's noise is along its rays) and
+    divided by the range noise. Along the normal, the noisy points would also be the
+    regressors of the plane corrections (errors in variables), which biases the fit by
+    several mrad at 10 mm range noise; along the rays the regressors are noise-free.
+    """
+
+    def __init__(
+        self,
+        poses: Sequence[BoardPose],
+        loss: str,
+        f_scale: float,
+        sigma: np.ndarray | None,
+    ) -> None:
+        self.loss, self.f_scale = loss, f_scale
+        self.K = len(poses) if sigma is not None else 0
+        counts = np.array([len(p.points) for p in poses])
+        self.pid = np.repeat(np.arange(len(poses)), counts)
+        self.P = np.concatenate([p.points for p in poses])
+        self.n0 = np.array([p.normal for p in poses])
+        self.d0 = np.array([p.distance for p in poses])
+        weight = np.array([p.weight for p in poses])
+        if sigma is None:  # planes taken as exact: every pose counts by its weight
+            self.pw = (weight * counts.mean() / counts)[self.pid]
+            return
+        self.pw = (weight / sigma**2)[self.pid]
+        self.U = self.P / np.linalg.norm(self.P, axis=1, keepdims=True)  # unit laser rays
+        self.E = np.array([_tangent_basis(n) for n in self.n0])  # (K,2,3)
+        self.L = np.empty((self.K, 3, 3))  # prior residual L_i @ (a, b, dd), L^T L = C^-1
+        floor = np.diag(np.square([*_MIN_PLANE_STD[:1] * 2, _MIN_PLANE_STD[1]]))
+        for i, p in enumerate(poses):
+            assert p.plane_cov is not None
+            T = np.zeros((4, 3))
+            T[:3, 0], T[:3, 1], T[3, 2] = self.E[i, 0], self.E[i, 1], 1.0
+            C = T.T @ p.plane_cov @ T + floor
+            self.L[i] = np.linalg.cholesky(np.linalg.inv(C)).T
+
+    @property
+    def n_params(self) -> int:
+        return 6 + 3 * self.K
+
+    def planes(self, D: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Corrected normals (K,3), distances (K,) and dn/d(a,b) (K,2,3)."""
+        if self.K == 0:
+            return self.n0, self.d0, np.zeros((0, 2, 3))
+        v = self.n0 + np.einsum("ik,ikj->ij", D[:, :2], self.E)
+        nv = np.linalg.norm(v, axis=1)
+        n = v / nv[:, None]
+        dn = (self.E - n[:, None, :] * np.einsum("ikj,ij->ik", self.E, n)[:, :, None]) / nv[
+            :, None, None
+        ]
+        return n, self.d0 + D[:, 2], dn
+
+    def evaluate(
+        self, R: np.ndarray, t: np.ndarray, D: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Point residuals (m), their Jacobian (M, 9) — the 6 shared parameters, then the
+        point's own pose's 3 plane corrections (zero without) — and the robust cost."""
+        n, d, dn = self.planes(D)
+        m = n[self.pid] @ R.T  # R n per point
+        q = self.P - t
+        r = np.einsum("ij,ij->i", m, q) - d[self.pid]
+        J = np.zeros((len(r), 9))
+        J[:, :3] = np.cross(m, q)
+        J[:, 3:6] = -m
+        if self.K:
+            X = q @ R  # points in the camera frame
+            J[:, 6] = np.einsum("ij,ij->i", X, dn[self.pid, 0])
+            J[:, 7] = np.einsum("ij,ij->i", X, dn[self.pid, 1])
+            J[:, 8] = -1.0
+            # along the ray: r / c with c = (R n) . u, the cosine of incidence
+            c = _safe_cos(np.einsum("ij,ij->i", m, self.U))
+            Jc = np.zeros_like(J)
+            Jc[:, :3] = np.cross(m, self.U)
+            Jc[:, 6] = np.einsum("ij,ij->i", dn[self.pid, 0] @ R.T, self.U)
+            Jc[:, 7] = np.einsum("ij,ij->i", dn[self.pid, 1] @ R.T, self.U)
+            J = J / c[:, None] - (r / (c * c))[:, None] * Jc
+            r = r / c
+        return r, J, self.cost(r, D)
+
+    def _prior(self, D: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Prior residuals (K,3), their Huber cost (K,) and IRLS weights (K,)."""
+        e = np.einsum("kij,kj->ki", self.L, D)
+        m2 = np.sum(e * e, axis=1)
+        c = _PRIOR_HUBER
+        big = m2 > c * c
+        m = np.sqrt(np.where(big, m2, 1.0))
+        return e, np.where(big, 2 * c * m - c * c, m2), np.where(big, c / m, 1.0)
+
+    def cost(self, r: np.ndarray, D: np.ndarray) -> float:
+        f = self.f_scale
+        rho, _ = _rho((r / f) ** 2, self.loss)
+        total = 0.5 * f * f * float(np.sum(self.pw * rho))
+        if self.K:
+            total += 0.5 * float(np.sum(self._prior(D)[1]))
+        return total
+
+    def normal_equations(
+        self, r: np.ndarray, J: np.ndarray, D: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """IRLS ``A = J^T W J`` and ``g = J^T W r`` over all parameters (priors included),
+        and the points' weights W."""
+        _, w = _rho((r / self.f_scale) ** 2, self.loss)
+        w = w * self.pw
+        if not self.K:
+            Je = J[:, :6]
+            return Je.T @ (w[:, None] * Je), Je.T @ (w * r), w
+        # per pose sums over its (contiguous) points of the 9x9 blocks and 9-vectors
+        starts = np.flatnonzero(np.r_[True, np.diff(self.pid) != 0])
+        Ab = np.add.reduceat(w[:, None, None] * J[:, :, None] * J[:, None, :], starts)
+        gb = np.add.reduceat((w * r)[:, None] * J, starts)
+        e, _, wp = self._prior(D)
+        A = np.zeros((self.n_params, self.n_params))
+        g = np.zeros(self.n_params)
+        A[:6, :6] = Ab[:, :6, :6].sum(axis=0)
+        g[:6] = gb[:, :6].sum(axis=0)
+        for i in range(self.K):
+            s = slice(6 + 3 * i, 9 + 3 * i)
+            A[:6, s] = Ab[i, :6, 6:]
+            A[s, :6] = Ab[i, 6:, :6]
+            A[s, s] = Ab[i, 6:, 6:] + wp[i] * self.L[i].T @ self.L[i]
+            g[s] = gb[i, 6:] + wp[i] * self.L[i].T @ e[i]
+        return A, g, w
+
+
+def refine(
+    poses: Sequence[BoardPose],
+    initial: Rigid,
+    loss: Loss = "huber",
+    f_scale: float = 0.01,
+    plane_errors: bool | None = None,
+    max_iterations: int = 100,
+) -> ExtrinsicResult:
+    """Levenberg–Marquardt on the point-to-plane residuals ``n · R^T (P - t) - d`` (m).
+
+    Six parameters: a rotation vector applied on the left of the current rotation
+    (``R = exp([w]x) R``, laser frame, rad) and the translation (m). Robust losses (scipy's
+    definitions, ``f_scale`` in metres: residuals beyond it are down-weighted) are
+    handled by iteratively re-weighted least squares inside the LM loop: each iteration
+    solves ``(J^T W J + lambda diag(J^T W J)) delta = -J^T W r`` with the weights
+    ``W = rho'((r / f_scale)^2)`` of the current residuals and keeps the step only if the
+    robust cost decreases. No poses are dropped here.
+
+    ``plane_errors`` (default: when every pose has ``plane_cov``): the camera's planes
+    are not exact — with a fisheye their errors dominate the laser's — so each pose also
+    gets a plane correction (3 more parameters) held by its covariance (a Gaussian prior,
+    Huber beyond 3 sigma); the residuals are then taken along the laser rays,
+    ``r / cos(incidence)`` (the range error, where the scanner's noise is; along the
+    normal the noisy points would be regressors of the plane corrections, a bias of
+    several mrad), divided by the range noise estimated from the data
+    (:func:`laser_noise`), and the covariance of the 6 parameters is their block of
+    ``(J^T W J)^-1``: it includes the planes' uncertainty and matches the spread over
+    repeated calibrations (bench/extrinsic.py). Without: the planes are exact, every pose
+    counts alike, and the covariance is ``sigma^2 (J^T W J)^-1`` with ``sigma^2 = sum(W
+    r^2) / (N - 6)``, which assumes independent residuals and so underestimates (by ~5x
+    in the simulation) when the planes have errors.
+    """
+    if f_scale <= 0:
+        raise ValueError(f"f_scale must be > 0 m, got {f_scale}")
+    _rho(np.zeros(1), loss)  # validates the loss name
+    with_cov = all(p.plane_cov is not None for p in poses)
+    if plane_errors is None:
+        plane_errors = with_cov
+    if plane_errors and not with_cov:
+        raise ValueError("plane_errors needs every pose's plane_cov (BoardPose.from_fit)")
+    sigma = laser_noise(poses, initial) if plane_errors else None
+    prob = _Problem(poses, loss, f_scale, sigma)
+    R = np.array(initial.rotation)
+    t = np.array(initial.translation)
+    D = np.zeros((prob.K, 3))
+    r, J, cost = prob.evaluate(R, t, D)
+    lam = 1e-4
+    iterations = 0
+    converged = False
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported)
+        A, g, _ = prob.normal_equations(r, J, D)
+        stepped = False
+        while lam < 1e12:
+            delta = np.linalg.solve(A + lam * np.diag(np.diag(A)), -g)
+            R_new = _orthonormalise(rotvec_to_matrix(delta[:3]) @ R)
+            t_new = t + delta[3:6]
+            D_new = D + delta[6:].reshape(-1, 3)
+            r_new, J_new, cost_new = prob.evaluate(R_new, t_new, D_new)
+            if cost_new <= cost:
+                stepped = True
+                break
+            lam *= 10.0
+        if not stepped:  # no decrease possible: at the minimum to machine precision
+            converged = True
+            break
+        small_step = np.linalg.norm(delta[:6]) < 1e-12 * (1.0 + np.linalg.norm(t))
+        small_gain = cost - cost_new <= 1e-15 * (cost + 1e-300)
+        R, t, D, r, J, cost = R_new, t_new, D_new, r_new, J_new, cost_new
+        lam = max(lam / 10.0, 1e-12)
+        if small_step or small_gain:
+            converged = True
+            break
+
+    A, _, w = prob.normal_equations(r, J, D)
+    if plane_errors:
+        cov = np.linalg.pinv(A)[:6, :6]
+    else:
+        sigma2 = float(np.sum(w * r * r)) / max(len(r) - 6, 1)
+        cov = sigma2 * np.linalg.pinv(A)
+    cov = 0.5 * (cov + cov.T)
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    result = Rigid(R, t)
+    raw = np.concatenate(point_residuals(poses, result))
+    return ExtrinsicResult(
+        camera_to_laser=result,
+        std=std,
+        std_rot_deg=np.degrees(std[:3]),
+        std_rpy_deg=_euler_std_deg(R, cov[:3, :3]),
+        std_t_mm=std[3:] * 1e3,
+        covariance=cov,
+        residuals_per_pose=_pose_rms(poses, result),
+        outliers=(),
+        rms_m=float(math.sqrt(np.mean(raw * raw))),
+        iterations=iterations,
+        converged=converged,
+        n_points=len(r),
+        loss=loss,
+        f_scale=f_scale,
+        plane_errors=bool(plane_errors),
+        laser_noise_m=sigma,
+        initial=initial,
+    )
+
+
+def _outlier_threshold(rms: np.ndarray, k: float, min_excess: float) -> float:
+    med = float(np.median(rms))
+    mad = 1.4826 * float(np.median(np.abs(rms - med)))
+    return med + max(k * mad, min_excess)
+
+
+def _reject(
+    poses: list[BoardPose],
+    result: ExtrinsicResult,
+    outliers: tuple[int, ...],
+    refit: Any,
+    outlier_k: float,
+    min_excess: float,
+    max_rounds: int,
+) -> tuple[ExtrinsicResult, tuple[int, ...], float, int]:
+    """Rounds of outlier rejection: (result, outliers, threshold, iterations)."""
+    iterations = 0
+    threshold = math.inf
+    for _ in range(max_rounds):
+        rms = _pose_rms(poses, result.camera_to_laser)
+        threshold = _outlier_threshold(rms, outlier_k, min_excess)
+        found = tuple(int(i) for i in np.flatnonzero(rms > threshold))
+        if found == outliers:
+            break
+        kept = [p for i, p in enumerate(poses) if i not in found]
+        if len(kept) < MIN_POSES:
+            warnings.warn(
+                f"{len(found)} of {len(poses)} board poses look like outliers (RMS residual "
+                f"above {threshold * 1e3:.1f} mm: poses {list(found)}) but fewer than "
+                f"{MIN_POSES} would remain, so none more are dropped; check the board "
+                f"detections and the laser segmentation, or add poses",
+                stacklevel=3,
+            )
+            break
+        check_geometry(kept)
+        outliers = found
+        result = refit(kept, result.camera_to_laser)
+        iterations += result.iterations
+    return result, outliers, threshold, iterations
+
+
+def calibrate(
+    poses: Sequence[BoardPose],
+    loss: Loss = "huber",
+    f_scale: float = 0.01,
+    outlier_k: float = 3.5,
+    min_outlier_excess: float = 0.01,
+    plane_errors: bool | None = None,
+    max_rounds: int = 5,
+) -> ExtrinsicResult:
+    """Linear solution, robust refinement, outlier poses dropped, refinement again.
+
+    Outlier rejection: a pose is an outlier when its RMS residual (m) exceeds the median
+    of all poses' by more than ``outlier_k`` times their MAD (scaled by 1.4826, a
+    standard deviation for Gaussian spread) and by more than ``min_outlier_excess``
+    metres (so that poses are not dropped for millimetre differences when the data are
+    clean); the outliers are dropped and the rest re-solved, in rounds (at most
+    ``max_rounds``) until the set no longer changes — a pose dropped in one round may
+    come back in the next.
+
+    Order: the linear solution seeds the robust refinement with the planes taken as
+    exact (6 parameters: stiff, so outlier poses stand out) and the outliers are
+    rejected with it; when the poses carry plane covariances (and ``plane_errors`` is not
+    False) that solution seeds :func:`refine` with plane errors on the kept poses, whose
+    outliers are checked again the same way. (Fitted with plane corrections first, a
+    moved board can be absorbed by its own plane correction while good poses pay for
+    it.) Raises ValueError when the poses are too few or degenerate; warns and keeps
+    them when dropping the outliers would leave fewer than 5 poses.
+    ``residuals_per_pose`` covers all input poses.
+    """
+    poses = list(poses)
+    initial = linear_solution(poses)
+    use_planes = plane_errors is not False and all(p.plane_cov is not None for p in poses)
+    if plane_errors and not use_planes:
+        raise ValueError("plane_errors needs every pose's plane_cov (BoardPose.from_fit)")
+
+    def plain(ps: Sequence[BoardPose], start: Rigid) -> ExtrinsicResult:
+        return refine(ps, start, loss, f_scale, plane_errors=False)
+
+    def full(ps: Sequence[BoardPose], start: Rigid) -> ExtrinsicResult:
+        return refine(ps, start, loss, f_scale, plane_errors=True)
+
+    result = plain(poses, initial)
+    iterations = result.iterations
+    result, outliers, threshold, its = _reject(
+        poses, result, (), plain, outlier_k, min_outlier_excess, max_rounds
+    )
+    iterations += its
+    if use_planes:
+        result = full([p for i, p in enumerate(poses) if i not in outliers], result.camera_to_laser)
+        iterations += result.iterations
+        result, outliers, threshold, its = _reject(
+            poses, result, outliers, full, outlier_k, min_outlier_excess, max_rounds
+        )
+        iterations += its
+    return replace(
+        result,
+        outliers=outliers,
+        residuals_per_pose=_pose_rms(poses, result.camera_to_laser),
+        iterations=iterations,
+        outlier_threshold_m=threshold,
+        initial=initial,
+    )
+
+
+# ----------------------------------------------------------------------------- PnP
+
+
+@dataclass(frozen=True)
+class BoardFit:
+    """A board's pose from its corners: ``board_to_camera`` (P_camera = R @ P_board + t),
+    the RMS reprojection error (px, per corner, both axes), the number of iterations and
+    ``covariance`` (6,6) of a left rotation vector (camera frame, rad) and the translation
+    (m), from the Jacobian with the pixel noise estimated from the residuals."""
+
+    board_to_camera: Rigid
+    rms_px: float
+    iterations: int
+    covariance: np.ndarray
+
+    def plane(self) -> tuple[np.ndarray, float]:
+        """The board plane (board z = 0) in the camera frame: unit normal, distance (m)."""
+        n = self.board_to_camera.rotation[:, 2]
+        return n.copy(), float(n @ self.board_to_camera.translation)
+
+    def plane_covariance(self) -> np.ndarray:
+        """(4,4) covariance of ``(n_x, n_y, n_z, d)`` of :meth:`plane` (rank 3)."""
+        n, _ = self.plane()
+        t = self.board_to_camera.translation
+        G = np.zeros((4, 6))
+        G[:3, :3] = -_skew(n)  # n' = exp([w]x) n = n + w x n
+        G[3, :3] = np.cross(n, t)  # d = n . t
+        G[3, 3:] = n
+        return G @ self.covariance @ G.T
+
+
+def _initial_pnp(model: CameraModel, obj: np.ndarray, uv: np.ndarray) -> list[Rigid]:
+    """Candidate poses from cv2 on undistorted rays, in a virtual pinhole camera turned
+    towards the rays' mean direction so that boards near or past 90 degrees off-axis have
+    z > 0. Flat boards: IPPE's two solutions (a small or distant board's tilt is
+    ambiguous) unless the second reprojects 3x worse; other targets: SQPnP's one."""
+    rays = model.unproject(uv)
+    m = rays.mean(axis=0)
+    m /= np.linalg.norm(m)
+    axis = np.cross(m, [0.0, 0.0, 1.0])
+    s = float(np.linalg.norm(axis))
+    angle = math.atan2(s, float(m[2]))
+    Rv = rotvec_to_matrix(axis / s * angle) if s > 1e-12 else np.eye(3)  # camera -> virtual
+    rv = rays @ Rv.T
+    ok = rv[:, 2] > 0.05
+    if ok.sum() < 4:
+        raise ValueError("fewer than 4 corners usable for the initial PnP (board too wide)")
+    xy = np.ascontiguousarray(rv[ok, :2] / rv[ok, 2:3])
+    o = np.ascontiguousarray(obj[ok])
+    planar = np.ptp(o[:, 2]) < 1e-9
+    flag = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP
+    n, rvecs, tvecs, errs = cv2.solvePnPGeneric(o, xy, np.eye(3), None, flags=flag)
+    if not n:
+        raise ValueError("cv2.solvePnPGeneric found no board pose")
+    errs = np.asarray(errs, dtype=np.float64).reshape(-1)
+    out: list[Rigid] = []
+    for rvec, tvec, err in zip(rvecs, tvecs, errs, strict=True):
+        if out and err > 3.0 * errs[0] + 1e-12:
+            continue
+        Rp = rotvec_to_matrix(np.asarray(rvec).reshape(3))
+        out.append(Rigid(Rv.T @ Rp, Rv.T @ np.asarray(tvec, dtype=np.float64).reshape(3)))
+    return out
+
+
+def board_pose_from_corners(
+    model: CameraModel,
+    object_points: npt.ArrayLike,
+    image_points: npt.ArrayLike,
+    initial: Rigid | None = None,
+    max_iterations: int = 50,
+) -> BoardFit:
+    """The board's pose from its corners by Levenberg–Marquardt on reprojection error.
+
+    ``object_points`` (N,3) board-frame metres (a flat board: z = 0), ``image_points``
+    (N,2) px. Uses ``model.project``, so it works with any camera model and past 90
+    degrees off-axis (OpenCV's solvePnP assumes a pinhole). Initial pose: ``initial``
+    (board_to_camera), else cv2.solvePnPGeneric (IPPE for flat boards: both of its
+    solutions are refined when the tilt is ambiguous, the better kept) on the
+    unprojected rays expressed in a virtual pinhole camera looking along their mean
+    direction. Six parameters: a rotation vector applied on the left (camera frame) and
+    the translation; the projection's derivatives by central differences (one batched
+    ``project`` call). The covariance uses the pixel noise estimated from the residuals.
+    """
+    obj = np.asarray(object_points, dtype=np.float64)
+    uv = np.asarray(image_points, dtype=np.float64)
+    if obj.ndim != 2 or obj.shape[1] != 3 or uv.shape != (len(obj), 2):
+        raise ValueError(f"need (N,3) object and (N,2) image points, got {obj.shape}, {uv.shape}")
+    if len(obj) < 4:
+        raise ValueError(f"a board pose needs at least 4 corners, got {len(obj)}")
+    starts = [initial] if initial is not None else _initial_pnp(model, obj, uv)
+    fits = [_pnp_lm(model, obj, uv, start, max_iterations) for start in starts]
+    return min(fits, key=lambda f: f.rms_px)
+
+
+def _pnp_lm(
+    model: CameraModel, obj: np.ndarray, uv: np.ndarray, start: Rigid, max_iterations: int
+) -> BoardFit:
+    R, t = np.array(start.rotation), np.array(start.translation)
+    N = len(obj)
+
+    def resid(R_: np.ndarray, t_: np.ndarray) -> np.ndarray:
+        proj, _ = model.project(obj @ R_.T + t_)
+        return (proj - uv).reshape(-1)
+
+    def jacobian(R_: np.ndarray, t_: np.ndarray) -> np.ndarray:
+        RX = obj @ R_.T
+        X = RX + t_
+        h = 1e-6 * np.maximum(np.linalg.norm(X, axis=1), 1e-3)
+        steps = [X + s * h[:, None] * e for e in np.eye(3) for s in (1.0, -1.0)]
+        proj, _ = model.project(np.concatenate(steps))
+        proj = proj.reshape(6, N, 2)
+        D = (proj[0::2] - proj[1::2]) / (2 * h[None, :, None])  # (3,N,2) d uv / d X_k
+        dX = np.zeros((N, 3, 6))  # dX/d(w, t): -[RX]x and I
+        dX[:, 0, 1], dX[:, 0, 2] = RX[:, 2], -RX[:, 1]  # -[RX]x, row by row
+        dX[:, 1, 0], dX[:, 1, 2] = -RX[:, 2], RX[:, 0]
+        dX[:, 2, 0], dX[:, 2, 1] = RX[:, 1], -RX[:, 0]
+        dX[:, :, 3:] = np.eye(3)
+        return np.einsum("knc,nkp->ncp", D, dX).reshape(2 * N, 6)
+
+    r = resid(R, t)
+    cost = float(r @ r) if np.isfinite(r).all() else math.inf
+    lam = 1e-3
+    it = 0
+    for it in range(1, max_iterations + 1):  # noqa: B007 (reported)
+        J = jacobian(R, t)
+        if not (np.isfinite(J).all() and math.isfinite(cost)):
+            break
+        A, g = J.T @ J, J.T @ r
+        stepped = False
+        while lam < 1e12:
+            delta = np.linalg.solve(A + lam * np.diag(np.diag(A)), -g)
+            R_new = _orthonormalise(rotvec_to_matrix(delta[:3]) @ R)
+            t_new = t + delta[3:]
+            r_new = resid(R_new, t_new)
+            cost_new = float(r_new @ r_new)
+            if np.isfinite(cost_new) and cost_new <= cost:
+                stepped = True
+                break
+            lam *= 10.0
+        if not stepped:
+            break
+        gain = cost - cost_new
+        R, t, r, cost = R_new, t_new, r_new, cost_new
+        lam = max(lam / 10.0, 1e-12)
+        if gain <= 1e-14 * (cost + 1e-300) or np.linalg.norm(delta) < 1e-13:
+            break
+    J = jacobian(R, t)
+    sigma2 = cost / max(2 * N - 6, 1)
+    cov = sigma2 * np.linalg.pinv(J.T @ J) if np.isfinite(J).all() else np.full((6, 6), np.inf)
+    return BoardFit(Rigid(R, t), float(math.sqrt(cost / N)), it, 0.5 * (cov + cov.T))
+
+
+# ----------------------------------------------------------------------------- plot
+
+
+def residual_plot(
+    result: ExtrinsicResult, poses: Sequence[BoardPose], path: str | Path
+) -> np.ndarray:
+    """Write a PNG (and return the BGR image): left, each pose's RMS residual (mm, dropped
+    poses in red, the median and the outlier threshold as lines); right, the histogram of
+    the kept poses' point residuals (mm) with a Gaussian of their RMS."""
+    W, H, m = 1100, 420, 50
+    img = np.full((H, W, 3), 255, np.uint8)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    black, grey, red, blue = (0, 0, 0), (170, 170, 170), (40, 40, 220), (200, 120, 40)
+    res = point_residuals(poses, result.camera_to_laser)
+    rms_mm = np.asarray(result.residuals_per_pose) * 1e3
+
+    # left panel: per-pose bars
+    x0, x1, y0, y1 = m, W // 2 - 20, m, H - m
+    thr_mm = result.outlier_threshold_m * 1e3
+    top = max(float(rms_mm.max()) if len(rms_mm) else 1.0, 1e-6)
+    if math.isfinite(thr_mm):
+        top = max(top, thr_mm)
+    top *= 1.1
+
+    def ly(v: float) -> int:
+        return round(y1 - (y1 - y0) * v / top)
+
+    cv2.rectangle(img, (x0, y0), (x1, y1), black, 1)
+    bw = (x1 - x0) / max(len(rms_mm), 1)
+    for i, v in enumerate(rms_mm):
+        colour = red if i in result.outliers else blue
+        a = int(x0 + i * bw + 0.15 * bw)
+        b = int(x0 + (i + 1) * bw - 0.15 * bw)
+        cv2.rectangle(img, (a, ly(float(v))), (max(b, a + 1), y1), colour, -1)
+        if len(rms_mm) <= 40:
+            cv2.putText(img, str(i), (a, y1 + 14), font, 0.35, black, 1)
+    med = float(np.median(rms_mm)) if len(rms_mm) else 0.0
+    cv2.line(img, (x0, ly(med)), (x1, ly(med)), grey, 1)
+    if math.isfinite(thr_mm):
+        cv2.line(img, (x0, ly(thr_mm)), (x1, ly(thr_mm)), red, 1)
+    cv2.putText(img, f"{top:.1f} mm", (x0 - 45, y0 + 4), font, 0.35, black, 1)
+    cv2.putText(img, "0", (x0 - 12, y1 + 4), font, 0.35, black, 1)
+    title = f"RMS residual per pose, mm (grey: median {med:.1f}, red: threshold {thr_mm:.1f})"
+    cv2.putText(img, title, (x0, y0 - 15), font, 0.45, black, 1)
+
+    # right panel: histogram of kept point residuals
+    kept = [r for i, r in enumerate(res) if i not in result.outliers]
+    vals = np.concatenate(kept) * 1e3 if kept else np.zeros(1)
+    x0, x1 = W // 2 + 40, W - m
+    lim = max(float(np.percentile(np.abs(vals), 99.5)), 1e-6) * 1.2
+    bins = np.linspace(-lim, lim, 41)
+    hist, _ = np.histogram(np.clip(vals, -lim, lim), bins)
+    hmax = max(int(hist.max()), 1)
+    cv2.rectangle(img, (x0, y0), (x1, y1), black, 1)
+    bwr = (x1 - x0) / len(hist)
+    for i, c in enumerate(hist):
+        a = int(x0 + i * bwr)
+        b = int(x0 + (i + 1) * bwr) - 1
+        cv2.rectangle(img, (a, int(y1 - (y1 - y0) * c / hmax / 1.1)), (b, y1), blue, -1)
+    sd = float(np.sqrt(np.mean(vals**2)))
+    if sd > 0:
+        xs = np.linspace(-lim, lim, 200)
+        pdf = len(vals) * (bins[1] - bins[0]) * np.exp(-0.5 * (xs / sd) ** 2)
+        pdf /= sd * math.sqrt(2 * math.pi)
+        pts = np.column_stack(
+            [x0 + (xs + lim) / (2 * lim) * (x1 - x0), y1 - (y1 - y0) * pdf / hmax / 1.1]
+        )
+        cv2.polylines(img, [pts.astype(np.int32)], False, red, 1, cv2.LINE_AA)
+    cv2.putText(img, f"{-lim:.1f}", (x0 - 10, y1 + 16), font, 0.35, black, 1)
+    cv2.putText(img, f"{lim:.1f} mm", (x1 - 30, y1 + 16), font, 0.35, black, 1)
+    title = f"point residuals, kept poses (n={len(vals)}, RMS {sd:.2f} mm)"
+    cv2.putText(img, title, (x0, y0 - 15), font, 0.45, black, 1)
+    if not cv2.imwrite(str(path), img):
+        raise OSError(f"could not write {path}")
+    return img

@@ -1,0 +1,608 @@
+"""`acq calibrate fisheye`: the fisheye's intrinsics from its image circle (paper §3.3.2),
+optionally refined on a checkerboard with the generic Kannala–Brandt model.
+
+From the circle: ``(u0, v0)`` is its centre and ``f = r / theta_max`` with ``theta_max``
+half the lens's aperture (``--fov``), the paper's equidistant model; with ``--ellipse``
+(non-square pixels) ``fx = rx / theta_max`` and ``fy = ry / theta_max``, written as a
+Kannala–Brandt model with zero coefficients.
+
+With ``--board COLSxROWSxSQUARE`` (inner corners, square side in metres) the Kannala–Brandt
+model (fx, fy, cx, cy, k1..k4) is fitted to the board's corners by Levenberg–Marquardt on
+reprojection errors, initialised from the circle. Angles are ``atan2(rho, z)``, so corners
+seen more than 90 degrees off the axis are modelled correctly (OpenCV's fisheye
+calibration mirrors them). Its standard deviations (from the covariance of the fit,
+scaled by the residuals' variance) go into calib.yaml's ``std``. The circle alone writes
+none: its fit's σ of the centre (hundredths of a pixel) says nothing of how far the
+principal point is from the circle's centre (1.2 px on the real images).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from acq.calib import image_circle
+from acq.calib.image_circle import CircleResult
+from acq.camera import calibfile
+from acq.camera.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
+from acq.camera.camera_models import Equidistant, KannalaBrandt
+
+__all__ = [
+    "BoardFit",
+    "BoardSpec",
+    "calibrate_board",
+    "circle_model",
+    "detect_corners",
+    "draw_overlay",
+    "fit_kannala_brandt",
+    "main_fisheye",
+    "model_gap_px",
+    "parse_board",
+    "project_kb",
+    "read_images",
+    "update_calibration",
+]
+
+METHOD_CIRCLE = "image_circle"
+METHOD_BOARD = "checkerboard (kannala_brandt, from image_circle)"
+
+
+# --- from the circle --------------------------------------------------------------------
+
+
+def circle_model(result: CircleResult, fov_deg: float) -> KannalaBrandt:
+    """The paper's model from the circle: equidistant, ``f = r / theta_max`` (px/rad).
+
+    An ellipse (``rx != ry``) gives a Kannala–Brandt model with zero coefficients and
+    ``fx = rx / theta_max``, ``fy = ry / theta_max``.
+    """
+    if not 0.0 < fov_deg < 360.0:
+        raise ValueError(f"fov {fov_deg}: expected degrees in (0, 360)")
+    theta_max = math.radians(fov_deg) / 2.0
+    c = result.circle
+    if c.rx == c.ry:
+        return Equidistant.from_f(
+            c.rx / theta_max, c.cx, c.cy, result.width, result.height, fov_deg
+        )
+    return KannalaBrandt(
+        result.width,
+        result.height,
+        c.rx / theta_max,
+        c.ry / theta_max,
+        c.cx,
+        c.cy,
+        fov_deg=fov_deg,
+    )
+
+
+def update_calibration(
+    path: Path,
+    camera: str | None,
+    model: KannalaBrandt,
+    method: str,
+    std: CalibStd | None = None,
+) -> tuple[Calibration, str, list[str]]:
+    """The calibration in ``path`` (a new one if absent) with ``camera``'s intrinsics set.
+
+    ``std``: the intrinsics' standard deviations (its fx, fy, cx, cy, k; none if None),
+    which replace the old ones. The camera's extrinsics, their std and time offset, the
+    other cameras and the laser entries are kept. ``camera`` None: the file's only camera,
+    or ``camera`` for a new file. Returns the calibration, the camera's name and notes for
+    the user. Raises CalibFileError.
+    """
+    intr = (std or CalibStd()).merged(CalibStd(), CalibStd.EXTRINSICS)
+    notes: list[str] = []
+    if path.exists():
+        old = calibfile.load(path)
+        if camera is None:
+            if len(old.cameras) != 1:
+                raise CalibFileError(
+                    f"{path}: has cameras {', '.join(old.cameras)}; name one with --camera"
+                )
+            camera = next(iter(old.cameras))
+        cameras = dict(old.cameras)
+        prev = cameras.get(camera)
+        if prev is None:
+            entry = CameraCalib(model, method=method, std=intr)
+            notes.append(f"camera {camera!r} added to {path}")
+        else:
+            size = (prev.model.width, prev.model.height)
+            if size != (model.width, model.height):
+                notes.append(
+                    f"camera {camera!r}: image size {size[0]}x{size[1]} replaced by "
+                    f"{model.width}x{model.height}; check its extrinsics"
+                )
+            kept = prev.std.merged(intr, CalibStd.INTRINSICS)
+            entry = CameraCalib(model, prev.camera_to_laser, prev.time_offset_s, method, kept)
+        cameras[camera] = entry
+        calib = Calibration(old.laser, cameras, old.laser_to_vehicle)
+    else:
+        camera = camera or "camera"
+        calib = Calibration(cameras={camera: CameraCalib(model, method=method, std=intr)})
+    return calib, camera, notes
+
+
+# --- the checkerboard -------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    """A checkerboard: inner corners along its rows (cols) and columns (rows), square m."""
+
+    cols: int
+    rows: int
+    square: float
+
+    def object_points(self) -> np.ndarray:
+        """(cols*rows, 3) corner positions on the board, m, in OpenCV's detection order."""
+        j, i = np.mgrid[0 : self.rows, 0 : self.cols]
+        return np.stack([i.ravel(), j.ravel(), np.zeros(i.size)], axis=1) * self.square
+
+
+def parse_board(text: str) -> BoardSpec:
+    """``COLSxROWSxSQUARE`` (inner corners, square side in metres), e.g. ``8x6x0.117``."""
+    parts = text.lower().split("x")
+    try:
+        if len(parts) != 3:
+            raise ValueError
+        cols, rows, square = int(parts[0]), int(parts[1]), float(parts[2])
+    except ValueError:
+        raise ValueError(
+            f"--board {text!r}: expected COLSxROWSxSQUARE, e.g. 8x6x0.117 "
+            "(inner corners, square side in metres)"
+        ) from None
+    if cols < 2 or rows < 2 or not (square > 0 and math.isfinite(square)):
+        raise ValueError(f"--board {text!r}: at least 2x2 inner corners and a square > 0")
+    return BoardSpec(cols, rows, square)
+
+
+def detect_corners(gray: np.ndarray, board: BoardSpec) -> np.ndarray | None:
+    """(cols*rows, 2) sub-pixel inner corners (OpenCV's order), or None if not found."""
+    img = np.clip(gray, 0, 255).astype(np.uint8)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    found, corners = cv2.findChessboardCorners(img, (board.cols, board.rows), flags=flags)
+    if not found:
+        return None
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
+    corners = cv2.cornerSubPix(img, corners, (5, 5), (-1, -1), crit)
+    return corners.reshape(-1, 2).astype(np.float64)
+
+
+def _rodrigues(r: np.ndarray) -> np.ndarray:
+    """(3,) rotation vector -> (3,3) matrix."""
+    theta = float(np.linalg.norm(r))
+    if theta < 1e-12:
+        return np.eye(3)
+    k = r / theta
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * (K @ K)
+
+
+def project_kb(intr: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(N,3) camera-frame points -> (N,2) px with ``intr = (fx, fy, cx, cy, k1..k4)``;
+    ``theta = atan2(rho, z)``, valid past 90 degrees."""
+    fx, fy, cx, cy, k1, k2, k3, k4 = intr
+    rho = np.hypot(P[:, 0], P[:, 1])
+    th = np.arctan2(rho, P[:, 2])
+    t2 = th * th
+    rd = th * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+    s = np.where(rho > 0, rd / np.maximum(rho, 1e-300), 0.0)
+    return np.stack([fx * s * P[:, 0] + cx, fy * s * P[:, 1] + cy], axis=1)
+
+
+def _levenberg_marquardt(
+    fun: Callable[[np.ndarray], np.ndarray],
+    jac: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    x0: np.ndarray,
+    iterations: int = 200,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Minimise ``|fun(x)|²`` from x0. Returns x and J at x."""
+    x = x0.astype(np.float64).copy()
+    r = fun(x)
+    cost = float(r @ r)
+    lam = 1e-3
+    J = jac(x, r)
+    for _ in range(iterations):
+        A = J.T @ J
+        g = J.T @ r
+        improved = False
+        for _ in range(20):
+            step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
+            x_new = x + step
+            r_new = fun(x_new)
+            c_new = float(r_new @ r_new)
+            if np.isfinite(c_new) and c_new < cost:
+                done = cost - c_new < 1e-12 * cost or np.max(np.abs(step)) < 1e-12
+                x, r, cost = x_new, r_new, c_new
+                lam = max(lam / 10, 1e-12)
+                improved = True
+                break
+            lam *= 10
+        if not improved:
+            break
+        J = jac(x, r)
+        if done:
+            break
+    return x, J
+
+
+@dataclass(frozen=True)
+class BoardFit:
+    """A Kannala–Brandt fit to checkerboard corners."""
+
+    model: KannalaBrandt
+    rms_px: float  # RMS reprojection error over all corners (2-D distance)
+    view_rms_px: list[float]  # per view
+    views: list[int]  # indices of the images used (the board was found)
+    sigma: dict[str, float]  # standard errors of the intrinsics
+    max_theta_deg: float  # the largest angle off the axis among the corners
+    poses: list[tuple[np.ndarray, np.ndarray]]  # board -> camera (rvec, tvec) per view
+
+    def std(self) -> CalibStd:
+        """The intrinsics' standard deviations for calib.yaml (3 significant digits);
+        none when the fit's covariance is singular."""
+        s = self.sigma
+        k = tuple(s[f"k{i}"] for i in range(1, 5))
+        if not all(math.isfinite(v) for v in s.values()):
+            return CalibStd()
+        return CalibStd(fx=s["fx"], fy=s["fy"], cx=s["cx"], cy=s["cy"], k=k).rounded()
+
+    def to_dict(self) -> dict[str, Any]:
+        m = self.model
+        return {
+            "model": "kannala_brandt",
+            "fx": round(m.fx, 4),
+            "fy": round(m.fy, 4),
+            "cx": round(m.cx, 4),
+            "cy": round(m.cy, 4),
+            "k": [float(f"{k:.6g}") for k in m.k],
+            "rms_px": round(self.rms_px, 4),
+            "view_rms_px": [round(v, 4) for v in self.view_rms_px],
+            "views": self.views,
+            "sigma": {k: float(f"{v:.3g}") for k, v in self.sigma.items()},
+            "max_theta_deg": round(self.max_theta_deg, 2),
+        }
+
+
+def _initial_pose(
+    init: KannalaBrandt, obj: np.ndarray, uv: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Board -> camera pose (rvec, tvec) from the corners' rays under the initial model:
+    planar PnP in a virtual camera turned towards the board (so a board seen 90 degrees
+    or more off the axis is handled like one in front)."""
+    rays = init.unproject(uv)
+    m = rays.mean(axis=0)
+    m /= np.linalg.norm(m)
+    # R_v turns m onto +z
+    axis = np.cross(m, [0.0, 0.0, 1.0])
+    s, c = float(np.linalg.norm(axis)), float(m[2])
+    R_v = _rodrigues(axis / s * math.atan2(s, c)) if s > 1e-12 else np.eye(3)
+    rv = rays @ R_v.T
+    if np.any(rv[:, 2] <= 0.05):
+        raise ValueError("the board spans too wide an angle for an initial pose")
+    norm = rv[:, :2] / rv[:, 2:3]
+    ok, rvec, tvec = cv2.solvePnP(
+        obj, norm.reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE
+    )
+    if not ok or not np.all(np.isfinite(rvec)):
+        raise ValueError("no initial board pose")
+    R = R_v.T @ cv2.Rodrigues(rvec)[0]
+    t = R_v.T @ tvec.ravel()
+    return cv2.Rodrigues(R)[0].ravel(), t
+
+
+def fit_kannala_brandt(
+    obj: np.ndarray,
+    corners: Sequence[np.ndarray],
+    init: KannalaBrandt,
+    fov_deg: float | None = None,
+) -> BoardFit:
+    """Kannala–Brandt intrinsics and board poses minimising the corners' reprojection
+    error (px), from the ``init`` model (e.g. the circle's). ``obj`` (N,3) board points m,
+    ``corners`` one (N,2) array per view."""
+    V = len(corners)
+    if V == 0:
+        raise ValueError("no views")
+    poses = [_initial_pose(init, obj, uv) for uv in corners]
+    x0 = np.concatenate(
+        [[init.fx, init.fy, init.cx, init.cy, *init.k], *[np.r_[r, t] for r, t in poses]]
+    )
+
+    def cam_points(x: np.ndarray, v: int) -> np.ndarray:
+        p = x[8 + 6 * v : 14 + 6 * v]
+        return obj @ _rodrigues(p[:3]).T + p[3:]
+
+    def view_res(x: np.ndarray, v: int) -> np.ndarray:
+        return (project_kb(x[:8], cam_points(x, v)) - corners[v]).ravel()
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([view_res(x, v) for v in range(V)])
+
+    n = len(obj) * 2
+
+    def jac(x: np.ndarray, r: np.ndarray) -> np.ndarray:
+        J = np.zeros((len(r), len(x)))
+        for i in range(len(x)):
+            h = 1e-6 * max(1.0, abs(x[i]))
+            xp, xm = x.copy(), x.copy()
+            xp[i] += h
+            xm[i] -= h
+            if i < 8:
+                J[:, i] = (fun(xp) - fun(xm)) / (2 * h)
+            else:
+                v = (i - 8) // 6
+                J[v * n : (v + 1) * n, i] = (view_res(xp, v) - view_res(xm, v)) / (2 * h)
+        return J
+
+    x, J = _levenberg_marquardt(fun, jac, x0)
+    res = fun(x).reshape(-1, 2)
+    d = np.hypot(res[:, 0], res[:, 1])
+    dof = max(res.size - len(x), 1)
+    s2 = float(np.sum(res**2)) / dof
+    try:
+        cov = np.linalg.inv(J.T @ J) * s2
+        sd = np.sqrt(np.maximum(np.diag(cov)[:8], 0.0))
+    except np.linalg.LinAlgError:
+        sd = np.full(8, math.nan)
+    names = ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")
+    thetas = []
+    for v in range(V):
+        P = cam_points(x, v)
+        thetas.append(np.degrees(np.arctan2(np.hypot(P[:, 0], P[:, 1]), P[:, 2])).max())
+    fx, fy, cx, cy, *k = (float(a) for a in x[:8])
+    fov = fov_deg or init.fov_deg
+    try:
+        model = KannalaBrandt(
+            init.width, init.height, fx, fy, cx, cy, (k[0], k[1], k[2], k[3]), fov
+        )
+    except ValueError as e:
+        raise ValueError(
+            f"the board fit is not a usable lens up to {fov / 2:g} deg ({e}); its corners "
+            f"reach {max(thetas):.1f} deg off the axis: show the board nearer the rim"
+        ) from None
+    view_rms = [
+        float(np.sqrt(np.mean(d[v * len(obj) : (v + 1) * len(obj)] ** 2))) for v in range(V)
+    ]
+    return BoardFit(
+        model=model,
+        rms_px=float(np.sqrt(np.mean(d**2))),
+        view_rms_px=view_rms,
+        views=list(range(V)),
+        sigma=dict(zip(names, (float(s) for s in sd), strict=True)),
+        max_theta_deg=float(max(thetas)),
+        poses=[
+            (x[8 + 6 * v : 11 + 6 * v].copy(), x[11 + 6 * v : 14 + 6 * v].copy()) for v in range(V)
+        ],
+    )
+
+
+def calibrate_board(
+    grays: Sequence[np.ndarray], board: BoardSpec, init: KannalaBrandt
+) -> tuple[BoardFit, np.ndarray]:
+    """Find the board in each image and fit Kannala–Brandt; returns the fit and which
+    images had the board (bool per image)."""
+    found: list[np.ndarray] = []
+    used = np.zeros(len(grays), bool)
+    for i, g in enumerate(grays):
+        c = detect_corners(g, board)
+        if c is not None:
+            found.append(c)
+            used[i] = True
+    if not found:
+        raise ValueError(f"no image shows the {board.cols}x{board.rows} board")
+    fit = fit_kannala_brandt(board.object_points(), found, init)
+    fit = replace(fit, views=[int(i) for i in np.flatnonzero(used)])
+    return fit, used
+
+
+# --- output -----------------------------------------------------------------------------
+
+_COLOURS = {
+    "barycentre": (0, 165, 255),
+    "canny_fit": (255, 128, 0),
+    "hough": (255, 0, 255),
+    "subpixel": (0, 255, 0),
+}
+
+
+def _draw_curve(img: np.ndarray, c: image_circle.ImageCircle, colour: tuple, thick: int) -> None:
+    s = 16  # 4 fractional bits
+    cv2.ellipse(
+        img,
+        (round(c.cx * s), round(c.cy * s)),
+        (round(c.rx * s), round(c.ry * s)),
+        0,
+        0,
+        360,
+        colour,
+        thick,
+        cv2.LINE_AA,
+        4,
+    )
+    x, y, d = round(c.cx * s), round(c.cy * s), 8 * s
+    cv2.line(img, (x - d, y), (x + d, y), colour, thick, cv2.LINE_AA, 4)
+    cv2.line(img, (x, y - d), (x, y + d), colour, thick, cv2.LINE_AA, 4)
+
+
+def draw_overlay(image: np.ndarray, result: CircleResult, title: str = "") -> np.ndarray:
+    """The image with every estimator's circle and centre, and the sub-pixel rim points
+    (green kept, red rejected), plus a legend. (H,W,3) uint8 BGR."""
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    out = (img[:, :, :3] // 2 + 0).astype(np.uint8)
+    pts = result.edges.points
+    for (x, y), ok in zip(pts, result.edges.inlier, strict=True):
+        cv2.circle(out, (round(x), round(y)), 1, (0, 200, 0) if ok else (0, 0, 255), -1)
+    for name, est in result.estimates.items():
+        _draw_curve(out, est.circle, _COLOURS[name], 2 if name == "subpixel" else 1)
+    c = result.circle
+    lines = [title] if title else []
+    lines.append(f"centre ({c.cx:.2f}, {c.cy:.2f}) r {c.radius:.2f} px")
+    lines += [f"{k}" for k in result.estimates]
+    y = 18
+    for text in lines:
+        colour = _COLOURS.get(text, (255, 255, 255))
+        cv2.putText(out, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
+        y += 18
+    if result.truncated:
+        msg = f"truncated ({', '.join(result.truncated)}): barycentre biased"
+        cv2.putText(
+            out, msg, (8, out.shape[0] - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 200, 255), 1
+        )
+    return out
+
+
+def model_gap_px(a: KannalaBrandt, b: KannalaBrandt, theta_max: float) -> float:
+    """Largest distance (px) between where two models put the same ray, over rays up to
+    ``theta_max`` (rad) off the axis in every direction."""
+    th, ph = np.meshgrid(np.linspace(0.0, theta_max, 64), np.linspace(0, 2 * np.pi, 72))
+    rays = np.stack(
+        [np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1
+    ).reshape(-1, 3)
+    d = a.project(rays)[0] - b.project(rays)[0]
+    return float(np.max(np.hypot(d[:, 0], d[:, 1])))
+
+
+def read_images(paths: Sequence[Path]) -> list[np.ndarray]:
+    """The images as stored (grey or BGR uint8); ValueError naming an unreadable file."""
+    images = []
+    for p in paths:
+        if not Path(p).is_file():
+            raise ValueError(f"{p}: no such file")
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ValueError(f"{p}: cannot read as an image")
+        if img.dtype == np.uint16:
+            img = (img / 257.0).astype(np.uint8)
+        if img.ndim == 3 and img.shape[2] == 4:
+            img = img[:, :, :3]
+        images.append(img)
+    return images
+
+
+def _summary(
+    result: CircleResult, model: KannalaBrandt, fov_deg: float, n_images: int
+) -> list[str]:
+    c = result.circle
+    th = math.radians(fov_deg) / 2
+    lines = [
+        f"image circle from {n_images} image(s), {result.rays.get('inliers', 0)} rim points: "
+        f"centre ({c.cx:.2f}, {c.cy:.2f}) px, radius {c.radius:.2f} px"
+        + (f" (rx {c.rx:.2f}, ry {c.ry:.2f})" if c.rx != c.ry else ""),
+    ]
+    for name, e in result.estimates.items():
+        note = f"  [{'; '.join(e.notes)}]" if e.notes else ""
+        lines.append(
+            f"  {name:<11} centre ({e.circle.cx:8.2f}, {e.circle.cy:8.2f})  "
+            f"radius {e.circle.radius:7.2f}{note}"
+        )
+    lines.append(
+        f"  spread      centre {result.spread_centre_px:.2f} px, "
+        f"radius {result.spread_radius_px:.2f} px"
+    )
+    if model.fx == model.fy:
+        lines.append(
+            f"f = r / theta_max = {c.radius:.2f} / {th:.4f} rad = {model.fx:.2f} px/rad "
+            f"(fov {fov_deg:g} deg); u0 {model.cx:.2f}, v0 {model.cy:.2f}"
+        )
+    else:
+        lines.append(
+            f"fx = {model.fx:.2f}, fy = {model.fy:.2f} px/rad (fov {fov_deg:g} deg); "
+            f"u0 {model.cx:.2f}, v0 {model.cy:.2f}"
+        )
+    return lines
+
+
+def main_fisheye(
+    images: Sequence[Path],
+    fov_deg: float,
+    output: Path,
+    camera: str | None = None,
+    ellipse: bool = False,
+    json_out: bool = False,
+    overlay: Path | None = None,
+    board: str | None = None,
+) -> int:
+    """`acq calibrate fisheye`: write the camera's intrinsics from its image circle (and,
+    with ``board``, a Kannala–Brandt checkerboard fit) into ``output`` (calib.yaml).
+
+    Prints a summary (or JSON), writes the overlay PNG (default: beside ``output``).
+    Exit status 0, 2 for bad input (printed as one line), 1 when nothing was found.
+    """
+    prog = "acq calibrate fisheye"
+    try:
+        if not 0.0 < fov_deg < 360.0:
+            raise ValueError(f"--fov {fov_deg}: expected degrees in (0, 360)")
+        spec = parse_board(board) if board else None
+        imgs = read_images(images)
+    except ValueError as e:
+        print(f"{prog}: {e}", file=sys.stderr)
+        return 2
+    try:
+        result = image_circle.detect(imgs, ellipse=ellipse)
+        model: KannalaBrandt = circle_model(result, fov_deg)
+    except ValueError as e:
+        print(f"{prog}: {e}", file=sys.stderr)
+        return 1
+    report: dict[str, Any] = {
+        "images": [str(p) for p in images],
+        "fov_deg": fov_deg,
+        "circle": result.to_dict(),
+        "circle_model": model.to_dict(),
+    }
+    lines = _summary(result, model, fov_deg, len(imgs))
+    method = METHOD_CIRCLE
+    std = None  # the circle's fit sigma is not the principal point's: no std from it
+    if spec is not None:
+        grays = [image_circle.to_gray(i) for i in imgs]
+        try:
+            fit, _ = calibrate_board(grays, spec, model)
+        except ValueError as e:
+            print(f"{prog}: {e}", file=sys.stderr)
+            return 1
+        m = fit.model
+        gap = model_gap_px(model, m, math.radians(fit.max_theta_deg))
+        report["board"] = fit.to_dict() | {"circle_model_gap_px": round(gap, 3)}
+        lines.append(
+            f"checkerboard ({len(fit.views)} of {len(imgs)} images, corners up to "
+            f"{fit.max_theta_deg:.1f} deg off axis): Kannala-Brandt fx {m.fx:.2f} fy "
+            f"{m.fy:.2f} cx {m.cx:.2f} cy {m.cy:.2f} k {', '.join(f'{k:.5f}' for k in m.k)}; "
+            f"RMS {fit.rms_px:.3f} px; the circle's model is up to {gap:.1f} px away from it "
+            "over those angles"
+        )
+        model, method, std = m, METHOD_BOARD, fit.std()
+    try:
+        calib, name, notes = update_calibration(output, camera, model, method, std)
+        calibfile.save(calib, output)
+    except CalibFileError as e:
+        print(f"{prog}: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        print(f"{prog}: {output}: {e.strerror or e}", file=sys.stderr)
+        return 2
+    overlay = overlay or output.with_name(output.stem + "_circle.png")
+    title = f"{Path(images[0]).name}: {len(imgs)} image(s)"
+    if not cv2.imwrite(str(overlay), draw_overlay(imgs[0], result, title)):
+        print(f"{prog}: {overlay}: cannot write the overlay", file=sys.stderr)
+        return 2
+    report |= {"camera": name, "calib": str(output), "model": model.to_dict()}
+    report |= {"method": method, "overlay": str(overlay)}
+    if json_out:
+        print(json.dumps(report, indent=2))
+    else:
+        lines.append(
+            f"wrote {output} (camera {name!r}, {model.name}, method {method}); overlay {overlay}"
+        )
+        print("\n".join(lines))
+    for w in [*result.warnings, *notes]:
+        print(f"warning: {w}", file=sys.stderr)
+    return 0

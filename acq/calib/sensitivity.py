@@ -1,0 +1,877 @@
+"""Sensitivity of the laser-to-image projection to its 12 parameters (paper §4.1).
+
+The projection, as the paper's eq. (2), (4) and (5) compose it:
+
+    P_c = R^T (P_laser - t)              camera_to_laser: P_laser = R P_c + t (eq. 2)
+    theta = atan2(sqrt(x² + y²), z),  phi = atan2(y, x)
+    r = k1 theta + k2 theta³            generic model cut after the third order (eq. 4)
+    u = u0 + mu_x r cos(phi),  v = v0 + mu_y r sin(phi)          (eq. 5)
+
+with R = Rz(yaw) Ry(pitch) Rx(roll) (``acq.geometry.transforms.rotation_from_euler``). The 12
+parameters, in :data:`PARAMS` order: roll, pitch, yaw (rad), tx, ty, tz (m), k1, k2 (m:
+image radius on the sensor per radian, per radian³), u0, v0 (px), mu_x, mu_y (px/m).
+
+A calib.yaml stores only the products ``fx = k1 mu_x`` and ``fy = k1 mu_y``. The split
+uses the paper's sensor (1/2" CCD, 6.47 mm for 780 px: :data:`PIXEL_PITCH_M`), so
+``mu_x = 1 / PIXEL_PITCH_M``, ``k1 = fx / mu_x``, ``mu_y = fy / k1``. Eq. (7) is
+invariant to that choice (scaling a parameter scales its derivative inversely). The
+third-order coefficient is ``k2 = k1 · k[0]`` for a Kannala–Brandt calibration (OpenCV's
+theta³ coefficient; its higher orders are left out), else the paper's own value, read
+off its Table 3: ``mu k2 = 1.21 px`` (:data:`PAPER_THIRD_ORDER_PX`).
+
+Criterion (eq. 8). As printed, ``f = sqrt(u² + v²)`` measures from pixel (0, 0), while
+the text says "the distance to the centre of the image". We use the text:
+``f = sqrt((u - u_c)² + (v - v_c)²)`` with (u_c, v_c) the calibrated principal point,
+held fixed (it is not the parameter u0, v0, else f would not depend on them); ``origin``
+"corner" gives the printed formula. Points with f < 1 px are left out of the
+sensitivity statistics (eq. 7 divides by f).
+
+Eq. (7), ``s_i = ∂f/∂p_i · p_i / f``, is a relative sensitivity: it makes parameters with
+large values (u0 ≈ 390 px) look important and angles near zero look irrelevant. Beside
+it, :func:`pixel_shift` gives ``|∂(u, v)/∂p_i| · σ_i``: how many pixels one standard
+deviation of p_i moves a point, which is what one can act on.
+
+σ (:func:`choose_sigma`): the caller's overrides (``--sigma NAME=VALUE``) first, then
+the calibration's ``std`` (calib.yaml, from the fits' covariances: :func:`calib_sigma`),
+else :func:`default_sigma` (0.1° per rotation angle, 5 mm per translation, 0.5 px for u0
+and v0, 1 % of k1, mu_x, mu_y, and the whole of k2, since the paper's model drops that
+term); the report says which came from where. From ``std``: u0, v0 <- cx, cy; tx, ty,
+tz <- translation_m; k1, mu_x and mu_y appear only through fx = k1 mu_x and fy = k1 mu_y,
+so k1 and mu_x get the relative σ of fx and mu_y that of fy (each then moves points as
+one σ of fx or fy does); k2 <- k1 σ(k[0]). The rotation's σ is stored as small
+rotations w about the laser axes (``R = exp([w]x) R_hat``, ``Σ_w = diag(std²)``; a full
+Σ_w can be given to :func:`rotation_sigma`). It is not turned into Euler-angle σ, which
+blow up near pitch ±90° where the rig sits (roll and yaw turn about nearly the same
+axis): each angle i moves R about the laser-frame axis ``a_i = vee(dR_i R^T)``
+(normalised), and gets ``σ_i = sqrt(a_iᵀ Σ_w a_i) / |vee(dR_i R^T)|``, so its px per σ
+is the shift of a one-σ rotation about a_i.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from acq.camera.calibfile import CameraCalib
+from acq.camera.camera_models import KannalaBrandt
+from acq.geometry.transforms import rotation_from_euler, rotation_to_euler
+
+__all__ = [
+    "DEFAULT_HEIGHTS_M",
+    "DEFAULT_THRESHOLDS_PX",
+    "PAPER_THIRD_ORDER_PX",
+    "PARAMS",
+    "PIXEL_PITCH_M",
+    "Analysis",
+    "analyze",
+    "bin_by_theta",
+    "calib_sigma",
+    "choose_sigma",
+    "criterion",
+    "default_sigma",
+    "jacobian",
+    "laser_points",
+    "line_plot",
+    "main_sensitivity",
+    "params_from_calib",
+    "parse_sigma",
+    "pixel_shift",
+    "project",
+    "rotation_axes",
+    "rotation_jacobian",
+    "rotation_sigma",
+    "sensitivities",
+    "table3",
+    "third_order_px",
+]
+
+PARAMS = ("roll", "pitch", "yaw", "tx", "ty", "tz", "k1", "k2", "u0", "v0", "mu_x", "mu_y")
+RIGID = PARAMS[:6]
+CAMERA = PARAMS[6:]
+UNITS = ("rad", "rad", "rad", "m", "m", "m", "m", "m", "px", "px", "px/m", "px/m")
+PIXEL_PITCH_M = 6.47e-3 / 780  # the paper's 1/2" CCD: 6.47 mm for 780 px
+PAPER_THIRD_ORDER_PX = 1.21  # mu k2, px at theta = 1 rad: 1, 2, 3, 4 px at 53.75 .. 85.4°
+DEFAULT_THRESHOLDS_PX = (0.5, 1.0, 2.0, 3.0, 4.0)
+DEFAULT_HEIGHTS_M = (5.0, 10.0, 15.0, 20.0, 30.0)
+MIN_CRITERION_PX = 1.0
+
+
+# --- the model ---------------------------------------------------------------------------
+
+
+def params_from_calib(cam: CameraCalib) -> np.ndarray:
+    """(12,) parameters (:data:`PARAMS` order, SI units / px) of a fisheye calibration."""
+    m = cam.model
+    if not isinstance(m, KannalaBrandt):
+        raise ValueError(f"{m.name}: the sensitivity analysis needs a fisheye model")
+    roll, pitch, yaw = rotation_to_euler(cam.camera_to_laser.rotation)
+    mu_x = 1.0 / PIXEL_PITCH_M
+    k1 = m.fx / mu_x
+    mu_y = m.fy / k1
+    third = m.k[0] if m.name == "kannala_brandt" and m.k[0] != 0 else None
+    k2 = k1 * third if third is not None else PAPER_THIRD_ORDER_PX / mu_x
+    t = cam.camera_to_laser.translation
+    return np.array([roll, pitch, yaw, *t, k1, k2, m.cx, m.cy, mu_x, mu_y], dtype=np.float64)
+
+
+def rotation_jacobian(angles: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) and (3,3,3) dR/d(roll, pitch, yaw)."""
+    r, p, y = (float(a) for a in angles)
+    cr, sr = math.cos(r), math.sin(r)
+    cp, sp = math.cos(p), math.sin(p)
+    cy, sy = math.cos(y), math.sin(y)
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    dRx = np.array([[0, 0, 0], [0, -sr, -cr], [0, cr, -sr]])
+    dRy = np.array([[-sp, 0, cp], [0, 0, 0], [-cp, 0, -sp]])
+    dRz = np.array([[-sy, -cy, 0], [cy, -sy, 0], [0, 0, 0]])
+    dR = np.stack([Rz @ Ry @ dRx, Rz @ dRy @ Rx, dRz @ Ry @ Rx])
+    return Rz @ Ry @ Rx, dR
+
+
+def _camera_points(P_laser: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N,3) P_c = R^T (P_laser - t) and (N,3) P_laser - t."""
+    R = rotation_from_euler(*p[:3])
+    d = np.asarray(P_laser, dtype=np.float64) - p[3:6]
+    return d @ R, d
+
+
+def project(P_laser: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N,3) laser-frame m -> ((N,2) px (u, v), (N,) theta rad) with parameters ``p``."""
+    Pc, _ = _camera_points(P_laser, p)
+    x, y, z = Pc.T
+    rho = np.hypot(x, y)
+    theta = np.arctan2(rho, z)
+    phi = np.arctan2(y, x)
+    k1, k2, u0, v0, mu_x, mu_y = p[6:]
+    r = k1 * theta + k2 * theta**3
+    uv = np.stack([u0 + mu_x * r * np.cos(phi), v0 + mu_y * r * np.sin(phi)], axis=1)
+    return uv, theta
+
+
+def jacobian(P_laser: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Analytic ((N,2) px, (N,) theta rad, (N,2,12) d(u, v)/dp) by the chain rule.
+
+    Undefined (NaN) for points on the optical axis (x = y = 0).
+    """
+    p = np.asarray(p, dtype=np.float64)
+    R, dR = rotation_jacobian(p[:3])
+    d = np.asarray(P_laser, dtype=np.float64) - p[3:6]
+    x, y, z = (d @ R).T
+    k1, k2, u0, v0, mu_x, mu_y = p[6:]
+    rho2 = x * x + y * y
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = np.sqrt(rho2)
+        n2 = rho2 + z * z
+        theta = np.arctan2(rho, z)
+        c, s = x / rho, y / rho
+        r = k1 * theta + k2 * theta**3
+        dr = k1 + 3 * k2 * theta**2
+        rho3 = rho2 * rho
+        dtheta = np.stack([z * x / (rho * n2), z * y / (rho * n2), -rho / n2], axis=1)
+        dc = np.stack([y * y / rho3, -x * y / rho3, np.zeros_like(x)], axis=1)
+        ds = np.stack([-x * y / rho3, x * x / rho3, np.zeros_like(x)], axis=1)
+    JP = np.empty((x.size, 2, 3))  # d(u, v) / d P_c
+    JP[:, 0] = mu_x * ((dr * c)[:, None] * dtheta + r[:, None] * dc)
+    JP[:, 1] = mu_y * ((dr * s)[:, None] * dtheta + r[:, None] * ds)
+    J = np.zeros((x.size, 2, 12))
+    for j in range(3):  # dP_c / d angle_j = dR_j^T (P_laser - t)
+        J[:, :, j] = np.einsum("nik,nk->ni", JP, d @ dR[j])
+    J[:, :, 3:6] = -JP @ R.T  # dP_c / dt = -R^T
+    J[:, 0, 6], J[:, 1, 6] = mu_x * theta * c, mu_y * theta * s
+    J[:, 0, 7], J[:, 1, 7] = mu_x * theta**3 * c, mu_y * theta**3 * s
+    J[:, 0, 8] = 1.0
+    J[:, 1, 9] = 1.0
+    J[:, 0, 10] = r * c
+    J[:, 1, 11] = r * s
+    uv = np.stack([u0 + mu_x * r * c, v0 + mu_y * r * s], axis=1)
+    return uv, theta, J
+
+
+def criterion(uv: np.ndarray, origin: tuple[float, float]) -> np.ndarray:
+    """(N,) eq. (8): px distance of each pixel from ``origin`` (u_c, v_c)."""
+    return np.hypot(uv[:, 0] - origin[0], uv[:, 1] - origin[1])
+
+
+def sensitivities(
+    uv: np.ndarray, J: np.ndarray, p: np.ndarray, origin: tuple[float, float]
+) -> np.ndarray:
+    """(N,12) eq. (7): ``∂f/∂p_i · p_i / f`` with f of :func:`criterion`; NaN where
+    f < :data:`MIN_CRITERION_PX`."""
+    f = criterion(uv, origin)
+    du, dv = uv[:, 0] - origin[0], uv[:, 1] - origin[1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        df = (du[:, None] * J[:, 0] + dv[:, None] * J[:, 1]) / f[:, None]
+        s = df * np.asarray(p)[None, :] / f[:, None]
+    s[f < MIN_CRITERION_PX] = np.nan
+    return s
+
+
+def pixel_shift(J: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(N,12) px a point moves for one standard deviation ``sigma`` (12,) of each
+    parameter: ``|∂(u, v)/∂p_i| · σ_i``."""
+    return np.hypot(J[:, 0], J[:, 1]) * np.abs(np.asarray(sigma))[None, :]
+
+
+def default_sigma(p: np.ndarray, overrides: Mapping[str, float] | None = None) -> np.ndarray:
+    """(12,) standard deviations: 0.1° per angle, 5 mm per translation, 1 % of k1, mu_x,
+    mu_y, all of k2, 0.5 px for u0, v0; ``overrides`` by name in the parameters' units."""
+    sig = np.array(
+        [math.radians(0.1)] * 3
+        + [0.005] * 3
+        + [0.01 * abs(p[6]), abs(p[7]), 0.5, 0.5, 0.01 * abs(p[10]), 0.01 * abs(p[11])]
+    )
+    for name, value in (overrides or {}).items():
+        if name not in PARAMS:
+            raise ValueError(f"--sigma {name}: unknown parameter; expected one of {PARAMS}")
+        sig[PARAMS.index(name)] = float(value)
+    return sig
+
+
+def parse_sigma(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` of ``--sigma`` (VALUE in the parameter's unit, see :data:`UNITS`)."""
+    name, sep, value = text.partition("=")
+    try:
+        if not sep:
+            raise ValueError
+        x = float(value)
+    except ValueError:
+        raise ValueError(f"--sigma {text!r}: expected NAME=VALUE, e.g. yaw=0.002") from None
+    if name not in PARAMS:
+        raise ValueError(f"--sigma {name}: unknown parameter; expected one of {PARAMS}")
+    if not (math.isfinite(x) and x >= 0):
+        raise ValueError(f"--sigma {text!r}: expected a finite value >= 0")
+    return name, x
+
+
+def rotation_axes(angles: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((3,3) rows a_i, (3,) rate_i) for roll, pitch, yaw: the laser-frame unit axis about
+    which changing angle i turns R, ``dR_i = rate_i [a_i]x R``, and the rate (rad of
+    rotation per rad of the angle, ``|vee(dR_i R^T)|``; 1 for this Euler convention)."""
+    R, dR = rotation_jacobian(angles)
+    w = np.empty((3, 3))
+    for i in range(3):
+        S = dR[i] @ R.T
+        w[i] = 0.5 * np.array([S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]])
+    rate = np.linalg.norm(w, axis=1)
+    return w / rate[:, None], rate
+
+
+def rotation_sigma(angles: Sequence[float] | np.ndarray, cov_w: np.ndarray) -> np.ndarray:
+    """(3,) σ (rad) of roll, pitch, yaw from the (3,3) covariance (rad²) of the small
+    rotation w about the laser axes (``R = exp([w]x) R_hat``): the σ of the rotation about
+    each angle's axis a_i (:func:`rotation_axes`), ``sqrt(a_iᵀ Σ_w a_i) / rate_i``."""
+    a, rate = rotation_axes(angles)
+    var = np.einsum("ij,jk,ik->i", a, np.asarray(cov_w, dtype=np.float64), a)
+    return np.sqrt(np.maximum(var, 0.0)) / rate
+
+
+def calib_sigma(cam: CameraCalib, p: np.ndarray) -> dict[str, float]:
+    """σ (:data:`UNITS`) of the parameters ``p`` (:func:`params_from_calib`) that
+    ``cam.std`` gives, by name (see the module docstring for the mapping)."""
+    std = cam.std
+    out: dict[str, float] = {}
+    if std.rotation_deg is not None:
+        cov_w = np.diag(np.radians(std.rotation_deg) ** 2)
+        out |= dict(zip(RIGID[:3], rotation_sigma(p[:3], cov_w).tolist(), strict=True))
+    if std.translation_m is not None:
+        out |= dict(zip(RIGID[3:], std.translation_m, strict=True))
+    m = cam.model
+    if std.fx is not None:
+        out["k1"] = abs(p[6]) * std.fx / m.fx
+        out["mu_x"] = abs(p[10]) * std.fx / m.fx
+    if std.fy is not None:
+        out["mu_y"] = abs(p[11]) * std.fy / m.fy
+    if std.k is not None:
+        out["k2"] = abs(p[6]) * std.k[0]
+    if std.cx is not None:
+        out["u0"] = std.cx
+    if std.cy is not None:
+        out["v0"] = std.cy
+    return out
+
+
+def choose_sigma(
+    p: np.ndarray, cam: CameraCalib, overrides: Mapping[str, float] | None = None
+) -> tuple[np.ndarray, tuple[str, ...]]:
+    """(12,) σ and where each came from: "override" (``overrides`` by name, in
+    :data:`UNITS`), else "calib" (:func:`calib_sigma`), else "default"
+    (:func:`default_sigma`)."""
+    sig = default_sigma(p, overrides)
+    given = calib_sigma(cam, p)
+    src = []
+    for i, name in enumerate(PARAMS):
+        if overrides and name in overrides:
+            src.append("override")
+        elif name in given:
+            sig[i] = given[name]
+            src.append("calib")
+        else:
+            src.append("default")
+    return sig, tuple(src)
+
+
+# --- the third-order term (§4.1.2) -------------------------------------------------------
+
+
+def third_order_px(theta: np.ndarray, p: np.ndarray, phi: float = -math.pi / 2) -> np.ndarray:
+    """px error of dropping ``k2 theta³`` at theta (rad) in image direction phi (rad,
+    -pi/2 = up): ``k2 theta³ sqrt((mu_x cos phi)² + (mu_y sin phi)²)``."""
+    mu = math.hypot(p[10] * math.cos(phi), p[11] * math.sin(phi))
+    return np.abs(p[7]) * mu * np.asarray(theta, dtype=np.float64) ** 3
+
+
+def table3(
+    p: np.ndarray,
+    camera_height_m: float = 2.0,
+    building_distance_m: float = 10.0,
+    thresholds_px: Sequence[float] = DEFAULT_THRESHOLDS_PX,
+    heights_m: Sequence[float] = DEFAULT_HEIGHTS_M,
+    theta_max: float = math.radians(92.5),
+) -> dict[str, Any]:
+    """The paper's Table 3 for a camera at ``camera_height_m`` whose optical axis is
+    horizontal and perpendicular to a facade ``building_distance_m`` away: a point of the
+    facade at height H is at theta = atan((H - h) / D), straight up in the image.
+
+    ``thresholds``: the theta and height at which the third-order error reaches each
+    px value (height None when that theta is past 90° or the field of view);
+    ``heights``: the error at each height.
+    """
+    if not (building_distance_m > 0 and math.isfinite(camera_height_m)):
+        raise ValueError("building distance must be > 0 m and camera height finite")
+    per_rad3 = float(third_order_px(np.array(1.0), p))
+    rows = []
+    prev = 0.0
+    for e in thresholds_px:
+        th = (e / per_rad3) ** (1 / 3) if per_rad3 > 0 else math.inf
+        seen = th < min(math.pi / 2, theta_max)
+        height = camera_height_m + building_distance_m * math.tan(th) if seen else None
+        rows.append(
+            {
+                "error_px": e,
+                "theta_from_deg": math.degrees(prev),
+                "theta_deg": math.degrees(th) if math.isfinite(th) else None,
+                "height_m": height,
+            }
+        )
+        prev = th
+    at = []
+    for H in heights_m:
+        th = math.atan2(H - camera_height_m, building_distance_m)
+        at.append(
+            {
+                "height_m": H,
+                "theta_deg": math.degrees(th),
+                "error_px": float(third_order_px(np.array(abs(th)), p)),
+            }
+        )
+    return {
+        "camera_height_m": camera_height_m,
+        "building_distance_m": building_distance_m,
+        "third_order_px_at_1rad": per_rad3,
+        "thresholds": rows,
+        "heights": at,
+    }
+
+
+def format_table3(t: dict[str, Any]) -> list[str]:
+    """Table 3 as text lines, the paper's layout plus the error at given heights."""
+    lines = [
+        f"Table 3: neglecting k2·theta³ ({t['third_order_px_at_1rad']:.3f} px at 1 rad); "
+        f"camera {t['camera_height_m']:g} m high, facade {t['building_distance_m']:g} m away",
+        f"  {'angle interval':>22}  {'height':>8}  difference",
+    ]
+    for row in t["thresholds"]:
+        th = row["theta_deg"]
+        interval = f"{row['theta_from_deg']:.2f}° - " + (f"{th:.2f}°" if th is not None else "-")
+        h = f"{row['height_m']:.1f} m" if row["height_m"] is not None else "not seen"
+        lines.append(f"  {interval:>22}  {h:>8}  < {row['error_px']:g} px")
+    lines.append(
+        "  " + "  ".join(f"{r['height_m']:g} m: {r['error_px']:.2f} px" for r in t["heights"])
+    )
+    return lines
+
+
+# --- points and statistics ---------------------------------------------------------------
+
+
+def laser_points(
+    ranges: np.ndarray, angle_min: float, angle_increment: float, max_points: int = 200_000
+) -> np.ndarray:
+    """(N,3) laser-frame m of the finite returns of (S, B) ``ranges`` (REP-103: the scan
+    in the x-y plane), evenly thinned to at most ``max_points``."""
+    rng = np.asarray(ranges, dtype=np.float64)
+    a = angle_min + angle_increment * np.arange(rng.shape[-1])
+    a = np.broadcast_to(a, rng.shape)
+    ok = np.isfinite(rng) & (rng > 0)
+    r, a = rng[ok], a[ok]
+    P = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)], axis=1)
+    if len(P) > max_points:
+        P = P[np.linspace(0, len(P) - 1, max_points).astype(np.int64)]
+    return P
+
+
+def bin_by_theta(
+    theta: np.ndarray, values: np.ndarray, bin_deg: float = 2.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """((B,) bin centres deg, (B,) counts, (B,K) NaN-median of |values| (N,K) per bin)."""
+    deg = np.degrees(theta)
+    edges = np.arange(0.0, deg.max() + bin_deg, bin_deg) if deg.size else np.zeros(1)
+    idx = np.clip(np.digitize(deg, edges) - 1, 0, max(len(edges) - 2, 0))
+    nb = max(len(edges) - 1, 0)
+    med = np.full((nb, values.shape[1]), np.nan)
+    counts = np.bincount(idx, minlength=nb)[:nb]
+    for b in np.flatnonzero(counts):
+        v = np.abs(values[idx == b])
+        with np.errstate(all="ignore"):
+            if np.isfinite(v).any():
+                med[b] = np.nanmedian(np.where(np.isfinite(v), v, np.nan), axis=0)
+    return edges[:-1] + bin_deg / 2, counts, med
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """Per-point results of :func:`analyze` for the N points that project into the image."""
+
+    params: np.ndarray  # (12,)
+    sigma: np.ndarray  # (12,)
+    origin: tuple[float, float]  # (u_c, v_c) px of the criterion
+    theta: np.ndarray  # (N,) rad
+    uv: np.ndarray  # (N,2) px
+    jac: np.ndarray  # (N,2,12)
+    sens: np.ndarray  # (N,12) eq. 7 (NaN where f < 1 px)
+    shift: np.ndarray  # (N,12) px per sigma
+    notes: list[str] = field(default_factory=list)
+    sigma_source: tuple[str, ...] = ()  # per parameter: "calib", "default" or "override"
+
+    def summary(self) -> list[dict[str, Any]]:
+        """Per parameter: value, sigma, median |s|, px per sigma at median and max theta."""
+        centres, counts, med = bin_by_theta(self.theta, self.shift)
+        th_med = math.degrees(float(np.median(self.theta)))
+        b_med = int(np.argmin(np.abs(centres - th_med)))
+        b_max = int(np.flatnonzero(counts)[-1])
+        out = []
+        for i, name in enumerate(PARAMS):
+            s = np.abs(self.sens[:, i])
+            out.append(
+                {
+                    "param": name,
+                    "unit": UNITS[i],
+                    "value": float(self.params[i]),
+                    "sigma": float(self.sigma[i]),
+                    "sigma_source": self.sigma_source[i] if self.sigma_source else None,
+                    "median_abs_s": float(np.nanmedian(s)) if np.isfinite(s).any() else None,
+                    "px_per_sigma_median_theta": float(med[b_med, i]),
+                    "px_per_sigma_max_theta": float(med[b_max, i]),
+                    "px_per_sigma_max": float(self.shift[:, i].max()),
+                }
+            )
+        return out
+
+
+def analyze(
+    P_laser: np.ndarray,
+    p: np.ndarray,
+    width: int,
+    height: int,
+    theta_max: float,
+    sigma: np.ndarray | None = None,
+    origin: str = "principal",
+) -> Analysis:
+    """Project (N,3) laser points, keep those that land in the (width, height) image
+    within ``theta_max`` rad of the axis, and compute eq. (7) and the px per sigma.
+
+    ``origin`` of eq. (8): "principal" (the nominal u0, v0, the default), "centre"
+    ((width - 1) / 2, (height - 1) / 2) or "corner" (pixel (0, 0), eq. 8 as printed).
+    """
+    origins = {
+        "principal": (float(p[8]), float(p[9])),
+        "centre": ((width - 1) / 2, (height - 1) / 2),
+        "corner": (0.0, 0.0),
+    }
+    if origin not in origins:
+        raise ValueError(f"origin {origin!r}: expected one of {sorted(origins)}")
+    uv, theta, J = jacobian(P_laser, p)
+    u, v = uv[:, 0], uv[:, 1]
+    ok = np.isfinite(u) & np.isfinite(v) & (theta <= theta_max)
+    ok &= (u >= -0.5) & (u < width - 0.5) & (v >= -0.5) & (v < height - 0.5)
+    ok &= np.isfinite(J).all(axis=(1, 2))
+    uv, theta, J = uv[ok], theta[ok], J[ok]
+    sig = default_sigma(p) if sigma is None else np.asarray(sigma, dtype=np.float64)
+    o = origins[origin]
+    return Analysis(
+        params=np.asarray(p, dtype=np.float64),
+        sigma=sig,
+        origin=o,
+        theta=theta,
+        uv=uv,
+        jac=J,
+        sens=sensitivities(uv, J, p, o),
+        shift=pixel_shift(J, sig),
+    )
+
+
+# --- plots -------------------------------------------------------------------------------
+
+# BGR, a colour-blind-friendly palette (Okabe-Ito) and a few more
+_COLOURS = [
+    (178, 114, 0),
+    (0, 94, 213),
+    (115, 158, 0),
+    (167, 121, 204),
+    (0, 159, 230),
+    (233, 180, 86),
+    (66, 228, 240),
+    (0, 0, 0),
+    (128, 128, 128),
+    (40, 40, 160),
+    (160, 40, 40),
+    (40, 120, 40),
+]
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def _nice_ticks(lo: float, hi: float, n: int = 6) -> np.ndarray:
+    if not hi > lo:
+        hi = lo + 1.0
+    raw = (hi - lo) / n
+    mag = 10 ** math.floor(math.log10(raw))
+    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw)
+    first, last = math.floor(lo / step + 1e-9), math.ceil(hi / step - 1e-9)
+    return np.arange(first, max(last, first + 1) + 1) * step
+
+
+def _text(
+    img: np.ndarray, s: str, xy: tuple[int, int], scale: float = 0.5, anchor: str = "l"
+) -> None:
+    (w, h), _ = cv2.getTextSize(s, _FONT, scale, 1)
+    x, y = xy
+    if anchor == "c":
+        x -= w // 2
+    elif anchor == "r":
+        x -= w
+    cv2.putText(img, s, (x, y + h // 2), _FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
+
+
+def line_plot(
+    series: Sequence[tuple[str, np.ndarray, np.ndarray]],
+    title: str,
+    xlabel: str,
+    ylabel: str,
+    size: tuple[int, int] = (960, 600),
+    log_y: bool = False,
+    hlines: Sequence[float] = (),
+) -> np.ndarray:
+    """(H, W, 3) uint8 BGR line chart of ``(label, x, y)`` series with axes, ticks, grid,
+    labels and a legend on the right; log10 y axis with ``log_y`` (y <= 0 dropped)."""
+    W, H = size
+    img = np.full((H, W, 3), 255, np.uint8)
+    left, right, top, bottom = 90, 190, 45, 60
+    x0, x1, y0, y1 = left, W - right, top, H - bottom
+    xs = [np.asarray(x, float) for _, x, _ in series]
+    ys = [np.asarray(y, float) for _, _, y in series]
+    if log_y:
+        ys = [np.where(y > 0, np.log10(np.where(y > 0, y, 1.0)), np.nan) for y in ys]
+    allx = np.concatenate([x[np.isfinite(y)] for x, y in zip(xs, ys, strict=True)] + [np.zeros(0)])
+    ally = np.concatenate([y[np.isfinite(y)] for y in ys] + [np.asarray(hlines, float)])
+    xlo, xhi = (float(allx.min()), float(allx.max())) if allx.size else (0.0, 1.0)
+    ylo, yhi = (float(ally.min()), float(ally.max())) if ally.size else (0.0, 1.0)
+    if log_y:
+        ylo, yhi = math.floor(ylo), math.ceil(yhi)
+        yticks = np.arange(ylo, yhi + 1)
+        if len(yticks) < 2:
+            yticks = np.array([ylo, ylo + 1])
+    else:
+        ylo = min(ylo, 0.0)
+        yticks = _nice_ticks(ylo, yhi * 1.05 if yhi > 0 else 1.0)
+    xticks = _nice_ticks(min(xlo, 0.0), xhi)
+    xlo, xhi = float(xticks[0]), float(xticks[-1])
+    ylo, yhi = float(yticks[0]), float(yticks[-1])
+
+    def px(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.stack(
+            [x0 + (x - xlo) / (xhi - xlo) * (x1 - x0), y1 - (y - ylo) / (yhi - ylo) * (y1 - y0)],
+            axis=-1,
+        )
+
+    for t in xticks:
+        X = round(float(px(np.array(t), np.array(ylo))[0]))
+        cv2.line(img, (X, y0), (X, y1), (225, 225, 225), 1)
+        cv2.line(img, (X, y1), (X, y1 + 5), (0, 0, 0), 1)
+        _text(img, f"{t:g}", (X, y1 + 16), 0.45, "c")
+    for t in yticks:
+        Y = round(float(px(np.array(xlo), np.array(t))[1]))
+        cv2.line(img, (x0, Y), (x1, Y), (225, 225, 225), 1)
+        cv2.line(img, (x0 - 5, Y), (x0, Y), (0, 0, 0), 1)
+        _text(img, f"1e{int(t)}" if log_y else f"{t:g}", (x0 - 8, Y), 0.45, "r")
+    for h in hlines:
+        Y = round(float(px(np.array(xlo), np.array(h))[1]))
+        for X in range(x0, x1, 12):
+            cv2.line(img, (X, Y), (min(X + 6, x1), Y), (90, 90, 90), 1)
+    cv2.rectangle(img, (x0, y0), (x1, y1), (0, 0, 0), 1)
+    for k, (x, y) in enumerate(zip(xs, ys, strict=True)):
+        colour = _COLOURS[k % len(_COLOURS)]
+        ok = np.isfinite(x) & np.isfinite(y)
+        pts = px(x, np.clip(y, ylo, yhi))
+        # split at gaps (NaN) so no line jumps over them
+        for seg in np.split(np.arange(len(x)), np.flatnonzero(~ok)):
+            seg = seg[ok[seg]]
+            if len(seg) > 1:
+                poly = np.round(pts[seg]).astype(np.int32).reshape(-1, 1, 2)
+                cv2.polylines(img, [poly], False, colour, 2, cv2.LINE_AA)
+            elif len(seg) == 1:
+                c = pts[seg[0]]
+                cv2.circle(img, (int(c[0]), int(c[1])), 3, colour, -1, cv2.LINE_AA)
+    for k, (label, _, _) in enumerate(series):
+        Y = y0 + 12 + 22 * k
+        cv2.line(img, (x1 + 15, Y), (x1 + 45, Y), _COLOURS[k % len(_COLOURS)], 3, cv2.LINE_AA)
+        _text(img, label, (x1 + 52, Y), 0.5)
+    _text(img, title, (W // 2, 20), 0.6, "c")
+    _text(img, xlabel, ((x0 + x1) // 2, H - 18), 0.5, "c")
+    (tw, th), _ = cv2.getTextSize(ylabel, _FONT, 0.5, 1)
+    flat = np.full((th + 10, tw + 4, 3), 255, np.uint8)
+    cv2.putText(flat, ylabel, (2, th + 3), _FONT, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    lab = np.rot90(flat)  # counter-clockwise: reads bottom to top
+    yy = max((y0 + y1) // 2 - lab.shape[0] // 2, 0)
+    hh = min(lab.shape[0], H - yy)
+    img[yy : yy + hh, 8 : 8 + lab.shape[1]] = lab[:hh]
+    return img
+
+
+def _figure(a: Analysis, names: Sequence[str], what: str, bin_deg: float) -> np.ndarray:
+    """Eq. (7) median |s| and px per sigma of ``names`` along theta, two panels."""
+    idx = [PARAMS.index(n) for n in names]
+    c, _, med_s = bin_by_theta(a.theta, a.sens[:, idx], bin_deg)
+    _, _, med_px = bin_by_theta(a.theta, a.shift[:, idx], bin_deg)
+    top = line_plot(
+        [(n, c, med_s[:, k]) for k, n in enumerate(names)],
+        f"{what}: sensitivity, eq. (7), median |s| per {bin_deg:g} deg bin",
+        "theta (deg from the optical axis)",
+        "|s| (log)",
+        log_y=True,
+    )
+    star = ["*" if a.sigma_source and a.sigma_source[i] == "default" else "" for i in idx]
+    labels = [
+        f"{n} ({_fmt_sigma(a.sigma[i], i, a.params[i])}{m})"
+        for n, i, m in zip(names, idx, star, strict=True)
+    ]
+    bottom = line_plot(
+        [(lab, c, med_px[:, k]) for k, lab in enumerate(labels)],
+        f"{what}: px moved by one sigma{' (* default)' if any(star) else ''}, median per bin",
+        "theta (deg from the optical axis)",
+        "px per sigma (log)",
+        log_y=True,
+    )
+    return np.vstack([top, bottom])
+
+
+def _fmt_sigma(s: float, i: int, value: float | None = None) -> str:
+    if PARAMS[i] in ("k1", "k2", "mu_x", "mu_y") and value:
+        return f"{100 * s / abs(value):.3g} %"
+    if UNITS[i] == "rad":
+        return f"{math.degrees(s):.2g} deg"
+    if UNITS[i] == "m" and PARAMS[i].startswith("t"):
+        return f"{s * 1000:.3g} mm"
+    if UNITS[i] == "px":
+        return f"{s:.2g} px"
+    return f"{s:.3g} {UNITS[i]}"
+
+
+def figure9(
+    p: np.ndarray, theta_max: float, phi: float = -math.pi / 2, lens: Any = None
+) -> np.ndarray:
+    """Figure 9: px error of dropping k2 theta³ along theta (and, for a Kannala–Brandt
+    ``lens``, its whole distance from r = f theta)."""
+    th = np.linspace(0.0, theta_max, 200)
+    series = [("k2 theta^3", np.degrees(th), third_order_px(th, p, phi))]
+    if isinstance(lens, KannalaBrandt) and any(lens.k[1:]):
+        f = math.hypot(lens.fx * math.cos(phi), lens.fy * math.sin(phi))
+        series.append(
+            ("full lens - f theta", np.degrees(th), np.abs(f * (lens.distort_theta(th) - th)))
+        )
+    return line_plot(
+        series,
+        f"Third-order term of the lens model (phi = {math.degrees(phi):g} deg)",
+        "theta (deg from the optical axis)",
+        "error (px)",
+        hlines=(1.0, 2.0, 3.0, 4.0),
+    )
+
+
+# --- the command -------------------------------------------------------------------------
+
+
+def _sigma_note(src: Sequence[str]) -> str:
+    """Which σ came from the calibration, the defaults, the overrides."""
+    what = {"calib": "calib.yaml's std", "default": "defaults", "override": "--sigma"}
+    parts = []
+    for key, label in what.items():
+        names = [n for n, s in zip(PARAMS, src, strict=True) if s == key]
+        if names:
+            parts.append(f"{label}: {', '.join(names)}")
+    return "sigma from " + "; ".join(parts)
+
+
+def _row(s: dict[str, Any]) -> str:
+    i = PARAMS.index(s["param"])
+    med = s["median_abs_s"]
+    sig = _fmt_sigma(s["sigma"], i, s["value"])
+    src = s["sigma_source"] or ""
+    return (
+        f"  {s['param']:<6} {s['value']:>12.5g} {UNITS[i]:<5} {sig:>9} {src:<8}"
+        f" {med if med is not None else float('nan'):>10.3g}"
+        f" {s['px_per_sigma_median_theta']:>10.3f} {s['px_per_sigma_max_theta']:>10.3f}"
+        f" {s['px_per_sigma_max']:>10.3f}"
+    )
+
+
+def main_sensitivity(
+    calib: Path,
+    logs: list[Path],
+    out: Path,
+    camera_height_m: float = 2.0,
+    building_distance_m: float = 10.0,
+    json_out: bool = False,
+    camera: str | None = None,
+    sigma: Mapping[str, float] | None = None,
+    origin: str = "principal",
+    bin_deg: float = 2.0,
+) -> int:
+    """`acq analyze sensitivity`: eq. (7) sensitivities and px per sigma of the laser
+    points of ``logs`` that project into ``calib``'s camera, Figures 7-9 as PNGs, Table 3
+    for the given camera height and building distance (m), ``out/sensitivity.json``.
+    σ: ``sigma`` (by name, :data:`UNITS`), else the calibration's std, else the defaults
+    (:func:`choose_sigma`).
+
+    Prints a summary (or the JSON). Exit 0; 2 for a bad calib, log or flag (one line);
+    1 when no laser point projects into the image or the outputs cannot be written.
+    """
+    from acq import cloud
+    from acq.camera import calibfile
+
+    prog = "acq analyze sensitivity"
+    try:
+        cal = calibfile.load(calib)
+        log = cloud.read_log(logs)
+        name = camera or (log.camera if log.camera in cal.cameras else None)
+        cam = cal.camera(name)
+        p = params_from_calib(cam)
+        sig, src = choose_sigma(p, cam, sigma)
+        if not (building_distance_m > 0 and math.isfinite(camera_height_m)):
+            raise ValueError("--building-distance must be > 0 m, --camera-height finite")
+        if not bin_deg > 0:
+            raise ValueError("bin width must be > 0 deg")
+    except (ValueError, KeyError, OSError) as e:
+        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
+        print(f"{prog}: {msg}", file=sys.stderr)
+        return 2
+    lens = cam.model
+    assert isinstance(lens, KannalaBrandt)
+    P = laser_points(log.ranges, log.angle_min, log.angle_increment)
+    a = replace(
+        analyze(P, p, lens.width, lens.height, lens.theta_max, sig, origin), sigma_source=src
+    )
+    if a.theta.size == 0:
+        print(f"{prog}: none of the {len(P)} laser points projects into the image", file=sys.stderr)
+        return 1
+    t3 = table3(p, camera_height_m, building_distance_m, theta_max=lens.theta_max)
+    summary = a.summary()
+    centres, counts, med_s = bin_by_theta(a.theta, a.sens, bin_deg)
+    _, _, med_px = bin_by_theta(a.theta, a.shift, bin_deg)
+    notes = [
+        f"projection: generic model cut after theta^3 (eq. 4, 5); k1, mu split with the "
+        f"paper's pixel pitch {PIXEL_PITCH_M * 1e6:.3f} um",
+        "k2 from the calibration's k[0]"
+        if lens.name == "kannala_brandt" and lens.k[0] != 0
+        else f"k2 from the paper's Table 3 (mu k2 = {PAPER_THIRD_ORDER_PX} px)",
+        f"criterion eq. (8) measured from the {origin} point "
+        f"({a.origin[0]:.1f}, {a.origin[1]:.1f}) px, held fixed; points with f < "
+        f"{MIN_CRITERION_PX:g} px left out of eq. (7)",
+        _sigma_note(src),
+        "rotation angles: R = Rz(yaw) Ry(pitch) Rx(roll) of camera_to_laser"
+        + ("; |pitch| near 90 deg: roll and yaw turn about nearly the same axis"
+           if abs(abs(p[1]) - math.pi / 2) < math.radians(10) else ""),
+    ]  # fmt: skip
+    if "calib" in src[:3]:
+        notes.append(
+            "rotation sigma: one std of the rotation about the axis each angle turns about "
+            "(laser frame), from std.rotation_deg taken as independent; not an Euler-angle std"
+        )
+    figs = {
+        "fig7": out / "fig7_rigid.png",
+        "fig8": out / "fig8_camera.png",
+        "fig9": out / "fig9_third_order.png",
+    }
+    report: dict[str, Any] = {
+        "calib": str(calib),
+        "logs": [str(x) for x in logs],
+        "camera": name or next(iter(cal.cameras)),
+        "model": lens.name,
+        "params": list(PARAMS),
+        "origin": {"name": origin, "uv_px": list(a.origin)},
+        "n_points": int(a.theta.size),
+        "n_laser_points": len(P),
+        "theta_deg": {
+            "min": math.degrees(float(a.theta.min())),
+            "median": math.degrees(float(np.median(a.theta))),
+            "max": math.degrees(float(a.theta.max())),
+        },
+        "summary": summary,
+        "bins": {
+            "bin_deg": bin_deg,
+            "theta_deg": centres.tolist(),
+            "count": counts.tolist(),
+            "median_abs_s": _nan_none(med_s),
+            "median_px_per_sigma": _nan_none(med_px),
+        },
+        "table3": t3,
+        "figures": {k: str(v) for k, v in figs.items()},
+        "notes": notes,
+    }
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        images = {
+            "fig7": _figure(a, RIGID, "Frame change (Figure 7)", bin_deg),
+            "fig8": _figure(a, CAMERA, "Camera (Figure 8)", bin_deg),
+            "fig9": figure9(p, lens.theta_max, lens=lens),
+        }
+        for k, path in figs.items():
+            if not cv2.imwrite(str(path), images[k]):
+                raise OSError(f"{path}: cannot write")
+        (out / "sensitivity.json").write_text(json.dumps(report, indent=2) + "\n")
+    except OSError as e:
+        print(f"{prog}: {e}", file=sys.stderr)
+        return 1
+    if json_out:
+        print(json.dumps(report, indent=2))
+        return 0
+    th = report["theta_deg"]
+    print(
+        f"{len(a.theta)} of {len(P)} laser points in the image, theta {th['min']:.1f} .. "
+        f"{th['max']:.1f} deg (median {th['median']:.1f})"
+    )
+    print(
+        f"  {'param':<6} {'value':>12} {'unit':<5} {'sigma':>9} {'from':<8} {'med |s|':>10}"
+        f" {'px@θmed':>10} {'px@θmax':>10} {'px max':>10}"
+    )
+    for s in summary:
+        print(_row(s))
+    for line in format_table3(t3):
+        print(line)
+    for n in notes:
+        print(f"note: {n}")
+    print(f"wrote {', '.join(str(v) for v in figs.values())}, {out / 'sensitivity.json'}")
+    return 0
+
+
+def _nan_none(a: np.ndarray) -> list[list[float | None]]:
+    return [[None if not math.isfinite(x) else float(x) for x in row] for row in a]

@@ -1,0 +1,334 @@
+"""A recorded drive as numpy arrays, for placing and colouring its points.
+
+Reading (:func:`read_log`): ``/<laser>/scan`` (``foxglove.LaserScan``: the timestamp is
+the host time of point 0), the scanner's ``device.<laser>`` metadata (``geometry``:
+``time_increment`` s per point), ``/<camera>/image/compressed`` (stamped at the middle
+of the exposure), the ``/acq/timing/*`` records (device ticks, frame sequence numbers),
+the ``/acq/clock`` (UTC, monotonic) pairs and the ``calibration`` metadata.
+
+Times are host ``CLOCK_MONOTONIC`` ns (int64) unless a name ends in ``_s``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration
+from acq.log import loginfo
+from acq.motion.vehicle_log import VehicleLog, VehicleReader
+
+
+@dataclass(frozen=True)
+class DriveLog:
+    """What colouring needs from one log or the split files of one session.
+
+    Scans: ``scan_ns`` (S,) host ns of point 0; ``ranges`` and ``intensities`` (S, N)
+    float32 (REP-117 ranges, m; intensities zero where the device sends none);
+    ``angle_min``, ``angle_increment`` rad and ``time_increment`` s per point;
+    ``scan_ticks`` (S,) the device clock tick of each scan (-1 where unknown). Frames:
+    ``frame_ns`` (F,) host ns of the middle of exposure, ``frame_seq`` (F,) the
+    driver's sequence numbers (-1 where unknown; they restart on a reconnect), ``jpegs``
+    the bytes as the camera sent them. ``clock`` (K,2) int64 pairs (monotonic ns,
+    realtime ns). ``metadata`` by name (the last record of each name). ``vehicle``: the
+    odometry and GNSS fixes (:class:`acq.motion.vehicle_log.VehicleLog`) when read with them.
+    """
+
+    files: tuple[Path, ...]
+    laser: str
+    camera: str
+    scan_ns: np.ndarray
+    ranges: np.ndarray
+    intensities: np.ndarray
+    angle_min: float
+    angle_increment: float
+    time_increment: float
+    scan_ticks: np.ndarray
+    frame_ns: np.ndarray
+    frame_seq: np.ndarray
+    jpegs: list[bytes]
+    clock: np.ndarray
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)  # what was missing and assumed
+    scan_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    frame_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    vehicle: VehicleLog | None = None
+
+    @property
+    def n_scans(self) -> int:
+        return int(self.scan_ns.size)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.frame_ns.size)
+
+    def between(self, lo_ns: int, hi_ns: int) -> DriveLog:
+        """The scans and frames stamped in [lo_ns, hi_ns) (recorded stamps)."""
+        s = (self.scan_ns >= lo_ns) & (self.scan_ns < hi_ns)
+        f = np.flatnonzero((self.frame_ns >= lo_ns) & (self.frame_ns < hi_ns))
+
+        def part(a: np.ndarray, sel: np.ndarray) -> np.ndarray:
+            return a[sel] if a.size else a
+
+        return replace(
+            self,
+            scan_ns=self.scan_ns[s],
+            ranges=self.ranges[s],
+            intensities=self.intensities[s],
+            scan_ticks=part(self.scan_ticks, s),
+            scan_recv_ns=part(self.scan_recv_ns, s),
+            frame_ns=self.frame_ns[f],
+            frame_seq=part(self.frame_seq, f),
+            frame_recv_ns=part(self.frame_recv_ns, f),
+            jpegs=[self.jpegs[int(i)] for i in f],
+        )
+
+
+def _pick(found: Iterable[str], name: str | None, what: str, topic: str) -> str:
+    """The device ``name``, or the only one ``found``; ValueError naming the choices."""
+    names = sorted(found)
+    if name is not None:
+        if name not in names:
+            raise ValueError(f"no {what} {name!r} in the log (has {', '.join(names) or 'none'})")
+        return name
+    if not names:
+        raise ValueError(f"no {what} in the log (no /<name>{topic} messages)")
+    if len(names) > 1:
+        raise ValueError(f"the log has several {what}s ({', '.join(names)}); name one")
+    return names[0]
+
+
+@dataclass(frozen=True)
+class _ScanMsg:
+    stamp_ns: int
+    ranges: np.ndarray
+    intensities: np.ndarray
+    start_angle: float
+    end_angle: float
+
+
+def _stamp(msg: Any) -> int:
+    return int(msg.timestamp.seconds) * 10**9 + int(msg.timestamp.nanos)
+
+
+def _stamp_of(message: Any) -> int:
+    """An MCAP message's publish time: the recorder puts the stamp there."""
+    return int(message.publish_time)
+
+
+def read_log(
+    paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+    *,
+    laser: str | None = None,
+    camera: str | None = None,
+    start_ns: int | None = None,
+    end_ns: int | None = None,
+    jpegs: bool = True,
+    vehicle: bool = False,
+) -> DriveLog:
+    """Scans, frames, clock pairs and metadata of a log (or of a session's files, in the
+    order given). ``laser``/``camera`` name the devices where the log has several.
+    ``start_ns``/``end_ns``: only messages received (MCAP log time) in that span, and
+    only the chunks of a closed file that hold some (a long log's part reads in the
+    time of that part): the clock pairs, and with ``vehicle`` the odometry and GNSS
+    fixes, whatever their time in those chunks; metadata whatever their time.
+    ``jpegs=False`` leaves the images' bytes out (their stamps stay); ``vehicle``: also
+    the odometry and GNSS fixes, in the same pass, as
+    :func:`acq.motion.vehicle_log.read_vehicle`.
+
+    Files whose writer was killed are read up to their last good record
+    (:func:`acq.log.loginfo.read_messages`); undecodable messages are skipped (noted).
+    Raises :class:`acq.log.loginfo.LogError` for a file that is not MCAP, ValueError when
+    the log has no scans or several lasers/cameras. A log without frames reads with
+    ``camera`` "" and no frames.
+    """
+    from mcap_protobuf.decoder import DecoderFactory
+
+    if isinstance(paths, str | os.PathLike):
+        files: tuple[Path, ...] = (Path(paths),)
+    else:
+        files = tuple(Path(p) for p in paths)
+    metadata: dict[str, dict[str, str]] = {}
+    scans: dict[str, list[_ScanMsg]] = {}
+    frames: dict[str, list[tuple[int, bytes]]] = {}
+    timing: dict[str, dict[int, tuple[int, int, int]]] = {}  # stamp -> (tick, seq, recv)
+    lo = -(2**63) if start_ns is None else start_ns
+    hi = 2**63 - 1 if end_ns is None else end_ns
+    clock: list[tuple[int, int]] = []
+    bad = 0
+    vehicle_reader = VehicleReader() if vehicle else None
+    vehicle_topics = VehicleReader.TOPICS if vehicle else ()
+    for path in files:
+        metadata.update(loginfo.read_metadata(path))
+        factory = DecoderFactory()
+        decoders: dict[int, Any] = {}
+        span = None if start_ns is None and end_ns is None else (lo, hi)
+        for schema, channel, message in loginfo.read_messages(path, span):
+            topic = channel.topic
+            if topic in vehicle_topics and vehicle_reader is not None:
+                try:
+                    if channel.id not in decoders:
+                        decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
+                    vehicle_reader.add(topic, decoders[channel.id](message.data))
+                except Exception:  # a garbled payload or schema: that message is lost
+                    vehicle_reader.bad += 1
+                continue
+            wanted = topic.endswith(("/scan", "/image/compressed")) or topic.startswith(
+                ("/acq/clock", "/acq/timing/")
+            )
+            if not wanted or (
+                not lo <= message.log_time <= hi and not topic.startswith("/acq/clock")
+            ):
+                continue
+            if not jpegs and topic.endswith("/image/compressed"):
+                name = topic[1:].removesuffix("/image/compressed")
+                frames.setdefault(name, []).append((_stamp_of(message), b""))
+                continue
+            try:
+                if channel.id not in decoders:
+                    decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
+                msg = decoders[channel.id](message.data)
+                if topic.endswith("/scan"):
+                    scans.setdefault(topic[1:].removesuffix("/scan"), []).append(
+                        _ScanMsg(
+                            _stamp(msg),
+                            np.asarray(msg.ranges, dtype=np.float32),
+                            np.asarray(msg.intensities, dtype=np.float32),
+                            float(msg.start_angle),
+                            float(msg.end_angle),
+                        )
+                    )
+                elif topic.endswith("/image/compressed"):
+                    name = topic[1:].removesuffix("/image/compressed")
+                    frames.setdefault(name, []).append((_stamp(msg), bytes(msg.data)))
+                elif topic == "/acq/clock":
+                    clock.append((int(msg.monotonic_ns), int(msg.realtime_ns)))
+                elif topic.startswith("/acq/timing/"):
+                    ticks = list(msg.device_ticks)
+                    timing.setdefault(topic.removeprefix("/acq/timing/"), {})[int(msg.stamp_ns)] = (
+                        int(ticks[0]) if ticks else -1,
+                        int(msg.sequence),
+                        int(msg.recv_ns),
+                    )
+            except Exception:  # a garbled payload or schema: that message is lost
+                bad += 1
+    laser = _pick(scans, laser, "laser scanner", "/scan")
+    camera = "" if camera is None and not frames else _pick(frames, camera, "camera", "/image")
+    notes = [f"{bad} undecodable messages skipped"] if bad else []
+    log = _assemble(
+        files,
+        laser,
+        camera,
+        scans[laser],
+        frames.get(camera, []),
+        timing,
+        clock,
+        metadata,
+        notes,
+    )
+    if vehicle_reader is not None:
+        log = replace(log, vehicle=vehicle_reader.result(files))
+    return log
+
+
+def _assemble(
+    files: tuple[Path, ...],
+    laser: str,
+    camera: str,
+    scans: list[_ScanMsg],
+    frames: list[tuple[int, bytes]],
+    timing: dict[str, dict[int, tuple[int, int, int]]],
+    clock: list[tuple[int, int]],
+    metadata: dict[str, dict[str, str]],
+    notes: list[str],
+) -> DriveLog:
+    scans.sort(key=lambda m: m.stamp_ns)
+    n = max(m.ranges.size for m in scans)
+    first = next(m for m in scans if m.ranges.size == n)
+    angle_min = first.start_angle
+    inc = (first.end_angle - angle_min) / (n - 1) if n > 1 else 0.0
+    ranges = np.full((len(scans), n), np.nan, dtype=np.float32)
+    intens = np.zeros((len(scans), n), dtype=np.float32)
+    for k, m in enumerate(scans):
+        if m.ranges.size != n:  # a cropped scan after a reconfiguration: not placed
+            notes.append(f"scan {k} has {m.ranges.size} points, not {n}: skipped")
+            continue
+        ranges[k] = m.ranges
+        if m.intensities.size == n:
+            intens[k] = m.intensities
+    scan_ns = np.array([m.stamp_ns for m in scans], dtype=np.int64)
+    geometry = json.loads(metadata.get(f"device.{laser}", {}).get("geometry", "null") or "null")
+    if geometry and geometry.get("time_increment") is not None:
+        time_increment = float(geometry["time_increment"])
+    else:
+        # a rotating mirror: one step of the turn per angle increment
+        period = float(np.median(np.diff(scan_ns))) * 1e-9 if scan_ns.size > 1 else 0.0
+        time_increment = period * abs(inc) / (2 * math.pi)
+        notes.append(
+            f"no device.{laser} geometry: time_increment {time_increment * 1e6:.2f} us "
+            "assumed from the scan rate (a full turn per scan)"
+        )
+    lt = timing.get(laser, {})
+    scan_ticks = np.array([lt.get(int(t), (-1, 0, -1))[0] for t in scan_ns], dtype=np.int64)
+    scan_recv = np.array([lt.get(int(t), (-1, 0, -1))[2] for t in scan_ns], dtype=np.int64)
+    frames.sort(key=lambda f: f[0])
+    frame_ns = np.array([t for t, _ in frames], dtype=np.int64)
+    ct = timing.get(camera, {})
+    frame_seq = np.array([ct.get(int(t), (0, -1, -1))[1] for t in frame_ns], dtype=np.int64)
+    frame_recv = np.array([ct.get(int(t), (0, -1, -1))[2] for t in frame_ns], dtype=np.int64)
+    return DriveLog(
+        files=files,
+        laser=laser,
+        camera=camera,
+        scan_ns=scan_ns,
+        ranges=ranges,
+        intensities=intens,
+        angle_min=angle_min,
+        angle_increment=inc,
+        time_increment=time_increment,
+        scan_ticks=scan_ticks,
+        frame_ns=frame_ns,
+        frame_seq=frame_seq,
+        jpegs=[j for _, j in frames],
+        clock=np.array(clock, dtype=np.int64).reshape(-1, 2),
+        metadata=metadata,
+        notes=notes,
+        scan_recv_ns=scan_recv,
+        frame_recv_ns=frame_recv,
+    )
+
+
+def calibration_of(log: DriveLog) -> Calibration:
+    """The calibration the recorder stored in the log's ``calibration`` metadata."""
+    text = log.metadata.get("calibration", {}).get("yaml")
+    if not text:
+        raise ValueError(f"{log.files[0]}: no calibration in the log's metadata; give one")
+    return calibfile.parse(yaml.safe_load(text), f"{log.files[0]}: calibration metadata")
+
+
+# --- colouring -------------------------------------------------------------------------
+
+
+def camera_calib(
+    log: DriveLog, calib: Calibration, camera: str | None
+) -> tuple[str, calibfile.CameraCalib]:
+    """(name, calibration) of the camera to use: ``camera``, else the calibration's only
+    one, else the log's camera. KeyError for an unknown camera; ValueError when the log
+    has no frames."""
+    if camera is None and len(calib.cameras) != 1 and log.camera:
+        name = log.camera
+    else:
+        name = camera if camera is not None else next(iter(calib.cameras), "")
+    cam = calib.camera(name)
+    if not log.n_frames:
+        raise ValueError("the log has no camera frames")
+    return name, cam

@@ -1,0 +1,106 @@
+"""Coloured clouds as binary PLY: x y z, colour, UTC time, scan index, intensity, coloured."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from acq.cloud.points import Cloud
+from acq.time.utc import utc_seconds
+
+PLY_DTYPE = np.dtype(
+    [
+        ("x", "<f8"),
+        ("y", "<f8"),
+        ("z", "<f8"),
+        ("red", "u1"),
+        ("green", "u1"),
+        ("blue", "u1"),
+        ("time", "<f8"),
+        ("scan", "<u4"),
+        ("intensity", "<f4"),
+        ("coloured", "u1"),
+    ]
+)
+
+
+_PLY_TYPES = {"<f8": "double", "|u1": "uchar", "<u4": "uint", "<f4": "float"}
+
+
+class PlyStream:
+    """A binary little-endian PLY (see :func:`write_ply`) written part by part to
+    ``path``.tmp, renamed on :meth:`close` (:meth:`abort` removes it). Its header, with
+    the counts known only at the end, is written last into the room kept for it (the
+    rest of the room a comment of spaces)."""
+
+    def __init__(self, path: str | os.PathLike[str], comments: Sequence[str] = ()) -> None:
+        self.path = Path(path)
+        self._tmp = self.path.with_name(self.path.name + ".tmp")
+        self._comments = list(comments)
+        self.points = self.coloured = 0
+        self._room = len(self._header(10**15, 10**15))
+        self._file = open(self._tmp, "wb")
+        self._file.seek(self._room)
+
+    def _header(self, points: int, coloured: int, pad: int = 0) -> bytes:
+        lines = [
+            "ply",
+            "format binary_little_endian 1.0",
+            "comment acq coloured cloud: x y z metres in the world frame; time UTC seconds",
+            f"comment {coloured} of {points} points coloured",
+            *(f"comment {c}" for c in self._comments),
+            "comment " + " " * pad,  # what is left of the room kept for the header
+            f"element vertex {points}",
+            *(f"property {_PLY_TYPES[PLY_DTYPE[k].str]} {k}" for k in PLY_DTYPE.names or ()),
+            "end_header",
+        ]
+        return ("\n".join(lines) + "\n").encode()
+
+    def write(
+        self, xyz: np.ndarray, rgb: np.ndarray, utc_s: np.ndarray, intensity: np.ndarray,
+        scan: np.ndarray, coloured: np.ndarray,
+    ) -> None:  # fmt: skip
+        """Append points: ``xyz`` (N,3) m, ``rgb`` (N,3) uint8, ``utc_s`` (N,) UTC
+        seconds, ``intensity``, ``scan`` index, ``coloured`` flag."""
+        v = np.empty(utc_s.size, dtype=PLY_DTYPE)
+        v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        v["red"], v["green"], v["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+        v["time"] = utc_s
+        v["scan"] = scan
+        v["intensity"] = intensity
+        v["coloured"] = coloured
+        v.tofile(self._file)
+        self.points += int(v.size)
+        self.coloured += int(np.count_nonzero(coloured))
+
+    def close(self) -> int:
+        """Write the header and finish the file; its size, bytes."""
+        head = self._header(self.points, self.coloured)
+        head = self._header(self.points, self.coloured, self._room - len(head))
+        self._file.seek(0)
+        self._file.write(head)
+        self._file.close()
+        self._tmp.replace(self.path)
+        return self.path.stat().st_size
+
+    def abort(self) -> None:
+        """Drop the unfinished file."""
+        self._file.close()
+        self._tmp.unlink(missing_ok=True)
+
+
+def write_ply(path: str | os.PathLike[str], cloud: Cloud, comments: Sequence[str] = ()) -> int:
+    """Binary little-endian PLY, one ``vertex`` per point: x y z (double, m, world),
+    red green blue (uchar), time (double, UTC s), scan (uint), intensity (float),
+    coloured (uchar 0/1). Returns the file's size, bytes."""
+    out = PlyStream(path, comments)
+    try:
+        out.write(cloud.xyz, cloud.rgb, utc_seconds(cloud.time_ns, cloud.clock), cloud.intensity,
+                  cloud.scan, cloud.coloured)  # fmt: skip
+    except BaseException:
+        out.abort()
+        raise
+    return out.close()

@@ -1,0 +1,384 @@
+"""Which camera frame colours each laser point (``acq colorize --view``), and its colour.
+
+Every point is placed at its own time; the frame it is coloured from was exposed at
+another instant, when the rig stood elsewhere. With a trajectory, the point goes back
+into the camera as the rig stood at the frame's time (motion compensation: world ->
+vehicle at the frame's time -> laser -> camera); without one (or with
+``motion_compensation=False``) the point stays where the laser saw it relative to the
+rig, which is right only for a rig standing still.
+
+- ``nearest``: the frame nearest in time, within ``max_dt_s``.
+- ``best``: among the ``window`` frames either side of the nearest (within
+  ``max_dt_s + window`` periods), the one that sees the point closest to its optical
+  axis (a fisheye's resolution and its calibration are best there), unless nearer laser
+  points hide it in that frame (:func:`occlusion_depths`: a depth buffer of the laser
+  points scanned around that frame's time, each splatted over the pixels its share of
+  surface covers). A point hidden in every candidate is not coloured.
+
+Points no frame sees (behind the camera, outside the image, too far in time, hidden)
+keep ``coloured = False``. Units: metres, host ns, pixels; colours RGB uint8.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import deque
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from dataclasses import dataclass
+
+import cv2
+import numba
+import numpy as np
+
+from acq.camera import projection
+from acq.camera.calibfile import CameraCalib
+from acq.camera.camera_models import CameraModel
+from acq.geometry.transforms import PoseFn, Rigid
+from acq.time import sync
+
+__all__ = [
+    "VIEWS",
+    "Coloured",
+    "Colouring",
+    "Options",
+    "decode_jpeg",
+    "decoded_frames",
+    "occlusion_depths",
+    "point_size",
+    "start_colouring",
+]
+
+
+VIEWS = ("nearest", "best")
+
+
+@dataclass(frozen=True)
+class Options:
+    """How points pick their frame (see the module docstring). ``cell_px``: the depth
+    buffer's cell; ``margin_m`` + ``margin_rel`` x depth: how much nearer a laser point
+    must be to hide another; ``context_s``: laser points within this of a frame's time
+    go into its depth buffer."""
+
+    view: str = "nearest"
+    motion_compensation: bool = True
+    max_dt_s: float = 0.1
+    window: int = 3
+    bilinear: bool = True
+    cell_px: int = 2
+    margin_m: float = 0.2
+    margin_rel: float = 0.05
+    context_s: float = 0.4
+
+    def __post_init__(self) -> None:
+        if self.view not in VIEWS:
+            raise ValueError(f"view {self.view!r}: expected one of {', '.join(VIEWS)}")
+        if self.window < 0 or self.max_dt_s <= 0 or self.cell_px < 1:
+            raise ValueError("window >= 0, max_dt_s > 0 and cell_px >= 1 expected")
+
+
+@dataclass(frozen=True)
+class Coloured:
+    """Per point: ``rgb`` (N,3) uint8, ``coloured`` (N,) bool, ``frame`` (N,) int64 the
+    frame used (-1 none), ``dt_s`` (N,) float32 point time minus that frame's (NaN),
+    ``theta`` (N,) float32 angle from that frame's optical axis, rad (``best`` only; NaN
+    otherwise); and
+    ``hidden`` (N,) bool: seen by a candidate frame but hidden in all (``best``); ``uv``
+    (N,2) float32 the pixel in that frame (NaN; only when asked for)."""
+
+    rgb: np.ndarray
+    coloured: np.ndarray
+    frame: np.ndarray
+    dt_s: np.ndarray
+    theta: np.ndarray
+    hidden: np.ndarray
+    frames_used: int
+    frames_failed: int
+    uv: np.ndarray | None = None
+
+
+@numba.njit(cache=True, nogil=True)
+def _splat(cu, cv, depth, radius, width, height):  # type: ignore[no-untyped-def]
+    z = np.full((height, width), np.inf, dtype=np.float32)
+    for i in range(cu.size):
+        r = radius[i]
+        d = depth[i]
+        for v in range(max(cv[i] - r, 0), min(cv[i] + r + 1, height)):
+            for u in range(max(cu[i] - r, 0), min(cu[i] + r + 1, width)):
+                if d < z[v, u]:
+                    z[v, u] = d
+    return z
+
+
+def occlusion_depths(
+    uv: np.ndarray, depth: np.ndarray, size_m: np.ndarray, f_px: float, shape: tuple[int, int],
+    cell_px: int,
+) -> np.ndarray:  # fmt: skip
+    """(H/cell, W/cell) float32 depth buffer (m, +inf empty) of points at pixels ``uv``
+    (N,2) and ``depth`` (N,) m, each covering a square of ``size_m`` (N,) m of surface
+    (its share of the scan: the larger of its spacing along the scan and the rig's
+    travel between scans), i.e. about ``f_px * size_m / depth`` px each side."""
+    h, w = -(-shape[0] // cell_px), -(-shape[1] // cell_px)
+    cu = (uv[:, 0] / cell_px).astype(np.int64)
+    cv_ = (uv[:, 1] / cell_px).astype(np.int64)
+    r = np.minimum(np.floor(0.5 * f_px * size_m / np.maximum(depth, 1e-3) / cell_px), 8)
+    return np.asarray(_splat(cu, cv_, depth.astype(np.float32), r.astype(np.int64), w, h))
+
+
+def decode_jpeg(jpeg: bytes) -> np.ndarray | None:
+    """A colour JPEG as an (H,W,3) BGR uint8 image, or None when it does not decode
+    (empty bytes included: a garbled message in a log)."""
+    if not jpeg:
+        return None
+    try:
+        image = cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
+    except cv2.error:
+        return None
+    return image if image is not None and image.ndim == 3 else None
+
+
+def decoded_frames(
+    jpegs: Sequence[bytes], order: np.ndarray, threads: int
+) -> Iterator[np.ndarray | None]:
+    """The frames ``order`` decoded, in order, at most ``2 * threads`` ahead."""
+    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
+        pending: deque[Future[np.ndarray | None]] = deque()
+        todo = iter(order.tolist())
+        for j in itertools.islice(todo, 2 * max(1, threads)):
+            pending.append(pool.submit(decode_jpeg, jpegs[j]))
+        while pending:
+            done = pending.popleft()
+            for j in itertools.islice(todo, 1):
+                pending.append(pool.submit(decode_jpeg, jpegs[j]))
+            yield done.result()
+
+
+class _Rig:
+    """Camera poses: ``laser_frame(P_world, t_ns)`` -> the laser frame as the rig stood
+    at t (or the points as given without motion compensation)."""
+
+    def __init__(self, cam: CameraCalib, laser_to_vehicle: Rigid, pose_at: PoseFn | None) -> None:
+        self.cam, self.l2v, self.pose_at = cam, laser_to_vehicle, pose_at
+        self.v2l = laser_to_vehicle.inverse()
+        self._poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def prepare(self, t_ns: np.ndarray) -> None:
+        """Look up the poses at ``t_ns`` (the frames' times) in one call."""
+        if self.pose_at is not None and t_ns.size:
+            R, t = self.pose_at(np.asarray(t_ns, dtype=np.int64))
+            self._poses.update(zip(np.asarray(t_ns).tolist(), zip(R, t, strict=True), strict=True))
+
+    def _pose(self, pose_at: PoseFn, t_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        pose = self._poses.get(t_ns)
+        if pose is None:
+            R, t = pose_at(np.array([t_ns], dtype=np.int64))
+            pose = R[0], t[0]
+        return pose
+
+    def laser_frame(self, P_world: np.ndarray, t_ns: int) -> np.ndarray:
+        if self.pose_at is None:
+            return P_world
+        R, t = self._pose(self.pose_at, t_ns)
+        return self.v2l.apply((P_world - t) @ R)
+
+    def camera_poses(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's rotations (M,3,3) and positions (M,3) m in the points' frame at
+        ``t_ns`` (M,): the world as the rig stood then (the laser without motion
+        compensation)."""
+        c2l = self.cam.camera_to_laser
+        if self.pose_at is None:
+            return np.broadcast_to(c2l.rotation, (t_ns.size, 3, 3)), np.broadcast_to(
+                c2l.translation, (t_ns.size, 3)
+            )
+        c2v = self.l2v @ c2l
+        R, t = self.pose_at(np.asarray(t_ns, dtype=np.int64))
+        return R @ c2v.rotation, np.einsum("nij,j->ni", R, c2v.translation) + t
+
+    def camera(self, P_laser: np.ndarray) -> np.ndarray:
+        return self.cam.camera_to_laser.inverse().apply(P_laser)
+
+
+def _theta(P_cam: np.ndarray) -> np.ndarray:
+    return np.arctan2(np.hypot(P_cam[:, 0], P_cam[:, 1]), P_cam[:, 2])
+
+
+class Colouring:
+    """Points being coloured on a pool's threads (:func:`start_colouring`): every frame
+    decoded once on a thread, its points sent back to where the rig stood and sampled
+    there; :meth:`result` waits for them. The arrays are filled in place."""
+
+    def __init__(
+        self, P: np.ndarray, frame: np.ndarray, theta: np.ndarray, hidden: np.ndarray,
+        time_ns: np.ndarray, frame_ns: np.ndarray, model: CameraModel, bilinear: bool,
+        want_uv: bool,
+    ) -> None:  # fmt: skip
+        n = P.shape[0]
+        self.P = np.ascontiguousarray(P, dtype=np.float64)
+        self.bgr = np.zeros((n, 3), dtype=np.uint8)
+        self.coloured = np.zeros(n, dtype=bool)
+        self.uv = np.full((n, 2), np.nan, dtype=np.float32) if want_uv else None
+        self.frame, self.theta, self.hidden = frame, theta, hidden
+        self.time_ns, self.frame_ns = time_ns, frame_ns
+        self.model, self.bilinear = model, bilinear
+        self.futures: list[Future[bool]] = []
+        self.frame_map: np.ndarray | None = None  # frame indices of a subset -> the caller's
+
+    def colour_frame(self, jpeg: bytes, idx: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:
+        """Decode one frame and colour its points ``idx`` (the camera at rotation ``R``
+        and position ``t`` in the points' frame); False when it does not decode."""
+        image = decode_jpeg(jpeg)
+        if image is None:
+            return False
+        projection.colour_into(
+            self.P, idx, self.model, (R, t), image, self.bgr, self.coloured, self.uv,
+            bilinear=self.bilinear,
+        )  # fmt: skip
+        return True
+
+    def result(self) -> Coloured:
+        """Wait for every frame; the points' colours (see :class:`Coloured`)."""
+        done = [f.result() for f in self.futures]
+        used_n, failed = sum(done), len(done) - sum(done)
+        coloured = self.coloured
+        frame = np.where(coloured, self.frame, -1)
+        dt = np.where(coloured, (self.time_ns - self.frame_ns[np.maximum(frame, 0)]) * 1e-9, np.nan)
+        theta = np.where(coloured, self.theta, np.nan).astype(np.float32)
+        if self.frame_map is not None:
+            frame = np.where(frame >= 0, self.frame_map[np.maximum(frame, 0)], -1)
+        return Coloured(
+            self.bgr[:, ::-1], coloured, frame, dt.astype(np.float32), theta, self.hidden,
+            used_n, failed, self.uv,
+        )  # fmt: skip
+
+
+def start_colouring(
+    P: np.ndarray,
+    time_ns: np.ndarray,
+    size_m: np.ndarray,
+    frame_ns: np.ndarray,
+    jpegs: Sequence[bytes],
+    cam: CameraCalib,
+    laser_to_vehicle: Rigid,
+    pose_at: PoseFn | None,
+    options: Options | None = None,
+    *,
+    pool: Executor,
+    want_uv: bool = False,
+    frame_ok: np.ndarray | None = None,
+    need: np.ndarray | None = None,
+) -> Colouring:
+    """Colour points ``P`` (N,3) m measured at ``time_ns`` (N,) host ns, sorted by time:
+    in the world when ``pose_at`` is given and motion is compensated, else in the laser
+    frame at their own time. ``frame_ns`` (M,) the frames' mid-exposure times on the
+    laser's clock (the calibration's time offset already applied), ``jpegs`` their
+    bytes; ``size_m`` (N,) each point's share of surface (for the depth buffers);
+    ``frame_ok`` (M,) bool: frames that may be used (e.g. those the trajectory covers);
+    ``need`` (N,) bool: the points to colour (default all; the others only hide points
+    in ``best``'s depth buffers).
+
+    The frames go on ``pool`` (first come, first served), one task each, and are not
+    waited for: the caller goes on (placing the next points, writing the last ones)
+    while they decode; :meth:`Colouring.result` waits."""
+    options = options or Options()
+    n = P.shape[0]
+    rig = _Rig(cam, laser_to_vehicle, pose_at if options.motion_compensation else None)
+    if options.view == "best" and rig.pose_at is None:
+        raise ValueError("--view best needs a trajectory (and motion compensation)")
+    if frame_ok is not None and not frame_ok.all():
+        keep = np.flatnonzero(frame_ok)
+        sub = start_colouring(
+            P, time_ns, size_m, frame_ns[keep], [jpegs[int(k)] for k in keep], cam,
+            laser_to_vehicle, pose_at, options, pool=pool, want_uv=want_uv, need=need,
+        )  # fmt: skip
+        sub.frame_map = keep
+        return sub
+    frame = np.full(n, -1, dtype=np.int64)
+    theta = np.full(n, np.nan, dtype=np.float32)
+    hidden = np.zeros(n, dtype=bool)
+    if n == 0 or frame_ns.size == 0:
+        return Colouring(P, frame, theta, hidden, time_ns, frame_ns, cam.model, True, want_uv)
+    need = np.ones(n, dtype=bool) if need is None else need
+    pairing = sync.pair_frames(time_ns, frame_ns)
+    near = np.where(np.abs(pairing.dt_s) <= options.max_dt_s, pairing.nearest, -1)
+    if options.view == "nearest":
+        frame = np.where(need, near, -1)
+    else:
+        rig.prepare(frame_ns)
+        frame, theta, hidden = _best(P, time_ns, size_m, frame_ns, near, rig, options, need)
+    out = Colouring(
+        P, frame, theta, hidden, time_ns, frame_ns, cam.model, options.bilinear, want_uv
+    )
+    order = np.argsort(frame, kind="stable")
+    order = order[frame[order] >= 0]
+    used, first, counts = np.unique(frame[order], return_index=True, return_counts=True)
+    Rs, ts = rig.camera_poses(frame_ns[used])
+    for k, (j, lo, count) in enumerate(
+        zip(used.tolist(), first.tolist(), counts.tolist(), strict=True)
+    ):
+        task = pool.submit(out.colour_frame, jpegs[j], order[lo : lo + count], Rs[k], ts[k])
+        out.futures.append(task)
+    return out
+
+
+def _best(
+    P: np.ndarray,
+    time_ns: np.ndarray,
+    size_m: np.ndarray,
+    frame_ns: np.ndarray,
+    near: np.ndarray,
+    rig: _Rig,
+    options: Options,
+    need: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frame, theta, hidden) per point for ``view="best"`` (module docstring), for the
+    points ``need``."""
+    n, W = P.shape[0], options.window
+    model = rig.cam.model
+    f_px = 0.5 * (model.fx + model.fy)
+    best = np.full(n, -1, dtype=np.int64)
+    best_theta = np.full(n, np.inf, dtype=np.float32)
+    candidate = np.zeros(n, dtype=bool)
+    order_f = np.argsort(frame_ns, kind="stable")
+    rank = np.empty_like(order_f)
+    rank[order_f] = np.arange(order_f.size)
+    near_rank = np.where(near >= 0, rank[np.maximum(near, 0)], -(10**9))
+    period = float(np.median(np.diff(frame_ns[order_f]))) * 1e-9 if frame_ns.size > 1 else 0.04
+    max_dt = options.max_dt_s + W * period
+    ctx = round(options.context_s * 1e9)
+    for r, j in enumerate(order_f.tolist()):
+        t_f = int(frame_ns[j])
+        lo, hi = np.searchsorted(time_ns, [t_f - max_dt * 1e9, t_f + max_dt * 1e9])
+        idx = np.arange(lo, hi)
+        idx = idx[(np.abs(near_rank[idx] - r) <= W) & need[idx]]
+        if idx.size == 0:
+            continue
+        # the depth buffer of the laser points around this frame's time
+        c_lo, c_hi = np.searchsorted(time_ns, [t_f - ctx, t_f + ctx])
+        ctx_idx = np.arange(c_lo, c_hi)
+        P_c = rig.camera(rig.laser_frame(P[ctx_idx], t_f))
+        uv_c, ok_c = projection.project(P_c, model, Rigid.identity())
+        depth_c = np.linalg.norm(P_c, axis=1)
+        zbuf = occlusion_depths(
+            uv_c[ok_c], depth_c[ok_c], size_m[ctx_idx][ok_c], f_px,
+            (model.height, model.width), options.cell_px,
+        )  # fmt: skip
+        P_p = rig.camera(rig.laser_frame(P[idx], t_f))
+        uv, ok = projection.project(P_p, model, Rigid.identity())
+        candidate[idx[ok]] = True
+        depth = np.linalg.norm(P_p, axis=1)
+        cu = np.clip((uv[:, 0] / options.cell_px).astype(np.int64), 0, zbuf.shape[1] - 1)
+        cv_ = np.clip((uv[:, 1] / options.cell_px).astype(np.int64), 0, zbuf.shape[0] - 1)
+        visible = ok & (depth <= zbuf[cv_, cu] + options.margin_m + options.margin_rel * depth)
+        th = _theta(P_p).astype(np.float32)
+        better = visible & (th < best_theta[idx])
+        best[idx[better]] = j
+        best_theta[idx[better]] = th[better]
+    hidden = candidate & (best < 0)
+    theta = np.where(best >= 0, best_theta, np.nan).astype(np.float32)
+    return best, theta, hidden
+
+
+def point_size(ranges: np.ndarray, angle_increment: float, travel_m: float) -> np.ndarray:
+    """Each point's share of surface, m: the larger of its spacing along the scan
+    (range x angle step) and the rig's travel between scans."""
+    return np.maximum(np.abs(ranges) * abs(angle_increment), travel_m).astype(np.float32)

@@ -1,0 +1,1 @@
+"""Rotations, rigid transforms and geodesy: the lowest layer beside acq.records."""

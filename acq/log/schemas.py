@@ -1,0 +1,648 @@
+"""Protobuf message encoders for the MCAP logs (see ARCHITECTURE.md, "MCAP logs").
+
+Two families of schemas:
+
+- Foxglove's well-known schemas (``foxglove.LaserScan``, ``foxglove.CompressedImage``,
+  ``foxglove.CameraCalibration``, ``foxglove.FrameTransforms``, ``foxglove.PointCloud``,
+  ``foxglove.LocationFix``), so a log opens in Foxglove as it is.
+- Our own versioned ``acq.*`` schemas (file ``acq/v1.proto``, package ``acq``), built at
+  import time from a ``FileDescriptorProto`` (no protoc): ``acq.RawTelegram``,
+  ``acq.Timing``, ``acq.Clock``, ``acq.Status``, ``acq.DeviceStatus``, ``acq.Odometry``
+  and ``acq.CanFrame``. A change that is not backwards compatible gets a new file
+  (``acq/v2.proto``); v1 field numbers stay, new messages and fields may be added.
+
+Times: every ``timestamp`` field is a ``google.protobuf.Timestamp`` holding host
+*monotonic* nanoseconds (``time.monotonic_ns()``), the same clock as MCAP ``log_time``;
+a log maps them to UTC with the (realtime, monotonic) pairs on ``/acq/clock``. Fields
+named ``*_ns`` are int64 nanoseconds on the same monotonic clock, except
+``acq.Clock.realtime_ns`` (``CLOCK_REALTIME``, ns since the Unix epoch).
+
+Encoders return the serialized bytes; :func:`decode` turns bytes back into a message.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.KeyValuePair_pb2 import KeyValuePair
+from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
+from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
+from google.protobuf.descriptor import FileDescriptor
+from google.protobuf.message_factory import GetMessageClass
+
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.camera.camera_models import KannalaBrandt, Pinhole
+from acq.geometry.transforms import Rigid
+from acq.records import CanFrame, Fix, Frame, Odometry, Scan
+
+__all__ = [
+    "ACQ_PROTO",
+    "SCHEMAS",
+    "DeviceStatus",
+    "Schema",
+    "camera_calibration",
+    "can_frame",
+    "clock",
+    "compressed_image",
+    "decode",
+    "frame_transforms",
+    "laser_scan",
+    "location_fix",
+    "message_class",
+    "odometry",
+    "point_cloud",
+    "quaternion",
+    "raw_telegram",
+    "status",
+    "timing",
+]
+
+ACQ_PROTO = "acq/v1.proto"  # the file holding the acq.* messages
+
+
+@dataclass(frozen=True)
+class Schema:
+    """An MCAP schema record: ``data`` is a serialized ``FileDescriptorSet`` holding the
+    message's file and all its dependencies (what MCAP's ``protobuf`` encoding wants)."""
+
+    name: str  # full message name, e.g. "foxglove.LaserScan"
+    encoding: str  # always "protobuf"
+    data: bytes
+
+
+# --- the acq.* messages --------------------------------------------------------------------
+
+_F = descriptor_pb2.FieldDescriptorProto
+_TIMESTAMP = ".google.protobuf.Timestamp"
+
+# (name, number, type, label, message type name or "")
+_FieldSpec = tuple[str, int, int, int, str]
+_ONE, _MANY = _F.LABEL_OPTIONAL, _F.LABEL_REPEATED
+
+_ACQ_MESSAGES: dict[str, list[_FieldSpec]] = {
+    "RawTelegram": [
+        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # the record's stamp (first point)
+        ("device", 2, _F.TYPE_STRING, _ONE, ""),
+        ("data", 3, _F.TYPE_BYTES, _ONE, ""),  # the telegram exactly as received
+        ("device_ticks", 4, _F.TYPE_UINT64, _MANY, ""),  # raw device clock values
+        ("sequence", 5, _F.TYPE_UINT64, _ONE, ""),
+        ("recv_ns", 6, _F.TYPE_INT64, _ONE, ""),  # host monotonic ns at receipt
+    ],
+    "Timing": [
+        ("recv_ns", 1, _F.TYPE_INT64, _ONE, ""),
+        ("device_ticks", 2, _F.TYPE_UINT64, _MANY, ""),
+        ("unwrapped_tick", 3, _F.TYPE_INT64, _ONE, ""),
+        ("epoch", 4, _F.TYPE_UINT32, _ONE, ""),  # bumped when the device clock restarts
+        ("stamp_ns", 5, _F.TYPE_INT64, _ONE, ""),  # the clock's estimate of the record's time
+        ("offset_ns", 6, _F.TYPE_INT64, _ONE, ""),  # host minus device time
+        ("drift_ppm", 7, _F.TYPE_DOUBLE, _ONE, ""),
+        ("uncertainty_s", 8, _F.TYPE_DOUBLE, _ONE, ""),
+        ("sequence", 9, _F.TYPE_UINT64, _ONE, ""),
+        ("received", 10, _F.TYPE_UINT64, _ONE, ""),  # records received so far
+        ("dropped", 11, _F.TYPE_UINT64, _ONE, ""),  # records lost so far
+    ],
+    "Clock": [
+        ("realtime_ns", 1, _F.TYPE_INT64, _ONE, ""),  # CLOCK_REALTIME, ns since the epoch
+        ("monotonic_ns", 2, _F.TYPE_INT64, _ONE, ""),  # CLOCK_MONOTONIC, ns
+    ],
+    "DeviceStatus": [
+        ("name", 1, _F.TYPE_STRING, _ONE, ""),
+        ("kind", 2, _F.TYPE_STRING, _ONE, ""),  # "scanner" | "camera" | "can" | "gnss"
+        ("connected", 3, _F.TYPE_BOOL, _ONE, ""),
+        ("rate_hz", 4, _F.TYPE_DOUBLE, _ONE, ""),
+        ("received", 5, _F.TYPE_UINT64, _ONE, ""),
+        ("dropped", 6, _F.TYPE_UINT64, _ONE, ""),
+        ("corrupt", 7, _F.TYPE_UINT64, _ONE, ""),
+        ("disconnects", 8, _F.TYPE_UINT64, _ONE, ""),
+        ("protocol_errors", 9, _F.TYPE_UINT64, _ONE, ""),
+        ("gap_s", 10, _F.TYPE_DOUBLE, _ONE, ""),
+        ("last_event", 11, _F.TYPE_STRING, _ONE, ""),
+        ("clock_offset_ns", 12, _F.TYPE_INT64, _ONE, ""),
+        ("clock_drift_ppm", 13, _F.TYPE_DOUBLE, _ONE, ""),
+        ("clock_uncertainty_s", 14, _F.TYPE_DOUBLE, _ONE, ""),
+        ("epoch", 15, _F.TYPE_UINT32, _ONE, ""),
+    ],
+    "Status": [
+        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),
+        ("uptime_s", 2, _F.TYPE_DOUBLE, _ONE, ""),
+        ("file", 3, _F.TYPE_STRING, _ONE, ""),  # the log file being written
+        ("disk_free_bytes", 4, _F.TYPE_UINT64, _ONE, ""),
+        ("disk_minutes_left", 5, _F.TYPE_DOUBLE, _ONE, ""),
+        ("writer_queue", 6, _F.TYPE_UINT32, _ONE, ""),  # records waiting for the writer
+        ("devices", 7, _F.TYPE_MESSAGE, _MANY, ".acq.DeviceStatus"),
+    ],
+    "Odometry": [  # /vehicle/odometry: one per decoded CAN message; NaN: not in it
+        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # the CAN receive stamp
+        ("recv_ns", 2, _F.TYPE_INT64, _ONE, ""),  # when the driver read the frame
+        ("speed_mps", 3, _F.TYPE_DOUBLE, _ONE, ""),
+        ("yaw_rate_rps", 4, _F.TYPE_DOUBLE, _ONE, ""),  # counter-clockwise, REP-103
+        ("wheel_speeds_mps", 5, _F.TYPE_DOUBLE, _MANY, ""),  # FL, FR, RL, RR; empty: none
+        ("arbitration_id", 6, _F.TYPE_UINT32, _ONE, ""),  # the CAN message decoded
+    ],
+    "CanFrame": [  # /vehicle/can: every frame of the bus, as received
+        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # receive stamp, monotonic
+        ("recv_ns", 2, _F.TYPE_INT64, _ONE, ""),
+        ("wall_ns", 3, _F.TYPE_INT64, _ONE, ""),  # the interface's stamp, CLOCK_REALTIME
+        ("arbitration_id", 4, _F.TYPE_UINT32, _ONE, ""),
+        ("is_extended", 5, _F.TYPE_BOOL, _ONE, ""),
+        ("is_remote", 6, _F.TYPE_BOOL, _ONE, ""),
+        ("is_error", 7, _F.TYPE_BOOL, _ONE, ""),
+        ("is_fd", 8, _F.TYPE_BOOL, _ONE, ""),
+        ("data", 9, _F.TYPE_BYTES, _ONE, ""),
+        ("channel", 10, _F.TYPE_STRING, _ONE, ""),
+    ],
+}
+
+
+def _acq_file_proto() -> descriptor_pb2.FileDescriptorProto:
+    fdp = descriptor_pb2.FileDescriptorProto(
+        name=ACQ_PROTO,
+        package="acq",
+        syntax="proto3",
+        dependency=[timestamp_pb2.DESCRIPTOR.name],
+    )
+    for msg_name, specs in _ACQ_MESSAGES.items():
+        msg = fdp.message_type.add(name=msg_name)
+        for name, number, ftype, label, type_name in specs:
+            field = msg.field.add(name=name, number=number, type=ftype, label=label)
+            if type_name:
+                field.type_name = type_name
+    return fdp
+
+
+def _acq_file() -> FileDescriptor:
+    pool = descriptor_pool.Default()  # already holds google/protobuf/timestamp.proto
+    try:
+        return pool.FindFileByName(ACQ_PROTO)
+    except KeyError:
+        pool.Add(_acq_file_proto())
+        return pool.FindFileByName(ACQ_PROTO)
+
+
+_ACQ_FILE = _acq_file()
+RawTelegramMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["RawTelegram"])
+TimingMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Timing"])
+ClockMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Clock"])
+DeviceStatusMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["DeviceStatus"])
+StatusMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Status"])
+OdometryMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Odometry"])
+CanFrameMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["CanFrame"])
+
+
+def _file_descriptor_set(file: FileDescriptor) -> bytes:
+    """``file`` and its dependencies, dependencies first, as a serialized FileDescriptorSet."""
+    fds = descriptor_pb2.FileDescriptorSet()
+    seen: set[str] = set()
+
+    def add(f: FileDescriptor) -> None:
+        if f.name in seen:
+            return
+        seen.add(f.name)
+        for dep in f.dependencies:
+            add(dep)
+        f.CopyToProto(fds.file.add())
+
+    add(file)
+    return fds.SerializeToString()
+
+
+_CLASSES: dict[str, Any] = {
+    cls.DESCRIPTOR.full_name: cls
+    for cls in (
+        LaserScan,
+        CompressedImage,
+        CameraCalibration,
+        FrameTransforms,
+        PointCloud,
+        LocationFix,
+        RawTelegramMsg,
+        TimingMsg,
+        ClockMsg,
+        StatusMsg,
+        DeviceStatusMsg,
+        OdometryMsg,
+        CanFrameMsg,
+    )
+}
+
+SCHEMAS: dict[str, Schema] = {
+    name: Schema(name, "protobuf", _file_descriptor_set(cls.DESCRIPTOR.file))
+    for name, cls in _CLASSES.items()
+}
+
+
+def message_class(schema_name: str) -> Any:
+    """The protobuf message class of a schema in :data:`SCHEMAS`."""
+    try:
+        return _CLASSES[schema_name]
+    except KeyError:
+        raise KeyError(
+            f"unknown schema {schema_name!r}; expected one of {', '.join(_CLASSES)}"
+        ) from None
+
+
+def decode(schema_name: str, data: bytes) -> Any:
+    """Parse ``data`` as a message of ``schema_name`` (for readers and tests)."""
+    return message_class(schema_name).FromString(data)
+
+
+# --- helpers ------------------------------------------------------------------------------
+
+
+def _set_stamp(ts: timestamp_pb2.Timestamp, ns: int) -> None:
+    """A Timestamp from integer ns (floor division, so nanos stay in [0, 1e9))."""
+    ts.seconds, ts.nanos = divmod(int(ns), 1_000_000_000)
+
+
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while n >= 0x80:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+def _packed_doubles(field_number: int, values: np.ndarray) -> bytes:
+    """A packed ``repeated double`` field as protobuf wire bytes (empty when no values).
+
+    Parsers merge fields appended after a message's own serialization, so this lets the
+    hot path skip building a 1081-element Python list (12x faster than ``extend``).
+    """
+    if values.size == 0:
+        return b""
+    payload = np.ascontiguousarray(values, dtype="<f8").tobytes()
+    return _varint(field_number << 3 | 2) + _varint(len(payload)) + payload
+
+
+def quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) unit quaternion of a proper 3x3 rotation matrix, w >= 0."""
+    R = np.asarray(rotation, dtype=np.float64)
+    m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
+    trace = m00 + m11 + m22
+    # Shepperd: divide by the largest of the four candidates for numerical stability.
+    if trace > 0:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        w, x, y, z = (
+            0.25 * s,
+            (R[2, 1] - R[1, 2]) / s,
+            (R[0, 2] - R[2, 0]) / s,
+            (R[1, 0] - R[0, 1]) / s,
+        )
+    elif m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        w, x, y, z = (
+            (R[2, 1] - R[1, 2]) / s,
+            0.25 * s,
+            (R[0, 1] + R[1, 0]) / s,
+            (R[0, 2] + R[2, 0]) / s,
+        )
+    elif m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        w, x, y, z = (
+            (R[0, 2] - R[2, 0]) / s,
+            (R[0, 1] + R[1, 0]) / s,
+            0.25 * s,
+            (R[1, 2] + R[2, 1]) / s,
+        )
+    else:
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        w, x, y, z = (
+            (R[1, 0] - R[0, 1]) / s,
+            (R[0, 2] + R[2, 0]) / s,
+            (R[1, 2] + R[2, 1]) / s,
+            0.25 * s,
+        )
+    q = np.array([x, y, z, w])
+    q /= np.linalg.norm(q)
+    if q[3] < 0:
+        q = -q
+    return float(q[0]), float(q[1]), float(q[2]), float(q[3])
+
+
+# --- Foxglove messages --------------------------------------------------------------------
+
+
+def laser_scan(scan: Scan, frame_id: str, stamp_ns: int) -> bytes:
+    """``foxglove.LaserScan``: ``stamp_ns`` is the first point's time (host monotonic ns).
+
+    Angles follow REP-103 (``start_angle = angle_min``, ``end_angle`` the last point's);
+    ranges keep ``+inf``/``-inf``/``nan`` (REP-117); intensities are omitted when the
+    device sends none; the pose is the identity (the scan is in ``frame_id``'s origin).
+    """
+    msg = LaserScan(frame_id=frame_id, start_angle=scan.angle_min)
+    _set_stamp(msg.timestamp, stamp_ns)
+    msg.pose.orientation.w = 1.0
+    msg.end_angle = scan.angle_min + max(scan.size - 1, 0) * scan.angle_increment
+    return b"".join(
+        (
+            msg.SerializeToString(),
+            _packed_doubles(LaserScan.RANGES_FIELD_NUMBER, scan.ranges),
+            _packed_doubles(LaserScan.INTENSITIES_FIELD_NUMBER, scan.intensities),
+        )
+    )
+
+
+def compressed_image(frame: Frame, frame_id: str) -> bytes:
+    """``foxglove.CompressedImage``: the JPEG exactly as the camera sent it, stamped with
+    the middle of the exposure (``frame.stamp_ns``, host monotonic ns)."""
+    if not frame.jpeg:
+        raise ValueError("compressed_image needs a Frame with jpeg bytes (encode it first)")
+    msg = CompressedImage(frame_id=frame_id, data=frame.jpeg, format="jpeg")
+    _set_stamp(msg.timestamp, frame.stamp_ns)
+    return msg.SerializeToString()
+
+
+def camera_calibration(calib: CameraCalib, frame_id: str, stamp_ns: int) -> bytes:
+    """``foxglove.CameraCalibration`` of one camera.
+
+    Fisheye models (``equidistant``, ``kannala_brandt``) go as ``kannala_brandt`` with
+    ``D = k`` (4 coefficients, OpenCV fisheye; zero for the equidistant model); the
+    pinhole model as ``plumb_bob`` with ``D = (k1, k2, p1, p2, k3)``. ``R`` is the
+    identity, ``P = [K | 0]``.
+    """
+    model = calib.model
+    msg = CameraCalibration(frame_id=frame_id, width=model.width, height=model.height)
+    _set_stamp(msg.timestamp, stamp_ns)
+    if isinstance(model, KannalaBrandt):
+        msg.distortion_model = "kannala_brandt"
+        msg.D.extend(model.k)
+    elif isinstance(model, Pinhole):
+        msg.distortion_model = "plumb_bob"
+        msg.D.extend(model.dist)
+    else:
+        raise ValueError(f"no Foxglove distortion model for camera model {model.name!r}")
+    fx, fy, cx, cy = model.fx, model.fy, model.cx, model.cy
+    msg.K.extend([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
+    msg.R.extend([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
+    msg.P.extend([fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+    return msg.SerializeToString()
+
+
+def _add_transform(
+    msg: FrameTransforms, parent: str, child: str, pose: Rigid, stamp_ns: int
+) -> None:
+    tf = msg.transforms.add(parent_frame_id=parent, child_frame_id=child)
+    _set_stamp(tf.timestamp, stamp_ns)
+    tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in pose.translation)
+    q = quaternion(pose.rotation)
+    tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = q
+
+
+def frame_transforms(
+    calib: Calibration, stamp_ns: int, camera_frames: dict[str, str] | None = None
+) -> bytes:
+    """``foxglove.FrameTransforms`` for ``/tf_static``.
+
+    One transform per camera, parent ``calib.laser``, child the camera's optical frame
+    (``camera_frames[name]``, default the camera's name), from ``camera_to_laser``
+    (``P_laser = R P_cam + t`` is the camera's pose in the laser frame, which is what a
+    parent -> child transform holds). With ``laser_to_vehicle`` set, also parent
+    ``"vehicle"``, child the laser.
+    """
+    frames = camera_frames or {}
+    msg = FrameTransforms()
+    if calib.laser_to_vehicle is not None:
+        _add_transform(msg, "vehicle", calib.laser, calib.laser_to_vehicle, stamp_ns)
+    for name, cam in calib.cameras.items():
+        _add_transform(msg, calib.laser, frames.get(name, name), cam.camera_to_laser, stamp_ns)
+    return msg.SerializeToString()
+
+
+_N = PackedElementField.NumericType
+_CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+_CLOUD_FIELDS = [
+    PackedElementField(name="x", offset=0, type=_N.FLOAT32),
+    PackedElementField(name="y", offset=4, type=_N.FLOAT32),
+    PackedElementField(name="z", offset=8, type=_N.FLOAT32),
+    PackedElementField(name="rgb", offset=12, type=_N.UINT32),
+]
+
+
+def point_cloud(points: np.ndarray, rgb: np.ndarray, frame_id: str, stamp_ns: int) -> bytes:
+    """``foxglove.PointCloud`` of (N,3) metres and (N,3) uint8 RGB colours.
+
+    16-byte points: x, y, z float32 at 0, 4, 8 and ``rgb`` uint32 at 12, packed
+    ``0x00RRGGBB`` (bytes B, G, R, 0 little-endian: PCL's layout and Foxglove's
+    "RGB (packed)" colour mode).
+    """
+    P = np.asarray(points)
+    C = np.asarray(rgb)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise ValueError(f"points must be (N,3), got shape {P.shape}")
+    if C.shape != P.shape:
+        raise ValueError(f"rgb must be (N,3) like points {P.shape}, got shape {C.shape}")
+    buf = np.empty(P.shape[0], dtype=_CLOUD_DTYPE)
+    buf["x"], buf["y"], buf["z"] = P[:, 0], P[:, 1], P[:, 2]
+    c = C.astype(np.uint32)
+    buf["rgb"] = (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
+    msg = PointCloud(frame_id=frame_id, point_stride=_CLOUD_DTYPE.itemsize, data=buf.tobytes())
+    _set_stamp(msg.timestamp, stamp_ns)
+    msg.pose.orientation.w = 1.0
+    msg.fields.extend(_CLOUD_FIELDS)
+    return msg.SerializeToString()
+
+
+def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
+    """``foxglove.LocationFix`` for ``/gnss/fix``, stamped ``stamp_ns`` (the fix instant
+    on the host monotonic clock).
+
+    Latitude and longitude in degrees, altitude above the ellipsoid (NaN without a fix);
+    ``heading`` (rad clockwise from north) and ENU ``velocity`` from RMC's course and
+    speed where the receiver sent them; covariance unknown. ``metadata`` holds the fix
+    time (``utc``, ISO 8601, and ``utc_s``), ``quality``, ``satellites``, ``hdop`` and
+    ``geoid_separation_m``.
+    """
+    import datetime as dt
+
+    msg = LocationFix(
+        frame_id=frame_id,
+        latitude=fix.latitude,
+        longitude=fix.longitude,
+        altitude=fix.altitude,
+        position_covariance_type=LocationFix.PositionCovarianceType.UNKNOWN,
+    )
+    _set_stamp(msg.timestamp, stamp_ns)
+    msg.position_covariance.extend([0.0] * 9)
+    if math.isfinite(fix.course):
+        msg.heading = fix.course
+        if math.isfinite(fix.speed):
+            msg.velocity.x = fix.speed * math.sin(fix.course)
+            msg.velocity.y = fix.speed * math.cos(fix.course)
+            msg.velocity.z = 0.0
+    try:
+        utc = dt.datetime.fromtimestamp(fix.utc_s, dt.UTC).isoformat(timespec="milliseconds")
+    except (ValueError, OverflowError, OSError):
+        utc = ""
+    values = {
+        "utc": utc.replace("+00:00", "Z"),
+        "utc_s": f"{fix.utc_s:.3f}",
+        "quality": str(fix.quality),
+        "satellites": str(fix.satellites),
+        "hdop": f"{fix.hdop:g}",
+        "geoid_separation_m": f"{fix.geoid_separation:g}",
+    }
+    msg.metadata.extend(KeyValuePair(key=k, value=v) for k, v in values.items())
+    return msg.SerializeToString()
+
+
+# --- acq.* messages -----------------------------------------------------------------------
+
+
+def raw_telegram(
+    *,
+    device: str,
+    data: bytes,
+    recv_ns: int,
+    stamp_ns: int | None = None,
+    device_ticks: Sequence[int] = (),
+    sequence: int = 0,
+) -> bytes:
+    """``acq.RawTelegram``: the telegram bytes as received; ``timestamp`` is ``stamp_ns``
+    (the record's time, e.g. a scan's first point) or ``recv_ns`` when there is none."""
+    msg = RawTelegramMsg(
+        device=device, data=data, device_ticks=device_ticks, sequence=sequence, recv_ns=recv_ns
+    )
+    _set_stamp(msg.timestamp, recv_ns if stamp_ns is None else stamp_ns)
+    return msg.SerializeToString()
+
+
+def timing(
+    *,
+    recv_ns: int,
+    stamp_ns: int,
+    device_ticks: Sequence[int] = (),
+    unwrapped_tick: int = 0,
+    epoch: int = 0,
+    offset_ns: int = 0,
+    drift_ppm: float = 0.0,
+    uncertainty_s: float = math.nan,
+    sequence: int = 0,
+    received: int = 0,
+    dropped: int = 0,
+) -> bytes:
+    """``acq.Timing``, one per record on ``/acq/timing/<device>``: receipt time, raw and
+    unwrapped ticks, the clock's estimate (``stamp_ns``, ``offset_ns`` host minus device,
+    drift in ppm, uncertainty in s) and the device's received/dropped counters."""
+    msg = TimingMsg(
+        recv_ns=recv_ns,
+        device_ticks=device_ticks,
+        unwrapped_tick=unwrapped_tick,
+        epoch=epoch,
+        stamp_ns=stamp_ns,
+        offset_ns=offset_ns,
+        drift_ppm=drift_ppm,
+        uncertainty_s=uncertainty_s,
+        sequence=sequence,
+        received=received,
+        dropped=dropped,
+    )
+    return msg.SerializeToString()
+
+
+def clock(*, realtime_ns: int, monotonic_ns: int) -> bytes:
+    """``acq.Clock``: one (CLOCK_REALTIME, CLOCK_MONOTONIC) pair in ns, for ``/acq/clock``."""
+    return ClockMsg(realtime_ns=realtime_ns, monotonic_ns=monotonic_ns).SerializeToString()
+
+
+@dataclass(frozen=True)
+class DeviceStatus:
+    """One device's line in ``acq.Status`` (counts since start; times in s unless ``_ns``)."""
+
+    name: str
+    kind: str  # "scanner" | "camera" | "can" | "gnss"
+    connected: bool = False
+    rate_hz: float = 0.0
+    received: int = 0
+    dropped: int = 0
+    corrupt: int = 0
+    disconnects: int = 0
+    protocol_errors: int = 0
+    gap_s: float = 0.0  # since the last record, or the length of the current outage
+    last_event: str = ""
+    clock_offset_ns: int = 0
+    clock_drift_ppm: float = 0.0
+    clock_uncertainty_s: float = math.nan
+    epoch: int = 0
+
+
+_DEVICE_STATUS_KEYS = frozenset(f.name for f in fields(DeviceStatus))
+
+
+def _device_status(d: DeviceStatus | Mapping[str, Any]) -> DeviceStatus:
+    if isinstance(d, DeviceStatus):
+        return d
+    unknown = sorted(set(d) - _DEVICE_STATUS_KEYS)
+    if unknown:
+        raise ValueError(f"unknown DeviceStatus field(s): {', '.join(unknown)}")
+    return DeviceStatus(**d)
+
+
+def status(
+    *,
+    timestamp_ns: int,
+    uptime_s: float,
+    file: str = "",
+    disk_free_bytes: int = 0,
+    disk_minutes_left: float = math.inf,
+    writer_queue: int = 0,
+    devices: Iterable[DeviceStatus | Mapping[str, Any]] = (),
+) -> bytes:
+    """``acq.Status`` for ``/acq/status`` (1 Hz); ``devices`` as :class:`DeviceStatus` or
+    plain dicts with the same keys."""
+    msg = StatusMsg(
+        uptime_s=uptime_s,
+        file=file,
+        disk_free_bytes=disk_free_bytes,
+        disk_minutes_left=disk_minutes_left,
+        writer_queue=writer_queue,
+    )
+    _set_stamp(msg.timestamp, timestamp_ns)
+    for d in devices:
+        ds = _device_status(d)
+        msg.devices.add(**{k: getattr(ds, k) for k in _DEVICE_STATUS_KEYS})
+    return msg.SerializeToString()
+
+
+def odometry(odo: Odometry) -> bytes:
+    """``acq.Odometry`` for ``/vehicle/odometry``: ``timestamp`` is ``odo.stamp_ns`` (the
+    CAN receive stamp on the host monotonic clock); m/s, rad/s; NaN for what the CAN
+    message does not carry."""
+    msg = OdometryMsg(
+        recv_ns=odo.recv_ns,
+        speed_mps=odo.speed,
+        yaw_rate_rps=odo.yaw_rate,
+        wheel_speeds_mps=odo.wheel_speeds,
+        arbitration_id=odo.arbitration_id,
+    )
+    _set_stamp(msg.timestamp, odo.stamp_ns)
+    return msg.SerializeToString()
+
+
+def can_frame(frame: CanFrame) -> bytes:
+    """``acq.CanFrame`` for ``/vehicle/can``: the frame as received (re-decodable with any
+    DBC), ``timestamp`` its receive stamp on the host monotonic clock, ``wall_ns`` the
+    interface's own stamp."""
+    msg = CanFrameMsg(
+        recv_ns=frame.recv_ns,
+        wall_ns=frame.wall_ns,
+        arbitration_id=frame.arbitration_id,
+        is_extended=frame.is_extended,
+        is_remote=frame.is_remote,
+        is_error=frame.is_error,
+        is_fd=frame.is_fd,
+        data=frame.data,
+        channel=frame.channel,
+    )
+    _set_stamp(msg.timestamp, frame.stamp_ns)
+    return msg.SerializeToString()

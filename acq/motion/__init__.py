@@ -1,0 +1,1 @@
+"""The vehicle's motion: trajectories from odometry, GNSS, their fusion and INS files."""

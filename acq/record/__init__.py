@@ -1,0 +1,2 @@
+"""Recording: the configuration, the recorder daemon, device discovery and probing,
+systemd notify."""

@@ -1,0 +1,701 @@
+"""The recorder's YAML configuration (see ARCHITECTURE.md, "the configuration file").
+
+:func:`load` reads and validates a file; every problem is a :class:`ConfigError` whose
+text is one line naming the file, the key path and what was expected, e.g.
+``rig.yaml: cameras[0].fsp: unknown key; did you mean fps?``. Driver ``options`` are
+checked against the keyword parameters of the driver class the ``driver:`` key selects.
+
+Relative paths in a file (``calibration``, ``output.dir``, ``can.dbc``) are relative to
+the folder of that file, not to the working directory; ``~`` is the user's home.
+:func:`load` returns them absolute, :func:`parse` leaves them as written. Times are in
+seconds, rates in frames per second, sizes in megabytes (10**6 bytes).
+"""
+
+from __future__ import annotations
+
+import difflib
+import functools
+import inspect
+import math
+import os
+import re
+import types
+import typing
+from collections.abc import Mapping, Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    TypeAdapter,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import ErrorDetails, PydanticCustomError
+
+__all__ = [
+    "DEFAULT",
+    "CameraConfig",
+    "CanConfig",
+    "Config",
+    "ConfigError",
+    "GnssConfig",
+    "OutputConfig",
+    "ScannerConfig",
+    "dump",
+    "load",
+    "parse",
+    "shipped",
+]
+
+VERSION = 1
+DEFAULT = "sim.yaml"
+"""The configuration ``acq record`` uses without ``-c``: the simulated rig."""
+_NAME = re.compile(r"[A-Za-z0-9_]+")
+_PREFIX = re.compile(r"[A-Za-z0-9_.-]+")
+# pyserial's URL handlers (serial.protocol_handler_*); tcp:// is taken as socket://
+_SERIAL_SCHEMES = {"socket", "tcp", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110"}
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot be used; ``str(e)`` is one line: file, key path, problem."""
+
+
+def _fail(msg: str, *subpath: str | int) -> PydanticCustomError:
+    """A validation error ``msg`` at ``subpath`` below the value being validated."""
+    return PydanticCustomError("acq", "{msg}", {"msg": msg, "subpath": subpath})
+
+
+def _not_empty_path(value: Any) -> Any:
+    if value == "":
+        raise _fail("expected a path, got ''")
+    if isinstance(value, str) and not value.isprintable():
+        raise _fail(f"expected a path, got {value!r} (it holds a control character)")
+    return value
+
+
+def _none_is_empty(cls: type[BaseModel], value: Any, info: ValidationInfo) -> Any:
+    """A section left empty (``cameras:`` with every entry commented out) is its default."""
+    if value is None and info.field_name is not None:
+        return cls.model_fields[info.field_name].get_default(call_default_factory=True)
+    return value
+
+
+# Paths are written as strings in YAML, so they are validated in lax mode.
+_Path = Annotated[Path, Field(strict=False), BeforeValidator(_not_empty_path)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+class ScannerConfig(_Model):
+    """One laser scanner: topics ``/<name>/scan`` and ``/<name>/raw``."""
+
+    name: str
+    driver: Literal["hokuyo", "sick"]
+    url: str  # hokuyo: a pyserial URL (tcp:// becomes socket://); sick: tcp://host:port
+    protocol: Literal["cola-b", "cola-a"] | None = Field(default=None, validate_default=True)
+    latency_s: float | Literal["auto"] = 0.0  # constant transport latency, s; auto: hokuyo
+    options: dict[str, Any] = {}  # keyword arguments of the driver class
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        return _check_name(v)
+
+    _empty = field_validator("options", mode="before")(_none_is_empty)
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, v: str, info: ValidationInfo) -> str:
+        driver = info.data.get("driver")
+        if driver == "hokuyo":
+            return _serial_url(v)
+        if driver == "sick":
+            return _tcp_url(v)
+        return v
+
+    @field_validator("protocol")
+    @classmethod
+    def _protocol(cls, v: str | None, info: ValidationInfo) -> str | None:
+        driver = info.data.get("driver")
+        if driver == "sick" and v is None:
+            return "cola-b"
+        if driver == "hokuyo" and v is not None:
+            raise _fail("only for driver sick (a hokuyo speaks SCIP); remove it")
+        return v
+
+    @field_validator("latency_s", mode="plain")
+    @classmethod
+    def _latency(cls, v: Any, info: ValidationInfo) -> float | str:
+        if v == "auto" and isinstance(v, str):
+            if info.data.get("driver", "hokuyo") != "hokuyo":
+                raise _fail(
+                    "auto is measured with SCIP TM round trips, for driver hokuyo only; "
+                    "expected a number of seconds >= 0"
+                )
+            return v
+        return _seconds(v, "a number of seconds >= 0 or auto")
+
+    @field_validator("options")
+    @classmethod
+    def _options(cls, v: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
+        driver = info.data.get("driver")
+        return v if driver is None else _check_options("scanner", driver, v, cls)
+
+
+class CameraConfig(_Model):
+    """One camera: topics ``/<name>/image/compressed`` and ``/<name>/calibration``."""
+
+    name: str
+    driver: Literal["opencv", "v4l2"]
+    source: str  # an index, /dev/videoN, a URL or a pipeline
+    fps: float = Field(default=25.0, gt=0)  # requested frame rate, 1/s
+    width: int | None = Field(default=None, gt=0)  # requested size, px
+    height: int | None = Field(default=None, gt=0)
+    fourcc: str | None = None  # requested pixel format, e.g. MJPG
+    latency_s: float = Field(default=0.0, ge=0)  # middle of exposure to receipt, s, where unknown
+    options: dict[str, Any] = {}  # keyword arguments of the driver class
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        return _check_name(v)
+
+    _empty = field_validator("options", mode="before")(_none_is_empty)
+
+    @field_validator("source", mode="before")
+    @classmethod
+    def _source(cls, v: Any) -> Any:
+        if isinstance(v, int) and not isinstance(v, bool):
+            return str(v)  # a camera index, written as a number
+        if v == "":
+            raise _fail("expected an index, a device, a URL or a pipeline, got ''")
+        return v
+
+    @field_validator("fourcc")
+    @classmethod
+    def _fourcc(cls, v: str | None) -> str | None:
+        if v is not None and not (len(v) == 4 and v.isascii() and v.isprintable()):
+            raise _fail(f"expected 4 characters such as MJPG or YUYV, got {v!r}")
+        return v
+
+    @field_validator("options")
+    @classmethod
+    def _options(cls, v: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
+        driver = info.data.get("driver")
+        return v if driver is None else _check_options("camera", driver, v, cls)
+
+
+class OutputConfig(_Model):
+    """Where and how logs are written."""
+
+    dir: _Path = Path("./logs")
+    prefix: str = "acq"  # file names start with it
+    split_minutes: float = Field(default=10.0, gt=0)  # start a new file after this long, min
+    split_megabytes: float = Field(default=2048.0, gt=0)  # ... or this large, MB
+    reserve_megabytes: float = Field(default=512.0, ge=0)  # stop with this much disk left, MB
+
+    @field_validator("prefix")
+    @classmethod
+    def _prefix(cls, v: str) -> str:
+        if not _PREFIX.fullmatch(v):
+            raise _fail(
+                f"expected letters, digits, '.', '-' or '_' (it starts file names), got {v!r}"
+            )
+        return v
+
+
+class CanConfig(_Model):
+    """Vehicle CAN bus through python-can, decoded with a DBC file: topics
+    ``/vehicle/odometry`` and ``/vehicle/can`` (every frame, raw).
+
+    Signals are named ``MESSAGE.SIGNAL`` as in the DBC, whose scale, offset and unit
+    (km/h, m/s, mph; deg/s, rad/s) give SI values. The defaults are those of
+    ``sim/vehicle.dbc``. ``speed`` names a vehicle speed signal; without one the speed
+    is the mean of the four wheel speeds. ``options`` are further keyword arguments of
+    ``can.Bus`` (e.g. ``fd: true``, ``data_bitrate``, ``port`` of udp_multicast).
+    """
+
+    interface: str = Field(min_length=1)  # python-can interface: socketcan, pcan...
+    channel: str = Field(min_length=1)  # e.g. can0
+    dbc: _Path
+    bitrate: int | None = Field(default=None, gt=0)  # bit/s; None: as the interface is set up
+    wheel_speeds: list[str] = [
+        f"WHEEL_SPEEDS.WHEEL_SPEED_{w}" for w in ("FL", "FR", "RL", "RR")
+    ]  # front left, front right, rear left, rear right
+    yaw_rate: str = "YAW_RATE.YAW_RATE"  # positive counter-clockwise (left turn)
+    speed: str | None = None  # a vehicle speed signal; None: mean of the wheel speeds
+    options: dict[str, Any] = {}  # keyword arguments of can.Bus
+
+    _empty = field_validator("options", mode="before")(_none_is_empty)
+
+    @field_validator("interface")
+    @classmethod
+    def _interface(cls, v: str) -> str:
+        try:
+            from can.interfaces import VALID_INTERFACES
+        except Exception:  # python-can missing or broken here: the recorder will say
+            return v
+        if v not in VALID_INTERFACES:
+            hint = _did_you_mean(v, sorted(VALID_INTERFACES))
+            raise _fail(
+                f"unknown python-can interface {v!r}{hint}"
+                if hint
+                else f"unknown python-can interface {v!r}; expected one of "
+                + ", ".join(sorted(VALID_INTERFACES))
+            )
+        return v
+
+    @field_validator("wheel_speeds")
+    @classmethod
+    def _wheels(cls, v: list[str]) -> list[str]:
+        if len(v) != 4:
+            raise _fail(
+                f"expected 4 signals (front left, front right, rear left, rear right), got {len(v)}"
+            )
+        for i, name in enumerate(v):
+            _signal_name(name, i)
+        return v
+
+    @field_validator("yaw_rate", "speed")
+    @classmethod
+    def _signal(cls, v: str | None) -> str | None:
+        return v if v is None else _signal_name(v)
+
+
+class GnssConfig(_Model):
+    """A GNSS receiver sending NMEA 0183 over a pyserial URL: topics ``/gnss/fix`` and
+    ``/gnss/raw``. ``latency_s`` is the constant delay from the fix instant to the
+    receipt of its first sentence that one-way timing cannot see (the receiver's
+    computation), subtracted from the fix times mapped to the host clock."""
+
+    url: str
+    baudrate: int = Field(default=9600, gt=0)
+    latency_s: float = Field(default=0.0, ge=0)
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, v: str) -> str:
+        return _serial_url(v)
+
+
+class Config(_Model):
+    """A whole configuration file; ``source`` is the file it was read from (set by load)."""
+
+    version: Literal[1]
+    scanners: list[ScannerConfig] = []
+    cameras: list[CameraConfig] = []
+    calibration: _Path | None = None
+    output: OutputConfig = OutputConfig()
+    can: CanConfig | None = None
+    gnss: GnssConfig | None = None
+    source: Path | None = Field(default=None, exclude=True)
+
+    _empty = field_validator("scanners", "cameras", "output", mode="before")(_none_is_empty)
+
+    @field_validator("version", mode="plain")
+    @classmethod
+    def _version(cls, v: Any) -> int:
+        if type(v) is not int or v != VERSION:
+            raise _fail(f"expected {VERSION} (the version this acq reads), got {_show(v)}")
+        return v
+
+    @model_validator(mode="after")
+    def _devices(self) -> Config:
+        seen: dict[str, str] = {}
+        groups: list[tuple[str, Sequence[ScannerConfig | CameraConfig]]] = [
+            ("scanners", self.scanners),
+            ("cameras", self.cameras),
+        ]
+        for kind, devices in groups:
+            for i, device in enumerate(devices):
+                if device.name in seen:
+                    raise _fail(
+                        f"{device.name!r} is already the name of {seen[device.name]}; "
+                        "device names must be unique",
+                        kind,
+                        i,
+                        "name",
+                    )
+                seen[device.name] = f"{kind}[{i}]"
+        if not seen:
+            raise _fail("no device; expected at least one scanner or camera", "scanners")
+        for section, name in (("can", "vehicle"), ("gnss", "gnss")):
+            if getattr(self, section) is not None and name in seen:
+                where = seen[name].replace("[", " ").rstrip("]").split()
+                raise _fail(
+                    f"{name!r} names the {section} section's topics (/{name}/...); "
+                    "rename this device",
+                    where[0],
+                    int(where[1]),
+                    "name",
+                )
+        return self
+
+    def devices(self) -> list[str]:
+        """The names of all devices, scanners first."""
+        return [s.name for s in self.scanners] + [c.name for c in self.cameras]
+
+
+# --- field checks ------------------------------------------------------------------------
+
+
+def _check_name(v: str) -> str:
+    if not _NAME.fullmatch(v):
+        raise _fail(f"expected letters, digits or '_' (it names topics), got {v!r}")
+    return v
+
+
+def _signal_name(v: str, *subpath: str | int) -> str:
+    """A DBC signal as ``MESSAGE.SIGNAL``."""
+    message, dot, signal = v.partition(".")
+    if not (dot and _NAME.fullmatch(message) and _NAME.fullmatch(signal)):
+        raise _fail(f"expected MESSAGE.SIGNAL as named in the DBC, got {v!r}", *subpath)
+    return v
+
+
+def _seconds(v: Any, expected: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise _fail(f"expected {expected}, got {_show(v)}")
+    if not math.isfinite(v) or v < 0:
+        raise _fail(f"expected {expected}, got {v!r}")
+    return float(v)
+
+
+def _host_port(v: str, rest: str, default_port: int | None, expected: str) -> None:
+    host, sep, port = rest.rstrip("/").rpartition(":")
+    if not sep:
+        host, port = rest.rstrip("/"), ""
+    if not host or (not port and default_port is None):
+        raise _fail(f"expected {expected}, got {v!r}")
+    if port and not (port.isdigit() and 0 < int(port) < 65536):
+        raise _fail(f"expected {expected} with a port 1..65535, got {v!r}")
+
+
+def _serial_url(v: str) -> str:
+    """A pyserial URL (a device path or scheme://...); tcp://host:port becomes socket://."""
+    expected = "a pyserial URL (/dev/..., socket://host:port)"
+    scheme, sep, rest = v.partition("://")
+    if not sep:
+        if not v.strip():
+            raise _fail(f"expected {expected}, got {v!r}")
+        return v
+    if scheme not in _SERIAL_SCHEMES:
+        raise _fail(f"expected {expected}; unknown scheme {scheme}://")
+    if scheme in ("socket", "tcp"):
+        _host_port(v, rest.split("?")[0], None, "socket://host:port")
+        return "socket://" + rest
+    return v
+
+
+def _tcp_url(v: str) -> str:
+    """tcp://host:port (also socket://, or host[:port] as the SICK driver takes it)."""
+    scheme, sep, rest = v.partition("://")
+    if sep and scheme not in ("tcp", "socket"):
+        raise _fail(f"expected tcp://host:port, got {v!r}")
+    _host_port(v, rest if sep else v, 2112, "tcp://host:port")
+    return v
+
+
+@functools.cache
+def _driver_params(kind: str, driver: str) -> dict[str, TypeAdapter[Any]] | None:
+    """The keyword parameters of the driver class (and of the bases it forwards
+    ``**options`` to) that a YAML value can fill, with their validators; None when the
+    driver cannot be imported here (its options are then left to the driver)."""
+    try:
+        if kind == "scanner":
+            from acq.drivers.scanner import scanner_class
+
+            cls: type = scanner_class(driver)
+        else:
+            from acq.drivers.camera import camera_class
+
+            cls = camera_class(driver)
+    except Exception:
+        return None
+    params: dict[str, TypeAdapter[Any]] = {}
+    for klass in cls.__mro__:
+        init = klass.__dict__.get("__init__")
+        if init is None:
+            continue
+        try:
+            hints = typing.get_type_hints(init)
+        except Exception:
+            hints = {}
+        forwards = False
+        for p in list(inspect.signature(init).parameters.values())[1:]:
+            if p.kind is p.VAR_KEYWORD:
+                forwards = True
+            elif p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and p.name not in params:
+                try:  # a parameter no YAML value can fill (a test hook) is not an option
+                    params[p.name] = TypeAdapter(
+                        hints.get(p.name, Any), config=ConfigDict(allow_inf_nan=False)
+                    )
+                except Exception:
+                    continue
+        if not forwards:
+            break
+    return params
+
+
+def _check_options(
+    kind: str, driver: str, options: dict[str, Any], model: type[BaseModel]
+) -> dict[str, Any]:
+    params = _driver_params(kind, driver)
+    if params is None:
+        return options
+    checked: dict[str, Any] = {}
+    for key, value in options.items():
+        if key in model.model_fields:
+            raise _fail(f"set {key} on the {kind} itself, not under options", key)
+        adapter = params.get(key)
+        if adapter is None:
+            hint = _did_you_mean(key, [p for p in params if p not in model.model_fields])
+            raise _fail(f"unknown option of the {driver} driver{hint}", key)
+        try:
+            checked[key] = adapter.validate_python(value)
+        except ValidationError as e:
+            err = e.errors()[0]
+            raise _fail(_describe(err, []), key, *err["loc"]) from None
+    return checked
+
+
+# --- errors ------------------------------------------------------------------------------
+
+
+def _did_you_mean(key: object, candidates: list[str]) -> str:
+    close = difflib.get_close_matches(str(key), candidates, n=1)
+    return f"; did you mean {close[0]}?" if close else ""
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, Mapping):
+        return "a mapping"
+    if isinstance(value, list | tuple | set):
+        return "a list"
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _unwrap(tp: Any) -> Any:
+    """``X | None`` -> ``X``."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1:
+            return _unwrap(args[0])
+    return tp
+
+
+def _key_path(loc: tuple[str | int, ...]) -> tuple[str, list[str]]:
+    """``scanners[0].latency_s`` for a pydantic location, and the keys allowed beside its
+    last element (for did-you-mean)."""
+    text = ""
+    tp: Any = Config
+    keys: list[str] = []
+    for elem in loc:
+        tp = _unwrap(tp)
+        is_model = isinstance(tp, type) and issubclass(tp, BaseModel)
+        if elem == "[key]":
+            continue
+        if isinstance(elem, int) and not is_model and typing.get_origin(tp) is not dict:
+            text += f"[{elem}]"
+            args = typing.get_args(tp)
+            tp = args[0] if typing.get_origin(tp) is list and args else Any
+            continue
+        text += f".{elem}" if text else str(elem)
+        if is_model:
+            keys = [f for f in tp.model_fields if not (tp is Config and f == "source")]
+            field = tp.model_fields.get(str(elem))
+            tp = field.annotation if field is not None else Any
+        else:
+            keys, tp = [], Any
+    return text, keys
+
+
+_TYPES = {
+    "float_type": "expected a number",
+    "float_parsing": "expected a number",
+    "int_type": "expected a whole number",
+    "int_parsing": "expected a whole number",
+    "int_from_float": "expected a whole number",
+    "bool_type": "expected true or false",
+    "bool_parsing": "expected true or false",
+    "string_type": "expected a string",
+    "list_type": "expected a list",
+    "tuple_type": "expected a list",
+    "dict_type": "expected a mapping",
+    "model_type": "expected a mapping",
+    "model_attributes_type": "expected a mapping",
+    "path_type": "expected a path",
+    "finite_number": "expected a finite number",
+    "none_required": "expected nothing (null)",
+}
+_BOUNDS = {
+    "greater_than": ">",
+    "greater_than_equal": ">=",
+    "less_than": "<",
+    "less_than_equal": "<=",
+}
+
+
+def _describe(err: ErrorDetails, keys: list[str]) -> str:
+    """A pydantic error in plain words."""
+    kind = err["type"]
+    ctx = err.get("ctx") or {}
+    got = f", got {_show(err.get('input'))}"
+    if kind == "acq":
+        return str(ctx["msg"])
+    if kind == "extra_forbidden":
+        return "unknown key" + _did_you_mean(err["loc"][-1], keys)
+    if kind == "invalid_key" or "[key]" in err["loc"]:
+        return "expected a string key" + got
+    if kind == "missing":
+        return "required key missing"
+    if kind in _TYPES:
+        return _TYPES[kind] + got
+    if kind == "literal_error":
+        expected = str(ctx.get("expected", "")).replace("'", "").replace(" or ", ", ")
+        return f"expected one of: {expected}{got}"
+    if kind in _BOUNDS:
+        bound = next(iter(ctx.values()), "?")
+        shown = f"{bound:g}" if isinstance(bound, int | float) else bound
+        return f"must be {_BOUNDS[kind]} {shown}{got}"
+    if kind == "string_too_short":
+        return "must not be empty"
+    if kind == "value_error" and "error" in ctx:
+        return str(ctx["error"])
+    msg = err["msg"]
+    return msg[:1].lower() + msg[1:] + got
+
+
+def _error(source: str, path: str, message: str) -> ConfigError:
+    text = f"{source}: {path}: {message}" if path else f"{source}: {message}"
+    return ConfigError(text.replace("\r", "\\r").replace("\n", "\\n"))
+
+
+def _from_validation(e: ValidationError, source: str) -> ConfigError:
+    errors = e.errors()
+    # a misspelt key also makes its right spelling "missing": name the misspelling
+    err = next((x for x in errors if x["type"] in ("extra_forbidden", "invalid_key")), errors[0])
+    loc = tuple(err["loc"])
+    if err["type"] == "acq":
+        loc += tuple((err.get("ctx") or {}).get("subpath", ()))
+    path, keys = _key_path(loc)
+    return _error(source, path, _describe(err, keys))
+
+
+# --- reading and writing -----------------------------------------------------------------
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that refuses a key given twice in one mapping (YAML keeps the last)."""
+
+
+def _construct_mapping(loader: _Loader, node: yaml.MappingNode) -> dict[Any, Any]:
+    seen: set[Any] = set()
+    for key_node, _ in node.value:
+        if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+            continue
+        key = loader.construct_object(key_node)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                "while reading a mapping",
+                node.start_mark,
+                f"duplicate key {key}",
+                key_node.start_mark,
+            )
+        seen.add(key)
+    return loader.construct_mapping(node)
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def parse(data: Any, source: str = "<config>") -> Config:
+    """A :class:`Config` from an already-parsed YAML tree; paths stay as written.
+
+    ``source`` names the file in error messages.
+    """
+    if data is None:
+        raise _error(source, "", "empty file; expected a mapping with version: 1 and devices")
+    if not isinstance(data, Mapping):
+        raise _error(
+            source, "", f"expected a mapping with version: 1 and devices, got {_show(data)}"
+        )
+    if "source" in data:
+        keys = [k for k in Config.model_fields if k != "source"]
+        raise _error(source, "source", "unknown key" + _did_you_mean("source", keys))
+    try:
+        return Config.model_validate(dict(data))
+    except ValidationError as e:
+        raise _from_validation(e, source) from None
+
+
+def _absolute(path: Path, base: Path) -> Path:
+    return Path(os.path.normpath(base / path.expanduser()))
+
+
+def shipped(name: str = DEFAULT) -> Path:
+    """The path of a configuration shipped with acq (the repository's ``config/NAME``,
+    package data ``acq.config``)."""
+    return Path(str(resources.files("acq.config").joinpath(name)))
+
+
+def load(path: str | Path) -> Config:
+    """Read and validate a configuration file; relative paths become absolute, relative
+    to the file's folder."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise _error(str(path), "", "no such file") from None
+    except UnicodeDecodeError as e:
+        raise _error(str(path), "", f"not UTF-8 text (byte {e.start})") from None
+    except OSError as e:
+        raise _error(str(path), "", f"cannot read: {e.strerror or e}") from None
+    try:
+        data = yaml.load(text, Loader=_Loader)
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
+        problem = " ".join(str(e.problem or e.context or "syntax error").split())
+        raise _error(where, "", f"invalid YAML: {problem}") from None
+    except yaml.YAMLError as e:
+        raise _error(str(path), "", f"invalid YAML: {' '.join(str(e).split())}") from None
+    except RecursionError:
+        raise _error(str(path), "", "invalid YAML: nested too deeply") from None
+    config = parse(data, str(path))
+    base = path.parent.absolute()
+    output = config.output.model_copy(update={"dir": _absolute(config.output.dir, base)})
+    update: dict[str, Any] = {"output": output, "source": path.absolute()}
+    if config.calibration is not None:
+        update["calibration"] = _absolute(config.calibration, base)
+    if config.can is not None:
+        update["can"] = config.can.model_copy(update={"dbc": _absolute(config.can.dbc, base)})
+    return config.model_copy(update=update)
+
+
+def _plain(value: Any) -> Any:
+    """Model-dump values as YAML's safe dumper writes them."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def dump(config: Config) -> str:
+    """The YAML text of a configuration (``parse(yaml.safe_load(dump(c)))`` equals ``c``)."""
+    data = _plain(config.model_dump(exclude_none=True))
+    return yaml.safe_dump(data, sort_keys=False, allow_unicode=True)

@@ -1,0 +1,639 @@
+"""`acq replay`: serve a recorded session back through simulated devices on real transports.
+
+Scanners are served from their raw telegrams (``/<scanner>/raw``: the bytes exactly as
+received) by a SCIP or CoLa device on TCP (Hokuyo also on a pseudo-terminal), cameras from
+their JPEG bytes (``/<camera>/image/compressed``) as MJPEG over HTTP, each record at its
+recorded receive time (MCAP ``log_time``) shifted to now and divided by ``speed``. A
+recorder pointed at the replay (:meth:`Replay.config`) therefore records the same device
+ticks, ranges and JPEG bytes; only the receive times are new (at speed 1 they keep the
+recorded pace, within the host's scheduling jitter).
+
+The devices share one clock, so they keep their recorded timing relative to each other.
+It starts the first time a client asks any device for its time or its data (SCIP
+``II``/``TM``/a scan command, CoLa ``LMDscandata``, an MJPEG stream request); from then
+on the log plays like a live rig: a client that connects later, or reconnects, gets
+what is due from then on. A client must ask for what was recorded: the same scan command,
+steps and cluster (Hokuyo), the same CoLa encoding (SICK); anything else is refused, and
+the reason is logged and kept in :attr:`Replay.errors`. When the log ends the devices go
+silent (connections stay open, nothing is sent) until the replay is closed.
+
+The session's telegrams and JPEGs are held in memory (the simulated rig: about 1.5 MB/s,
+so 10 minutes take some 0.9 GB); replay a long session file by file.
+
+Exit codes of :func:`replay_main`: 0 served to the end (or stopped by Ctrl-C / SIGTERM),
+1 a runtime failure (a port in use), 2 bad input (a missing or unreadable log, nothing to
+replay, an unknown driver, a bad listen address), with one line naming the file.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import sys
+import threading
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+from urllib.parse import urlsplit
+
+import yaml
+from google.protobuf.message import DecodeError
+
+from acq.log import loginfo, schemas
+from acq.record import config as configfile
+from acq.record.config import CameraConfig, Config, ScannerConfig
+
+if TYPE_CHECKING:
+    from acq.sim.replay_devices import ReplayClock
+
+__all__ = [
+    "EXIT_FAILURE",
+    "EXIT_OK",
+    "EXIT_USAGE",
+    "DeviceLog",
+    "Replay",
+    "ReplayError",
+    "Session",
+    "load_session",
+    "replay_main",
+]
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+
+log = logging.getLogger("acq.sim.replay")
+
+SCANNER_DRIVERS = ("hokuyo", "sick")
+DEFAULT_SCANNER_LISTEN = "tcp://127.0.0.1:0"
+DEFAULT_CAMERA_LISTEN = "http://127.0.0.1:0/stream.mjpg"
+LEAD_S = 0.05  # from the request that starts the clock to that device's first record, s
+END_MARGIN_S = 0.1  # after the last record is due, s: it is on its way to the client
+_RAW_SUFFIX = "/raw"
+_NOT_REPLAYED = frozenset({"/gnss/raw"})  # raw telegrams that are not a scanner's
+_IMAGE_SUFFIX = "/image/compressed"
+
+
+class ReplayError(ValueError):
+    """A log that cannot be replayed; ``str(e)`` is one line naming the file."""
+
+
+@dataclass
+class DeviceLog:
+    """What a session recorded of one device, in receive order."""
+
+    name: str
+    kind: str  # scanner | camera
+    driver: str  # the recorded driver (hokuyo, sick, opencv, v4l2)
+    file: Path  # the first file holding its records
+    times_ns: list[int] = field(default_factory=list)  # receive times, host monotonic ns
+    data: list[bytes] = field(default_factory=list)  # telegrams as received, JPEGs as sent
+    metadata: dict[str, Any] = field(default_factory=dict)  # device.<name>, JSON decoded
+
+    @property
+    def duration_s(self) -> float:
+        return (self.times_ns[-1] - self.times_ns[0]) * 1e-9 if self.times_ns else 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        return (len(self.times_ns) - 1) / self.duration_s if self.duration_s > 0 else 0.0
+
+
+@dataclass
+class Session:
+    """The files of one recording, read: devices (scanners first), recorded config."""
+
+    files: tuple[Path, ...]
+    devices: dict[str, DeviceLog]
+    config: Config | None  # the recorded configuration (metadata ``config``), if readable
+    calibration_yaml: str | None  # the recorded calibration (metadata ``calibration``)
+
+    @property
+    def start_ns(self) -> int:
+        return min(d.times_ns[0] for d in self.devices.values())
+
+    @property
+    def end_ns(self) -> int:
+        return max(d.times_ns[-1] for d in self.devices.values())
+
+    @property
+    def duration_s(self) -> float:
+        return (self.end_ns - self.start_ns) * 1e-9
+
+
+# --- reading --------------------------------------------------------------------------------
+
+
+def _recorded_config(meta: dict[str, dict[str, str]], path: Path) -> Config | None:
+    text = meta.get("config", {}).get("yaml")
+    if not text:
+        return None
+    try:
+        return configfile.parse(yaml.safe_load(text), f"{path}: metadata config")
+    except (configfile.ConfigError, yaml.YAMLError) as e:
+        log.warning(
+            "%s: the recorded configuration is unusable (%s); using the device metadata", path, e
+        )
+        return None
+
+
+def load_session(paths: Sequence[str | Path]) -> Session:
+    """Read the files of one session (in the given order): every device's records and
+    description, the recorded configuration and calibration. Raises :class:`ReplayError`."""
+    files = tuple(Path(p) for p in paths)
+    if not files:
+        raise ReplayError("no log given")
+    try:
+        readers = [loginfo.read_messages(p) for p in files]  # missing or not MCAP: at once
+    except loginfo.LogError as e:
+        raise ReplayError(str(e)) from None
+    devices: dict[str, DeviceLog] = {}
+    config: Config | None = None
+    calibration: str | None = None
+    described: dict[str, dict[str, str]] = {}
+    for path, messages in zip(files, readers, strict=True):
+        meta = loginfo.read_metadata(path)
+        if config is None:
+            config = _recorded_config(meta, path)
+        if calibration is None:
+            calibration = meta.get("calibration", {}).get("yaml")
+        for name, values in meta.items():
+            if name.startswith("device."):
+                described.setdefault(name[len("device.") :], values)
+        try:
+            _read_records(path, messages, devices)
+        except loginfo.LogError as e:
+            raise ReplayError(str(e)) from None
+    if not devices:
+        where = ", ".join(str(p) for p in files)
+        raise ReplayError(f"{where}: no raw scanner telegrams or camera images to replay")
+    for dev in devices.values():
+        _describe(dev, described.get(dev.name, {}), config)
+    ordered = sorted(devices.values(), key=lambda d: (d.kind != "scanner", _order(d, config)))
+    return Session(files, {d.name: d for d in ordered}, config, calibration)
+
+
+def _read_records(path: Path, messages: Iterable[Any], devices: dict[str, DeviceLog]) -> None:
+    for schema, channel, message in messages:
+        topic: str = channel.topic
+        name = schema.name if schema is not None else ""
+        if topic in _NOT_REPLAYED:
+            continue  # the vehicle's CAN bus and GNSS receiver have no simulated device
+        if name == "acq.RawTelegram" and topic.endswith(_RAW_SUFFIX):
+            device, kind = topic[1 : -len(_RAW_SUFFIX)], "scanner"
+        elif name == "foxglove.CompressedImage" and topic.endswith(_IMAGE_SUFFIX):
+            device, kind = topic[1 : -len(_IMAGE_SUFFIX)], "camera"
+        else:
+            continue
+        try:
+            data = schemas.decode(name, message.data).data
+        except DecodeError:  # a garbled record
+            log.warning("%s: an undecodable %s record skipped", path, topic)
+            continue
+        dev = devices.get(device)
+        if dev is None:
+            dev = devices[device] = DeviceLog(device, kind, "", path)
+        elif dev.kind != kind:
+            raise ReplayError(f"{path}: {device!r} has both scanner and camera records")
+        dev.times_ns.append(message.log_time)
+        dev.data.append(bytes(data))
+
+
+def _order(dev: DeviceLog, config: Config | None) -> int:
+    names = config.devices() if config is not None else []
+    return names.index(dev.name) if dev.name in names else len(names)
+
+
+def _describe(dev: DeviceLog, values: dict[str, str], config: Config | None) -> None:
+    """Fill in the device's driver and metadata; check that it can be replayed."""
+    if any(b < a for a, b in zip(dev.times_ns, dev.times_ns[1:], strict=False)):
+        order = sorted(range(len(dev.times_ns)), key=dev.times_ns.__getitem__)
+        dev.times_ns = [dev.times_ns[i] for i in order]
+        dev.data = [dev.data[i] for i in order]
+    for key in ("info", "geometry", "params", "format"):
+        if key in values:
+            try:
+                dev.metadata[key] = json.loads(values[key])
+            except ValueError:
+                raise ReplayError(
+                    f"{dev.file}: metadata device.{dev.name}: {key} is not JSON"
+                ) from None
+    cfg = _device_config(config, dev.name)
+    dev.driver = values.get("driver") or (str(cfg.driver) if cfg is not None else "")
+    if dev.kind == "camera":
+        return
+    if dev.driver not in SCANNER_DRIVERS:
+        got = repr(dev.driver) if dev.driver else "no recorded driver"
+        raise ReplayError(
+            f"{dev.file}: scanner {dev.name!r}: {got}; a replay serves "
+            + " and ".join(SCANNER_DRIVERS)
+            + " scanners"
+        )
+    if dev.driver == "hokuyo":
+        _check_scip(dev)
+    else:
+        _check_cola(dev)
+
+
+def _check_scip(dev: DeviceLog) -> None:
+    from acq.drivers.errors import ProtocolError
+    from acq.drivers.scip_codec import parse_scan_echo
+
+    if "params" not in dev.metadata or "info" not in dev.metadata:
+        raise ReplayError(
+            f"{dev.file}: no device.{dev.name} metadata (the PP parameters and "
+            "identity a Hokuyo replay answers with)"
+        )
+    echoes = {d.split(b"\n", 1)[0] for d in dev.data}
+    if len(echoes) > 1:
+        shown = ", ".join(sorted(e.decode("ascii", "replace") for e in echoes))
+        raise ReplayError(
+            f"{dev.file}: {dev.name}: scans of different commands ({shown}); "
+            "replay the files of each separately"
+        )
+    echo = echoes.pop()
+    try:
+        parsed = parse_scan_echo(echo)
+    except ProtocolError as e:
+        raise ReplayError(f"{dev.file}: {dev.name}: not a SCIP scan stream: {e}") from None
+    if parsed.command[0] not in "MN":
+        raise ReplayError(
+            f"{dev.file}: {dev.name}: single scans ({parsed.command}) cannot be "
+            "replayed as a stream"
+        )
+
+
+def _check_cola(dev: DeviceLog) -> None:
+    from acq.drivers.cola_codec import unframe
+    from acq.drivers.errors import ProtocolError
+
+    if "geometry" not in dev.metadata:
+        raise ReplayError(
+            f"{dev.file}: no device.{dev.name} metadata (the scan geometry a "
+            "SICK replay answers with)"
+        )
+    try:
+        first = unframe(dev.data[0])
+    except ProtocolError as e:
+        raise ReplayError(f"{dev.file}: {dev.name}: not a CoLa telegram: {e}") from None
+    if first.name != "LMDscandata":
+        raise ReplayError(
+            f"{dev.file}: {dev.name}: not LMDscandata telegrams ({first.kind} {first.name})"
+        )
+    if len({d[:4] == b"\x02\x02\x02\x02" for d in dev.data}) > 1:
+        raise ReplayError(
+            f"{dev.file}: {dev.name}: both CoLa-A and CoLa-B telegrams; replay "
+            "the files of each separately"
+        )
+
+
+def _device_config(config: Config | None, name: str) -> ScannerConfig | CameraConfig | None:
+    if config is None:
+        return None
+    found = [d for d in config.scanners if d.name == name]
+    return found[0] if found else next((c for c in config.cameras if c.name == name), None)
+
+
+# --- serving --------------------------------------------------------------------------------
+
+
+def _tcp_listen(listen: str) -> tuple[str, int]:
+    from acq.sim.devices import parse_listen
+
+    return parse_listen(listen)
+
+
+def _http_listen(listen: str) -> tuple[str, int, str]:
+    parts = urlsplit(listen)
+    try:
+        port = parts.port if parts.port is not None else 80
+    except ValueError:
+        port = -1
+    if parts.scheme != "http" or not parts.hostname or port < 0:
+        raise ValueError(f"--camera-listen {listen!r}: expected http://HOST:PORT/PATH")
+    return parts.hostname, port, parts.path or "/"
+
+
+class Replay:
+    """Serves a recorded session (see the module doc); :meth:`start` opens the servers.
+
+    ``scanner_listen``: ``tcp://HOST:PORT`` for the first scanner, the next ones on the
+    following ports (port 0: free ports); ``pty``: Hokuyo scanners on pseudo-terminals
+    instead (SICK scanners stay on TCP). ``camera_listen``: ``http://HOST:PORT/PATH``
+    likewise. ``speed``: 2 plays twice as fast. ``urls`` maps each device's name to what
+    a client opens (a pyserial URL or pty path, ``tcp://``, ``http://``).
+    """
+
+    def __init__(
+        self,
+        logs: Sequence[str | Path],
+        *,
+        speed: float = 1.0,
+        scanner_listen: str | None = None,
+        pty: bool = False,
+        camera_listen: str | None = None,
+        lead_s: float = LEAD_S,
+    ) -> None:
+        if not (math.isfinite(speed) and speed > 0):
+            raise ValueError(f"speed must be a positive number, got {speed}")
+        self.session = load_session(logs)
+        self.speed = speed
+        self.scanner_listen = scanner_listen or DEFAULT_SCANNER_LISTEN
+        self.pty = pty
+        self.camera_listen = camera_listen or DEFAULT_CAMERA_LISTEN
+        self.lead_s = lead_s
+        self.urls: dict[str, str] = {}
+        self.errors: list[str] = []
+        self._servers: list[Any] = []
+        self._streams: dict[str, Any] = {}
+        self._clock: ReplayClock | None = None
+        self._closed = threading.Event()
+
+    # --- life cycle -----------------------------------------------------------------------
+
+    def start(self) -> Replay:
+        """Open every device's server (ValueError: a bad listen address; OSError: a port
+        that cannot be bound)."""
+        if self._clock is not None:
+            return self
+        from acq.sim.replay_devices import ReplayClock
+
+        host, port = _tcp_listen(self.scanner_listen)
+        chost, cport, cpath = _http_listen(self.camera_listen)
+        self._clock = ReplayClock(self.speed, self.lead_s)
+        try:
+            for dev in self.session.devices.values():
+                if dev.kind == "scanner":
+                    self._start_scanner(dev, host, port)
+                    port = port + 1 if port else 0
+                else:
+                    self._start_camera(dev, chost, cport, cpath)
+                    cport = cport + 1 if cport else 0
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _stream(self, dev: DeviceLog) -> Any:
+        from acq.sim.replay_devices import ReplayStream
+
+        assert self._clock is not None
+        stream = ReplayStream(dev.name, dev.times_ns, dev.data, self._clock)
+        self._streams[dev.name] = stream
+        return stream
+
+    def _report(self, message: str) -> None:
+        self.errors.append(message)
+        log.error("%s", message)
+
+    def _start_scanner(self, dev: DeviceLog, host: str, port: int) -> None:
+        from acq.sim.replay_devices import ColaReplayDevice, ScipReplayDevice
+        from acq.sim.transport import PtyDeviceServer, TcpDeviceServer
+
+        stream = self._stream(dev)
+        meta = dev.metadata
+        device: Any
+        if dev.driver == "hokuyo":
+            device = ScipReplayDevice(stream, meta["info"], meta["params"], self._report)
+        else:
+            device = ColaReplayDevice(stream, meta.get("info", {}), meta["geometry"], self._report)
+        server: Any
+        if self.pty and dev.driver == "hokuyo":
+            server = PtyDeviceServer(device)
+            self._servers.append(server)
+            self.urls[dev.name] = server.url
+        else:
+            server = TcpDeviceServer(device, host, port)
+            self._servers.append(server)
+            scheme = "socket" if dev.driver == "hokuyo" else "tcp"
+            self.urls[dev.name] = f"{scheme}://{server.host}:{server.port}"
+        server.start()
+
+    def _start_camera(self, dev: DeviceLog, host: str, port: int, path: str) -> None:
+        from acq.sim.replay_devices import ReplayMjpegServer
+
+        server = ReplayMjpegServer(self._stream(dev), host, port, path)
+        self._servers.append(server)
+        self.urls[dev.name] = server.url
+        server.start()
+
+    def close(self) -> None:
+        """Stop every server (clients see the link drop)."""
+        self._closed.set()
+        servers, self._servers = self._servers, []
+        for server in servers:
+            server.close()
+
+    def __enter__(self) -> Replay:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- progress -------------------------------------------------------------------------
+
+    @property
+    def started(self) -> bool:
+        """True once a client has started the session's clock."""
+        return self._clock is not None and self._clock.started
+
+    def sent(self) -> dict[str, int]:
+        """Records sent so far, per device."""
+        return {name: s.sent for name, s in self._streams.items()}
+
+    def end_time(self) -> float | None:
+        """When the last record is due (monotonic s); None before the clock starts."""
+        if self._clock is None or not self._clock.started:
+            return None
+        return self._clock.at(self.session.end_ns)
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait until the log has been served to its end; False on timeout or close."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        clock = self._clock
+        if clock is None:
+            raise RuntimeError("start() first")
+        while not clock.wait_started(0.1):
+            if self._closed.is_set() or (deadline is not None and time.monotonic() >= deadline):
+                return False
+        end = clock.at(self.session.end_ns) + END_MARGIN_S
+        while True:
+            now = time.monotonic()
+            left = end - now if deadline is None else min(end, deadline) - now
+            if left <= 0:
+                return now >= end
+            if self._closed.wait(min(left, 0.5)):
+                return False
+
+    # --- the recorder's view --------------------------------------------------------------
+
+    def config(self, *, out_dir: Path | None = None, calibration: Path | None = None) -> Config:
+        """A recorder configuration for the replay: the recorded devices with their names,
+        drivers, options and latencies, pointed at the replay's servers (cameras through the
+        ``opencv`` driver, which reads MJPEG over HTTP byte for byte). ``out_dir``: the
+        output folder (default ``replay-logs``); ``calibration``: the calibration file
+        (default: the recorded one if that path exists here, else none)."""
+        if not self.urls:
+            raise RuntimeError("start() first")
+        rec = self.session.config
+        recorded: dict[str, Any] = (
+            yaml.safe_load(configfile.dump(rec)) if rec is not None else {"version": 1}
+        )
+        entries = {
+            e["name"]: e for e in [*recorded.get("scanners", []), *recorded.get("cameras", [])]
+        }
+        scanners: list[dict[str, Any]] = []
+        cameras: list[dict[str, Any]] = []
+        for dev in self.session.devices.values():
+            entry = dict(entries.get(dev.name) or _derived_entry(dev))
+            if dev.kind == "scanner":
+                entry["driver"] = dev.driver
+                entry["url"] = self.urls[dev.name]
+                if dev.driver == "sick":
+                    info = dev.metadata.get("info", {})
+                    protocol = info.get("extra", {}).get("protocol")
+                    entry["protocol"] = entry.get("protocol") or protocol or "cola-b"
+                scanners.append(entry)
+            else:
+                if entry.get("driver") != "opencv":  # served as MJPEG over HTTP
+                    entry = {k: v for k, v in entry.items() if k not in ("options", "fourcc")}
+                    entry["driver"] = "opencv"
+                entry["source"] = self.urls[dev.name]
+                cameras.append(entry)
+        data: dict[str, Any] = {"version": 1, "scanners": scanners, "cameras": cameras}
+        calib = calibration
+        if calib is None and rec is not None and rec.calibration is not None:
+            calib = rec.calibration if rec.calibration.exists() else None
+        if calib is not None:
+            data["calibration"] = str(calib)
+        output = dict(recorded.get("output", {}))
+        output["dir"] = str(out_dir if out_dir is not None else "replay-logs")
+        data["output"] = output
+        return configfile.parse(data, "replay configuration")
+
+
+def _derived_entry(dev: DeviceLog) -> dict[str, Any]:
+    """A configuration entry for a device the recorded configuration does not list (or a
+    log without one): for a Hokuyo, the options that ask for the recorded scans."""
+    entry: dict[str, Any] = {"name": dev.name, "driver": dev.driver}
+    if dev.driver != "hokuyo":
+        return entry
+    from acq.drivers.scip_codec import parse_scan_echo
+
+    echo = parse_scan_echo(dev.data[0].split(b"\n", 1)[0])
+    p = dev.metadata["params"]
+    options: dict[str, Any] = {}
+    if echo.command in ("ME", "NE"):
+        options["intensity"] = True
+    if echo.command in ("ND", "NE"):
+        options["multi_echo"] = True
+    if echo.command == "MS":
+        options["two_char"] = True
+    if echo.cluster > 1:
+        options["cluster"] = echo.cluster
+    step = 2 * math.pi / int(p["ares"])
+    if echo.start != int(p["amin"]):
+        options["angle_min"] = (echo.start - int(p["afrt"])) * step
+    if echo.end != int(p["amax"]):
+        options["angle_max"] = (echo.end - int(p["afrt"])) * step
+    if options:
+        entry["options"] = options
+    return entry
+
+
+# --- the command ----------------------------------------------------------------------------
+
+
+def _describe_session(replay: Replay) -> str:
+    s = replay.session
+    parts = []
+    for d in s.devices.values():
+        what = "scans" if d.kind == "scanner" else "frames"
+        parts.append(f"{d.name}: {len(d.data)} {what} at {d.rate_hz:.1f} Hz ({d.driver})")
+    files = f"{len(s.files)} file" + ("s" if len(s.files) != 1 else "")
+    return f"replaying {files}, {s.duration_s:.1f} s at speed {replay.speed:g}: " + "; ".join(parts)
+
+
+def replay_main(
+    logs: list[Path],
+    speed: float,
+    scanner_listen: str | None,
+    pty: bool,
+    camera_listen: str | None,
+    write_config: Path | None,
+) -> int:
+    """``acq replay``: serve ``logs`` until they end or Ctrl-C / SIGTERM; the exit code.
+
+    Prints the devices' URLs and a configuration for ``acq record -c`` (or writes it to
+    ``write_config``, with the recorded calibration beside it when the log holds one).
+    """
+    import signal
+
+    if not logging.getLogger().handlers:
+        logging.basicConfig(level=logging.INFO, format="acq replay: %(message)s")
+    if not (math.isfinite(speed) and speed > 0):
+        print(f"acq replay: --speed {speed:g}: expected a number > 0", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        replay = Replay(
+            logs, speed=speed, scanner_listen=scanner_listen, pty=pty, camera_listen=camera_listen
+        )
+    except ReplayError as e:
+        print(f"acq replay: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        replay.start()
+    except ValueError as e:
+        print(f"acq replay: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as e:
+        print(f"acq replay: cannot serve: {e.strerror or e}", file=sys.stderr)
+        return EXIT_FAILURE
+    stop = threading.Event()
+    old: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            old[sig] = signal.signal(sig, lambda *_: stop.set())
+    try:
+        print(_describe_session(replay))
+        for name, url in replay.urls.items():
+            print(f"  {name}: {url}")
+        calibration = None
+        if write_config is not None and replay.session.calibration_yaml:
+            rec = replay.session.config
+            if rec is None or rec.calibration is None or not rec.calibration.exists():
+                calibration = write_config.with_name(write_config.stem + ".calib.yaml")
+                calibration.write_text(replay.session.calibration_yaml)
+                print(f"wrote the recorded calibration to {calibration}")
+        text = configfile.dump(
+            replay.config(calibration=calibration.resolve() if calibration else None)
+        )
+        if write_config is not None:
+            write_config.write_text(text)
+            print(f"wrote the configuration to {write_config}: acq record -c {write_config}")
+        else:
+            print("configuration for `acq record -c FILE` (--config-out writes it):")
+            print(text, end="")
+        print("the replay starts when a client asks a device for data", flush=True)
+        announced = False
+        while not stop.is_set():
+            if replay.started and not announced:
+                announced = True
+                log.info("started: the log plays for %.1f s", replay.session.duration_s / speed)
+            if replay.wait(0.2):
+                log.info(
+                    "the log has been served to its end: %s",
+                    ", ".join(f"{k} {v}" for k, v in replay.sent().items()),
+                )
+                break
+        return EXIT_OK
+    except OSError as e:
+        print(f"acq replay: {e}", file=sys.stderr)
+        return EXIT_FAILURE
+    finally:
+        replay.close()
+        for sig, handler in old.items():
+            signal.signal(sig, handler)

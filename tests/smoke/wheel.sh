@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# The wheel as a user installs it: built from the repository, installed (not editable)
+# into a throwaway venv, and its commands run from a folder outside the checkout, so a
+# module or data file the wheel lacks fails here. Usage: tests/smoke/wheel.sh PYTHON
+set -euo pipefail
+python=${1:?usage: tests/smoke/wheel.sh PYTHON}
+root=$(cd "$(dirname "$0")/../.." && pwd)
+work=$(mktemp -d "${TMPDIR:-/tmp}/acq-wheel.XXXXXX")
+pids=()
+cleanup() {
+  for pid in "${pids[@]}"; do kill "$pid" 2>/dev/null || true; done
+  wait 2>/dev/null || true
+  rm -rf "$work"
+}
+trap cleanup EXIT
+step() { printf 'wheel smoke: %s\n' "$*"; }
+
+step "build and install"
+"$python" -m uv build --quiet --wheel --out-dir "$work/dist" "$root"
+"$python" -m uv venv --quiet --python "$python" "$work/venv"
+"$python" -m uv pip install --quiet --compile-bytecode --python "$work/venv/bin/python" "$work"/dist/acq-*.whl
+acq=$work/venv/bin/acq
+site=$("$work/venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+cd "$work"  # nothing of the checkout on sys.path from here on
+
+step "one import root"
+roots=$("$python" -c 'import sys, zipfile
+names = zipfile.ZipFile(sys.argv[1]).namelist()
+print(" ".join(sorted({n.split("/")[0] for n in names} - {n.split("/")[0] for n in names if ".dist-info/" in n})))' "$work"/dist/acq-*.whl)
+[ "$roots" = "acq" ] || { echo "wheel smoke: the wheel installs $roots, not only acq" >&2; exit 1; }
+"$work/venv/bin/python" -c 'import acq.drivers.scip, acq.sim.world, acq.cli'
+for name in drivers sim config; do
+  [ ! -e "$site/$name" ] || { echo "wheel smoke: $site/$name installed" >&2; exit 1; }
+done
+
+step "acq --version, a --help"
+"$acq" --version
+"$acq" record --help > /dev/null
+
+step "acq demo --seconds 2"
+"$acq" demo --seconds 2 --out demo > demo.txt || { cat demo.txt; exit 1; }
+[ -s demo/demo.mcap ] && [ -s demo/cloud.ply ] && [ -s demo/preview.png ]
+
+step "acq colorize on the demo's log"
+"$acq" colorize demo/demo.mcap --calib demo/calib.yaml -o drive.las --no-preview > /dev/null
+[ -s drive.las ]
+
+step "acq record for 2 s with the default configuration, against acq sim"
+ready() {  # a simulator's first line says where it serves
+  local log=$1 i
+  for i in $(seq 1 600); do grep -q '^simulated' "$log" 2>/dev/null && return 0; sleep 0.1; done
+  echo "wheel smoke: $log: the simulator did not start" >&2; cat "$log" >&2; return 1
+}
+"$acq" sim scanner --model utm-30lx --listen tcp://127.0.0.1:10940 > scanner.log 2>&1 &
+pids+=($!)
+"$acq" sim camera --listen http://127.0.0.1:8080/stream.mjpg > camera.log 2>&1 &
+pids+=($!)
+ready scanner.log && ready camera.log
+"$acq" record --duration 2
+"$acq" info logs/*.mcap > info.txt || { cat info.txt; exit 1; }
+grep -q '/laser/scan' info.txt && grep -q '/camera/image/compressed' info.txt
+step "passed"

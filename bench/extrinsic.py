@@ -40,12 +40,13 @@ import warnings
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from acq.sim.board_poses import BoardData, simulate
-from acq.sim.world import default_rig
 
 from acq.calib import extrinsic as ex
 from acq.camera.camera_models import Pinhole
+from acq.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
+from acq.sim.board_poses import BoardData, simulate
+from acq.sim.world import default_rig
 
 POSE_COUNTS = (5, 8, 10, 15, 20, 30)
 STILL = ((1, 1), (4, 6), (10, 16), (25, 40))  # (frames, scans) per pose: 1 s = 25 and 40
@@ -61,7 +62,7 @@ def cramer_rao(data: BoardData, pixel_noise: float = 0.2, range_noise: float = 0
     info = np.zeros((6 + 6 * n, 6 + 6 * n))
 
     def moved(T: Rigid, x: np.ndarray) -> Rigid:
-        return Rigid(ex.rotvec_to_matrix(x[:3]) @ T.rotation, T.translation + x[3:])
+        return Rigid(matrix_from_rotvec(x[:3]) @ T.rotation, T.translation + x[3:])
 
     for i, (board, pose) in enumerate(zip(data.boards, data.poses, strict=True)):
         B = E.inverse() @ board  # board_to_camera
@@ -92,10 +93,7 @@ def _bound_stats(covs: Sequence[np.ndarray], samples: int, seed: int = 0) -> dic
 def _error_vector(estimate: Rigid, truth: Rigid) -> np.ndarray:
     """Left rotation vector (rad) and translation error (m), as ExtrinsicResult.std."""
     dR = estimate.rotation @ truth.rotation.T
-    angle = ex.rotation_angle(dR)
-    axis = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
-    w = axis / np.linalg.norm(axis) * angle if angle > 0 else np.zeros(3)
-    return np.r_[w, estimate.translation - truth.translation]
+    return np.r_[rotvec_from_matrix(dR), estimate.translation - truth.translation]
 
 
 def _stats(errors: Sequence[np.ndarray]) -> dict[str, float]:

@@ -20,7 +20,8 @@ import numpy as np
 
 from acq.camera import projection
 from acq.camera.camera_models import Equidistant
-from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.geometry.rotations import rotation_from_euler
+from acq.geometry.transforms import Rigid
 
 CAM = Equidistant.from_f(169.3, 390.2, 291.1, 780, 582, 185.0)
 EXTR = Rigid(rotation_from_euler(1.55, 0.02, -0.03), [0.35, -0.12, -0.2])

@@ -30,6 +30,7 @@ import numpy as np
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import CameraModel
+from acq.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
 from acq.log import schemas
 from acq.log.mcap_log import LogWriter
@@ -170,8 +171,7 @@ def board_at(boards: list[Rigid], t: float, hold_s: float, move_s: float) -> Rig
         return boards[i]
     f = min(f, 1.0)
     a, b = boards[i], boards[i + 1]
-    rel, _ = cv2.Rodrigues(b.rotation @ a.rotation.T)
-    Rf, _ = cv2.Rodrigues(rel * f)
+    Rf = matrix_from_rotvec(f * rotvec_from_matrix(b.rotation @ a.rotation.T))
     return Rigid(Rf @ a.rotation, (1 - f) * a.translation + f * b.translation)
 
 

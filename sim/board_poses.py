@@ -23,9 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acq.calib.extrinsic import BoardFit, BoardPose, board_pose_from_corners, rotvec_to_matrix
+from acq.calib.extrinsic import BoardFit, BoardPose, board_pose_from_corners
 from acq.camera.camera_models import CameraModel
-from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.geometry.rotations import matrix_from_rotvec, rotation_from_euler
+from acq.geometry.transforms import Rigid
 from acq.sim.world import Rig, default_rig
 
 __all__ = ["BoardData", "Checkerboard", "laser_points_on_board", "simulate"]
@@ -96,7 +97,7 @@ def laser_points_on_board(
 def _random_rotation(rng: np.random.Generator, lo_deg: float, hi_deg: float) -> np.ndarray:
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
-    return rotvec_to_matrix(axis * math.radians(rng.uniform(lo_deg, hi_deg)))
+    return matrix_from_rotvec(axis * math.radians(rng.uniform(lo_deg, hi_deg)))
 
 
 def simulate(

@@ -22,7 +22,8 @@ from enum import IntEnum
 import numpy as np
 
 from acq.camera.camera_models import KannalaBrandt
-from acq.geometry.transforms import Rigid, matrices_from_euler, rotation_from_euler
+from acq.geometry.rotations import matrices_from_euler, rotation_from_euler
+from acq.geometry.transforms import Rigid
 
 __all__ = [
     "N_PARAMS",

@@ -13,7 +13,8 @@ from acq import camera_models  # the API name of ARCHITECTURE.md
 from acq.camera import calibfile
 from acq.camera.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
 from acq.camera.camera_models import Equidistant, KannalaBrandt
-from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.geometry.rotations import rotation_from_euler
+from acq.geometry.transforms import Rigid
 
 GOOD = {
     "version": 1,

@@ -11,7 +11,8 @@ import pytest
 
 from acq.calib import extrinsic as ex
 from acq.calib.extrinsic import BoardPose
-from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.geometry.rotations import rotation_angle, rotation_from_euler, rotvec_from_matrix
+from acq.geometry.transforms import Rigid
 from acq.sim.board_poses import Checkerboard, simulate
 from acq.sim.world import default_lens
 
@@ -19,16 +20,13 @@ from acq.sim.world import default_lens
 def _errors(estimate: Rigid, truth: Rigid) -> tuple[float, float]:
     """(rotation error rad, translation error m)."""
     dR = estimate.rotation @ truth.rotation.T
-    return ex.rotation_angle(dR), float(np.linalg.norm(estimate.translation - truth.translation))
+    return rotation_angle(dR), float(np.linalg.norm(estimate.translation - truth.translation))
 
 
 def _error_vector(estimate: Rigid, truth: Rigid) -> np.ndarray:
     """The 6 parameters of the error as in ExtrinsicResult.std: left rotation vector, t."""
     dR = estimate.rotation @ truth.rotation.T
-    angle = ex.rotation_angle(dR)
-    axis = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]])
-    w = axis / np.linalg.norm(axis) * angle if angle > 0 else np.zeros(3)
-    return np.r_[w, estimate.translation - truth.translation]
+    return np.r_[rotvec_from_matrix(dR), estimate.translation - truth.translation]
 
 
 def _synthetic(truth: Rigid, normals: np.ndarray, distances: np.ndarray) -> list[BoardPose]:

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from acq import cloud
-from acq.calib.extrinsic import rotation_angle
 from acq.calib.extrinsic_log import average_corners, main_extrinsic, parse_poses, still_intervals
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
+from acq.geometry.rotations import rotation_angle
 from acq.geometry.transforms import Rigid
 from acq.sim.board_log import BoardLog, write_board_log
 

@@ -17,7 +17,8 @@ from acq.calib import fisheye_calib, image_circle
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
 from acq.camera.camera_models import Equidistant, KannalaBrandt
-from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.geometry.rotations import rotation_from_euler
+from acq.geometry.transforms import Rigid
 from acq.sim.fisheye_images import CircleTruth, fisheye_image
 from acq.sim.world import default_lens
 

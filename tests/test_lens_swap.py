@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq.calib.extrinsic import rotation_angle
 from acq.calib.extrinsic_log import main_extrinsic
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import Pinhole
+from acq.geometry.rotations import rotation_angle
 from acq.geometry.transforms import Rigid
 from acq.sim.board_log import BoardLog, write_board_log
 from acq.sim.world import default_rig

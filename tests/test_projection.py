@@ -9,7 +9,8 @@ import pytest
 
 from acq.camera import projection
 from acq.camera.camera_models import CameraModel, Equidistant, KannalaBrandt, Pinhole
-from acq.geometry.transforms import Rigid, rotation_from_euler
+from acq.geometry.rotations import rotation_from_euler
+from acq.geometry.transforms import Rigid
 
 KB = KannalaBrandt(780, 582, 169.0, 169.6, 390.2, 291.1, (0.007, -0.0012, 0.0003, -0.00004))
 EQ = Equidistant.from_f(169.3, 390.2, 291.1, 780, 582, 185.0)

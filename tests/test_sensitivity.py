@@ -16,11 +16,16 @@ import numpy as np
 import pytest
 
 from acq.calib import sensitivity
-from acq.calib.extrinsic import rotvec_to_matrix
 from acq.calib.sensitivity import PARAMS
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
-from acq.geometry.transforms import Rigid, rotation_from_euler, rotation_to_euler
+from acq.geometry.rotations import (
+    matrix_from_rotvec,
+    rotation_from_euler,
+    rotation_to_euler,
+    skew,
+)
+from acq.geometry.transforms import Rigid
 from acq.sim.world import default_rig
 
 
@@ -236,10 +241,6 @@ def test_main_sensitivity_json_and_bad_input(
 # --- sigma from the calibration's std ------------------------------------------------------
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
 def _spd(seed: int, scale: float) -> np.ndarray:
     """A full (3,3) covariance, correlations included, of about ``scale``² ."""
     A = np.random.default_rng(seed).normal(0.0, scale, (3, 3))
@@ -268,7 +269,7 @@ def test_rotation_sigma_is_the_shift_of_a_one_sigma_rotation_about_each_axis(
         d = np.zeros(3)
         d[i] = 1e-6
         fd = (rotation_from_euler(*(p[:3] + d)) - rotation_from_euler(*(p[:3] - d))) / 2e-6
-        np.testing.assert_allclose(fd, rate[i] * _skew(axes[i]) @ R, atol=1e-8)
+        np.testing.assert_allclose(fd, rate[i] * skew(axes[i]) @ R, atol=1e-8)
     cov_w = _spd(3, math.radians(0.05))
     sig = sensitivity.rotation_sigma(p[:3], cov_w)
     np.testing.assert_allclose(sig, [math.sqrt(a @ cov_w @ a) for a in axes], rtol=1e-12)  # rate 1
@@ -279,7 +280,7 @@ def test_rotation_sigma_is_the_shift_of_a_one_sigma_rotation_about_each_axis(
     full = np.r_[sig, np.zeros(9)]
     linear = sensitivity.pixel_shift(J, full)[:, :3]
     for i in range(3):
-        Ri = rotvec_to_matrix(axes[i] * sig[i] * rate[i]) @ R
+        Ri = matrix_from_rotvec(axes[i] * sig[i] * rate[i]) @ R
         q = p.copy()
         q[:3] = rotation_to_euler(Ri)
         moved = np.linalg.norm(sensitivity.project(P, q)[0] - uv, axis=1)

@@ -12,7 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acq.geometry.transforms import Rigid, rotation_from_euler, rotation_to_euler
+from acq.geometry.rotations import rotation_from_euler, rotation_to_euler
+from acq.geometry.transforms import Rigid
 from acq.motion import trajectory as tj
 from acq.motion.trajectory import (
     OutOfSpanError,

@@ -1,11 +1,12 @@
-"""Rigid transforms: composition, inverse, Euler angles, refusal of non-rotations."""
+"""Rigid transforms: composition, inverse, refusal of non-rotations."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from acq.geometry.transforms import Rigid, rotation_from_euler, rotation_to_euler
+from acq.geometry.rotations import rotation_from_euler
+from acq.geometry.transforms import Rigid
 
 
 def test_inverse_and_composition() -> None:
@@ -16,11 +17,6 @@ def test_inverse_and_composition() -> None:
     np.testing.assert_allclose((a @ b).apply(P), a.apply(b.apply(P)), atol=1e-12)
     np.testing.assert_allclose(a.inverse().apply(a.apply(P)), P, atol=1e-12)
     np.testing.assert_allclose((a @ a.inverse()).matrix(), np.eye(4), atol=1e-12)
-
-
-def test_euler_round_trip() -> None:
-    for rpy in [(0.1, 0.2, 0.3), (-2.0, 1.2, 3.0), (0.0, -1.5, -0.7)]:
-        np.testing.assert_allclose(rotation_to_euler(rotation_from_euler(*rpy)), rpy, atol=1e-12)
 
 
 def test_reflection_and_bad_shapes_are_refused() -> None:

@@ -36,7 +36,8 @@ import numpy as np
 import numpy.typing as npt
 
 from acq.camera.camera_models import CameraModel
-from acq.geometry.transforms import Rigid, rotation_to_euler
+from acq.geometry.rotations import matrix_from_rotvec, rotation_between, rotation_to_euler, skew
+from acq.geometry.transforms import Rigid
 
 __all__ = [
     "MIN_POSES",
@@ -51,8 +52,6 @@ __all__ = [
     "point_residuals",
     "refine",
     "residual_plot",
-    "rotation_angle",
-    "rotvec_to_matrix",
 ]
 
 MIN_POSES = 5  # 9 unknowns in the linear solution, 2 independent constraints per pose
@@ -64,37 +63,12 @@ _DEGENERATE_SPREAD = 0.02  # ~1 degree
 _WARN_SPREAD = 0.08  # ~5 degrees
 
 
-# ----------------------------------------------------------------------------- rotations
-
-
-def _skew(w: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
-def rotvec_to_matrix(w: npt.ArrayLike) -> np.ndarray:
-    """Rotation vector (axis · angle, rad) -> 3x3 rotation matrix (Rodrigues)."""
-    w = np.asarray(w, dtype=np.float64).reshape(3)
-    theta = float(np.linalg.norm(w))
-    K = _skew(w)
-    if theta < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + math.sin(theta) / theta * K + (1.0 - math.cos(theta)) / theta**2 * K @ K
-
-
 def _orthonormalise(R: np.ndarray) -> np.ndarray:
     U, _, Vt = np.linalg.svd(R)
     Q = U @ Vt
     if np.linalg.det(Q) < 0:
         Q = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
     return Q
-
-
-def rotation_angle(R: npt.ArrayLike) -> float:
-    """Geodesic angle of a rotation matrix, rad (accurate near 0 and near pi)."""
-    R = np.asarray(R, dtype=np.float64)
-    s = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    c = 0.5 * (np.trace(R) - 1.0)
-    return float(math.atan2(s, c))
 
 
 # ----------------------------------------------------------------------------- data
@@ -174,7 +148,7 @@ class ExtrinsicResult:
 
     ``std``: standard deviations of the 6 parameters, a small rotation about the laser
     axes x, y, z (rad, ``R = exp([w]x) R_hat``) then tx, ty, tz (m); ``std_rot_deg`` the
-    rotation part in degrees, ``std_rpy_deg`` that of ``acq.geometry.transforms.rotation_to_euler``
+    rotation part in degrees, ``std_rpy_deg`` that of ``acq.geometry.rotations.rotation_to_euler``
     (degrees; meaningless near pitch ±90°, where roll and yaw are coupled — the default
     rig is there, use ``std_rot_deg``) and ``std_t_mm`` the translation in mm.
     ``covariance`` (6,6) is in the units of ``std``. ``residuals_per_pose``: RMS
@@ -379,8 +353,8 @@ def _euler_std_deg(R: np.ndarray, cov_w: np.ndarray) -> np.ndarray:
     for k in range(3):
         dw = np.zeros(3)
         dw[k] = eps
-        a = np.array(rotation_to_euler(rotvec_to_matrix(dw) @ R))
-        b = np.array(rotation_to_euler(rotvec_to_matrix(-dw) @ R))
+        a = np.array(rotation_to_euler(matrix_from_rotvec(dw) @ R))
+        b = np.array(rotation_to_euler(matrix_from_rotvec(-dw) @ R))
         diff = (a - b + math.pi) % (2 * math.pi) - math.pi
         Jr[:, k] = diff / (2 * eps)
     return np.degrees(np.sqrt(np.clip(np.diag(Jr @ cov_w @ Jr.T), 0.0, None)))
@@ -573,7 +547,7 @@ def refine(
         stepped = False
         while lam < 1e12:
             delta = np.linalg.solve(A + lam * np.diag(np.diag(A)), -g)
-            R_new = _orthonormalise(rotvec_to_matrix(delta[:3]) @ R)
+            R_new = _orthonormalise(matrix_from_rotvec(delta[:3]) @ R)
             t_new = t + delta[3:6]
             D_new = D + delta[6:].reshape(-1, 3)
             r_new, J_new, cost_new = prob.evaluate(R_new, t_new, D_new)
@@ -753,7 +727,7 @@ class BoardFit:
         n, _ = self.plane()
         t = self.board_to_camera.translation
         G = np.zeros((4, 6))
-        G[:3, :3] = -_skew(n)  # n' = exp([w]x) n = n + w x n
+        G[:3, :3] = -skew(n)  # n' = exp([w]x) n = n + w x n
         G[3, :3] = np.cross(n, t)  # d = n . t
         G[3, 3:] = n
         return G @ self.covariance @ G.T
@@ -767,10 +741,7 @@ def _initial_pnp(model: CameraModel, obj: np.ndarray, uv: np.ndarray) -> list[Ri
     rays = model.unproject(uv)
     m = rays.mean(axis=0)
     m /= np.linalg.norm(m)
-    axis = np.cross(m, [0.0, 0.0, 1.0])
-    s = float(np.linalg.norm(axis))
-    angle = math.atan2(s, float(m[2]))
-    Rv = rotvec_to_matrix(axis / s * angle) if s > 1e-12 else np.eye(3)  # camera -> virtual
+    Rv = rotation_between(m, [0.0, 0.0, 1.0])  # camera -> virtual
     rv = rays @ Rv.T
     ok = rv[:, 2] > 0.05
     if ok.sum() < 4:
@@ -787,7 +758,7 @@ def _initial_pnp(model: CameraModel, obj: np.ndarray, uv: np.ndarray) -> list[Ri
     for rvec, tvec, err in zip(rvecs, tvecs, errs, strict=True):
         if out and err > 3.0 * errs[0] + 1e-12:
             continue
-        Rp = rotvec_to_matrix(np.asarray(rvec).reshape(3))
+        Rp = matrix_from_rotvec(np.asarray(rvec).reshape(3))
         out.append(Rigid(Rv.T @ Rp, Rv.T @ np.asarray(tvec, dtype=np.float64).reshape(3)))
     return out
 
@@ -859,7 +830,7 @@ def _pnp_lm(
         stepped = False
         while lam < 1e12:
             delta = np.linalg.solve(A + lam * np.diag(np.diag(A)), -g)
-            R_new = _orthonormalise(rotvec_to_matrix(delta[:3]) @ R)
+            R_new = _orthonormalise(matrix_from_rotvec(delta[:3]) @ R)
             t_new = t + delta[3:]
             r_new = resid(R_new, t_new)
             cost_new = float(r_new @ r_new)

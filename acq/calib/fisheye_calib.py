@@ -34,6 +34,7 @@ from acq.calib.image_circle import CircleResult
 from acq.camera import calibfile
 from acq.camera.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
 from acq.camera.camera_models import Equidistant, KannalaBrandt
+from acq.geometry.rotations import matrix_from_rotvec, rotation_between, rotvec_from_matrix
 
 __all__ = [
     "BoardFit",
@@ -176,16 +177,6 @@ def detect_corners(gray: np.ndarray, board: BoardSpec) -> np.ndarray | None:
     return corners.reshape(-1, 2).astype(np.float64)
 
 
-def _rodrigues(r: np.ndarray) -> np.ndarray:
-    """(3,) rotation vector -> (3,3) matrix."""
-    theta = float(np.linalg.norm(r))
-    if theta < 1e-12:
-        return np.eye(3)
-    k = r / theta
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(theta) * K + (1 - math.cos(theta)) * (K @ K)
-
-
 def project_kb(intr: np.ndarray, P: np.ndarray) -> np.ndarray:
     """(N,3) camera-frame points -> (N,2) px with ``intr = (fx, fy, cx, cy, k1..k4)``;
     ``theta = atan2(rho, z)``, valid past 90 degrees."""
@@ -281,10 +272,7 @@ def _initial_pose(
     rays = init.unproject(uv)
     m = rays.mean(axis=0)
     m /= np.linalg.norm(m)
-    # R_v turns m onto +z
-    axis = np.cross(m, [0.0, 0.0, 1.0])
-    s, c = float(np.linalg.norm(axis)), float(m[2])
-    R_v = _rodrigues(axis / s * math.atan2(s, c)) if s > 1e-12 else np.eye(3)
+    R_v = rotation_between(m, [0.0, 0.0, 1.0])
     rv = rays @ R_v.T
     if np.any(rv[:, 2] <= 0.05):
         raise ValueError("the board spans too wide an angle for an initial pose")
@@ -294,9 +282,9 @@ def _initial_pose(
     )
     if not ok or not np.all(np.isfinite(rvec)):
         raise ValueError("no initial board pose")
-    R = R_v.T @ cv2.Rodrigues(rvec)[0]
+    R = R_v.T @ matrix_from_rotvec(rvec.ravel())
     t = R_v.T @ tvec.ravel()
-    return cv2.Rodrigues(R)[0].ravel(), t
+    return rotvec_from_matrix(R), t
 
 
 def fit_kannala_brandt(
@@ -318,7 +306,7 @@ def fit_kannala_brandt(
 
     def cam_points(x: np.ndarray, v: int) -> np.ndarray:
         p = x[8 + 6 * v : 14 + 6 * v]
-        return obj @ _rodrigues(p[:3]).T + p[3:]
+        return obj @ matrix_from_rotvec(p[:3]).T + p[3:]
 
     def view_res(x: np.ndarray, v: int) -> np.ndarray:
         return (project_kb(x[:8], cam_points(x, v)) - corners[v]).ravel()

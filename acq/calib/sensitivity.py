@@ -7,7 +7,7 @@ The projection, as the paper's eq. (2), (4) and (5) compose it:
     r = k1 theta + k2 theta³            generic model cut after the third order (eq. 4)
     u = u0 + mu_x r cos(phi),  v = v0 + mu_y r sin(phi)          (eq. 5)
 
-with R = Rz(yaw) Ry(pitch) Rx(roll) (``acq.geometry.transforms.rotation_from_euler``). The 12
+with R = Rz(yaw) Ry(pitch) Rx(roll) (``acq.geometry.rotations.rotation_from_euler``). The 12
 parameters, in :data:`PARAMS` order: roll, pitch, yaw (rad), tx, ty, tz (m), k1, k2 (m:
 image radius on the sensor per radian, per radian³), u0, v0 (px), mu_x, mu_y (px/m).
 
@@ -62,7 +62,7 @@ import numpy as np
 
 from acq.camera.calibfile import CameraCalib
 from acq.camera.camera_models import KannalaBrandt
-from acq.geometry.transforms import rotation_from_euler, rotation_to_euler
+from acq.geometry.rotations import rotation_from_euler, rotation_to_euler, skew
 
 __all__ = [
     "DEFAULT_HEIGHTS_M",
@@ -125,17 +125,11 @@ def params_from_calib(cam: CameraCalib) -> np.ndarray:
 def rotation_jacobian(angles: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """R = Rz(yaw) Ry(pitch) Rx(roll) and (3,3,3) dR/d(roll, pitch, yaw)."""
     r, p, y = (float(a) for a in angles)
-    cr, sr = math.cos(r), math.sin(r)
-    cp, sp = math.cos(p), math.sin(p)
-    cy, sy = math.cos(y), math.sin(y)
-    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    dRx = np.array([[0, 0, 0], [0, -sr, -cr], [0, cr, -sr]])
-    dRy = np.array([[-sp, 0, cp], [0, 0, 0], [-cp, 0, -sp]])
-    dRz = np.array([[-sy, -cy, 0], [cy, -sy, 0], [0, 0, 0]])
-    dR = np.stack([Rz @ Ry @ dRx, Rz @ dRy @ Rx, dRz @ Ry @ Rx])
-    return Rz @ Ry @ Rx, dR
+    R = rotation_from_euler(r, p, y)
+    # roll turns about the body's x, yaw about the world's z, pitch about the y axis
+    # between them (Rx^T y in the body)
+    axes = skew(np.array([[1.0, 0.0, 0.0], [0.0, math.cos(r), -math.sin(r)]]))
+    return R, np.stack([R @ axes[0], R @ axes[1], skew([0.0, 0.0, 1.0]) @ R])
 
 
 def _camera_points(P_laser: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

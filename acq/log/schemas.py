@@ -42,6 +42,7 @@ from google.protobuf.message_factory import GetMessageClass
 
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import KannalaBrandt, Pinhole
+from acq.geometry.rotations import quat_from_matrix
 from acq.geometry.transforms import Rigid
 from acq.records import CanFrame, Fix, Frame, Odometry, Scan
 
@@ -61,7 +62,6 @@ __all__ = [
     "message_class",
     "odometry",
     "point_cloud",
-    "quaternion",
     "raw_telegram",
     "status",
     "timing",
@@ -285,51 +285,6 @@ def _packed_doubles(field_number: int, values: np.ndarray) -> bytes:
     return _varint(field_number << 3 | 2) + _varint(len(payload)) + payload
 
 
-def quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
-    """(x, y, z, w) unit quaternion of a proper 3x3 rotation matrix, w >= 0."""
-    R = np.asarray(rotation, dtype=np.float64)
-    m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
-    trace = m00 + m11 + m22
-    # Shepperd: divide by the largest of the four candidates for numerical stability.
-    if trace > 0:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        w, x, y, z = (
-            0.25 * s,
-            (R[2, 1] - R[1, 2]) / s,
-            (R[0, 2] - R[2, 0]) / s,
-            (R[1, 0] - R[0, 1]) / s,
-        )
-    elif m00 > m11 and m00 > m22:
-        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-        w, x, y, z = (
-            (R[2, 1] - R[1, 2]) / s,
-            0.25 * s,
-            (R[0, 1] + R[1, 0]) / s,
-            (R[0, 2] + R[2, 0]) / s,
-        )
-    elif m11 > m22:
-        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-        w, x, y, z = (
-            (R[0, 2] - R[2, 0]) / s,
-            (R[0, 1] + R[1, 0]) / s,
-            0.25 * s,
-            (R[1, 2] + R[2, 1]) / s,
-        )
-    else:
-        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-        w, x, y, z = (
-            (R[1, 0] - R[0, 1]) / s,
-            (R[0, 2] + R[2, 0]) / s,
-            (R[1, 2] + R[2, 1]) / s,
-            0.25 * s,
-        )
-    q = np.array([x, y, z, w])
-    q /= np.linalg.norm(q)
-    if q[3] < 0:
-        q = -q
-    return float(q[0]), float(q[1]), float(q[2]), float(q[3])
-
-
 # --- Foxglove messages --------------------------------------------------------------------
 
 
@@ -395,8 +350,8 @@ def _add_transform(
     tf = msg.transforms.add(parent_frame_id=parent, child_frame_id=child)
     _set_stamp(tf.timestamp, stamp_ns)
     tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in pose.translation)
-    q = quaternion(pose.rotation)
-    tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = q
+    w, x, y, z = (float(v) for v in quat_from_matrix(pose.rotation))
+    tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = x, y, z, w  # Foxglove's order
 
 
 def frame_transforms(

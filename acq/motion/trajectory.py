@@ -47,7 +47,13 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from acq.geometry.transforms import Rigid, euler_from_matrices, matrices_from_euler
+from acq.geometry.rotations import (
+    euler_from_matrices,
+    matrices_from_euler,
+    matrix_from_quat,
+    quat_from_matrix,
+)
+from acq.geometry.transforms import Rigid
 from acq.time import gpstime
 
 if TYPE_CHECKING:
@@ -96,50 +102,7 @@ class TrajectoryFileError(ValueError):
     column."""
 
 
-# --- rotations, vectorised -------------------------------------------------------------
-
-
-def quat_from_matrix(R: npt.ArrayLike) -> np.ndarray:
-    """(..., 3, 3) rotations -> (..., 4) unit quaternions (w, x, y, z), w >= 0."""
-    R = np.asarray(R, dtype=np.float64)
-    r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
-    r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
-    r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
-    # Shepperd: divide by the largest of 4|w|, 4|x|, 4|y|, 4|z|
-    cands = np.stack(
-        [
-            np.stack([1 + r00 + r11 + r22, r21 - r12, r02 - r20, r10 - r01], axis=-1),
-            np.stack([r21 - r12, 1 + r00 - r11 - r22, r01 + r10, r02 + r20], axis=-1),
-            np.stack([r02 - r20, r01 + r10, 1 - r00 + r11 - r22, r12 + r21], axis=-1),
-            np.stack([r10 - r01, r02 + r20, r12 + r21, 1 - r00 - r11 + r22], axis=-1),
-        ],
-        axis=-2,
-    )  # (..., 4 cases, 4 components): case k is 4 q_k q
-    k = np.argmax(np.stack([cands[..., i, i] for i in range(4)], axis=-1), axis=-1)
-    q = np.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
-
-
-def matrix_from_quat(q: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndarray:
-    """(..., 4) unit quaternions (w, x, y, z) -> (..., 3, 3) rotations."""
-    q = np.asarray(q, dtype=np.float64)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    R = np.empty((*q.shape[:-1], 3, 3)) if out is None else out
-    x2, y2, z2 = 2 * x, 2 * y, 2 * z
-    xx, yy, zz = x * x2, y * y2, z * z2
-    xy, xz, yz = x * y2, x * z2, y * z2
-    wx, wy, wz = w * x2, w * y2, w * z2
-    R[..., 0, 0] = 1 - yy - zz
-    R[..., 0, 1] = xy - wz
-    R[..., 0, 2] = xz + wy
-    R[..., 1, 0] = xy + wz
-    R[..., 1, 1] = 1 - xx - zz
-    R[..., 1, 2] = yz - wx
-    R[..., 2, 0] = xz - wy
-    R[..., 2, 1] = yz + wx
-    R[..., 2, 2] = 1 - xx - yy
-    return R
+# --- rotations -------------------------------------------------------------------------
 
 
 def _rot_z(yaw: np.ndarray) -> np.ndarray:
@@ -1293,7 +1256,7 @@ def from_csv(
       ``lat,lon,h`` (WGS-84 °, ellipsoidal m, put into ``frame``, default "enu" at the
       first row);
     - attitude, degrees, of the vehicle frame (x forward, y left, z up): ``roll,pitch,yaw``
-      as :func:`acq.geometry.transforms.rotation_from_euler` (``Rz(yaw) Ry(pitch) Rx(roll)``; yaw
+      as :func:`acq.geometry.rotations.rotation_from_euler` (``Rz(yaw) Ry(pitch) Rx(roll)``; yaw
       counter-clockwise from east, or from the frame's x axis with x,y,z) or
       ``roll,pitch,heading``, the NED convention of most INS (heading clockwise from
       north, or from the frame's y axis with x,y,z; pitch nose up; roll right side down;

@@ -298,7 +298,7 @@ def _size(path: Path) -> str:
 def _odometry_truth(rig: _SimRig, mcap_path: Path) -> list[str]:
     """Summary lines comparing the recorded CAN odometry with the car's true motion at
     the odometry's stamps, and its dead reckoning with the true path over the log."""
-    from acq.motion import trajectory
+    from acq import motion
     from acq.motion.vehicle_log import read_vehicle
     from acq.sim.can_vehicle import true_motion
 
@@ -319,7 +319,7 @@ def _odometry_truth(rig: _SimRig, mcap_path: Path) -> list[str]:
         "its stamps"
     ]
     # dead reckoning (as `acq colorize` does) against the truth, from the first sample
-    path = trajectory.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
+    path = motion.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
     _, end = path.pose_at(odo.t_ns[-1:])
     R, p = drive.poses(t_drive[[0, -1]])
     true_end = R[0].T @ (p[1] - p[0])  # in the frame of the first pose, as the odometry

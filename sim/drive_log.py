@@ -39,6 +39,7 @@ import numpy as np
 
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
+from acq.geometry.geodesy import WorldFrame
 from acq.log import schemas
 from acq.log.mcap_log import LogWriter
 from acq.records import Fix, Frame, Odometry, Scan
@@ -272,14 +273,14 @@ def write_drive_log(
     # --- GNSS: the vehicle's true position (the antenna at its origin), street x east and
     # y north of ORIGIN, with Gaussian noise; stamped at the fix instant, received later
     if gnss_hz > 0:
-        from acq.sim.nmea_device import DEFAULT_ORIGIN, enu_to_wgs84
+        from acq.sim.nmea_device import DEFAULT_ORIGIN
 
         gnss_rng = np.random.default_rng([seed, 2])
         ts = np.arange(0.0, seconds + 0.2, 1.0 / gnss_hz)
         _, pos = traj.poses(ts)
         noisy = pos + gnss_rng.normal(0.0, gnss_noise_m, pos.shape)
-        for t, p in zip(ts.tolist(), noisy.tolist(), strict=True):
-            lat, lon, h = enu_to_wgs84((p[0], p[1], p[2]), DEFAULT_ORIGIN)
+        geo = WorldFrame("enu", DEFAULT_ORIGIN).to_geodetic(noisy)
+        for t, lat, lon, h in zip(ts.tolist(), *(a.tolist() for a in geo), strict=True):
             stamp = host(t)
             fix = Fix(recv_ns=stamp + 45_000_000, utc_s=1_800_000_000 + stamp * 1e-9,
                       latitude=lat, longitude=lon, altitude=h, quality=4, satellites=14,

@@ -6,7 +6,7 @@ The receiver's antenna rides on the vehicle of a :class:`acq.sim.world.Trajector
 lies on the local tangent plane at ``origin`` (WGS-84 latitude, longitude in degrees,
 height above mean sea level in m; the geoid lies ``geoid_separation`` m above the
 ellipsoid there), with +x pointing ``bearing_deg`` clockwise from north. ENU -> WGS-84
-is exact (pyproj's topocentric conversion).
+is exact (:class:`acq.geometry.geodesy.WorldFrame`, pyproj's topocentric conversion).
 
 Fix epochs fall on whole multiples of ``1 / rate_hz`` of UTC (as a receiver's do);
 UTC is host monotonic time plus ``utc_offset_s`` (by default what the host's wall
@@ -33,10 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
+from acq.geometry.geodesy import WorldFrame
 from acq.sim.transport import PtyDeviceServer
 from acq.sim.world import Trajectory
 
-__all__ = ["DEFAULT_ORIGIN", "FixTruth", "NmeaDevice", "NmeaPtyServer", "enu_to_wgs84"]
+__all__ = ["DEFAULT_ORIGIN", "FixTruth", "NmeaDevice", "NmeaPtyServer"]
 
 DEFAULT_ORIGIN = (48.8584, 2.2945, 35.0)  # Paris, Champ de Mars: lat, lon deg, m above MSL
 DEFAULT_GEOID_SEPARATION = 44.6  # m, EGM96 near Paris
@@ -59,29 +60,10 @@ class FixTruth:
     t_sent: float = 0.0  # host monotonic s its sentences were due
 
 
-class _Enu:
-    """Local ENU metres at an origin -> WGS-84 (lat, lon deg, h m above the ellipsoid)."""
-
-    def __init__(self, lat0: float, lon0: float, h0: float) -> None:
-        import pyproj
-
-        self._transformer = pyproj.Transformer.from_pipeline(
-            "+proj=pipeline +step +inv +proj=topocentric +ellps=WGS84 "
-            f"+lat_0={lat0!r} +lon_0={lon0!r} +h_0={h0!r} "
-            "+step +inv +proj=cart +ellps=WGS84 +step +proj=unitconvert +xy_in=rad +xy_out=deg"
-        )
-
-    def __call__(self, e: float, n: float, u: float) -> tuple[float, float, float]:
-        lon, lat, h = self._transformer.transform(e, n, u)
-        return float(lat), float(lon), float(h)
-
-
-def enu_to_wgs84(
-    enu: tuple[float, float, float], origin: tuple[float, float, float]
-) -> tuple[float, float, float]:
-    """(lat deg, lon deg, h m) of ENU metres at ``origin`` (lat, lon deg, h above the
-    ellipsoid m)."""
-    return _Enu(*origin)(*enu)
+def _geodetic(frame: WorldFrame, e: float, n: float, u: float) -> tuple[float, float, float]:
+    """(lat deg, lon deg, h m above the ellipsoid) of one point of an ENU ``frame``."""
+    lat, lon, h = frame.to_geodetic([e, n, u])
+    return float(lat[0]), float(lon[0]), float(h[0])
 
 
 def _ddmm(value: float, degree_digits: int, decimals: int, hemis: str) -> tuple[str, str]:
@@ -155,7 +137,7 @@ class NmeaDevice:
         self.utc_offset_s = utc_offset_s
         self.loop_s = loop_s
         self.truth: deque[FixTruth] = deque(maxlen=truth_limit)
-        self._enu = _Enu(origin[0], origin[1], origin[2] + geoid_separation)
+        self._enu = WorldFrame("enu", (origin[0], origin[1], origin[2] + geoid_separation))
         self._rng = np.random.default_rng(seed)
         self._k = math.floor((self.t_origin + utc_offset_s) * rate_hz) + 1  # next epoch
         self._due = self._due_of(self._k)
@@ -183,7 +165,7 @@ class NmeaDevice:
         """The true fix at host monotonic time t (nothing reported)."""
         p = self._enu_at(t)
         v = (self._enu_at(t + _H) - self._enu_at(t - _H)) / (2 * _H)
-        lat, lon, h = self._enu(*p)
+        lat, lon, h = _geodetic(self._enu, *p)
         course = math.atan2(v[0], v[1]) % (2 * math.pi)
         return FixTruth(t, t + self.utc_offset_s, lat, lon, h, float(math.hypot(v[0], v[1])),
                         course, (lat, lon, h))  # fmt: skip
@@ -203,7 +185,7 @@ class NmeaDevice:
         if self.noise_m or self.noise_up_m:
             de, dn = self._rng.normal(0.0, self.noise_m, 2)
             e, n, u = e + de, n + dn, u + self._rng.normal(0.0, self.noise_up_m)
-        lat, lon, h = self._enu(e, n, u)
+        lat, lon, h = _geodetic(self._enu, e, n, u)
         truth = FixTruth(truth.t, utc, truth.latitude, truth.longitude, truth.altitude,
                          truth.speed, truth.course, (lat, lon, h), now)  # fmt: skip
         stamp = time.gmtime(math.floor(utc + 1e-9))

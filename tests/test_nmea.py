@@ -24,8 +24,9 @@ from acq.drivers.nmea import (
     NmeaReceiver,
 )
 from acq.drivers.reconnect import Backoff, Relink
+from acq.geometry.geodesy import WorldFrame
 from acq.records import Fix, Sentence
-from acq.sim.nmea_device import DEFAULT_ORIGIN, NmeaDevice, NmeaPtyServer, enu_to_wgs84, sentence
+from acq.sim.nmea_device import DEFAULT_ORIGIN, NmeaDevice, NmeaPtyServer, sentence
 from acq.sim.world import Trajectory
 
 CURVY = Trajectory(curve_amplitude=2.0, curve_wavelength=60.0)
@@ -82,7 +83,9 @@ def test_fixes_from_the_simulated_receiver_match_the_truth(
     lat0, lon0, msl0 = DEFAULT_ORIGIN
     first = device.truth_at(device.t_origin)
     east, north = CURVY.x0, CURVY.y0  # bearing 90: x east, y north
-    lat, lon, h = enu_to_wgs84((east, north, 1.9), (lat0, lon0, msl0 + 44.6))
+    (lat,), (lon,), (h,) = WorldFrame("enu", (lat0, lon0, msl0 + 44.6)).to_geodetic(
+        [east, north, 1.9]
+    )
     assert (first.latitude, first.longitude) == pytest.approx((lat, lon), abs=1e-12)
     assert first.altitude == pytest.approx(h, abs=1e-6)
 

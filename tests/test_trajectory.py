@@ -12,17 +12,23 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acq.geometry.rotations import rotation_from_euler, rotation_to_euler
-from acq.geometry.transforms import Rigid
-from acq.motion import trajectory as tj
-from acq.motion.trajectory import (
-    OutOfSpanError,
-    Trajectory,
-    TrajectoryFileError,
-    WorldFrame,
+from acq import motion as tj
+from acq.geometry.geodesy import WorldFrame
+from acq.geometry.rotations import (
+    euler_from_matrices,
+    matrices_from_euler,
+    matrix_from_quat,
+    matrix_from_rotvec,
+    quat_from_matrix,
+    rotation_from_euler,
 )
+from acq.geometry.transforms import Rigid
+from acq.motion import fusion
+from acq.motion.ins import TrajectoryFileError
+from acq.motion.odometry import Hold
+from acq.motion.trajectory import OutOfSpanError, Trajectory
 from acq.time import gpstime
-from acq.time.utc import utc_seconds
+from acq.time.utc import host_ns_from_utc, utc_seconds
 
 T0 = 5_000_000_000_000  # ns, an arbitrary host time
 S = 1_000_000_000  # ns per second
@@ -32,47 +38,10 @@ def ns(t_s: np.ndarray | float) -> np.ndarray:
     return T0 + np.rint(np.asarray(t_s, dtype=np.float64) * 1e9).astype(np.int64)
 
 
-def rotvec(v: np.ndarray) -> np.ndarray:
-    """(N,3) rotation vectors -> (N,3,3), Rodrigues."""
-    v = np.atleast_2d(v)
-    th = np.linalg.norm(v, axis=1)
-    k = np.where(th[:, None] > 0, v / np.where(th > 0, th, 1)[:, None], 0.0)
-    K = np.zeros((len(v), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    K = K - np.swapaxes(K, 1, 2)
-    s, c = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
-
-
 def angle_between(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """(N,) rotation angle of A^T B, rad (|A - B|_F = 2 sqrt(2) sin(angle / 2))."""
     d = np.linalg.norm(np.asarray(A) - np.asarray(B), axis=(-2, -1))
     return 2 * np.arcsin(np.clip(d / (2 * math.sqrt(2)), 0, 1))
-
-
-# --- rotations -------------------------------------------------------------------------
-
-
-@settings(max_examples=60, deadline=None)
-@given(st.lists(st.floats(-math.pi, math.pi), min_size=3, max_size=3))
-def test_quaternion_round_trip(rpy: list[float]) -> None:
-    R = rotation_from_euler(*rpy)
-    q = tj.quat_from_matrix(R[None])
-    np.testing.assert_allclose(np.linalg.norm(q), 1.0, atol=1e-12)
-    np.testing.assert_allclose(tj.matrix_from_quat(q)[0], R, atol=1e-12)
-
-
-def test_vectorised_euler_matches_transforms() -> None:
-    rng = np.random.default_rng(3)
-    rpy = rng.uniform([-3, -1.5, -3], [3, 1.5, 3], (50, 3))
-    R = tj.matrices_from_euler(*rpy.T)
-    for i in range(50):
-        np.testing.assert_allclose(R[i], rotation_from_euler(*rpy[i]), atol=1e-14)
-        back = np.array([a[i] for a in tj.euler_from_matrices(R)])
-        np.testing.assert_allclose(back, rotation_to_euler(R[i]), atol=1e-14)
-    # a half turn (quaternion w = 0) and the identity
-    for M in (np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]), np.eye(3)):
-        np.testing.assert_allclose(tj.matrix_from_quat(tj.quat_from_matrix(M[None]))[0], M)
 
 
 # --- interpolation -----------------------------------------------------------------------
@@ -87,7 +56,9 @@ def spinning(n: int = 40, seed: int = 0) -> tuple[Trajectory, Rigid, np.ndarray,
     omega = np.array([0.2, -0.3, 0.7])
     vel = np.array([5.0, 1.0, -0.2])
     traj = Trajectory(
-        ns(ts), R0.rotation @ rotvec(ts[:, None] * omega), R0.translation + ts[:, None] * vel
+        ns(ts),
+        R0.rotation @ matrix_from_rotvec(ts[:, None] * omega),
+        R0.translation + ts[:, None] * vel,
     )
     return traj, R0, omega, vel
 
@@ -98,7 +69,7 @@ def test_slerp_is_exact_for_a_constant_rate_turn() -> None:
     t_q = rng.integers(traj.start_ns, traj.end_ns + 1, 5000)
     R, p = traj.pose_at(t_q)
     ts = (t_q - T0) * 1e-9
-    assert angle_between(R, R0.rotation @ rotvec(ts[:, None] * omega)).max() < 1e-9
+    assert angle_between(R, R0.rotation @ matrix_from_rotvec(ts[:, None] * omega)).max() < 1e-9
     np.testing.assert_allclose(p, R0.translation + ts[:, None] * vel, atol=1e-9)
     np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
 
@@ -125,7 +96,7 @@ def test_interpolates_the_simulated_drive_to_well_under_a_millimetre() -> None:
 def test_pose_at_the_sample_times_returns_the_samples(n: int, seed: int) -> None:
     rng = np.random.default_rng(seed)
     t = T0 + np.cumsum(rng.integers(1, 10**9, n))
-    R = tj.matrices_from_euler(*rng.uniform(-3, 3, (3, n)))
+    R = matrices_from_euler(*rng.uniform(-3, 3, (3, n)))
     p = rng.normal(0, 1e3, (n, 3))
     traj = Trajectory(t, R, p)
     R2, p2 = traj.pose_at(t)
@@ -156,7 +127,7 @@ def test_out_of_span_raises_and_covers_flags() -> None:
     assert not wide.covers(np.array([traj.end_ns + S // 4]))[0]
     R, p = wide.pose_at(t[[0, 3]])
     ts = (t[[0, 3]] - T0) * 1e-9
-    assert angle_between(R, R0.rotation @ rotvec(ts[:, None] * omega)).max() < 1e-9
+    assert angle_between(R, R0.rotation @ matrix_from_rotvec(ts[:, None] * omega)).max() < 1e-9
     np.testing.assert_allclose(p, R0.translation + ts[:, None] * vel, atol=1e-9)
     with pytest.raises(ValueError, match="margin_s"):
         Trajectory(traj.t_ns, traj.rotation, traj.translation, margin_s=1.0)
@@ -261,7 +232,7 @@ def test_mean_hold_is_second_order_for_smooth_inputs() -> None:
     fine = np.arange(0, 30 + 1e-9, 1e-3)
     ref = tj.from_odometry(ns(fine), *inputs(fine))  # 1 kHz: ~2 µm from the limit
 
-    def err(rate_hz: float, hold: tj.Hold) -> float:
+    def err(rate_hz: float, hold: Hold) -> float:
         ts = np.arange(0, 30 + 1e-9, 1 / rate_hz)
         traj = tj.from_odometry(ns(ts), *inputs(ts), hold=hold)
         return float(np.abs(traj.translation[-1] - ref.pose_at(traj.t_ns[-1])[1]).max())
@@ -374,7 +345,7 @@ def test_gnss_from_fix_records() -> None:
             latitude=50.0 + i * 1e-4, longitude=8.0, altitude=100.0, quality=1, hdop=1.2)
         for i in range(4)
     ]  # fmt: skip
-    by_utc = tj.gnss_from_fixes(fixes, utc_to_host_ns=lambda u: tj.host_ns_from_utc(u, clock))
+    by_utc = tj.gnss_from_fixes(fixes, utc_to_host_ns=lambda u: host_ns_from_utc(u, clock))
     np.testing.assert_array_equal(by_utc.t_ns, T0 + np.arange(4) * S)
     by_recv = tj.gnss_from_fixes(fixes)
     np.testing.assert_array_equal(by_recv.t_ns, T0 + np.arange(4) * S + 80_000_000)
@@ -433,9 +404,9 @@ def test_fusion_beats_odometry_alone() -> None:
     odo = tj.from_odometry(t, v, w)
     _, po = odo.pose_at(te)
     _, pt = truth.pose_at(te)
-    th, cs, cd = tj._procrustes_2d(po[:, :2], world.apply(pt)[:, :2], np.ones(te.size))
+    th, cs, cd = fusion._procrustes_2d(po[:, :2], world.apply(pt)[:, :2], np.ones(te.size))
     odo_err = np.linalg.norm(
-        (po[:, :2] - cs) @ tj._rot2(th).T + cd - world.apply(pt)[:, :2], axis=1
+        (po[:, :2] - cs) @ fusion._rot2(th).T + cd - world.apply(pt)[:, :2], axis=1
     )
     rms = float(np.sqrt(np.mean(err**2)))
     odo_rms = float(np.sqrt(np.mean(odo_err**2)))
@@ -495,16 +466,16 @@ def test_host_ns_from_utc_inverts_utc_seconds(n_pairs: int, seed: int, drift: fl
     )  # NTP slews: 0.1 ms jitter, drift up to 200 ppm
     clock = np.stack([mono, mono + offset], axis=1)
     t = rng.integers(mono[0] - 5 * S, mono[-1] + 5 * S, 200)  # also beyond the pairs
-    back = tj.host_ns_from_utc(utc_seconds(t, clock), clock)
+    back = host_ns_from_utc(utc_seconds(t, clock), clock)
     assert np.abs(back - t).max() < 1000  # ns: float64 UTC seconds carry ~0.24 µs
 
 
 def test_host_ns_from_utc_refuses_what_it_cannot_map() -> None:
     with pytest.raises(ValueError, match=r"no .* clock pairs"):
-        tj.host_ns_from_utc([1.7e9], np.zeros((0, 2), dtype=np.int64))
+        host_ns_from_utc([1.7e9], np.zeros((0, 2), dtype=np.int64))
     stepped = np.array([[T0, 1_700_000_000 * S], [T0 + S, 1_700_000_000 * S - 3 * S]])
     with pytest.raises(ValueError, match="wall clock went back"):
-        tj.host_ns_from_utc([1.7e9], stepped)
+        host_ns_from_utc([1.7e9], stepped)
 
 
 def utc(y: int, mo: int, d: int, h: int = 0, mi: int = 0, s: int = 0) -> float:
@@ -539,7 +510,7 @@ CLOCK = np.array([[T0, 1_714_550_400 * S], [T0 + 100 * S, 1_714_550_500 * S + 2_
 
 
 def to_host(u: np.ndarray) -> np.ndarray:
-    return tj.host_ns_from_utc(u, CLOCK)
+    return host_ns_from_utc(u, CLOCK)
 
 
 def to_utc(t: np.ndarray) -> np.ndarray:
@@ -557,7 +528,7 @@ def to_utc(t: np.ndarray) -> np.ndarray:
 def test_csv_round_trip(tmp_path: Path, frame: str, origin: tuple[float, float, float]) -> None:
     rng = np.random.default_rng(8)
     t = ns(np.cumsum(rng.uniform(0.005, 0.02, 500)))
-    R = tj.matrices_from_euler(*rng.uniform([-0.2, -0.2, -3], [0.2, 0.2, 3], (500, 3)).T)
+    R = matrices_from_euler(*rng.uniform([-0.2, -0.2, -3], [0.2, 0.2, 3], (500, 3)).T)
     traj = Trajectory(t, R, rng.normal(0, 100, (500, 3)), frame, origin)
     path = tmp_path / "traj.csv"
     assert tj.to_csv(path, traj, host_to_utc=to_utc) == 500
@@ -589,7 +560,7 @@ def test_csv_times_positions_and_attitude_conventions(tmp_path: Path) -> None:
     np.testing.assert_array_equal(traj.t_ns, to_host(u0 + np.array([0.0, 0.5, 1.0])))
     np.testing.assert_allclose(traj.translation, P, atol=1e-6)
     # heading 90° (east) is yaw 0; NED pitch up is ENU pitch negative (the nose up)
-    r, p, y = tj.euler_from_matrices(traj.rotation[:1])
+    r, p, y = euler_from_matrices(traj.rotation[:1])
     np.testing.assert_allclose(np.degrees([r[0], p[0], y[0]]), [2.0, -5.0, 0.0], atol=1e-6)
     nose = traj.rotation[0] @ [1.0, 0.0, 0.0]
     assert nose[2] > 0 and nose[0] > 0.99
@@ -602,7 +573,7 @@ def test_csv_times_positions_and_attitude_conventions(tmp_path: Path) -> None:
     (tmp_path / "iso.csv").write_text(iso)
     traj = tj.from_csv(tmp_path / "iso.csv", utc_to_host_ns=to_host, frame="EPSG:25832")
     np.testing.assert_array_equal(traj.t_ns, to_host(utc(2024, 5, 1, 8) + np.arange(3) + 0.5))
-    np.testing.assert_allclose(tj.euler_from_matrices(traj.rotation)[2], np.radians([0, 30, 60]))
+    np.testing.assert_allclose(euler_from_matrices(traj.rotation)[2], np.radians([0, 30, 60]))
 
 
 HEADER = "time,x,y,z,roll,pitch,yaw\n"
@@ -652,14 +623,33 @@ def test_transform_is_pose_at_applied_to_the_points() -> None:
     rng = np.random.default_rng(5)
     n = 50
     t = T0 + np.cumsum(rng.integers(10**6, 10**8, n))
-    traj = Trajectory(t, tj.matrices_from_euler(*rng.uniform(-3, 3, (3, n))),
+    traj = Trajectory(t, matrices_from_euler(*rng.uniform(-3, 3, (3, n))),
                       rng.normal(0, 100, (n, 3)))  # fmt: skip
     t_q = rng.integers(t[0], t[-1], 10_000)
     P = rng.normal(0, 20, (t_q.size, 3))
     R, p = traj.pose_at(t_q)
     np.testing.assert_allclose(traj.transform(t_q, P), np.einsum("nij,nj->ni", R, P) + p,
                                atol=1e-9)  # fmt: skip
-    with pytest.raises(tj.OutOfSpanError):
+    with pytest.raises(OutOfSpanError):
         traj.transform(np.array([t[0] - 10**9]), np.zeros((1, 3)))
     with pytest.raises(ValueError, match="2 times but 1 points"):
         traj.transform(t[:2], np.zeros((1, 3)))
+
+
+def test_the_compiled_kernels_turn_quaternions_into_matrices_as_the_geometry_module() -> None:
+    """The numba kernels convert the slerped quaternion inline (a compiled twin of
+    matrix_from_quat): at the samples and between them, the same rotations."""
+    rng = np.random.default_rng(5)
+    n = 30
+    R = matrices_from_euler(*rng.uniform(-3, 3, (3, n)))
+    t = T0 + np.cumsum(rng.integers(5, 20, n)) * 10**6
+    traj = Trajectory(t, R, rng.normal(size=(n, 3)))
+    got, _ = traj.pose_at(t)
+    np.testing.assert_allclose(got, matrix_from_quat(quat_from_matrix(R)), rtol=0, atol=1e-15)
+    a = rng.uniform(0.0, 1.0, n - 1)
+    mid = t[:-1] + np.rint(a * np.diff(t)).astype(np.int64)
+    a = (mid - t[:-1]) / np.diff(t)
+    q0, perp, theta = traj._table[:, 0:4], traj._table[:, 4:8], traj._table[:, 8]  # slerp
+    q = np.cos(a * theta)[:, None] * q0 + np.sin(a * theta)[:, None] * perp
+    got, _ = traj.pose_at(mid)
+    np.testing.assert_allclose(got, matrix_from_quat(q), rtol=0, atol=1e-15)

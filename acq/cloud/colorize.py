@@ -5,7 +5,7 @@
    pairs, metadata.
 2. Offline re-timing (default; :mod:`acq.time.retime`): scans from their ticks over the
    whole log, frames put back on the camera's frame grid.
-3. The trajectory (:mod:`acq.motion.trajectory`): ``--trajectory CSV`` (a post-processed
+3. The trajectory (:mod:`acq.motion`): ``--trajectory CSV`` (a post-processed
    GNSS/INS file), else the log's CAN odometry (fused with its GNSS fixes when there are
    any), else none: then the points stay in the laser frame at their own time and are
    coloured without motion compensation (right only for a rig standing still; said in
@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from acq import motion
 from acq.calib.time_offset import OffsetEstimate, estimate_time_offset
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
@@ -57,8 +58,9 @@ from acq.cloud.points import Cloud
 from acq.cloud.preview import preview_png
 from acq.geometry.transforms import Rigid
 from acq.log.loginfo import LogError
+from acq.motion.vehicle_log import read_vehicle
 from acq.time import retime
-from acq.time.utc import utc_seconds
+from acq.time.utc import host_ns_from_utc, utc_seconds
 
 __all__ = ["Chunk", "ChunkResult", "Job", "colour_chunk", "main_colorize", "plan", "run"]
 
@@ -458,17 +460,13 @@ def _retime(log: DriveLog, report: Report) -> tuple[np.ndarray, np.ndarray]:
 
 def _trajectory(files: Sequence[Path], path: Path | None, log: DriveLog, report: Report) -> Any:
     """The trajectory to place points with, or None (see the module docstring, step 3)."""
-    from acq.motion import trajectory as trajmod
-
     if path is not None:
         clock = log.clock
-        traj = trajmod.from_csv(path, utc_to_host_ns=lambda u: trajmod.host_ns_from_utc(u, clock))
+        traj = motion.from_csv(path, utc_to_host_ns=lambda u: host_ns_from_utc(u, clock))
         report.trajectory = f"{path} ({len(traj.t_ns)} poses)"
         return traj
     vehicle = log.vehicle
     if vehicle is None:
-        from acq.motion.vehicle_log import read_vehicle
-
         vehicle = read_vehicle(list(files))
     report.notes += vehicle.notes
     odo = vehicle.odometry
@@ -477,16 +475,16 @@ def _trajectory(files: Sequence[Path], path: Path | None, log: DriveLog, report:
     fixes = vehicle.fixes
     usable = np.isfinite(fixes.lat) & (fixes.quality > 0) if len(fixes) else np.zeros(0, bool)
     if usable.sum() >= 5:
-        track = trajmod.gnss_track(
+        track = motion.gnss_track(
             fixes.t_ns, fixes.lat, fixes.lon, fixes.alt, hdop=fixes.hdop, quality=fixes.quality
         )
-        fusion = trajmod.fuse(odo.t_ns, odo.speed, odo.yaw_rate, track, on_gap="flag")
+        fusion = motion.fuse(odo.t_ns, odo.speed, odo.yaw_rate, track, on_gap="flag")
         report.trajectory = (
             f"CAN odometry ({len(odo)} samples) fused with {int(usable.sum())} GNSS fixes "
             f"(residual {fusion.residual_rms_m:.2f} m RMS)"
         )
         return fusion.trajectory
-    traj = trajmod.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
+    traj = motion.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
     report.trajectory = f"CAN odometry ({len(odo)} samples, dead reckoning)"
     return traj
 
@@ -496,10 +494,9 @@ def _warm_kernels(model: CameraModel) -> None:
     (numba's first call of a cached kernel costs a tenth of a second or more, part of it
     without the GIL): run on a thread while the log is read."""
     from acq.camera import projection
-    from acq.motion.trajectory import Trajectory
 
     try:
-        traj = Trajectory(np.array([0, 10**8]), np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
+        traj = motion.Trajectory(np.array([0, 10**8]), np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
         t = np.array([5 * 10**7], dtype=np.int64)
         traj.pose_at(t)
         traj.transform(t, np.zeros((1, 3)))

@@ -59,7 +59,7 @@ from acq.cloud.preview import preview_png
 from acq.geometry.transforms import Rigid
 from acq.log.loginfo import LogError
 from acq.motion.vehicle_log import read_vehicle
-from acq.time import retime
+from acq.time import retime, sync
 from acq.time.utc import host_ns_from_utc, utc_seconds
 
 __all__ = ["Chunk", "ChunkResult", "Job", "colour_chunk", "main_colorize", "plan", "run"]
@@ -173,8 +173,7 @@ def place(
     P_laser = np.zeros((r.size, 3))  # filled in place: no (N,) temporaries
     np.multiply(r, np.cos(beams)[step], out=P_laser[:, 0])
     np.multiply(r, np.sin(beams)[step], out=P_laser[:, 1])
-    offsets = np.rint(np.arange(log.ranges.shape[1]) * (log.time_increment * 1e9)).astype(np.int64)
-    time_ns = scan_ns[scan_idx] + offsets[step]
+    time_ns = sync.point_times_ns(scan_ns[scan_idx], log.time_increment, step)
     if time_ns.size and np.any(np.diff(time_ns) < 0):  # scans out of order, or overlapping
         order = np.argsort(time_ns, kind="stable")
         scan_idx, step, P_laser, time_ns, r = (

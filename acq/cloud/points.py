@@ -104,8 +104,7 @@ def colorize(
     r = log.ranges[scan_idx, step].astype(np.float64)
     a = log.angle_min + log.angle_increment * step
     P_laser = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(r)], axis=1)
-    offsets = np.rint(step * (log.time_increment * 1e9)).astype(np.int64)
-    time_ns = log.scan_ns[scan_idx] + offsets
+    time_ns = sync.point_times_ns(log.scan_ns[scan_idx], log.time_increment, step)
     # placed at their own time
     Rv, tv = pose_at(time_ns)
     P_vehicle = l2v.apply(P_laser)

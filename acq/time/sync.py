@@ -55,12 +55,17 @@ def scan_start_ns(stamp_host_ns: int, stamp_offset_s: float, latency_s: float = 
     return int(stamp_host_ns) + round(stamp_offset_s * 1e9) - round(latency_s * 1e9)
 
 
-def point_times_ns(scan: Scan) -> np.ndarray:
-    """(N,) int64 host ns of every point: ``start_ns + round(i * time_increment * 1e9)``."""
-    if scan.start_ns is None:
-        raise ValueError("scan.start_ns is None: apply a clock first (stamp_scan or scan_start_ns)")
-    offsets = np.rint(scan.point_offsets_s() * 1e9).astype(np.int64)
-    return np.int64(scan.start_ns) + offsets
+def point_times_ns(
+    start_ns: int | npt.ArrayLike | None, time_increment_s: float, step: npt.ArrayLike
+) -> np.ndarray:
+    """int64 host ns of points ``step`` (int, any shape) of scans whose point 0 was
+    measured at ``start_ns`` (broadcast against ``step``) ``time_increment_s`` s apart:
+    ``start_ns + round(step * time_increment_s * 1e9)``. One scan:
+    ``point_times_ns(scan.start_ns, scan.time_increment, np.arange(scan.size))``."""
+    if start_ns is None:
+        raise ValueError("start_ns is None: apply a clock first (stamp_scan or scan_start_ns)")
+    offsets = np.rint(np.asarray(step) * (time_increment_s * 1e9)).astype(np.int64)
+    return np.asarray(start_ns, dtype=np.int64) + offsets
 
 
 def stamp_scan(

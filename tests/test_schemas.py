@@ -14,7 +14,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import Equidistant, KannalaBrandt, Pinhole
-from acq.geometry.rotations import rotation_from_euler
+from acq.geometry.rotations import matrix_from_quat, rotation_from_euler
 from acq.geometry.transforms import Rigid
 from acq.log import schemas
 from acq.records import CanFrame, Fix, Frame, Odometry, Scan
@@ -174,17 +174,6 @@ def test_camera_calibration_kannala_brandt_and_pinhole() -> None:
     np.testing.assert_array_equal(msg.D, ph.dist)
 
 
-def quat_matrix(q: tuple[float, float, float, float]) -> np.ndarray:
-    x, y, z, w = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def test_frame_transforms_hold_each_cameras_pose_in_the_laser_frame() -> None:
     R = rotation_from_euler(0.1, -1.2, 2.5)
     t = np.array([0.12, -0.05, 0.3])
@@ -206,10 +195,10 @@ def test_frame_transforms_hold_each_cameras_pose_in_the_laser_frame() -> None:
     ):
         tf = by_child[child]
         assert tf.parent_frame_id == parent and ts_ns(tf.timestamp) == STAMP
-        q = (tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w)
+        q = (tf.rotation.w, tf.rotation.x, tf.rotation.y, tf.rotation.z)  # Foxglove: x, y, z, w
         # a parent -> child transform maps child-frame points into the parent frame
         P_child = np.array([[1.0, 2.0, 3.0], [-0.5, 0.2, 4.0]])
-        P_parent = P_child @ quat_matrix(q).T + [
+        P_parent = P_child @ matrix_from_quat(q).T + [
             tf.translation.x,
             tf.translation.y,
             tf.translation.z,

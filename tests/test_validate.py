@@ -16,6 +16,7 @@ from acq import cloud
 from acq.calib.validate import DEFAULT_COLOURS, main_validate, validate
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
+from acq.geometry.rotations import matrix_from_rotvec
 from acq.geometry.transforms import Rigid
 from acq.sim.raycast import NO_RAY
 from acq.sim.validation_log import (
@@ -49,7 +50,7 @@ def rec(tmp_path_factory: pytest.TempPathFactory) -> tuple[ValidationLog, Path]:
 def _perturbed(cam: CameraCalib, deg: float) -> CameraCalib:
     """``cam`` with camera_to_laser turned by ``deg`` about the laser z axis (the scan
     plane's normal: the projections move along the laser line)."""
-    R, _ = cv2.Rodrigues(np.array([0.0, 0.0, math.radians(deg)]))
+    R = matrix_from_rotvec([0.0, 0.0, math.radians(deg)])
     T = cam.camera_to_laser
     return CameraCalib(cam.model, Rigid(R @ T.rotation, T.translation))
 

@@ -47,7 +47,7 @@ def make_scan(n: int = 5, time_increment: float = 0.001, **kw: object) -> Scan:
 
 def test_point_times_are_exact_int64() -> None:
     scan = make_scan(n=4, time_increment=0.001 / 3, start_ns=T0)
-    times = point_times_ns(scan.start_ns, scan.time_increment, np.arange(scan.size))
+    times = point_times_ns(scan)
     assert times.dtype == np.int64
     assert times.tolist() == [T0, T0 + 333_333, T0 + 666_667, T0 + 1_000_000]
 
@@ -56,15 +56,24 @@ def test_point_times_of_a_utm_scan() -> None:
     # UTM-30LX: 1440 steps per 25 ms turn, 1081 points
     inc = 0.025 / 1440
     scan = make_scan(n=1081, time_increment=inc, start_ns=T0)
-    times = point_times_ns(scan.start_ns, scan.time_increment, np.arange(scan.size))
+    times = point_times_ns(scan)
     assert times.tolist() == [T0 + round(i * inc * 1e9) for i in range(1081)]
     assert times[-1] - times[0] == 18_750_000  # 1080 steps of 17.36 µs
 
 
+def test_point_times_of_many_scans_at_once_are_each_scans() -> None:
+    inc = 0.025 / 1440
+    starts = T0 + np.array([0, 25_000_123, 50_000_456])
+    scan_idx, step = np.nonzero(np.ones((3, 1081), dtype=bool))
+    times = point_times_ns(starts[scan_idx], inc, step)
+    for k, start in enumerate(starts):
+        scan = make_scan(n=1081, time_increment=inc, start_ns=int(start))
+        assert times[scan_idx == k].tolist() == point_times_ns(scan).tolist()
+
+
 def test_point_times_need_a_clock() -> None:
     with pytest.raises(ValueError, match="apply a clock first"):
-        scan = make_scan()
-        point_times_ns(scan.start_ns, scan.time_increment, np.arange(scan.size))
+        point_times_ns(make_scan())
 
 
 def test_scan_start_adds_offset_and_subtracts_latency() -> None:

@@ -19,6 +19,7 @@ import bisect
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import overload
 
 import numpy as np
 import numpy.typing as npt
@@ -55,17 +56,34 @@ def scan_start_ns(stamp_host_ns: int, stamp_offset_s: float, latency_s: float = 
     return int(stamp_host_ns) + round(stamp_offset_s * 1e9) - round(latency_s * 1e9)
 
 
+@overload
+def point_times_ns(scan: Scan, /) -> np.ndarray: ...
+
+
+@overload
 def point_times_ns(
-    start_ns: int | npt.ArrayLike | None, time_increment_s: float, step: npt.ArrayLike
+    start_ns: int | npt.ArrayLike | None, time_increment_s: float, step: npt.ArrayLike, /
+) -> np.ndarray: ...
+
+
+def point_times_ns(
+    start: Scan | int | npt.ArrayLike | None,
+    time_increment_s: float | None = None,
+    step: npt.ArrayLike | None = None,
+    /,
 ) -> np.ndarray:
-    """int64 host ns of points ``step`` (int, any shape) of scans whose point 0 was
-    measured at ``start_ns`` (broadcast against ``step``) ``time_increment_s`` s apart:
-    ``start_ns + round(step * time_increment_s * 1e9)``. One scan:
-    ``point_times_ns(scan.start_ns, scan.time_increment, np.arange(scan.size))``."""
-    if start_ns is None:
+    """int64 host ns of every point of a ``scan``, or of points ``step`` (int, any shape)
+    of scans whose point 0 was measured at ``start_ns`` (broadcast against ``step``),
+    ``time_increment_s`` s apart: ``start_ns + round(step * time_increment_s * 1e9)``."""
+    if isinstance(start, Scan):
+        scan = start
+        start, time_increment_s, step = scan.start_ns, scan.time_increment, np.arange(scan.size)
+    if start is None:
         raise ValueError("start_ns is None: apply a clock first (stamp_scan or scan_start_ns)")
+    if time_increment_s is None or step is None:
+        raise TypeError("point_times_ns(scan) or point_times_ns(start_ns, time_increment_s, step)")
     offsets = np.rint(np.asarray(step) * (time_increment_s * 1e9)).astype(np.int64)
-    return np.asarray(start_ns, dtype=np.int64) + offsets
+    return np.asarray(start, dtype=np.int64) + offsets
 
 
 def stamp_scan(

@@ -56,7 +56,7 @@ def ecef_to_enu(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike) -> np.ndarray:
 @lru_cache(maxsize=16)
 def _transformer(name: str, origin: tuple[float, float, float]) -> pyproj.Transformer:
     """Geodetic (lon °, lat °, h m on WGS-84) -> the frame's axes (before any offset)."""
-    # imported here: pyproj takes 0.1 s to import, and only georeferenced frames need it
+    # imported here: pyproj takes 60 ms to import, and only georeferenced frames need it
     import pyproj
 
     if name == "enu":

@@ -40,12 +40,12 @@ import warnings
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from acq.sim.board_poses import BoardData, simulate
-from acq.sim.world import default_rig
 
 from acq.calib import extrinsic as ex
 from acq.camera.camera_models import Pinhole
 from acq.geometry.transforms import Rigid
+from acq.sim.board_poses import BoardData, simulate
+from acq.sim.world import default_rig
 
 POSE_COUNTS = (5, 8, 10, 15, 20, 30)
 STILL = ((1, 1), (4, 6), (10, 16), (25, 40))  # (frames, scans) per pose: 1 s = 25 and 40

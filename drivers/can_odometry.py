@@ -42,7 +42,6 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from acq.drivers.errors import ConnectionLost, ProtocolError, ReadTimeout
-
 from acq.records import CanFrame, DeviceInfo, Odometry
 
 __all__ = [

@@ -19,6 +19,7 @@ import time
 from typing import Any
 
 import numpy as np
+
 from acq.drivers.cola_codec import (
     ArgReader,
     ColaFramer,
@@ -31,7 +32,6 @@ from acq.drivers.cola_codec import (
     parse_scandata,
 )
 from acq.drivers.scanner import ConnectionLost, DeviceError, ScanGeometry, Scanner, ScanTimeout
-
 from acq.records import DeviceInfo, Scan
 
 __all__ = ["DEFAULT_PORT", "ColaScanner", "parse_url"]

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
 from acq.drivers.scanner import DeviceError, ProtocolError
 
 __all__ = [

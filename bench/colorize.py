@@ -56,10 +56,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-from acq.sim.board_log import BOARD, render_frame, write_board_log
-from acq.sim.board_poses import simulate
-from acq.sim.drive_log import DriveTruth, write_drive_log
-from acq.sim.world import Material, default_rig
 
 from acq.calib.extrinsic import rotation_angle
 from acq.calib.validate import DEFAULT_COLOURS
@@ -68,6 +64,10 @@ from acq.camera.calibfile import Calibration
 from acq.cli import main as acq_main
 from acq.cloud.colorize import ChunkResult, run
 from acq.cloud.views import Options
+from acq.sim.board_log import BOARD, render_frame, write_board_log
+from acq.sim.board_poses import simulate
+from acq.sim.drive_log import DriveTruth, write_drive_log
+from acq.sim.world import Material, default_rig
 
 FRONT = ("red", "green")
 BACK = ("blue", "yellow")

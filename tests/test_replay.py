@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from mcap.writer import Writer as McapWriter
 
+from acq.cli import main as acq_main
 from acq.log import loginfo, schemas
 from acq.record import config as configfile
 from acq.record.recorder import Recorder
-from acq.cli import main as acq_main
 from acq.sim.replay import Replay
 from acq.sim.transport import TcpDeviceServer
 from tests.sim_rig import Rig

@@ -12,8 +12,6 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from acq.errors import AcqError, InputError
 
 if TYPE_CHECKING:
@@ -306,6 +304,8 @@ def run_fisheye(args: argparse.Namespace) -> int:
 def _extrinsic_lines(
     result: ExtrinsicResult, data: list[PoseData], t0: int, method: str
 ) -> list[str]:
+    import numpy as np
+
     T = result.camera_to_laser
     d = result.to_dict()
     lines = [
@@ -350,6 +350,8 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     Prints the result (or JSON), writes the residual plot PNG (default: beside CALIB).
     0; 2 bad input (board, log, calibration file, --poses); 1 when the calibration
     cannot be made (too few usable or degenerate poses)."""
+    import numpy as np
+
     from acq import cloud
     from acq.calib.extrinsic import calibrate, residual_plot
     from acq.calib.extrinsic_log import (
@@ -434,6 +436,8 @@ def run_extrinsic(args: argparse.Namespace) -> int:
 
 def run_time_offset(args: argparse.Namespace) -> int:
     """0 written; 1 no clear estimate (why is printed); 2 bad input."""
+    import numpy as np
+
     from acq.camera import calibfile
     from acq.camera.calibfile import CalibStd
     from acq.cloud import colorize

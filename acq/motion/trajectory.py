@@ -47,6 +47,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from acq.errors import AcqError, InputError
 from acq.geometry.transforms import Rigid, euler_from_matrices, matrices_from_euler
 from acq.time import gpstime
 
@@ -86,12 +87,12 @@ MAX_EXTRAPOLATION_S = 0.5  # s, the most Trajectory.margin_s may extrapolate pas
 Hold = Literal["forward", "mean"]
 
 
-class OutOfSpanError(ValueError):
+class OutOfSpanError(AcqError, ValueError):
     """Times at which a trajectory has no pose: before its start, after its end (beyond
     ``margin_s``) or inside a gap longer than its ``max_gap_s``."""
 
 
-class TrajectoryFileError(ValueError):
+class TrajectoryFileError(InputError, ValueError):
     """A trajectory file that cannot be read; the message names the file, line and
     column."""
 

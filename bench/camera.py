@@ -20,6 +20,7 @@ import time
 
 import cv2
 import numpy as np
+
 from acq.drivers.camera_opencv import OpenCVCamera
 from acq.drivers.mjpeg import jpeg_size
 from acq.sim.camera_device import MjpegServerProcess, SimCamera

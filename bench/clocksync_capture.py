@@ -20,8 +20,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from acq.drivers.cola_codec import ColaFramer, Telegram, parse_scandata
 
+from acq.drivers.cola_codec import ColaFramer, Telegram
+from acq.drivers.cola_scandata import parse_scandata
 from acq.time.clocksync import fit_drift, retime_offline
 from tests.wireshark_json import read_packets, reassemble, split_directions
 

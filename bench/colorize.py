@@ -57,11 +57,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from acq.calib.extrinsic_log import main_extrinsic
-from acq.calib.fisheye_calib import main_fisheye
 from acq.calib.validate import DEFAULT_COLOURS
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
+from acq.cli import main as acq_main
 from acq.cloud.colorize import ChunkResult, run
 from acq.cloud.views import Options
 from acq.geometry.rotations import rotation_angle
@@ -98,9 +97,12 @@ def calibrate(work: Path, seed: int = 0) -> Path:
     intr = work / "intrinsics.yaml"
     quiet = io.StringIO()
     with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
-        assert main_fisheye(paths, 185.0, intr, camera="camera", board="9x7x0.1") == 0
+        assert acq_main(["calibrate", "fisheye", *map(str, paths), "--fov", "185", "-o", str(intr),
+                         "--camera", "camera", "--board", "9x7x0.1"]) == 0  # fmt: skip
         log = write_board_log(work / "board", n_poses=15, seed=seed + 1, hold_s=1.0)
-        assert main_extrinsic(log.files, "camera", intr, log.spec, out) == 0
+        assert acq_main(["calibrate", "extrinsic", *map(str, log.files), "--camera", "camera",
+                         "--intrinsics", str(intr), "--board", log.spec,
+                         "-o", str(out)]) == 0  # fmt: skip
     cam = calibfile.load(out).camera("camera")
     calibfile.save(Calibration(cameras={"camera": cam}, laser_to_vehicle=rig.laser_to_vehicle),
                    out)  # fmt: skip
@@ -125,7 +127,6 @@ def calibrate_time_offset(work: Path, calib: Path, seconds: float = 30.0) -> Pat
     """``calib`` with the camera's time offset from `acq calibrate time-offset` on a drive
     of another street (seed 1) by the same rig, whose camera latency is configured as
     wrong as the measured drive's."""
-    from acq.cli import main as acq_main
 
     truth = write_drive_log(work / "time_drive", seconds, seed=1, pattern_at=None)
     out = work / "calib_time_offset.yaml"

@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from acq.sim.fisheye_images import random_image
 
 from acq.calib import image_circle
+from acq.sim.fisheye_images import random_image
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "fisheye"
 REFERENCE_PP = (384.8, 240.0)  # px, data README (Kannala-Brandt checkerboard fit)

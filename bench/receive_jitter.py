@@ -37,8 +37,8 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
-from acq.drivers.scip import ScipScanner
 
+from acq.drivers.scip import ScipScanner
 from acq.time.clocksync import DeviceClock, fit_drift, retime_offline
 
 MODEL = "utm-30lx"

@@ -68,10 +68,10 @@ from pathlib import Path
 from typing import IO, Any
 
 import yaml
-from acq.sim.camera_device import MjpegServerProcess, jpeg_digest
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from acq.log import loginfo, schemas
+from acq.sim.camera_device import MjpegServerProcess, jpeg_digest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCAN_HZ = 40.0  # UTM-30LX
@@ -330,9 +330,8 @@ class Run:
 def _true_calibration(work: Path) -> Path:
     """The simulated rig's true calibration as a file (so every log file starts with its
     camera calibration and transforms, as on a real rig)."""
-    from acq.sim import world
-
     from acq.camera import calibfile
+    from acq.sim import world
 
     rig = world.default_rig()
     calib = calibfile.Calibration(

@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+
 from acq.sim.sensors import pixel_rays, render_frame, render_scan
 from acq.sim.world import Street, Trajectory, default_rig
 

@@ -3,7 +3,7 @@
 A UTM-30LX ME telegram (1081 steps, range + intensity; the real capture in
 ../shared/data/hokuyo when present, else one from the simulated device) through
 ``acq.drivers.scip_codec.parse_scan``, and a simulated LMS511 LMDscandata telegram (1141
-points, DIST1 + RSSI1) in CoLa-B and CoLa-A through ``acq.drivers.cola_codec.parse_scandata``
+points, DIST1 + RSSI1) in CoLa-B and CoLa-A through ``acq.drivers.cola_scandata.parse_scandata``
 plus the conversion to metres. One JSON line per telegram: median scans per second
 over the repeats, against the target of 2,000 scans/s (50 times the fastest device).
 """
@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from acq.drivers import cola_codec, scip_codec
+from acq.drivers import cola_codec, cola_scandata, scip_codec
 from acq.sim.cola_device import ColaDevice
 from acq.sim.scanner_models import model
 from acq.sim.scip_device import ScipDevice
@@ -94,7 +94,7 @@ def main() -> None:
         payload = lms511_scandata(binary)
 
         def parse(payload: bytes = payload, binary: bool = binary) -> object:
-            sd = cola_codec.parse_scandata(payload, binary)
+            sd = cola_scandata.parse_scandata(payload, binary)
             return sd.ranges(), sd.intensities()
 
         med, low = rate(parse, 2000)

@@ -33,6 +33,7 @@ from urllib.parse import unquote, urlsplit
 
 import cv2
 import numpy as np
+
 from acq.drivers.camera import Camera, FrameFormat, FrameTimeout
 from acq.drivers.errors import ConnectionLost, DeviceError, ProtocolError
 from acq.drivers.mjpeg import (
@@ -43,7 +44,6 @@ from acq.drivers.mjpeg import (
     jpeg_size,
     parse_response_head,
 )
-
 from acq.records import DeviceInfo, Frame
 
 __all__ = ["OpenCVCamera", "fourcc_text"]

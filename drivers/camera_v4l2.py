@@ -46,10 +46,10 @@ from typing import Any, Protocol
 
 import cv2
 import numpy as np
+
 from acq.drivers import v4l2_abi as abi
 from acq.drivers.camera import Camera, FrameFormat, FrameTimeout
 from acq.drivers.errors import ConnectionLost, DeviceError
-
 from acq.records import DeviceInfo, Frame
 
 __all__ = ["ControlInfo", "OsV4L2", "V4L2Camera", "V4L2System", "jpeg_has_dht"]

@@ -19,19 +19,18 @@ import time
 from typing import Any
 
 import numpy as np
+
 from acq.drivers.cola_codec import (
     ArgReader,
     ColaFramer,
     ProtocolError,
-    ScanData,
     Telegram,
     build,
     check_error,
     frame,
-    parse_scandata,
 )
+from acq.drivers.cola_scandata import ScanData, parse_scandata
 from acq.drivers.scanner import ConnectionLost, DeviceError, ScanGeometry, Scanner, ScanTimeout
-
 from acq.records import DeviceInfo, Scan
 
 __all__ = ["DEFAULT_PORT", "ColaScanner", "parse_url"]

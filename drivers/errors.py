@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from acq.errors import AcqError
+
 __all__ = ["ConnectionLost", "DeviceError", "DriverError", "ProtocolError", "ReadTimeout"]
 
 
-class DriverError(Exception):
+class DriverError(AcqError):
     """Base of every device failure."""
 
 

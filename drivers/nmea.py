@@ -31,8 +31,8 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import serial
-from acq.drivers.errors import ConnectionLost, ProtocolError, ReadTimeout
 
+from acq.drivers.errors import ConnectionLost, ProtocolError, ReadTimeout
 from acq.records import DeviceInfo, Fix, Sentence
 
 __all__ = [

@@ -25,7 +25,6 @@ from urllib.parse import urlsplit
 from acq.drivers.camera import Camera
 from acq.drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
 from acq.drivers.scanner import Scanner
-
 from acq.records import DeviceInfo, Frame, Scan
 from acq.time.clocksync import Unwrapper
 

@@ -15,7 +15,6 @@ from typing import Any, ClassVar
 
 from acq.drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
 from acq.drivers.registry import Registry
-
 from acq.records import DeviceInfo, Scan
 
 __all__ = [

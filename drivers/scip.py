@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass
 
 import serial
+
 from acq.drivers.scanner import (
     ConnectionLost,
     ProtocolError,
@@ -35,7 +36,6 @@ from acq.drivers.scip_codec import (
     parse_time_field,
     raise_for_status,
 )
-
 from acq.records import DeviceInfo, Scan
 
 __all__ = ["LatencyEstimate", "ScipScanner", "parse_scan"]

@@ -16,8 +16,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from acq.drivers.scanner import DeviceError, ProtocolError, ScanGeometry
 
+from acq.drivers.scanner import DeviceError, ProtocolError, ScanGeometry
 from acq.records import Scan
 
 __all__ = [

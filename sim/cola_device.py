@@ -21,15 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acq.drivers.cola_codec import (
-    Channel,
-    ColaFramer,
-    ScanData,
-    Telegram,
-    build,
-    encode_scandata,
-    frame,
-)
+from acq.drivers.cola_codec import ColaFramer, Telegram, build, frame
+from acq.drivers.cola_scandata import Channel, ScanData, encode_scandata
 from acq.drivers.scanner import ProtocolError
 from acq.sim.device_clock import SimClock
 from acq.sim.scan_source import StreetSource

@@ -24,10 +24,10 @@ from __future__ import annotations
 import math
 import os
 import shutil
-import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,6 +39,7 @@ from acq import cloud
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.cloud import points
+from acq.errors import AcqError, InputError
 from acq.log import loginfo
 from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
@@ -46,7 +47,7 @@ from acq.record.sdnotify import Notifier
 
 __all__ = ["CAMERA_SIM", "COLOUR_TOLERANCE", "colour_check", "run"]
 
-EXIT_OK, EXIT_FAILURE, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAILURE = 0, 1
 
 # The simulated camera's options (JSON for its process): s, frames/s.
 CAMERA_SIM: dict[str, Any] = {
@@ -80,18 +81,20 @@ class DemoResult:
     files: dict[str, Path] = field(default_factory=dict)
     steps_s: dict[str, float] = field(default_factory=dict)
     lines: list[str] = field(default_factory=list)  # the printed summary
+    frames_used: int = 0  # frames the cloud was coloured from
     colour_agreement: tuple[float, float] = (math.nan, math.nan)  # strict, within a pixel
 
 
 class _Clock:
-    """Progress lines with the time since the demo started."""
+    """Progress lines with the time since the demo started, to ``out``."""
 
-    def __init__(self) -> None:
+    def __init__(self, out: Callable[[str], None]) -> None:
         self.t0 = time.monotonic()
         self.mark = self.t0
+        self.out = out
 
     def say(self, text: str) -> None:
-        print(f"[{time.monotonic() - self.t0:5.1f} s] {text}", flush=True)
+        self.out(f"[{time.monotonic() - self.t0:5.1f} s] {text}")
 
     def lap(self) -> float:
         now = time.monotonic()
@@ -495,30 +498,31 @@ def _summary(
     return lines
 
 
-def run(out: Path, seconds: float = 10.0) -> int:
-    """The demo into folder ``out``: 0 done, 1 a runtime failure, 2 bad arguments."""
+def run(
+    out: Path, seconds: float = 10.0, progress: Callable[[str], None] = lambda _: None
+) -> DemoResult:
+    """The demo into folder ``out``, its progress lines to ``progress``. InputError for
+    bad arguments, AcqError when the recording fails (the recorder's errors too: the
+    demo wrote its configuration)."""
     result = DemoResult(Path(out).absolute())  # the config it writes names files by path
     try:
-        return _run(result, seconds)
-    except (RecorderError, RuntimeError, OSError, ValueError) as e:
-        print(f"acq demo: error: {e}", file=sys.stderr)
-        return EXIT_FAILURE
+        _run(result, seconds, progress)
+    except RecorderError as e:
+        raise AcqError(str(e)) from e
+    return result
 
 
-def _run(result: DemoResult, seconds: float) -> int:
+def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) -> None:
     out = result.out
     if not (math.isfinite(seconds) and 0 < seconds <= MAX_SECONDS):
-        print(
-            f"acq demo: --seconds {seconds:g}: expected 0 < seconds <= {MAX_SECONDS:g} "
-            "(one drive down the simulated 1 km street)",
-            file=sys.stderr,
+        raise InputError(
+            f"--seconds {seconds:g}: expected 0 < seconds <= {MAX_SECONDS:g} "
+            "(one drive down the simulated 1 km street)"
         )
-        return EXIT_USAGE
-    clock = _Clock()
-    print(
+    clock = _Clock(progress)
+    progress(
         f"acq demo: a simulated UTM-30LX and 185-degree fisheye driving down a synthetic street,"
-        f"\nrecorded for {seconds:g} s by the real recorder, coloured into a cloud; into {out}/",
-        flush=True,
+        f"\nrecorded for {seconds:g} s by the real recorder, coloured into a cloud; into {out}/"
     )
     out.mkdir(parents=True, exist_ok=True)
     rec_dir = out / ".recording"
@@ -553,8 +557,7 @@ def _run(result: DemoResult, seconds: float) -> int:
     result.steps_s["record"] = clock.lap()
     parts = sorted(rec_dir.glob("*.mcap"))
     if code != EXIT_OK or len(parts) != 1:
-        print(f"acq demo: the recorder stopped with code {code}, files {parts}", file=sys.stderr)
-        return EXIT_FAILURE
+        raise AcqError(f"the recorder stopped with code {code}, files {parts}")
     mcap_path = out / "demo.mcap"
     parts[0].replace(mcap_path)
     shutil.rmtree(rec_dir, ignore_errors=True)
@@ -588,9 +591,4 @@ def _run(result: DemoResult, seconds: float) -> int:
         "config": config_path,
     }
     result.lines = _summary(result, recorder, info, log, pc, truth_lines)
-    print("\n".join(result.lines), flush=True)
-    if pc.frames_used == 0:
-        print("acq demo: no camera frame was recorded, the cloud has no colour (a busy machine?)",
-              file=sys.stderr)  # fmt: skip
-        return EXIT_FAILURE
-    return EXIT_OK
+    result.frames_used = pc.frames_used

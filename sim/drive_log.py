@@ -1,4 +1,4 @@
-"""A simulated drive recorded as the recorder writes it, with the truth (issue 8).
+"""A simulated drive recorded as the recorder writes it, with the truth.
 
 The simulated rig (``acq.sim.world.default_rig``: UTM-30LX geometry, the 185-degree fisheye)
 drives the synthetic street (with the validation pattern at ``pattern_at`` m on the

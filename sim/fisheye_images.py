@@ -1,4 +1,4 @@
-"""Fisheye images whose image circle is known exactly, for the circle calibration (issue 7).
+"""Fisheye images whose image circle is known exactly, for the circle calibration.
 
 The scene is the synthetic street seen through an equidistant lens centred on the true
 circle and wider than the circle (so texture reaches the rim and beyond); the circle itself

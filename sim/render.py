@@ -20,7 +20,7 @@ from acq.camera import calibfile, projection
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.transforms import Rigid
 
-__all__ = ["OverlayResult", "render_overlay", "run"]
+__all__ = ["OverlayResult", "render_overlay", "write"]
 
 _MAGENTA = (255, 0, 255)
 
@@ -160,25 +160,15 @@ def draw_overlay(
     return np.hstack([out, panel])
 
 
-def run(out: str | Path, time_s: float, seed: int, exact_equidistant: bool) -> int:
-    """Write frame.png, overlay.png, calib.yaml and summary.json to ``out``; print a summary."""
+def write(out: str | Path, time_s: float, seed: int, exact_equidistant: bool) -> OverlayStats:
+    """Write frame.png, overlay.png, calib.yaml and summary.json to ``out``; the stats."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     result = render_overlay(time_s, seed, exact_equidistant)
-    cv2.imwrite(str(out / "frame.png"), result.image)
-    cv2.imwrite(str(out / "overlay.png"), result.overlay)
+    for name, image in (("frame.png", result.image), ("overlay.png", result.overlay)):
+        if not cv2.imwrite(str(out / name), image):
+            raise OSError(f"{out / name}: cannot write")
     calibfile.save(result.calibration, out / "calib.yaml")
     summary = asdict(result.stats)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    s = result.stats
-    print(
-        f"t = {s.time_s:.3f} s: {s.laser_points} laser points with an echo, {s.in_image} on "
-        f"the fisheye image ({s.occluded} hidden behind nearer objects)\n"
-        f"pixel error against the truth: RMS {s.pixel_error_rms_px:.3f} px, "
-        f"max {s.pixel_error_max_px:.3f} px (laser range noise included)\n"
-        f"colour equal to the true surface colour: {100 * s.colour_agreement:.1f}% of the "
-        f"visible points\n"
-        f"wrote {out / 'frame.png'}, {out / 'overlay.png'}, {out / 'calib.yaml'}, "
-        f"{out / 'summary.json'}"
-    )
-    return 0
+    return result.stats

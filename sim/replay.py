@@ -20,9 +20,9 @@ silent (connections stay open, nothing is sent) until the replay is closed.
 The session's telegrams and JPEGs are held in memory (the simulated rig: about 1.5 MB/s,
 so 10 minutes take some 0.9 GB); replay a long session file by file.
 
-Exit codes of :func:`replay_main`: 0 served to the end (or stopped by Ctrl-C / SIGTERM),
-1 a runtime failure (a port in use), 2 bad input (a missing or unreadable log, nothing to
-replay, an unknown driver, a bad listen address), with one line naming the file.
+:class:`ReplayError` (an InputError) for a missing or unreadable log, nothing to replay,
+an unknown driver or a bad listen address, with one line naming the file; OSError for a
+port in use. The command is :mod:`acq.cli.replay`.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import sys
 import threading
 import time
 from collections.abc import Iterable, Sequence
@@ -42,6 +41,7 @@ from urllib.parse import urlsplit
 import yaml
 from google.protobuf.message import DecodeError
 
+from acq.errors import InputError
 from acq.log import loginfo, schemas
 from acq.record import config as configfile
 from acq.record.config import CameraConfig, Config, ScannerConfig
@@ -50,20 +50,13 @@ if TYPE_CHECKING:
     from acq.sim.replay_devices import ReplayClock
 
 __all__ = [
-    "EXIT_FAILURE",
-    "EXIT_OK",
-    "EXIT_USAGE",
     "DeviceLog",
     "Replay",
     "ReplayError",
     "Session",
     "load_session",
-    "replay_main",
 ]
 
-EXIT_OK = 0
-EXIT_FAILURE = 1
-EXIT_USAGE = 2
 
 log = logging.getLogger("acq.sim.replay")
 
@@ -77,7 +70,7 @@ _NOT_REPLAYED = frozenset({"/gnss/raw"})  # raw telegrams that are not a scanner
 _IMAGE_SUFFIX = "/image/compressed"
 
 
-class ReplayError(ValueError):
+class ReplayError(InputError, ValueError):
     """A log that cannot be replayed; ``str(e)`` is one line naming the file."""
 
 
@@ -542,98 +535,3 @@ def _derived_entry(dev: DeviceLog) -> dict[str, Any]:
     if options:
         entry["options"] = options
     return entry
-
-
-# --- the command ----------------------------------------------------------------------------
-
-
-def _describe_session(replay: Replay) -> str:
-    s = replay.session
-    parts = []
-    for d in s.devices.values():
-        what = "scans" if d.kind == "scanner" else "frames"
-        parts.append(f"{d.name}: {len(d.data)} {what} at {d.rate_hz:.1f} Hz ({d.driver})")
-    files = f"{len(s.files)} file" + ("s" if len(s.files) != 1 else "")
-    return f"replaying {files}, {s.duration_s:.1f} s at speed {replay.speed:g}: " + "; ".join(parts)
-
-
-def replay_main(
-    logs: list[Path],
-    speed: float,
-    scanner_listen: str | None,
-    pty: bool,
-    camera_listen: str | None,
-    write_config: Path | None,
-) -> int:
-    """``acq replay``: serve ``logs`` until they end or Ctrl-C / SIGTERM; the exit code.
-
-    Prints the devices' URLs and a configuration for ``acq record -c`` (or writes it to
-    ``write_config``, with the recorded calibration beside it when the log holds one).
-    """
-    import signal
-
-    if not logging.getLogger().handlers:
-        logging.basicConfig(level=logging.INFO, format="acq replay: %(message)s")
-    if not (math.isfinite(speed) and speed > 0):
-        print(f"acq replay: --speed {speed:g}: expected a number > 0", file=sys.stderr)
-        return EXIT_USAGE
-    try:
-        replay = Replay(
-            logs, speed=speed, scanner_listen=scanner_listen, pty=pty, camera_listen=camera_listen
-        )
-    except ReplayError as e:
-        print(f"acq replay: {e}", file=sys.stderr)
-        return EXIT_USAGE
-    try:
-        replay.start()
-    except ValueError as e:
-        print(f"acq replay: {e}", file=sys.stderr)
-        return EXIT_USAGE
-    except OSError as e:
-        print(f"acq replay: cannot serve: {e.strerror or e}", file=sys.stderr)
-        return EXIT_FAILURE
-    stop = threading.Event()
-    old: dict[signal.Signals, Any] = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            old[sig] = signal.signal(sig, lambda *_: stop.set())
-    try:
-        print(_describe_session(replay))
-        for name, url in replay.urls.items():
-            print(f"  {name}: {url}")
-        calibration = None
-        if write_config is not None and replay.session.calibration_yaml:
-            rec = replay.session.config
-            if rec is None or rec.calibration is None or not rec.calibration.exists():
-                calibration = write_config.with_name(write_config.stem + ".calib.yaml")
-                calibration.write_text(replay.session.calibration_yaml)
-                print(f"wrote the recorded calibration to {calibration}")
-        text = configfile.dump(
-            replay.config(calibration=calibration.resolve() if calibration else None)
-        )
-        if write_config is not None:
-            write_config.write_text(text)
-            print(f"wrote the configuration to {write_config}: acq record -c {write_config}")
-        else:
-            print("configuration for `acq record -c FILE` (--config-out writes it):")
-            print(text, end="")
-        print("the replay starts when a client asks a device for data", flush=True)
-        announced = False
-        while not stop.is_set():
-            if replay.started and not announced:
-                announced = True
-                log.info("started: the log plays for %.1f s", replay.session.duration_s / speed)
-            if replay.wait(0.2):
-                log.info(
-                    "the log has been served to its end: %s",
-                    ", ".join(f"{k} {v}" for k, v in replay.sent().items()),
-                )
-                break
-        return EXIT_OK
-    except OSError as e:
-        print(f"acq replay: {e}", file=sys.stderr)
-        return EXIT_FAILURE
-    finally:
-        replay.close()
-        for sig, handler in old.items():
-            signal.signal(sig, handler)

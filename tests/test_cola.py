@@ -23,15 +23,13 @@ from acq.drivers.cola import ColaScanner, parse_url
 from acq.drivers.cola_codec import (
     ArgReader,
     ColaFramer,
-    ScanData,
     Telegram,
     build,
     check_error,
-    encode_scandata,
     frame,
-    parse_scandata,
     unframe,
 )
+from acq.drivers.cola_scandata import ScanData, encode_scandata, parse_scandata
 from acq.drivers.scanner import DeviceError, ProtocolError
 from acq.sim.transport import TcpDeviceServer
 from tests.wireshark_json import Packet, Stream, read_packets, reassemble, split_directions
@@ -341,7 +339,7 @@ def test_scandata_optional_blocks_roundtrip(real_scans: list[ScanData]) -> None:
     rssi = np.arange(541, dtype=np.uint16)
     from dataclasses import replace
 
-    from acq.drivers.cola_codec import Channel
+    from acq.drivers.cola_scandata import Channel
 
     full = replace(
         s,
@@ -429,7 +427,7 @@ def test_fuzz_mutated_real_telegrams(real_scans: list[ScanData], data: st.DataOb
 def test_parse_throughput_smoke() -> None:
     """An LMS511 telegram (1141 points, DIST1 + RSSI1) parses quickly (bench/ times it)."""
     n = 1141
-    from acq.drivers.cola_codec import Channel
+    from acq.drivers.cola_scandata import Channel
 
     dist = Channel("DIST1", 1.0, 0.0, -50000, 1667, np.arange(n, dtype=np.uint16))
     rssi = Channel("RSSI1", 1.0, 0.0, -50000, 1667, np.arange(n, dtype=np.uint16))

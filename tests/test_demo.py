@@ -22,9 +22,10 @@ from plyfile import PlyData
 
 from acq import cloud
 from acq.camera import calibfile
+from acq.cli import main as acq_main
 from acq.cloud import colorize
 from acq.log import loginfo
-from acq.sim.demo import COLOUR_TOLERANCE, colour_check, run
+from acq.sim.demo import COLOUR_TOLERANCE, colour_check
 
 SECONDS = 3.0
 PLY_PROPERTIES = [
@@ -55,7 +56,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
     cwd = os.getcwd()
     os.chdir(out.parent)  # a relative --out, as `make demo` gives
     try:
-        code = run(Path(out.name), seconds=SECONDS)
+        code = acq_main(["demo", "--out", out.name, "--seconds", repr(SECONDS)])
     finally:
         os.chdir(cwd)
     return Demo(out, code, time.monotonic() - wall0, utc0)
@@ -288,6 +289,6 @@ def test_colorize_places_the_demo_log_with_its_can_odometry(demo: Demo, tmp_path
 
 def test_bad_seconds_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     for seconds in (0.0, -1.0, math.nan, 1e6):
-        assert run(tmp_path / "x", seconds=seconds) == 2
+        assert acq_main(["demo", "--out", str(tmp_path / "x"), "--seconds", repr(seconds)]) == 2
     assert "--seconds" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()  # nothing started, nothing written

@@ -19,10 +19,10 @@ from acq.record.devices import (
     ResetError,
     format_devices,
     list_devices,
-    main_devices,
     parse_bus_addr,
     reset,
 )
+from tests.cli_calls import devices
 
 PCI = "devices/pci0000:00/0000:00:14.0/usb1"
 
@@ -166,7 +166,7 @@ def test_a_rig_is_listed_with_its_config_lines(rig: tuple[str, str]) -> None:
 
 def test_json_form(rig: tuple[str, str], capsys: pytest.CaptureFixture[str]) -> None:
     sys, dev = rig
-    assert main_devices(True, None, sysfs_root=sys, dev_root=dev) == 0
+    assert devices(True, None, sysfs_root=sys, dev_root=dev) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["nothing_found"] is False
     kinds = {d["kind"] for d in out["devices"]}
@@ -210,7 +210,7 @@ def test_an_empty_machine_says_so(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert format_devices(list_devices(str(tmp_path / "sys"), str(tmp_path / "dev"))) == (
         NOTHING_FOUND
     )
-    assert main_devices(False, None, sysfs_root=str(tmp_path), dev_root=str(tmp_path)) == 0
+    assert devices(False, None, sysfs_root=str(tmp_path), dev_root=str(tmp_path)) == 0
     assert capsys.readouterr().out.strip() == NOTHING_FOUND
 
 
@@ -220,7 +220,7 @@ def test_this_machine(capsys: pytest.CaptureFixture[str]) -> None:
     if any(f.kind in ("scanner", "camera", "serial", "can") for f in found):
         pytest.skip("this machine has devices attached")
     assert format_devices(found).startswith(NOTHING_FOUND)
-    assert main_devices(False, None) == 0
+    assert devices(False, None) == 0
     assert capsys.readouterr().out.startswith(NOTHING_FOUND)
 
 
@@ -251,9 +251,9 @@ def test_reset_of_something_that_is_not_usbfs(tmp_path: Path) -> None:
 
 def test_main_devices_reset_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "bus/usb").mkdir(parents=True)
-    assert main_devices(False, "1:4", dev_root=str(tmp_path)) == 1
+    assert devices(False, "1:4", dev_root=str(tmp_path)) == 1
     assert "no USB device at bus 001 address 004" in capsys.readouterr().err
-    assert main_devices(False, "bogus", dev_root=str(tmp_path)) == 2
+    assert devices(False, "bogus", dev_root=str(tmp_path)) == 2
     assert "expected BUS:ADDR" in capsys.readouterr().err
 
 
@@ -261,6 +261,6 @@ def test_reset_on_this_machine_fails_clearly(capsys: pytest.CaptureFixture[str])
     """No /dev/bus/usb/001/099 here (and no libusb): one clear line, exit 1."""
     if os.path.exists("/dev/bus/usb/001/099"):
         pytest.skip("a device sits at 001:099")
-    assert main_devices(False, "001:099") == 1
+    assert devices(False, "001:099") == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("acq devices: ") and "\n" not in err

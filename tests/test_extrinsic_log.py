@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from acq import cloud
-from acq.calib.extrinsic_log import average_corners, main_extrinsic, parse_poses, still_intervals
+from acq.calib.extrinsic_log import average_corners, parse_poses, still_intervals
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.rotations import rotation_angle
 from acq.geometry.transforms import Rigid
 from acq.sim.board_log import BoardLog, write_board_log
+from tests.cli_calls import calibrate_extrinsic
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +47,7 @@ def test_calibration_recovers_the_truth(
 ) -> None:
     log, intr = rec
     out = tmp_path / "calib.yaml"
-    assert main_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
+    assert calibrate_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
     report = json.loads(capsys.readouterr().out)
     assert len(report["poses"]) == 12
     assert all(p["problem"] == "" for p in report["poses"])
@@ -75,7 +76,7 @@ def test_given_poses_and_a_coarse_extrinsic(
         f"{(a - t0) * 1e-9 + 0.2:.2f}:{(b - t0) * 1e-9 - 0.2:.2f}" for a, b in log.holds
     )
     out, png = tmp_path / "out.yaml", tmp_path / "res.png"
-    assert main_extrinsic(log.files, None, intr, log.spec, out, poses=spans, plot=png) == 0
+    assert calibrate_extrinsic(log.files, None, intr, log.spec, out, poses=spans, plot=png) == 0
     text = capsys.readouterr().out
     assert "camera_to_laser" in text and png.exists()
     rot, trans = _errors(calibfile.load(out).camera().camera_to_laser, log.truth)
@@ -109,14 +110,14 @@ def test_bad_input_exits_2(
 ) -> None:
     log, intr = rec
     out = tmp_path / "calib.yaml"
-    assert main_extrinsic(log.files, None, intr, "9x7", out) == 2
+    assert calibrate_extrinsic(log.files, None, intr, "9x7", out) == 2
     assert "--board" in capsys.readouterr().err
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"not an mcap file")
-    assert main_extrinsic([junk], None, intr, log.spec, out) == 2
-    assert main_extrinsic(log.files, None, tmp_path / "missing.yaml", log.spec, out) == 2
-    assert main_extrinsic(log.files, "nocam", intr, log.spec, out) == 2
-    assert main_extrinsic(log.files, None, intr, log.spec, out, poses="5:4") == 2
+    assert calibrate_extrinsic([junk], None, intr, log.spec, out) == 2
+    assert calibrate_extrinsic(log.files, None, tmp_path / "missing.yaml", log.spec, out) == 2
+    assert calibrate_extrinsic(log.files, "nocam", intr, log.spec, out) == 2
+    assert calibrate_extrinsic(log.files, None, intr, log.spec, out, poses="5:4") == 2
     assert not out.exists()
 
 
@@ -129,7 +130,7 @@ def test_too_few_poses_exits_1(
         f"{(a - t0) * 1e-9 + 0.2:.2f}:{(b - t0) * 1e-9 - 0.2:.2f}" for a, b in log.holds[:3]
     )
     out = tmp_path / "calib.yaml"
-    assert main_extrinsic(log.files, None, intr, log.spec, out, poses=spans) == 1
+    assert calibrate_extrinsic(log.files, None, intr, log.spec, out, poses=spans) == 1
     assert "at least 5" in capsys.readouterr().err
     assert not out.exists()
 
@@ -147,7 +148,7 @@ def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std(
     intr = tmp_path / "intrinsics.yaml"
     calibfile.save(Calibration(cameras={"camera": replace(cam, std=intr_std)}), intr)
     out = tmp_path / "calib.yaml"
-    assert main_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
+    assert calibrate_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
     report = json.loads(capsys.readouterr().out)
     std = calibfile.load(out).camera("camera").std
     assert std.rotation_deg is not None and std.translation_m is not None

@@ -21,6 +21,7 @@ from acq.geometry.rotations import rotation_from_euler
 from acq.geometry.transforms import Rigid
 from acq.sim.fisheye_images import CircleTruth, fisheye_image
 from acq.sim.world import default_lens
+from tests.cli_calls import calibrate_fisheye
 
 THETA_MAX = math.radians(185.0) / 2
 REFERENCE_PP = (384.8, 240.0)  # ../shared/data/README.md, fisheye/
@@ -40,7 +41,7 @@ def test_writes_the_equidistant_model_from_the_circle(
 ) -> None:
     path, truth = sim_png
     out = tmp_path / "calib.yaml"
-    assert fisheye_calib.main_fisheye([path], 185.0, out) == 0
+    assert calibrate_fisheye([path], 185.0, out) == 0
     cam = camera_models.load(out)
     assert isinstance(cam, Equidistant)
     assert (cam.width, cam.height) == (780, 582)
@@ -61,7 +62,7 @@ def test_json_has_centre_radius_estimators_and_spread(
 ) -> None:
     path, truth = sim_png
     png = tmp_path / "o.png"
-    rc = fisheye_calib.main_fisheye(
+    rc = calibrate_fisheye(
         [path], 190.0, tmp_path / "c.yaml", camera="left", json_out=True, overlay=png
     )
     assert rc == 0 and png.exists()
@@ -96,10 +97,10 @@ def test_keeps_other_cameras_and_the_extrinsics(
     calibfile.save(calib, out)
     # two cameras and none named: refused, file untouched
     before = out.read_text()
-    assert fisheye_calib.main_fisheye([path], 185.0, out) == 2
+    assert calibrate_fisheye([path], 185.0, out) == 2
     assert "--camera" in capsys.readouterr().err
     assert out.read_text() == before
-    assert fisheye_calib.main_fisheye([path], 185.0, out, camera="left") == 0
+    assert calibrate_fisheye([path], 185.0, out, camera="left") == 0
     new = calibfile.load(out)
     assert new.laser == "utm" and new.laser_to_vehicle is not None
     assert np.allclose(new.laser_to_vehicle.translation, [0, 0, 2.2])
@@ -116,7 +117,7 @@ def test_truncated_circle_warns_that_the_barycentre_is_biased(
     img, truth = fisheye_image(cx=392.0, cy=288.5, radius=318.0, seed=2, t=5.0)
     path = tmp_path / "cut.png"
     cv2.imwrite(str(path), img)
-    assert fisheye_calib.main_fisheye([path], 185.0, tmp_path / "c.yaml") == 0
+    assert calibrate_fisheye([path], 185.0, tmp_path / "c.yaml") == 0
     out, err = capsys.readouterr()
     assert "barycentre is biased" in err and "[biased: the circle is truncated]" in out
     cam = camera_models.load(tmp_path / "c.yaml")
@@ -128,7 +129,7 @@ def test_ellipse_writes_non_square_pixels(tmp_path: Path) -> None:
     path = tmp_path / "e.png"
     cv2.imwrite(str(path), img)
     out = tmp_path / "c.yaml"
-    assert fisheye_calib.main_fisheye([path], 185.0, out, ellipse=True) == 0
+    assert calibrate_fisheye([path], 185.0, out, ellipse=True) == 0
     cam = camera_models.load(out)
     assert type(cam) is KannalaBrandt and cam.k == (0.0, 0.0, 0.0, 0.0)
     assert cam.fx == pytest.approx(truth.a / THETA_MAX, abs=0.3 / THETA_MAX)
@@ -146,11 +147,11 @@ def test_bad_input_exits_2_with_one_line(
         ([path], 185.0, "8x6", "COLSxROWSxSQUARE"),
     ]
     for images, fov, board, word in cases:
-        assert fisheye_calib.main_fisheye(images, fov, out, board=board) == 2
+        assert calibrate_fisheye(images, fov, out, board=board) == 2
         err = capsys.readouterr().err
         assert word in err and err.count("\n") == 1
     out.write_text("version: 1\ncameras: {camera: {model: equidistant}}\n")
-    assert fisheye_calib.main_fisheye([path], 185.0, out) == 2
+    assert calibrate_fisheye([path], 185.0, out) == 2
     assert "cameras.camera.cx: missing" in capsys.readouterr().err
     assert not out.with_name("c_circle.png").exists()
     assert fisheye_calib.parse_board("8x6x0.117") == fisheye_calib.BoardSpec(8, 6, 0.117)
@@ -248,7 +249,7 @@ def test_keeps_the_extrinsics_std_and_replaces_the_intrinsics(
     out = tmp_path / "calib.yaml"
     calibfile.save(Calibration(cameras={"left": CameraCalib(old, extr, 0.0, "x", old_std)}), out)
     # the circle writes no intrinsics' std: the old ones (of other values) are dropped
-    assert fisheye_calib.main_fisheye([path], 185.0, out) == 0
+    assert calibrate_fisheye([path], 185.0, out) == 0
     assert calibfile.load(out).camera("left").std == extr_std
     # a board fit's std replaces the intrinsics' part only (extrinsics' part in it ignored)
     kb = KannalaBrandt(780, 582, 170.0, 170.2, 390.0, 291.0, (0.01, 0.0, 0.0, 0.0))
@@ -278,7 +279,7 @@ def test_real_images_circle_then_board(
 ) -> None:
     paths = real_paths(shared_dir)
     out = tmp_path / "calib.yaml"
-    rc = fisheye_calib.main_fisheye(paths, 185.0, out, json_out=True, board="8x6x0.117")
+    rc = calibrate_fisheye(paths, 185.0, out, json_out=True, board="8x6x0.117")
     assert rc == 0
     d = json.loads(capsys.readouterr().out)
     c = d["circle"]

@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq.calib.extrinsic_log import main_extrinsic
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import Pinhole
@@ -24,6 +23,7 @@ from acq.geometry.rotations import rotation_angle
 from acq.geometry.transforms import Rigid
 from acq.sim.board_log import BoardLog, write_board_log
 from acq.sim.world import default_rig
+from tests.cli_calls import calibrate_extrinsic
 
 SHIFT_M = 0.02  # the fisheye's projection centre, ahead of the regular lens's
 
@@ -62,7 +62,7 @@ def test_lens_swap_writes_the_fisheye_entry(
 ) -> None:
     log, regular, fish, truth = swap
     out = tmp_path / "calib.yaml"
-    rc = main_extrinsic(
+    rc = calibrate_extrinsic(
         log.files, "camera", regular, log.spec, out, lens_swap=fish, pupil_shift_m=shift
     )
     text = capsys.readouterr()
@@ -87,7 +87,7 @@ def test_lens_swap_needs_the_camera_in_the_fisheye_file(
     other = tmp_path / "other.yaml"
     model = calibfile.load(regular).camera().model
     calibfile.save(Calibration(cameras={"left": CameraCalib(model)}), other)
-    rc = main_extrinsic(log.files, "camera", regular, log.spec, tmp_path / "o.yaml",
+    rc = calibrate_extrinsic(log.files, "camera", regular, log.spec, tmp_path / "o.yaml",
                         lens_swap=other)  # fmt: skip
     assert rc == 2
     assert "no camera 'camera'" in capsys.readouterr().err

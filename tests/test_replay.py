@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 from mcap.writer import Writer as McapWriter
 
+from acq.cli import main as acq_main
 from acq.log import loginfo, schemas
 from acq.record import config as configfile
 from acq.record.recorder import Recorder
-from acq.sim.replay import Replay, replay_main
+from acq.sim.replay import Replay
 from acq.sim.transport import TcpDeviceServer
 from tests.sim_rig import Rig
 
@@ -199,12 +200,12 @@ def test_a_bad_log_exits_2_with_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     missing = tmp_path / "nope.mcap"
-    assert replay_main([missing], 1.0, None, False, None, None) == 2
+    assert acq_main(["replay", str(missing)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(missing) in err
     text = tmp_path / "text.mcap"
     text.write_text("not a log\n")
-    assert replay_main([text], 1.0, None, False, None, None) == 2
+    assert acq_main(["replay", str(text)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(text) in err
     empty = tmp_path / "empty.mcap"
@@ -212,7 +213,7 @@ def test_a_bad_log_exits_2_with_one_line(
         writer = McapWriter(f)
         writer.start(profile="acq")
         writer.finish()
-    assert replay_main([empty], 1.0, None, False, None, None) == 2
+    assert acq_main(["replay", str(empty)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(empty) in err and "no raw" in err
 

@@ -27,6 +27,7 @@ from acq.geometry.rotations import (
 )
 from acq.geometry.transforms import Rigid
 from acq.sim.world import default_rig
+from tests.cli_calls import analyze_sensitivity
 
 
 def _rig_params() -> tuple[np.ndarray, CameraCalib]:
@@ -190,7 +191,7 @@ def test_main_sensitivity_on_a_simulated_log(
 ) -> None:
     calib, log = rig_files
     out = tmp_path / "out"
-    code = sensitivity.main_sensitivity(calib, [log], out, 2.0, 10.0, False)
+    code = analyze_sensitivity(calib, [log], out, 2.0, 10.0, False)
     printed = capsys.readouterr().out
     assert code == 0, printed
     for name in PARAMS:
@@ -218,24 +219,22 @@ def test_main_sensitivity_json_and_bad_input(
     rig_files: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     calib, log = rig_files
-    assert sensitivity.main_sensitivity(calib, [log], tmp_path / "j", 2.0, 10.0, True) == 0
+    assert analyze_sensitivity(calib, [log], tmp_path / "j", 2.0, 10.0, True) == 0
     assert json.loads(capsys.readouterr().out)["table3"]["camera_height_m"] == 2.0
     bad = tmp_path / "bad.yaml"
     bad.write_text("version: 1\ncameras: {camera: {model: equidistant, fxx: 1}}\n")
-    assert sensitivity.main_sensitivity(bad, [log], tmp_path / "b", 2.0, 10.0, False) == 2
+    assert analyze_sensitivity(bad, [log], tmp_path / "b", 2.0, 10.0, False) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "bad.yaml" in err
-    assert (
-        sensitivity.main_sensitivity(calib, [tmp_path / "nope.mcap"], tmp_path, 2, 10, False) == 2
-    )
+    assert analyze_sensitivity(calib, [tmp_path / "nope.mcap"], tmp_path, 2, 10, False) == 2
     assert capsys.readouterr().err.count("\n") == 1
-    assert sensitivity.main_sensitivity(calib, [log], tmp_path / "c", 2.0, 0.0, False) == 2
+    assert analyze_sensitivity(calib, [log], tmp_path / "c", 2.0, 0.0, False) == 2
     # a camera 500 m above the scan plane, looking up: every laser point is behind it
     cam = calibfile.load(calib).camera()
     away = Rigid(np.eye(3), np.array([0.0, 0.0, 500.0]))
     far = tmp_path / "far.yaml"
     calibfile.save(Calibration(cameras={"camera": CameraCalib(cam.model, away)}), far)
-    assert sensitivity.main_sensitivity(far, [log], tmp_path / "f", 2.0, 10.0, False) == 1
+    assert analyze_sensitivity(far, [log], tmp_path / "f", 2.0, 10.0, False) == 1
 
 
 # --- sigma from the calibration's std ------------------------------------------------------
@@ -366,7 +365,7 @@ def test_main_sensitivity_uses_the_stored_std(
         s = _std(k)
         path = tmp_path / f"std{k:g}.yaml"
         calibfile.save(Calibration(cameras={name: replace(cam, std=s)}), path)
-        assert sensitivity.main_sensitivity(path, [log], tmp_path / f"o{k:g}", json_out=True) == 0
+        assert analyze_sensitivity(path, [log], tmp_path / f"o{k:g}", json_out=True) == 0
         runs[k] = json.loads(capsys.readouterr().out)
     one = {s["param"]: s for s in runs[1.0]["summary"]}
     two = {s["param"]: s for s in runs[2.0]["summary"]}
@@ -385,7 +384,7 @@ def test_main_sensitivity_uses_the_stored_std(
     assert any(s.startswith("rotation sigma: one std of the rotation about") for s in notes)
     # the text report: where each sigma came from; --sigma overrides the std
     path = tmp_path / "std1.yaml"
-    assert sensitivity.main_sensitivity(path, [log], tmp_path / "t", sigma={"tx": 0.01}) == 0
+    assert analyze_sensitivity(path, [log], tmp_path / "t", sigma={"tx": 0.01}) == 0
     text = capsys.readouterr().out
     row = {line.split()[0]: line.split() for line in text.splitlines() if line.startswith("  ")}
     assert row["v0"][5] == "default" and row["u0"][5] == "calib" and row["tx"][5] == "override"

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from acq import cloud
-from acq.calib.validate import DEFAULT_COLOURS, main_validate, validate
+from acq.calib.validate import DEFAULT_COLOURS, validate
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.rotations import matrix_from_rotvec
@@ -36,6 +36,7 @@ from acq.sim.world import (
     default_rig,
     validation_pattern,
 )
+from tests.cli_calls import calibrate_validate
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +95,7 @@ def test_main_json_and_overlay(
     rec: tuple[ValidationLog, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     log, calib = rec
-    assert main_validate(log.files, calib, json_out=True, out=tmp_path) == 0
+    assert calibrate_validate(log.files, calib, json_out=True, out=tmp_path) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["camera"] == "camera" and report["share_right"] >= 0.95
     assert set(report["histogram"]) == {"0", "1", "2", "3", ">3"}
@@ -107,12 +108,12 @@ def test_main_bad_input_exits_2(
     log, calib = rec
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"not an mcap file")
-    assert main_validate([junk], calib) == 2
+    assert calibrate_validate([junk], calib) == 2
     bad = tmp_path / "bad.yaml"
     bad.write_text("version: 1\ncameras: {camera: {model: nonsense}}\n")
-    assert main_validate(log.files, bad) == 2
-    assert main_validate(log.files, tmp_path / "missing.yaml") == 2
-    assert main_validate(log.files, calib, camera="left") == 2
+    assert calibrate_validate(log.files, bad) == 2
+    assert calibrate_validate(log.files, tmp_path / "missing.yaml") == 2
+    assert calibrate_validate(log.files, calib, camera="left") == 2
     err = capsys.readouterr().err
     assert err.count("acq calibrate validate:") == 4
 
@@ -125,7 +126,7 @@ def test_no_pattern_exits_1(
     assert set(log.beam_colour()) <= {"ground", "sky"}
     calib = tmp_path / "c.yaml"
     calibfile.save(Calibration(cameras={"camera": log.calibration.camera()}), calib)
-    assert main_validate(log.files, calib) == 1
+    assert calibrate_validate(log.files, calib) == 1
     assert "no pattern" in capsys.readouterr().err
 
 

@@ -25,6 +25,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from acq.errors import InputError
+
 __all__ = [
     "CaptureFormatError",
     "Endpoint",
@@ -43,7 +45,7 @@ _RETRANSMISSION_FLAGS = (
 _SEQ_MOD = 1 << 32
 
 
-class CaptureFormatError(ValueError):
+class CaptureFormatError(InputError, ValueError):
     """A capture export that cannot be read; names the file and the element index."""
 
     def __init__(self, path: str | Path, index: int | None, message: str) -> None:

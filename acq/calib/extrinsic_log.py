@@ -28,13 +28,10 @@ Units: metres, radians unless ``_deg``; times host ns unless ``_s``.
 from __future__ import annotations
 
 import itertools
-import json
 import math
-import sys
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import cv2
@@ -43,17 +40,12 @@ import numpy as np
 from acq import cloud
 from acq.calib.extrinsic import (
     BoardPose,
-    ExtrinsicResult,
     board_pose_from_corners,
-    calibrate,
-    residual_plot,
 )
-from acq.calib.fisheye_calib import BoardSpec, detect_corners, parse_board
-from acq.camera import calibfile
-from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
+from acq.calib.fisheye_calib import BoardSpec, detect_corners
 from acq.camera.camera_models import CameraModel
+from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
-from acq.log.loginfo import LogError
 
 __all__ = [
     "METHOD",
@@ -62,7 +54,6 @@ __all__ = [
     "average_corners",
     "board_segment",
     "find_corners",
-    "main_extrinsic",
     "parse_poses",
     "poses_from_log",
     "scan_points",
@@ -134,12 +125,12 @@ def parse_poses(text: str, t0_ns: int) -> list[tuple[int, int]]:
         try:
             a, b = (float(x) for x in part.split(":"))
         except ValueError:
-            raise ValueError(f"--poses {text!r}: expected START:END,... in seconds") from None
+            raise InputValueError(f"--poses {text!r}: expected START:END,... in seconds") from None
         if not (math.isfinite(a) and math.isfinite(b) and b > a):
-            raise ValueError(f"--poses {part!r}: need END > START")
+            raise InputValueError(f"--poses {part!r}: need END > START")
         out.append((t0_ns + round(a * 1e9), t0_ns + round(b * 1e9)))
     if not out:
-        raise ValueError(f"--poses {text!r}: no interval")
+        raise InputValueError(f"--poses {text!r}: no interval")
     return out
 
 
@@ -451,139 +442,3 @@ def poses_from_log(
         pose = BoardPose.from_fit(fit, pts, id=pid)
         out.append(PoseData(start, end, used, fit.rms_px, pose, frames=n_frames))
     return out
-
-
-# --- the command ------------------------------------------------------------------------
-
-
-def _report(result: ExtrinsicResult, data: list[PoseData], t0: int) -> list[str]:
-    T = result.camera_to_laser
-    d = result.to_dict()
-    lines = [
-        f"camera_to_laser (P_laser = R P_camera + t), {METHOD}:",
-        "  R = " + np.array2string(T.rotation, precision=6, prefix="      "),
-        "  t = " + np.array2string(T.translation, precision=4) + " m",
-        "  rpy = " + ", ".join(f"{x:.3f}" for x in d["rpy_deg"]) + " deg",
-        "  std rotation " + ", ".join(f"{x:.3f}" for x in result.std_rot_deg) + " deg,"
-        " translation " + ", ".join(f"{x:.1f}" for x in result.std_t_mm) + " mm",
-        f"  RMS {result.rms_m * 1e3:.2f} mm over {result.n_points} points,"
-        f" {len(result.residuals_per_pose) - len(result.outliers)} poses kept",
-        "poses:",
-    ]
-    k = 0
-    for p in data:
-        where = f"  {(p.start_ns - t0) * 1e-9:7.2f}-{(p.end_ns - t0) * 1e-9:7.2f} s"
-        if p.pose is None:
-            lines.append(f"{where}: skipped ({p.problem})")
-            continue
-        res = result.residuals_per_pose[k] * 1e3
-        flag = "  OUTLIER, dropped" if k in result.outliers else ""
-        lines.append(
-            f"{where}: {len(p.pose.points)} laser points, corners {p.rms_px:.2f} px"
-            f" ({p.frames} frames),"
-            f" residual {res:.2f} mm{flag}"
-        )
-        k += 1
-    return lines
-
-
-def main_extrinsic(
-    logs: Sequence[Path],
-    camera: str | None,
-    intrinsics: Path,
-    board: str,
-    output: Path,
-    poses: str | None = None,
-    json_out: bool = False,
-    plot: Path | None = None,
-    lens_swap: Path | None = None,
-    pupil_shift_m: float = 0.0,
-) -> int:
-    """`acq calibrate extrinsic`: write ``camera``'s camera_to_laser, calibrated from the
-    board poses in ``logs``, into ``output`` (a copy of ``intrinsics`` with it set).
-
-    ``lens_swap`` (the paper's way): ``logs`` were recorded with a regular lens that
-    ``intrinsics`` describes, and the fisheye was mounted afterwards; ``output`` is then
-    a copy of the calibration file ``lens_swap`` (the fisheye's intrinsics) with the
-    camera's camera_to_laser set, its origin moved ``pupil_shift_m`` along the optical
-    axis (the fisheye's projection centre minus the regular lens's, m, + towards the
-    scene; 0 is the paper's tacit assumption, and its error goes into the translation).
-
-    Prints the result (or JSON), writes the residual plot PNG (default: beside
-    ``output``). Exit status 0; 2 for bad input (board spec, log, calibration file,
-    ``poses``), printed as one line; 1 when the calibration cannot be made (too few
-    usable or degenerate poses)."""
-    prog = "acq calibrate extrinsic"
-    try:
-        spec = parse_board(board)
-        calib = calibfile.load(intrinsics)
-        log = cloud.read_log(list(logs), camera=camera)
-        name, cam = cloud.camera_calib(log, calib, camera)
-        target, target_cam = calib, cam
-        if lens_swap is not None:
-            target = calibfile.load(lens_swap)
-            try:
-                target_cam = target.camera(name)
-            except KeyError as e:
-                raise KeyError(f"--lens-swap {lens_swap}: {e.args[0]}") from None
-        t0 = int(log.scan_ns[0])
-        intervals = parse_poses(poses, t0) if poses else still_intervals(log)
-    except (ValueError, KeyError, OSError, LogError) as e:
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
-        print(f"{prog}: {msg}", file=sys.stderr)
-        return 2
-    coarse = None if np.allclose(cam.camera_to_laser.rotation, np.eye(3)) else cam.camera_to_laser
-    data = poses_from_log(log, cam.model, spec, intervals, coarse=coarse)
-    good = [p.pose for p in data if p.pose is not None]
-    try:
-        result = calibrate(good)
-    except ValueError as e:
-        print(
-            f"{prog}: {e} ({len(good)} usable of {len(intervals)} still poses found)",
-            file=sys.stderr,
-        )
-        return 1
-    std = CalibStd(  # about the laser axes (rad -> deg), m; the intrinsics' std kept
-        rotation_deg=tuple(np.degrees(result.std[:3])), translation_m=tuple(result.std[3:])
-    ).rounded()
-    std = target_cam.std.merged(std, CalibStd.EXTRINSICS)
-    T, method = result.camera_to_laser, METHOD
-    if lens_swap is not None:
-        T = Rigid(T.rotation, T.translation + T.rotation @ np.array([0.0, 0.0, pupil_shift_m]))
-        method = f"{METHOD}+lens_swap"
-    entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std)
-    out = Calibration(target.laser, {**target.cameras, name: entry}, target.laser_to_vehicle)
-    plot = plot if plot is not None else output.with_name(output.stem + "_extrinsic.png")
-    try:
-        calibfile.save(out, output)
-        residual_plot(result, good, plot)
-    except OSError as e:
-        print(f"{prog}: {e}", file=sys.stderr)
-        return 2
-    if json_out:
-        report = {
-            "camera": name,
-            "logs": [str(p) for p in logs],
-            "board": board,
-            "output": str(output),
-            "plot": str(plot),
-            "poses": [p.to_dict(t0) for p in data],
-            **result.to_dict(),
-        }
-        if lens_swap is not None:
-            report["lens_swap"] = {
-                "fisheye": str(lens_swap),
-                "pupil_shift_m": pupil_shift_m,
-                "camera_to_laser": T.to_dict(),
-            }
-        print(json.dumps(report, indent=2))
-    else:
-        print("\n".join(_report(result, data, t0)))
-        if lens_swap is not None:
-            print(
-                f"lens swap: found with the regular lens of {intrinsics}, written with the "
-                f"fisheye model of {lens_swap}, origin moved {pupil_shift_m * 1e3:.1f} mm along "
-                "the optical axis (--pupil-shift; the swap's unknown shift is in t)"
-            )
-        print(f"wrote {output} (camera {name!r}) and {plot}")
-    return 0

@@ -18,9 +18,7 @@ principal point is from the circle's centre (1.2 px on the real images).
 
 from __future__ import annotations
 
-import json
 import math
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -34,6 +32,7 @@ from acq.calib.image_circle import CircleResult
 from acq.camera import calibfile
 from acq.camera.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
 from acq.camera.camera_models import Equidistant, KannalaBrandt
+from acq.errors import InputValueError
 from acq.geometry.rotations import matrix_from_rotvec, rotation_between, rotvec_from_matrix
 
 __all__ = [
@@ -44,7 +43,6 @@ __all__ = [
     "detect_corners",
     "draw_overlay",
     "fit_kannala_brandt",
-    "main_fisheye",
     "model_gap_px",
     "parse_board",
     "project_kb",
@@ -156,12 +154,12 @@ def parse_board(text: str) -> BoardSpec:
             raise ValueError
         cols, rows, square = int(parts[0]), int(parts[1]), float(parts[2])
     except ValueError:
-        raise ValueError(
+        raise InputValueError(
             f"--board {text!r}: expected COLSxROWSxSQUARE, e.g. 8x6x0.117 "
             "(inner corners, square side in metres)"
         ) from None
     if cols < 2 or rows < 2 or not (square > 0 and math.isfinite(square)):
-        raise ValueError(f"--board {text!r}: at least 2x2 inner corners and a square > 0")
+        raise InputValueError(f"--board {text!r}: at least 2x2 inner corners and a square > 0")
     return BoardSpec(cols, rows, square)
 
 
@@ -465,132 +463,13 @@ def read_images(paths: Sequence[Path]) -> list[np.ndarray]:
     images = []
     for p in paths:
         if not Path(p).is_file():
-            raise ValueError(f"{p}: no such file")
+            raise InputValueError(f"{p}: no such file")
         img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
         if img is None:
-            raise ValueError(f"{p}: cannot read as an image")
+            raise InputValueError(f"{p}: cannot read as an image")
         if img.dtype == np.uint16:
             img = (img / 257.0).astype(np.uint8)
         if img.ndim == 3 and img.shape[2] == 4:
             img = img[:, :, :3]
         images.append(img)
     return images
-
-
-def _summary(
-    result: CircleResult, model: KannalaBrandt, fov_deg: float, n_images: int
-) -> list[str]:
-    c = result.circle
-    th = math.radians(fov_deg) / 2
-    lines = [
-        f"image circle from {n_images} image(s), {result.rays.get('inliers', 0)} rim points: "
-        f"centre ({c.cx:.2f}, {c.cy:.2f}) px, radius {c.radius:.2f} px"
-        + (f" (rx {c.rx:.2f}, ry {c.ry:.2f})" if c.rx != c.ry else ""),
-    ]
-    for name, e in result.estimates.items():
-        note = f"  [{'; '.join(e.notes)}]" if e.notes else ""
-        lines.append(
-            f"  {name:<11} centre ({e.circle.cx:8.2f}, {e.circle.cy:8.2f})  "
-            f"radius {e.circle.radius:7.2f}{note}"
-        )
-    lines.append(
-        f"  spread      centre {result.spread_centre_px:.2f} px, "
-        f"radius {result.spread_radius_px:.2f} px"
-    )
-    if model.fx == model.fy:
-        lines.append(
-            f"f = r / theta_max = {c.radius:.2f} / {th:.4f} rad = {model.fx:.2f} px/rad "
-            f"(fov {fov_deg:g} deg); u0 {model.cx:.2f}, v0 {model.cy:.2f}"
-        )
-    else:
-        lines.append(
-            f"fx = {model.fx:.2f}, fy = {model.fy:.2f} px/rad (fov {fov_deg:g} deg); "
-            f"u0 {model.cx:.2f}, v0 {model.cy:.2f}"
-        )
-    return lines
-
-
-def main_fisheye(
-    images: Sequence[Path],
-    fov_deg: float,
-    output: Path,
-    camera: str | None = None,
-    ellipse: bool = False,
-    json_out: bool = False,
-    overlay: Path | None = None,
-    board: str | None = None,
-) -> int:
-    """`acq calibrate fisheye`: write the camera's intrinsics from its image circle (and,
-    with ``board``, a Kannala–Brandt checkerboard fit) into ``output`` (calib.yaml).
-
-    Prints a summary (or JSON), writes the overlay PNG (default: beside ``output``).
-    Exit status 0, 2 for bad input (printed as one line), 1 when nothing was found.
-    """
-    prog = "acq calibrate fisheye"
-    try:
-        if not 0.0 < fov_deg < 360.0:
-            raise ValueError(f"--fov {fov_deg}: expected degrees in (0, 360)")
-        spec = parse_board(board) if board else None
-        imgs = read_images(images)
-    except ValueError as e:
-        print(f"{prog}: {e}", file=sys.stderr)
-        return 2
-    try:
-        result = image_circle.detect(imgs, ellipse=ellipse)
-        model: KannalaBrandt = circle_model(result, fov_deg)
-    except ValueError as e:
-        print(f"{prog}: {e}", file=sys.stderr)
-        return 1
-    report: dict[str, Any] = {
-        "images": [str(p) for p in images],
-        "fov_deg": fov_deg,
-        "circle": result.to_dict(),
-        "circle_model": model.to_dict(),
-    }
-    lines = _summary(result, model, fov_deg, len(imgs))
-    method = METHOD_CIRCLE
-    std = None  # the circle's fit sigma is not the principal point's: no std from it
-    if spec is not None:
-        grays = [image_circle.to_gray(i) for i in imgs]
-        try:
-            fit, _ = calibrate_board(grays, spec, model)
-        except ValueError as e:
-            print(f"{prog}: {e}", file=sys.stderr)
-            return 1
-        m = fit.model
-        gap = model_gap_px(model, m, math.radians(fit.max_theta_deg))
-        report["board"] = fit.to_dict() | {"circle_model_gap_px": round(gap, 3)}
-        lines.append(
-            f"checkerboard ({len(fit.views)} of {len(imgs)} images, corners up to "
-            f"{fit.max_theta_deg:.1f} deg off axis): Kannala-Brandt fx {m.fx:.2f} fy "
-            f"{m.fy:.2f} cx {m.cx:.2f} cy {m.cy:.2f} k {', '.join(f'{k:.5f}' for k in m.k)}; "
-            f"RMS {fit.rms_px:.3f} px; the circle's model is up to {gap:.1f} px away from it "
-            "over those angles"
-        )
-        model, method, std = m, METHOD_BOARD, fit.std()
-    try:
-        calib, name, notes = update_calibration(output, camera, model, method, std)
-        calibfile.save(calib, output)
-    except CalibFileError as e:
-        print(f"{prog}: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:
-        print(f"{prog}: {output}: {e.strerror or e}", file=sys.stderr)
-        return 2
-    overlay = overlay or output.with_name(output.stem + "_circle.png")
-    title = f"{Path(images[0]).name}: {len(imgs)} image(s)"
-    if not cv2.imwrite(str(overlay), draw_overlay(imgs[0], result, title)):
-        print(f"{prog}: {overlay}: cannot write the overlay", file=sys.stderr)
-        return 2
-    report |= {"camera": name, "calib": str(output), "model": model.to_dict()}
-    report |= {"method": method, "overlay": str(overlay)}
-    if json_out:
-        print(json.dumps(report, indent=2))
-    else:
-        lines.append(
-            f"wrote {output} (camera {name!r}, {model.name}, method {method}); overlay {overlay}"
-        )
-        print("\n".join(lines))
-    for w in [*result.warnings, *notes]:
-        print(f"warning: {w}", file=sys.stderr)
-    return 0

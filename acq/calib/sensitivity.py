@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -62,6 +61,7 @@ import numpy as np
 
 from acq.camera.calibfile import CameraCalib
 from acq.camera.camera_models import KannalaBrandt
+from acq.errors import AcqError, InputValueError
 from acq.geometry.rotations import rotation_from_euler, rotation_to_euler, skew
 
 __all__ = [
@@ -72,6 +72,7 @@ __all__ = [
     "PIXEL_PITCH_M",
     "Analysis",
     "analyze",
+    "analyze_logs",
     "bin_by_theta",
     "calib_sigma",
     "choose_sigma",
@@ -80,7 +81,6 @@ __all__ = [
     "jacobian",
     "laser_points",
     "line_plot",
-    "main_sensitivity",
     "params_from_calib",
     "parse_sigma",
     "pixel_shift",
@@ -111,7 +111,7 @@ def params_from_calib(cam: CameraCalib) -> np.ndarray:
     """(12,) parameters (:data:`PARAMS` order, SI units / px) of a fisheye calibration."""
     m = cam.model
     if not isinstance(m, KannalaBrandt):
-        raise ValueError(f"{m.name}: the sensitivity analysis needs a fisheye model")
+        raise InputValueError(f"{m.name}: the sensitivity analysis needs a fisheye model")
     roll, pitch, yaw = rotation_to_euler(cam.camera_to_laser.rotation)
     mu_x = 1.0 / PIXEL_PITCH_M
     k1 = m.fx / mu_x
@@ -239,11 +239,11 @@ def parse_sigma(text: str) -> tuple[str, float]:
             raise ValueError
         x = float(value)
     except ValueError:
-        raise ValueError(f"--sigma {text!r}: expected NAME=VALUE, e.g. yaw=0.002") from None
+        raise InputValueError(f"--sigma {text!r}: expected NAME=VALUE, e.g. yaw=0.002") from None
     if name not in PARAMS:
-        raise ValueError(f"--sigma {name}: unknown parameter; expected one of {PARAMS}")
+        raise InputValueError(f"--sigma {name}: unknown parameter; expected one of {PARAMS}")
     if not (math.isfinite(x) and x >= 0):
-        raise ValueError(f"--sigma {text!r}: expected a finite value >= 0")
+        raise InputValueError(f"--sigma {text!r}: expected a finite value >= 0")
     return name, x
 
 
@@ -715,59 +715,40 @@ def _sigma_note(src: Sequence[str]) -> str:
     return "sigma from " + "; ".join(parts)
 
 
-def _row(s: dict[str, Any]) -> str:
-    i = PARAMS.index(s["param"])
-    med = s["median_abs_s"]
-    sig = _fmt_sigma(s["sigma"], i, s["value"])
-    src = s["sigma_source"] or ""
-    return (
-        f"  {s['param']:<6} {s['value']:>12.5g} {UNITS[i]:<5} {sig:>9} {src:<8}"
-        f" {med if med is not None else float('nan'):>10.3g}"
-        f" {s['px_per_sigma_median_theta']:>10.3f} {s['px_per_sigma_max_theta']:>10.3f}"
-        f" {s['px_per_sigma_max']:>10.3f}"
-    )
-
-
-def main_sensitivity(
+def analyze_logs(
     calib: Path,
     logs: list[Path],
     out: Path,
     camera_height_m: float = 2.0,
     building_distance_m: float = 10.0,
-    json_out: bool = False,
     camera: str | None = None,
     sigma: Mapping[str, float] | None = None,
     origin: str = "principal",
     bin_deg: float = 2.0,
-) -> int:
+) -> dict[str, Any]:
     """`acq analyze sensitivity`: eq. (7) sensitivities and px per sigma of the laser
     points of ``logs`` that project into ``calib``'s camera, Figures 7-9 as PNGs, Table 3
     for the given camera height and building distance (m), ``out/sensitivity.json``.
     σ: ``sigma`` (by name, :data:`UNITS`), else the calibration's std, else the defaults
     (:func:`choose_sigma`).
 
-    Prints a summary (or the JSON). Exit 0; 2 for a bad calib, log or flag (one line);
-    1 when no laser point projects into the image or the outputs cannot be written.
+    The report (as written to sensitivity.json). InputError for a bad calib, log or
+    value; AcqError when no laser point projects into the image; OSError when the
+    outputs cannot be written.
     """
     from acq import cloud
     from acq.camera import calibfile
 
-    prog = "acq analyze sensitivity"
-    try:
-        cal = calibfile.load(calib)
-        log = cloud.read_log(logs)
-        name = camera or (log.camera if log.camera in cal.cameras else None)
-        cam = cal.camera(name)
-        p = params_from_calib(cam)
-        sig, src = choose_sigma(p, cam, sigma)
-        if not (building_distance_m > 0 and math.isfinite(camera_height_m)):
-            raise ValueError("--building-distance must be > 0 m, --camera-height finite")
-        if not bin_deg > 0:
-            raise ValueError("bin width must be > 0 deg")
-    except (ValueError, KeyError, OSError) as e:
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
-        print(f"{prog}: {msg}", file=sys.stderr)
-        return 2
+    if not (building_distance_m > 0 and math.isfinite(camera_height_m)):
+        raise InputValueError("--building-distance must be > 0 m, --camera-height finite")
+    if not bin_deg > 0:
+        raise InputValueError("bin width must be > 0 deg")
+    cal = calibfile.load(calib)
+    log = cloud.read_log(logs)
+    name = camera or (log.camera if log.camera in cal.cameras else None)
+    cam = cal.camera(name)
+    p = params_from_calib(cam)
+    sig, src = choose_sigma(p, cam, sigma)
     lens = cam.model
     assert isinstance(lens, KannalaBrandt)
     P = laser_points(log.ranges, log.angle_min, log.angle_increment)
@@ -775,8 +756,7 @@ def main_sensitivity(
         analyze(P, p, lens.width, lens.height, lens.theta_max, sig, origin), sigma_source=src
     )
     if a.theta.size == 0:
-        print(f"{prog}: none of the {len(P)} laser points projects into the image", file=sys.stderr)
-        return 1
+        raise AcqError(f"none of the {len(P)} laser points projects into the image")
     t3 = table3(p, camera_height_m, building_distance_m, theta_max=lens.theta_max)
     summary = a.summary()
     centres, counts, med_s = bin_by_theta(a.theta, a.sens, bin_deg)
@@ -831,40 +811,17 @@ def main_sensitivity(
         "figures": {k: str(v) for k, v in figs.items()},
         "notes": notes,
     }
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        images = {
-            "fig7": _figure(a, RIGID, "Frame change (Figure 7)", bin_deg),
-            "fig8": _figure(a, CAMERA, "Camera (Figure 8)", bin_deg),
-            "fig9": figure9(p, lens.theta_max, lens=lens),
-        }
-        for k, path in figs.items():
-            if not cv2.imwrite(str(path), images[k]):
-                raise OSError(f"{path}: cannot write")
-        (out / "sensitivity.json").write_text(json.dumps(report, indent=2) + "\n")
-    except OSError as e:
-        print(f"{prog}: {e}", file=sys.stderr)
-        return 1
-    if json_out:
-        print(json.dumps(report, indent=2))
-        return 0
-    th = report["theta_deg"]
-    print(
-        f"{len(a.theta)} of {len(P)} laser points in the image, theta {th['min']:.1f} .. "
-        f"{th['max']:.1f} deg (median {th['median']:.1f})"
-    )
-    print(
-        f"  {'param':<6} {'value':>12} {'unit':<5} {'sigma':>9} {'from':<8} {'med |s|':>10}"
-        f" {'px@θmed':>10} {'px@θmax':>10} {'px max':>10}"
-    )
-    for s in summary:
-        print(_row(s))
-    for line in format_table3(t3):
-        print(line)
-    for n in notes:
-        print(f"note: {n}")
-    print(f"wrote {', '.join(str(v) for v in figs.values())}, {out / 'sensitivity.json'}")
-    return 0
+    out.mkdir(parents=True, exist_ok=True)
+    images = {
+        "fig7": _figure(a, RIGID, "Frame change (Figure 7)", bin_deg),
+        "fig8": _figure(a, CAMERA, "Camera (Figure 8)", bin_deg),
+        "fig9": figure9(p, lens.theta_max, lens=lens),
+    }
+    for k, path in figs.items():
+        if not cv2.imwrite(str(path), images[k]):
+            raise OSError(f"{path}: cannot write")
+    (out / "sensitivity.json").write_text(json.dumps(report, indent=2) + "\n")
+    return report
 
 
 def _nan_none(a: np.ndarray) -> list[list[float | None]]:

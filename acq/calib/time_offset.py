@@ -27,23 +27,18 @@ host ns unless ``_s``; metres.
 
 from __future__ import annotations
 
-import json
-import os
-import sys
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from acq.camera import projection
-from acq.camera.calibfile import CalibStd, CameraCalib
+from acq.camera.calibfile import CameraCalib
 from acq.cloud.views import decoded_frames
 from acq.geometry.transforms import PoseFn, Rigid
-from acq.log.loginfo import LogError
 
-__all__ = ["OffsetEstimate", "estimate_time_offset", "main_time_offset", "mutual_information"]
+__all__ = ["OffsetEstimate", "estimate_time_offset", "mutual_information"]
 
 
 @dataclass(frozen=True)
@@ -243,51 +238,3 @@ def estimate_time_offset(
     return OffsetEstimate(
         offset, std, coarse, scores, n_pts, n_frames, contrast, True, folds_s=per_fold
     )
-
-
-def main_time_offset(args: Any) -> int:
-    """`acq calibrate time-offset` from parsed arguments: exit 0 written, 1 no estimate
-    (the reason printed), 2 bad input."""
-    from acq.camera import calibfile
-    from acq.cloud import colorize  # here: colorize imports this module
-
-    prog = "acq calibrate time-offset"
-    try:
-        calib = calibfile.load(args.calib)
-        report = colorize.Report(output=str(args.output))
-        job, _ = colorize.prepare(
-            args.logs, calib, report, camera=args.camera, trajectory=args.trajectory
-        )
-        est = colorize.estimate_offset(
-            job, start_s=args.start, seconds=args.seconds, search_s=args.search,
-            max_frames=args.frames, threads=os.cpu_count() or 1,
-        )  # fmt: skip
-    except (ValueError, KeyError, OSError, LogError) as e:
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
-        print(f"{prog}: {msg}", file=sys.stderr)
-        return 2
-    prior = job.cam.time_offset_s
-    if args.json:
-        out = {k: v for k, v in asdict(est).items() if k not in ("candidates_s", "scores")}
-        out["curve"] = {"offset_s": est.candidates_s.tolist(), "mi_nats": est.scores.tolist()}
-        out["prior_s"] = prior
-        print(json.dumps(out, indent=2, default=float))
-    if not est.found:
-        print(f"{prog}: no estimate: {est.note}", file=sys.stderr)
-        return 1
-    name, cam = job.camera, job.cam
-    std = cam.std
-    if np.isfinite(est.std_s):
-        std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
-    cams = dict(calib.cameras)
-    cams[name] = replace(cam, time_offset_s=round(est.offset_s, 6), std=std)
-    calibfile.save(replace(calib, cameras=cams), args.output)
-    if not args.json:
-        print(
-            f"camera {name}: time offset {1e3 * est.offset_s:+.2f} ms +- {1e3 * est.std_s:.2f} ms "
-            f"(CALIB had {1e3 * prior:+.2f} ms), from {est.points:,} laser points in "
-            f"{est.frames:,} frames; the peak stands {100 * est.contrast:.0f} % over the "
-            "curve's median"
-        )
-        print(f"wrote {args.output}")
-    return 0

@@ -30,11 +30,8 @@ Units: metres, pixels; times host ns unless ``_s``.
 
 from __future__ import annotations
 
-import json
 import math
-import sys
 import warnings
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,21 +40,20 @@ import cv2
 import numpy as np
 
 from acq import cloud
-from acq.camera import calibfile
 from acq.camera.calibfile import CameraCalib
-from acq.log.loginfo import LogError
+from acq.errors import AcqError
 
 __all__ = [
     "BACK",
     "DEFAULT_COLOURS",
     "FRONT",
     "NEUTRALS",
+    "NoPatternError",
     "Sets",
     "ValidationResult",
     "classify",
     "edge_errors",
     "find_sets",
-    "main_validate",
     "occluded",
     "palette_of",
     "validate",
@@ -80,6 +76,10 @@ NEUTRALS: dict[str, tuple[int, int, int]] = {
 }
 """Non-pattern colour classes (RGB): a pixel nearest one of these is on no set."""
 BINS = ("0", "1", "2", "3", ">3")
+
+
+class NoPatternError(AcqError, ValueError):
+    """The recording does not show the validation pattern (a runtime failure: exit 1)."""
 
 
 # --- geometry: the two sets -------------------------------------------------------------
@@ -184,7 +184,7 @@ def find_sets(
             break
         rest &= ~inl
     if in1.sum() < 10 or in2.sum() < 10:
-        raise ValueError("no pattern: not two parallel planar sets at different depths")
+        raise NoPatternError("no pattern: not two parallel planar sets at different depths")
     front, back = (in1, in2) if abs(c1) < abs(c2) else (in2, in1)
     # the window along the line
     along = P @ np.array([-n1[1], n1[0]])
@@ -425,63 +425,3 @@ def validate(
         if not cv2.imwrite(str(overlay), draw):
             raise OSError(f"cannot write {overlay}")
     return res
-
-
-# --- the command ------------------------------------------------------------------------
-
-
-def _report(res: ValidationResult, name: str) -> list[str]:
-    pct = [100.0 * c / res.points if res.points else 0.0 for c in res.histogram]
-    lines = [
-        f"camera {name!r}: {res.points} laser points on the pattern in {len(res.frames)} frames"
-        f" ({res.occluded_beams} back beams hidden from the camera left out)",
-        f"  right colour: {100.0 * res.share_right:.2f} %"
-        f" (front {res.front[1]}/{res.front[0]}, back {res.back[1]}/{res.back[0]})",
-        "  pixel error: " + ", ".join(f"{b} px {p:.2f} %" for b, p in zip(BINS, pct, strict=True)),
-        f"  edge error: mean {res.edge_mean_px:+.2f} px, sigma {res.sigma_px:.2f} px"
-        f" (normal fit, {res.n_edges} edge crossings)",
-    ]
-    return lines
-
-
-def main_validate(
-    logs: Sequence[Path],
-    calib: Path,
-    camera: str | None = None,
-    json_out: bool = False,
-    out: Path | None = None,
-) -> int:
-    """`acq calibrate validate`: the share of laser points on the right colour of the
-    validation pattern, the pixel-error histogram and sigma (paper §4.2) for ``camera``'s
-    calibration in ``calib``. Prints a report (or JSON); with ``out`` writes
-    ``out/validate_overlay.png``. Exit 0; 2 for a bad log or calibration file (one line);
-    1 when no pattern is found."""
-    prog = "acq calibrate validate"
-    try:
-        cal = calibfile.load(calib)
-        log = cloud.read_log(list(logs), camera=camera)
-        name, cam = cloud.camera_calib(log, cal, camera)
-    except (ValueError, KeyError, OSError, LogError) as e:
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
-        print(f"{prog}: {msg}", file=sys.stderr)
-        return 2
-    overlay = out / "validate_overlay.png" if out is not None else None
-    try:
-        res = validate(log, cam, overlay=overlay)
-    except OSError as e:
-        print(f"{prog}: {e}", file=sys.stderr)
-        return 2
-    except ValueError as e:
-        print(f"{prog}: {e}", file=sys.stderr)
-        return 1
-    if json_out:
-        report = {"camera": name, "logs": [str(p) for p in logs], "calib": str(calib)}
-        report.update(res.to_dict())
-        if overlay is not None:
-            report["overlay"] = str(overlay)
-        print(json.dumps(report, indent=2))
-    else:
-        print("\n".join(_report(res, name)))
-        if overlay is not None:
-            print(f"wrote {overlay}")
-    return 0

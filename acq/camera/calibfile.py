@@ -37,6 +37,7 @@ import yaml
 
 from acq.camera import camera_models
 from acq.camera.camera_models import CameraModel
+from acq.errors import InputError
 from acq.geometry.transforms import Rigid
 
 __all__ = [
@@ -44,6 +45,7 @@ __all__ = [
     "CalibStd",
     "Calibration",
     "CameraCalib",
+    "UnknownCameraError",
     "dump",
     "load",
     "parse",
@@ -71,8 +73,16 @@ _RIGID_KEYS = {"rotation", "translation"}
 _STD_KEYS = {"fx", "fy", "cx", "cy", "k", "rotation_deg", "translation_m", "time_offset_s"}
 
 
-class CalibFileError(ValueError):
+class CalibFileError(InputError, ValueError):
     """A calib.yaml that cannot be used; the message names the file and the key."""
+
+
+class UnknownCameraError(InputError, KeyError):
+    """A camera the calibration does not have, or none named where it has several (a
+    KeyError, as a mapping's)."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
 
 
 def _std_values(value: Any, n: int | None) -> tuple[float, ...]:
@@ -181,7 +191,7 @@ class Calibration:
         """The named camera, or the only one when ``name`` is None."""
         if name is None:
             if len(self.cameras) != 1:
-                raise KeyError(
+                raise UnknownCameraError(
                     f"calibration has {len(self.cameras)} cameras "
                     f"({', '.join(self.cameras) or 'none'}); name one"
                 )
@@ -189,7 +199,7 @@ class Calibration:
         try:
             return self.cameras[name]
         except KeyError:
-            raise KeyError(
+            raise UnknownCameraError(
                 f"no camera {name!r} in the calibration (has {', '.join(self.cameras)})"
             ) from None
 

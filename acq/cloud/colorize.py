@@ -30,16 +30,16 @@ Times host monotonic ns unless ``_s``; metres; colours RGB.
 from __future__ import annotations
 
 import itertools
-import json
 import math
 import os
 import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field, replace
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +47,6 @@ import numpy as np
 
 from acq import motion
 from acq.calib.time_offset import OffsetEstimate, estimate_time_offset
-from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import CameraModel
 from acq.cloud import views
@@ -56,13 +55,13 @@ from acq.cloud.las import LasStream
 from acq.cloud.ply import PlyStream
 from acq.cloud.points import Cloud
 from acq.cloud.preview import preview_png
+from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
-from acq.log.loginfo import LogError
 from acq.motion.vehicle_log import read_vehicle
 from acq.time import retime, sync
 from acq.time.utc import host_ns_from_utc, utc_seconds
 
-__all__ = ["Chunk", "ChunkResult", "Job", "colour_chunk", "main_colorize", "plan", "run"]
+__all__ = ["Chunk", "ChunkResult", "Job", "colour_chunk", "plan", "run"]
 
 FORMATS = (".ply", ".las", ".laz")
 READ_ONCE_BYTES = 2 * 2**30  # logs up to this size are read once, images included
@@ -538,7 +537,7 @@ def prepare(
     traj = _trajectory(files, trajectory, index, report)
     world = frame == "world" if frame is not None else traj is not None
     if world and traj is None:
-        raise ValueError("--frame world needs a trajectory (CAN odometry in the log or "
+        raise InputValueError("--frame world needs a trajectory (CAN odometry in the log or "
                          "--trajectory CSV); use --frame laser")  # fmt: skip
     if traj is None:
         report.notes.append(
@@ -641,8 +640,9 @@ def run(
     results: list[ChunkResult] | None = None,
     want_uv: bool = False,
 ) -> Report:
-    """The whole command (module docstring); raises ValueError/LogError/OSError with a
-    one-line message for bad input. ``results``: a list to receive the chunks' results
+    """The whole command (module docstring); raises InputError (LogError, CalibFileError,
+    InputValueError...) with a one-line message for bad input, OSError naming ``output``
+    when it cannot be written. ``results``: a list to receive the chunks' results
     (with each point's frame and pixel when ``want_uv``), for accuracy checks.
     ``time_offset_s``: seconds, None for CALIB's, or "auto" (:func:`estimate_offset`)."""
     t_start = time.perf_counter()
@@ -655,7 +655,7 @@ def run(
     once = local and size <= READ_ONCE_BYTES
     auto = isinstance(time_offset_s, str)
     if auto and time_offset_s != "auto":
-        raise ValueError(f"--time-offset {time_offset_s}: expected seconds or 'auto'")
+        raise InputValueError(f"--time-offset {time_offset_s}: expected seconds or 'auto'")
     job, index = prepare(
         logs, calib, report, camera=camera, frame=frame, options=options,
         trajectory=trajectory, retime_offline=retime_offline,
@@ -693,7 +693,7 @@ def run(
     try:
         _run_chunks(job, chunks, workers, dask, progress, emit, index if once else None)
         t_colour = time.perf_counter()
-        size = out.stream.close()
+        size = out.close()
     except BaseException:
         out.stream.abort()
         raise
@@ -804,31 +804,49 @@ def _cloud(results: list[ChunkResult], index: DriveLog) -> Cloud:
     )
 
 
+@contextmanager
+def _naming(output: Path) -> Iterator[None]:
+    """An OSError writing ``output`` (really its temporary file) names ``output``."""
+    try:
+        yield
+    except OSError as e:
+        raise OSError(e.errno, e.strerror or str(e), str(output)) from e
+
+
 class _Writer:
     """The output file, written chunk by chunk in chunk order: PLY or LAS by
-    ``output``'s extension; ``seconds`` spent writing."""
+    ``output``'s extension; ``seconds`` spent writing. Its OSErrors name ``output``."""
 
     def __init__(self, output: Path, crs: str | None, clock: np.ndarray, report: Report) -> None:
+        self.output = output
         suffix = output.suffix.lower()
         comments = [f"frame {report.frame}", f"view {report.view}", *(
             [f"crs {crs}"] if crs else [])]  # fmt: skip
         self.stream: PlyStream | LasStream
         if suffix == ".ply":
-            self.stream = PlyStream(output, comments)
+            with _naming(output):
+                self.stream = PlyStream(output, comments)
             if crs:
                 report.notes.append("PLY has no CRS field: --crs written as a comment")
         elif suffix in (".las", ".laz"):
-            self.stream = LasStream(output, crs=crs, comments=comments)
+            with _naming(output):
+                self.stream = LasStream(output, crs=crs, comments=comments)
         else:
-            raise ValueError(f"{output}: unknown format; expected {', '.join(FORMATS)}")
+            raise InputValueError(f"{output}: unknown format; expected {', '.join(FORMATS)}")
         self.clock = clock
         self.seconds = 0.0
 
     def write(self, r: ChunkResult) -> None:
         t0 = time.perf_counter()
         utc = utc_seconds(r.time_ns, self.clock)
-        self.stream.write(r.xyz, r.rgb, utc, r.intensity, r.scan, r.coloured)
+        with _naming(self.output):
+            self.stream.write(r.xyz, r.rgb, utc, r.intensity, r.scan, r.coloured)
         self.seconds += time.perf_counter() - t0
+
+    def close(self) -> int:
+        """Close and rename into place; the file's size in bytes."""
+        with _naming(self.output):
+            return self.stream.close()
 
 
 def _session_files(logs: Sequence[Path]) -> list[Path]:
@@ -838,48 +856,8 @@ def _session_files(logs: Sequence[Path]) -> list[Path]:
         if p.is_dir():
             found = sorted(p.glob("*.mcap"))
             if not found:
-                raise ValueError(f"{p}: no .mcap files in this folder")
+                raise InputValueError(f"{p}: no .mcap files in this folder")
             out += found
         else:
             out.append(p)
     return out
-
-
-def main_colorize(args: Any) -> int:
-    """`acq colorize` from parsed arguments; exit 0, 2 for bad input (one line)."""
-    prog = "acq colorize"
-    try:
-        if args.output.suffix.lower() not in FORMATS:
-            raise ValueError(f"{args.output}: expected a {' or '.join(FORMATS)} file")
-        if args.crs:
-            import pyproj
-
-            try:
-                pyproj.CRS.from_user_input(args.crs)
-            except pyproj.exceptions.CRSError as e:
-                raise ValueError(f"--crs {args.crs}: {e}") from None
-        calib = calibfile.load(args.calib)
-        options = views.Options(
-            view=args.view,
-            motion_compensation=not args.no_motion_compensation,
-            max_dt_s=args.max_dt,
-            window=args.window,
-        )
-        preview = args.preview or args.output.with_name(args.output.stem + "_preview.png")
-        report = run(
-            args.logs, calib, args.output, camera=args.camera, frame=args.frame,
-            options=options, trajectory=args.trajectory, crs=args.crs,
-            retime_offline=not args.no_retime, time_offset_s=args.time_offset,
-            workers=args.workers, dask=args.dask, chunk_s=args.chunk,
-            preview=None if args.no_preview else preview,
-            progress=args.progress or (not args.json and sys.stderr.isatty()),
-        )  # fmt: skip
-    except (ValueError, KeyError, OSError, LogError) as e:
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
-        print(f"{prog}: {msg}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(asdict(report), indent=2))
-    else:
-        print("\n".join(report.lines()))
-    return 0

@@ -24,6 +24,7 @@ import yaml
 
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
+from acq.errors import InputValueError
 from acq.log import loginfo
 from acq.motion.vehicle_log import VehicleLog, VehicleReader
 
@@ -94,16 +95,18 @@ class DriveLog:
 
 
 def _pick(found: Iterable[str], name: str | None, what: str, topic: str) -> str:
-    """The device ``name``, or the only one ``found``; ValueError naming the choices."""
+    """The device ``name``, or the only one ``found``; InputValueError naming the choices."""
     names = sorted(found)
     if name is not None:
         if name not in names:
-            raise ValueError(f"no {what} {name!r} in the log (has {', '.join(names) or 'none'})")
+            raise InputValueError(
+                f"no {what} {name!r} in the log (has {', '.join(names) or 'none'})"
+            )
         return name
     if not names:
-        raise ValueError(f"no {what} in the log (no /<name>{topic} messages)")
+        raise InputValueError(f"no {what} in the log (no /<name>{topic} messages)")
     if len(names) > 1:
-        raise ValueError(f"the log has several {what}s ({', '.join(names)}); name one")
+        raise InputValueError(f"the log has several {what}s ({', '.join(names)}); name one")
     return names[0]
 
 
@@ -147,8 +150,8 @@ def read_log(
 
     Files whose writer was killed are read up to their last good record
     (:func:`acq.log.loginfo.read_messages`); undecodable messages are skipped (noted).
-    Raises :class:`acq.log.loginfo.LogError` for a file that is not MCAP, ValueError when
-    the log has no scans or several lasers/cameras. A log without frames reads with
+    Raises :class:`acq.log.loginfo.LogError` for a file that is not MCAP, InputValueError
+    when the log has no scans or several lasers/cameras. A log without frames reads with
     ``camera`` "" and no frames.
     """
     from mcap_protobuf.decoder import DecoderFactory
@@ -322,13 +325,13 @@ def camera_calib(
     log: DriveLog, calib: Calibration, camera: str | None
 ) -> tuple[str, calibfile.CameraCalib]:
     """(name, calibration) of the camera to use: ``camera``, else the calibration's only
-    one, else the log's camera. KeyError for an unknown camera; ValueError when the log
-    has no frames."""
+    one, else the log's camera. UnknownCameraError for an unknown camera; InputValueError
+    when the log has no frames."""
     if camera is None and len(calib.cameras) != 1 and log.camera:
         name = log.camera
     else:
         name = camera if camera is not None else next(iter(calib.cameras), "")
     cam = calib.camera(name)
     if not log.n_frames:
-        raise ValueError("the log has no camera frames")
+        raise InputValueError("the log has no camera frames")
     return name, cam

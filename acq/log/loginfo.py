@@ -51,6 +51,8 @@ from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.summary import Summary
 from mcap_protobuf.decoder import DecoderFactory
 
+from acq.errors import InputError
+
 if TYPE_CHECKING:
     from mcap.writer import Writer
 
@@ -129,7 +131,7 @@ _RECORD_ERRORS: tuple[type[BaseException], ...] = (
 )
 
 
-class LogError(ValueError):
+class LogError(InputError, ValueError):
     """A file that is not an MCAP log at all (missing, unreadable, bad magic)."""
 
     def __init__(self, path: str | os.PathLike[str], offset: int, reason: str) -> None:

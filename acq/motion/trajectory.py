@@ -38,6 +38,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from acq.errors import AcqError
 from acq.geometry.geodesy import WorldFrame
 from acq.geometry.rotations import quat_from_matrix
 from acq.geometry.transforms import Rigid
@@ -47,7 +48,7 @@ __all__ = ["MAX_EXTRAPOLATION_S", "OutOfSpanError", "Trajectory", "laser_poses"]
 MAX_EXTRAPOLATION_S = 0.5  # s, the most Trajectory.margin_s may extrapolate past an end
 
 
-class OutOfSpanError(ValueError):
+class OutOfSpanError(AcqError, ValueError):
     """Times at which a trajectory has no pose: before its start, after its end (beyond
     ``margin_s``) or inside a gap longer than its ``max_gap_s``."""
 

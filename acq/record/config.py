@@ -40,6 +40,8 @@ from pydantic import (
 )
 from pydantic_core import ErrorDetails, PydanticCustomError
 
+from acq.errors import InputError
+
 __all__ = [
     "DEFAULT",
     "CameraConfig",
@@ -64,7 +66,7 @@ _PREFIX = re.compile(r"[A-Za-z0-9_.-]+")
 _SERIAL_SCHEMES = {"socket", "tcp", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110"}
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError, ValueError):
     """A configuration that cannot be used; ``str(e)`` is one line: file, key path, problem."""
 
 

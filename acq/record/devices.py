@@ -23,10 +23,11 @@ import fcntl
 import json
 import os
 import re
-import sys
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from typing import Any
+
+from acq.errors import AcqError, InputValueError
 
 __all__ = [
     "Found",
@@ -34,9 +35,7 @@ __all__ = [
     "UsbDevice",
     "format_devices",
     "list_devices",
-    "main_devices",
     "reset",
-    "reset_usb",
 ]
 
 USBDEVFS_RESET = 0x5514  # _IO('U', 20), linux/usbdevice_fs.h
@@ -114,7 +113,7 @@ class Found:
     notes: tuple[str, ...] = field(default_factory=tuple)
 
 
-class ResetError(Exception):
+class ResetError(AcqError):
     """A USB reset that could not be done; the message says why and what to try."""
 
 
@@ -490,17 +489,17 @@ def devices_json(found: list[Found]) -> str:
 
 
 def parse_bus_addr(text: str) -> tuple[int, int]:
-    """``'001:004'`` or ``'1:4'`` -> (1, 4); ValueError naming the expected form."""
+    """``'001:004'`` or ``'1:4'`` -> (1, 4); InputValueError naming the expected form."""
     m = re.fullmatch(r"\s*(\d{1,3})[:/.](\d{1,3})\s*", text)
     if not m or not (1 <= int(m.group(1)) <= 255 and 1 <= int(m.group(2)) <= 127):
-        raise ValueError(f"bad USB address {text!r}: expected BUS:ADDR, e.g. 001:004")
+        raise InputValueError(f"bad USB address {text!r}: expected BUS:ADDR, e.g. 001:004")
     return int(m.group(1)), int(m.group(2))
 
 
 def reset(bus_addr: str, dev_root: str = "/dev") -> str:
     """Reset the USB device at ``BUS:ADDR`` (as if re-plugged); returns what was reset.
 
-    Raises ValueError for a malformed address and ResetError when the device is absent,
+    Raises InputValueError for a malformed address and ResetError when the device is absent,
     not accessible, or refuses the reset.
     """
     bus, addr = parse_bus_addr(bus_addr)
@@ -535,9 +534,6 @@ def reset(bus_addr: str, dev_root: str = "/dev") -> str:
     return f"{bus:03d}:{addr:03d}"
 
 
-reset_usb = reset  # the name main_devices uses (its parameter is called reset)
-
-
 def _reset_pyusb(bus: int, addr: int) -> str:
     """Reset through pyusb, where there is no usbfs (needs libusb)."""
     try:
@@ -555,33 +551,3 @@ def _reset_pyusb(bus: int, addr: int) -> str:
     except Exception as e:
         raise ResetError(f"USB reset of {bus:03d}:{addr:03d} failed: {e}") from e
     return f"{bus:03d}:{addr:03d}"
-
-
-# --- the command ----------------------------------------------------------------------------
-
-
-def main_devices(
-    json_out: bool = False,
-    reset: str | None = None,
-    *,
-    sysfs_root: str = "/sys",
-    dev_root: str = "/dev",
-) -> int:
-    """``acq devices [--json] [--reset BUS:ADDR]``: 0 done, 1 reset failed, 2 bad address."""
-    if reset is not None:
-        try:
-            done = reset_usb(reset, dev_root)
-        except ValueError as e:
-            print(f"acq devices: {e}", file=sys.stderr)
-            return 2
-        except ResetError as e:
-            print(f"acq devices: {e}", file=sys.stderr)
-            return 1
-        if json_out:
-            print(json.dumps({"reset": done}))
-        else:
-            print(f"reset USB device {done}")
-        return 0
-    found = list_devices(sysfs_root, dev_root)
-    print(devices_json(found) if json_out else format_devices(found))
-    return 0

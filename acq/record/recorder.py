@@ -41,6 +41,7 @@ from typing import Any
 
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
+from acq.errors import InputError
 from acq.log import schemas
 from acq.log.mcap_log import LogWriter
 from acq.record.config import CameraConfig, CanConfig, Config, GnssConfig, ScannerConfig
@@ -65,7 +66,7 @@ STATUS_PERIOD_S = 1.0
 DRAIN_S = 1.0  # on stop: the time left to write what is queued before the file closes
 
 
-class RecorderError(RuntimeError):
+class RecorderError(InputError, RuntimeError):
     """The recorder cannot start (a calibration that cannot be read, an output folder
     that cannot be written)."""
 

@@ -16,9 +16,16 @@ trap cleanup EXIT
 step() { printf 'wheel smoke: %s\n' "$*"; }
 
 step "build and install"
-"$python" -m uv build --quiet --wheel --out-dir "$work/dist" "$root"
-"$python" -m uv venv --quiet --python "$python" "$work/venv"
-"$python" -m uv pip install --quiet --compile-bytecode --python "$work/venv/bin/python" "$work"/dist/acq-*.whl
+if "$python" -m uv --version > /dev/null 2>&1; then  # as make installs: uv, else pip
+  "$python" -m uv build --quiet --wheel --out-dir "$work/dist" "$root"
+  "$python" -m uv venv --quiet --python "$python" "$work/venv"
+  "$python" -m uv pip install --quiet --compile-bytecode --python "$work/venv/bin/python" \
+    "$work"/dist/acq-*.whl
+else
+  "$python" -m pip wheel --quiet --no-deps --wheel-dir "$work/dist" "$root"
+  "$python" -m venv "$work/venv"
+  "$work/venv/bin/python" -m pip install --quiet "$work"/dist/acq-*.whl
+fi
 acq=$work/venv/bin/acq
 site=$("$work/venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
 cd "$work"  # nothing of the checkout on sys.path from here on

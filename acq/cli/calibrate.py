@@ -1,0 +1,523 @@
+"""`acq calibrate fisheye|extrinsic|time-offset|validate`: the rig's calibration
+(paper §3.2, §3.3.2, §4.2) and the camera's time offset."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from acq.errors import AcqError, InputError
+
+if TYPE_CHECKING:
+    from acq.calib.extrinsic import ExtrinsicResult
+    from acq.calib.extrinsic_log import PoseData
+    from acq.calib.image_circle import CircleResult
+    from acq.calib.validate import ValidationResult
+    from acq.camera.camera_models import KannalaBrandt
+
+HELP = "calibrate the rig's sensors"
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    cal = sub.add_parser("calibrate", help=HELP)
+    cal_sub = cal.add_subparsers(dest="calibrate_command", metavar="WHAT", required=True)
+    fish = cal_sub.add_parser(
+        "fisheye",
+        help="fisheye intrinsics from the image circle (paper §3.3.2)",
+        description="Find the image circle of a fisheye camera in one or more of its images "
+        "(any scene): barycentre of the non-black pixels, least-squares circle on Canny edges, "
+        "Hough circle, and a sub-pixel fit of the rim along rays (the one used). Works on "
+        "circles cut by the sensor edges. Writes u0, v0 = the centre and f = r / theta_max "
+        "(theta_max = fov / 2) into the camera's entry of CALIB (equidistant model; the rest "
+        "of an existing file is kept), and an overlay PNG. With --board, also fits the "
+        "Kannala-Brandt model (k1..k4) to a checkerboard in the images and writes that instead.",
+    )
+    fish.add_argument("images", nargs="+", type=Path, metavar="IMAGE", help="images of one camera")
+    fish.add_argument(
+        "--fov", type=float, required=True, metavar="DEG",
+        help="the lens's full aperture in degrees, from its data sheet (e.g. 185)",
+    )  # fmt: skip
+    fish.add_argument(
+        "--camera", metavar="NAME",
+        help="the entry under cameras: (default: CALIB's only camera, or 'camera' in a new file)",
+    )  # fmt: skip
+    fish.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="CALIB",
+        help="calib.yaml to create or update",
+    )  # fmt: skip
+    fish.add_argument(
+        "--ellipse", action="store_true",
+        help="non-square pixels: fit an axis-aligned ellipse "
+        "(fx = rx / theta_max, fy = ry / theta_max)",
+    )  # fmt: skip
+    fish.add_argument("--json", action="store_true", help="JSON instead of text")
+    fish.add_argument(
+        "--overlay", type=Path, metavar="PNG",
+        help="where to draw the circles on the first image (default: CALIB's name + _circle.png)",
+    )  # fmt: skip
+    fish.add_argument(
+        "--board", metavar="COLSxROWSxSQUARE",
+        help="also fit Kannala-Brandt to this checkerboard (inner corners, square in metres, "
+        "e.g. 8x6x0.117), starting from the circle",
+    )  # fmt: skip
+    fish.set_defaults(handler=run_fisheye)
+
+    ext = cal_sub.add_parser(
+        "extrinsic",
+        help="camera-laser transform from checkerboard poses in a log (paper §3.2)",
+        description="Find the still board poses in LOG (or --poses), the board's corners in a "
+        "frame of each (in the fisheye image itself: a lens swap, as the paper does, moves the "
+        "projection centre along the optical axis) and its laser line, and fit camera_to_laser "
+        "(Zhang & Pless: linear solution, then robust Levenberg-Marquardt on point-to-plane "
+        "distances). Writes CALIB: a copy of --intrinsics with the camera's camera_to_laser "
+        "set, and a residual plot PNG.",
+    )
+    ext.add_argument(
+        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s)"
+    )
+    ext.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    ext.add_argument(
+        "--intrinsics", type=Path, required=True, metavar="CALIB",
+        help="calib.yaml with the camera's intrinsics (a non-identity camera_to_laser is used "
+        "as a coarse guess to pick the board's laser segment)",
+    )  # fmt: skip
+    ext.add_argument(
+        "--board", required=True, metavar="COLSxROWSxSQUARE",
+        help="inner corners and square side in metres, e.g. 9x7x0.1",
+    )  # fmt: skip
+    ext.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="CALIB", help="calib.yaml to write"
+    )
+    ext.add_argument(
+        "--poses", metavar="START:END,...",
+        help="still intervals in seconds from the log's first scan (default: detected)",
+    )  # fmt: skip
+    ext.add_argument("--json", action="store_true", help="JSON instead of text")
+    ext.add_argument(
+        "--plot", type=Path, metavar="PNG", help="residual plot (default: beside CALIB)"
+    )
+    ext.add_argument(
+        "--lens-swap", type=Path, metavar="FISHEYE_CALIB",
+        help="the paper's way: LOG was recorded with a regular lens on the camera, which "
+        "--intrinsics describes (model: pinhole), and the fisheye is mounted afterwards; "
+        "write the result into a copy of FISHEYE_CALIB (the fisheye's intrinsics). CAVEAT: "
+        "swapping lenses moves the projection centre along the optical axis (the lenses' "
+        "entrance pupils differ, typically by millimetres to centimetres); u0, v0 cannot "
+        "absorb that, so it goes into the translation unless --pupil-shift gives it. The "
+        "default (no lens swap, the fisheye seeing the board) has no such error",
+    )  # fmt: skip
+    ext.add_argument(
+        "--pupil-shift", type=float, default=0.0, metavar="M",
+        help="with --lens-swap: the fisheye's projection centre minus the regular lens's, "
+        "along the optical axis, metres, + towards the scene (default 0, the paper's "
+        "assumption)",
+    )  # fmt: skip
+    ext.set_defaults(handler=run_extrinsic)
+
+    tof = cal_sub.add_parser(
+        "time-offset",
+        help="the camera's time offset from a drive (the latency its stamps got wrong)",
+        description="Estimate the camera's time offset (camera time minus laser time: what "
+        "the camera's configured latency got wrong) from a drive: every laser point goes "
+        "into the frame nearest its time, motion-compensated, as the rig stood at the "
+        "frame's candidate instant, and the offset that makes the image's grey levels there "
+        "most informative of the laser's return strengths (mutual information) wins. Needs "
+        "the rig moving (CAN odometry in the log or --trajectory), textured surfaces "
+        "(facades, road markings) and return strengths in the log (SCIP ME / CoLa RSSI1). "
+        "Writes OUT: a copy of CALIB with the camera's time_offset_s and its standard "
+        "deviation set. Exit status: 0 written, 1 no clear estimate (why is printed), 2 bad "
+        "input.",
+    )
+    tof.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files or a folder")
+    tof.add_argument(
+        "--calib", type=Path, required=True, help="calib.yaml (intrinsics, extrinsics)"
+    )
+    tof.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="OUT", help="calib.yaml to write"
+    )
+    tof.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    tof.add_argument(
+        "--trajectory", type=Path, metavar="CSV",
+        help="post-processed GNSS/INS trajectory (default: the log's CAN odometry)",
+    )  # fmt: skip
+    tof.add_argument(
+        "--start", type=float, metavar="S",
+        help="use the log from S seconds after its first scan (default: its middle part)",
+    )  # fmt: skip
+    tof.add_argument(
+        "--seconds", type=float, default=60.0, metavar="S",
+        help="how much of the log to use, seconds (default 60)",
+    )  # fmt: skip
+    tof.add_argument(
+        "--search", type=float, default=0.06, metavar="S",
+        help="search CALIB's offset +- S seconds (default 0.06)",
+    )  # fmt: skip
+    tof.add_argument(
+        "--frames", type=int, default=1500, metavar="N",
+        help="at most N frames, spread over the part used (default 1500)",
+    )  # fmt: skip
+    tof.add_argument("--json", action="store_true", help="JSON (with the curve) instead of text")
+    tof.set_defaults(handler=run_time_offset)
+
+    val = cal_sub.add_parser(
+        "validate",
+        help="laser points on the right colour of the two-depth pattern (paper §4.2)",
+        description="Project the laser points of a still recording of the validation pattern "
+        "(two coloured planar sets at different depths: red/green bars in front of a "
+        "blue/yellow wall) into the fisheye frames with CALIB, and report the share of points "
+        "on their set's colours, the pixel-error histogram (0, 1, 2, 3, >3 px, as the "
+        "paper's Table 4) and sigma of a normal fit to the errors at the front set's edges.",
+    )
+    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s)")
+    val.add_argument(
+        "--calib", required=True, type=Path, help="calibration (intrinsics + camera_to_laser)"
+    )
+    val.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    val.add_argument("--json", action="store_true", help="JSON instead of text")
+    val.add_argument(
+        "-o", dest="out", type=Path, metavar="DIR", help="write DIR/validate_overlay.png"
+    )
+    val.set_defaults(handler=run_validate)
+
+
+# --- fisheye ------------------------------------------------------------------------------
+
+
+def _circle_lines(
+    result: CircleResult, model: KannalaBrandt, fov_deg: float, n_images: int
+) -> list[str]:
+    c = result.circle
+    th = math.radians(fov_deg) / 2
+    lines = [
+        f"image circle from {n_images} image(s), {result.rays.get('inliers', 0)} rim points: "
+        f"centre ({c.cx:.2f}, {c.cy:.2f}) px, radius {c.radius:.2f} px"
+        + (f" (rx {c.rx:.2f}, ry {c.ry:.2f})" if c.rx != c.ry else ""),
+    ]
+    for name, e in result.estimates.items():
+        note = f"  [{'; '.join(e.notes)}]" if e.notes else ""
+        lines.append(
+            f"  {name:<11} centre ({e.circle.cx:8.2f}, {e.circle.cy:8.2f})  "
+            f"radius {e.circle.radius:7.2f}{note}"
+        )
+    lines.append(
+        f"  spread      centre {result.spread_centre_px:.2f} px, "
+        f"radius {result.spread_radius_px:.2f} px"
+    )
+    if model.fx == model.fy:
+        lines.append(
+            f"f = r / theta_max = {c.radius:.2f} / {th:.4f} rad = {model.fx:.2f} px/rad "
+            f"(fov {fov_deg:g} deg); u0 {model.cx:.2f}, v0 {model.cy:.2f}"
+        )
+    else:
+        lines.append(
+            f"fx = {model.fx:.2f}, fy = {model.fy:.2f} px/rad (fov {fov_deg:g} deg); "
+            f"u0 {model.cx:.2f}, v0 {model.cy:.2f}"
+        )
+    return lines
+
+
+def run_fisheye(args: argparse.Namespace) -> int:
+    """Write the camera's intrinsics from its image circle (and, with --board, a
+    Kannala-Brandt checkerboard fit) into CALIB; print a summary (or JSON), write the
+    overlay PNG (default: beside CALIB). 0; 2 bad input; 1 nothing found."""
+    import cv2
+
+    from acq.calib import image_circle
+    from acq.calib.fisheye_calib import (
+        METHOD_BOARD,
+        METHOD_CIRCLE,
+        calibrate_board,
+        circle_model,
+        draw_overlay,
+        model_gap_px,
+        parse_board,
+        read_images,
+        update_calibration,
+    )
+    from acq.camera import calibfile
+
+    images, fov_deg, output = args.images, args.fov, args.output
+    if not 0.0 < fov_deg < 360.0:
+        raise InputError(f"--fov {fov_deg}: expected degrees in (0, 360)")
+    spec = parse_board(args.board) if args.board else None
+    imgs = read_images(images)
+    try:
+        result = image_circle.detect(imgs, ellipse=args.ellipse)
+        model: KannalaBrandt = circle_model(result, fov_deg)
+    except ValueError as e:  # no circle in these images
+        raise AcqError(str(e)) from e
+    report: dict[str, Any] = {
+        "images": [str(p) for p in images],
+        "fov_deg": fov_deg,
+        "circle": result.to_dict(),
+        "circle_model": model.to_dict(),
+    }
+    lines = _circle_lines(result, model, fov_deg, len(imgs))
+    method = METHOD_CIRCLE
+    std = None  # the circle's fit sigma is not the principal point's: no std from it
+    if spec is not None:
+        grays = [image_circle.to_gray(i) for i in imgs]
+        try:
+            fit, _ = calibrate_board(grays, spec, model)
+        except ValueError as e:  # too few boards found
+            raise AcqError(str(e)) from e
+        m = fit.model
+        gap = model_gap_px(model, m, math.radians(fit.max_theta_deg))
+        report["board"] = fit.to_dict() | {"circle_model_gap_px": round(gap, 3)}
+        lines.append(
+            f"checkerboard ({len(fit.views)} of {len(imgs)} images, corners up to "
+            f"{fit.max_theta_deg:.1f} deg off axis): Kannala-Brandt fx {m.fx:.2f} fy "
+            f"{m.fy:.2f} cx {m.cx:.2f} cy {m.cy:.2f} k {', '.join(f'{k:.5f}' for k in m.k)}; "
+            f"RMS {fit.rms_px:.3f} px; the circle's model is up to {gap:.1f} px away from it "
+            "over those angles"
+        )
+        model, method, std = m, METHOD_BOARD, fit.std()
+    calib, name, notes = update_calibration(output, args.camera, model, method, std)
+    calibfile.save(calib, output)
+    overlay = args.overlay or output.with_name(output.stem + "_circle.png")
+    title = f"{Path(images[0]).name}: {len(imgs)} image(s)"
+    if not cv2.imwrite(str(overlay), draw_overlay(imgs[0], result, title)):
+        raise InputError(f"{overlay}: cannot write the overlay")
+    report |= {"camera": name, "calib": str(output), "model": model.to_dict()}
+    report |= {"method": method, "overlay": str(overlay)}
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        lines.append(
+            f"wrote {output} (camera {name!r}, {model.name}, method {method}); overlay {overlay}"
+        )
+        print("\n".join(lines))
+    for w in [*result.warnings, *notes]:
+        print(f"warning: {w}", file=sys.stderr)
+    return 0
+
+
+# --- extrinsic ----------------------------------------------------------------------------
+
+
+def _extrinsic_lines(
+    result: ExtrinsicResult, data: list[PoseData], t0: int, method: str
+) -> list[str]:
+    import numpy as np
+
+    T = result.camera_to_laser
+    d = result.to_dict()
+    lines = [
+        f"camera_to_laser (P_laser = R P_camera + t), {method}:",
+        "  R = " + np.array2string(T.rotation, precision=6, prefix="      "),
+        "  t = " + np.array2string(T.translation, precision=4) + " m",
+        "  rpy = " + ", ".join(f"{x:.3f}" for x in d["rpy_deg"]) + " deg",
+        "  std rotation " + ", ".join(f"{x:.3f}" for x in result.std_rot_deg) + " deg,"
+        " translation " + ", ".join(f"{x:.1f}" for x in result.std_t_mm) + " mm",
+        f"  RMS {result.rms_m * 1e3:.2f} mm over {result.n_points} points,"
+        f" {len(result.residuals_per_pose) - len(result.outliers)} poses kept",
+        "poses:",
+    ]
+    k = 0
+    for p in data:
+        where = f"  {(p.start_ns - t0) * 1e-9:7.2f}-{(p.end_ns - t0) * 1e-9:7.2f} s"
+        if p.pose is None:
+            lines.append(f"{where}: skipped ({p.problem})")
+            continue
+        res = result.residuals_per_pose[k] * 1e3
+        flag = "  OUTLIER, dropped" if k in result.outliers else ""
+        lines.append(
+            f"{where}: {len(p.pose.points)} laser points, corners {p.rms_px:.2f} px"
+            f" ({p.frames} frames),"
+            f" residual {res:.2f} mm{flag}"
+        )
+        k += 1
+    return lines
+
+
+def run_extrinsic(args: argparse.Namespace) -> int:
+    """Write the camera's camera_to_laser, calibrated from the board poses in the logs,
+    into CALIB (a copy of --intrinsics with it set).
+
+    --lens-swap (the paper's way): the logs were recorded with a regular lens that
+    --intrinsics describes, and the fisheye was mounted afterwards; CALIB is then a copy
+    of FISHEYE_CALIB with the camera's camera_to_laser set, its origin moved
+    --pupil-shift along the optical axis (the fisheye's projection centre minus the
+    regular lens's, m, + towards the scene; 0 is the paper's tacit assumption, and its
+    error goes into the translation).
+
+    Prints the result (or JSON), writes the residual plot PNG (default: beside CALIB).
+    0; 2 bad input (board, log, calibration file, --poses); 1 when the calibration
+    cannot be made (too few usable or degenerate poses)."""
+    import numpy as np
+
+    from acq import cloud
+    from acq.calib.extrinsic import calibrate, residual_plot
+    from acq.calib.extrinsic_log import (
+        METHOD,
+        parse_poses,
+        poses_from_log,
+        still_intervals,
+    )
+    from acq.calib.fisheye_calib import parse_board
+    from acq.camera import calibfile
+    from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
+    from acq.geometry.transforms import Rigid
+
+    logs, camera, intrinsics, board, output = (
+        args.logs, args.camera, args.intrinsics, args.board, args.output
+    )  # fmt: skip
+    lens_swap, pupil_shift_m = args.lens_swap, args.pupil_shift
+    spec = parse_board(board)
+    calib = calibfile.load(intrinsics)
+    log = cloud.read_log(list(logs), camera=camera)
+    name, cam = cloud.camera_calib(log, calib, camera)
+    target, target_cam = calib, cam
+    if lens_swap is not None:
+        target = calibfile.load(lens_swap)
+        try:
+            target_cam = target.camera(name)
+        except calibfile.UnknownCameraError as e:
+            raise InputError(f"--lens-swap {lens_swap}: {e}") from None
+    t0 = int(log.scan_ns[0])
+    intervals = parse_poses(args.poses, t0) if args.poses else still_intervals(log)
+    coarse = None if np.allclose(cam.camera_to_laser.rotation, np.eye(3)) else cam.camera_to_laser
+    data = poses_from_log(log, cam.model, spec, intervals, coarse=coarse)
+    good = [p.pose for p in data if p.pose is not None]
+    try:
+        result = calibrate(good)
+    except ValueError as e:  # too few or degenerate poses
+        raise AcqError(f"{e} ({len(good)} usable of {len(intervals)} still poses found)") from e
+    std = CalibStd(  # about the laser axes (rad -> deg), m; the intrinsics' std kept
+        rotation_deg=tuple(np.degrees(result.std[:3])), translation_m=tuple(result.std[3:])
+    ).rounded()
+    std = target_cam.std.merged(std, CalibStd.EXTRINSICS)
+    T, method = result.camera_to_laser, METHOD
+    if lens_swap is not None:
+        T = Rigid(T.rotation, T.translation + T.rotation @ np.array([0.0, 0.0, pupil_shift_m]))
+        method = f"{METHOD}+lens_swap"
+    entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std)
+    out = Calibration(target.laser, {**target.cameras, name: entry}, target.laser_to_vehicle)
+    plot = args.plot if args.plot is not None else output.with_name(output.stem + "_extrinsic.png")
+    calibfile.save(out, output)
+    residual_plot(result, good, plot)
+    if args.json:
+        report = {
+            "camera": name,
+            "logs": [str(p) for p in logs],
+            "board": board,
+            "output": str(output),
+            "plot": str(plot),
+            "poses": [p.to_dict(t0) for p in data],
+            **result.to_dict(),
+        }
+        if lens_swap is not None:
+            report["lens_swap"] = {
+                "fisheye": str(lens_swap),
+                "pupil_shift_m": pupil_shift_m,
+                "camera_to_laser": T.to_dict(),
+            }
+        print(json.dumps(report, indent=2))
+    else:
+        print("\n".join(_extrinsic_lines(result, data, t0, METHOD)))
+        if lens_swap is not None:
+            print(
+                f"lens swap: found with the regular lens of {intrinsics}, written with the "
+                f"fisheye model of {lens_swap}, origin moved {pupil_shift_m * 1e3:.1f} mm along "
+                "the optical axis (--pupil-shift; the swap's unknown shift is in t)"
+            )
+        print(f"wrote {output} (camera {name!r}) and {plot}")
+    return 0
+
+
+# --- time offset --------------------------------------------------------------------------
+
+
+def run_time_offset(args: argparse.Namespace) -> int:
+    """0 written; 1 no clear estimate (why is printed); 2 bad input."""
+    import numpy as np
+
+    from acq.camera import calibfile
+    from acq.camera.calibfile import CalibStd
+    from acq.cloud import colorize
+
+    calib = calibfile.load(args.calib)
+    report = colorize.Report(output=str(args.output))
+    job, _ = colorize.prepare(
+        args.logs, calib, report, camera=args.camera, trajectory=args.trajectory
+    )
+    est = colorize.estimate_offset(
+        job, start_s=args.start, seconds=args.seconds, search_s=args.search,
+        max_frames=args.frames, threads=os.cpu_count() or 1,
+    )  # fmt: skip
+    prior = job.cam.time_offset_s
+    if args.json:
+        out = {k: v for k, v in asdict(est).items() if k not in ("candidates_s", "scores")}
+        out["curve"] = {"offset_s": est.candidates_s.tolist(), "mi_nats": est.scores.tolist()}
+        out["prior_s"] = prior
+        print(json.dumps(out, indent=2, default=float))
+    if not est.found:
+        raise AcqError(f"no estimate: {est.note}")
+    name, cam = job.camera, job.cam
+    std = cam.std
+    if np.isfinite(est.std_s):
+        std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
+    cams = dict(calib.cameras)
+    cams[name] = replace(cam, time_offset_s=round(est.offset_s, 6), std=std)
+    calibfile.save(replace(calib, cameras=cams), args.output)
+    if not args.json:
+        print(
+            f"camera {name}: time offset {1e3 * est.offset_s:+.2f} ms +- {1e3 * est.std_s:.2f} ms "
+            f"(CALIB had {1e3 * prior:+.2f} ms), from {est.points:,} laser points in "
+            f"{est.frames:,} frames; the peak stands {100 * est.contrast:.0f} % over the "
+            "curve's median"
+        )
+        print(f"wrote {args.output}")
+    return 0
+
+
+# --- validate -----------------------------------------------------------------------------
+
+
+def _validate_lines(res: ValidationResult, name: str) -> list[str]:
+    from acq.calib.validate import BINS
+
+    pct = [100.0 * c / res.points if res.points else 0.0 for c in res.histogram]
+    lines = [
+        f"camera {name!r}: {res.points} laser points on the pattern in {len(res.frames)} frames"
+        f" ({res.occluded_beams} back beams hidden from the camera left out)",
+        f"  right colour: {100.0 * res.share_right:.2f} %"
+        f" (front {res.front[1]}/{res.front[0]}, back {res.back[1]}/{res.back[0]})",
+        "  pixel error: " + ", ".join(f"{b} px {p:.2f} %" for b, p in zip(BINS, pct, strict=True)),
+        f"  edge error: mean {res.edge_mean_px:+.2f} px, sigma {res.sigma_px:.2f} px"
+        f" (normal fit, {res.n_edges} edge crossings)",
+    ]
+    return lines
+
+
+def run_validate(args: argparse.Namespace) -> int:
+    """The share of laser points on the right colour of the validation pattern, the
+    pixel-error histogram and sigma (paper §4.2) for the camera's calibration in CALIB.
+    Prints a report (or JSON); with -o writes DIR/validate_overlay.png. 0; 2 bad log or
+    calibration file; 1 no pattern found."""
+    from acq import cloud
+    from acq.calib.validate import validate
+    from acq.camera import calibfile
+
+    cal = calibfile.load(args.calib)
+    log = cloud.read_log(list(args.logs), camera=args.camera)
+    name, cam = cloud.camera_calib(log, cal, args.camera)
+    overlay = args.out / "validate_overlay.png" if args.out is not None else None
+    res = validate(log, cam, overlay=overlay)
+    if args.json:
+        report = {"camera": name, "logs": [str(p) for p in args.logs], "calib": str(args.calib)}
+        report.update(res.to_dict())
+        if overlay is not None:
+            report["overlay"] = str(overlay)
+        print(json.dumps(report, indent=2))
+    else:
+        print("\n".join(_validate_lines(res, name)))
+        if overlay is not None:
+            print(f"wrote {overlay}")
+    return 0

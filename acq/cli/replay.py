@@ -1,0 +1,132 @@
+"""`acq replay`: serve a log back through simulated devices on their real transports."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import signal
+import threading
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from acq.errors import InputError
+
+if TYPE_CHECKING:
+    from acq.sim.replay import Replay
+
+HELP = "serve a log back through simulated devices on their real transports"
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    replay = sub.add_parser(
+        "replay",
+        help=HELP,
+        description="Serve recorded logs (the split files of one session, in order) back "
+        "through simulated devices: each scanner's raw telegrams byte for byte over SCIP "
+        "(TCP, or a pseudo-terminal with --pty) or CoLa (TCP), each camera's JPEG bytes as "
+        "MJPEG over HTTP, at their recorded receive times. Prints the devices' URLs and a "
+        "configuration for `acq record -c`. The replay starts when a client first asks a "
+        "device for data, and ends with the log (or Ctrl-C / SIGTERM). Exit status: 0 "
+        "served, 1 runtime failure, 2 bad log or address.",
+    )
+    replay.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files, in order")
+    replay.add_argument(
+        "--speed", type=float, default=1.0, metavar="X",
+        help="playback speed (default 1, the recorded pace; 2 plays twice as fast)",
+    )  # fmt: skip
+    replay.add_argument(
+        "--listen", metavar="tcp://HOST:PORT",
+        help="the first scanner's address, the next ones on the following ports "
+        "(default: 127.0.0.1, free ports)",
+    )  # fmt: skip
+    replay.add_argument(
+        "--pty", action="store_true", help="Hokuyo scanners on pseudo-terminals instead of TCP"
+    )
+    replay.add_argument(
+        "--camera-listen", metavar="http://HOST:PORT/PATH",
+        help="the first camera's address, the next ones on the following ports "
+        "(default: http://127.0.0.1, free ports, /stream.mjpg)",
+    )  # fmt: skip
+    replay.add_argument(
+        "--config-out", type=Path, metavar="YAML",
+        help="write the recorder configuration here (and the log's calibration beside it) "
+        "instead of printing it",
+    )  # fmt: skip
+    replay.set_defaults(handler=run)
+
+
+def _describe_session(replay: Replay) -> str:
+    s = replay.session
+    parts = []
+    for d in s.devices.values():
+        what = "scans" if d.kind == "scanner" else "frames"
+        parts.append(f"{d.name}: {len(d.data)} {what} at {d.rate_hz:.1f} Hz ({d.driver})")
+    files = f"{len(s.files)} file" + ("s" if len(s.files) != 1 else "")
+    return f"replaying {files}, {s.duration_s:.1f} s at speed {replay.speed:g}: " + "; ".join(parts)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Serve the logs until they end or Ctrl-C / SIGTERM. Prints the devices' URLs and a
+    configuration for ``acq record -c`` (or writes it to --config-out, with the recorded
+    calibration beside it when the log holds one)."""
+    from acq.record import config as configfile
+    from acq.sim.replay import Replay, log
+
+    speed, write_config = args.speed, args.config_out
+    if not logging.getLogger().handlers:
+        logging.basicConfig(level=logging.INFO, format="acq replay: %(message)s")
+    if not (math.isfinite(speed) and speed > 0):
+        raise InputError(f"--speed {speed:g}: expected a number > 0")
+    replay = Replay(
+        args.logs, speed=speed, scanner_listen=args.listen, pty=args.pty,
+        camera_listen=args.camera_listen,
+    )  # fmt: skip
+    try:
+        replay.start()
+    except ValueError as e:  # a bad listen address
+        raise InputError(str(e)) from None
+    except OSError as e:
+        raise OSError(e.errno, f"cannot serve: {e.strerror or e}") from e
+    stop = threading.Event()
+    old: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            old[sig] = signal.signal(sig, lambda *_: stop.set())
+    try:
+        print(_describe_session(replay))
+        for name, url in replay.urls.items():
+            print(f"  {name}: {url}")
+        calibration = None
+        if write_config is not None and replay.session.calibration_yaml:
+            rec = replay.session.config
+            if rec is None or rec.calibration is None or not rec.calibration.exists():
+                calibration = write_config.with_name(write_config.stem + ".calib.yaml")
+                calibration.write_text(replay.session.calibration_yaml)
+                print(f"wrote the recorded calibration to {calibration}")
+        text = configfile.dump(
+            replay.config(calibration=calibration.resolve() if calibration else None)
+        )
+        if write_config is not None:
+            write_config.write_text(text)
+            print(f"wrote the configuration to {write_config}: acq record -c {write_config}")
+        else:
+            print("configuration for `acq record -c FILE` (--config-out writes it):")
+            print(text, end="")
+        print("the replay starts when a client asks a device for data", flush=True)
+        announced = False
+        while not stop.is_set():
+            if replay.started and not announced:
+                announced = True
+                log.info("started: the log plays for %.1f s", replay.session.duration_s / speed)
+            if replay.wait(0.2):
+                log.info(
+                    "the log has been served to its end: %s",
+                    ", ".join(f"{k} {v}" for k, v in replay.sent().items()),
+                )
+                break
+        return 0
+    finally:
+        replay.close()
+        for sig, handler in old.items():
+            signal.signal(sig, handler)

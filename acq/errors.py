@@ -1,0 +1,24 @@
+"""The root of every error acq raises, and the one kind the command line reports as bad input.
+
+Libraries raise these (or their own subclasses, defined where they are raised);
+``acq.cli`` turns them into a line and an exit status: :class:`InputError` 2, any other
+1.
+"""
+
+from __future__ import annotations
+
+__all__ = ["AcqError", "InputError", "InputValueError"]
+
+
+class AcqError(Exception):
+    """Base of every acq error; raised as such for a runtime failure (exit status 1)."""
+
+
+class InputError(AcqError):
+    """A bad file, key, value or usage (exit status 2); the message names the file and
+    the key or byte offset, in one line."""
+
+
+class InputValueError(InputError, ValueError):
+    """A bad value given by the user (a flag's, a file's); also a ValueError, for the
+    callers that catch that."""

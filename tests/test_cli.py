@@ -1,0 +1,95 @@
+"""The command line's one place for errors: exit statuses, one line, --debug, --version,
+a closed or full stdout."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from acq import __version__
+from acq.cli import main
+from acq.log import loginfo
+
+# `acq info` whose summary is long text, without a log: for the stdout tests
+_LONG_INFO = (
+    "import sys; from acq.log import loginfo; "
+    "loginfo.info_many = lambda logs: None; "
+    "loginfo.format_info = lambda info, json: 'a line of the summary\\n' * 200_000; "
+    "from acq.cli import main; sys.exit(main(['info', 'x.mcap']))"
+)
+
+
+def _bug(*args: object, **kwargs: object) -> None:
+    raise KeyError("channel")
+
+
+def test_a_bug_exits_1_with_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(loginfo, "info_many", _bug)
+    assert main(["info", "x.mcap"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("acq info: KeyError: channel") and err.count("\n") == 1, err
+    assert "Traceback" not in err and "--debug" in err
+
+
+@pytest.mark.parametrize("argv", [["--debug", "info", "x.mcap"], ["info", "x.mcap", "--debug"]])
+def test_debug_shows_the_traceback(
+    argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(loginfo, "info_many", _bug)
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in err and "in _bug" in err
+    assert err.splitlines()[-1] == "acq info: KeyError: channel"
+
+
+def test_bad_input_exits_2_naming_the_command(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["info", str(tmp_path / "none.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"acq info: {tmp_path / 'none.mcap'}") and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    "argv", [["--version"], ["info", "--version"], ["calibrate", "fisheye", "--version"],
+             ["sim", "scanner", "--version"], ["devices", "--version"]],
+)  # fmt: skip
+def test_version_on_every_subcommand(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 0
+    assert capsys.readouterr().out == f"acq {__version__}\n"
+
+
+def test_a_closed_stdout_ends_quietly() -> None:
+    """`acq info LOG | head -1`: the reader goes away mid-output."""
+    p = subprocess.Popen(
+        [sys.executable, "-c", _LONG_INFO], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    assert p.stdout is not None and p.stderr is not None
+    assert p.stdout.readline() == b"a line of the summary\n"
+    p.stdout.close()
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=60) == 141
+    assert err == ""
+
+
+def test_a_full_stdout_exits_1_with_one_line() -> None:
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(
+            [sys.executable, "-c", _LONG_INFO], stdout=full, stderr=subprocess.PIPE, text=True
+        )
+    assert done.returncode == 1
+    assert done.stderr == "acq info: No space left on device\n"
+
+
+def test_python_m_acq_cli() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "acq.cli", "info", "--version"], capture_output=True, text=True
+    )
+    assert done.returncode == 0 and done.stdout == f"acq {__version__}\n"

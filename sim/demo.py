@@ -11,12 +11,14 @@ The real recorder (drivers, clock sync, CAN odometry, MCAP writer) records them 
 the log is then coloured with the rig's true calibration (``DIR/calib.yaml``) into
 ``DIR/cloud.ply`` and pictured in ``DIR/preview.png``.
 
-The demo's own colouring places the points with the simulator's trajectory, evaluated
-at the host times of the points, modulo the street's loop: because the demo owns the
-simulator, the summary checks the chain against the truth (the scan and frame stamps,
-the recorded odometry, and each coloured point's colour against the true colour of the
-surface the laser hit). ``acq colorize DIR/demo.mcap --calib DIR/calib.yaml`` colours
-the same log from the recorded CAN odometry instead (dead reckoning), as on a real drive.
+The demo colours through the pipeline of ``acq colorize`` (:func:`acq.cloud.colorize.run`:
+offline re-timing, chunks, views, the PLY writer) with the simulator's trajectory in
+place of the log's odometry, so the cloud lies in the street's world frame: because the
+demo owns the simulator, the summary checks the chain against the truth (the scan and
+frame stamps, the recorded odometry, and each coloured point's colour against the true
+colour of the surface the laser hit). ``acq colorize DIR/demo.mcap --calib
+DIR/calib.yaml`` colours the same log from the recorded CAN odometry instead (dead
+reckoning), as on a real drive.
 """
 
 from __future__ import annotations
@@ -35,12 +37,13 @@ from typing import Any
 import numpy as np
 import yaml
 
-from acq import cloud
+from acq import cloud, motion
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
-from acq.cloud import points
+from acq.cloud import colorize
 from acq.errors import AcqError, InputError
 from acq.log import loginfo
+from acq.motion.trajectory import Trajectory
 from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
 from acq.record.sdnotify import Notifier
@@ -170,11 +173,14 @@ class _SimRig:
         """The drive's period, s: it loops over the street."""
         return max(self.source.street.length_m, 1.0) / self.source.trajectory.speed
 
-    def pose_at(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The simulator's vehicle pose at host ns (standing in for odometry)."""
+    def trajectory(self, start_ns: int, end_ns: int, rate_hz: float = 1000.0) -> Trajectory:
+        """The car's true poses from ``start_ns`` to ``end_ns`` (host ns; none before
+        ``t_origin``) every 1/``rate_hz`` s: what the demo places its points with."""
         origin_ns = round(self.t_origin * 1e9)
-        t = ((np.asarray(t_ns, dtype=np.int64) - origin_ns) * 1e-9) % self.loop_s
-        return self.source.trajectory.poses(t)
+        step = round(1e9 / rate_hz)
+        t_ns = np.arange(max(start_ns, origin_ns), end_ns + step, step, dtype=np.int64)
+        R, p = self.source.trajectory.poses(((t_ns - origin_ns) * 1e-9) % self.loop_s)
+        return Trajectory(t_ns, R, p)
 
     def close(self) -> None:
         if self.car is not None:
@@ -301,7 +307,6 @@ def _size(path: Path) -> str:
 def _odometry_truth(rig: _SimRig, mcap_path: Path) -> list[str]:
     """Summary lines comparing the recorded CAN odometry with the car's true motion at
     the odometry's stamps, and its dead reckoning with the true path over the log."""
-    from acq import motion
     from acq.motion.vehicle_log import read_vehicle
     from acq.sim.can_vehicle import true_motion
 
@@ -564,11 +569,20 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
     clock.say(f"wrote {mcap_path} ({_size(mcap_path)})")
 
     log = cloud.read_log(mcap_path)
-    pc = points.colorize(log, cloud.calibration_of(log), rig.pose_at)
-    result.steps_s["colour"] = clock.lap()
-    clock.say(f"coloured {pc.size:,} points from {log.n_scans} scans with {pc.frames_used} frames")
+    # `acq colorize DIR/demo.mcap --calib DIR/calib.yaml`, placing with the true trajectory
     ply_path, png_path = out / "cloud.ply", out / "preview.png"
-    cloud.write_ply(ply_path, pc, comments=["acq demo: the simulated street's world frame"])
+    stamps = np.concatenate([log.scan_ns, log.frame_ns])
+    truth = rig.trajectory(int(stamps.min()) - 10**9, int(stamps.max()) + 10**9)
+    results: list[colorize.ChunkResult] = []
+    colorize.run(
+        [mcap_path], calibfile.load(calib_path), ply_path, trajectory=truth, results=results
+    )
+    pc = colorize.cloud_of(results, log)
+    result.steps_s["colour"] = clock.lap()
+    clock.say(
+        f"coloured {pc.size:,} points from {log.n_scans} scans with {pc.frames_used} frames "
+        f"into {ply_path}"
+    )
     length = float(np.linalg.norm(pc.scan_origin[-1] - pc.scan_origin[0]))
     title = (
         f"acq demo: {pc.size:,} points, {100 * pc.coloured_share:.0f} % coloured, "
@@ -576,7 +590,7 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
     )
     cloud.preview_png(png_path, pc, title=title)
     result.steps_s["write"] = clock.lap()
-    clock.say(f"wrote {ply_path} and {png_path}")
+    clock.say(f"wrote {png_path}")
 
     info = loginfo.info(mcap_path)
     truth_lines, result.colour_agreement = _truth(rig, log, pc, truth_frames)

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import copy
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from acq import camera_models  # the API name of ARCHITECTURE.md
 from acq.camera import calibfile
@@ -95,7 +99,7 @@ def test_unknown_key_names_path_and_suggests(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (lambda d: d["cameras"]["camera"].pop("cx"), r"cameras\.camera\.cx: missing"),
+        (lambda d: d["cameras"]["camera"].pop("cx"), r"cameras\.camera\.cx: required key missing"),
         (lambda d: d["cameras"]["camera"].update(fx="big"), r"cameras\.camera\.fx: expected"),
         (lambda d: d["cameras"]["camera"].update(fy=170.0), r"cameras\.camera: .*square pixels"),
         (lambda d: d["cameras"]["camera"].update(model="ocam"), r"cameras\.camera\.model: unknown"),
@@ -107,7 +111,40 @@ def test_unknown_key_names_path_and_suggests(tmp_path: Path) -> None:
             r"cameras\.camera\.camera_to_laser\.rotation: .*proper rotation",
         ),
         (lambda d: d.update(version=2), r"version: unsupported version 2"),
+        (
+            lambda d: d.update(version=True),
+            r"version: expected 1 \(the version this acq reads\), got True",
+        ),
         (lambda d: d.update(cameras={}), r"cameras: expected a mapping"),
+        (
+            lambda d: d.update(camera={}),
+            r"^\S*calib\.yaml: camera: unknown key; did you mean cameras\?",
+        ),
+        (lambda d: d.update(laser=""), r"laser: expected the scanner's name, got ''"),
+        (
+            lambda d: d["cameras"]["camera"].update(model="equidistnat"),
+            r"model: unknown model 'equidistnat'; did you mean equidistant\?$",
+        ),
+        (
+            lambda d: d["cameras"]["camera"].update(fx=-1),
+            r"cameras\.camera\.fx: must be > 0, got -1",
+        ),
+        (
+            lambda d: d["cameras"]["camera"].update(image_size=[780.5, 582]),
+            r"image_size: expected two positive whole numbers",
+        ),
+        (
+            lambda d: d["cameras"]["camera"]["camera_to_laser"].update(rotation=[[1, 0, 0]]),
+            r"camera_to_laser\.rotation: expected 3 rows of 3 numbers",
+        ),
+        (
+            lambda d: d["cameras"]["camera"]["camera_to_laser"].update(translation=[0, 0]),
+            r"camera_to_laser\.translation: expected a list of 3 numbers, got 2",
+        ),
+        (
+            lambda d: d["cameras"]["camera"].update(cx=10**400),
+            r"cameras\.camera\.cx: expected a number, got 1000",
+        ),
     ],
 )
 def test_bad_values_are_reported_with_their_path(
@@ -119,12 +156,32 @@ def test_bad_values_are_reported_with_their_path(
         calibfile.load(write(tmp_path, data))
 
 
+def test_whole_floats_and_null_optional_sections_read(tmp_path: Path) -> None:
+    data = yaml.safe_load(yaml.safe_dump(GOOD))
+    cam = data["cameras"]["camera"]
+    cam.update(image_size=[780.0, 582.0], std=None, camera_to_laser=None, fy=None)
+    data["laser_to_vehicle"] = None
+    calib = calibfile.load(write(tmp_path, data))
+    model = calib.camera().model
+    assert (model.width, model.height) == (780, 582) and model.fy == model.fx
+    assert calib.laser_to_vehicle is None
+    np.testing.assert_array_equal(calib.camera().camera_to_laser.matrix(), np.eye(4))
+    with pytest.raises(CalibFileError, match=r"calib\.yaml: expected a mapping with version"):
+        calibfile.parse([GOOD])
+
+
 def test_missing_file_and_bad_yaml(tmp_path: Path) -> None:
     with pytest.raises(CalibFileError, match="no such file"):
         calibfile.load(tmp_path / "nope.yaml")
     bad = tmp_path / "bad.yaml"
     bad.write_text("version: 1\ncameras: [unclosed\n", encoding="utf-8")
-    with pytest.raises(CalibFileError, match=r"bad\.yaml: line \d+, column \d+ not valid YAML"):
+    with pytest.raises(CalibFileError, match=r"bad\.yaml:3:1: invalid YAML: expected ',' or ']'"):
+        calibfile.load(bad)
+    bad.write_text("version: 1\nversion: 1\n", encoding="utf-8")
+    with pytest.raises(CalibFileError, match=r"bad\.yaml:2:1: invalid YAML: duplicate key version"):
+        calibfile.load(bad)
+    bad.write_bytes(b"version: 1\nlaser: \xff\n")
+    with pytest.raises(CalibFileError, match=r"bad\.yaml: not UTF-8 text \(byte 18\)"):
         calibfile.load(bad)
 
 
@@ -212,7 +269,7 @@ def _with_std(std: object) -> dict:
         ({"rotation_deg": [0.1, float("nan"), 0.1]}, r"rotation_deg\[1\]: expected a finite"),
         ({"rotation_deg": [0.1, -0.2, 0.1]}, r"rotation_deg: a standard deviation must be >= 0"),
         ({"k": [0.1, 0.0, 0.0, 0.0]}, r"k: the equidistant model has no k"),
-        ([0.1], r": expected a mapping, got list"),
+        ([0.1], r": expected a mapping, got a list"),
     ],
 )
 def test_bad_std_is_reported_with_its_path(tmp_path: Path, std: object, message: str) -> None:
@@ -230,3 +287,104 @@ def test_std_k_has_the_models_length(tmp_path: Path) -> None:
     cam.update(model="pinhole", k=[0.0] * 5)
     del cam["fov_deg"]
     assert calibfile.load(write(tmp_path, data)).camera().std.k == (0.1, 0.0, 0.0, 0.0, 0.0)
+
+
+# --- fuzzing: any YAML mapping is a Calibration or one CalibFileError ---------------------
+
+_KEYS = sorted(
+    {"version", "laser", "laser_to_vehicle", "cameras", "camera", "rotation", "translation"}
+    | set(GOOD["cameras"]["camera"])  # type: ignore[index]
+    | {"k", "time_offset_s", "method", "std", *STD}
+)
+_SCALARS = (
+    st.none()
+    | st.booleans()
+    | st.integers()
+    | st.sampled_from([0, 1, -1, 2, 10**400, 1e308, 0.5])
+    | st.floats()
+    | st.text(max_size=6)
+    | st.sampled_from([*_KEYS, "equidistant", "kannala_brandt", "pinhole"])
+)
+_NAMES = st.sampled_from(_KEYS) | st.text(max_size=6) | st.integers(-3, 3)
+_VALUES = st.recursive(
+    _SCALARS,
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(_NAMES, inner, max_size=4),
+    max_leaves=10,
+)
+_FULL = {
+    **GOOD,
+    "laser_to_vehicle": {"rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "translation": [0, 0, 2]},
+    "cameras": {
+        **GOOD["cameras"],  # type: ignore[dict-item]
+        "kb": {
+            "model": "kannala_brandt",
+            "image_size": [780, 582],
+            "fx": 169.0,
+            "cx": 390.0,
+            "cy": 291.0,
+            "k": [0.0] * 4,
+            "time_offset_s": 0.01,
+            "method": "board",
+            "std": STD,
+        },
+    },
+}
+
+
+def _nodes(tree: Any, at: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
+    """The path of every node below ``tree`` (keys and indices)."""
+    items = (
+        tree.items()
+        if isinstance(tree, dict)
+        else enumerate(tree)
+        if isinstance(tree, list)
+        else ()
+    )
+    out = []
+    for key, value in items:
+        out.append((*at, key))
+        out += _nodes(value, (*at, key))
+    return out
+
+
+@st.composite
+def _edited(draw: st.DrawFn) -> dict[str, Any]:
+    """A good file with one to three nodes replaced, removed or added."""
+    data: dict[str, Any] = copy.deepcopy(_FULL)
+    for _ in range(draw(st.integers(1, 3))):
+        path = draw(st.sampled_from(_nodes(data)))
+        parent: Any = data
+        for key in path[:-1]:
+            parent = parent[key]
+        edit = draw(st.sampled_from(["replace", "remove", "add"]))
+        if edit == "replace":
+            parent[path[-1]] = draw(_VALUES)
+        elif edit == "remove" and isinstance(parent, dict):
+            del parent[path[-1]]
+        elif isinstance(parent, dict):
+            parent[draw(_NAMES)] = draw(_VALUES)
+    return data
+
+
+def _parses_or_says_where(data: Any) -> None:
+    try:
+        calib = calibfile.parse(data, "f.yaml")
+    except CalibFileError as e:
+        text = str(e)
+        assert text.startswith("f.yaml: ") and "\n" not in text, text
+        return
+    # what it read, it writes and reads back the same
+    again = calibfile.parse(yaml.safe_load(calibfile.dump(calib)))
+    assert again.to_dict() == calib.to_dict()
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(_edited())
+def test_fuzz_edited_files_parse_or_say_where(data: dict[str, Any]) -> None:
+    _parses_or_says_where(data)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.dictionaries(_NAMES, _VALUES, max_size=5))
+def test_fuzz_any_mapping_parses_or_says_where(data: dict[Any, Any]) -> None:
+    _parses_or_says_where(data)

@@ -152,7 +152,7 @@ def test_bad_input_exits_2_with_one_line(
         assert word in err and err.count("\n") == 1
     out.write_text("version: 1\ncameras: {camera: {model: equidistant}}\n")
     assert calibrate_fisheye([path], 185.0, out) == 2
-    assert "cameras.camera.cx: missing" in capsys.readouterr().err
+    assert "cameras.camera.image_size: required key missing" in capsys.readouterr().err
     assert not out.with_name("c_circle.png").exists()
     assert fisheye_calib.parse_board("8x6x0.117") == fisheye_calib.BoardSpec(8, 6, 0.117)
 

@@ -26,7 +26,6 @@ path, e.g. ``calib.yaml: cameras.camera.fxx: unknown key; did you mean fx?``.
 
 from __future__ import annotations
 
-import difflib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
@@ -34,11 +33,14 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import yaml
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
+from acq import yamlcheck
 from acq.camera import camera_models
 from acq.camera.camera_models import CameraModel
 from acq.errors import InputError
 from acq.geometry.transforms import Rigid
+from acq.yamlcheck import did_you_mean, fail, show
 
 __all__ = [
     "CalibFileError",
@@ -53,24 +55,6 @@ __all__ = [
 ]
 
 VERSION = 1
-
-_TOP_KEYS = {"version", "laser", "laser_to_vehicle", "cameras"}
-_CAMERA_KEYS = {
-    "model",
-    "image_size",
-    "fx",
-    "fy",
-    "cx",
-    "cy",
-    "fov_deg",
-    "k",
-    "camera_to_laser",
-    "time_offset_s",
-    "method",
-    "std",
-}
-_RIGID_KEYS = {"rotation", "translation"}
-_STD_KEYS = {"fx", "fy", "cx", "cy", "k", "rotation_deg", "translation_m", "time_offset_s"}
 
 
 class CalibFileError(InputError, ValueError):
@@ -211,162 +195,203 @@ class Calibration:
         return d
 
 
-class _Reader:
-    """Walks a parsed YAML tree, raising errors that name ``source`` and the key path."""
+class _Model(BaseModel):
+    model_config = yamlcheck.STRICT
 
-    def __init__(self, source: str) -> None:
-        self.source = source
 
-    def fail(self, path: str, message: str) -> CalibFileError:
-        where = f"{self.source}: {path}" if path else self.source
-        return CalibFileError(f"{where}: {message}")
+def _count(v: list[float], n: int, *subpath: str) -> list[float]:
+    """``v`` if it holds ``n`` numbers (the error at ``subpath`` below the value checked)."""
+    if len(v) != n:
+        raise fail(f"expected a list of {n} numbers, got {len(v)}", *subpath)
+    return v
 
-    def mapping(self, value: Any, path: str, allowed: set[str], required: set[str]) -> dict:
-        if not isinstance(value, Mapping):
-            raise self.fail(path, f"expected a mapping, got {type(value).__name__}")
-        for key in value:
-            if key not in allowed:
-                hint = difflib.get_close_matches(str(key), sorted(allowed), n=1)
-                extra = f"; did you mean {hint[0]}?" if hint else ""
-                raise self.fail(_join(path, str(key)), f"unknown key{extra}")
-        for key in sorted(required - set(value)):
-            raise self.fail(_join(path, key), "missing")
-        return dict(value)
 
-    def number(self, value: Any, path: str, positive: bool = False) -> float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.fail(path, f"expected a number, got {value!r}")
-        x = float(value)
-        if not math.isfinite(x) or (positive and x <= 0):
-            raise self.fail(path, f"expected a {'positive ' if positive else ''}finite number")
-        return x
+def _not_negative(v: Any) -> Any:
+    if v is not None and any(x < 0 for x in (v if isinstance(v, list) else [v])):
+        raise fail("a standard deviation must be >= 0")
+    return v
 
-    def numbers(self, value: Any, path: str, n: int | tuple[int, ...]) -> list[float]:
-        counts = (n,) if isinstance(n, int) else n
-        if not isinstance(value, list | tuple) or len(value) not in counts:
-            want = " or ".join(str(c) for c in counts)
-            raise self.fail(path, f"expected a list of {want} numbers, got {value!r}")
-        return [self.number(x, f"{path}[{i}]") for i, x in enumerate(value)]
 
-    def rigid(self, value: Any, path: str) -> Rigid:
-        d = self.mapping(value, path, _RIGID_KEYS, _RIGID_KEYS)
-        rot = d["rotation"]
-        if not isinstance(rot, list) or len(rot) != 3:
-            raise self.fail(_join(path, "rotation"), "expected 3 rows of 3 numbers")
-        rows = [self.numbers(r, f"{path}.rotation[{i}]", 3) for i, r in enumerate(rot)]
-        t = self.numbers(d["translation"], _join(path, "translation"), 3)
+class _Rigid(_Model):
+    """``P_to = rotation @ P_from + translation``: a rotation matrix, metres."""
+
+    rotation: list[list[float]]
+    translation: list[float]
+
+    @field_validator("rotation")
+    @classmethod
+    def _rows(cls, v: list[list[float]]) -> list[list[float]]:
+        if len(v) != 3 or any(len(row) != 3 for row in v):
+            raise fail("expected 3 rows of 3 numbers")
+        return v
+
+    _three = field_validator("translation")(lambda v: _count(v, 3))
+
+    @model_validator(mode="after")
+    def _proper(self) -> _Rigid:
         try:
-            return Rigid(rows, t)  # type: ignore[arg-type]
+            self.rigid()
         except ValueError as e:
-            raise self.fail(_join(path, "rotation"), str(e)) from None
+            raise fail(str(e), "rotation") from None
+        return self
 
-    def camera(self, value: Any, path: str) -> CameraCalib:
-        d = self.mapping(value, path, _CAMERA_KEYS, {"model", "image_size", "fx", "cx", "cy"})
-        model = d["model"]
-        if model not in camera_models.MODELS:
-            raise self.fail(
-                _join(path, "model"),
-                f"unknown model {model!r}; expected one of {', '.join(camera_models.MODELS)}",
+    def rigid(self) -> Rigid:
+        return Rigid(self.rotation, self.translation)  # type: ignore[arg-type]
+
+
+class _Std(_Model):
+    """A camera's ``std`` (:class:`CalibStd`); ``k``'s length is checked by the camera."""
+
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    k: list[float] | None = None
+    rotation_deg: list[float] | None = None
+    translation_m: list[float] | None = None
+    time_offset_s: float | None = None
+
+    _three = field_validator("rotation_deg", "translation_m")(
+        lambda v: v if v is None else _count(v, 3)
+    )
+    _sign = field_validator("*")(_not_negative)
+
+
+class _Camera(_Model):
+    """One entry of ``cameras`` (ARCHITECTURE.md, "the calibration file")."""
+
+    model: str
+    image_size: list[float]  # width, height, px (whole numbers, 780.0 too)
+    fx: float = Field(gt=0)
+    fy: float | None = Field(default=None, gt=0)  # default fx
+    cx: float
+    cy: float
+    fov_deg: float | None = Field(default=None, gt=0)  # fisheye models; default 185
+    k: list[float] | None = None
+    camera_to_laser: _Rigid | None = None  # default identity
+    time_offset_s: float = 0.0
+    method: str = ""
+    std: _Std | None = None
+
+    @field_validator("model")
+    @classmethod
+    def _model(cls, v: str) -> str:
+        if v not in camera_models.MODELS:
+            hint = did_you_mean(v, list(camera_models.MODELS))
+            raise fail(
+                f"unknown model {v!r}{hint}"
+                if hint
+                else f"unknown model {v!r}; expected one of {', '.join(camera_models.MODELS)}"
             )
-        size = self.numbers(d["image_size"], _join(path, "image_size"), 2)
-        if any(s <= 0 or s != int(s) for s in size):
-            raise self.fail(_join(path, "image_size"), "expected two positive whole numbers")
-        fx = self.number(d["fx"], _join(path, "fx"), positive=True)
-        fy = self.number(d.get("fy", fx), _join(path, "fy"), positive=True)
-        entry: dict[str, Any] = {
-            "model": model,
-            "image_size": [int(s) for s in size],
-            "fx": fx,
-            "fy": fy,
-            "cx": self.number(d["cx"], _join(path, "cx")),
-            "cy": self.number(d["cy"], _join(path, "cy")),
-        }
-        if model in ("equidistant", "kannala_brandt"):
-            entry["fov_deg"] = self.number(d.get("fov_deg", 185.0), _join(path, "fov_deg"), True)
-        n_k = 5 if model == "pinhole" else 4
-        if "k" in d:
-            entry["k"] = self.numbers(d["k"], _join(path, "k"), n_k)
+        return v
+
+    @field_validator("image_size")
+    @classmethod
+    def _size(cls, v: list[float]) -> list[float]:
+        _count(v, 2)
+        if any(s <= 0 or s != int(s) for s in v):
+            raise fail(f"expected two positive whole numbers, got {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _consistent(self) -> _Camera:
+        n_k = 5 if self.model == "pinhole" else 4
+        if self.k is not None:
+            _count(self.k, n_k, "k")
+        if self.std is not None and self.std.k is not None:
+            if self.model == "equidistant":
+                raise fail("the equidistant model has no k", "std", "k")
+            _count(self.std.k, n_k, "std", "k")
         try:
-            cam = camera_models.from_dict(entry)
+            self.camera_model()
         except ValueError as e:
-            raise self.fail(path, str(e)) from None
-        extr = d.get("camera_to_laser")
-        method = d.get("method", "")
-        if not isinstance(method, str):
-            raise self.fail(_join(path, "method"), "expected a string")
-        std = CalibStd() if "std" not in d else self.std(d["std"], _join(path, "std"), model)
+            raise fail(str(e)) from None
+        return self
+
+    def camera_model(self) -> CameraModel:
+        entry: dict[str, Any] = {
+            "model": self.model,
+            "image_size": [int(s) for s in self.image_size],
+            "fx": self.fx,
+            "fy": self.fx if self.fy is None else self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+        }
+        if self.model in ("equidistant", "kannala_brandt"):
+            entry["fov_deg"] = 185.0 if self.fov_deg is None else self.fov_deg
+        if self.k is not None:
+            entry["k"] = self.k
+        return camera_models.from_dict(entry)
+
+    def calib(self) -> CameraCalib:
+        std = self.std.model_dump(exclude_none=True) if self.std is not None else {}
         return CameraCalib(
-            model=cam,
+            model=self.camera_model(),
             camera_to_laser=(
-                Rigid.identity()
-                if extr is None
-                else self.rigid(extr, _join(path, "camera_to_laser"))
+                Rigid.identity() if self.camera_to_laser is None else self.camera_to_laser.rigid()
             ),
-            time_offset_s=self.number(d.get("time_offset_s", 0.0), _join(path, "time_offset_s")),
-            method=method,
-            std=std,
+            time_offset_s=self.time_offset_s,
+            method=self.method,
+            std=CalibStd(**std),
         )
 
-    def std(self, value: Any, path: str, model: str) -> CalibStd:
-        d = self.mapping(value, path, _STD_KEYS, set())
-        out: dict[str, Any] = {}
-        for key in ("fx", "fy", "cx", "cy", "time_offset_s"):
-            if key in d:
-                out[key] = self.number(d[key], _join(path, key))
-        if "k" in d:
-            if model == "equidistant":
-                raise self.fail(_join(path, "k"), "the equidistant model has no k")
-            out["k"] = self.numbers(d["k"], _join(path, "k"), 5 if model == "pinhole" else 4)
-        for key in CalibStd.EXTRINSICS:
-            if key in d:
-                out[key] = self.numbers(d[key], _join(path, key), 3)
-        for key, v in out.items():
-            if any(x < 0 for x in (v if isinstance(v, list) else [v])):
-                raise self.fail(_join(path, key), "a standard deviation must be >= 0")
-        return CalibStd(**out)
 
+class _File(_Model):
+    """The whole calib.yaml."""
 
-def _join(path: str, key: str) -> str:
-    return f"{path}.{key}" if path else key
+    version: int
+    laser: str = "laser"
+    laser_to_vehicle: _Rigid | None = None
+    cameras: dict[str, _Camera]
+
+    @field_validator("version", mode="plain")
+    @classmethod
+    def _version(cls, v: Any) -> int:
+        if type(v) is not int:
+            raise fail(f"expected {VERSION} (the version this acq reads), got {show(v)}")
+        if v != VERSION:
+            raise fail(f"unsupported version {v}; this acq reads {VERSION}")
+        return v
+
+    @field_validator("laser", mode="before")
+    @classmethod
+    def _laser(cls, v: Any) -> Any:
+        if not isinstance(v, str) or not v:
+            raise fail(f"expected the scanner's name, got {show(v)}")
+        return v
+
+    @field_validator("cameras", mode="before")
+    @classmethod
+    def _cameras(cls, v: Any) -> Any:
+        if not isinstance(v, Mapping) or not v:
+            raise fail(f"expected a mapping of camera names to entries, got {show(v)}")
+        return {str(name): entry for name, entry in v.items()}
 
 
 def parse(data: Any, source: str = "calib.yaml") -> Calibration:
-    """A :class:`Calibration` from an already-parsed YAML tree."""
-    r = _Reader(source)
-    d = r.mapping(data, "", _TOP_KEYS, {"version", "cameras"})
-    if d["version"] != VERSION:
-        raise r.fail("version", f"unsupported version {d['version']!r}; this acq reads {VERSION}")
-    laser = d.get("laser", "laser")
-    if not isinstance(laser, str) or not laser:
-        raise r.fail("laser", "expected the scanner's name")
-    cams = d["cameras"]
-    if not isinstance(cams, Mapping) or not cams:
-        raise r.fail("cameras", "expected a mapping of camera names to entries")
-    cameras = {str(name): r.camera(entry, f"cameras.{name}") for name, entry in cams.items()}
-    ltv = d.get("laser_to_vehicle")
+    """A :class:`Calibration` from an already-parsed YAML tree; ``source`` names the file
+    in error messages."""
+    if not isinstance(data, Mapping):
+        raise CalibFileError(
+            yamlcheck.line(
+                source, "", f"expected a mapping with version: 1 and cameras, got {show(data)}"
+            )
+        )
+    try:
+        f = _File.model_validate(dict(data))
+    except ValidationError as e:
+        raise CalibFileError(yamlcheck.message(e, source, _File)) from None
     return Calibration(
-        laser=laser,
-        cameras=cameras,
-        laser_to_vehicle=None if ltv is None else r.rigid(ltv, "laser_to_vehicle"),
+        laser=f.laser,
+        cameras={name: cam.calib() for name, cam in f.cameras.items()},
+        laser_to_vehicle=None if f.laser_to_vehicle is None else f.laser_to_vehicle.rigid(),
     )
 
 
 def load(path: str | Path) -> Calibration:
     """Read and validate a calib.yaml."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise CalibFileError(f"{path}: no such file") from None
-    except OSError as e:
-        raise CalibFileError(f"{path}: cannot read: {e.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise CalibFileError(f"{path}:{where} not valid YAML") from None
-    return parse(data, str(path))
+    return parse(yamlcheck.read(path, CalibFileError), str(path))
 
 
 def dump(calib: Calibration) -> str:

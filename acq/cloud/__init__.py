@@ -2,8 +2,8 @@
 coloured from the camera frames (the pipeline of ``acq colorize``), written as PLY or
 LAS, with a preview image."""
 
-from acq.cloud.drive_log import DriveLog, calibration_of, camera_calib, read_log
-from acq.cloud.ply import PLY_DTYPE, PlyStream, write_ply
+from acq.cloud.drive_log import DriveLog, camera_calib, read_log
+from acq.cloud.ply import PLY_DTYPE, PlyStream
 from acq.cloud.points import Cloud
 from acq.cloud.preview import UNCOLOURED_RGB, preview_image, preview_png
 
@@ -13,10 +13,8 @@ __all__ = [
     "Cloud",
     "DriveLog",
     "PlyStream",
-    "calibration_of",
     "camera_calib",
     "preview_image",
     "preview_png",
     "read_log",
-    "write_ply",
 ]

@@ -57,11 +57,20 @@ from acq.cloud.points import Cloud
 from acq.cloud.preview import preview_png
 from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
+from acq.motion import Trajectory
 from acq.motion.vehicle_log import read_vehicle
 from acq.time import retime, sync
 from acq.time.utc import host_ns_from_utc, utc_seconds
 
-__all__ = ["Chunk", "ChunkResult", "Job", "colour_chunk", "plan", "run"]
+__all__ = [
+    "Chunk",
+    "ChunkResult",
+    "Job",
+    "cloud_of",
+    "colour_chunk",
+    "plan",
+    "run",
+]
 
 FORMATS = (".ply", ".las", ".laz")
 READ_ONCE_BYTES = 2 * 2**30  # logs up to this size are read once, images included
@@ -456,8 +465,15 @@ def _retime(log: DriveLog, report: Report) -> tuple[np.ndarray, np.ndarray]:
     return scan_new, frame_new
 
 
-def _trajectory(files: Sequence[Path], path: Path | None, log: DriveLog, report: Report) -> Any:
-    """The trajectory to place points with, or None (see the module docstring, step 3)."""
+def _trajectory(
+    files: Sequence[Path], given: Path | Trajectory | None, log: DriveLog, report: Report
+) -> Any:
+    """The trajectory to place points with, or None (see the module docstring, step 3):
+    ``given`` as it is, read from its file, or made from the log."""
+    if isinstance(given, Trajectory):
+        report.trajectory = f"given ({len(given)} poses)"
+        return given
+    path = given
     if path is not None:
         clock = log.clock
         traj = motion.from_csv(path, utc_to_host_ns=lambda u: host_ns_from_utc(u, clock))
@@ -494,7 +510,7 @@ def _warm_kernels(model: CameraModel) -> None:
     from acq.camera import projection
 
     try:
-        traj = motion.Trajectory(np.array([0, 10**8]), np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
+        traj = Trajectory(np.array([0, 10**8]), np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
         t = np.array([5 * 10**7], dtype=np.int64)
         traj.pose_at(t)
         traj.transform(t, np.zeros((1, 3)))
@@ -515,14 +531,15 @@ def prepare(
     camera: str | None = None,
     frame: str | None = None,
     options: views.Options | None = None,
-    trajectory: Path | None = None,
+    trajectory: Path | Trajectory | None = None,
     retime_offline: bool = True,
     time_offset_s: float | None = None,
     jpegs: bool = False,
     threads: int = 1,
 ) -> tuple[Job, DriveLog]:
     """The :class:`Job` for ``logs`` (steps 1-3 of the module docstring) and the log's
-    light part (with the images when ``jpegs``); notes go into ``report``."""
+    light part (with the images when ``jpegs``); notes go into ``report``. ``trajectory``:
+    a file (``--trajectory``) or the poses themselves; None: from the log."""
     options = options or views.Options()
     files = _session_files(logs)
     first = calib.cameras.get(camera) if camera else next(iter(calib.cameras.values()), None)
@@ -628,7 +645,7 @@ def run(
     camera: str | None = None,
     frame: str | None = None,
     options: views.Options | None = None,
-    trajectory: Path | None = None,
+    trajectory: Path | Trajectory | None = None,
     crs: str | None = None,
     retime_offline: bool = True,
     time_offset_s: float | str | None = None,
@@ -644,7 +661,8 @@ def run(
     InputValueError...) with a one-line message for bad input, OSError naming ``output``
     when it cannot be written. ``results``: a list to receive the chunks' results
     (with each point's frame and pixel when ``want_uv``), for accuracy checks.
-    ``time_offset_s``: seconds, None for CALIB's, or "auto" (:func:`estimate_offset`)."""
+    ``time_offset_s``: seconds, None for CALIB's, or "auto" (:func:`estimate_offset`).
+    ``trajectory``: as :func:`prepare` takes it."""
     t_start = time.perf_counter()
     options = options or views.Options()
     report = Report(output=str(output), view=options.view)
@@ -710,7 +728,7 @@ def run(
             + ("left out (no pose)" if world else "kept, not coloured")
         )
     if preview is not None:
-        pc = _cloud(tally.preview, index)
+        pc = cloud_of(tally.preview, index)
         preview_png(preview, pc, title=f"acq colorize {output.name}")
         if every > 1:
             report.notes.append(f"the preview shows one scan in {every}")
@@ -781,7 +799,10 @@ def _frames_used(used: list[np.ndarray]) -> int:
     return int(np.unique(np.concatenate(used)).size) if used else 0
 
 
-def _cloud(results: list[ChunkResult], index: DriveLog) -> Cloud:
+def cloud_of(results: list[ChunkResult], index: DriveLog) -> Cloud:
+    """The points of chunks' ``results`` (of the log ``index``) as one :class:`Cloud`
+    (its ``view_axis`` is the default rig's camera side, +y)."""
+
     def cat(name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
         parts = [getattr(r, name) for r in results]
         return np.concatenate(parts) if parts else np.zeros(shape, dtype)

@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
@@ -308,14 +307,6 @@ def _assemble(
         scan_recv_ns=scan_recv,
         frame_recv_ns=frame_recv,
     )
-
-
-def calibration_of(log: DriveLog) -> Calibration:
-    """The calibration the recorder stored in the log's ``calibration`` metadata."""
-    text = log.metadata.get("calibration", {}).get("yaml")
-    if not text:
-        raise ValueError(f"{log.files[0]}: no calibration in the log's metadata; give one")
-    return calibfile.parse(yaml.safe_load(text), f"{log.files[0]}: calibration metadata")
 
 
 # --- colouring -------------------------------------------------------------------------

@@ -8,9 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from acq.cloud.points import Cloud
-from acq.time.utc import utc_seconds
-
 PLY_DTYPE = np.dtype(
     [
         ("x", "<f8"),
@@ -31,7 +28,9 @@ _PLY_TYPES = {"<f8": "double", "|u1": "uchar", "<u4": "uint", "<f4": "float"}
 
 
 class PlyStream:
-    """A binary little-endian PLY (see :func:`write_ply`) written part by part to
+    """A binary little-endian PLY, one ``vertex`` per point: x y z (double, m, world),
+    red green blue (uchar), time (double, UTC s), scan (uint), intensity (float),
+    coloured (uchar 0/1); written part by part to
     ``path``.tmp, renamed on :meth:`close` (:meth:`abort` removes it). Its header, with
     the counts known only at the end, is written last into the room kept for it (the
     rest of the room a comment of spaces)."""
@@ -90,17 +89,3 @@ class PlyStream:
         """Drop the unfinished file."""
         self._file.close()
         self._tmp.unlink(missing_ok=True)
-
-
-def write_ply(path: str | os.PathLike[str], cloud: Cloud, comments: Sequence[str] = ()) -> int:
-    """Binary little-endian PLY, one ``vertex`` per point: x y z (double, m, world),
-    red green blue (uchar), time (double, UTC s), scan (uint), intensity (float),
-    coloured (uchar 0/1). Returns the file's size, bytes."""
-    out = PlyStream(path, comments)
-    try:
-        out.write(cloud.xyz, cloud.rgb, utc_seconds(cloud.time_ns, cloud.clock), cloud.intensity,
-                  cloud.scan, cloud.coloured)  # fmt: skip
-    except BaseException:
-        out.abort()
-        raise
-    return out.close()

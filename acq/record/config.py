@@ -13,13 +13,11 @@ seconds, rates in frames per second, sizes in megabytes (10**6 bytes).
 
 from __future__ import annotations
 
-import difflib
 import functools
 import inspect
 import math
 import os
 import re
-import types
 import typing
 from collections.abc import Mapping, Sequence
 from importlib import resources
@@ -38,9 +36,10 @@ from pydantic import (
     field_validator,
     model_validator,
 )
-from pydantic_core import ErrorDetails, PydanticCustomError
 
+from acq import yamlcheck
 from acq.errors import InputError
+from acq.yamlcheck import describe, did_you_mean, fail, show
 
 __all__ = [
     "DEFAULT",
@@ -70,16 +69,11 @@ class ConfigError(InputError, ValueError):
     """A configuration that cannot be used; ``str(e)`` is one line: file, key path, problem."""
 
 
-def _fail(msg: str, *subpath: str | int) -> PydanticCustomError:
-    """A validation error ``msg`` at ``subpath`` below the value being validated."""
-    return PydanticCustomError("acq", "{msg}", {"msg": msg, "subpath": subpath})
-
-
 def _not_empty_path(value: Any) -> Any:
     if value == "":
-        raise _fail("expected a path, got ''")
+        raise fail("expected a path, got ''")
     if isinstance(value, str) and not value.isprintable():
-        raise _fail(f"expected a path, got {value!r} (it holds a control character)")
+        raise fail(f"expected a path, got {value!r} (it holds a control character)")
     return value
 
 
@@ -95,7 +89,7 @@ _Path = Annotated[Path, Field(strict=False), BeforeValidator(_not_empty_path)]
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+    model_config = yamlcheck.STRICT
 
 
 class ScannerConfig(_Model):
@@ -132,7 +126,7 @@ class ScannerConfig(_Model):
         if driver == "sick" and v is None:
             return "cola-b"
         if driver == "hokuyo" and v is not None:
-            raise _fail("only for driver sick (a hokuyo speaks SCIP); remove it")
+            raise fail("only for driver sick (a hokuyo speaks SCIP); remove it")
         return v
 
     @field_validator("latency_s", mode="plain")
@@ -140,7 +134,7 @@ class ScannerConfig(_Model):
     def _latency(cls, v: Any, info: ValidationInfo) -> float | str:
         if v == "auto" and isinstance(v, str):
             if info.data.get("driver", "hokuyo") != "hokuyo":
-                raise _fail(
+                raise fail(
                     "auto is measured with SCIP TM round trips, for driver hokuyo only; "
                     "expected a number of seconds >= 0"
                 )
@@ -180,14 +174,14 @@ class CameraConfig(_Model):
         if isinstance(v, int) and not isinstance(v, bool):
             return str(v)  # a camera index, written as a number
         if v == "":
-            raise _fail("expected an index, a device, a URL or a pipeline, got ''")
+            raise fail("expected an index, a device, a URL or a pipeline, got ''")
         return v
 
     @field_validator("fourcc")
     @classmethod
     def _fourcc(cls, v: str | None) -> str | None:
         if v is not None and not (len(v) == 4 and v.isascii() and v.isprintable()):
-            raise _fail(f"expected 4 characters such as MJPG or YUYV, got {v!r}")
+            raise fail(f"expected 4 characters such as MJPG or YUYV, got {v!r}")
         return v
 
     @field_validator("options")
@@ -210,7 +204,7 @@ class OutputConfig(_Model):
     @classmethod
     def _prefix(cls, v: str) -> str:
         if not _PREFIX.fullmatch(v):
-            raise _fail(
+            raise fail(
                 f"expected letters, digits, '.', '-' or '_' (it starts file names), got {v!r}"
             )
         return v
@@ -248,8 +242,8 @@ class CanConfig(_Model):
         except Exception:  # python-can missing or broken here: the recorder will say
             return v
         if v not in VALID_INTERFACES:
-            hint = _did_you_mean(v, sorted(VALID_INTERFACES))
-            raise _fail(
+            hint = did_you_mean(v, sorted(VALID_INTERFACES))
+            raise fail(
                 f"unknown python-can interface {v!r}{hint}"
                 if hint
                 else f"unknown python-can interface {v!r}; expected one of "
@@ -261,7 +255,7 @@ class CanConfig(_Model):
     @classmethod
     def _wheels(cls, v: list[str]) -> list[str]:
         if len(v) != 4:
-            raise _fail(
+            raise fail(
                 f"expected 4 signals (front left, front right, rear left, rear right), got {len(v)}"
             )
         for i, name in enumerate(v):
@@ -308,7 +302,7 @@ class Config(_Model):
     @classmethod
     def _version(cls, v: Any) -> int:
         if type(v) is not int or v != VERSION:
-            raise _fail(f"expected {VERSION} (the version this acq reads), got {_show(v)}")
+            raise fail(f"expected {VERSION} (the version this acq reads), got {show(v)}")
         return v
 
     @model_validator(mode="after")
@@ -321,7 +315,7 @@ class Config(_Model):
         for kind, devices in groups:
             for i, device in enumerate(devices):
                 if device.name in seen:
-                    raise _fail(
+                    raise fail(
                         f"{device.name!r} is already the name of {seen[device.name]}; "
                         "device names must be unique",
                         kind,
@@ -330,11 +324,11 @@ class Config(_Model):
                     )
                 seen[device.name] = f"{kind}[{i}]"
         if not seen:
-            raise _fail("no device; expected at least one scanner or camera", "scanners")
+            raise fail("no device; expected at least one scanner or camera", "scanners")
         for section, name in (("can", "vehicle"), ("gnss", "gnss")):
             if getattr(self, section) is not None and name in seen:
                 where = seen[name].replace("[", " ").rstrip("]").split()
-                raise _fail(
+                raise fail(
                     f"{name!r} names the {section} section's topics (/{name}/...); "
                     "rename this device",
                     where[0],
@@ -353,7 +347,7 @@ class Config(_Model):
 
 def _check_name(v: str) -> str:
     if not _NAME.fullmatch(v):
-        raise _fail(f"expected letters, digits or '_' (it names topics), got {v!r}")
+        raise fail(f"expected letters, digits or '_' (it names topics), got {v!r}")
     return v
 
 
@@ -361,15 +355,15 @@ def _signal_name(v: str, *subpath: str | int) -> str:
     """A DBC signal as ``MESSAGE.SIGNAL``."""
     message, dot, signal = v.partition(".")
     if not (dot and _NAME.fullmatch(message) and _NAME.fullmatch(signal)):
-        raise _fail(f"expected MESSAGE.SIGNAL as named in the DBC, got {v!r}", *subpath)
+        raise fail(f"expected MESSAGE.SIGNAL as named in the DBC, got {v!r}", *subpath)
     return v
 
 
 def _seconds(v: Any, expected: str) -> float:
     if isinstance(v, bool) or not isinstance(v, int | float):
-        raise _fail(f"expected {expected}, got {_show(v)}")
+        raise fail(f"expected {expected}, got {show(v)}")
     if not math.isfinite(v) or v < 0:
-        raise _fail(f"expected {expected}, got {v!r}")
+        raise fail(f"expected {expected}, got {v!r}")
     return float(v)
 
 
@@ -378,9 +372,9 @@ def _host_port(v: str, rest: str, default_port: int | None, expected: str) -> No
     if not sep:
         host, port = rest.rstrip("/"), ""
     if not host or (not port and default_port is None):
-        raise _fail(f"expected {expected}, got {v!r}")
+        raise fail(f"expected {expected}, got {v!r}")
     if port and not (port.isdigit() and 0 < int(port) < 65536):
-        raise _fail(f"expected {expected} with a port 1..65535, got {v!r}")
+        raise fail(f"expected {expected} with a port 1..65535, got {v!r}")
 
 
 def _serial_url(v: str) -> str:
@@ -389,10 +383,10 @@ def _serial_url(v: str) -> str:
     scheme, sep, rest = v.partition("://")
     if not sep:
         if not v.strip():
-            raise _fail(f"expected {expected}, got {v!r}")
+            raise fail(f"expected {expected}, got {v!r}")
         return v
     if scheme not in _SERIAL_SCHEMES:
-        raise _fail(f"expected {expected}; unknown scheme {scheme}://")
+        raise fail(f"expected {expected}; unknown scheme {scheme}://")
     if scheme in ("socket", "tcp"):
         _host_port(v, rest.split("?")[0], None, "socket://host:port")
         return "socket://" + rest
@@ -403,7 +397,7 @@ def _tcp_url(v: str) -> str:
     """tcp://host:port (also socket://, or host[:port] as the SICK driver takes it)."""
     scheme, sep, rest = v.partition("://")
     if sep and scheme not in ("tcp", "socket"):
-        raise _fail(f"expected tcp://host:port, got {v!r}")
+        raise fail(f"expected tcp://host:port, got {v!r}")
     _host_port(v, rest if sep else v, 2112, "tcp://host:port")
     return v
 
@@ -458,168 +452,27 @@ def _check_options(
     checked: dict[str, Any] = {}
     for key, value in options.items():
         if key in model.model_fields:
-            raise _fail(f"set {key} on the {kind} itself, not under options", key)
+            raise fail(f"set {key} on the {kind} itself, not under options", key)
         adapter = params.get(key)
         if adapter is None:
-            hint = _did_you_mean(key, [p for p in params if p not in model.model_fields])
-            raise _fail(f"unknown option of the {driver} driver{hint}", key)
+            hint = did_you_mean(key, [p for p in params if p not in model.model_fields])
+            raise fail(f"unknown option of the {driver} driver{hint}", key)
         try:
             checked[key] = adapter.validate_python(value)
         except ValidationError as e:
             err = e.errors()[0]
-            raise _fail(_describe(err, []), key, *err["loc"]) from None
+            raise fail(describe(err, []), key, *err["loc"]) from None
     return checked
 
 
 # --- errors ------------------------------------------------------------------------------
 
 
-def _did_you_mean(key: object, candidates: list[str]) -> str:
-    close = difflib.get_close_matches(str(key), candidates, n=1)
-    return f"; did you mean {close[0]}?" if close else ""
-
-
-def _show(value: Any) -> str:
-    if isinstance(value, Mapping):
-        return "a mapping"
-    if isinstance(value, list | tuple | set):
-        return "a list"
-    text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
-
-
-def _unwrap(tp: Any) -> Any:
-    """``X | None`` -> ``X``."""
-    if typing.get_origin(tp) in (typing.Union, types.UnionType):
-        args = [a for a in typing.get_args(tp) if a is not type(None)]
-        if len(args) == 1:
-            return _unwrap(args[0])
-    return tp
-
-
-def _key_path(loc: tuple[str | int, ...]) -> tuple[str, list[str]]:
-    """``scanners[0].latency_s`` for a pydantic location, and the keys allowed beside its
-    last element (for did-you-mean)."""
-    text = ""
-    tp: Any = Config
-    keys: list[str] = []
-    for elem in loc:
-        tp = _unwrap(tp)
-        is_model = isinstance(tp, type) and issubclass(tp, BaseModel)
-        if elem == "[key]":
-            continue
-        if isinstance(elem, int) and not is_model and typing.get_origin(tp) is not dict:
-            text += f"[{elem}]"
-            args = typing.get_args(tp)
-            tp = args[0] if typing.get_origin(tp) is list and args else Any
-            continue
-        text += f".{elem}" if text else str(elem)
-        if is_model:
-            keys = [f for f in tp.model_fields if not (tp is Config and f == "source")]
-            field = tp.model_fields.get(str(elem))
-            tp = field.annotation if field is not None else Any
-        else:
-            keys, tp = [], Any
-    return text, keys
-
-
-_TYPES = {
-    "float_type": "expected a number",
-    "float_parsing": "expected a number",
-    "int_type": "expected a whole number",
-    "int_parsing": "expected a whole number",
-    "int_from_float": "expected a whole number",
-    "bool_type": "expected true or false",
-    "bool_parsing": "expected true or false",
-    "string_type": "expected a string",
-    "list_type": "expected a list",
-    "tuple_type": "expected a list",
-    "dict_type": "expected a mapping",
-    "model_type": "expected a mapping",
-    "model_attributes_type": "expected a mapping",
-    "path_type": "expected a path",
-    "finite_number": "expected a finite number",
-    "none_required": "expected nothing (null)",
-}
-_BOUNDS = {
-    "greater_than": ">",
-    "greater_than_equal": ">=",
-    "less_than": "<",
-    "less_than_equal": "<=",
-}
-
-
-def _describe(err: ErrorDetails, keys: list[str]) -> str:
-    """A pydantic error in plain words."""
-    kind = err["type"]
-    ctx = err.get("ctx") or {}
-    got = f", got {_show(err.get('input'))}"
-    if kind == "acq":
-        return str(ctx["msg"])
-    if kind == "extra_forbidden":
-        return "unknown key" + _did_you_mean(err["loc"][-1], keys)
-    if kind == "invalid_key" or "[key]" in err["loc"]:
-        return "expected a string key" + got
-    if kind == "missing":
-        return "required key missing"
-    if kind in _TYPES:
-        return _TYPES[kind] + got
-    if kind == "literal_error":
-        expected = str(ctx.get("expected", "")).replace("'", "").replace(" or ", ", ")
-        return f"expected one of: {expected}{got}"
-    if kind in _BOUNDS:
-        bound = next(iter(ctx.values()), "?")
-        shown = f"{bound:g}" if isinstance(bound, int | float) else bound
-        return f"must be {_BOUNDS[kind]} {shown}{got}"
-    if kind == "string_too_short":
-        return "must not be empty"
-    if kind == "value_error" and "error" in ctx:
-        return str(ctx["error"])
-    msg = err["msg"]
-    return msg[:1].lower() + msg[1:] + got
-
-
 def _error(source: str, path: str, message: str) -> ConfigError:
-    text = f"{source}: {path}: {message}" if path else f"{source}: {message}"
-    return ConfigError(text.replace("\r", "\\r").replace("\n", "\\n"))
-
-
-def _from_validation(e: ValidationError, source: str) -> ConfigError:
-    errors = e.errors()
-    # a misspelt key also makes its right spelling "missing": name the misspelling
-    err = next((x for x in errors if x["type"] in ("extra_forbidden", "invalid_key")), errors[0])
-    loc = tuple(err["loc"])
-    if err["type"] == "acq":
-        loc += tuple((err.get("ctx") or {}).get("subpath", ()))
-    path, keys = _key_path(loc)
-    return _error(source, path, _describe(err, keys))
+    return ConfigError(yamlcheck.line(source, path, message))
 
 
 # --- reading and writing -----------------------------------------------------------------
-
-
-class _Loader(yaml.SafeLoader):
-    """SafeLoader that refuses a key given twice in one mapping (YAML keeps the last)."""
-
-
-def _construct_mapping(loader: _Loader, node: yaml.MappingNode) -> dict[Any, Any]:
-    seen: set[Any] = set()
-    for key_node, _ in node.value:
-        if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
-            continue
-        key = loader.construct_object(key_node)
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                "while reading a mapping",
-                node.start_mark,
-                f"duplicate key {key}",
-                key_node.start_mark,
-            )
-        seen.add(key)
-    return loader.construct_mapping(node)
-
-
-_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
 
 
 def parse(data: Any, source: str = "<config>") -> Config:
@@ -631,15 +484,17 @@ def parse(data: Any, source: str = "<config>") -> Config:
         raise _error(source, "", "empty file; expected a mapping with version: 1 and devices")
     if not isinstance(data, Mapping):
         raise _error(
-            source, "", f"expected a mapping with version: 1 and devices, got {_show(data)}"
+            source,
+            "",
+            f"expected a mapping with version: 1 and devices, got {show(data)}",
         )
     if "source" in data:
         keys = [k for k in Config.model_fields if k != "source"]
-        raise _error(source, "source", "unknown key" + _did_you_mean("source", keys))
+        raise _error(source, "source", "unknown key" + did_you_mean("source", keys))
     try:
         return Config.model_validate(dict(data))
     except ValidationError as e:
-        raise _from_validation(e, source) from None
+        raise ConfigError(yamlcheck.message(e, source, Config)) from None
 
 
 def _absolute(path: Path, base: Path) -> Path:
@@ -656,25 +511,7 @@ def load(path: str | Path) -> Config:
     """Read and validate a configuration file; relative paths become absolute, relative
     to the file's folder."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise _error(str(path), "", "no such file") from None
-    except UnicodeDecodeError as e:
-        raise _error(str(path), "", f"not UTF-8 text (byte {e.start})") from None
-    except OSError as e:
-        raise _error(str(path), "", f"cannot read: {e.strerror or e}") from None
-    try:
-        data = yaml.load(text, Loader=_Loader)
-    except yaml.MarkedYAMLError as e:
-        mark = e.problem_mark or e.context_mark
-        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
-        problem = " ".join(str(e.problem or e.context or "syntax error").split())
-        raise _error(where, "", f"invalid YAML: {problem}") from None
-    except yaml.YAMLError as e:
-        raise _error(str(path), "", f"invalid YAML: {' '.join(str(e).split())}") from None
-    except RecursionError:
-        raise _error(str(path), "", "invalid YAML: nested too deeply") from None
+    data = yamlcheck.read(path, ConfigError)
     config = parse(data, str(path))
     base = path.parent.absolute()
     output = config.output.model_copy(update={"dir": _absolute(config.output.dir, base)})

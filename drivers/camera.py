@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from acq.drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
-from acq.drivers.registry import Registry
+from acq.drivers.registry import REGISTRIES, Registry
 from acq.records import DeviceInfo, Frame
 
 __all__ = [
@@ -115,14 +115,7 @@ class Camera(ABC):
         self.close()
 
 
-CAMERAS: Registry[Camera] = Registry(
-    "camera",
-    Camera,
-    {
-        "opencv": "acq.drivers.camera_opencv:OpenCVCamera",
-        "v4l2": "acq.drivers.camera_v4l2:V4L2Camera",
-    },
-)
+CAMERAS: Registry[Camera] = REGISTRIES["camera"]
 
 
 def camera_driver_names() -> list[str]:
@@ -135,5 +128,5 @@ def camera_class(driver: str) -> type[Camera]:
 
 
 def camera_for(driver: str, source: str, **options: Any) -> Camera:
-    """A driver instance for ``driver`` (``opencv`` | ``v4l2``) capturing from ``source``."""
+    """A driver instance for ``driver`` (a name in :data:`CAMERAS`) capturing from ``source``."""
     return CAMERAS.create(driver, source, **options)

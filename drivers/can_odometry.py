@@ -303,7 +303,7 @@ class CanOdometry:
     Counters: ``frames`` read, ``bad_stamps`` (stamps not used, see the module doc).
     """
 
-    driver: ClassVar[str] = "can"
+    driver: ClassVar[str] = "python-can"
     reachable = staticmethod(_socketcan_up)
 
     def __init__(

@@ -84,6 +84,9 @@ class ColaScanner(Scanner):
     driver = "sick"
     tick_hz = 1e6  # SICK's time since start-up, µs
     tick_bits = 32
+    wire = "CoLa"
+    url_kind = "tcp"
+    protocols = ("cola-b", "cola-a")
 
     def __init__(
         self,
@@ -102,7 +105,7 @@ class ColaScanner(Scanner):
         ``stop()`` also sends LMCstopmeas (the laser goes to standby)."""
         super().__init__(url, name=name, timeout=timeout)
         proto = protocol.lower().replace("_", "-")
-        if proto not in ("cola-b", "cola-a"):
+        if proto not in self.protocols:
             raise ValueError(f"protocol must be cola-b or cola-a, not {protocol!r}")
         self.protocol = proto
         self.binary = proto == "cola-b"

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from acq.drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError, ReadTimeout
-from acq.drivers.registry import Registry
+from acq.drivers.registry import REGISTRIES, Registry
 from acq.records import DeviceInfo, Scan
 
 __all__ = [
@@ -68,6 +68,11 @@ class Scanner(ABC):
     driver: ClassVar[str] = ""
     tick_hz: ClassVar[float] = 1000.0  # the device clock in Scan.device_ticks[0]
     tick_bits: ClassVar[int] = 24  # its counter width (it wraps at 2**tick_bits)
+    # what the configuration checks and replay serves, per driver:
+    wire: ClassVar[str] = ""  # the wire protocol family (SCIP, CoLa); "" for none we know
+    url_kind: ClassVar[str] = ""  # "serial": a pyserial URL; "tcp": tcp://host:port
+    protocols: ClassVar[tuple[str, ...]] = ()  # encodings ``protocol:`` picks; default first
+    latency_probe: ClassVar[str] = ""  # how ``latency_s: auto`` is measured ("": it is not)
 
     def __init__(self, url: str, *, name: str = "laser", timeout: float = 1.0) -> None:
         self.url = url
@@ -103,11 +108,7 @@ class Scanner(ABC):
         self.close()
 
 
-SCANNERS: Registry[Scanner] = Registry(
-    "scanner",
-    Scanner,
-    {"hokuyo": "acq.drivers.scip:ScipScanner", "sick": "acq.drivers.cola:ColaScanner"},
-)
+SCANNERS: Registry[Scanner] = REGISTRIES["scanner"]
 
 
 def driver_names() -> list[str]:
@@ -120,5 +121,5 @@ def scanner_class(driver: str) -> type[Scanner]:
 
 
 def scanner_for(driver: str, url: str, **options: Any) -> Scanner:
-    """A driver instance for ``driver`` (``hokuyo`` | ``sick``) talking to ``url``."""
+    """A driver instance for ``driver`` (a name in :data:`SCANNERS`) talking to ``url``."""
     return SCANNERS.create(driver, url, **options)

@@ -77,6 +77,9 @@ class ScipScanner(Scanner):
     """
 
     driver = "hokuyo"
+    wire = "SCIP"
+    url_kind = "serial"
+    latency_probe = "SCIP TM round trips"  # measure_latency
 
     def __init__(
         self,

@@ -15,9 +15,9 @@ when given. Its ECUs send, in real time from one thread, the frames of
 Speed and yaw rate are the trajectory's, by central differences of its poses (so any
 trajectory works). Frames go out on a fixed schedule from ``t_origin``; each carries
 the motion at the moment it is sent less ``latency_s`` (an ECU's sampling delay);
-:attr:`SimVehicle.truth` keeps, per frame, the true values and the instant they hold
-for. Faults: :meth:`SimVehicle.send_raw` puts any frame on
-the bus (a wrong length, an unknown id).
+:attr:`SimVehicle.truth` gives, per frame, the true values and the instant they hold
+for (a copy: the car's thread goes on sending while a test reads it). Faults:
+:meth:`SimVehicle.send_raw` puts any frame on the bus (a wrong length, an unknown id).
 """
 
 from __future__ import annotations
@@ -118,7 +118,7 @@ class SimVehicle:
         db = cantools.database.load_file(str(DBC_PATH))
         assert isinstance(db, cantools.database.can.Database)
         self.db = db
-        self.truth: deque[SentFrame] = deque(maxlen=truth_limit)
+        self._truth: deque[SentFrame] = deque(maxlen=truth_limit)
         self.sent = 0
         self._bus: Any = None
         self._lock = threading.Lock()
@@ -127,6 +127,12 @@ class SimVehicle:
         self._counters = {YAW_RATE_ID: 0, STEERING_ID: 0}
 
     # --- the truth -------------------------------------------------------------------
+
+    @property
+    def truth(self) -> list[SentFrame]:
+        """The frames sent so far (the last ``truth_limit``), oldest first."""
+        with self._lock:
+            return list(self._truth)
 
     def drive_time(self, t: float) -> float:
         """Seconds of the drive at host monotonic time ``t``."""
@@ -234,8 +240,8 @@ class SimVehicle:
                     self._bus.send(msg)
                 except can.CanError:
                     continue  # a full transmit queue: the frame is lost, as on a car
-            self.sent += 1
-            self.truth.append(dataclasses.replace(truth, t_sent=t_sent))
+                self.sent += 1
+                self._truth.append(dataclasses.replace(truth, t_sent=t_sent))
 
     def close(self) -> None:
         self._stop.set()

@@ -26,6 +26,7 @@ import fcntl
 import math
 import struct
 import termios
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -136,7 +137,8 @@ class NmeaDevice:
             utc_offset_s = time.time() - time.monotonic()
         self.utc_offset_s = utc_offset_s
         self.loop_s = loop_s
-        self.truth: deque[FixTruth] = deque(maxlen=truth_limit)
+        self._truth: deque[FixTruth] = deque(maxlen=truth_limit)
+        self._truth_lock = threading.Lock()  # the serving thread appends, tests read
         self._enu = WorldFrame("enu", (origin[0], origin[1], origin[2] + geoid_separation))
         self._rng = np.random.default_rng(seed)
         self._k = math.floor((self.t_origin + utc_offset_s) * rate_hz) + 1  # next epoch
@@ -145,6 +147,12 @@ class NmeaDevice:
         self._no_fix_until = -math.inf
 
     # --- the truth -------------------------------------------------------------------
+
+    @property
+    def truth(self) -> list[FixTruth]:
+        """The epochs reported so far (the last ``truth_limit``), oldest first."""
+        with self._truth_lock:
+            return list(self._truth)
 
     def _due_of(self, k: int) -> float:
         jitter = (
@@ -203,7 +211,8 @@ class NmeaDevice:
             vtg = f"{tk}VTG,{course:.2f},T,,M,{knots:.3f},N,{knots * 1.852:.3f},K,A"
             gga = (f"{tk}GGA,{hms},{la},{ns},{lo},{ew},{self.quality},{self.satellites:02d},"
                    f"{self.hdop:.2f},{msl:.3f},M,{self.geoid_separation:.3f},M,,")  # fmt: skip
-            self.truth.append(truth)
+            with self._truth_lock:
+                self._truth.append(truth)
         else:
             rmc = f"{tk}RMC,{hms},V,,,,,,,{date},,,N"
             vtg = f"{tk}VTG,,T,,M,,N,,K,N"

@@ -41,6 +41,8 @@ from urllib.parse import urlsplit
 import yaml
 from google.protobuf.message import DecodeError
 
+from acq.drivers.registry import DriverImportError, UnknownDriver
+from acq.drivers.scanner import SCANNERS
 from acq.errors import InputError
 from acq.log import loginfo, schemas
 from acq.record import config as configfile
@@ -60,7 +62,7 @@ __all__ = [
 
 log = logging.getLogger("acq.sim.replay")
 
-SCANNER_DRIVERS = ("hokuyo", "sick")
+SCIP, COLA = "SCIP", "CoLa"  # the wire protocols a replay serves (a driver's ``wire``)
 DEFAULT_SCANNER_LISTEN = "tcp://127.0.0.1:0"
 DEFAULT_CAMERA_LISTEN = "http://127.0.0.1:0/stream.mjpg"
 LEAD_S = 0.05  # from the request that starts the clock to that device's first record, s
@@ -218,17 +220,24 @@ def _describe(dev: DeviceLog, values: dict[str, str], config: Config | None) -> 
     dev.driver = values.get("driver") or (str(cfg.driver) if cfg is not None else "")
     if dev.kind == "camera":
         return
-    if dev.driver not in SCANNER_DRIVERS:
+    wire = _wire(dev.driver)
+    if wire not in _CHECKS:
         got = repr(dev.driver) if dev.driver else "no recorded driver"
+        served = [d for d in SCANNERS.names() if _wire(d) in _CHECKS]
         raise ReplayError(
             f"{dev.file}: scanner {dev.name!r}: {got}; a replay serves "
-            + " and ".join(SCANNER_DRIVERS)
+            + " and ".join(served)
             + " scanners"
         )
-    if dev.driver == "hokuyo":
-        _check_scip(dev)
-    else:
-        _check_cola(dev)
+    _CHECKS[wire](dev)
+
+
+def _wire(driver: str) -> str:
+    """The wire protocol of a scanner driver of the registry ("" when there is none)."""
+    try:
+        return SCANNERS.get(driver).wire
+    except (UnknownDriver, DriverImportError):
+        return ""
 
 
 def _check_scip(dev: DeviceLog) -> None:
@@ -281,6 +290,9 @@ def _check_cola(dev: DeviceLog) -> None:
             f"{dev.file}: {dev.name}: both CoLa-A and CoLa-B telegrams; replay "
             "the files of each separately"
         )
+
+
+_CHECKS = {SCIP: _check_scip, COLA: _check_cola}
 
 
 def _device_config(config: Config | None, name: str) -> ScannerConfig | CameraConfig | None:
@@ -389,19 +401,20 @@ class Replay:
         stream = self._stream(dev)
         meta = dev.metadata
         device: Any
-        if dev.driver == "hokuyo":
+        scip = _wire(dev.driver) == SCIP
+        if scip:
             device = ScipReplayDevice(stream, meta["info"], meta["params"], self._report)
         else:
             device = ColaReplayDevice(stream, meta.get("info", {}), meta["geometry"], self._report)
         server: Any
-        if self.pty and dev.driver == "hokuyo":
+        if self.pty and scip:
             server = PtyDeviceServer(device)
             self._servers.append(server)
             self.urls[dev.name] = server.url
         else:
             server = TcpDeviceServer(device, host, port)
             self._servers.append(server)
-            scheme = "socket" if dev.driver == "hokuyo" else "tcp"
+            scheme = "socket" if scip else "tcp"
             self.urls[dev.name] = f"{scheme}://{server.host}:{server.port}"
         server.start()
 
@@ -485,7 +498,7 @@ class Replay:
             if dev.kind == "scanner":
                 entry["driver"] = dev.driver
                 entry["url"] = self.urls[dev.name]
-                if dev.driver == "sick":
+                if _wire(dev.driver) == COLA:
                     info = dev.metadata.get("info", {})
                     protocol = info.get("extra", {}).get("protocol")
                     entry["protocol"] = entry.get("protocol") or protocol or "cola-b"
@@ -512,7 +525,7 @@ def _derived_entry(dev: DeviceLog) -> dict[str, Any]:
     """A configuration entry for a device the recorded configuration does not list (or a
     log without one): for a Hokuyo, the options that ask for the recorded scans."""
     entry: dict[str, Any] = {"name": dev.name, "driver": dev.driver}
-    if dev.driver != "hokuyo":
+    if _wire(dev.driver) != SCIP:
         return entry
     from acq.drivers.scip_codec import parse_scan_echo
 

@@ -3,7 +3,10 @@
 :func:`load` reads and validates a file; every problem is a :class:`ConfigError` whose
 text is one line naming the file, the key path and what was expected, e.g.
 ``rig.yaml: cameras[0].fsp: unknown key; did you mean fps?``. Driver ``options`` are
-checked against the keyword parameters of the driver class the ``driver:`` key selects.
+checked against the keyword parameters of the driver class the ``driver:`` key selects;
+driver names are those of the driver registry (:mod:`acq.drivers.registry`: ours and any
+installed through its entry points), and what a scanner's ``url``, ``protocol`` and
+``latency_s`` accept is what its driver class declares.
 
 Relative paths in a file (``calibration``, ``output.dir``, ``can.dbc``) are relative to
 the folder of that file, not to the working directory; ``~`` is the user's home.
@@ -38,6 +41,7 @@ from pydantic import (
 )
 
 from acq import yamlcheck
+from acq.drivers.registry import REGISTRIES, DriverImportError, UnknownDriver
 from acq.errors import InputError
 from acq.yamlcheck import describe, did_you_mean, fail, show
 
@@ -92,13 +96,58 @@ class _Model(BaseModel):
     model_config = yamlcheck.STRICT
 
 
+def _expected(choices: list[str], value: Any) -> Any:
+    raise fail(f"expected one of: {', '.join(choices)}, got {show(value)}")
+
+
+def _driver_class(kind: str, name: str) -> type:
+    """The registered class of a driver name (a validation error when it is unknown or its
+    module cannot be imported)."""
+    registry = REGISTRIES[kind]
+    try:
+        return registry.get(name)
+    except UnknownDriver:
+        return _expected(registry.names(), name)
+    except DriverImportError as e:
+        raise fail(str(e)) from None
+
+
+def _driver_name(kind: str) -> Any:
+    """A validator of the ``driver`` key of a device of ``kind``."""
+
+    def check(cls: type[BaseModel], v: Any) -> str:
+        if not isinstance(v, str) or v not in REGISTRIES[kind].entries:
+            _expected(REGISTRIES[kind].names(), v)
+        _driver_class(kind, v)
+        return v
+
+    return classmethod(check)
+
+
+def _scanner(info: ValidationInfo) -> Any:
+    """The driver class of the scanner being validated; None when its driver is invalid."""
+    driver = info.data.get("driver")
+    return None if driver is None else _driver_class("scanner", driver)
+
+
+def _scanners() -> list[tuple[str, Any]]:
+    """(name, class) of every scanner driver that can be imported, for messages."""
+    found = []
+    for name in REGISTRIES["scanner"].names():
+        try:
+            found.append((name, REGISTRIES["scanner"].get(name)))
+        except DriverImportError:
+            continue  # reported where a configuration uses it
+    return found
+
+
 class ScannerConfig(_Model):
     """One laser scanner: topics ``/<name>/scan`` and ``/<name>/raw``."""
 
     name: str
-    driver: Literal["hokuyo", "sick"]
+    driver: str  # a scanner driver of the registry: hokuyo, sick, ...
     url: str  # hokuyo: a pyserial URL (tcp:// becomes socket://); sick: tcp://host:port
-    protocol: Literal["cola-b", "cola-a"] | None = Field(default=None, validate_default=True)
+    protocol: str | None = Field(default=None, validate_default=True)  # sick: cola-b | cola-a
     latency_s: float | Literal["auto"] = 0.0  # constant transport latency, s; auto: hokuyo
     options: dict[str, Any] = {}  # keyword arguments of the driver class
 
@@ -107,36 +156,46 @@ class ScannerConfig(_Model):
     def _name(cls, v: str) -> str:
         return _check_name(v)
 
+    _driver = field_validator("driver", mode="plain")(_driver_name("scanner"))
     _empty = field_validator("options", mode="before")(_none_is_empty)
 
     @field_validator("url")
     @classmethod
     def _url(cls, v: str, info: ValidationInfo) -> str:
-        driver = info.data.get("driver")
-        if driver == "hokuyo":
+        scanner = _scanner(info)
+        if scanner is not None and scanner.url_kind == "serial":
             return _serial_url(v)
-        if driver == "sick":
+        if scanner is not None and scanner.url_kind == "tcp":
             return _tcp_url(v)
         return v
 
-    @field_validator("protocol")
+    @field_validator("protocol", mode="plain")
     @classmethod
-    def _protocol(cls, v: str | None, info: ValidationInfo) -> str | None:
-        driver = info.data.get("driver")
-        if driver == "sick" and v is None:
-            return "cola-b"
-        if driver == "hokuyo" and v is not None:
-            raise fail("only for driver sick (a hokuyo speaks SCIP); remove it")
-        return v
+    def _protocol(cls, v: Any, info: ValidationInfo) -> str | None:
+        scanner = _scanner(info)
+        if scanner is None:
+            return v if v is None or isinstance(v, str) else _expected(["a string"], v)
+        choices = scanner.protocols
+        if v is None:
+            return choices[0] if choices else None
+        if not choices:
+            others = [d for d, c in _scanners() if c.protocols]
+            speaks = f" (a {scanner.driver or info.data['driver']} speaks {scanner.wire})"
+            raise fail(
+                f"only for driver {' or '.join(others)}{speaks if scanner.wire else ''}; remove it"
+            )
+        return v if v in choices else _expected(list(choices), v)
 
     @field_validator("latency_s", mode="plain")
     @classmethod
     def _latency(cls, v: Any, info: ValidationInfo) -> float | str:
         if v == "auto" and isinstance(v, str):
-            if info.data.get("driver", "hokuyo") != "hokuyo":
+            scanner = _scanner(info)
+            if scanner is not None and not scanner.latency_probe:
+                probing = [(d, c.latency_probe) for d, c in _scanners() if c.latency_probe]
                 raise fail(
-                    "auto is measured with SCIP TM round trips, for driver hokuyo only; "
-                    "expected a number of seconds >= 0"
+                    f"auto is measured with {' or '.join(p for _, p in probing)}, for driver "
+                    f"{', '.join(d for d, _ in probing)} only; expected a number of seconds >= 0"
                 )
             return v
         return _seconds(v, "a number of seconds >= 0 or auto")
@@ -152,7 +211,7 @@ class CameraConfig(_Model):
     """One camera: topics ``/<name>/image/compressed`` and ``/<name>/calibration``."""
 
     name: str
-    driver: Literal["opencv", "v4l2"]
+    driver: str  # a camera driver of the registry: opencv, v4l2, ...
     source: str  # an index, /dev/videoN, a URL or a pipeline
     fps: float = Field(default=25.0, gt=0)  # requested frame rate, 1/s
     width: int | None = Field(default=None, gt=0)  # requested size, px
@@ -166,6 +225,7 @@ class CameraConfig(_Model):
     def _name(cls, v: str) -> str:
         return _check_name(v)
 
+    _driver = field_validator("driver", mode="plain")(_driver_name("camera"))
     _empty = field_validator("options", mode="before")(_none_is_empty)
 
     @field_validator("source", mode="before")
@@ -221,6 +281,7 @@ class CanConfig(_Model):
     ``can.Bus`` (e.g. ``fd: true``, ``data_bitrate``, ``port`` of udp_multicast).
     """
 
+    driver: str = "python-can"  # a CAN driver of the registry
     interface: str = Field(min_length=1)  # python-can interface: socketcan, pcan...
     channel: str = Field(min_length=1)  # e.g. can0
     dbc: _Path
@@ -232,6 +293,7 @@ class CanConfig(_Model):
     speed: str | None = None  # a vehicle speed signal; None: mean of the wheel speeds
     options: dict[str, Any] = {}  # keyword arguments of can.Bus
 
+    _driver = field_validator("driver", mode="plain")(_driver_name("can"))
     _empty = field_validator("options", mode="before")(_none_is_empty)
 
     @field_validator("interface")
@@ -274,9 +336,12 @@ class GnssConfig(_Model):
     receipt of its first sentence that one-way timing cannot see (the receiver's
     computation), subtracted from the fix times mapped to the host clock."""
 
+    driver: str = "nmea"  # a GNSS driver of the registry
     url: str
     baudrate: int = Field(default=9600, gt=0)
     latency_s: float = Field(default=0.0, ge=0)
+
+    _driver = field_validator("driver", mode="plain")(_driver_name("gnss"))
 
     @field_validator("url")
     @classmethod
@@ -403,21 +468,10 @@ def _tcp_url(v: str) -> str:
 
 
 @functools.cache
-def _driver_params(kind: str, driver: str) -> dict[str, TypeAdapter[Any]] | None:
+def _driver_params(kind: str, driver: str) -> dict[str, TypeAdapter[Any]]:
     """The keyword parameters of the driver class (and of the bases it forwards
-    ``**options`` to) that a YAML value can fill, with their validators; None when the
-    driver cannot be imported here (its options are then left to the driver)."""
-    try:
-        if kind == "scanner":
-            from acq.drivers.scanner import scanner_class
-
-            cls: type = scanner_class(driver)
-        else:
-            from acq.drivers.camera import camera_class
-
-            cls = camera_class(driver)
-    except Exception:
-        return None
+    ``**options`` to) that a YAML value can fill, with their validators."""
+    cls = _driver_class(kind, driver)
     params: dict[str, TypeAdapter[Any]] = {}
     for klass in cls.__mro__:
         init = klass.__dict__.get("__init__")
@@ -447,8 +501,6 @@ def _check_options(
     kind: str, driver: str, options: dict[str, Any], model: type[BaseModel]
 ) -> dict[str, Any]:
     params = _driver_params(kind, driver)
-    if params is None:
-        return options
     checked: dict[str, Any] = {}
     for key, value in options.items():
         if key in model.model_fields:

@@ -243,7 +243,7 @@ def _right_at_true_pixels(
 ) -> np.ndarray:  # fmt: skip
     """The right-set test for each point's colour sampled (bilinear) at its TRUE pixel in
     its frame: the ceiling of the pattern criterion for this image and resolution."""
-    from acq.cloud.views import decode_jpeg
+    from acq.camera.jpeg import decode_jpeg
 
     uv, valid = truth.true_pixels(scan, step, stamp)
     rgb = np.zeros((scan.size, 3), np.uint8)
@@ -317,9 +317,9 @@ def _speed(
 
 def _decoding(jpegs: list[bytes], duration_s: float) -> None:
     """Where most of the time goes: decoding every frame of the log once on one core
-    (acq.cloud.views.decode_jpeg, OpenCV's libjpeg-turbo), the best of 3; one ``decoding``
+    (acq.camera.jpeg.decode_jpeg, OpenCV's libjpeg-turbo), the best of 3; one ``decoding``
     line, with the CPU-seconds it costs a second of log."""
-    from acq.cloud.views import decode_jpeg
+    from acq.camera.jpeg import decode_jpeg
 
     best = math.inf
     for _ in range(3):

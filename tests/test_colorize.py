@@ -252,6 +252,6 @@ def test_gnss_fixes_are_fused_and_place_the_cloud_in_their_frame(tmp_path: Path)
 
 
 def test_undecodable_frames_are_none_not_an_error() -> None:
-    from acq.cloud.views import decode_jpeg
+    from acq.camera.jpeg import decode_jpeg
 
     assert decode_jpeg(b"") is None and decode_jpeg(b"\xff\xd8 not a jpeg") is None

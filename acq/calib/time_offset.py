@@ -35,7 +35,7 @@ import numpy as np
 
 from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
-from acq.cloud.views import decoded_frames
+from acq.camera.jpeg import decoded_frames
 from acq.geometry.transforms import PoseFn, Rigid
 
 __all__ = ["OffsetEstimate", "estimate_time_offset", "mutual_information"]

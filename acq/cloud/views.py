@@ -21,19 +21,17 @@ keep ``coloured = False``. Units: metres, host ns, pixels; colours RGB uint8.
 
 from __future__ import annotations
 
-import itertools
-from collections import deque
-from collections.abc import Iterator, Sequence
-from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from collections.abc import Sequence
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass
 
-import cv2
 import numba
 import numpy as np
 
 from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
 from acq.camera.camera_models import CameraModel
+from acq.camera.jpeg import decode_jpeg
 from acq.geometry.transforms import PoseFn, Rigid
 from acq.time import sync
 
@@ -42,8 +40,6 @@ __all__ = [
     "Coloured",
     "Colouring",
     "Options",
-    "decode_jpeg",
-    "decoded_frames",
     "occlusion_depths",
     "point_size",
     "start_colouring",
@@ -123,34 +119,6 @@ def occlusion_depths(
     cv_ = (uv[:, 1] / cell_px).astype(np.int64)
     r = np.minimum(np.floor(0.5 * f_px * size_m / np.maximum(depth, 1e-3) / cell_px), 8)
     return np.asarray(_splat(cu, cv_, depth.astype(np.float32), r.astype(np.int64), w, h))
-
-
-def decode_jpeg(jpeg: bytes) -> np.ndarray | None:
-    """A colour JPEG as an (H,W,3) BGR uint8 image, or None when it does not decode
-    (empty bytes included: a garbled message in a log)."""
-    if not jpeg:
-        return None
-    try:
-        image = cv2.imdecode(np.frombuffer(jpeg, dtype=np.uint8), cv2.IMREAD_COLOR)
-    except cv2.error:
-        return None
-    return image if image is not None and image.ndim == 3 else None
-
-
-def decoded_frames(
-    jpegs: Sequence[bytes], order: np.ndarray, threads: int
-) -> Iterator[np.ndarray | None]:
-    """The frames ``order`` decoded, in order, at most ``2 * threads`` ahead."""
-    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
-        pending: deque[Future[np.ndarray | None]] = deque()
-        todo = iter(order.tolist())
-        for j in itertools.islice(todo, 2 * max(1, threads)):
-            pending.append(pool.submit(decode_jpeg, jpegs[j]))
-        while pending:
-            done = pending.popleft()
-            for j in itertools.islice(todo, 1):
-                pending.append(pool.submit(decode_jpeg, jpegs[j]))
-            yield done.result()
 
 
 class _Rig:

@@ -71,7 +71,8 @@ import yaml
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from acq.log import loginfo, schemas
-from acq.sim.camera_device import MjpegServerProcess, jpeg_digest
+from acq.sim.camera_device import jpeg_digest
+from acq.sim.mjpeg_server import MjpegServerProcess
 
 ROOT = Path(__file__).resolve().parents[1]
 SCAN_HZ = 40.0  # UTM-30LX

@@ -111,9 +111,9 @@ class _SimRig:
     (host monotonic s): the same place on the street at the same time."""
 
     def __init__(self, t_origin: float) -> None:
-        from acq.sim.camera_device import MjpegServerProcess
         from acq.sim.can_vehicle import SimVehicle
         from acq.sim.device_clock import SimClock
+        from acq.sim.mjpeg_server import MjpegServerProcess
         from acq.sim.scan_source import StreetSource
         from acq.sim.scanner_models import MODELS
         from acq.sim.scip_device import ScipDevice

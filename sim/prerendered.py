@@ -4,7 +4,7 @@ Rendering the street costs about 0.6 ms per scan and 21 ms per camera frame, so 
 simulators cannot run at many times the nominal rates. Here the data is rendered once
 (``n`` scans or frames of the drive, at the nominal spacing) and then cycled; the wire
 protocols and their timing are the real simulators' (:class:`acq.sim.scip_device.ScipDevice`
-on :class:`acq.sim.transport.TcpDeviceServer`, :class:`acq.sim.camera_device.MjpegServer`).
+on :class:`acq.sim.transport.TcpDeviceServer`, :class:`acq.sim.mjpeg_server.MjpegServer`).
 
 - :class:`PrerenderedScanSource`: a ``StreetSource`` stand-in for ``ScipDevice``.
 - :class:`PrerenderedCamera`: a ``SimCamera`` whose frames are ``n`` JPEGs encoded once.
@@ -25,8 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from acq.sim.camera_device import FrameTruth, MjpegServer, SimCamera, SimFrame, jpeg_digest
+from acq.sim.camera_device import FrameTruth, SimCamera, SimFrame, jpeg_digest
 from acq.sim.device_clock import SimClock
+from acq.sim.mjpeg_server import MjpegServer
 from acq.sim.scan_source import StreetSource
 from acq.sim.scanner_models import ScannerModel, model
 from acq.sim.scip_device import ScipDevice

@@ -41,9 +41,10 @@ from typing import Any
 from acq.drivers.cola_codec import STX4, Telegram, unframe
 from acq.drivers.scanner import ProtocolError
 from acq.drivers.scip_codec import SCAN_COMMANDS, decode_int
-from acq.sim.camera_device import MjpegServer, SimFrame
+from acq.sim.camera_device import SimFrame
 from acq.sim.cola_device import ColaDevice
 from acq.sim.device_clock import SimClock
+from acq.sim.mjpeg_server import MjpegServer
 from acq.sim.scanner_models import ScannerModel
 from acq.sim.scip_device import ScipDevice
 
@@ -452,7 +453,7 @@ class _Sent:
 class ReplayMjpegServer(MjpegServer):
     """Serves a camera's recorded JPEG bytes as MJPEG over HTTP at their recorded times.
 
-    As :class:`acq.sim.camera_device.MjpegServer` (several clients, the same faults): every
+    As :class:`acq.sim.mjpeg_server.MjpegServer` (several clients, the same faults): every
     connected client gets each frame due while it is connected. The first client starts
     the shared clock; with no client connected, frames are not sent (and not kept).
     """

@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
 from acq.record import config as configfile
-from acq.sim.camera_device import MjpegServerProcess
+from acq.sim.mjpeg_server import MjpegServerProcess
 from acq.sim.scanner_models import MODELS
 from acq.sim.scip_device import ScipDevice
 from acq.sim.transport import TcpDeviceServer

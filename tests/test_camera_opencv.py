@@ -19,7 +19,8 @@ from acq.drivers.camera_opencv import OpenCVCamera
 from acq.drivers.errors import ConnectionLost, DeviceError, ProtocolError
 from acq.drivers.mjpeg import MultipartReader, jpeg_size
 from acq.drivers.reconnect import Backoff, CameraLink
-from acq.sim.camera_device import MjpegServer, MjpegServerProcess, SimCamera, jpeg_digest
+from acq.sim.camera_device import SimCamera, jpeg_digest
+from acq.sim.mjpeg_server import MjpegServer, MjpegServerProcess
 from acq.sim.world import Street
 
 EXPOSURE = 0.004

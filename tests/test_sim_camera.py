@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from acq.sim.camera_device import MjpegServer, SimCamera, jpeg_digest, serve_camera
+from acq.sim.camera_device import SimCamera, jpeg_digest
+from acq.sim.mjpeg_server import MjpegServer, serve_camera
 from acq.sim.world import Street
 
 

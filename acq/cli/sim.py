@@ -127,7 +127,7 @@ def run_scanner(args: argparse.Namespace) -> int:
 
 
 def run_camera(args: argparse.Namespace) -> int:
-    from acq.sim.camera_device import serve_camera
+    from acq.sim.mjpeg_server import serve_camera
 
     try:
         server = serve_camera(args.listen, seed=args.seed)

@@ -1,0 +1,453 @@
+"""The MJPEG-over-HTTP server that streams a simulated camera (:mod:`acq.sim.camera_device`).
+
+:class:`MjpegServer` serves a :class:`SimCamera`'s frames over real HTTP on 127.0.0.1,
+each when it becomes available, with faults on demand (stalls, dropped connections,
+corrupt or skipped frames); :func:`serve_camera` starts a camera and its server from a
+URL. The stream carries the JPEG bytes and nothing else: no sequence number, no
+timestamp. A client learns only the bytes and when they arrived.
+
+:class:`MjpegServerProcess` runs camera and server in a child process, so a client's
+timing is not disturbed by the renderer holding the GIL in its own process.
+
+Times are the host's ``time.monotonic()`` seconds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import select
+import socket
+import threading
+import time
+from dataclasses import asdict
+from typing import Any
+from urllib.parse import urlsplit
+
+from acq.sim.camera_device import FrameTruth, SimCamera, SimFrame, jpeg_digest
+
+__all__ = ["MjpegServer", "MjpegServerProcess", "serve_camera"]
+
+DEFAULT_LISTEN = "http://127.0.0.1:8080/stream.mjpg"
+
+
+class MjpegServer:
+    """Serves a :class:`SimCamera` as ``multipart/x-mixed-replace`` over HTTP/1.0.
+
+    Several clients at a time (up to ``max_clients``): each receives every frame sent
+    after it connected. Other paths get 404, other methods 405. ``content_length``
+    False leaves ``Content-Length`` out of the parts (the reader must find the
+    boundary). Frames are sent when they become available, in real time, by one thread;
+    rendering happens only while a client is connected (other frames are ``unsent``).
+    A frame more than ``late_s`` late is dropped (``late``) instead of sent.
+    """
+
+    def __init__(
+        self,
+        camera: SimCamera,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        path: str = "/stream.mjpg",
+        *,
+        boundary: str = "acqframe",
+        content_length: bool = True,
+        max_clients: int = 8,
+        late_s: float = 0.5,
+    ) -> None:
+        self.camera = camera
+        self.path = path
+        self.boundary = boundary
+        self.content_length = content_length
+        self.max_clients = max_clients
+        self.late_s = late_s
+        self._listener = socket.create_server((host, port))
+        self._listener.setblocking(False)
+        self.host, self.port = self._listener.getsockname()[:2]
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._clients: list[socket.socket] = []
+        self._requests: dict[socket.socket, tuple[bytes, float]] = {}
+        self._stall_until = 0.0
+        self._drop = False
+        self._corrupt = 0
+        self._skip = 0
+        self.connections = 0  # clients served since start
+        self.frames_sent = 0
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}{self.path}"
+
+    @property
+    def clients(self) -> int:
+        with self._lock:
+            return len(self._clients)
+
+    # --- faults -----------------------------------------------------------------------
+
+    def stall(self, seconds: float) -> None:
+        """Send nothing for ``seconds`` (frames meanwhile are lost: ``stalled``); the
+        connections stay open."""
+        with self._lock:
+            self._stall_until = time.monotonic() + seconds
+
+    def drop_connection(self) -> None:
+        """Close every client's connection now (the camera keeps running)."""
+        with self._lock:
+            self._drop = True
+        self._wake()
+
+    def corrupt_next(self) -> None:
+        """Send the next frame truncated to half its length (a JPEG with no EOI)."""
+        with self._lock:
+            self._corrupt += 1
+
+    def skip_next(self) -> None:
+        """Do not send the next frame (its sequence number is consumed)."""
+        with self._lock:
+            self._skip += 1
+
+    # --- life cycle -------------------------------------------------------------------
+
+    def start(self) -> MjpegServer:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="MjpegServer", daemon=True)
+            self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        self._wake()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        for sock in [*self._clients, *self._requests]:
+            with contextlib.suppress(OSError):
+                sock.close()
+        self._clients.clear()
+        self._requests.clear()
+        for sock in (self._listener, self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                sock.close()
+
+    def __enter__(self) -> MjpegServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _wake(self) -> None:
+        with contextlib.suppress(OSError):
+            self._wake_w.send(b"x")
+
+    # --- the server thread ------------------------------------------------------------
+
+    def _run(self) -> None:
+        cam = self.camera
+        cam.skip_until(time.monotonic())
+        frame: SimFrame | None = None
+        while not self._stop.is_set():
+            if frame is None:
+                with self._lock:
+                    watched = bool(self._clients or self._requests)
+                frame = cam.next_frame(render=watched)
+            self._service(frame.t_available)
+            if self._stop.is_set():
+                return
+            if time.monotonic() >= frame.t_available:
+                self._deliver(frame)
+                frame = None
+
+    def _service(self, until: float) -> None:
+        """Accept connections and read requests until ``until`` (monotonic s)."""
+        while not self._stop.is_set():
+            self._apply_drop()
+            left = until - time.monotonic()
+            if left <= 0:
+                return
+            watch = [self._listener, self._wake_r, *self._requests]
+            ready, _, _ = select.select(watch, [], [], left)
+            for sock in ready:
+                if sock is self._wake_r:
+                    with contextlib.suppress(OSError):
+                        self._wake_r.recv(4096)
+                elif sock is self._listener:
+                    self._accept()
+                else:
+                    self._read_request(sock)
+            now = time.monotonic()
+            for sock, (_, since) in list(self._requests.items()):
+                if now - since > 5.0:
+                    self._requests.pop(sock)
+                    sock.close()
+
+    def _apply_drop(self) -> None:
+        with self._lock:
+            drop, self._drop = self._drop, False
+            clients = self._clients if drop else []
+            if drop:
+                self._clients = []
+        for sock in clients:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+            sock.close()
+
+    def _accept(self) -> None:
+        try:
+            sock, _ = self._listener.accept()
+        except (BlockingIOError, OSError):
+            return
+        sock.setblocking(False)
+        self._requests[sock] = (b"", time.monotonic())
+
+    def _read_request(self, sock: socket.socket) -> None:
+        buf, since = self._requests[sock]
+        try:
+            data = sock.recv(4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self._requests.pop(sock)
+            sock.close()
+            return
+        buf += data
+        if b"\r\n\r\n" not in buf and b"\n\n" not in buf:
+            if len(buf) > 16384:
+                self._requests.pop(sock)
+                sock.close()
+            else:
+                self._requests[sock] = (buf, since)
+            return
+        self._requests.pop(sock)
+        words = buf.split(b"\r\n", 1)[0].split(b"\n", 1)[0].split()
+        method = words[0] if words else b""
+        target = words[1].decode("latin-1").split("?", 1)[0] if len(words) > 1 else ""
+        sock.setblocking(True)
+        sock.settimeout(2.0)
+        try:
+            if method != b"GET":
+                sock.sendall(_response(405, "Method Not Allowed"))
+            elif target != self.path:
+                sock.sendall(_response(404, "Not Found"))
+            elif self.clients >= self.max_clients:
+                sock.sendall(_response(503, "Service Unavailable"))
+            else:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                sock.sendall(
+                    b"HTTP/1.0 200 OK\r\n"
+                    b"Server: acq-sim-camera\r\n"
+                    b"Connection: close\r\n"
+                    b"Cache-Control: no-cache, no-store\r\n"
+                    b"Pragma: no-cache\r\n"
+                    b"Content-Type: multipart/x-mixed-replace; boundary="
+                    + self.boundary.encode("ascii")
+                    + b"\r\n\r\n"
+                )
+                with self._lock:
+                    self._clients.append(sock)
+                self.connections += 1
+                return
+        except OSError:
+            pass
+        with contextlib.suppress(OSError):
+            sock.close()
+
+    def _deliver(self, frame: SimFrame) -> None:
+        cam = self.camera
+        now = time.monotonic()
+        with self._lock:
+            clients = list(self._clients)
+            stalled = now < self._stall_until
+            skip = corrupt = False
+            if clients and frame.jpeg and not stalled:
+                if self._skip:
+                    self._skip -= 1
+                    skip = True
+                elif self._corrupt:
+                    self._corrupt -= 1
+                    corrupt = True
+        if not clients or not frame.jpeg:
+            cam.record(frame.sequence, status="unsent")
+            return
+        if stalled:
+            cam.record(frame.sequence, status="stalled")
+            return
+        if skip:
+            cam.record(frame.sequence, status="skipped")
+            return
+        if now - frame.t_available > self.late_s:
+            cam.record(frame.sequence, status="late")
+            return
+        body = frame.jpeg[: len(frame.jpeg) // 2] if corrupt else frame.jpeg
+        head = f"--{self.boundary}\r\nContent-Type: image/jpeg\r\n"
+        if self.content_length:
+            head += f"Content-Length: {len(body)}\r\n"
+        data = head.encode("ascii") + b"\r\n" + body + b"\r\n"
+        status = "corrupt" if corrupt else "sent"
+        # what goes out is logged before it goes: a client may read it before send returns
+        cam.record(frame.sequence, status=status, digest=jpeg_digest(body), size=len(body))
+        sent = 0
+        for sock in clients:
+            try:
+                sock.sendall(data)
+                sent += 1
+            except OSError:
+                with self._lock:
+                    if sock in self._clients:
+                        self._clients.remove(sock)
+                with contextlib.suppress(OSError):
+                    sock.close()
+        self.frames_sent += 1
+        cam.record(frame.sequence, t_sent=time.monotonic(), clients=sent)
+
+
+def _response(code: int, reason: str) -> bytes:
+    body = f"{code} {reason}\n".encode("ascii")
+    return (
+        f"HTTP/1.0 {code} {reason}\r\nContent-Type: text/plain\r\n"
+        f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n"
+    ).encode("ascii") + body
+
+
+_SERVER_OPTIONS = ("boundary", "content_length", "max_clients", "late_s")
+
+
+def _split_options(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    server = {k: options[k] for k in _SERVER_OPTIONS if k in options}
+    camera = {k: v for k, v in options.items() if k not in _SERVER_OPTIONS}
+    return camera, server
+
+
+def serve_camera(listen: str | None = None, **options: Any) -> MjpegServer:
+    """Start a simulated camera serving MJPEG at ``listen`` (``http://HOST:PORT/PATH``,
+    default ``http://127.0.0.1:8080/stream.mjpg``; port 0 picks a free one).
+
+    ``options``: :class:`SimCamera` keywords, and the server's ``boundary``,
+    ``content_length``, ``max_clients``, ``late_s``. Raises ValueError on a bad URL.
+    """
+    parts = urlsplit(listen or DEFAULT_LISTEN)
+    if parts.scheme != "http" or not parts.hostname:
+        raise ValueError(f"--listen must be http://HOST:PORT/PATH, got {listen!r}")
+    try:
+        port = parts.port if parts.port is not None else 80
+    except ValueError as e:
+        raise ValueError(f"--listen {listen!r}: {e}") from None
+    camera_options, server_options = _split_options(options)
+    camera = SimCamera(**camera_options)
+    server = MjpegServer(camera, parts.hostname, port, parts.path or "/", **server_options)
+    return server.start()
+
+
+# --- in a child process -------------------------------------------------------------------
+
+
+def _child_main() -> None:
+    """``python -m acq.sim.mjpeg_server --child``: JSON commands on stdin, replies on stdout."""
+    import json
+    import sys
+
+    spec = json.loads(sys.stdin.readline())
+    try:
+        server = serve_camera(spec["listen"], **spec["options"])
+    except Exception as e:  # reported to the parent, which raises it
+        print(json.dumps({"error": repr(e)}), flush=True)
+        return
+    print(json.dumps({"url": server.url}), flush=True)
+    with server:
+        for line in sys.stdin:
+            command, *args = json.loads(line)
+            if command == "close":
+                break
+            if command == "truth":
+                value: Any = [asdict(t) for t in server.camera.truth()]
+            elif command == "cpu":
+                value = time.process_time()
+            elif command in ("stall", "drop_connection", "corrupt_next", "skip_next"):
+                value = getattr(server, command)(*args)
+            else:
+                value = None
+            print(json.dumps({"value": value}), flush=True)
+
+
+class MjpegServerProcess:
+    """:func:`serve_camera` in a child process: the same faults, ``truth()`` fetched over
+    a pipe. ``options`` must be JSON values (no Street or Rig objects). The default
+    ``listen`` picks a free port on 127.0.0.1."""
+
+    def __init__(self, listen: str | None = "http://127.0.0.1:0/stream.mjpg", **options: Any):
+        import json
+        import subprocess
+        import sys
+
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "acq.sim.mjpeg_server", "--child"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        self._json = json
+        assert self._proc.stdin is not None and self._proc.stdout is not None
+        self._proc.stdin.write(json.dumps({"listen": listen, "options": options}) + "\n")
+        self._proc.stdin.flush()
+        ready, _, _ = select.select([self._proc.stdout], [], [], 60)
+        reply = json.loads(self._proc.stdout.readline() or "{}") if ready else {}
+        if "url" not in reply:
+            self._proc.kill()
+            self._proc.wait(5)
+            raise RuntimeError(f"the simulated camera process failed: {reply.get('error')}")
+        self.url: str = reply["url"]
+
+    def _call(self, *command: Any) -> Any:
+        assert self._proc.stdin is not None and self._proc.stdout is not None
+        self._proc.stdin.write(self._json.dumps(command) + "\n")
+        self._proc.stdin.flush()
+        return self._json.loads(self._proc.stdout.readline())["value"]
+
+    def stall(self, seconds: float) -> None:
+        self._call("stall", seconds)
+
+    def drop_connection(self) -> None:
+        self._call("drop_connection")
+
+    def corrupt_next(self) -> None:
+        self._call("corrupt_next")
+
+    def skip_next(self) -> None:
+        self._call("skip_next")
+
+    def truth(self) -> list[FrameTruth]:
+        return [FrameTruth(**t) for t in self._call("truth")]
+
+    def cpu_seconds(self) -> float:
+        """The server process's CPU time so far (s)."""
+        return float(self._call("cpu"))
+
+    def close(self) -> None:
+        if self._proc.poll() is None:
+            assert self._proc.stdin is not None
+            with contextlib.suppress(OSError, ValueError):
+                self._proc.stdin.write(self._json.dumps(["close"]) + "\n")
+                self._proc.stdin.close()
+            try:
+                self._proc.wait(5)
+            except Exception:
+                self._proc.kill()
+                self._proc.wait(5)
+        if self._proc.stdout is not None:
+            self._proc.stdout.close()
+
+    def __enter__(self) -> MjpegServerProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+if __name__ == "__main__":
+    import sys
+
+    if sys.argv[1:] == ["--child"]:
+        _child_main()

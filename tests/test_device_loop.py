@@ -10,17 +10,15 @@ from typing import Any
 
 from acq.drivers.reconnect import LinkEvent
 from acq.log.mcap_log import LogWriter
-from acq.record.config import parse
-from acq.record.device_loop import (
+from acq.record.adapters import (
     CameraAdapter,
     CanAdapter,
-    DeviceAdapter,
     GnssAdapter,
-    Outbox,
     ScannerAdapter,
     adapters_for,
-    run_device,
 )
+from acq.record.config import parse
+from acq.record.device_loop import DeviceAdapter, Outbox, run_device
 
 
 @dataclass(frozen=True)

@@ -2,12 +2,12 @@
 
 One thread per device (scanners, cameras, the vehicle's CAN bus, the GNSS receiver),
 each running the one device loop of :mod:`acq.record.device_loop` with its kind's
-adapter, reads records through its driver (reconnecting with backoff), applies the device
-clock, and hands them to one writer thread through a bounded queue:
-a slow disk drops records (counted per device), it never blocks a reader. The writer
-encodes (Foxglove protobuf schemas, the raw telegrams, the timing), writes, ends and
-fsyncs the chunk every second, publishes ``/acq/status`` and ``/acq/clock`` at 1 Hz,
-pings the systemd watchdog, and watches the disk: below the configured reserve it
+adapter (:mod:`acq.record.adapters`), reads records through its driver (reconnecting
+with backoff), applies the device clock, and hands them to one writer thread through a
+bounded queue: a slow disk drops records (counted per device), it never blocks a reader.
+The writer encodes (Foxglove protobuf schemas, the raw telegrams, the timing), writes,
+ends and fsyncs the chunk every second, publishes ``/acq/status`` and ``/acq/clock`` at
+1 Hz, pings the systemd watchdog, and watches the disk: below the configured reserve it
 closes the file and the recorder exits with :data:`EXIT_DISK_FULL`.
 
 Vehicle topics (with ``can:`` / ``gnss:`` in the configuration): ``/vehicle/odometry``
@@ -44,15 +44,9 @@ from acq.drivers.can_odometry import DbcError, OdometryDecoder
 from acq.errors import InputError
 from acq.log import schemas
 from acq.log.mcap_log import LogWriter
+from acq.record.adapters import adapters_for
 from acq.record.config import CanConfig, Config
-from acq.record.device_loop import (
-    DeviceAdapter,
-    DeviceState,
-    Outbox,
-    _finite,
-    adapters_for,
-    run_device,
-)
+from acq.record.device_loop import DeviceAdapter, DeviceState, Outbox, finite, run_device
 from acq.record.sdnotify import Notifier
 
 __all__ = ["EXIT_DISK_FULL", "Recorder", "RecorderError"]
@@ -251,7 +245,7 @@ class Recorder:
                     last_event=d.last_event,
                     clock_offset_ns=d.clock_offset_ns(),
                     clock_drift_ppm=clock.drift_ppm if clock else 0.0,
-                    clock_uncertainty_s=_finite(clock.uncertainty_s) if clock else 0.0,
+                    clock_uncertainty_s=finite(clock.uncertainty_s) if clock else 0.0,
                     epoch=clock.epoch if clock else 0,
                 )
             )
@@ -261,7 +255,7 @@ class Recorder:
             uptime_s=(now_ns - self.started_ns) * 1e-9,
             file=path.name if path else "",
             disk_free_bytes=free,
-            disk_minutes_left=_finite(minutes, 1e9),
+            disk_minutes_left=finite(minutes, 1e9),
             writer_queue=self.outbox.qsize(),
             devices=devices,
         )

@@ -1,0 +1,410 @@
+"""The device loop's adapters, one per device kind (python-can's ``Listener`` is the model).
+
+:class:`ScannerAdapter`, :class:`CameraAdapter`, :class:`CanAdapter` and
+:class:`GnssAdapter` each open their driver through the driver registry
+(:mod:`acq.drivers.registry`), turn its records into what the writer needs (updating the
+device's :class:`acq.record.device_loop.DeviceState`) and, on the writer's thread,
+encode them into the device's topics. :func:`adapters_for` gives a configuration's.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from acq.drivers.errors import DriverError, ProtocolError
+from acq.drivers.reconnect import CameraLink, LinkEvent, Reconnecting, Relink
+from acq.drivers.registry import REGISTRIES
+from acq.log import schemas
+from acq.log.mcap_log import LogWriter
+from acq.record.config import CameraConfig, CanConfig, Config, GnssConfig, ScannerConfig
+from acq.record.device_loop import DeviceAdapter, finite
+from acq.records import CanFrame, Fix, Frame, Odometry, Scan, Sentence
+from acq.time.clocksync import DeviceClock, latency_bounds
+from acq.time.sync import scan_start_ns
+
+__all__ = [
+    "GNSS",
+    "VEHICLE",
+    "CameraAdapter",
+    "CanAdapter",
+    "GnssAdapter",
+    "ScannerAdapter",
+    "adapters_for",
+]
+
+log = logging.getLogger("acq.record")
+
+VEHICLE = "vehicle"  # the CAN bus's device name: topics /vehicle/odometry, /vehicle/can
+GNSS = "gnss"  # the GNSS receiver's: /gnss/fix, /gnss/raw, /acq/timing/gnss
+GNSS_TICK_HZ = 1_000_000  # a fix time as a device tick: UTC microseconds since the epoch
+
+
+# --- scanners -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Counts:
+    """The device's counters when a record came in, for its timing message (read later, on
+    the writer's thread, they would count the records received since)."""
+
+    received: int
+    dropped: int
+
+
+@dataclass(frozen=True)
+class _ScanItem:
+    scan: Scan
+    stamp_ns: int  # host ns of point 0
+    unwrapped: int
+    epoch: int
+    counts: _Counts
+
+
+class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
+    """A laser scanner: ``/<name>/scan``, ``/<name>/raw``, ``/acq/timing/<name>``; scans
+    stamped through the device clock, ``latency_s: auto`` measured with the driver's
+    time queries before streaming."""
+
+    kind = "scanner"
+
+    def __init__(self, cfg: ScannerConfig) -> None:
+        super().__init__(cfg.name, cfg.driver)
+        self.cfg = cfg
+        self._tm_samples: tuple[tuple[int, int, int], ...] = ()
+
+    def channels(self) -> list[tuple[str, str]]:
+        name = self.name
+        return [
+            (f"/{name}/scan", "foxglove.LaserScan"),
+            (f"/{name}/raw", "acq.RawTelegram"),
+            (f"/acq/timing/{name}", "acq.Timing"),
+        ]
+
+    def open(self, on_event: Callable[[LinkEvent], None]) -> Relink[Scan]:
+        cfg, state = self.cfg, self.state
+        options: dict[str, Any] = dict(cfg.options)
+        if cfg.protocol is not None:
+            options["protocol"] = cfg.protocol
+        scanner = REGISTRIES["scanner"].create(cfg.driver, cfg.url, name=cfg.name, **options)
+        self.device = scanner
+        cls = type(scanner)
+        state.clock = DeviceClock(cls.tick_hz, cls.tick_bits)
+        if cfg.latency_s == "auto":
+            self._tm_samples = self._measure_latency(scanner)
+        else:
+            state.latency_s = float(cfg.latency_s)
+        return Reconnecting(scanner, on_event=on_event)
+
+    def identity(self) -> object:
+        return self.device.geometry
+
+    def receive(self, record: Scan) -> Iterable[_ScanItem]:
+        scan, state, clock = record, self.state, self.state.clock
+        assert clock is not None
+        state.count(scan.recv_ns)
+        counts = _Counts(state.received, state.dropped)
+        if not scan.device_ticks:
+            return (_ScanItem(scan, scan.recv_ns - round(state.latency_s * 1e9), 0, 0, counts),)
+        state.last_tick = scan.device_ticks[0]
+        clock.update(scan.device_ticks[0], scan.recv_ns)
+        if self._tm_samples and clock.updates in (1, 40, 400):  # at once, then refined
+            self._apply_latency_bounds(clock)
+        geometry = self.device.geometry
+        offset = geometry.stamp_offset_s if geometry is not None else 0.0
+        stamp = scan_start_ns(clock.to_host_ns(scan.device_ticks[0]), offset, state.latency_s)
+        unwrapped = clock.unwrapper.nearest(scan.device_ticks[0])
+        return (_ScanItem(scan, stamp, unwrapped, clock.epoch, counts),)
+
+    def write(self, writer: LogWriter, payload: _ScanItem) -> None:
+        name, clock = self.name, self.state.clock
+        scan, stamp = payload.scan, payload.stamp_ns
+        timing = schemas.timing(
+            recv_ns=scan.recv_ns,
+            device_ticks=scan.device_ticks,
+            unwrapped_tick=payload.unwrapped,
+            epoch=payload.epoch,
+            stamp_ns=stamp,
+            offset_ns=stamp - scan.recv_ns,
+            drift_ppm=clock.drift_ppm if clock else 0.0,
+            uncertainty_s=finite(clock.uncertainty_s) if clock else 0.0,
+            sequence=scan.sequence,
+            received=payload.counts.received,
+            dropped=payload.counts.dropped,
+        )
+        raw = schemas.raw_telegram(
+            device=name, data=scan.raw, device_ticks=scan.device_ticks,
+            sequence=scan.sequence, recv_ns=scan.recv_ns, stamp_ns=stamp,
+        )  # fmt: skip
+        writer.write_group([
+            (f"/{name}/scan", schemas.laser_scan(scan, name, stamp), scan.recv_ns, stamp),
+            (f"/{name}/raw", raw, scan.recv_ns, stamp),
+            (f"/acq/timing/{name}", timing, scan.recv_ns, stamp),
+        ])  # fmt: skip
+
+    def _measure_latency(self, scanner: Any) -> tuple[tuple[int, int, int], ...]:
+        """The driver's time queries before streaming; () if the device cannot be reached
+        yet."""
+        name = self.name
+        try:
+            scanner.connect()
+            est = scanner.measure_latency(20)
+        except (DriverError, OSError) as e:
+            log.warning("%s: latency_s auto: no time queries (%s); using 0 until then", name, e)
+            return ()
+        finally:
+            try:
+                scanner.close()
+            except (DriverError, OSError):
+                pass
+        log.info("%s: 20 time queries, round trip %.2f-%.2f ms", name,
+                 est.rtt_min * 1e3, est.rtt_max * 1e3)  # fmt: skip
+        return tuple(est.samples)
+
+    def _apply_latency_bounds(self, clock: DeviceClock) -> None:
+        state = self.state
+        try:
+            lo, hi = latency_bounds(self._tm_samples, clock)
+        except ValueError as e:
+            log.warning("%s: latency_s auto: %s", state.name, e)
+            return
+        state.latency_bounds_s = (lo, hi)
+        state.latency_s = (lo + hi) / 2
+        log.info("%s: latency from the stamp to receipt %.2f ms (bounds %.2f-%.2f ms)",
+                 state.name, state.latency_s * 1e3, lo * 1e3, hi * 1e3)  # fmt: skip
+
+
+# --- cameras --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _FrameItem:
+    frame: Frame
+    counts: _Counts  # dropped: also those lost before us (sequence gaps)
+
+
+class CameraAdapter(DeviceAdapter[Frame, _FrameItem]):
+    """A camera: ``/<name>/image/compressed`` (the JPEG as sent), ``/acq/timing/<name>``."""
+
+    kind = "camera"
+
+    def __init__(self, cfg: CameraConfig) -> None:
+        super().__init__(cfg.name, cfg.driver)
+        self.cfg = cfg
+
+    def channels(self) -> list[tuple[str, str]]:
+        return [
+            (f"/{self.name}/image/compressed", "foxglove.CompressedImage"),
+            (f"/acq/timing/{self.name}", "acq.Timing"),
+        ]
+
+    def open(self, on_event: Callable[[LinkEvent], None]) -> Relink[Frame]:
+        cfg = self.cfg
+        options: dict[str, Any] = dict(cfg.options)
+        for key in ("width", "height", "fourcc"):
+            value = getattr(cfg, key)
+            if value is not None:
+                options[key] = value
+        camera = REGISTRIES["camera"].create(
+            cfg.driver, cfg.source, name=cfg.name, fps=cfg.fps, latency_s=cfg.latency_s, **options
+        )
+        self.device = camera
+        return CameraLink(camera, on_event=on_event)
+
+    def identity(self) -> object:
+        return self.device.format
+
+    def receive(self, record: Frame) -> Iterable[_FrameItem]:
+        state = self.state
+        state.count(record.recv_ns)
+        state.source_drops = self.device.drops
+        state.corrupt = self.device.corrupt
+        return (_FrameItem(record, _Counts(state.received, state.dropped + state.source_drops)),)
+
+    def write(self, writer: LogWriter, payload: _FrameItem) -> None:
+        frame, name = payload.frame, self.name
+        timing = schemas.timing(
+            recv_ns=frame.recv_ns,
+            stamp_ns=frame.stamp_ns,
+            offset_ns=frame.stamp_ns - frame.recv_ns,
+            sequence=frame.sequence,
+            received=payload.counts.received,
+            dropped=payload.counts.dropped,
+        )
+        image = schemas.compressed_image(frame, name)
+        writer.write_group([
+            (f"/{name}/image/compressed", image, frame.recv_ns, frame.stamp_ns),
+            (f"/acq/timing/{name}", timing, frame.recv_ns, frame.stamp_ns),
+        ])  # fmt: skip
+
+
+# --- the vehicle's CAN bus ------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _CanItem:
+    """A CAN frame and the odometry decoded from it (None: not an odometry message)."""
+
+    frame: CanFrame
+    odometry: Odometry | None
+
+
+class CanAdapter(DeviceAdapter[CanFrame, _CanItem]):
+    """The vehicle's CAN bus: every frame to ``/vehicle/can``, odometry decoded from the
+    configured messages to ``/vehicle/odometry``; a frame that does not decode is a protocol
+    error (counted, logged), never the end of the thread."""
+
+    kind = "can"
+
+    def __init__(self, cfg: CanConfig) -> None:
+        super().__init__(VEHICLE, cfg.driver)
+        self.cfg = cfg
+        self._bad_stamps = 0
+
+    def channels(self) -> list[tuple[str, str]]:
+        return [(f"/{VEHICLE}/odometry", "acq.Odometry"), (f"/{VEHICLE}/can", "acq.CanFrame")]
+
+    def open(self, on_event: Callable[[LinkEvent], None]) -> Relink[CanFrame]:
+        cfg = self.cfg
+        bus = REGISTRIES["can"].create(
+            cfg.driver,
+            cfg.interface,
+            cfg.channel,
+            cfg.dbc,
+            bitrate=cfg.bitrate,
+            wheel_speeds=cfg.wheel_speeds,
+            yaw_rate=cfg.yaw_rate,
+            speed=cfg.speed,
+            name=VEHICLE,
+            bus_options=cfg.options,
+        )
+        self.device = bus
+        return Relink(bus, bus.read_frame, on_event=on_event, reachable=bus.reachable)
+
+    def identity(self) -> object:
+        return self.device.info
+
+    def receive(self, record: CanFrame) -> Iterable[_CanItem]:
+        state, bus = self.state, self.device
+        try:
+            odometry = bus.decode(record)
+        except ProtocolError as e:
+            state.bad_record("bad CAN frame", str(e))
+            odometry = None
+        if odometry is not None:
+            state.count(record.recv_ns)
+        if bus.bad_stamps > self._bad_stamps:
+            self._bad_stamps = n = bus.bad_stamps
+            if n & (n - 1) == 0:  # 1, 2, 4, 8...: no flood
+                log.warning("%s: %d CAN frames without a usable interface stamp (none, "
+                            "or the wall clock stepped): their receive time is used",
+                            VEHICLE, n)  # fmt: skip
+        return (_CanItem(record, odometry),)
+
+    def write(self, writer: LogWriter, payload: _CanItem) -> None:
+        frame = payload.frame
+        group = [(f"/{VEHICLE}/can", schemas.can_frame(frame), frame.recv_ns, frame.stamp_ns)]
+        if payload.odometry is not None:
+            odo = payload.odometry
+            group.append((f"/{VEHICLE}/odometry", schemas.odometry(odo), odo.recv_ns, odo.stamp_ns))
+        writer.write_group(group)
+
+
+# --- the GNSS receiver ----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _FixItem:
+    fix: Fix
+    stamp_ns: int  # the fix instant on the host clock
+    tick: int  # the fix time as UTC µs (GNSS_TICK_HZ)
+    counts: _Counts
+
+
+class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
+    """The GNSS receiver: every sentence to ``/gnss/raw``, each fix to ``/gnss/fix`` and
+    ``/acq/timing/gnss``, stamped with its fix time (the receiver's UTC, a device clock)
+    mapped to the host clock less ``latency_s``."""
+
+    kind = "gnss"
+
+    def __init__(self, cfg: GnssConfig) -> None:
+        super().__init__(GNSS, cfg.driver)
+        self.cfg = cfg
+
+    def channels(self) -> list[tuple[str, str]]:
+        return [
+            (f"/{GNSS}/fix", "foxglove.LocationFix"),
+            (f"/{GNSS}/raw", "acq.RawTelegram"),
+            (f"/acq/timing/{GNSS}", "acq.Timing"),
+        ]
+
+    def open(self, on_event: Callable[[LinkEvent], None]) -> Relink[Sentence]:
+        cfg, state = self.cfg, self.state
+        receiver = REGISTRIES["gnss"].create(cfg.driver, cfg.url, baudrate=cfg.baudrate, name=GNSS)
+        self.device = receiver
+        state.clock = DeviceClock(GNSS_TICK_HZ, 62, periodic=False)
+        state.latency_s = cfg.latency_s
+        return Relink(receiver, receiver.read_sentence, on_event=on_event)
+
+    def identity(self) -> object:
+        return self.device.info
+
+    def receive(self, record: Sentence) -> Iterable[Sentence | _FixItem]:
+        state, clock = self.state, self.state.clock
+        assert clock is not None
+        try:
+            fix = self.device.decode(record)
+        except ProtocolError as e:
+            state.bad_record("bad NMEA sentence", str(e))
+            return (record,)
+        if fix is None:
+            return (record,)
+        tick = round(fix.utc_s * GNSS_TICK_HZ)
+        if fix.quality > 0:  # without a fix a receiver's time may be its RTC's guess
+            epoch = clock.epoch
+            clock.update(tick, fix.recv_ns)
+            state.last_tick = tick
+            if clock.epoch != epoch:
+                state.event("clock_reset", "the receiver's UTC jumped: "
+                            "its mapping to host time starts afresh")  # fmt: skip
+        state.count(fix.recv_ns)
+        mapped = clock.to_host_ns(tick) if clock.updates else fix.recv_ns
+        counts = _Counts(state.received, state.dropped)
+        return (record, _FixItem(fix, mapped - round(state.latency_s * 1e9), tick, counts))
+
+    def write(self, writer: LogWriter, payload: Sentence | _FixItem) -> None:
+        if isinstance(payload, Sentence):
+            raw = schemas.raw_telegram(device=GNSS, data=payload.data, recv_ns=payload.recv_ns)
+            writer.write(f"/{GNSS}/raw", raw, payload.recv_ns, payload.recv_ns)
+            return
+        fix, stamp, clock = payload.fix, payload.stamp_ns, self.state.clock
+        timing = schemas.timing(
+            recv_ns=fix.recv_ns,
+            device_ticks=(payload.tick,),
+            unwrapped_tick=payload.tick,
+            epoch=clock.epoch if clock else 0,
+            stamp_ns=stamp,
+            offset_ns=stamp - fix.recv_ns,
+            drift_ppm=clock.drift_ppm if clock else 0.0,
+            uncertainty_s=finite(clock.uncertainty_s) if clock else 0.0,
+            received=payload.counts.received,
+            dropped=payload.counts.dropped,
+        )
+        writer.write_group([
+            (f"/{GNSS}/fix", schemas.location_fix(fix, stamp, GNSS), fix.recv_ns, stamp),
+            (f"/acq/timing/{GNSS}", timing, fix.recv_ns, stamp),
+        ])  # fmt: skip
+
+
+def adapters_for(config: Config) -> Sequence[DeviceAdapter[Any, Any]]:
+    """The adapters of a configuration's devices: scanners, cameras, CAN bus, GNSS."""
+    adapters: list[DeviceAdapter[Any, Any]] = [ScannerAdapter(s) for s in config.scanners]
+    adapters += [CameraAdapter(c) for c in config.cameras]
+    if config.can is not None:
+        adapters.append(CanAdapter(config.can))
+    if config.gnss is not None:
+        adapters.append(GnssAdapter(config.gnss))
+    return adapters

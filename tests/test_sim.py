@@ -329,20 +329,20 @@ def test_a_new_street_with_a_dead_streets_id_is_packed_afresh() -> None:
     # street the old one's scene (the flaky sim-render test)
     import gc
 
-    from acq.sim import raycast, world
+    from acq.sim import packed_scene, world
 
     old = world.Street.generate(seed=1)
-    stale = raycast.pack(old)
+    stale = packed_scene.pack(old)
     key = id(old)
     del old
     gc.collect()
     new = world.Street.generate(seed=2)
     # whether or not CPython gave it the same id, a cache entry under its id whose street
     # is gone must not be used
-    entry = raycast._PACK_CACHE.get(key)
+    entry = packed_scene._PACK_CACHE.get(key)
     assert entry is None or entry[0]() is None
     if entry is not None:
-        raycast._PACK_CACHE[id(new)] = entry
-    packed = raycast.pack(new)
+        packed_scene._PACK_CACHE[id(new)] = entry
+    packed = packed_scene.pack(new)
     assert packed is not stale
     assert len(packed.boxes) == len(new.boxes) and len(packed.cylinders) == len(new.cylinders)

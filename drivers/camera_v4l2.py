@@ -25,24 +25,23 @@ use the standard ones from JPEG Annex K): that is noted in ``info.extra["jpeg_dh
 and the bytes are still kept as sent. YUYV is converted to BGR (``Frame.image``), and
 JPEG-encoded into ``Frame.jpeg`` only with ``encode_jpeg=True``.
 
-The operating-system calls go through a :class:`V4L2System` (default :class:`OsV4L2`:
-``os``, ``fcntl.ioctl``, ``mmap``, ``select.poll``) so tests can put a fake kernel device
-behind the real ctypes structures.
+The operating-system calls go through a :class:`acq.drivers.v4l2_system.V4L2System`
+(default :class:`~acq.drivers.v4l2_system.OsV4L2`: ``os``, ``fcntl.ioctl``, ``mmap``,
+``select.poll``) so tests can put a fake kernel device behind the real ctypes structures.
+The rest stays whole: one driver class whose negotiation, controls and capture share the
+open device's state (descriptor, format, buffers, exposure).
 """
 
 from __future__ import annotations
 
 import ctypes
 import errno
-import fcntl
 import logging
-import mmap
 import os
-import select
 import time
 from collections.abc import Sequence
 from fractions import Fraction
-from typing import Any, Protocol
+from typing import Any
 
 import cv2
 import numpy as np
@@ -50,9 +49,10 @@ import numpy as np
 from acq.drivers import v4l2_abi as abi
 from acq.drivers.camera import Camera, FrameFormat, FrameTimeout
 from acq.drivers.errors import ConnectionLost, DeviceError
+from acq.drivers.v4l2_system import Buffer, OsV4L2, V4L2System
 from acq.records import DeviceInfo, Frame
 
-__all__ = ["ControlInfo", "OsV4L2", "V4L2Camera", "V4L2System", "jpeg_has_dht"]
+__all__ = ["ControlInfo", "V4L2Camera", "jpeg_has_dht"]
 
 log = logging.getLogger(__name__)
 
@@ -61,71 +61,6 @@ _GONE = {errno.ENODEV, errno.EIO, errno.ENXIO, errno.ENOENT, errno.ESHUTDOWN, er
 
 _PREFERRED = ("MJPG", "JPEG", "YUYV")
 _SUPPORTED = {abi.PIX_FMT_MJPEG, abi.PIX_FMT_JPEG, abi.PIX_FMT_YUYV}
-
-
-class Buffer(Protocol):
-    """A mapped buffer: sliceable into bytes (``mmap.mmap``, or a test's ``bytearray``)."""
-
-    def __getitem__(self, index: slice, /) -> bytes | bytearray: ...
-    def __len__(self) -> int: ...
-
-
-class V4L2System(Protocol):
-    """The operating-system calls the driver makes (one object per driver)."""
-
-    def open(self, path: str) -> int:
-        """Open a device node read-write, non-blocking; returns a file descriptor."""
-        ...
-
-    def close(self, fd: int) -> None: ...
-
-    def ioctl(self, fd: int, request: int, arg: Any) -> None:
-        """The ioctl, reading and writing the ctypes structure ``arg`` in place.
-
-        Raises OSError with the kernel's errno."""
-        ...
-
-    def mmap(self, fd: int, length: int, offset: int) -> Buffer:
-        """Map ``length`` bytes of the device at ``offset`` (shared, read-write)."""
-        ...
-
-    def munmap(self, buffer: Buffer) -> None: ...
-
-    def wait_readable(self, fd: int, timeout: float) -> bool:
-        """True when ``fd`` is readable (a buffer is done) or in error within ``timeout`` s."""
-        ...
-
-
-class OsV4L2:
-    """The real calls: ``os.open``, ``fcntl.ioctl``, ``mmap.mmap``, ``select.poll``."""
-
-    def open(self, path: str) -> int:
-        return os.open(path, os.O_RDWR | os.O_NONBLOCK | os.O_CLOEXEC)
-
-    def close(self, fd: int) -> None:
-        os.close(fd)
-
-    def ioctl(self, fd: int, request: int, arg: Any) -> None:
-        while True:
-            try:
-                fcntl.ioctl(fd, request, arg, True)
-                return
-            except InterruptedError:
-                continue
-
-    def mmap(self, fd: int, length: int, offset: int) -> Buffer:
-        return mmap.mmap(
-            fd, length, flags=mmap.MAP_SHARED, prot=mmap.PROT_READ | mmap.PROT_WRITE, offset=offset
-        )
-
-    def munmap(self, buffer: Buffer) -> None:
-        if isinstance(buffer, mmap.mmap):
-            buffer.close()
-
-    def wait_readable(self, fd: int, timeout: float) -> bool:
-        poller = select.poll()
-        poller.register(fd, select.POLLIN | select.POLLPRI | select.POLLERR | select.POLLHUP)
-        return bool(poller.poll(max(0, int(timeout * 1000.0 + 0.999))))
 
 
 class ControlInfo:

@@ -28,9 +28,10 @@ import pytest
 
 from acq.drivers import v4l2_abi as abi
 from acq.drivers.camera import FrameTimeout, camera_class
-from acq.drivers.camera_v4l2 import OsV4L2, V4L2Camera, jpeg_has_dht
+from acq.drivers.camera_v4l2 import V4L2Camera, jpeg_has_dht
 from acq.drivers.errors import ConnectionLost, DeviceError
 from acq.drivers.reconnect import Backoff, CameraLink, LinkEvent
+from acq.drivers.v4l2_system import OsV4L2
 
 PAGE = 4096
 SOE = abi.V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC | abi.V4L2_BUF_FLAG_TSTAMP_SRC_SOE

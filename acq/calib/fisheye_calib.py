@@ -27,7 +27,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from acq.calib import image_circle
+from acq.calib.circle_fit import ImageCircle
 from acq.calib.image_circle import CircleResult
 from acq.camera import calibfile
 from acq.camera.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
@@ -399,7 +399,7 @@ _COLOURS = {
 }
 
 
-def _draw_curve(img: np.ndarray, c: image_circle.ImageCircle, colour: tuple, thick: int) -> None:
+def _draw_curve(img: np.ndarray, c: ImageCircle, colour: tuple, thick: int) -> None:
     s = 16  # 4 fractional bits
     cv2.ellipse(
         img,

@@ -12,6 +12,7 @@ import pytest
 from acq.calib import extrinsic as ex
 from acq.calib.board_pose import BoardPose, board_pose_from_corners
 from acq.calib.extrinsic_linear import linear_solution
+from acq.calib.plots import residual_plot
 from acq.geometry.rotations import rotation_angle, rotation_from_euler, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
 from acq.sim.board_poses import Checkerboard, simulate
@@ -119,7 +120,7 @@ def test_an_outlier_pose_is_detected_and_dropped(tmp_path: Path) -> None:
     assert len(kept) == 15 - len(result.outliers)
 
     path = tmp_path / "residuals.png"
-    img = ex.residual_plot(result, data.poses, path)
+    img = residual_plot(result, data.poses, path)
     assert path.stat().st_size > 0
     read = cv2.imread(str(path))
     assert read is not None and read.shape == img.shape

@@ -28,10 +28,8 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any, Literal
 
-import cv2
 import numpy as np
 
 from acq.calib.board_pose import BoardPose
@@ -45,7 +43,6 @@ __all__ = [
     "laser_noise",
     "point_residuals",
     "refine",
-    "residual_plot",
 ]
 
 Loss = Literal["linear", "huber", "cauchy"]
@@ -542,80 +539,3 @@ def calibrate(
         outlier_threshold_m=threshold,
         initial=initial,
     )
-
-
-# ----------------------------------------------------------------------------- plot
-
-
-def residual_plot(
-    result: ExtrinsicResult, poses: Sequence[BoardPose], path: str | Path
-) -> np.ndarray:
-    """Write a PNG (and return the BGR image): left, each pose's RMS residual (mm, dropped
-    poses in red, the median and the outlier threshold as lines); right, the histogram of
-    the kept poses' point residuals (mm) with a Gaussian of their RMS."""
-    W, H, m = 1100, 420, 50
-    img = np.full((H, W, 3), 255, np.uint8)
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    black, grey, red, blue = (0, 0, 0), (170, 170, 170), (40, 40, 220), (200, 120, 40)
-    res = point_residuals(poses, result.camera_to_laser)
-    rms_mm = np.asarray(result.residuals_per_pose) * 1e3
-
-    # left panel: per-pose bars
-    x0, x1, y0, y1 = m, W // 2 - 20, m, H - m
-    thr_mm = result.outlier_threshold_m * 1e3
-    top = max(float(rms_mm.max()) if len(rms_mm) else 1.0, 1e-6)
-    if math.isfinite(thr_mm):
-        top = max(top, thr_mm)
-    top *= 1.1
-
-    def ly(v: float) -> int:
-        return round(y1 - (y1 - y0) * v / top)
-
-    cv2.rectangle(img, (x0, y0), (x1, y1), black, 1)
-    bw = (x1 - x0) / max(len(rms_mm), 1)
-    for i, v in enumerate(rms_mm):
-        colour = red if i in result.outliers else blue
-        a = int(x0 + i * bw + 0.15 * bw)
-        b = int(x0 + (i + 1) * bw - 0.15 * bw)
-        cv2.rectangle(img, (a, ly(float(v))), (max(b, a + 1), y1), colour, -1)
-        if len(rms_mm) <= 40:
-            cv2.putText(img, str(i), (a, y1 + 14), font, 0.35, black, 1)
-    med = float(np.median(rms_mm)) if len(rms_mm) else 0.0
-    cv2.line(img, (x0, ly(med)), (x1, ly(med)), grey, 1)
-    if math.isfinite(thr_mm):
-        cv2.line(img, (x0, ly(thr_mm)), (x1, ly(thr_mm)), red, 1)
-    cv2.putText(img, f"{top:.1f} mm", (x0 - 45, y0 + 4), font, 0.35, black, 1)
-    cv2.putText(img, "0", (x0 - 12, y1 + 4), font, 0.35, black, 1)
-    title = f"RMS residual per pose, mm (grey: median {med:.1f}, red: threshold {thr_mm:.1f})"
-    cv2.putText(img, title, (x0, y0 - 15), font, 0.45, black, 1)
-
-    # right panel: histogram of kept point residuals
-    kept = [r for i, r in enumerate(res) if i not in result.outliers]
-    vals = np.concatenate(kept) * 1e3 if kept else np.zeros(1)
-    x0, x1 = W // 2 + 40, W - m
-    lim = max(float(np.percentile(np.abs(vals), 99.5)), 1e-6) * 1.2
-    bins = np.linspace(-lim, lim, 41)
-    hist, _ = np.histogram(np.clip(vals, -lim, lim), bins)
-    hmax = max(int(hist.max()), 1)
-    cv2.rectangle(img, (x0, y0), (x1, y1), black, 1)
-    bwr = (x1 - x0) / len(hist)
-    for i, c in enumerate(hist):
-        a = int(x0 + i * bwr)
-        b = int(x0 + (i + 1) * bwr) - 1
-        cv2.rectangle(img, (a, int(y1 - (y1 - y0) * c / hmax / 1.1)), (b, y1), blue, -1)
-    sd = float(np.sqrt(np.mean(vals**2)))
-    if sd > 0:
-        xs = np.linspace(-lim, lim, 200)
-        pdf = len(vals) * (bins[1] - bins[0]) * np.exp(-0.5 * (xs / sd) ** 2)
-        pdf /= sd * math.sqrt(2 * math.pi)
-        pts = np.column_stack(
-            [x0 + (xs + lim) / (2 * lim) * (x1 - x0), y1 - (y1 - y0) * pdf / hmax / 1.1]
-        )
-        cv2.polylines(img, [pts.astype(np.int32)], False, red, 1, cv2.LINE_AA)
-    cv2.putText(img, f"{-lim:.1f}", (x0 - 10, y1 + 16), font, 0.35, black, 1)
-    cv2.putText(img, f"{lim:.1f} mm", (x1 - 30, y1 + 16), font, 0.35, black, 1)
-    title = f"point residuals, kept poses (n={len(vals)}, RMS {sd:.2f} mm)"
-    cv2.putText(img, title, (x0, y0 - 15), font, 0.45, black, 1)
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"could not write {path}")
-    return img

@@ -42,6 +42,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from acq.calib import extrinsic as ex
+from acq.calib.board_pose import BoardPose
+from acq.calib.extrinsic_linear import linear_solution
 from acq.camera.camera_models import Pinhole
 from acq.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
@@ -115,7 +117,7 @@ def _line(bench: str, **fields: object) -> None:
 def _run(
     datasets: Sequence[BoardData],
     n: int | None,
-    method: Callable[[list[ex.BoardPose]], Rigid | ex.ExtrinsicResult],
+    method: Callable[[list[BoardPose]], Rigid | ex.ExtrinsicResult],
 ) -> tuple[list[np.ndarray], list[np.ndarray], int, int]:
     """(errors, stds, failures, warnings) of ``method`` on the first n poses of each set."""
     errors, stds, failures, warned = [], [], 0, 0
@@ -151,8 +153,8 @@ def main() -> None:
     data30 = [simulate(30, seed=s) for s in seeds]
     sim_s = (time.perf_counter() - t0) / (30 * args.seeds)
 
-    methods: dict[str, Callable[[list[ex.BoardPose]], Rigid | ex.ExtrinsicResult]] = {
-        "linear": ex.linear_solution,
+    methods: dict[str, Callable[[list[BoardPose]], Rigid | ex.ExtrinsicResult]] = {
+        "linear": linear_solution,
         "exact_planes": lambda p: ex.calibrate(p, plane_errors=False),
         "default": ex.calibrate,
     }

@@ -9,7 +9,7 @@ its axes. For each pose:
   ``rig.angle_increment`` (0.25 degrees), Gaussian range noise (10 mm);
 - the camera's plane: the inner corners projected with the rig's fisheye lens
   (``acq.sim.world.default_rig``), Gaussian pixel noise (0.2 px), then the board's pose
-  estimated by :func:`acq.calib.extrinsic.board_pose_from_corners` — so the plane (n, d) has
+  estimated by :func:`acq.calib.board_pose.board_pose_from_corners` — so the plane (n, d) has
   the errors of a real detection.
 
 Outlier poses (``n_outliers``) are boards that moved between the image and the scan:
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acq.calib.extrinsic import BoardFit, BoardPose, board_pose_from_corners
+from acq.calib.board_pose import BoardFit, BoardPose, board_pose_from_corners
 from acq.camera.camera_models import CameraModel
 from acq.geometry.rotations import matrix_from_rotvec, rotation_from_euler
 from acq.geometry.transforms import Rigid

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from acq.calib import extrinsic as ex
-from acq.calib.extrinsic import BoardPose
+from acq.calib.board_pose import BoardPose, board_pose_from_corners
+from acq.calib.extrinsic_linear import linear_solution
+from acq.calib.plots import residual_plot
 from acq.geometry.rotations import rotation_angle, rotation_from_euler, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
 from acq.sim.board_poses import Checkerboard, simulate
@@ -49,7 +51,7 @@ def _synthetic(truth: Rigid, normals: np.ndarray, distances: np.ndarray) -> list
 
 def test_noiseless_data_are_recovered_exactly() -> None:
     data = simulate(12, seed=3, pixel_noise=0.0, range_noise=0.0)
-    rot, trans = _errors(ex.linear_solution(data.poses), data.truth)
+    rot, trans = _errors(linear_solution(data.poses), data.truth)
     assert rot < 1e-9 and trans < 1e-9
     result = ex.calibrate(data.poses)
     rot, trans = _errors(result.camera_to_laser, data.truth)
@@ -64,7 +66,7 @@ def test_linear_solution_is_close_with_noise_and_refinement_improves_it() -> Non
     lin_total = ref_total = 0.0
     for seed in range(3):
         data = simulate(20, seed=seed)
-        lin = ex.linear_solution(data.poses)
+        lin = linear_solution(data.poses)
         rot, trans = _errors(lin, data.truth)
         assert math.degrees(rot) < 3.0 and trans < 0.06
         result = ex.calibrate(data.poses)
@@ -118,7 +120,7 @@ def test_an_outlier_pose_is_detected_and_dropped(tmp_path: Path) -> None:
     assert len(kept) == 15 - len(result.outliers)
 
     path = tmp_path / "residuals.png"
-    img = ex.residual_plot(result, data.poses, path)
+    img = residual_plot(result, data.poses, path)
     assert path.stat().st_size > 0
     read = cv2.imread(str(path))
     assert read is not None and read.shape == img.shape
@@ -129,7 +131,7 @@ def test_an_outlier_pose_is_detected_and_dropped(tmp_path: Path) -> None:
 def test_fewer_than_five_poses_raise() -> None:
     data = simulate(4, seed=1, true_planes=True)
     with pytest.raises(ValueError, match="at least 5 board poses"):
-        ex.linear_solution(data.poses)
+        linear_solution(data.poses)
     with pytest.raises(ValueError, match="at least 5 board poses"):
         ex.calibrate(data.poses)
 
@@ -144,7 +146,7 @@ def test_degenerate_poses_raise() -> None:
     normals = np.column_stack([np.sin(angles), np.zeros(6), -np.cos(angles)])
     poses = _synthetic(truth, normals, np.full(6, -2.0))
     with pytest.raises(ValueError, match="one plane"):
-        ex.linear_solution(poses)
+        linear_solution(poses)
 
 
 def test_direction_convention_is_eq2_not_its_inverse() -> None:
@@ -183,7 +185,7 @@ def test_board_pose_from_corners_past_90_degrees() -> None:
     chi2 = []
     for seed in range(5):
         rng = np.random.default_rng(seed)
-        fit = ex.board_pose_from_corners(lens, obj, uv + rng.normal(0.0, 0.2, uv.shape))
+        fit = board_pose_from_corners(lens, obj, uv + rng.normal(0.0, 0.2, uv.shape))
         n, d = fit.plane()
         assert math.degrees(math.acos(min(1.0, float(n @ n_true)))) < 1.0
         assert abs(d - d_true) < 0.01
@@ -193,7 +195,7 @@ def test_board_pose_from_corners_past_90_degrees() -> None:
         chi2.append(e @ np.linalg.pinv(fit.plane_covariance(), rcond=1e-12) @ e)
     assert np.mean(chi2) < 12.0  # the plane covariance is realistic (3 dof: ~3)
     # exact corners: exact pose
-    exact = ex.board_pose_from_corners(lens, obj, uv)
+    exact = board_pose_from_corners(lens, obj, uv)
     assert _errors(exact.board_to_camera, truth)[0] < 1e-9
     np.testing.assert_allclose(exact.board_to_camera.translation, centre, atol=1e-9)
 
@@ -213,7 +215,7 @@ def test_board_pose_from_corners_with_every_corner_behind_the_lens_plane() -> No
     P = truth.apply(obj)
     uv, valid = lens.project(P)
     assert valid.all() and (P[:, 2] < 0).all()
-    fit = ex.board_pose_from_corners(lens, obj, uv)
+    fit = board_pose_from_corners(lens, obj, uv)
     assert _errors(fit.board_to_camera, truth)[0] < 1e-8
     np.testing.assert_allclose(fit.board_to_camera.translation, centre, atol=1e-8)
 

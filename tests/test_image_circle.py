@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq.calib import image_circle
-from acq.calib.image_circle import CircleResult, ImageCircle
+from acq.calib import circle_fit, image_circle
+from acq.calib.circle_fit import ImageCircle
+from acq.calib.image_circle import CircleResult
 from acq.sim.fisheye_images import CircleTruth, fisheye_image
 
 REFERENCE_PP = (384.8, 240.0)  # ../shared/data/README.md, fisheye/
@@ -145,16 +146,16 @@ def test_fits_recover_exact_points_and_ransac_drops_outliers() -> None:
     phi = rng.uniform(0.3, 2.6, 200)  # an arc, as on a truncated circle
     c = ImageCircle(300.5, 250.25, 280.0, 290.0)
     pts = np.stack([c.cx + c.rx * np.cos(phi), c.cy + c.ry * np.sin(phi)], axis=1)
-    fit = image_circle.fit_conic(pts, ellipse=True)
+    fit = circle_fit.fit_conic(pts, ellipse=True)
     assert np.allclose([fit.cx, fit.cy, fit.rx, fit.ry], [c.cx, c.cy, c.rx, c.ry], atol=1e-6)
     circle = ImageCircle(300.5, 250.25, 280.0, 280.0)
     pts = np.stack([circle.cx + 280 * np.cos(phi), circle.cy + 280 * np.sin(phi)], axis=1)
     pts += rng.normal(0, 0.1, pts.shape)
     bad = rng.random(len(pts)) < 0.3
     pts[bad] -= rng.uniform(5, 30, (int(bad.sum()), 1)) * (pts[bad] - (300.5, 250.25)) / 280
-    inl = image_circle.ransac_fit(pts, 1.0)
+    inl = circle_fit.ransac_fit(pts, 1.0)
     assert np.array_equal(inl, ~bad)
-    refined, res, sigma = image_circle.refine_fit(pts[inl], image_circle.fit_conic(pts[inl]))
+    refined, res, sigma = circle_fit.refine_fit(pts[inl], circle_fit.fit_conic(pts[inl]))
     # within 4 of its own standard errors (an arc fixes the centre less than a circle)
     assert abs(refined.cx - 300.5) < 4 * sigma[0] and abs(refined.cy - 250.25) < 4 * sigma[1]
     assert abs(refined.rx - 280.0) < 4 * sigma[2]

@@ -13,6 +13,7 @@ from acq.geometry.rotations import (
     matrices_from_euler,
     matrix_from_quat,
     matrix_from_rotvec,
+    nearest_rotation,
     quat_from_matrix,
     rotation_angle,
     rotation_between,
@@ -107,3 +108,17 @@ def test_rotation_between_turns_one_direction_onto_another() -> None:
         np.testing.assert_allclose(R @ (a / np.linalg.norm(a)), b / np.linalg.norm(b), atol=1e-12)
         np.testing.assert_allclose(R @ np.cross(a, b), np.cross(a, b), atol=1e-12)  # the axis
     np.testing.assert_allclose(rotation_between([0, 0, 2.0], [0, 0, 1.0]), np.eye(3))
+
+
+def test_nearest_rotation_removes_noise_and_reflections() -> None:
+    rng = np.random.default_rng(3)
+    R = rotation_from_euler(0.3, -1.2, 2.0)
+    noisy = R + rng.normal(0.0, 1e-4, (3, 3))
+    Q = nearest_rotation(noisy)
+    np.testing.assert_allclose(Q @ Q.T, np.eye(3), atol=1e-12)
+    assert abs(np.linalg.det(Q) - 1.0) < 1e-12
+    assert rotation_angle(Q @ R.T) < 5e-4
+    np.testing.assert_allclose(nearest_rotation(R), R, atol=1e-12)
+    # a reflection's nearest rotation flips its weakest axis, never keeps det = -1
+    F = np.diag([1.0, 2.0, -0.5])
+    np.testing.assert_allclose(nearest_rotation(F), np.diag([1.0, 1.0, 1.0]), atol=1e-12)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
-from acq.calib import sensitivity
+from acq.calib import plots, sensitivity
 from acq.calib.sensitivity import PARAMS
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
@@ -158,7 +158,7 @@ def test_table3_is_monotonic_and_matches_the_third_order_formula() -> None:
 
 def test_plot_has_the_size_and_draws_every_series(tmp_path: Path) -> None:
     x = np.linspace(0, 90, 46)
-    img = sensitivity.line_plot(
+    img = plots.line_plot(
         [("a", x, 1e-3 * (1 + x)), ("b", x, np.full_like(x, 0.5))],
         "title",
         "theta (deg)",
@@ -167,9 +167,9 @@ def test_plot_has_the_size_and_draws_every_series(tmp_path: Path) -> None:
         log_y=True,
     )
     assert img.shape == (500, 800, 3) and img.dtype == np.uint8
-    for colour in sensitivity._COLOURS[:2]:
+    for colour in plots.PALETTE[:2]:
         assert (np.all(img == colour, axis=2)).sum() > 200, colour
-    blank = sensitivity.line_plot([], "t", "x", "y", size=(800, 500))
+    blank = plots.line_plot([], "t", "x", "y", size=(800, 500))
     assert blank.shape == (500, 800, 3)
 
 

@@ -11,15 +11,15 @@ maps to the camera as ``R^T (P_ij - t)``, which must lie on the plane::
 way round; this follows eq. 2). The result is ``camera_to_laser`` as calib.yaml stores it.
 
 Pipeline (:func:`calibrate`): Zhang & Pless's linear solution as initial guess (at least 5
-poses), Levenberg–Marquardt with a robust loss over 6 parameters, poses whose RMS residual
-is far above the others reported and dropped, Levenberg–Marquardt again. When the planes
-come with their covariance (:meth:`BoardPose.from_fit`), the last refinement also
-estimates a correction of each plane held by that covariance, so that the result and its
-standard deviations account for the camera's errors, which dominate with a low-resolution
-fisheye (see :func:`refine`).
+poses, :mod:`acq.calib.extrinsic_linear`), Levenberg–Marquardt with a robust loss over 6
+parameters, poses whose RMS residual is far above the others reported and dropped,
+Levenberg–Marquardt again. When the planes come with their covariance
+(``BoardPose.from_fit``), the last refinement also estimates a correction of each plane
+held by that covariance, so that the result and its standard deviations account for the
+camera's errors, which dominate with a low-resolution fisheye (see :func:`refine`).
 
-The board planes come from :func:`board_pose_from_corners`, a PnP on reprojection error
-with any of our camera models (fisheye points past 90 degrees included).
+The poses (:class:`~acq.calib.board_pose.BoardPose`) and their planes come from
+:mod:`acq.calib.board_pose`; the residual plot is :func:`acq.calib.plots.residual_plot`.
 """
 
 from __future__ import annotations
@@ -28,118 +28,27 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any, Literal
 
-import cv2
 import numpy as np
-import numpy.typing as npt
 
-from acq.camera.camera_models import CameraModel
-from acq.geometry.rotations import matrix_from_rotvec, rotation_between, rotation_to_euler, skew
+from acq.calib.board_pose import BoardPose
+from acq.calib.extrinsic_linear import MIN_POSES, check_geometry, linear_solution
+from acq.geometry.rotations import matrix_from_rotvec, nearest_rotation, rotation_to_euler
 from acq.geometry.transforms import Rigid
 
 __all__ = [
-    "MIN_POSES",
-    "BoardFit",
-    "BoardPose",
     "ExtrinsicResult",
-    "board_pose_from_corners",
     "calibrate",
-    "check_geometry",
     "laser_noise",
-    "linear_solution",
     "point_residuals",
     "refine",
-    "residual_plot",
 ]
 
-MIN_POSES = 5  # 9 unknowns in the linear solution, 2 independent constraints per pose
 Loss = Literal["linear", "huber", "cauchy"]
-
-# board normals (rows of an (n,3) matrix) must span 3-D: singular value ratios below these
-# raise (degenerate), below _WARN_SPREAD warn (poorly conditioned)
-_DEGENERATE_SPREAD = 0.02  # ~1 degree
-_WARN_SPREAD = 0.08  # ~5 degrees
-
-
-def _orthonormalise(R: np.ndarray) -> np.ndarray:
-    U, _, Vt = np.linalg.svd(R)
-    Q = U @ Vt
-    if np.linalg.det(Q) < 0:
-        Q = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
-    return Q
 
 
 # ----------------------------------------------------------------------------- data
-
-
-@dataclass(frozen=True)
-class BoardPose:
-    """One board pose: its plane in the camera frame and the laser points on it.
-
-    ``normal`` (3,) and ``distance`` (m) give the plane ``normal · X = distance`` in the
-    camera frame (the normal is normalised here, the distance scaled with it);
-    ``points`` (N,3) are the laser-frame points (m, z = 0 for a 2-D scanner) that hit
-    the board, at least 2. ``weight`` scales the pose's residuals in the fit; ``id``
-    names it in reports (e.g. the image's timestamp). ``plane_cov`` (4,4), optional: the
-    covariance of ``(n_x, n_y, n_z, d)`` from the camera's board estimate (see
-    :meth:`BoardFit.plane_covariance`); with it :func:`refine` accounts for the plane's
-    errors instead of taking the plane as exact.
-    """
-
-    normal: np.ndarray
-    distance: float
-    points: np.ndarray
-    weight: float = 1.0
-    id: str = ""
-    plane_cov: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        n = np.array(self.normal, dtype=np.float64).reshape(-1)
-        P = np.array(self.points, dtype=np.float64)
-        if n.shape != (3,):
-            raise ValueError(f"normal must have 3 values, got {n.size}")
-        norm = float(np.linalg.norm(n))
-        if not (np.isfinite(norm) and norm > 0):
-            raise ValueError(f"normal must be finite and non-zero, got {n}")
-        if P.ndim != 2 or P.shape[1] != 3:
-            raise ValueError(f"points must be (N,3), got shape {P.shape}")
-        if len(P) < 2:
-            raise ValueError(f"a board pose needs at least 2 laser points, got {len(P)}")
-        if not np.isfinite(P).all() or not math.isfinite(self.distance):
-            raise ValueError("points and distance must be finite")
-        if not self.weight > 0:
-            raise ValueError(f"weight must be > 0, got {self.weight}")
-        if self.plane_cov is not None:
-            C = np.array(self.plane_cov, dtype=np.float64)
-            if C.shape != (4, 4) or not np.isfinite(C).all():
-                raise ValueError(f"plane_cov must be a finite 4x4 matrix, got {C.shape}")
-            C = 0.5 * (C + C.T) / norm**2
-            C.flags.writeable = False
-            object.__setattr__(self, "plane_cov", C)
-        n = n / norm
-        n.flags.writeable = False
-        P.flags.writeable = False
-        object.__setattr__(self, "normal", n)
-        object.__setattr__(self, "distance", float(self.distance) / norm)
-        object.__setattr__(self, "points", P)
-
-    @classmethod
-    def from_board(
-        cls, board_to_camera: Rigid, points: npt.ArrayLike, weight: float = 1.0, id: str = ""
-    ) -> BoardPose:
-        """The pose of a board whose plane is its frame's z = 0 (``board_to_camera``)."""
-        n = board_to_camera.rotation[:, 2]
-        return cls(n, float(n @ board_to_camera.translation), np.asarray(points), weight, id)
-
-    @classmethod
-    def from_fit(
-        cls, fit: BoardFit, points: npt.ArrayLike, weight: float = 1.0, id: str = ""
-    ) -> BoardPose:
-        """The pose from :func:`board_pose_from_corners`, with its plane covariance."""
-        n, d = fit.plane()
-        return cls(n, d, np.asarray(points), weight, id, fit.plane_covariance())
 
 
 @dataclass(frozen=True)
@@ -202,76 +111,6 @@ class ExtrinsicResult:
                 None if self.laser_noise_m is None else float(np.median(self.laser_noise_m)) * 1e3
             ),
         }
-
-
-# ----------------------------------------------------------------------------- linear
-
-
-def check_geometry(poses: Sequence[BoardPose]) -> None:
-    """Raise ValueError when the poses cannot determine the transform; warn when weak.
-
-    At least :data:`MIN_POSES` poses, and board normals that span 3-D: all normals
-    parallel leaves the rotation about the normal and two translations free; normals all
-    perpendicular to one direction (boards only turned about one axis) leave the
-    translation along that direction free.
-    """
-    if len(poses) < MIN_POSES:
-        raise ValueError(
-            f"the camera-laser calibration needs at least {MIN_POSES} board poses "
-            f"(the linear solution has 9 unknowns, each pose gives 2 constraints), "
-            f"got {len(poses)}; the paper recommends 15 or more"
-        )
-    N = np.array([p.normal for p in poses])
-    s = np.linalg.svd(N, compute_uv=False)
-    if s[1] / s[0] < _DEGENERATE_SPREAD:
-        raise ValueError(
-            f"degenerate board poses: all {len(poses)} board normals are parallel "
-            f"(spread ratio {s[1] / s[0]:.3g}); tilt the board about different axes "
-            f"between poses (±30 degrees)"
-        )
-    if s[2] / s[0] < _DEGENERATE_SPREAD:
-        raise ValueError(
-            f"degenerate board poses: the board normals all lie in one plane (spread ratio "
-            f"{s[2] / s[0]:.3g}), so the translation along its normal is undetermined; tilt "
-            f"the board about a second axis too"
-        )
-    if s[2] / s[0] < _WARN_SPREAD:
-        warnings.warn(
-            f"board normals span 3-D poorly (spread ratio {s[2] / s[0]:.3g} < "
-            f"{_WARN_SPREAD}); the result will be imprecise, tilt the board more",
-            stacklevel=2,
-        )
-
-
-def linear_solution(poses: Sequence[BoardPose]) -> Rigid:
-    """Zhang & Pless's linear least-squares estimate of ``camera_to_laser``.
-
-    For a laser point ``p = (x, y, 0)``, ``n · R^T (p - t) = d`` is ``n^T H (x, y, 1)^T =
-    d`` with ``H = R^T [e1 e2 -t]``: linear in the 9 entries of H. R^T's first two columns
-    are orthonormalised (closest orthonormal pair by SVD), the third is their cross
-    product, and ``t = -R h3``. Needs at least 5 poses with normals spanning 3-D and laser
-    points in the plane z = 0 (|z| <= 1 mm).
-    """
-    check_geometry(poses)
-    rows, rhs, wts = [], [], []
-    for p in poses:
-        if np.abs(p.points[:, 2]).max() > 1e-3:
-            raise ValueError("the linear solution needs laser points in the scan plane z = 0")
-        q = np.column_stack([p.points[:, :2], np.ones(len(p.points))])  # (N,3) = (x, y, 1)
-        # n^T H q = sum_{a,b} n_a H_ab q_b: row-major vec(H) coefficients n_a q_b
-        rows.append((p.normal[None, :, None] * q[:, None, :]).reshape(len(q), 9))
-        rhs.append(np.full(len(q), p.distance))
-        wts.append(np.full(len(q), math.sqrt(p.weight / len(q))))  # each pose counts alike
-    w = np.concatenate(wts)
-    A = np.concatenate(rows) * w[:, None]
-    b = np.concatenate(rhs) * w
-    h, *_ = np.linalg.lstsq(A, b, rcond=None)
-    H = h.reshape(3, 3)
-    U, _, Vt = np.linalg.svd(H[:, :2], full_matrices=False)
-    c12 = U @ Vt  # closest 3x2 matrix with orthonormal columns
-    Rt = np.column_stack([c12, np.cross(c12[:, 0], c12[:, 1])])
-    R = _orthonormalise(Rt.T)
-    return Rigid(R, -R @ H[:, 2])
 
 
 # ----------------------------------------------------------------------------- refinement
@@ -547,7 +386,7 @@ def refine(
         stepped = False
         while lam < 1e12:
             delta = np.linalg.solve(A + lam * np.diag(np.diag(A)), -g)
-            R_new = _orthonormalise(matrix_from_rotvec(delta[:3]) @ R)
+            R_new = nearest_rotation(matrix_from_rotvec(delta[:3]) @ R)
             t_new = t + delta[3:6]
             D_new = D + delta[6:].reshape(-1, 3)
             r_new, J_new, cost_new = prob.evaluate(R_new, t_new, D_new)
@@ -700,229 +539,3 @@ def calibrate(
         outlier_threshold_m=threshold,
         initial=initial,
     )
-
-
-# ----------------------------------------------------------------------------- PnP
-
-
-@dataclass(frozen=True)
-class BoardFit:
-    """A board's pose from its corners: ``board_to_camera`` (P_camera = R @ P_board + t),
-    the RMS reprojection error (px, per corner, both axes), the number of iterations and
-    ``covariance`` (6,6) of a left rotation vector (camera frame, rad) and the translation
-    (m), from the Jacobian with the pixel noise estimated from the residuals."""
-
-    board_to_camera: Rigid
-    rms_px: float
-    iterations: int
-    covariance: np.ndarray
-
-    def plane(self) -> tuple[np.ndarray, float]:
-        """The board plane (board z = 0) in the camera frame: unit normal, distance (m)."""
-        n = self.board_to_camera.rotation[:, 2]
-        return n.copy(), float(n @ self.board_to_camera.translation)
-
-    def plane_covariance(self) -> np.ndarray:
-        """(4,4) covariance of ``(n_x, n_y, n_z, d)`` of :meth:`plane` (rank 3)."""
-        n, _ = self.plane()
-        t = self.board_to_camera.translation
-        G = np.zeros((4, 6))
-        G[:3, :3] = -skew(n)  # n' = exp([w]x) n = n + w x n
-        G[3, :3] = np.cross(n, t)  # d = n . t
-        G[3, 3:] = n
-        return G @ self.covariance @ G.T
-
-
-def _initial_pnp(model: CameraModel, obj: np.ndarray, uv: np.ndarray) -> list[Rigid]:
-    """Candidate poses from cv2 on undistorted rays, in a virtual pinhole camera turned
-    towards the rays' mean direction so that boards near or past 90 degrees off-axis have
-    z > 0. Flat boards: IPPE's two solutions (a small or distant board's tilt is
-    ambiguous) unless the second reprojects 3x worse; other targets: SQPnP's one."""
-    rays = model.unproject(uv)
-    m = rays.mean(axis=0)
-    m /= np.linalg.norm(m)
-    Rv = rotation_between(m, [0.0, 0.0, 1.0])  # camera -> virtual
-    rv = rays @ Rv.T
-    ok = rv[:, 2] > 0.05
-    if ok.sum() < 4:
-        raise ValueError("fewer than 4 corners usable for the initial PnP (board too wide)")
-    xy = np.ascontiguousarray(rv[ok, :2] / rv[ok, 2:3])
-    o = np.ascontiguousarray(obj[ok])
-    planar = np.ptp(o[:, 2]) < 1e-9
-    flag = cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP
-    n, rvecs, tvecs, errs = cv2.solvePnPGeneric(o, xy, np.eye(3), None, flags=flag)
-    if not n:
-        raise ValueError("cv2.solvePnPGeneric found no board pose")
-    errs = np.asarray(errs, dtype=np.float64).reshape(-1)
-    out: list[Rigid] = []
-    for rvec, tvec, err in zip(rvecs, tvecs, errs, strict=True):
-        if out and err > 3.0 * errs[0] + 1e-12:
-            continue
-        Rp = matrix_from_rotvec(np.asarray(rvec).reshape(3))
-        out.append(Rigid(Rv.T @ Rp, Rv.T @ np.asarray(tvec, dtype=np.float64).reshape(3)))
-    return out
-
-
-def board_pose_from_corners(
-    model: CameraModel,
-    object_points: npt.ArrayLike,
-    image_points: npt.ArrayLike,
-    initial: Rigid | None = None,
-    max_iterations: int = 50,
-) -> BoardFit:
-    """The board's pose from its corners by Levenberg–Marquardt on reprojection error.
-
-    ``object_points`` (N,3) board-frame metres (a flat board: z = 0), ``image_points``
-    (N,2) px. Uses ``model.project``, so it works with any camera model and past 90
-    degrees off-axis (OpenCV's solvePnP assumes a pinhole). Initial pose: ``initial``
-    (board_to_camera), else cv2.solvePnPGeneric (IPPE for flat boards: both of its
-    solutions are refined when the tilt is ambiguous, the better kept) on the
-    unprojected rays expressed in a virtual pinhole camera looking along their mean
-    direction. Six parameters: a rotation vector applied on the left (camera frame) and
-    the translation; the projection's derivatives by central differences (one batched
-    ``project`` call). The covariance uses the pixel noise estimated from the residuals.
-    """
-    obj = np.asarray(object_points, dtype=np.float64)
-    uv = np.asarray(image_points, dtype=np.float64)
-    if obj.ndim != 2 or obj.shape[1] != 3 or uv.shape != (len(obj), 2):
-        raise ValueError(f"need (N,3) object and (N,2) image points, got {obj.shape}, {uv.shape}")
-    if len(obj) < 4:
-        raise ValueError(f"a board pose needs at least 4 corners, got {len(obj)}")
-    starts = [initial] if initial is not None else _initial_pnp(model, obj, uv)
-    fits = [_pnp_lm(model, obj, uv, start, max_iterations) for start in starts]
-    return min(fits, key=lambda f: f.rms_px)
-
-
-def _pnp_lm(
-    model: CameraModel, obj: np.ndarray, uv: np.ndarray, start: Rigid, max_iterations: int
-) -> BoardFit:
-    R, t = np.array(start.rotation), np.array(start.translation)
-    N = len(obj)
-
-    def resid(R_: np.ndarray, t_: np.ndarray) -> np.ndarray:
-        proj, _ = model.project(obj @ R_.T + t_)
-        return (proj - uv).reshape(-1)
-
-    def jacobian(R_: np.ndarray, t_: np.ndarray) -> np.ndarray:
-        RX = obj @ R_.T
-        X = RX + t_
-        h = 1e-6 * np.maximum(np.linalg.norm(X, axis=1), 1e-3)
-        steps = [X + s * h[:, None] * e for e in np.eye(3) for s in (1.0, -1.0)]
-        proj, _ = model.project(np.concatenate(steps))
-        proj = proj.reshape(6, N, 2)
-        D = (proj[0::2] - proj[1::2]) / (2 * h[None, :, None])  # (3,N,2) d uv / d X_k
-        dX = np.zeros((N, 3, 6))  # dX/d(w, t): -[RX]x and I
-        dX[:, 0, 1], dX[:, 0, 2] = RX[:, 2], -RX[:, 1]  # -[RX]x, row by row
-        dX[:, 1, 0], dX[:, 1, 2] = -RX[:, 2], RX[:, 0]
-        dX[:, 2, 0], dX[:, 2, 1] = RX[:, 1], -RX[:, 0]
-        dX[:, :, 3:] = np.eye(3)
-        return np.einsum("knc,nkp->ncp", D, dX).reshape(2 * N, 6)
-
-    r = resid(R, t)
-    cost = float(r @ r) if np.isfinite(r).all() else math.inf
-    lam = 1e-3
-    it = 0
-    for it in range(1, max_iterations + 1):  # noqa: B007 (reported)
-        J = jacobian(R, t)
-        if not (np.isfinite(J).all() and math.isfinite(cost)):
-            break
-        A, g = J.T @ J, J.T @ r
-        stepped = False
-        while lam < 1e12:
-            delta = np.linalg.solve(A + lam * np.diag(np.diag(A)), -g)
-            R_new = _orthonormalise(matrix_from_rotvec(delta[:3]) @ R)
-            t_new = t + delta[3:]
-            r_new = resid(R_new, t_new)
-            cost_new = float(r_new @ r_new)
-            if np.isfinite(cost_new) and cost_new <= cost:
-                stepped = True
-                break
-            lam *= 10.0
-        if not stepped:
-            break
-        gain = cost - cost_new
-        R, t, r, cost = R_new, t_new, r_new, cost_new
-        lam = max(lam / 10.0, 1e-12)
-        if gain <= 1e-14 * (cost + 1e-300) or np.linalg.norm(delta) < 1e-13:
-            break
-    J = jacobian(R, t)
-    sigma2 = cost / max(2 * N - 6, 1)
-    cov = sigma2 * np.linalg.pinv(J.T @ J) if np.isfinite(J).all() else np.full((6, 6), np.inf)
-    return BoardFit(Rigid(R, t), float(math.sqrt(cost / N)), it, 0.5 * (cov + cov.T))
-
-
-# ----------------------------------------------------------------------------- plot
-
-
-def residual_plot(
-    result: ExtrinsicResult, poses: Sequence[BoardPose], path: str | Path
-) -> np.ndarray:
-    """Write a PNG (and return the BGR image): left, each pose's RMS residual (mm, dropped
-    poses in red, the median and the outlier threshold as lines); right, the histogram of
-    the kept poses' point residuals (mm) with a Gaussian of their RMS."""
-    W, H, m = 1100, 420, 50
-    img = np.full((H, W, 3), 255, np.uint8)
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    black, grey, red, blue = (0, 0, 0), (170, 170, 170), (40, 40, 220), (200, 120, 40)
-    res = point_residuals(poses, result.camera_to_laser)
-    rms_mm = np.asarray(result.residuals_per_pose) * 1e3
-
-    # left panel: per-pose bars
-    x0, x1, y0, y1 = m, W // 2 - 20, m, H - m
-    thr_mm = result.outlier_threshold_m * 1e3
-    top = max(float(rms_mm.max()) if len(rms_mm) else 1.0, 1e-6)
-    if math.isfinite(thr_mm):
-        top = max(top, thr_mm)
-    top *= 1.1
-
-    def ly(v: float) -> int:
-        return round(y1 - (y1 - y0) * v / top)
-
-    cv2.rectangle(img, (x0, y0), (x1, y1), black, 1)
-    bw = (x1 - x0) / max(len(rms_mm), 1)
-    for i, v in enumerate(rms_mm):
-        colour = red if i in result.outliers else blue
-        a = int(x0 + i * bw + 0.15 * bw)
-        b = int(x0 + (i + 1) * bw - 0.15 * bw)
-        cv2.rectangle(img, (a, ly(float(v))), (max(b, a + 1), y1), colour, -1)
-        if len(rms_mm) <= 40:
-            cv2.putText(img, str(i), (a, y1 + 14), font, 0.35, black, 1)
-    med = float(np.median(rms_mm)) if len(rms_mm) else 0.0
-    cv2.line(img, (x0, ly(med)), (x1, ly(med)), grey, 1)
-    if math.isfinite(thr_mm):
-        cv2.line(img, (x0, ly(thr_mm)), (x1, ly(thr_mm)), red, 1)
-    cv2.putText(img, f"{top:.1f} mm", (x0 - 45, y0 + 4), font, 0.35, black, 1)
-    cv2.putText(img, "0", (x0 - 12, y1 + 4), font, 0.35, black, 1)
-    title = f"RMS residual per pose, mm (grey: median {med:.1f}, red: threshold {thr_mm:.1f})"
-    cv2.putText(img, title, (x0, y0 - 15), font, 0.45, black, 1)
-
-    # right panel: histogram of kept point residuals
-    kept = [r for i, r in enumerate(res) if i not in result.outliers]
-    vals = np.concatenate(kept) * 1e3 if kept else np.zeros(1)
-    x0, x1 = W // 2 + 40, W - m
-    lim = max(float(np.percentile(np.abs(vals), 99.5)), 1e-6) * 1.2
-    bins = np.linspace(-lim, lim, 41)
-    hist, _ = np.histogram(np.clip(vals, -lim, lim), bins)
-    hmax = max(int(hist.max()), 1)
-    cv2.rectangle(img, (x0, y0), (x1, y1), black, 1)
-    bwr = (x1 - x0) / len(hist)
-    for i, c in enumerate(hist):
-        a = int(x0 + i * bwr)
-        b = int(x0 + (i + 1) * bwr) - 1
-        cv2.rectangle(img, (a, int(y1 - (y1 - y0) * c / hmax / 1.1)), (b, y1), blue, -1)
-    sd = float(np.sqrt(np.mean(vals**2)))
-    if sd > 0:
-        xs = np.linspace(-lim, lim, 200)
-        pdf = len(vals) * (bins[1] - bins[0]) * np.exp(-0.5 * (xs / sd) ** 2)
-        pdf /= sd * math.sqrt(2 * math.pi)
-        pts = np.column_stack(
-            [x0 + (xs + lim) / (2 * lim) * (x1 - x0), y1 - (y1 - y0) * pdf / hmax / 1.1]
-        )
-        cv2.polylines(img, [pts.astype(np.int32)], False, red, 1, cv2.LINE_AA)
-    cv2.putText(img, f"{-lim:.1f}", (x0 - 10, y1 + 16), font, 0.35, black, 1)
-    cv2.putText(img, f"{lim:.1f} mm", (x1 - 30, y1 + 16), font, 0.35, black, 1)
-    title = f"point residuals, kept poses (n={len(vals)}, RMS {sd:.2f} mm)"
-    cv2.putText(img, title, (x0, y0 - 15), font, 0.45, black, 1)
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"could not write {path}")
-    return img

@@ -11,7 +11,7 @@ From the log (:func:`acq.cloud.read_log`):
    board's corners averaged over up to 10 of its frames (:class:`CornerFinder`: on the
    fisheye image, else on virtual pinhole views rendered through the camera model,
    mapped back; :func:`average_corners`), hence the board plane in the camera frame
-   (:func:`acq.calib.extrinsic.board_pose_from_corners`). Averaging matters: with one frame
+   (:func:`acq.calib.board_pose.board_pose_from_corners`). Averaging matters: with one frame
    per pose the camera's planes limit the rotation to ~0.18° (median, 20 poses at 1–4 m,
    0.2 px corner noise; the Cramér–Rao bound of that data, ``bench/extrinsic.py``), with
    4 frames and 6 scans per pose to ~0.06°;
@@ -38,10 +38,7 @@ import cv2
 import numpy as np
 
 from acq import cloud
-from acq.calib.extrinsic import (
-    BoardPose,
-    board_pose_from_corners,
-)
+from acq.calib.board_pose import BoardPose, board_pose_from_corners
 from acq.calib.fisheye_calib import BoardSpec, detect_corners
 from acq.camera.camera_models import CameraModel
 from acq.errors import InputValueError

@@ -27,7 +27,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from acq.calib import image_circle
 from acq.calib.image_circle import CircleResult
 from acq.camera import calibfile
 from acq.camera.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
@@ -41,7 +40,6 @@ __all__ = [
     "calibrate_board",
     "circle_model",
     "detect_corners",
-    "draw_overlay",
     "fit_kannala_brandt",
     "model_gap_px",
     "parse_board",
@@ -389,62 +387,7 @@ def calibrate_board(
     return fit, used
 
 
-# --- output -----------------------------------------------------------------------------
-
-_COLOURS = {
-    "barycentre": (0, 165, 255),
-    "canny_fit": (255, 128, 0),
-    "hough": (255, 0, 255),
-    "subpixel": (0, 255, 0),
-}
-
-
-def _draw_curve(img: np.ndarray, c: image_circle.ImageCircle, colour: tuple, thick: int) -> None:
-    s = 16  # 4 fractional bits
-    cv2.ellipse(
-        img,
-        (round(c.cx * s), round(c.cy * s)),
-        (round(c.rx * s), round(c.ry * s)),
-        0,
-        0,
-        360,
-        colour,
-        thick,
-        cv2.LINE_AA,
-        4,
-    )
-    x, y, d = round(c.cx * s), round(c.cy * s), 8 * s
-    cv2.line(img, (x - d, y), (x + d, y), colour, thick, cv2.LINE_AA, 4)
-    cv2.line(img, (x, y - d), (x, y + d), colour, thick, cv2.LINE_AA, 4)
-
-
-def draw_overlay(image: np.ndarray, result: CircleResult, title: str = "") -> np.ndarray:
-    """The image with every estimator's circle and centre, and the sub-pixel rim points
-    (green kept, red rejected), plus a legend. (H,W,3) uint8 BGR."""
-    img = np.asarray(image)
-    if img.ndim == 2:
-        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-    out = (img[:, :, :3] // 2 + 0).astype(np.uint8)
-    pts = result.edges.points
-    for (x, y), ok in zip(pts, result.edges.inlier, strict=True):
-        cv2.circle(out, (round(x), round(y)), 1, (0, 200, 0) if ok else (0, 0, 255), -1)
-    for name, est in result.estimates.items():
-        _draw_curve(out, est.circle, _COLOURS[name], 2 if name == "subpixel" else 1)
-    c = result.circle
-    lines = [title] if title else []
-    lines.append(f"centre ({c.cx:.2f}, {c.cy:.2f}) r {c.radius:.2f} px")
-    lines += [f"{k}" for k in result.estimates]
-    y = 18
-    for text in lines:
-        colour = _COLOURS.get(text, (255, 255, 255))
-        cv2.putText(out, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour, 1, cv2.LINE_AA)
-        y += 18
-    if result.truncated:
-        msg = f"truncated ({', '.join(result.truncated)}): barycentre biased"
-        cv2.putText(
-            out, msg, (8, out.shape[0] - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 200, 255), 1
-        )
-    return out
+# --- comparing models, reading images ---------------------------------------------------
 
 
 def model_gap_px(a: KannalaBrandt, b: KannalaBrandt, theta_max: float) -> float:

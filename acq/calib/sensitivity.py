@@ -45,23 +45,23 @@ blow up near pitch ±90° where the rig sits (roll and yaw turn about nearly the
 axis): each angle i moves R about the laser-frame axis ``a_i = vee(dR_i R^T)``
 (normalised), and gets ``σ_i = sqrt(a_iᵀ Σ_w a_i) / |vee(dR_i R^T)|``, so its px per σ
 is the shift of a one-σ rotation about a_i.
+
+The figures (7-9) are drawn by :mod:`acq.calib.plots`; ``acq analyze sensitivity`` runs
+the analysis on a log's laser points (:mod:`acq.calib.sensitivity_log`).
 """
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
-from pathlib import Path
+from dataclasses import dataclass, field
 from typing import Any
 
-import cv2
 import numpy as np
 
 from acq.camera.calibfile import CameraCalib
 from acq.camera.camera_models import KannalaBrandt
-from acq.errors import AcqError, InputValueError
+from acq.errors import InputValueError
 from acq.geometry.rotations import rotation_from_euler, rotation_to_euler, skew
 
 __all__ = [
@@ -72,15 +72,15 @@ __all__ = [
     "PIXEL_PITCH_M",
     "Analysis",
     "analyze",
-    "analyze_logs",
     "bin_by_theta",
     "calib_sigma",
     "choose_sigma",
     "criterion",
     "default_sigma",
+    "format_sigma",
+    "format_table3",
     "jacobian",
     "laser_points",
-    "line_plot",
     "params_from_calib",
     "parse_sigma",
     "pixel_shift",
@@ -314,6 +314,20 @@ def choose_sigma(
     return sig, tuple(src)
 
 
+def format_sigma(s: float, i: int, value: float | None = None) -> str:
+    """One σ of parameter ``i`` for people: % of ``value`` for k1, k2, mu_x and mu_y, deg
+    for the angles, mm for the translations, else its unit (:data:`UNITS`)."""
+    if PARAMS[i] in ("k1", "k2", "mu_x", "mu_y") and value:
+        return f"{100 * s / abs(value):.3g} %"
+    if UNITS[i] == "rad":
+        return f"{math.degrees(s):.2g} deg"
+    if UNITS[i] == "m" and PARAMS[i].startswith("t"):
+        return f"{s * 1000:.3g} mm"
+    if UNITS[i] == "px":
+        return f"{s:.2g} px"
+    return f"{s:.3g} {UNITS[i]}"
+
+
 # --- the third-order term (§4.1.2) -------------------------------------------------------
 
 
@@ -512,317 +526,3 @@ def analyze(
         sens=sensitivities(uv, J, p, o),
         shift=pixel_shift(J, sig),
     )
-
-
-# --- plots -------------------------------------------------------------------------------
-
-# BGR, a colour-blind-friendly palette (Okabe-Ito) and a few more
-_COLOURS = [
-    (178, 114, 0),
-    (0, 94, 213),
-    (115, 158, 0),
-    (167, 121, 204),
-    (0, 159, 230),
-    (233, 180, 86),
-    (66, 228, 240),
-    (0, 0, 0),
-    (128, 128, 128),
-    (40, 40, 160),
-    (160, 40, 40),
-    (40, 120, 40),
-]
-_FONT = cv2.FONT_HERSHEY_SIMPLEX
-
-
-def _nice_ticks(lo: float, hi: float, n: int = 6) -> np.ndarray:
-    if not hi > lo:
-        hi = lo + 1.0
-    raw = (hi - lo) / n
-    mag = 10 ** math.floor(math.log10(raw))
-    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw)
-    first, last = math.floor(lo / step + 1e-9), math.ceil(hi / step - 1e-9)
-    return np.arange(first, max(last, first + 1) + 1) * step
-
-
-def _text(
-    img: np.ndarray, s: str, xy: tuple[int, int], scale: float = 0.5, anchor: str = "l"
-) -> None:
-    (w, h), _ = cv2.getTextSize(s, _FONT, scale, 1)
-    x, y = xy
-    if anchor == "c":
-        x -= w // 2
-    elif anchor == "r":
-        x -= w
-    cv2.putText(img, s, (x, y + h // 2), _FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
-
-
-def line_plot(
-    series: Sequence[tuple[str, np.ndarray, np.ndarray]],
-    title: str,
-    xlabel: str,
-    ylabel: str,
-    size: tuple[int, int] = (960, 600),
-    log_y: bool = False,
-    hlines: Sequence[float] = (),
-) -> np.ndarray:
-    """(H, W, 3) uint8 BGR line chart of ``(label, x, y)`` series with axes, ticks, grid,
-    labels and a legend on the right; log10 y axis with ``log_y`` (y <= 0 dropped)."""
-    W, H = size
-    img = np.full((H, W, 3), 255, np.uint8)
-    left, right, top, bottom = 90, 190, 45, 60
-    x0, x1, y0, y1 = left, W - right, top, H - bottom
-    xs = [np.asarray(x, float) for _, x, _ in series]
-    ys = [np.asarray(y, float) for _, _, y in series]
-    if log_y:
-        ys = [np.where(y > 0, np.log10(np.where(y > 0, y, 1.0)), np.nan) for y in ys]
-    allx = np.concatenate([x[np.isfinite(y)] for x, y in zip(xs, ys, strict=True)] + [np.zeros(0)])
-    ally = np.concatenate([y[np.isfinite(y)] for y in ys] + [np.asarray(hlines, float)])
-    xlo, xhi = (float(allx.min()), float(allx.max())) if allx.size else (0.0, 1.0)
-    ylo, yhi = (float(ally.min()), float(ally.max())) if ally.size else (0.0, 1.0)
-    if log_y:
-        ylo, yhi = math.floor(ylo), math.ceil(yhi)
-        yticks = np.arange(ylo, yhi + 1)
-        if len(yticks) < 2:
-            yticks = np.array([ylo, ylo + 1])
-    else:
-        ylo = min(ylo, 0.0)
-        yticks = _nice_ticks(ylo, yhi * 1.05 if yhi > 0 else 1.0)
-    xticks = _nice_ticks(min(xlo, 0.0), xhi)
-    xlo, xhi = float(xticks[0]), float(xticks[-1])
-    ylo, yhi = float(yticks[0]), float(yticks[-1])
-
-    def px(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return np.stack(
-            [x0 + (x - xlo) / (xhi - xlo) * (x1 - x0), y1 - (y - ylo) / (yhi - ylo) * (y1 - y0)],
-            axis=-1,
-        )
-
-    for t in xticks:
-        X = round(float(px(np.array(t), np.array(ylo))[0]))
-        cv2.line(img, (X, y0), (X, y1), (225, 225, 225), 1)
-        cv2.line(img, (X, y1), (X, y1 + 5), (0, 0, 0), 1)
-        _text(img, f"{t:g}", (X, y1 + 16), 0.45, "c")
-    for t in yticks:
-        Y = round(float(px(np.array(xlo), np.array(t))[1]))
-        cv2.line(img, (x0, Y), (x1, Y), (225, 225, 225), 1)
-        cv2.line(img, (x0 - 5, Y), (x0, Y), (0, 0, 0), 1)
-        _text(img, f"1e{int(t)}" if log_y else f"{t:g}", (x0 - 8, Y), 0.45, "r")
-    for h in hlines:
-        Y = round(float(px(np.array(xlo), np.array(h))[1]))
-        for X in range(x0, x1, 12):
-            cv2.line(img, (X, Y), (min(X + 6, x1), Y), (90, 90, 90), 1)
-    cv2.rectangle(img, (x0, y0), (x1, y1), (0, 0, 0), 1)
-    for k, (x, y) in enumerate(zip(xs, ys, strict=True)):
-        colour = _COLOURS[k % len(_COLOURS)]
-        ok = np.isfinite(x) & np.isfinite(y)
-        pts = px(x, np.clip(y, ylo, yhi))
-        # split at gaps (NaN) so no line jumps over them
-        for seg in np.split(np.arange(len(x)), np.flatnonzero(~ok)):
-            seg = seg[ok[seg]]
-            if len(seg) > 1:
-                poly = np.round(pts[seg]).astype(np.int32).reshape(-1, 1, 2)
-                cv2.polylines(img, [poly], False, colour, 2, cv2.LINE_AA)
-            elif len(seg) == 1:
-                c = pts[seg[0]]
-                cv2.circle(img, (int(c[0]), int(c[1])), 3, colour, -1, cv2.LINE_AA)
-    for k, (label, _, _) in enumerate(series):
-        Y = y0 + 12 + 22 * k
-        cv2.line(img, (x1 + 15, Y), (x1 + 45, Y), _COLOURS[k % len(_COLOURS)], 3, cv2.LINE_AA)
-        _text(img, label, (x1 + 52, Y), 0.5)
-    _text(img, title, (W // 2, 20), 0.6, "c")
-    _text(img, xlabel, ((x0 + x1) // 2, H - 18), 0.5, "c")
-    (tw, th), _ = cv2.getTextSize(ylabel, _FONT, 0.5, 1)
-    flat = np.full((th + 10, tw + 4, 3), 255, np.uint8)
-    cv2.putText(flat, ylabel, (2, th + 3), _FONT, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    lab = np.rot90(flat)  # counter-clockwise: reads bottom to top
-    yy = max((y0 + y1) // 2 - lab.shape[0] // 2, 0)
-    hh = min(lab.shape[0], H - yy)
-    img[yy : yy + hh, 8 : 8 + lab.shape[1]] = lab[:hh]
-    return img
-
-
-def _figure(a: Analysis, names: Sequence[str], what: str, bin_deg: float) -> np.ndarray:
-    """Eq. (7) median |s| and px per sigma of ``names`` along theta, two panels."""
-    idx = [PARAMS.index(n) for n in names]
-    c, _, med_s = bin_by_theta(a.theta, a.sens[:, idx], bin_deg)
-    _, _, med_px = bin_by_theta(a.theta, a.shift[:, idx], bin_deg)
-    top = line_plot(
-        [(n, c, med_s[:, k]) for k, n in enumerate(names)],
-        f"{what}: sensitivity, eq. (7), median |s| per {bin_deg:g} deg bin",
-        "theta (deg from the optical axis)",
-        "|s| (log)",
-        log_y=True,
-    )
-    star = ["*" if a.sigma_source and a.sigma_source[i] == "default" else "" for i in idx]
-    labels = [
-        f"{n} ({_fmt_sigma(a.sigma[i], i, a.params[i])}{m})"
-        for n, i, m in zip(names, idx, star, strict=True)
-    ]
-    bottom = line_plot(
-        [(lab, c, med_px[:, k]) for k, lab in enumerate(labels)],
-        f"{what}: px moved by one sigma{' (* default)' if any(star) else ''}, median per bin",
-        "theta (deg from the optical axis)",
-        "px per sigma (log)",
-        log_y=True,
-    )
-    return np.vstack([top, bottom])
-
-
-def _fmt_sigma(s: float, i: int, value: float | None = None) -> str:
-    if PARAMS[i] in ("k1", "k2", "mu_x", "mu_y") and value:
-        return f"{100 * s / abs(value):.3g} %"
-    if UNITS[i] == "rad":
-        return f"{math.degrees(s):.2g} deg"
-    if UNITS[i] == "m" and PARAMS[i].startswith("t"):
-        return f"{s * 1000:.3g} mm"
-    if UNITS[i] == "px":
-        return f"{s:.2g} px"
-    return f"{s:.3g} {UNITS[i]}"
-
-
-def figure9(
-    p: np.ndarray, theta_max: float, phi: float = -math.pi / 2, lens: Any = None
-) -> np.ndarray:
-    """Figure 9: px error of dropping k2 theta³ along theta (and, for a Kannala–Brandt
-    ``lens``, its whole distance from r = f theta)."""
-    th = np.linspace(0.0, theta_max, 200)
-    series = [("k2 theta^3", np.degrees(th), third_order_px(th, p, phi))]
-    if isinstance(lens, KannalaBrandt) and any(lens.k[1:]):
-        f = math.hypot(lens.fx * math.cos(phi), lens.fy * math.sin(phi))
-        series.append(
-            ("full lens - f theta", np.degrees(th), np.abs(f * (lens.distort_theta(th) - th)))
-        )
-    return line_plot(
-        series,
-        f"Third-order term of the lens model (phi = {math.degrees(phi):g} deg)",
-        "theta (deg from the optical axis)",
-        "error (px)",
-        hlines=(1.0, 2.0, 3.0, 4.0),
-    )
-
-
-# --- the command -------------------------------------------------------------------------
-
-
-def _sigma_note(src: Sequence[str]) -> str:
-    """Which σ came from the calibration, the defaults, the overrides."""
-    what = {"calib": "calib.yaml's std", "default": "defaults", "override": "--sigma"}
-    parts = []
-    for key, label in what.items():
-        names = [n for n, s in zip(PARAMS, src, strict=True) if s == key]
-        if names:
-            parts.append(f"{label}: {', '.join(names)}")
-    return "sigma from " + "; ".join(parts)
-
-
-def analyze_logs(
-    calib: Path,
-    logs: list[Path],
-    out: Path,
-    camera_height_m: float = 2.0,
-    building_distance_m: float = 10.0,
-    camera: str | None = None,
-    sigma: Mapping[str, float] | None = None,
-    origin: str = "principal",
-    bin_deg: float = 2.0,
-) -> dict[str, Any]:
-    """`acq analyze sensitivity`: eq. (7) sensitivities and px per sigma of the laser
-    points of ``logs`` that project into ``calib``'s camera, Figures 7-9 as PNGs, Table 3
-    for the given camera height and building distance (m), ``out/sensitivity.json``.
-    σ: ``sigma`` (by name, :data:`UNITS`), else the calibration's std, else the defaults
-    (:func:`choose_sigma`).
-
-    The report (as written to sensitivity.json). InputError for a bad calib, log or
-    value; AcqError when no laser point projects into the image; OSError when the
-    outputs cannot be written.
-    """
-    from acq import cloud
-    from acq.camera import calibfile
-
-    if not (building_distance_m > 0 and math.isfinite(camera_height_m)):
-        raise InputValueError("--building-distance must be > 0 m, --camera-height finite")
-    if not bin_deg > 0:
-        raise InputValueError("bin width must be > 0 deg")
-    cal = calibfile.load(calib)
-    log = cloud.read_log(logs)
-    name = camera or (log.camera if log.camera in cal.cameras else None)
-    cam = cal.camera(name)
-    p = params_from_calib(cam)
-    sig, src = choose_sigma(p, cam, sigma)
-    lens = cam.model
-    assert isinstance(lens, KannalaBrandt)
-    P = laser_points(log.ranges, log.angle_min, log.angle_increment)
-    a = replace(
-        analyze(P, p, lens.width, lens.height, lens.theta_max, sig, origin), sigma_source=src
-    )
-    if a.theta.size == 0:
-        raise AcqError(f"none of the {len(P)} laser points projects into the image")
-    t3 = table3(p, camera_height_m, building_distance_m, theta_max=lens.theta_max)
-    summary = a.summary()
-    centres, counts, med_s = bin_by_theta(a.theta, a.sens, bin_deg)
-    _, _, med_px = bin_by_theta(a.theta, a.shift, bin_deg)
-    notes = [
-        f"projection: generic model cut after theta^3 (eq. 4, 5); k1, mu split with the "
-        f"paper's pixel pitch {PIXEL_PITCH_M * 1e6:.3f} um",
-        "k2 from the calibration's k[0]"
-        if lens.name == "kannala_brandt" and lens.k[0] != 0
-        else f"k2 from the paper's Table 3 (mu k2 = {PAPER_THIRD_ORDER_PX} px)",
-        f"criterion eq. (8) measured from the {origin} point "
-        f"({a.origin[0]:.1f}, {a.origin[1]:.1f}) px, held fixed; points with f < "
-        f"{MIN_CRITERION_PX:g} px left out of eq. (7)",
-        _sigma_note(src),
-        "rotation angles: R = Rz(yaw) Ry(pitch) Rx(roll) of camera_to_laser"
-        + ("; |pitch| near 90 deg: roll and yaw turn about nearly the same axis"
-           if abs(abs(p[1]) - math.pi / 2) < math.radians(10) else ""),
-    ]  # fmt: skip
-    if "calib" in src[:3]:
-        notes.append(
-            "rotation sigma: one std of the rotation about the axis each angle turns about "
-            "(laser frame), from std.rotation_deg taken as independent; not an Euler-angle std"
-        )
-    figs = {
-        "fig7": out / "fig7_rigid.png",
-        "fig8": out / "fig8_camera.png",
-        "fig9": out / "fig9_third_order.png",
-    }
-    report: dict[str, Any] = {
-        "calib": str(calib),
-        "logs": [str(x) for x in logs],
-        "camera": name or next(iter(cal.cameras)),
-        "model": lens.name,
-        "params": list(PARAMS),
-        "origin": {"name": origin, "uv_px": list(a.origin)},
-        "n_points": int(a.theta.size),
-        "n_laser_points": len(P),
-        "theta_deg": {
-            "min": math.degrees(float(a.theta.min())),
-            "median": math.degrees(float(np.median(a.theta))),
-            "max": math.degrees(float(a.theta.max())),
-        },
-        "summary": summary,
-        "bins": {
-            "bin_deg": bin_deg,
-            "theta_deg": centres.tolist(),
-            "count": counts.tolist(),
-            "median_abs_s": _nan_none(med_s),
-            "median_px_per_sigma": _nan_none(med_px),
-        },
-        "table3": t3,
-        "figures": {k: str(v) for k, v in figs.items()},
-        "notes": notes,
-    }
-    out.mkdir(parents=True, exist_ok=True)
-    images = {
-        "fig7": _figure(a, RIGID, "Frame change (Figure 7)", bin_deg),
-        "fig8": _figure(a, CAMERA, "Camera (Figure 8)", bin_deg),
-        "fig9": figure9(p, lens.theta_max, lens=lens),
-    }
-    for k, path in figs.items():
-        if not cv2.imwrite(str(path), images[k]):
-            raise OSError(f"{path}: cannot write")
-    (out / "sensitivity.json").write_text(json.dumps(report, indent=2) + "\n")
-    return report
-
-
-def _nan_none(a: np.ndarray) -> list[list[float | None]]:
-    return [[None if not math.isfinite(x) else float(x) for x in row] for row in a]

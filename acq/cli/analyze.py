@@ -61,7 +61,7 @@ def _row(s: dict[str, Any]) -> str:
 
     i = sensitivity.PARAMS.index(s["param"])
     med = s["median_abs_s"]
-    sig = sensitivity._fmt_sigma(s["sigma"], i, s["value"])
+    sig = sensitivity.format_sigma(s["sigma"], i, s["value"])
     src = s["sigma_source"] or ""
     return (
         f"  {s['param']:<6} {s['value']:>12.5g} {sensitivity.UNITS[i]:<5} {sig:>9} {src:<8}"
@@ -73,10 +73,10 @@ def _row(s: dict[str, Any]) -> str:
 
 def run_sensitivity(args: argparse.Namespace) -> int:
     """Write the figures and sensitivity.json; print a summary (or the JSON)."""
-    from acq.calib import sensitivity
+    from acq.calib import sensitivity, sensitivity_log
 
     out: Path = args.output
-    report = sensitivity.analyze_logs(
+    report = sensitivity_log.analyze_logs(
         args.calib, args.logs, out, args.camera_height, args.building_distance,
         sigma=dict(args.sigma or ()),
     )  # fmt: skip

@@ -234,12 +234,12 @@ def run_fisheye(args: argparse.Namespace) -> int:
         METHOD_CIRCLE,
         calibrate_board,
         circle_model,
-        draw_overlay,
         model_gap_px,
         parse_board,
         read_images,
         update_calibration,
     )
+    from acq.calib.plots import draw_overlay
     from acq.camera import calibfile
 
     images, fov_deg, output = args.images, args.fov, args.output
@@ -353,7 +353,7 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     import numpy as np
 
     from acq import cloud
-    from acq.calib.extrinsic import calibrate, residual_plot
+    from acq.calib.extrinsic import calibrate
     from acq.calib.extrinsic_log import (
         METHOD,
         parse_poses,
@@ -361,6 +361,7 @@ def run_extrinsic(args: argparse.Namespace) -> int:
         still_intervals,
     )
     from acq.calib.fisheye_calib import parse_board
+    from acq.calib.plots import residual_plot
     from acq.camera import calibfile
     from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
     from acq.geometry.transforms import Rigid

@@ -18,6 +18,7 @@ __all__ = [
     "matrices_from_euler",
     "matrix_from_quat",
     "matrix_from_rotvec",
+    "nearest_rotation",
     "quat_from_matrix",
     "rotation_angle",
     "rotation_between",
@@ -132,6 +133,16 @@ def rotation_angle(R: npt.ArrayLike) -> float:
     s = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     c = 0.5 * (np.trace(R) - 1.0)
     return float(math.atan2(s, c))
+
+
+def nearest_rotation(M: npt.ArrayLike) -> np.ndarray:
+    """(3,3) the rotation nearest to a 3x3 matrix (Frobenius norm, by SVD): removes the
+    drift of products of rotations and the noise of estimated ones."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=np.float64))
+    Q = U @ Vt
+    if np.linalg.det(Q) < 0:
+        Q = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    return Q
 
 
 # --- Euler angles ------------------------------------------------------------------------

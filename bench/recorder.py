@@ -34,7 +34,7 @@ the machine has 2 cores and may be busy with other work.
     ``output.split_megabytes`` 50 so the file rolls over every 30-odd seconds (the exit
     rusage's maxrss is not used: a forked child starts with its parent's). The files are
     checked across boundaries:
-    per-file counts (``acq.log.loginfo.info_many``) add up to the session's, and the
+    per-file counts (``acq.log.info_many``) add up to the session's, and the
     ``/laser/raw`` sequence numbers run on with no duplicate and no gap (a reconnection
     restarts them: counted apart). Target: under 5 MB growth.
 
@@ -70,7 +70,7 @@ from typing import IO, Any
 import yaml
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
-from acq.log import loginfo, schemas
+from acq.log import LogInfo, LogReader, info_many
 from acq.sim.camera_device import jpeg_digest
 from acq.sim.mjpeg_server import MjpegServerProcess
 
@@ -376,8 +376,8 @@ def start_recorder(
 class Recorded:
     """What the files of one run hold, for the checks."""
 
-    info: loginfo.LogInfo  # the session (or the one file)
-    per_file: list[loginfo.LogInfo]
+    info: LogInfo  # the session (or the one file)
+    per_file: list[LogInfo]
     scan_ticks: list[int]  # /acq/timing/laser device tick, in order
     raw_sequences: list[list[int]]  # /laser/raw sequence numbers, per file
     first_image: tuple[int, str] | None  # (log_time ns, digest)
@@ -391,7 +391,7 @@ class Recorded:
 
 
 def read_recorded(files: list[Path]) -> Recorded:
-    infos = loginfo.info_many(files)
+    infos = info_many(files)
     ticks: list[int] = []
     sequences: list[list[int]] = []
     images: list[int] = []
@@ -399,19 +399,20 @@ def read_recorded(files: list[Path]) -> Recorded:
     status, max_queue = None, 0
     for path in files:
         seqs: list[int] = []
-        for _schema, channel, message in loginfo.read_messages(path):
+        reader = LogReader(path)
+        for schema, channel, message in reader.messages():
             topic = channel.topic
             if topic == "/acq/timing/laser":
-                ticks.append(schemas.TimingMsg.FromString(message.data).device_ticks[0])
+                ticks.append(reader.decode(schema, channel, message).device_ticks[0])
             elif topic == "/laser/raw":
-                seqs.append(schemas.RawTelegramMsg.FromString(message.data).sequence)
+                seqs.append(reader.decode(schema, channel, message).sequence)
             elif topic == "/camera/image/compressed":
                 images.append(message.log_time)
                 if first is None:
                     first = (message.log_time, message.data)
                 last = (message.log_time, message.data)
             elif topic == "/acq/status":
-                status = schemas.StatusMsg.FromString(message.data)
+                status = reader.decode(schema, channel, message)
                 max_queue = max(max_queue, status.writer_queue)
         sequences.append(seqs)
 
@@ -508,7 +509,7 @@ def part_cpu(work: Path, warmup_s: float, measure_s: float, recorder_first: bool
         err.close()
 
 
-def _rate(info: loginfo.LogInfo, topic: str) -> float:
+def _rate(info: LogInfo, topic: str) -> float:
     return next((c.rate_hz for c in info.channels if c.topic == topic), 0.0)
 
 

@@ -33,7 +33,7 @@ from acq.camera.camera_models import CameraModel
 from acq.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
 from acq.log import schemas
-from acq.log.mcap_log import LogWriter
+from acq.log.writer import LogWriter
 from acq.records import Frame, Scan
 from acq.sim.board_poses import Checkerboard, simulate
 from acq.sim.world import Rig, default_rig

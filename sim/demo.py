@@ -42,7 +42,8 @@ from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.cloud import colorize
 from acq.errors import AcqError, InputError
-from acq.log import loginfo
+from acq.log import LogInfo
+from acq.log import info as log_info
 from acq.motion.trajectory import Trajectory
 from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
@@ -449,7 +450,7 @@ def colour_check(
 def _summary(
     result: DemoResult,
     recorder: Recorder,
-    info: loginfo.LogInfo,
+    info: LogInfo,
     log: cloud.DriveLog,
     pc: cloud.Cloud,
     truth_lines: list[str],
@@ -592,7 +593,7 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
     result.steps_s["write"] = clock.lap()
     clock.say(f"wrote {png_path}")
 
-    info = loginfo.info(mcap_path)
+    info = log_info(mcap_path)
     truth_lines, result.colour_agreement = _truth(rig, log, pc, truth_frames)
     truth_lines += _odometry_truth(rig, mcap_path)
     result.steps_s["check"] = clock.lap()

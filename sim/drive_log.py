@@ -41,7 +41,7 @@ from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.geodesy import WorldFrame
 from acq.log import schemas
-from acq.log.mcap_log import LogWriter
+from acq.log.writer import LogWriter
 from acq.records import Fix, Frame, Odometry, Scan
 from acq.sim.sensors import render_frame, render_scan, return_strength
 from acq.sim.world import Rig, Street, Trajectory, default_rig

@@ -32,19 +32,19 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
 import yaml
-from google.protobuf.message import DecodeError
+from mcap.records import Channel, Schema
 
 from acq.drivers.registry import DriverImportError, UnknownDriver
 from acq.drivers.scanner import SCANNERS
 from acq.errors import InputError
-from acq.log import loginfo, schemas
+from acq.log import LogError, LogReader, read_metadata
 from acq.record import config as configfile
 from acq.record.config import CameraConfig, Config, ScannerConfig
 
@@ -142,15 +142,15 @@ def load_session(paths: Sequence[str | Path]) -> Session:
     if not files:
         raise ReplayError("no log given")
     try:
-        readers = [loginfo.read_messages(p) for p in files]  # missing or not MCAP: at once
-    except loginfo.LogError as e:
+        readers = [LogReader(p) for p in files]  # missing or not MCAP: at once
+    except LogError as e:
         raise ReplayError(str(e)) from None
     devices: dict[str, DeviceLog] = {}
     config: Config | None = None
     calibration: str | None = None
     described: dict[str, dict[str, str]] = {}
-    for path, messages in zip(files, readers, strict=True):
-        meta = loginfo.read_metadata(path)
+    for path, reader in zip(files, readers, strict=True):
+        meta = read_metadata(path)
         if config is None:
             config = _recorded_config(meta, path)
         if calibration is None:
@@ -159,8 +159,8 @@ def load_session(paths: Sequence[str | Path]) -> Session:
             if name.startswith("device."):
                 described.setdefault(name[len("device.") :], values)
         try:
-            _read_records(path, messages, devices)
-        except loginfo.LogError as e:
+            _read_records(reader, devices)
+        except LogError as e:
             raise ReplayError(str(e)) from None
     if not devices:
         where = ", ".join(str(p) for p in files)
@@ -171,22 +171,23 @@ def load_session(paths: Sequence[str | Path]) -> Session:
     return Session(files, {d.name: d for d in ordered}, config, calibration)
 
 
-def _read_records(path: Path, messages: Iterable[Any], devices: dict[str, DeviceLog]) -> None:
-    for schema, channel, message in messages:
-        topic: str = channel.topic
-        name = schema.name if schema is not None else ""
-        if topic in _NOT_REPLAYED:
-            continue  # the vehicle's CAN bus and GNSS receiver have no simulated device
-        if name == "acq.RawTelegram" and topic.endswith(_RAW_SUFFIX):
-            device, kind = topic[1 : -len(_RAW_SUFFIX)], "scanner"
-        elif name == "foxglove.CompressedImage" and topic.endswith(_IMAGE_SUFFIX):
-            device, kind = topic[1 : -len(_IMAGE_SUFFIX)], "camera"
-        else:
-            continue
-        try:
-            data = schemas.decode(name, message.data).data
-        except DecodeError:  # a garbled record
-            log.warning("%s: an undecodable %s record skipped", path, topic)
+def _device_of(schema: Schema | None, channel: Channel) -> tuple[str, str] | None:
+    """(device, kind) whose records the channel holds, or None: not replayed."""
+    topic, name = channel.topic, schema.name if schema is not None else ""
+    if topic in _NOT_REPLAYED:
+        return None  # the vehicle's CAN bus and GNSS receiver have no simulated device
+    if name == "acq.RawTelegram" and topic.endswith(_RAW_SUFFIX):
+        return topic[1 : -len(_RAW_SUFFIX)], "scanner"
+    if name == "foxglove.CompressedImage" and topic.endswith(_IMAGE_SUFFIX):
+        return topic[1 : -len(_IMAGE_SUFFIX)], "camera"
+    return None
+
+
+def _read_records(reader: LogReader, devices: dict[str, DeviceLog]) -> None:
+    path = reader.path
+    for (device, kind), channel, message, decoded in reader.decoded(_device_of):
+        if decoded is None:  # a garbled record
+            log.warning("%s: an undecodable %s record skipped", path, channel.topic)
             continue
         dev = devices.get(device)
         if dev is None:
@@ -194,7 +195,7 @@ def _read_records(path: Path, messages: Iterable[Any], devices: dict[str, Device
         elif dev.kind != kind:
             raise ReplayError(f"{path}: {device!r} has both scanner and camera records")
         dev.times_ns.append(message.log_time)
-        dev.data.append(bytes(data))
+        dev.data.append(bytes(decoded.data))
 
 
 def _order(dev: DeviceLog, config: Config | None) -> int:

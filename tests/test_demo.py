@@ -24,7 +24,7 @@ from acq import cloud
 from acq.camera import calibfile
 from acq.cli import main as acq_main
 from acq.cloud import colorize
-from acq.log import loginfo
+from acq.log import info
 from acq.sim.demo import COLOUR_TOLERANCE, colour_check
 
 SECONDS = 3.0
@@ -221,7 +221,7 @@ def test_colorize_places_the_demo_log_with_its_can_odometry(demo: Demo, tmp_path
     assert code == 0
     can = yaml.safe_load((out / "config.yaml").read_text())["can"]
     assert can["interface"] == "virtual" and Path(can["dbc"]).is_file()
-    topics = {c.topic: c for c in loginfo.info(out / "demo.mcap").channels}
+    topics = {c.topic: c for c in info(out / "demo.mcap").channels}
     assert topics["/vehicle/odometry"].rate_hz == pytest.approx(100, rel=0.1)  # 50 + 50 /s
     assert topics["/vehicle/can"].rate_hz == pytest.approx(200, rel=0.1)
     calib = calibfile.load(out / "calib.yaml")

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from acq.drivers.reconnect import LinkEvent
-from acq.log.mcap_log import LogWriter
+from acq.log.writer import LogWriter
 from acq.record.adapters import (
     CameraAdapter,
     CanAdapter,

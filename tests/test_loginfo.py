@@ -1,4 +1,5 @@
-"""acq.log.loginfo: summaries of closed, cut, zero-filled, corrupt and killed-writer logs, repair.
+"""acq.log (reader, summary, repair): summaries of closed, cut, zero-filled, corrupt and
+killed-writer logs, repair.
 
 The logs here are written with mcap's own Writer and Foxglove's schemas plus test-only
 ``acq.Timing`` / ``acq.Clock`` / ``acq.Status`` messages built in a private descriptor
@@ -37,7 +38,7 @@ from mcap.reader import SeekingReader, make_reader
 from mcap.writer import IndexType, Writer
 from mcap_protobuf.schema import register_schema
 
-from acq.log.loginfo import LogError, LogInfo, format_info, info, info_many, read_messages, repair
+from acq.log import LogError, LogInfo, format_info, info, info_many, read_messages, repair
 
 T0 = 1_000_000_000_000  # host monotonic ns of the first message
 REALTIME0 = 1_700_000_000_000_000_000  # UTC ns at T0
@@ -333,16 +334,16 @@ def test_closed_file_exact_counts_rates_gaps(rig: Built) -> None:
 def test_a_time_span_reads_only_the_chunks_that_hold_it(
     rig: Built, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import acq.log.loginfo
+    import acq.log.reader
 
     parsed: list[int] = []
-    real = acq.log.loginfo._chunk_messages
+    real = acq.log.reader._chunk_messages
 
     def counted(chunk: Any) -> Any:
         parsed.append(chunk.message_start_time)
         return real(chunk)
 
-    monkeypatch.setattr(acq.log.loginfo, "_chunk_messages", counted)
+    monkeypatch.setattr(acq.log.reader, "_chunk_messages", counted)
     span = (T0 + 3 * S + S // 2, T0 + 4 * S + S // 2)  # in chunks 3 and 4 only
     got = [(c.topic, m.log_time, m.data) for _, c, m in read_messages(rig.path, span)]
     first = sum(rig.chunk_sizes[:3])
@@ -707,7 +708,7 @@ def test_chunk_messages_match_mcaps_own_parser() -> None:
     from mcap.records import Message
     from mcap.stream_reader import breakup_chunk
 
-    from acq.log.loginfo import _chunk_messages
+    from acq.log.reader import _chunk_messages
 
     rng = random.Random(3)
     body = b""
@@ -727,7 +728,7 @@ def test_chunk_messages_match_mcaps_own_parser() -> None:
 @given(st.binary(max_size=400))
 @settings(max_examples=300, deadline=None)
 def test_chunk_messages_of_any_bytes_are_messages_or_a_typed_error(data: bytes) -> None:
-    from acq.log.loginfo import _chunk_messages
+    from acq.log.reader import _chunk_messages
 
     try:
         _chunk_messages(_chunk_of(data))

@@ -1,4 +1,4 @@
-"""acq.log.mcap_log: standalone rolling files, sync survives a kill, a full disk is reported."""
+"""acq.log.writer: standalone rolling files, sync survives a kill, a full disk is reported."""
 
 from __future__ import annotations
 
@@ -24,8 +24,8 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import Equidistant
-from acq.log import mcap_log, schemas
-from acq.log.mcap_log import LogWriter
+from acq.log import schemas, writer
+from acq.log.writer import LogWriter
 
 ROOT = Path(__file__).resolve().parents[1]
 CLOCK = "/acq/clock"
@@ -183,7 +183,7 @@ def test_writer_errors_are_clear(tmp_path: Path) -> None:
 
 
 def test_never_overwrites(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(mcap_log.time, "strftime", lambda fmt, t: "20240101T000000Z")
+    monkeypatch.setattr(writer.time, "strftime", lambda fmt, t: "20240101T000000Z")
     taken = tmp_path / "acq_20240101T000000Z_000.mcap"
     taken.write_bytes(b"an earlier session")
     w = new_writer(tmp_path)
@@ -256,7 +256,7 @@ CHILD = """
 import sys
 from pathlib import Path
 from acq.log import schemas
-from acq.log.mcap_log import LogWriter
+from acq.log.writer import LogWriter
 
 w = LogWriter(Path(sys.argv[1]), chunk_size=1 << 20)
 w.add_channel("/acq/clock", schemas.SCHEMAS["acq.Clock"])
@@ -375,9 +375,9 @@ def test_metadata_updates_reach_the_current_and_later_files(tmp_path: Path) -> N
 def fill_disk_at(monkeypatch: pytest.MonkeyPatch, limit: int) -> None:
     """Writes past ``limit`` bytes of a file fail with ENOSPC after a partial write, as a
     full filesystem does."""
-    real = mcap_log._File.write
+    real = writer._File.write
 
-    def write(self: mcap_log._File, data: bytes) -> int:
+    def write(self: writer._File, data: bytes) -> int:
         room = limit - self.pos
         if len(data) > room:
             if room > 0:
@@ -385,7 +385,7 @@ def fill_disk_at(monkeypatch: pytest.MonkeyPatch, limit: int) -> None:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         return real(self, data)
 
-    monkeypatch.setattr(mcap_log._File, "write", write)
+    monkeypatch.setattr(writer._File, "write", write)
 
 
 def write_until_full(w: LogWriter) -> tuple[int, int]:
@@ -429,7 +429,7 @@ def test_disk_full_is_raised_then_close_keeps_a_readable_file(
         number(t, d.SerializeToString()) for t, _, _, d in read_file(path) if t not in LATCHED
     ]
     assert numbers == got
-    assert path.read_bytes().endswith(mcap_log.MCAP0_MAGIC)
+    assert path.read_bytes().endswith(writer.MCAP0_MAGIC)
 
 
 def test_disk_full_without_room_for_an_end_marker(
@@ -440,7 +440,7 @@ def test_disk_full_without_room_for_an_end_marker(
     def no_room(fd: int, data: bytes, offset: int) -> None:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(mcap_log, "_pwrite_all", no_room)
+    monkeypatch.setattr(writer, "_pwrite_all", no_room)
     w = new_writer(tmp_path, chunk_size=2048)
     path = w.path
     assert path is not None

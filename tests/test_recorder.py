@@ -222,16 +222,16 @@ def _kill_once(rig: Rig, cfg_path: Path, out: Path, delay_s: float) -> tuple[int
 def _check_killed_file(rig: Rig, path: Path, killed_ns: int, started_ns: int) -> int:
     """Every scan and frame the devices sent more than 1.2 s before the kill, after the
     first one recorded, is read back from the killed file; returns how many."""
-    from acq.log import loginfo
+    from acq.log import info, read_messages
 
     ticks: set[int] = set()
     jpegs: set[bytes] = set()
-    for _schema, channel, message in loginfo.read_messages(path):
+    for _schema, channel, message in read_messages(path):
         if channel.topic == "/laser/raw":
             ticks.add(schemas_decode("acq.RawTelegram", message.data).device_ticks[0])
         elif channel.topic == "/camera/image/compressed":
             jpegs.add(jpeg_digest(schemas_decode("foxglove.CompressedImage", message.data).data))
-    assert loginfo.info(path).closed is False
+    assert info(path).closed is False
     cutoff = killed_ns * 1e-9 - 1.2
     p = rig.scanner.model
     send_delay = (p.amax + 1) * p.scan_period / p.ares
@@ -264,7 +264,7 @@ def jpeg_digest(data: bytes) -> bytes:
 
 
 def _kill_loop(rig: Rig, tmp_path: Path, runs: range, seed: int) -> None:
-    from acq.log import loginfo
+    from acq.log import info, repair
 
     cfg = rig.config(tmp_path / f"rig{seed}", latency=0.0)  # no TM queries: a quicker start
     assert cfg.source is not None
@@ -281,18 +281,18 @@ def _kill_loop(rig: Rig, tmp_path: Path, runs: range, seed: int) -> None:
         assert n >= 2
         if i % 5 == 0:  # and --repair gives a file the seeking reader opens
             fixed = out / "repaired.mcap"
-            assert loginfo.repair(path, fixed) > 0
-            assert sum(len(v) for v in read_log(fixed).values()) == loginfo.info(path).messages
+            assert repair(path, fixed) > 0
+            assert sum(len(v) for v in read_log(fixed).values()) == info(path).messages
         # power loss is not SIGKILL: the tail after the last complete record may be
         # anything (cut short, zeros, the start of a chunk); the same messages come back
         if i % 4 == 1:
             data = path.read_bytes()
-            good = loginfo.info(path).bytes_read
-            expect = loginfo.info(path).messages
+            good = info(path).bytes_read
+            expect = info(path).messages
             for j, cut in enumerate([good, *rng.integers(good, len(data) + 1, 3).tolist()]):
                 damaged = out / f"cut{j}.mcap"
                 damaged.write_bytes(data[:cut] + b"\0" * (4096 if j == 2 else 0))
-                assert loginfo.info(damaged).messages == expect
+                assert info(damaged).messages == expect
 
 
 def test_sigkill_at_random_moments_loses_at_most_the_last_second(rig: Rig, tmp_path: Path) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import yaml
 
-from acq.log import loginfo
+from acq.log import info, read_metadata
 from acq.motion.vehicle_log import read_vehicle
 from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
@@ -161,10 +161,10 @@ def test_record_the_vehicle_sensors(rig: VehicleRig, tmp_path: Path) -> None:
     # the bad frame and the bad sentence: counted, and recorded raw as they came
     assert status["vehicle"].protocol_errors == status["gnss"].protocol_errors == 1
     assert sum(m.data == b"\x01\x02\x03" for _, _, m in can) == 1  # type: ignore[attr-defined]
-    meta = loginfo.read_metadata(path)
+    meta = read_metadata(path)
     assert "device.vehicle" in meta and "device.gnss" in meta
     # acq info knows the topics by their log times; replay serves the scanner only
-    summary = {c.topic: c for c in loginfo.info(path).channels}
+    summary = {c.topic: c for c in info(path).channels}
     assert summary["/vehicle/odometry"].rate_hz == pytest.approx(100, rel=0.05)
     assert summary["/gnss/fix"].schema == "foxglove.LocationFix"
     assert summary["/vehicle/can"].gaps == [] and summary["/gnss/raw"].gaps == []  # bursts

@@ -16,7 +16,7 @@ import pytest
 from mcap.writer import Writer as McapWriter
 
 from acq.cli import main as acq_main
-from acq.log import loginfo, schemas
+from acq.log import read_messages, schemas
 from acq.record import config as configfile
 from acq.record.recorder import Recorder
 from acq.sim.replay import Replay
@@ -43,7 +43,7 @@ def read(files: list[Path]) -> Log:
         "/camera/image/compressed": ("foxglove.CompressedImage", out.images),
     }
     for path in files:
-        for _schema, channel, message in loginfo.read_messages(path):
+        for _schema, channel, message in read_messages(path):
             if channel.topic in topics:
                 name, into = topics[channel.topic]
                 into.append((message.log_time, schemas.decode(name, message.data)))
@@ -55,7 +55,7 @@ def links_held(files: list[Path], until_ns: int | None = None) -> bool:
     last status (up to ``until_ns``)."""
     last = None
     for path in files:
-        for _schema, channel, message in loginfo.read_messages(path):
+        for _schema, channel, message in read_messages(path):
             if channel.topic == "/acq/status" and (
                 until_ns is None or message.log_time <= until_ns
             ):
@@ -251,6 +251,6 @@ def read_topic(files: list[Path], topic: str, schema: str) -> list[tuple[int, ob
     return [
         (message.log_time, schemas.decode(schema, message.data))
         for path in files
-        for _schema, channel, message in loginfo.read_messages(path)
+        for _schema, channel, message in read_messages(path)
         if channel.topic == topic
     ]

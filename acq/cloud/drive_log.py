@@ -24,7 +24,7 @@ import numpy as np
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
 from acq.errors import InputValueError
-from acq.log import loginfo
+from acq.log import LogReader, read_metadata
 from acq.motion.vehicle_log import VehicleLog, VehicleReader
 
 
@@ -148,13 +148,11 @@ def read_log(
     :func:`acq.motion.vehicle_log.read_vehicle`.
 
     Files whose writer was killed are read up to their last good record
-    (:func:`acq.log.loginfo.read_messages`); undecodable messages are skipped (noted).
-    Raises :class:`acq.log.loginfo.LogError` for a file that is not MCAP, InputValueError
+    (:class:`acq.log.LogReader`); undecodable messages are skipped (noted).
+    Raises :class:`acq.log.LogError` for a file that is not MCAP, InputValueError
     when the log has no scans or several lasers/cameras. A log without frames reads with
     ``camera`` "" and no frames.
     """
-    from mcap_protobuf.decoder import DecoderFactory
-
     if isinstance(paths, str | os.PathLike):
         files: tuple[Path, ...] = (Path(paths),)
     else:
@@ -169,20 +167,14 @@ def read_log(
     bad = 0
     vehicle_reader = VehicleReader() if vehicle else None
     vehicle_topics = VehicleReader.TOPICS if vehicle else ()
+    span = None if start_ns is None and end_ns is None else (lo, hi)
     for path in files:
-        metadata.update(loginfo.read_metadata(path))
-        factory = DecoderFactory()
-        decoders: dict[int, Any] = {}
-        span = None if start_ns is None and end_ns is None else (lo, hi)
-        for schema, channel, message in loginfo.read_messages(path, span):
+        metadata.update(read_metadata(path))
+        reader = LogReader(path, span)
+        for schema, channel, message in reader.messages():
             topic = channel.topic
             if topic in vehicle_topics and vehicle_reader is not None:
-                try:
-                    if channel.id not in decoders:
-                        decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
-                    vehicle_reader.add(topic, decoders[channel.id](message.data))
-                except Exception:  # a garbled payload or schema: that message is lost
-                    vehicle_reader.bad += 1
+                vehicle_reader.add(topic, reader.decode(schema, channel, message))
                 continue
             wanted = topic.endswith(("/scan", "/image/compressed")) or topic.startswith(
                 ("/acq/clock", "/acq/timing/")
@@ -195,10 +187,11 @@ def read_log(
                 name = topic[1:].removesuffix("/image/compressed")
                 frames.setdefault(name, []).append((_stamp_of(message), b""))
                 continue
+            msg = reader.decode(schema, channel, message)
+            if msg is None:
+                bad += 1
+                continue
             try:
-                if channel.id not in decoders:
-                    decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
-                msg = decoders[channel.id](message.data)
                 if topic.endswith("/scan"):
                     scans.setdefault(topic[1:].removesuffix("/scan"), []).append(
                         _ScanMsg(
@@ -221,7 +214,7 @@ def read_log(
                         int(msg.sequence),
                         int(msg.recv_ns),
                     )
-            except Exception:  # a garbled payload or schema: that message is lost
+            except AttributeError:  # a message of another schema on a topic of that name
                 bad += 1
     laser = _pick(scans, laser, "laser scanner", "/scan")
     camera = "" if camera is None and not frames else _pick(frames, camera, "camera", "/image")

@@ -25,8 +25,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.records import Channel, Schema
 
-from acq.log import loginfo
+from acq.log import LogReader
 
 __all__ = [
     "FIX_TOPIC",
@@ -189,7 +190,11 @@ class VehicleReader:
         self.bad = 0
 
     def add(self, topic: str, msg: Any) -> None:
-        """One decoded message of :attr:`TOPICS`; a garbled one is counted, not raised."""
+        """One decoded message of :attr:`TOPICS` (None: undecodable); a garbled one is
+        counted, not raised."""
+        if msg is None:
+            self.bad += 1
+            return
         try:
             if topic == ODOMETRY_TOPIC:
                 speed, yaw = float(msg.speed_mps), float(msg.yaw_rate_rps)
@@ -212,28 +217,20 @@ class VehicleReader:
 def read_vehicle(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str]) -> VehicleLog:
     """Odometry and fixes of one log or of the files of a session (any order).
 
-    Raises :class:`acq.log.loginfo.LogError` for a file that is not MCAP. A log without
+    Raises :class:`acq.log.LogError` for a file that is not MCAP. A log without
     the topics gives empty arrays (and a note); undecodable messages are skipped.
     """
-    from mcap_protobuf.decoder import DecoderFactory
-
     if isinstance(paths, str | os.PathLike):
         files: tuple[Path, ...] = (Path(paths),)
     else:
         files = tuple(Path(p) for p in paths)
-    reader = VehicleReader()
+    vehicle = VehicleReader()
     for path in files:
-        factory = DecoderFactory()
-        decoders: dict[int, Any] = {}
-        for schema, channel, message in loginfo.read_messages(path):
-            if channel.topic not in reader.TOPICS:
-                continue
-            try:
-                if channel.id not in decoders:
-                    decoders[channel.id] = factory.decoder_for(channel.message_encoding, schema)
-                msg = decoders[channel.id](message.data)
-            except Exception:  # a garbled payload or schema: that message is lost
-                reader.bad += 1
-                continue
-            reader.add(channel.topic, msg)
-    return reader.result(files)
+        reader = LogReader(path)
+        for topic, _channel, _message, msg in reader.decoded(_vehicle_topic):
+            vehicle.add(topic, msg)
+    return vehicle.result(files)
+
+
+def _vehicle_topic(_schema: Schema | None, channel: Channel) -> str | None:
+    return channel.topic if channel.topic in VehicleReader.TOPICS else None

@@ -18,7 +18,7 @@ from acq.drivers.errors import DriverError, ProtocolError
 from acq.drivers.reconnect import CameraLink, LinkEvent, Reconnecting, Relink
 from acq.drivers.registry import REGISTRIES
 from acq.log import schemas
-from acq.log.mcap_log import LogWriter
+from acq.log.writer import LogWriter
 from acq.record.config import CameraConfig, CanConfig, Config, GnssConfig, ScannerConfig
 from acq.record.device_loop import DeviceAdapter, finite
 from acq.records import CanFrame, Fix, Frame, Odometry, Scan, Sentence

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Generic, TypeVar
 
 from acq.drivers.reconnect import LinkEvent, Relink
-from acq.log.mcap_log import LogWriter
+from acq.log.writer import LogWriter
 from acq.time.clocksync import DeviceClock
 
 __all__ = [

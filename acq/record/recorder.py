@@ -43,7 +43,7 @@ from acq.camera.calibfile import Calibration
 from acq.drivers.can_odometry import DbcError, OdometryDecoder
 from acq.errors import InputError
 from acq.log import schemas
-from acq.log.mcap_log import LogWriter
+from acq.log.writer import LogWriter
 from acq.record.adapters import adapters_for
 from acq.record.config import CanConfig, Config
 from acq.record.device_loop import DeviceAdapter, DeviceState, Outbox, finite, run_device

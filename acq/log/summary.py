@@ -1,0 +1,474 @@
+"""What ``acq info`` tells about logs: per channel counts, rates and gaps, per device
+drops, disconnects and clock-sync quality, whether the file was closed, as tables or JSON.
+
+All times are integer nanoseconds of the host clock (MCAP ``log_time``) unless a name
+says otherwise (``_s`` seconds, ``_ms`` milliseconds, ``_hz`` hertz).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json as _json
+import math
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.records import Channel, Message, Metadata, Schema
+
+from acq.log.reader import LogReader
+
+__all__ = ["ChannelInfo", "DeviceSync", "LogInfo", "format_info", "info", "info_many"]
+
+_SLOW_PERIOD_S = 0.5  # topics at 2 Hz or slower (status, clock): gap = period + 0.5 s
+
+# --- results ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """One topic of a log.
+
+    ``rate_hz`` is ``(count - 1) / (last_ns - first_ns)``; ``max_gap_s`` the longest
+    interval between consecutive messages, seconds; ``gaps`` the intervals
+    ``(start_ns, end_ns)`` longer than 3x the median period, or, for topics at 2 Hz or
+    slower (1 Hz status and clock), longer than the median period + 0.5 s (one missed
+    beat). ``bytes`` is the sum of the message payloads.
+    """
+
+    topic: str
+    schema: str
+    count: int
+    first_ns: int
+    last_ns: int
+    rate_hz: float
+    max_gap_s: float
+    gaps: list[tuple[int, int]]
+    bytes: int
+
+
+@dataclass(frozen=True)
+class DeviceSync:
+    """Clock-sync quality of one device, from its ``/acq/timing/<device>`` records.
+
+    ``epochs`` counts distinct estimator epochs (a reset or re-sync starts a new one);
+    ``drift_ppm`` is the last estimate; ``offset_spread_ms`` is max - min of the
+    device-to-host offset over the log; ``uncertainty_s_*`` the estimator's own
+    uncertainty, seconds; ``residual_ms_*`` receive time minus mapped stamp
+    (``recv_ns - stamp_ns``), milliseconds. ``None`` where the log has no such values.
+    """
+
+    name: str
+    records: int
+    epochs: int
+    drift_ppm: float | None
+    offset_spread_ms: float | None
+    uncertainty_s_median: float | None
+    uncertainty_s_max: float | None
+    residual_ms_p50: float | None
+    residual_ms_p95: float | None
+    residual_ms_max: float | None
+
+
+@dataclass(frozen=True)
+class LogInfo:
+    """Summary of one log file, or (``len(files) > 1``) of a session of split files.
+
+    ``closed`` is True when the footer and the summary are present and valid.
+    ``bytes_read`` is where reading stopped (the end of the last good record; the file
+    size when closed). ``readable_until_ns`` is the latest ``log_time`` read.
+    ``start_realtime_ns`` is UTC ns of ``start_ns``, from the ``/acq/clock`` pairs.
+    ``drops`` and ``disconnects`` come from the last ``/acq/status`` (the counters of
+    ``/acq/timing`` for devices it does not list). ``problem`` says, in one line, what is
+    wrong with the file (not closed, corrupt chunks), or is None.
+    """
+
+    path: Path
+    files: tuple[Path, ...]
+    closed: bool
+    bytes_read: int
+    bytes_total: int
+    readable_until_ns: int | None
+    messages: int
+    start_ns: int | None
+    end_ns: int | None
+    duration_s: float
+    start_realtime_ns: int | None
+    channels: list[ChannelInfo]
+    devices: list[DeviceSync]
+    drops: dict[str, int]
+    disconnects: dict[str, int]
+    metadata: dict[str, dict[str, str]]
+    attachments: int
+    problem: str | None
+
+
+# --- summarising --------------------------------------------------------------------
+
+
+def _field(message: Any, name: str) -> Any:
+    """``message.name``, or None when this version of the schema has no such field."""
+    descriptor = getattr(message, "DESCRIPTOR", None)
+    if descriptor is None or name not in descriptor.fields_by_name:
+        return None
+    return getattr(message, name)
+
+
+def _gaps(times: list[int]) -> tuple[float, list[tuple[int, int]]]:
+    """(max interval s, gaps) of sorted times, ns; gaps as in :class:`ChannelInfo`."""
+    if len(times) < 2:
+        return 0.0, []
+    t = np.asarray(times, dtype=np.int64)
+    d = np.diff(t)
+    # the pace: the median interval, ignoring those far below the mean (records logged
+    # in bursts, as several CAN messages sent together, would otherwise set it)
+    positive = d[d > max((t[-1] - t[0]) / (len(t) - 1) / 10, 0)]
+    if positive.size == 0:
+        return 0.0, []
+    period = float(np.median(positive))
+    if period >= _SLOW_PERIOD_S * 1e9:
+        threshold = period + _SLOW_PERIOD_S * 1e9
+    else:
+        threshold = 3.0 * period
+    idx = np.flatnonzero(d > threshold)
+    gaps = [(int(t[i]), int(t[i + 1])) for i in idx]
+    return float(d.max()) / 1e9, gaps
+
+
+@dataclass
+class _Timing:
+    records: int = 0
+    epochs: set[int] = field(default_factory=set)
+    drift_ppm: float | None = None
+    offsets: list[int] = field(default_factory=list)
+    uncertainties: list[float] = field(default_factory=list)
+    residuals: list[int] = field(default_factory=list)
+    dropped: int | None = None
+
+
+@dataclass
+class _Acc:
+    """Running totals over the messages of one file or of a session."""
+
+    times: dict[str, list[int]] = field(default_factory=dict)
+    schemas: dict[str, str] = field(default_factory=dict)
+    sizes: dict[str, int] = field(default_factory=dict)
+    timing: dict[str, _Timing] = field(default_factory=dict)
+    status: Any = None
+    realtime_offset_ns: int | None = None
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachments: int = 0
+
+    def add(self, schema: Schema | None, channel: Channel, message: Message, decoded: Any) -> None:
+        topic = channel.topic
+        self.times.setdefault(topic, []).append(message.log_time)
+        self.schemas.setdefault(topic, schema.name if schema is not None else "")
+        self.sizes[topic] = self.sizes.get(topic, 0) + len(message.data)
+        if decoded is None:
+            return
+        if topic.startswith("/acq/timing/"):
+            self._add_timing(topic.removeprefix("/acq/timing/"), decoded)
+        elif topic == "/acq/status":
+            self.status = decoded
+        elif topic == "/acq/clock" and self.realtime_offset_ns is None:
+            realtime, monotonic = _field(decoded, "realtime_ns"), _field(decoded, "monotonic_ns")
+            if realtime and monotonic:
+                self.realtime_offset_ns = int(realtime) - int(monotonic)
+
+    def _add_timing(self, device: str, msg: Any) -> None:
+        t = self.timing.setdefault(device, _Timing())
+        t.records += 1
+        epoch = _field(msg, "epoch")
+        if epoch is not None:
+            t.epochs.add(int(epoch))
+        drift = _field(msg, "drift_ppm")
+        if drift is not None and math.isfinite(drift):
+            t.drift_ppm = float(drift)
+        offset = _field(msg, "offset_ns")
+        if offset is not None:
+            t.offsets.append(int(offset))
+        uncertainty = _field(msg, "uncertainty_s")
+        if uncertainty is not None and math.isfinite(uncertainty):  # NaN: no estimate yet
+            t.uncertainties.append(float(uncertainty))
+        recv, stamp = _field(msg, "recv_ns"), _field(msg, "stamp_ns")
+        if recv and stamp:
+            t.residuals.append(int(recv) - int(stamp))
+        dropped = _field(msg, "dropped")
+        if dropped is not None:
+            t.dropped = int(dropped)
+
+    def add_metadata(self, record: Metadata) -> None:
+        self.metadata.setdefault(record.name, dict(record.metadata))
+
+    def channels(self) -> list[ChannelInfo]:
+        out = []
+        for topic in sorted(self.times):
+            times = sorted(self.times[topic])
+            span = times[-1] - times[0]
+            max_gap_s, gaps = _gaps(times)
+            out.append(
+                ChannelInfo(
+                    topic=topic,
+                    schema=self.schemas[topic],
+                    count=len(times),
+                    first_ns=times[0],
+                    last_ns=times[-1],
+                    rate_hz=(len(times) - 1) / (span / 1e9) if span > 0 else 0.0,
+                    max_gap_s=max_gap_s,
+                    gaps=gaps,
+                    bytes=self.sizes[topic],
+                )
+            )
+        return out
+
+    def devices(self) -> tuple[list[DeviceSync], dict[str, int], dict[str, int]]:
+        drops: dict[str, int] = {}
+        disconnects: dict[str, int] = {}
+        listed: list[str] = []
+        status_devices = _field(self.status, "devices") if self.status is not None else None
+        for dev in status_devices or []:
+            name = str(_field(dev, "name") or "")
+            if not name:
+                continue
+            listed.append(name)
+            dropped, disc = _field(dev, "dropped"), _field(dev, "disconnects")
+            if dropped is not None:
+                drops[name] = int(dropped)
+            if disc is not None:
+                disconnects[name] = int(disc)
+        for name, t in self.timing.items():
+            if name not in drops and t.dropped is not None:
+                drops[name] = t.dropped
+        devices = [_device_sync(name, self.timing.get(name, _Timing())) for name in listed]
+        devices += [_device_sync(n, t) for n, t in sorted(self.timing.items()) if n not in listed]
+        return devices, drops, disconnects
+
+
+def _device_sync(name: str, t: _Timing) -> DeviceSync:
+    res = np.asarray(t.residuals, dtype=np.float64) / 1e6
+    unc = np.asarray(t.uncertainties, dtype=np.float64)
+    return DeviceSync(
+        name=name,
+        records=t.records,
+        epochs=len(t.epochs),
+        drift_ppm=t.drift_ppm,
+        offset_spread_ms=(max(t.offsets) - min(t.offsets)) / 1e6 if t.offsets else None,
+        uncertainty_s_median=float(np.median(unc)) if unc.size else None,
+        uncertainty_s_max=float(unc.max()) if unc.size else None,
+        residual_ms_p50=float(np.percentile(res, 50)) if res.size else None,
+        residual_ms_p95=float(np.percentile(res, 95)) if res.size else None,
+        residual_ms_max=float(res.max()) if res.size else None,
+    )
+
+
+def _decode_topic(topic: str) -> bool:
+    return topic in ("/acq/status", "/acq/clock") or topic.startswith("/acq/timing/")
+
+
+def _result(
+    acc: _Acc,
+    path: Path,
+    files: tuple[Path, ...],
+    closed: bool,
+    bytes_read: int,
+    bytes_total: int,
+    problem: str | None,
+) -> LogInfo:
+    channels = acc.channels()
+    devices, drops, disconnects = acc.devices()
+    start = min((c.first_ns for c in channels), default=None)
+    end = max((c.last_ns for c in channels), default=None)
+    return LogInfo(
+        path=path,
+        files=files,
+        closed=closed,
+        bytes_read=bytes_read,
+        bytes_total=bytes_total,
+        readable_until_ns=end,
+        messages=sum(c.count for c in channels),
+        start_ns=start,
+        end_ns=end,
+        duration_s=(end - start) / 1e9 if start is not None and end is not None else 0.0,
+        start_realtime_ns=(
+            start + acc.realtime_offset_ns
+            if start is not None and acc.realtime_offset_ns is not None
+            else None
+        ),
+        channels=channels,
+        devices=devices,
+        drops=drops,
+        disconnects=disconnects,
+        metadata=acc.metadata,
+        attachments=acc.attachments,
+        problem=problem,
+    )
+
+
+def info(path: str | os.PathLike[str]) -> LogInfo:
+    """Summary of one log; reads everything before a cut when the file was not closed."""
+    return info_many([path])[0]
+
+
+def info_many(paths: Iterable[str | os.PathLike[str]]) -> list[LogInfo]:
+    """One :class:`LogInfo` per file, in the given order, and, for more than one file
+    (the split files of a session), a last one for the whole session: its ``files`` lists
+    them, its ``path`` is their common directory, its channels and gaps span them all.
+    Raises :class:`acq.log.reader.LogError` for a file that is missing or not MCAP."""
+    files = [Path(p) for p in paths]
+    readers = [LogReader(p) for p in files]  # every LogError before any long read
+    session = _Acc()
+    out: list[LogInfo] = []
+    for reader in readers:
+        acc = _Acc()
+        for schema, channel, message in reader.messages():
+            wanted = _decode_topic(channel.topic)
+            decoded = reader.decode(schema, channel, message) if wanted else None
+            acc.add(schema, channel, message, decoded)
+            session.add(schema, channel, message, decoded)
+        for record in reader.metadata:
+            acc.add_metadata(record)
+            session.add_metadata(record)
+        acc.attachments += reader.attachments
+        session.attachments += reader.attachments
+        out.append(
+            _result(
+                acc,
+                reader.path,
+                (reader.path,),
+                reader.closed,
+                reader.bytes_read,
+                reader.size,
+                reader.problem(),
+            )
+        )
+    if len(out) > 1:
+        problems = [f"{i.path.name}: {i.problem}" for i in out if i.problem]
+        out.append(
+            _result(
+                session,
+                Path(os.path.commonpath([p.resolve() for p in files])),
+                tuple(files),
+                all(i.closed for i in out),
+                sum(i.bytes_read for i in out),
+                sum(i.bytes_total for i in out),
+                " | ".join(problems) or None,
+            )
+        )
+    return out
+
+
+# --- output -------------------------------------------------------------------------
+
+
+def _bytes(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} GiB"
+
+
+def _opt(value: float | None, fmt: str) -> str:
+    return "-" if value is None or math.isnan(value) else format(value, fmt)
+
+
+def _utc(ns: int) -> str:
+    return datetime.fromtimestamp(ns / 1e9, tz=UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + " UTC"
+
+
+def _meta_item(key: str, value: str) -> str:
+    short = value.strip()
+    if len(short) <= 32 and "\n" not in short:
+        return f"{key}={short}"
+    return f"{key} ({len(value.encode())} B)"
+
+
+def _format_one(i: LogInfo) -> list[str]:
+    title = str(i.path) if len(i.files) == 1 else f"session {i.path} ({len(i.files)} files)"
+    state = "closed" if i.closed else "NOT CLOSED"
+    lines = [f"{title}: {state}"]
+    if i.problem:
+        lines.append(f"  warning: {i.problem}")
+    if i.start_ns is not None and i.end_ns is not None:
+        where = f"monotonic {i.start_ns / 1e9:.3f} s .. {i.end_ns / 1e9:.3f} s"
+        if i.start_realtime_ns is not None:
+            where += f", from {_utc(i.start_realtime_ns)}"
+        lines.append(f"  span      {i.duration_s:.3f} s ({where})")
+    lines.append(
+        f"  messages  {i.messages} in {len(i.channels)} channels, attachments {i.attachments};"
+        f" read {_bytes(i.bytes_read)} of {_bytes(i.bytes_total)}"
+    )
+    for name, data in i.metadata.items():
+        keys = ", ".join(_meta_item(k, v) for k, v in data.items())
+        lines.append(f"  metadata  {name}: {keys}")
+    if i.channels:
+        width = max(24, *(len(c.topic) for c in i.channels))
+        swidth = max(12, *(len(c.schema) for c in i.channels))
+        lines.append(
+            f"  {'topic':<{width}}  {'schema':<{swidth}}  {'count':>7}  {'rate Hz':>8}"
+            f"  {'max gap s':>9}  {'gaps':>4}  {'size':>10}"
+        )
+        for c in i.channels:
+            lines.append(
+                f"  {c.topic:<{width}}  {c.schema:<{swidth}}  {c.count:>7}  {c.rate_hz:>8.2f}"
+                f"  {c.max_gap_s:>9.3f}  {len(c.gaps):>4}  {_bytes(c.bytes):>10}"
+            )
+        start = i.start_ns or 0
+        for c in i.channels:
+            if c.gaps:
+                shown = ", ".join(
+                    f"{(a - start) / 1e9:.3f}..{(b - start) / 1e9:.3f} s" for a, b in c.gaps[:5]
+                )
+                more = f" and {len(c.gaps) - 5} more" if len(c.gaps) > 5 else ""
+                lines.append(f"  gaps on {c.topic} (s from start): {shown}{more}")
+    names = [d.name for d in i.devices] + sorted(
+        (set(i.drops) | set(i.disconnects)) - {d.name for d in i.devices}
+    )
+    if names:
+        by_name = {d.name: d for d in i.devices}
+        lines.append(
+            f"  {'device':<12}  {'drops':>6}  {'disconn':>7}  {'timing':>7}  {'epochs':>6}"
+            f"  {'drift ppm':>9}  {'offset spread ms':>16}  {'uncert. s med/max':>19}"
+            f"  {'recv-stamp ms p50/p95/max':>25}"
+        )
+        for name in names:
+            d = by_name.get(name)
+            drops = str(i.drops.get(name, "-"))
+            disc = str(i.disconnects.get(name, "-"))
+            if d is None:
+                lines.append(f"  {name:<12}  {drops:>6}  {disc:>7}")
+                continue
+            unc = f"{_opt(d.uncertainty_s_median, '.2e')}/{_opt(d.uncertainty_s_max, '.2e')}"
+            res = (
+                f"{_opt(d.residual_ms_p50, '.2f')}/{_opt(d.residual_ms_p95, '.2f')}"
+                f"/{_opt(d.residual_ms_max, '.2f')}"
+            )
+            lines.append(
+                f"  {name:<12}  {drops:>6}  {disc:>7}  {d.records:>7}  {d.epochs:>6}"
+                f"  {_opt(d.drift_ppm, '.2f'):>9}  {_opt(d.offset_spread_ms, '.3f'):>16}"
+                f"  {unc:>19}  {res:>25}"
+            )
+    return lines
+
+
+def _jsonable(i: LogInfo) -> dict[str, Any]:
+    d = dataclasses.asdict(i)
+    d["path"] = str(i.path)
+    d["files"] = [str(p) for p in i.files]
+    for c in d["channels"]:
+        c["gaps"] = [list(g) for g in c["gaps"]]
+    return d
+
+
+def format_info(infos: LogInfo | Iterable[LogInfo], *, json: bool = False) -> str:
+    """Human-readable tables (channels, devices, the "not closed" warning) or, with
+    ``json=True``, a JSON list with one object per :class:`LogInfo`."""
+    items = [infos] if isinstance(infos, LogInfo) else list(infos)
+    if json:
+        return _json.dumps([_jsonable(i) for i in items], indent=2)
+    blocks = ["\n".join(_format_one(i)) for i in items]
+    return "\n\n".join(blocks)

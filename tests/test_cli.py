@@ -11,13 +11,13 @@ import pytest
 
 from acq import __version__
 from acq.cli import main
-from acq.log import loginfo
+from acq.log import summary
 
 # `acq info` whose summary is long text, without a log: for the stdout tests
 _LONG_INFO = (
-    "import sys; from acq.log import loginfo; "
-    "loginfo.info_many = lambda logs: None; "
-    "loginfo.format_info = lambda info, json: 'a line of the summary\\n' * 200_000; "
+    "import sys; from acq.log import summary; "
+    "summary.info_many = lambda logs: None; "
+    "summary.format_info = lambda info, json: 'a line of the summary\\n' * 200_000; "
     "from acq.cli import main; sys.exit(main(['info', 'x.mcap']))"
 )
 
@@ -29,7 +29,7 @@ def _bug(*args: object, **kwargs: object) -> None:
 def test_a_bug_exits_1_with_one_line(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setattr(loginfo, "info_many", _bug)
+    monkeypatch.setattr(summary, "info_many", _bug)
     assert main(["info", "x.mcap"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("acq info: KeyError: channel") and err.count("\n") == 1, err
@@ -40,7 +40,7 @@ def test_a_bug_exits_1_with_one_line(
 def test_debug_shows_the_traceback(
     argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setattr(loginfo, "info_many", _bug)
+    monkeypatch.setattr(summary, "info_many", _bug)
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert "Traceback (most recent call last)" in err and "in _bug" in err

@@ -32,16 +32,17 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
-    from acq.log import loginfo
+    from acq.log import summary
+    from acq.log.repair import repair
 
     if args.repair:
         for src in args.logs:
             dst = args.output if args.output else src.with_suffix(".repaired.mcap")
             try:
-                n = loginfo.repair(src, dst)
+                n = repair(src, dst)
             except FileExistsError as e:
                 raise InputError(f"{e.filename}: exists; not overwritten") from None
             print(f"{src} -> {dst}: {n} messages, indexed")
         return 0
-    print(loginfo.format_info(loginfo.info_many(args.logs), json=args.json))
+    print(summary.format_info(summary.info_many(args.logs), json=args.json))
     return 0

@@ -361,7 +361,7 @@ def main() -> None:
         calib = calibfile.load(offset_path)
         configured = calibfile.load(calib_path)  # the same without the time offset
         true_calib = truth.calibration
-        from acq.cloud import read_log
+        from acq.log.drive_log import read_log
 
         log = read_log(truth.files)
         jpegs = dict(zip(log.frame_ns.tolist(), log.jpegs, strict=True))

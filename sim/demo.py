@@ -42,7 +42,7 @@ from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.cloud import colorize
 from acq.errors import AcqError, InputError
-from acq.log import LogInfo
+from acq.log import LogInfo, drive_log
 from acq.log import info as log_info
 from acq.motion.trajectory import Trajectory
 from acq.record import config as configfile
@@ -308,7 +308,7 @@ def _size(path: Path) -> str:
 def _odometry_truth(rig: _SimRig, mcap_path: Path) -> list[str]:
     """Summary lines comparing the recorded CAN odometry with the car's true motion at
     the odometry's stamps, and its dead reckoning with the true path over the log."""
-    from acq.motion.vehicle_log import read_vehicle
+    from acq.log.vehicle_log import read_vehicle
     from acq.sim.can_vehicle import true_motion
 
     odo = read_vehicle([mcap_path]).odometry
@@ -341,7 +341,7 @@ def _odometry_truth(rig: _SimRig, mcap_path: Path) -> list[str]:
 
 
 def _truth(
-    rig: _SimRig, log: cloud.DriveLog, pc: cloud.Cloud, truth_frames: list[Any]
+    rig: _SimRig, log: drive_log.DriveLog, pc: cloud.Cloud, truth_frames: list[Any]
 ) -> tuple[list[str], tuple[float, float]]:
     """Summary lines comparing the log with the simulator's truth, and the shares of
     checked coloured points whose colour is the true surface colour (see colour_check)."""
@@ -451,7 +451,7 @@ def _summary(
     result: DemoResult,
     recorder: Recorder,
     info: LogInfo,
-    log: cloud.DriveLog,
+    log: drive_log.DriveLog,
     pc: cloud.Cloud,
     truth_lines: list[str],
 ) -> list[str]:
@@ -569,7 +569,7 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
     shutil.rmtree(rec_dir, ignore_errors=True)
     clock.say(f"wrote {mcap_path} ({_size(mcap_path)})")
 
-    log = cloud.read_log(mcap_path)
+    log = drive_log.read_log(mcap_path)
     # `acq colorize DIR/demo.mcap --calib DIR/calib.yaml`, placing with the true trajectory
     ply_path, png_path = out / "cloud.ply", out / "preview.png"
     stamps = np.concatenate([log.scan_ns, log.frame_ns])

@@ -16,6 +16,7 @@ from acq.cli import main as acq_main
 from acq.cloud import colorize
 from acq.cloud.colorize import plan, run
 from acq.cloud.views import Options
+from acq.log import drive_log
 from acq.sim.drive_log import DriveTruth, write_drive_log
 
 
@@ -46,7 +47,7 @@ def test_ply_and_las_carry_every_point_with_its_time(
                      "--crs", "EPSG:25832", "--frame", "laser")  # fmt: skip
         assert acq_main(args) == 0
     v = PlyData.read(str(ply))["vertex"].data
-    n_valid = int(np.isfinite(cloud.read_log(truth.files).ranges).sum())
+    n_valid = int(np.isfinite(drive_log.read_log(truth.files).ranges).sum())
     assert len(v) == n_valid
     assert 0.2 < v["coloured"].mean() < 0.9  # the camera looks to one side
     assert np.all(np.diff(v["time"]) >= -1e-9)  # UTC seconds, in time order
@@ -217,7 +218,7 @@ def test_points_outside_the_trajectory_are_left_out_not_fatal(tmp_path: Path) ->
     report = run(truth.files, truth.calibration, out, preview=tmp_path / "p.png")
     assert report.frame == "world" and (tmp_path / "p.png").stat().st_size > 0
     assert any("outside the trajectory" in n for n in report.notes)
-    n_valid = int(np.isfinite(cloud.read_log(truth.files).ranges).sum())
+    n_valid = int(np.isfinite(drive_log.read_log(truth.files).ranges).sum())
     assert 0.4 * n_valid < report.points < 0.7 * n_valid
 
 

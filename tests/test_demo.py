@@ -20,11 +20,10 @@ from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 from plyfile import PlyData
 
-from acq import cloud
 from acq.camera import calibfile
 from acq.cli import main as acq_main
 from acq.cloud import colorize
-from acq.log import info
+from acq.log import drive_log, info
 from acq.sim.demo import COLOUR_TOLERANCE, colour_check
 
 SECONDS = 3.0
@@ -244,7 +243,7 @@ def test_colorize_places_the_demo_log_with_its_can_odometry(demo: Demo, tmp_path
     assert np.isfinite(cat("scan_origin")).all()
     key = cat("scan").astype(np.int64) * 10_000 + cat("step")
     # the demo's cloud, point for point: its PLY holds the log's finite ranges in order
-    log = cloud.read_log(out / "demo.mcap", jpegs=False)
+    log = drive_log.read_log(out / "demo.mcap", jpegs=False)
     d_scan, d_step = np.nonzero(np.isfinite(log.ranges))
     v = PlyData.read(str(out / "cloud.ply"))["vertex"].data
     assert np.array_equal(v["scan"], d_scan)

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq import cloud
 from acq.calib.extrinsic_log import average_corners, parse_poses, still_intervals
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.rotations import rotation_angle
 from acq.geometry.transforms import Rigid
+from acq.log import drive_log
 from acq.sim.board_log import BoardLog, write_board_log
 from tests.cli_calls import calibrate_extrinsic
 
@@ -36,7 +36,7 @@ def _errors(got: Rigid, truth: Rigid) -> tuple[float, float]:
 
 def test_still_intervals_match_the_holds(rec: tuple[BoardLog, Path]) -> None:
     log, _ = rec
-    found = still_intervals(cloud.read_log(log.files))
+    found = still_intervals(drive_log.read_log(log.files))
     assert len(found) == len(log.holds)
     for (a, b), (ha, hb) in zip(found, log.holds, strict=True):
         assert ha <= a < b <= hb + 50_000_000

@@ -2,7 +2,7 @@
 car on a python-can ``virtual`` bus (in this process, where the recorder runs) and the
 simulated GNSS receiver on a pty, all driving one trajectory from one instant; the MCAP
 holds /vehicle/odometry, /vehicle/can, /gnss/fix, /gnss/raw with their rates and true
-values, and :func:`acq.motion.vehicle_log.read_vehicle` reads them back. Nothing is mocked."""
+values, and :func:`acq.log.vehicle_log.read_vehicle` reads them back. Nothing is mocked."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from acq.log import info, read_metadata
-from acq.motion.vehicle_log import read_vehicle
+from acq.log.vehicle_log import read_vehicle
 from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
 from acq.sim import replay

@@ -12,12 +12,12 @@ import cv2
 import numpy as np
 import pytest
 
-from acq import cloud
 from acq.calib.validate import DEFAULT_COLOURS, validate
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.rotations import matrix_from_rotvec
 from acq.geometry.transforms import Rigid
+from acq.log import drive_log
 from acq.sim.raycast import NO_RAY
 from acq.sim.validation_log import (
     LABELS,
@@ -67,7 +67,7 @@ def test_truth_sees_both_sets(rec: tuple[ValidationLog, Path]) -> None:
 def test_true_calibration_colours_right(rec: tuple[ValidationLog, Path], tmp_path: Path) -> None:
     log, _ = rec
     png = tmp_path / "overlay.png"
-    res = validate(cloud.read_log(log.files), log.calibration.camera(), overlay=png)
+    res = validate(drive_log.read_log(log.files), log.calibration.camera(), overlay=png)
     print(res.to_dict())
     assert res.points > 5000 and res.front[0] > 0 and res.back[0] > 0
     assert res.share_right >= 0.95
@@ -82,7 +82,7 @@ def test_true_calibration_colours_right(rec: tuple[ValidationLog, Path], tmp_pat
 
 def test_perturbed_calibration_is_clearly_worse(rec: tuple[ValidationLog, Path]) -> None:
     log, _ = rec
-    drive = cloud.read_log(log.files)
+    drive = drive_log.read_log(log.files)
     good = validate(drive, log.calibration.camera())
     bad = validate(drive, _perturbed(log.calibration.camera(), 1.0))
     print(good.share_right, good.sigma_px, bad.share_right, bad.sigma_px)

@@ -1,7 +1,7 @@
 """Camera–laser extrinsics from a recorded log (``acq calibrate extrinsic``, paper §3.2).
 
 The operator holds a checkerboard still in 15 or more poses in view of both sensors.
-From the log (:func:`acq.cloud.read_log`):
+From the log (:func:`acq.log.drive_log.read_log`):
 
 1. still poses (:func:`still_intervals`): runs of at least ``min_still_s`` where
    consecutive frames barely change (mean absolute difference of 1/4-scale grey images,
@@ -37,12 +37,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from acq import cloud
 from acq.calib.board_pose import BoardPose, board_pose_from_corners
 from acq.calib.fisheye_calib import BoardSpec, detect_corners
 from acq.camera.camera_models import CameraModel
 from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
+from acq.log import drive_log
 
 __all__ = [
     "METHOD",
@@ -71,7 +71,7 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
 
 
 def still_intervals(
-    log: cloud.DriveLog,
+    log: drive_log.DriveLog,
     *,
     min_still_s: float = 0.5,
     grey_change: float = 20.0,
@@ -387,7 +387,7 @@ class PoseData:
 
 
 def poses_from_log(
-    log: cloud.DriveLog,
+    log: drive_log.DriveLog,
     model: CameraModel,
     spec: BoardSpec,
     intervals: Sequence[tuple[int, int]],

@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 
-from acq import cloud
 from acq.calib.plots import sensitivity_figure, third_order_figure, write_png
 from acq.calib.sensitivity import (
     CAMERA,
@@ -33,6 +32,7 @@ from acq.calib.sensitivity import (
 from acq.camera import calibfile
 from acq.camera.camera_models import KannalaBrandt
 from acq.errors import AcqError, InputValueError
+from acq.log import drive_log
 
 __all__ = ["analyze_logs"]
 
@@ -74,7 +74,7 @@ def analyze_logs(
     if not bin_deg > 0:
         raise InputValueError("bin width must be > 0 deg")
     cal = calibfile.load(calib)
-    log = cloud.read_log(logs)
+    log = drive_log.read_log(logs)
     name = camera or (log.camera if log.camera in cal.cameras else None)
     cam = cal.camera(name)
     p = params_from_calib(cam)

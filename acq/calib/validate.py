@@ -39,9 +39,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from acq import cloud
 from acq.camera.calibfile import CameraCalib
 from acq.errors import AcqError
+from acq.log import drive_log
 
 __all__ = [
     "BACK",
@@ -149,7 +149,7 @@ def occluded(camera_xy: np.ndarray, points: np.ndarray, segments: np.ndarray) ->
 
 
 def find_sets(
-    log: cloud.DriveLog,
+    log: drive_log.DriveLog,
     camera: CameraCalib,
     *,
     tol_m: float = 0.04,
@@ -330,7 +330,7 @@ def _decode(jpeg: bytes) -> np.ndarray | None:
 
 
 def validate(
-    log: cloud.DriveLog,
+    log: drive_log.DriveLog,
     camera: CameraCalib,
     *,
     colours: dict[str, tuple[int, int, int]] | None = None,

@@ -352,7 +352,6 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     cannot be made (too few usable or degenerate poses)."""
     import numpy as np
 
-    from acq import cloud
     from acq.calib.extrinsic import calibrate
     from acq.calib.extrinsic_log import (
         METHOD,
@@ -365,6 +364,7 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     from acq.camera import calibfile
     from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
     from acq.geometry.transforms import Rigid
+    from acq.log import drive_log
 
     logs, camera, intrinsics, board, output = (
         args.logs, args.camera, args.intrinsics, args.board, args.output
@@ -372,8 +372,8 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     lens_swap, pupil_shift_m = args.lens_swap, args.pupil_shift
     spec = parse_board(board)
     calib = calibfile.load(intrinsics)
-    log = cloud.read_log(list(logs), camera=camera)
-    name, cam = cloud.camera_calib(log, calib, camera)
+    log = drive_log.read_log(list(logs), camera=camera)
+    name, cam = drive_log.camera_calib(log, calib, camera)
     target, target_cam = calib, cam
     if lens_swap is not None:
         target = calibfile.load(lens_swap)
@@ -502,13 +502,13 @@ def run_validate(args: argparse.Namespace) -> int:
     pixel-error histogram and sigma (paper §4.2) for the camera's calibration in CALIB.
     Prints a report (or JSON); with -o writes DIR/validate_overlay.png. 0; 2 bad log or
     calibration file; 1 no pattern found."""
-    from acq import cloud
     from acq.calib.validate import validate
     from acq.camera import calibfile
+    from acq.log import drive_log
 
     cal = calibfile.load(args.calib)
-    log = cloud.read_log(list(args.logs), camera=args.camera)
-    name, cam = cloud.camera_calib(log, cal, args.camera)
+    log = drive_log.read_log(list(args.logs), camera=args.camera)
+    name, cam = drive_log.camera_calib(log, cal, args.camera)
     overlay = args.out / "validate_overlay.png" if args.out is not None else None
     res = validate(log, cam, overlay=overlay)
     if args.json:

@@ -1,6 +1,6 @@
 """`acq colorize`: a drive's laser points placed in 3D and coloured from its frames.
 
-1. The log's light part (:func:`acq.cloud.read_log` without image bytes): scan and
+1. The log's light part (:func:`acq.log.drive_log.read_log` without image bytes): scan and
    frame stamps with the receipt times and device ticks of the timing records, clock
    pairs, metadata.
 2. Offline re-timing (default; :mod:`acq.time.retime`): scans from their ticks over the
@@ -50,15 +50,15 @@ from acq.calib.time_offset import OffsetEstimate, estimate_time_offset
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import CameraModel
 from acq.cloud import views
-from acq.cloud.drive_log import DriveLog, camera_calib, read_log
 from acq.cloud.las import LasStream
 from acq.cloud.ply import PlyStream
 from acq.cloud.points import Cloud
 from acq.cloud.preview import preview_png
 from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
+from acq.log.drive_log import DriveLog, camera_calib, read_log
+from acq.log.vehicle_log import read_vehicle
 from acq.motion import Trajectory
-from acq.motion.vehicle_log import read_vehicle
 from acq.time import retime, sync
 from acq.time.utc import host_ns_from_utc, utc_seconds
 

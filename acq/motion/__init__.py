@@ -1,7 +1,7 @@
 """The vehicle's motion: a trajectory (poses on the host clock, interpolated on SE(3)) from
 wheel odometry, GNSS, their fusion or a GNSS/INS file. The names below are those of its
 modules: ``trajectory`` (the :class:`Trajectory` itself), ``odometry``, ``gnss``,
-``fusion``, ``ins`` (files). The vehicle's log is read by :mod:`acq.motion.vehicle_log`.
+``fusion``, ``ins`` (files). The vehicle's log is read by :mod:`acq.log.vehicle_log`.
 """
 
 from acq.motion.fusion import Fusion, fuse

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from mcap.records import Channel, Schema
 
-from acq.log import LogReader
+from acq.log.reader import LogReader
 
 __all__ = [
     "FIX_TOPIC",
@@ -180,7 +180,7 @@ def _fixes(rows: list[tuple[Any, ...]]) -> Fixes:
 
 class VehicleReader:
     """Collects the vehicle topics' decoded messages (one pass over a log can feed it
-    beside other readers, as :func:`acq.cloud.read_log` does)."""
+    beside other readers, as :func:`acq.log.drive_log.read_log` does)."""
 
     TOPICS = (ODOMETRY_TOPIC, FIX_TOPIC)
 

@@ -24,8 +24,8 @@ import numpy as np
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
 from acq.errors import InputValueError
-from acq.log import LogReader, read_metadata
-from acq.motion.vehicle_log import VehicleLog, VehicleReader
+from acq.log.reader import LogReader, read_metadata
+from acq.log.vehicle_log import VehicleLog, VehicleReader
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ class DriveLog:
     driver's sequence numbers (-1 where unknown; they restart on a reconnect), ``jpegs``
     the bytes as the camera sent them. ``clock`` (K,2) int64 pairs (monotonic ns,
     realtime ns). ``metadata`` by name (the last record of each name). ``vehicle``: the
-    odometry and GNSS fixes (:class:`acq.motion.vehicle_log.VehicleLog`) when read with them.
+    odometry and GNSS fixes (:class:`acq.log.vehicle_log.VehicleLog`) when read with them.
     """
 
     files: tuple[Path, ...]
@@ -145,7 +145,7 @@ def read_log(
     fixes, whatever their time in those chunks; metadata whatever their time.
     ``jpegs=False`` leaves the images' bytes out (their stamps stay); ``vehicle``: also
     the odometry and GNSS fixes, in the same pass, as
-    :func:`acq.motion.vehicle_log.read_vehicle`.
+    :func:`acq.log.vehicle_log.read_vehicle`.
 
     Files whose writer was killed are read up to their last good record
     (:class:`acq.log.LogReader`); undecodable messages are skipped (noted).

@@ -40,6 +40,9 @@ from acq.sim.can_vehicle import (
 )
 from acq.sim.world import Trajectory
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 CURVY = Trajectory(curve_amplitude=2.0, curve_wavelength=60.0)
 SPEED_LSB = 0.01 / 3.6  # m/s, one step of a wheel speed (0.01 km/h)
 YAW_LSB = math.radians(0.01)  # rad/s, one step of the yaw rate (0.01 deg/s)

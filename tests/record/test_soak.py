@@ -21,6 +21,9 @@ from acq.drivers.reconnect import LinkEvent, Reconnecting
 from acq.drivers.scanner import scanner_for
 from acq.sim.devices import make_scanner, serve_scanner
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 
 @dataclass
 class Soak:

@@ -19,7 +19,10 @@ from mcap.reader import make_reader
 from acq.record.recorder import EXIT_DISK_FULL, Recorder
 from tests.sim_rig import Rig, read_log
 
-ROOT = Path(__file__).resolve().parents[1]
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
+ROOT = Path(__file__).resolve().parents[2]
 TOPICS = {"/laser/scan", "/laser/raw", "/acq/timing/laser", "/camera/image/compressed",
           "/acq/timing/camera", "/acq/status", "/acq/clock"}  # fmt: skip
 LATCHED = {"/tf_static", "/camera/calibration"}
@@ -199,16 +202,20 @@ def test_a_scanner_outage_is_a_gap_and_recording_goes_on(rig: Rig, tmp_path: Pat
 
 
 def _kill_once(rig: Rig, cfg_path: Path, out: Path, delay_s: float) -> tuple[int, Path]:
-    """Start `acq record`, SIGKILL it ``delay_s`` after it opened its file (the moment
-    depends on the recording, not on how long Python took to start); (kill time ns, the
-    file)."""
+    """Start `acq record`, SIGKILL it ``delay_s`` after both its devices connected (the
+    moment depends on the recording, not on how long a busy machine took to start Python
+    and connect); (kill time ns, the file)."""
+    said = out.parent / f"{out.name}.log"
     proc = subprocess.Popen(
         [sys.executable, "-m", "acq.cli", "record", "-c", str(cfg_path), "--out", str(out)],
         cwd=ROOT,
-        stderr=(out.parent / f"{out.name}.log").open("wb"),
+        stderr=said.open("wb"),
     )
     deadline = time.monotonic() + 30.0
-    while not any(out.glob("*.mcap")) and time.monotonic() < deadline and proc.poll() is None:
+    while time.monotonic() < deadline and proc.poll() is None:
+        log = said.read_text(errors="replace")
+        if "laser connected" in log and "camera connected" in log and any(out.glob("*.mcap")):
+            break
         time.sleep(0.01)
     time.sleep(delay_s)
     killed_ns = time.monotonic_ns()

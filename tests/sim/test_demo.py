@@ -26,6 +26,9 @@ from acq.cloud import colorize
 from acq.log import drive_log, info
 from acq.sim.demo import COLOUR_TOLERANCE, colour_check
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 SECONDS = 3.0
 PLY_PROPERTIES = [
     ("x", "double"),

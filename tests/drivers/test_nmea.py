@@ -29,6 +29,9 @@ from acq.records import Fix, Sentence
 from acq.sim.nmea_device import DEFAULT_ORIGIN, NmeaDevice, NmeaPtyServer, sentence
 from acq.sim.world import Trajectory
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 CURVY = Trajectory(curve_amplitude=2.0, curve_wavelength=60.0)
 GGA = b"$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47"
 RMC = b"$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A"

@@ -12,6 +12,9 @@ from acq import cli
 from acq.sim.devices import make_scanner, serve_scanner
 from acq.sim.scanner_models import MODELS
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 CASES = [(name, False) for name in MODELS] + [
     (name, True) for name, m in MODELS.items() if m.serial_port
 ]

@@ -12,6 +12,9 @@ import serial
 from acq.sim.transport import DeviceServer, PtyDeviceServer, TcpDeviceServer
 from tests.line_device import LineDevice
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 
 def open_client(server: DeviceServer) -> serial.SerialBase:
     return serial.serial_for_url(server.url, timeout=0.5)

@@ -29,6 +29,9 @@ from acq.sim.transport import TcpDeviceServer
 from acq.sim.world import Trajectory
 from tests.sim_rig import read_log
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 CURVY = Trajectory(curve_amplitude=2.0, curve_wavelength=60.0)
 SECONDS = 4.0
 GNSS_LATENCY_S = 0.040  # the simulated receiver's constant delay (jitter on top)

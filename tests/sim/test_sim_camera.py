@@ -15,6 +15,9 @@ from acq.sim.camera_device import SimCamera, jpeg_digest
 from acq.sim.mjpeg_server import MjpegServer, serve_camera
 from acq.sim.world import Street
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 
 @pytest.fixture(scope="module")
 def camera_args() -> dict[str, object]:

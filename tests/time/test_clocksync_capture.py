@@ -14,7 +14,7 @@ import pytest
 
 from acq.time.clocksync import fit_drift
 
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "clocksync_capture.py"
+BENCH = Path(__file__).resolve().parents[2] / "bench" / "clocksync_capture.py"
 
 
 def _bench() -> ModuleType:

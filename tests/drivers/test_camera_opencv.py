@@ -23,6 +23,9 @@ from acq.sim.camera_device import SimCamera, jpeg_digest
 from acq.sim.mjpeg_server import MjpegServer, MjpegServerProcess
 from acq.sim.world import Street
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 EXPOSURE = 0.004
 LATENCY = 0.02
 JITTER = 0.003

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from acq.record import config
 from acq.record.config import CameraConfig, Config, ConfigError, ScannerConfig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ["sim.yaml", "utm30lx.yaml", "lms111.yaml", "vehicle_example.yaml"]
 
 GOOD: dict[str, Any] = {

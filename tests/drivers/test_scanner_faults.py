@@ -19,6 +19,9 @@ from acq.drivers.reconnect import LinkEvent, Reconnecting
 from acq.drivers.scanner import scanner_for
 from acq.sim.devices import make_scanner, serve_scanner
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 
 @pytest.mark.parametrize(("name", "pty"), [("lms111", False), ("utm-30lx", True)])
 def test_reboot_is_reported_and_scans_resume_within_2s(name: str, pty: bool) -> None:

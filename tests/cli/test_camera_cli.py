@@ -14,6 +14,9 @@ import pytest
 
 from acq import cli
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 
 def free_port() -> int:
     with socket.socket() as s:

@@ -35,11 +35,7 @@ from acq.sim.transport import TcpDeviceServer
 from tests.wireshark_json import Packet, Stream, read_packets, reassemble, split_directions
 
 CAPTURE = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared"
-    / "data"
-    / "sick"
-    / "20210302_lms111.pcapng.json"
+    Path(__file__).resolve().parents[3] / "shared" / "data" / "sick" / "20210302_lms111.pcapng.json"
 )
 REQUESTS = (b"sMN", b"sRN", b"sWN", b"sEN")
 

@@ -23,6 +23,9 @@ from acq.sim.replay import Replay
 from acq.sim.transport import TcpDeviceServer
 from tests.sim_rig import Rig
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 RECORD_S = 4.0
 
 

@@ -30,7 +30,10 @@ from acq.sim.scip_device import ScipDevice
 from acq.sim.transport import PtyDeviceServer, TcpDeviceServer
 from acq.time.clocksync import DeviceClock, latency_bounds
 
-HOKUYO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hokuyo"
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
+HOKUYO = Path(__file__).resolve().parents[3] / "shared" / "data" / "hokuyo"
 PARSE_ERRORS = (ProtocolError, DeviceError)
 
 

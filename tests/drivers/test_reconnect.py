@@ -27,6 +27,9 @@ from acq.records import DeviceInfo, Scan
 from acq.sim.transport import TcpDeviceServer
 from tests.line_device import LineDevice
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 
 class LineScanner(Scanner):
     driver = "line"

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 UNIT = ROOT / "systemd" / "acq.service"
 README = ROOT / "systemd" / "README.md"
 EXEC = "/opt/acq/.venv/bin/acq"

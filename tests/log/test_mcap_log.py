@@ -27,7 +27,7 @@ from acq.camera.camera_models import Equidistant
 from acq.log import schemas, writer
 from acq.log.writer import LogWriter
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CLOCK = "/acq/clock"
 RAW = "/laser/raw"
 TF = "/tf_static"
@@ -35,6 +35,9 @@ CALIB = "/camera/calibration"
 LATCHED = {TF, CALIB}
 CAL = Calibration(cameras={"camera": CameraCalib(Equidistant.from_f(169.3, 390, 291, 780, 582))})
 NAME = re.compile(r"^acq_\d{8}T\d{6}Z_(\d{3})\.mcap$")
+
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
 
 
 def clock_msg(i: int) -> bytes:

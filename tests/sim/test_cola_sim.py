@@ -18,6 +18,9 @@ from acq.sim.device_clock import SimClock
 from acq.sim.scanner_models import MODELS
 from acq.sim.transport import TcpDeviceServer
 
+# drives simulated devices in real time: run alone (`make test`)
+pytestmark = pytest.mark.realtime
+
 
 @pytest.fixture
 def lms111() -> Iterator[tuple[ColaDevice, TcpDeviceServer]]:

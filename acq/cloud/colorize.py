@@ -24,6 +24,10 @@
    and whether it was coloured; ``--frame world`` (with a trajectory) or ``laser``; PLY
    or LAS by the output's extension; a preview PNG.
 
+Steps 1-3 make the :class:`Job` (:mod:`acq.cloud.job`), step 4 is :mod:`acq.cloud.chunks`,
+step 5 :mod:`acq.cloud.writer`; this module runs them (:func:`run`: the chunks here, on
+workers or on Dask; ``--time-offset auto``; the :class:`Report`).
+
 Times host monotonic ns unless ``_s``; metres; colours RGB.
 """
 

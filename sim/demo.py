@@ -1,32 +1,30 @@
 """`acq demo`: the simulated rig, recorded through the real recorder, coloured into a cloud.
 
-The rig: a simulated Hokuyo UTM-30LX (SCIP 2.0 on a pseudo-terminal, its own drifting
-millisecond clock), the simulated 185-degree fisheye (MJPEG over HTTP, in its own
-process so its JPEG encoding does not take the recorder's GIL) and the simulated car
-(:mod:`acq.sim.can_vehicle`: wheel speeds and yaw rate as CAN frames of ``sim/vehicle.dbc``
-on a python-can ``virtual`` bus, which reaches the recorder because both run in this
-process), all driving down the synthetic street from one shared instant ``t_origin``.
-The real recorder (drivers, clock sync, CAN odometry, MCAP writer) records them for
-``seconds`` into ``DIR/demo.mcap``, with ``/vehicle/odometry`` and ``/vehicle/can``;
-the log is then coloured with the rig's true calibration (``DIR/calib.yaml``) into
-``DIR/cloud.ply`` and pictured in ``DIR/preview.png``.
+The rig (:mod:`acq.sim.demo_rig`): a simulated Hokuyo UTM-30LX (SCIP 2.0 on a
+pseudo-terminal, its own drifting millisecond clock), the simulated 185-degree fisheye
+(MJPEG over HTTP, in its own process so its JPEG encoding does not take the recorder's
+GIL) and the simulated car (:mod:`acq.sim.can_vehicle`: wheel speeds and yaw rate as CAN
+frames of ``sim/vehicle.dbc`` on a python-can ``virtual`` bus, which reaches the recorder
+because both run in this process), all driving down the synthetic street from one shared
+instant ``t_origin``. The real recorder (drivers, clock sync, CAN odometry, MCAP writer)
+records them for ``seconds`` into ``DIR/demo.mcap``, with ``/vehicle/odometry`` and
+``/vehicle/can``; the log is then coloured with the rig's true calibration
+(``DIR/calib.yaml``) into ``DIR/cloud.ply`` and pictured in ``DIR/preview.png``.
 
 The demo colours through the pipeline of ``acq colorize`` (:func:`acq.cloud.colorize.run`:
 offline re-timing, chunks, views, the PLY writer) with the simulator's trajectory in
 place of the log's odometry, so the cloud lies in the street's world frame: because the
-demo owns the simulator, the summary checks the chain against the truth (the scan and
-frame stamps, the recorded odometry, and each coloured point's colour against the true
-colour of the surface the laser hit). ``acq colorize DIR/demo.mcap --calib
-DIR/calib.yaml`` colours the same log from the recorded CAN odometry instead (dead
-reckoning), as on a real drive.
+demo owns the simulator, the summary checks the chain against the truth
+(:mod:`acq.sim.demo_truth`: the scan and frame stamps, the recorded odometry, and each
+coloured point's colour against the true colour of the surface the laser hit). ``acq
+colorize DIR/demo.mcap --calib DIR/calib.yaml`` colours the same log from the recorded
+CAN odometry instead (dead reckoning), as on a real drive.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import shutil
-import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -37,44 +35,32 @@ from typing import Any
 import numpy as np
 import yaml
 
-from acq import cloud, motion
+from acq import cloud
 from acq.camera import calibfile
-from acq.camera.calibfile import Calibration, CameraCalib
 from acq.cloud import colorize
 from acq.errors import AcqError, InputError
 from acq.log import LogInfo, drive_log
 from acq.log import info as log_info
-from acq.motion.trajectory import Trajectory
 from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
 from acq.record.sdnotify import Notifier
+from acq.sim.demo_rig import (
+    CAMERA_SIM,
+    CAN_INTERFACE,
+    SCANNER_DRIFT_PPM,
+    SCANNER_MODEL,
+    SimRig,
+    camera_latency_s,
+    true_calibration,
+)
+from acq.sim.demo_truth import check_log, check_odometry
 
-__all__ = ["CAMERA_SIM", "COLOUR_TOLERANCE", "colour_check", "run"]
+__all__ = ["DemoResult", "run"]
 
 EXIT_OK, EXIT_FAILURE = 0, 1
 
-# The simulated camera's options (JSON for its process): s, frames/s.
-CAMERA_SIM: dict[str, Any] = {
-    "fps": 25.0,
-    "exposure_s": 0.004,
-    "latency_s": 0.020,  # end of exposure -> frame available
-    "jitter_s": 0.003,  # mean of the random part (exponential, clipped at 4x)
-    "jpeg_quality": 90,
-    "seed": 0,
-}
-SCANNER_MODEL = "utm-30lx"
-SCANNER_DRIFT_PPM = 30.0  # the simulated scanner's clock runs fast by this much
-COLOUR_TOLERANCE = 24  # max |channel difference| for "the same colour as the truth"
 STOP_AHEAD_S = 0.005  # the recorder is stopped this long before a scan is due (see _record)
-CAN_INTERFACE = "virtual"  # python-can's in-process bus: the car and the recorder share it
 MAX_SECONDS = 170.0  # the simulated drive loops over its 1 km street every 180 s
-
-
-def camera_latency_s(sim: dict[str, Any] = CAMERA_SIM) -> float:
-    """What the camera driver subtracts from receipt to get the middle of the exposure:
-    the sim's latency, half its exposure and the mean of its clipped exponential jitter."""
-    jitter = float(sim["jitter_s"]) * (1.0 - math.exp(-4.0))
-    return float(sim["latency_s"]) + float(sim["exposure_s"]) / 2 + jitter
 
 
 @dataclass
@@ -104,110 +90,6 @@ class _Clock:
         now = time.monotonic()
         took, self.mark = now - self.mark, now
         return took
-
-
-class _SimRig:
-    """The simulated scanner (in process, on a pty), camera (own process) and car (in
-    process, on a python-can ``virtual`` bus named ``can_channel``) sharing ``t_origin``
-    (host monotonic s): the same place on the street at the same time."""
-
-    def __init__(self, t_origin: float) -> None:
-        from acq.sim.can_vehicle import SimVehicle
-        from acq.sim.device_clock import SimClock
-        from acq.sim.mjpeg_server import MjpegServerProcess
-        from acq.sim.scan_source import StreetSource
-        from acq.sim.scanner_models import MODELS
-        from acq.sim.scip_device import ScipDevice
-        from acq.sim.transport import PtyDeviceServer
-
-        self.t_origin = t_origin
-        self.camera: Any = None
-        self.server: Any = None
-        self.car: Any = None
-        # a virtual bus is one process's: a name of its own (two demos, the test suite)
-        self.can_channel = f"acq-demo-{os.getpid()}-{time.monotonic_ns()}"
-        self._tmp: str | None = None  # holds the pty's link
-        model = MODELS[SCANNER_MODEL]
-        # the camera process starts (and loads its renderer) while the scanner is built
-        started: dict[str, Any] = {}
-
-        def start_camera() -> None:
-            try:
-                started["camera"] = MjpegServerProcess(**CAMERA_SIM, t_origin=t_origin)
-            except Exception as e:  # raised in the caller below
-                started["error"] = e
-
-        thread = threading.Thread(target=start_camera, name="sim-camera-start", daemon=True)
-        thread.start()
-        try:
-            try:
-                self.source = StreetSource(model, seed=0, t_origin=t_origin)
-                clock = SimClock(
-                    tick_hz=model.clock_hz,
-                    wrap_bits=model.clock_bits,
-                    drift_ppm=SCANNER_DRIFT_PPM,
-                    offset_ticks=1234567.0,
-                )
-                self.scanner = ScipDevice(model, source=self.source, clock=clock)
-                self._tmp = tempfile.mkdtemp(prefix="acq-demo-")
-                link = Path(self._tmp) / "ttyACM-sim"
-                self.server = PtyDeviceServer(self.scanner, link=link).start()
-                # the car: the scanner's trajectory, looping with the street
-                self.car = SimVehicle(
-                    CAN_INTERFACE,
-                    self.can_channel,
-                    trajectory=self.source.trajectory,
-                    t_origin=t_origin,
-                    loop_s=self.loop_s,
-                ).start()
-            finally:
-                thread.join()
-                self.camera = started.get("camera")
-            if "error" in started:
-                raise RuntimeError(f"the simulated camera did not start: {started['error']}")
-        except BaseException:
-            self.close()
-            raise
-
-    @property
-    def loop_s(self) -> float:
-        """The drive's period, s: it loops over the street."""
-        return max(self.source.street.length_m, 1.0) / self.source.trajectory.speed
-
-    def trajectory(self, start_ns: int, end_ns: int, rate_hz: float = 1000.0) -> Trajectory:
-        """The car's true poses from ``start_ns`` to ``end_ns`` (host ns; none before
-        ``t_origin``) every 1/``rate_hz`` s: what the demo places its points with."""
-        origin_ns = round(self.t_origin * 1e9)
-        step = round(1e9 / rate_hz)
-        t_ns = np.arange(max(start_ns, origin_ns), end_ns + step, step, dtype=np.int64)
-        R, p = self.source.trajectory.poses(((t_ns - origin_ns) * 1e-9) % self.loop_s)
-        return Trajectory(t_ns, R, p)
-
-    def close(self) -> None:
-        if self.car is not None:
-            self.car.close()
-            self.car = None
-        if self.server is not None:
-            self.server.close()
-            self.server = None
-        if self.camera is not None:
-            self.camera.close()
-            self.camera = None
-        if self._tmp is not None:
-            shutil.rmtree(self._tmp, ignore_errors=True)
-            self._tmp = None
-
-
-def true_calibration() -> Calibration:
-    """The simulated rig's true calibration (the lens as kannala_brandt)."""
-    from acq.sim.world import default_rig
-
-    rig = default_rig()
-    return Calibration(
-        laser="laser",
-        cameras={"camera": CameraCalib(rig.lens, rig.camera_to_laser, method="simulator truth")},
-        laser_to_vehicle=rig.laser_to_vehicle,
-    )
 
 
 def _config(
@@ -251,7 +133,7 @@ def _config(
     }
 
 
-def _record(recorder: Recorder, rig: _SimRig, seconds: float, clock: _Clock) -> int:
+def _record(recorder: Recorder, rig: SimRig, seconds: float, clock: _Clock) -> int:
     """Run the recorder in a thread for ``seconds``, printing progress; its exit code.
 
     The demo stops the recorder itself (it runs without a duration), between two scans:
@@ -288,7 +170,7 @@ def _record(recorder: Recorder, rig: _SimRig, seconds: float, clock: _Clock) -> 
     return codes[0] if codes else EXIT_FAILURE
 
 
-def _stop_before_a_scan(rig: _SimRig, ahead_s: float = STOP_AHEAD_S) -> None:
+def _stop_before_a_scan(rig: SimRig, ahead_s: float = STOP_AHEAD_S) -> None:
     """Return when the simulated scanner's next scan is due within ``ahead_s`` (or is
     late, or none is): the scan then read after the stop began >= 18.75 - ``ahead_s``
     ms before it (its points take the first 3/4 of the 25 ms period, then it is sent)."""
@@ -303,148 +185,6 @@ def _stop_before_a_scan(rig: _SimRig, ahead_s: float = STOP_AHEAD_S) -> None:
 def _size(path: Path) -> str:
     n = path.stat().st_size
     return f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.0f} kB" if n >= 1e3 else f"{n} B"
-
-
-def _odometry_truth(rig: _SimRig, mcap_path: Path) -> list[str]:
-    """Summary lines comparing the recorded CAN odometry with the car's true motion at
-    the odometry's stamps, and its dead reckoning with the true path over the log."""
-    from acq.log.vehicle_log import read_vehicle
-    from acq.sim.can_vehicle import true_motion
-
-    odo = read_vehicle([mcap_path]).odometry
-    if len(odo) < 2:
-        return ["WARNING: no CAN odometry in the log: `acq colorize` cannot place its points"]
-    t = odo.t_ns * 1e-9
-    drive = rig.source.trajectory
-    t_drive = (t - rig.t_origin) % rig.loop_s
-    speed, yaw_rate = true_motion(drive, t_drive)
-    m, ym = odo.speed_measured, odo.yaw_rate_measured
-    span = float(t[-1] - t[0])
-    speed_err = np.abs(odo.speed[m] - speed[m]).max(initial=0.0)
-    yaw_err = math.degrees(np.abs(odo.yaw_rate[ym] - yaw_rate[ym]).max(initial=0.0))
-    lines = [
-        f"odometry {len(odo)} samples ({(len(odo) - 1) / span:.0f} Hz): speed "
-        f"{speed_err * 1e3:.1f} mm/s, yaw rate {yaw_err:.3f} deg/s max off the truth at "
-        "its stamps"
-    ]
-    # dead reckoning (as `acq colorize` does) against the truth, from the first sample
-    path = motion.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
-    _, end = path.pose_at(odo.t_ns[-1:])
-    R, p = drive.poses(t_drive[[0, -1]])
-    true_end = R[0].T @ (p[1] - p[0])  # in the frame of the first pose, as the odometry
-    err = float(np.linalg.norm(end[0] - true_end))
-    lines.append(
-        f"  dead reckoned over {span:.1f} s: {np.linalg.norm(end[0]):.2f} m, "
-        f"the end {100 * err:.1f} cm off the true path's"
-    )
-    return lines
-
-
-def _truth(
-    rig: _SimRig, log: drive_log.DriveLog, pc: cloud.Cloud, truth_frames: list[Any]
-) -> tuple[list[str], tuple[float, float]]:
-    """Summary lines comparing the log with the simulator's truth, and the shares of
-    checked coloured points whose colour is the true surface colour (see colour_check)."""
-    from acq.sim import sensors
-    from acq.sim.camera_device import jpeg_digest
-
-    lines = []
-    # scans: the device's record of what it sent, matched by its clock tick
-    sent = {s.timestamp: s for s in list(rig.scanner.sent)}
-    step_dt = rig.scanner.step_dt
-    matched = [(k, sent[int(t)]) for k, t in enumerate(log.scan_ticks) if int(t) in sent]
-    if matched:
-        true0 = np.array([s.t0 + s.start * step_dt for _, s in matched])
-        err = np.array([log.scan_ns[k] * 1e-9 for k, _ in matched]) - true0
-        lines.append(
-            f"scan stamps {1e3 * err.mean():+.3f} ms mean, {1e3 * np.abs(err).max():.3f} ms "
-            f"max off the true time of point 0 ({len(matched)} scans)"
-        )
-    by_digest = {t.digest: t.t_mid for t in truth_frames if t.digest}
-    ferr = np.array(
-        [
-            log.frame_ns[i] * 1e-9 - by_digest[d]
-            for i, d in enumerate(jpeg_digest(j) for j in log.jpegs)
-            if d in by_digest
-        ]
-    )
-    if ferr.size:
-        lines.append(
-            f"frame stamps {1e3 * ferr.mean():+.2f} ms mean, {1e3 * ferr.std():.2f} ms sd off "
-            f"the true middle of exposure ({ferr.size} frames; the camera sends no time)"
-        )
-    late = float(np.median(ferr)) if ferr.size else math.inf
-    expected = CAMERA_SIM["fps"] * log.n_scans / rig.scanner.model.scan_hz
-    if late > 0.01 or len(log.jpegs) < 0.8 * expected:
-        lines.append(
-            f"WARNING: the simulated camera did not keep real time ({len(log.jpegs)} frames, "
-            f"median {1e3 * late:.0f} ms late): a busy machine? its colours are misplaced"
-        )
-    # colours: every checked point's laser ray cast again, noise-free, at its true time
-    src = rig.source
-    sent_of = dict(matched)
-    checked = np.flatnonzero(pc.coloured & np.isin(pc.scan, list(sent_of)))
-    if checked.size == 0:
-        return lines, (math.nan, math.nan)
-    amin = rig.scanner.model.amin
-    start = np.array([sent_of[int(k)].start for k in pc.scan[checked]])
-    t0 = np.array([sent_of[int(k)].t0 for k in pc.scan[checked]])
-    step = start + pc.step[checked]
-    t_drive = (t0 + step * step_dt - src.t_origin) % rig.loop_s
-    R, origins = sensors.laser_to_world(src.trajectory, src.rig, t_drive)
-    a = src.rig.angles[step - amin]
-    dirs = np.einsum("nij,nj->ni", R, np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1))
-    strict, near = colour_check(
-        src.street, origins, dirs, pc.rgb[checked], src.rig.lens.fx, COLOUR_TOLERANCE
-    )
-    shares = (float(strict.mean()), float(near.mean()))
-    tol = f"{COLOUR_TOLERANCE}/255"
-    lines.append(
-        f"colour of {100 * shares[0]:.1f} % of the {checked.size:,} coloured points within {tol} "
-        "of the surface's where the laser hit,"
-    )
-    lines.append(
-        f"  of {100 * shares[1]:.1f} % within {tol} of the surface's one camera pixel around it "
-        "(a pixel on an edge blends both sides)"
-    )
-    return lines, shares
-
-
-def colour_check(
-    street: Any,
-    origins: np.ndarray,
-    dirs: np.ndarray,
-    rgb: np.ndarray,
-    f_px: float,
-    tolerance: int = COLOUR_TOLERANCE,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Coloured points against the simulator's surface colours: (strict, within a pixel),
-    (N,) bool each.
-
-    ``origins`` (N,3) m and unit ``dirs`` (N,3) are the laser rays that measured the
-    points (world frame of ``street``, a ``acq.sim.world.Street``), ``rgb`` (N,3) uint8 their
-    colours, ``f_px`` the camera's focal length, px/rad. Strict: every channel within
-    ``tolerance`` of the true colour where the ray hits. Within a pixel: or within
-    ``tolerance`` of the range (per channel) of the true colours at that spot and at four
-    rays around it, one camera pixel away as seen from the ray's origin: the camera sees
-    a surface through pixels of that size, and a pixel on an edge mixes both sides.
-    """
-    from acq.sim.raycast import cast
-
-    rgb = np.asarray(rgb, dtype=np.int16)
-    up = np.where(np.abs(dirs[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    e1 = np.cross(dirs, up)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(dirs, e1)
-    colours = [cast(street, origins, dirs).colour]
-    for e in (e1, -e1, e2, -e2):
-        d = dirs + e / f_px
-        colours.append(cast(street, origins, d / np.linalg.norm(d, axis=1, keepdims=True)).colour)
-    true_rgb = np.stack(colours)[:, :, ::-1].astype(np.int16)  # (5, N, 3)
-    strict = np.abs(rgb - true_rgb[0]).max(axis=1) <= tolerance
-    lo, hi = true_rgb.min(axis=0) - tolerance, true_rgb.max(axis=0) + tolerance
-    near = strict | np.all((rgb >= lo) & (rgb <= hi), axis=1)
-    return strict, near
 
 
 def _summary(
@@ -537,7 +277,7 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
     calib_path = out / "calib.yaml"
     calibfile.save(calib, calib_path)
     t_origin = time.monotonic()  # the drive starts here, for the scanner and the camera
-    rig = _SimRig(t_origin)
+    rig = SimRig(t_origin)
     try:
         result.steps_s["start"] = clock.lap()
         clock.say(f"simulated {SCANNER_MODEL.upper()} on {rig.server.url} (SCIP over a pty)")
@@ -594,8 +334,8 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
     clock.say(f"wrote {png_path}")
 
     info = log_info(mcap_path)
-    truth_lines, result.colour_agreement = _truth(rig, log, pc, truth_frames)
-    truth_lines += _odometry_truth(rig, mcap_path)
+    truth_lines, result.colour_agreement = check_log(rig, log, pc, truth_frames)
+    truth_lines += check_odometry(rig, mcap_path)
     result.steps_s["check"] = clock.lap()
     result.steps_s["total"] = time.monotonic() - clock.t0
     result.files = {

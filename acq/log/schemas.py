@@ -6,10 +6,9 @@ Two families of schemas:
   ``foxglove.CameraCalibration``, ``foxglove.FrameTransforms``, ``foxglove.PointCloud``,
   ``foxglove.LocationFix``), so a log opens in Foxglove as it is.
 - Our own versioned ``acq.*`` schemas (file ``acq/v1.proto``, package ``acq``), built at
-  import time from a ``FileDescriptorProto`` (no protoc): ``acq.RawTelegram``,
-  ``acq.Timing``, ``acq.Clock``, ``acq.Status``, ``acq.DeviceStatus``, ``acq.Odometry``
-  and ``acq.CanFrame``. A change that is not backwards compatible gets a new file
-  (``acq/v2.proto``); v1 field numbers stay, new messages and fields may be added.
+  import time (:mod:`acq.log.acq_proto`): ``acq.RawTelegram``, ``acq.Timing``,
+  ``acq.Clock``, ``acq.Status``, ``acq.DeviceStatus``, ``acq.Odometry`` and
+  ``acq.CanFrame``.
 
 Times: every ``timestamp`` field is a ``google.protobuf.Timestamp`` holding host
 *monotonic* nanoseconds (``time.monotonic_ns()``), the same clock as MCAP ``log_time``;
@@ -36,14 +35,23 @@ from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
 from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
-from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
+from google.protobuf import descriptor_pb2, timestamp_pb2
 from google.protobuf.descriptor import FileDescriptor
-from google.protobuf.message_factory import GetMessageClass
 
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import KannalaBrandt, Pinhole
 from acq.geometry.rotations import quat_from_matrix
 from acq.geometry.transforms import Rigid
+from acq.log.acq_proto import (
+    ACQ_PROTO,
+    CanFrameMsg,
+    ClockMsg,
+    DeviceStatusMsg,
+    OdometryMsg,
+    RawTelegramMsg,
+    StatusMsg,
+    TimingMsg,
+)
 from acq.records import CanFrame, Fix, Frame, Odometry, Scan
 
 __all__ = [
@@ -67,8 +75,6 @@ __all__ = [
     "timing",
 ]
 
-ACQ_PROTO = "acq/v1.proto"  # the file holding the acq.* messages
-
 
 @dataclass(frozen=True)
 class Schema:
@@ -80,123 +86,10 @@ class Schema:
     data: bytes
 
 
-# --- the acq.* messages --------------------------------------------------------------------
-
-_F = descriptor_pb2.FieldDescriptorProto
-_TIMESTAMP = ".google.protobuf.Timestamp"
-
-# (name, number, type, label, message type name or "")
-_FieldSpec = tuple[str, int, int, int, str]
-_ONE, _MANY = _F.LABEL_OPTIONAL, _F.LABEL_REPEATED
-
-_ACQ_MESSAGES: dict[str, list[_FieldSpec]] = {
-    "RawTelegram": [
-        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # the record's stamp (first point)
-        ("device", 2, _F.TYPE_STRING, _ONE, ""),
-        ("data", 3, _F.TYPE_BYTES, _ONE, ""),  # the telegram exactly as received
-        ("device_ticks", 4, _F.TYPE_UINT64, _MANY, ""),  # raw device clock values
-        ("sequence", 5, _F.TYPE_UINT64, _ONE, ""),
-        ("recv_ns", 6, _F.TYPE_INT64, _ONE, ""),  # host monotonic ns at receipt
-    ],
-    "Timing": [
-        ("recv_ns", 1, _F.TYPE_INT64, _ONE, ""),
-        ("device_ticks", 2, _F.TYPE_UINT64, _MANY, ""),
-        ("unwrapped_tick", 3, _F.TYPE_INT64, _ONE, ""),
-        ("epoch", 4, _F.TYPE_UINT32, _ONE, ""),  # bumped when the device clock restarts
-        ("stamp_ns", 5, _F.TYPE_INT64, _ONE, ""),  # the clock's estimate of the record's time
-        ("offset_ns", 6, _F.TYPE_INT64, _ONE, ""),  # host minus device time
-        ("drift_ppm", 7, _F.TYPE_DOUBLE, _ONE, ""),
-        ("uncertainty_s", 8, _F.TYPE_DOUBLE, _ONE, ""),
-        ("sequence", 9, _F.TYPE_UINT64, _ONE, ""),
-        ("received", 10, _F.TYPE_UINT64, _ONE, ""),  # records received so far
-        ("dropped", 11, _F.TYPE_UINT64, _ONE, ""),  # records lost so far
-    ],
-    "Clock": [
-        ("realtime_ns", 1, _F.TYPE_INT64, _ONE, ""),  # CLOCK_REALTIME, ns since the epoch
-        ("monotonic_ns", 2, _F.TYPE_INT64, _ONE, ""),  # CLOCK_MONOTONIC, ns
-    ],
-    "DeviceStatus": [
-        ("name", 1, _F.TYPE_STRING, _ONE, ""),
-        ("kind", 2, _F.TYPE_STRING, _ONE, ""),  # "scanner" | "camera" | "can" | "gnss"
-        ("connected", 3, _F.TYPE_BOOL, _ONE, ""),
-        ("rate_hz", 4, _F.TYPE_DOUBLE, _ONE, ""),
-        ("received", 5, _F.TYPE_UINT64, _ONE, ""),
-        ("dropped", 6, _F.TYPE_UINT64, _ONE, ""),
-        ("corrupt", 7, _F.TYPE_UINT64, _ONE, ""),
-        ("disconnects", 8, _F.TYPE_UINT64, _ONE, ""),
-        ("protocol_errors", 9, _F.TYPE_UINT64, _ONE, ""),
-        ("gap_s", 10, _F.TYPE_DOUBLE, _ONE, ""),
-        ("last_event", 11, _F.TYPE_STRING, _ONE, ""),
-        ("clock_offset_ns", 12, _F.TYPE_INT64, _ONE, ""),
-        ("clock_drift_ppm", 13, _F.TYPE_DOUBLE, _ONE, ""),
-        ("clock_uncertainty_s", 14, _F.TYPE_DOUBLE, _ONE, ""),
-        ("epoch", 15, _F.TYPE_UINT32, _ONE, ""),
-    ],
-    "Status": [
-        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),
-        ("uptime_s", 2, _F.TYPE_DOUBLE, _ONE, ""),
-        ("file", 3, _F.TYPE_STRING, _ONE, ""),  # the log file being written
-        ("disk_free_bytes", 4, _F.TYPE_UINT64, _ONE, ""),
-        ("disk_minutes_left", 5, _F.TYPE_DOUBLE, _ONE, ""),
-        ("writer_queue", 6, _F.TYPE_UINT32, _ONE, ""),  # records waiting for the writer
-        ("devices", 7, _F.TYPE_MESSAGE, _MANY, ".acq.DeviceStatus"),
-    ],
-    "Odometry": [  # /vehicle/odometry: one per decoded CAN message; NaN: not in it
-        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # the CAN receive stamp
-        ("recv_ns", 2, _F.TYPE_INT64, _ONE, ""),  # when the driver read the frame
-        ("speed_mps", 3, _F.TYPE_DOUBLE, _ONE, ""),
-        ("yaw_rate_rps", 4, _F.TYPE_DOUBLE, _ONE, ""),  # counter-clockwise, REP-103
-        ("wheel_speeds_mps", 5, _F.TYPE_DOUBLE, _MANY, ""),  # FL, FR, RL, RR; empty: none
-        ("arbitration_id", 6, _F.TYPE_UINT32, _ONE, ""),  # the CAN message decoded
-    ],
-    "CanFrame": [  # /vehicle/can: every frame of the bus, as received
-        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # receive stamp, monotonic
-        ("recv_ns", 2, _F.TYPE_INT64, _ONE, ""),
-        ("wall_ns", 3, _F.TYPE_INT64, _ONE, ""),  # the interface's stamp, CLOCK_REALTIME
-        ("arbitration_id", 4, _F.TYPE_UINT32, _ONE, ""),
-        ("is_extended", 5, _F.TYPE_BOOL, _ONE, ""),
-        ("is_remote", 6, _F.TYPE_BOOL, _ONE, ""),
-        ("is_error", 7, _F.TYPE_BOOL, _ONE, ""),
-        ("is_fd", 8, _F.TYPE_BOOL, _ONE, ""),
-        ("data", 9, _F.TYPE_BYTES, _ONE, ""),
-        ("channel", 10, _F.TYPE_STRING, _ONE, ""),
-    ],
-}
-
-
-def _acq_file_proto() -> descriptor_pb2.FileDescriptorProto:
-    fdp = descriptor_pb2.FileDescriptorProto(
-        name=ACQ_PROTO,
-        package="acq",
-        syntax="proto3",
-        dependency=[timestamp_pb2.DESCRIPTOR.name],
-    )
-    for msg_name, specs in _ACQ_MESSAGES.items():
-        msg = fdp.message_type.add(name=msg_name)
-        for name, number, ftype, label, type_name in specs:
-            field = msg.field.add(name=name, number=number, type=ftype, label=label)
-            if type_name:
-                field.type_name = type_name
-    return fdp
-
-
-def _acq_file() -> FileDescriptor:
-    pool = descriptor_pool.Default()  # already holds google/protobuf/timestamp.proto
-    try:
-        return pool.FindFileByName(ACQ_PROTO)
-    except KeyError:
-        pool.Add(_acq_file_proto())
-        return pool.FindFileByName(ACQ_PROTO)
-
-
-_ACQ_FILE = _acq_file()
-RawTelegramMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["RawTelegram"])
-TimingMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Timing"])
-ClockMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Clock"])
-DeviceStatusMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["DeviceStatus"])
-StatusMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Status"])
-OdometryMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Odometry"])
-CanFrameMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["CanFrame"])
+def _serialized(msg: Any) -> bytes:
+    """``msg``'s wire bytes (the protobuf classes are untyped: their methods return Any)."""
+    data: bytes = msg.SerializeToString()
+    return data
 
 
 def _file_descriptor_set(file: FileDescriptor) -> bytes:
@@ -213,7 +106,7 @@ def _file_descriptor_set(file: FileDescriptor) -> bytes:
         f.CopyToProto(fds.file.add())
 
     add(file)
-    return fds.SerializeToString()
+    return _serialized(fds)
 
 
 _CLASSES: dict[str, Any] = {
@@ -315,7 +208,7 @@ def compressed_image(frame: Frame, frame_id: str) -> bytes:
         raise ValueError("compressed_image needs a Frame with jpeg bytes (encode it first)")
     msg = CompressedImage(frame_id=frame_id, data=frame.jpeg, format="jpeg")
     _set_stamp(msg.timestamp, frame.stamp_ns)
-    return msg.SerializeToString()
+    return _serialized(msg)
 
 
 def camera_calibration(calib: CameraCalib, frame_id: str, stamp_ns: int) -> bytes:
@@ -341,7 +234,7 @@ def camera_calibration(calib: CameraCalib, frame_id: str, stamp_ns: int) -> byte
     msg.K.extend([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
     msg.R.extend([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
     msg.P.extend([fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
-    return msg.SerializeToString()
+    return _serialized(msg)
 
 
 def _add_transform(
@@ -371,7 +264,7 @@ def frame_transforms(
         _add_transform(msg, "vehicle", calib.laser, calib.laser_to_vehicle, stamp_ns)
     for name, cam in calib.cameras.items():
         _add_transform(msg, calib.laser, frames.get(name, name), cam.camera_to_laser, stamp_ns)
-    return msg.SerializeToString()
+    return _serialized(msg)
 
 
 _N = PackedElementField.NumericType
@@ -405,7 +298,7 @@ def point_cloud(points: np.ndarray, rgb: np.ndarray, frame_id: str, stamp_ns: in
     _set_stamp(msg.timestamp, stamp_ns)
     msg.pose.orientation.w = 1.0
     msg.fields.extend(_CLOUD_FIELDS)
-    return msg.SerializeToString()
+    return _serialized(msg)
 
 
 def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
@@ -448,7 +341,7 @@ def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
         "geoid_separation_m": f"{fix.geoid_separation:g}",
     }
     msg.metadata.extend(KeyValuePair(key=k, value=v) for k, v in values.items())
-    return msg.SerializeToString()
+    return _serialized(msg)
 
 
 # --- acq.* messages -----------------------------------------------------------------------
@@ -469,7 +362,7 @@ def raw_telegram(
         device=device, data=data, device_ticks=device_ticks, sequence=sequence, recv_ns=recv_ns
     )
     _set_stamp(msg.timestamp, recv_ns if stamp_ns is None else stamp_ns)
-    return msg.SerializeToString()
+    return _serialized(msg)
 
 
 def timing(
@@ -502,12 +395,12 @@ def timing(
         received=received,
         dropped=dropped,
     )
-    return msg.SerializeToString()
+    return _serialized(msg)
 
 
 def clock(*, realtime_ns: int, monotonic_ns: int) -> bytes:
     """``acq.Clock``: one (CLOCK_REALTIME, CLOCK_MONOTONIC) pair in ns, for ``/acq/clock``."""
-    return ClockMsg(realtime_ns=realtime_ns, monotonic_ns=monotonic_ns).SerializeToString()
+    return _serialized(ClockMsg(realtime_ns=realtime_ns, monotonic_ns=monotonic_ns))
 
 
 @dataclass(frozen=True)
@@ -566,7 +459,7 @@ def status(
     for d in devices:
         ds = _device_status(d)
         msg.devices.add(**{k: getattr(ds, k) for k in _DEVICE_STATUS_KEYS})
-    return msg.SerializeToString()
+    return _serialized(msg)
 
 
 def odometry(odo: Odometry) -> bytes:
@@ -581,7 +474,7 @@ def odometry(odo: Odometry) -> bytes:
         arbitration_id=odo.arbitration_id,
     )
     _set_stamp(msg.timestamp, odo.stamp_ns)
-    return msg.SerializeToString()
+    return _serialized(msg)
 
 
 def can_frame(frame: CanFrame) -> bytes:
@@ -600,4 +493,4 @@ def can_frame(frame: CanFrame) -> bytes:
         channel=frame.channel,
     )
     _set_stamp(msg.timestamp, frame.stamp_ns)
-    return msg.SerializeToString()
+    return _serialized(msg)

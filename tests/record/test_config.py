@@ -76,7 +76,7 @@ def test_shipped_configs_load(name: str) -> None:
 
 def test_the_default_records_the_simulated_rigs_true_calibration() -> None:
     from acq.camera import calibfile
-    from acq.sim.demo import true_calibration
+    from acq.sim.demo_rig import true_calibration
 
     cfg = config.load(config.shipped())
     assert cfg.calibration is not None

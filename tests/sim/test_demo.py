@@ -24,7 +24,7 @@ from acq.camera import calibfile
 from acq.cli import main as acq_main
 from acq.cloud import colorize
 from acq.log import drive_log, info
-from acq.sim.demo import COLOUR_TOLERANCE, colour_check
+from acq.sim.demo_truth import COLOUR_TOLERANCE, colour_check
 
 # drives simulated devices in real time: run alone (`make test`)
 pytestmark = pytest.mark.realtime

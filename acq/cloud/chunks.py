@@ -1,0 +1,288 @@
+"""A drive cut into chunks of scans (:func:`plan`), each read, placed and coloured on its
+own (:func:`colour_chunk`, step 4 of :mod:`acq.cloud.colorize`): the points of its scans
+placed at their own time (:func:`place`), coloured by :func:`acq.cloud.views.start_colouring`,
+gathered into a :class:`ChunkResult`; chunks' results as one :class:`acq.cloud.Cloud`.
+
+Times host monotonic ns unless ``_s``; metres; colours RGB.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from concurrent.futures import Executor, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from acq.cloud import views
+from acq.cloud.job import Job, remap
+from acq.cloud.points import Cloud
+from acq.geometry.transforms import Rigid
+from acq.log.drive_log import DriveLog, read_log
+from acq.time import sync
+
+__all__ = [
+    "PER_POINT",
+    "Chunk",
+    "ChunkColouring",
+    "ChunkResult",
+    "Placed",
+    "cloud_of",
+    "colour_chunk",
+    "frames_used",
+    "place",
+    "plan",
+    "start_chunk",
+]
+
+PER_POINT = ("xyz", "rgb", "coloured", "hidden", "time_ns", "scan", "step", "intensity",
+              "dt_s", "theta")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Scans with (new) stamps in [start_ns, end_ns) of ``job``; ``index`` in the plan."""
+
+    index: int
+    start_ns: int
+    end_ns: int
+
+
+@dataclass
+class ChunkResult:
+    """One chunk's points (see :class:`acq.cloud.Cloud`) and its counters."""
+
+    index: int
+    xyz: np.ndarray
+    rgb: np.ndarray
+    coloured: np.ndarray
+    hidden: np.ndarray
+    time_ns: np.ndarray
+    scan: np.ndarray
+    step: np.ndarray
+    intensity: np.ndarray
+    dt_s: np.ndarray
+    theta: np.ndarray
+    scan_origin: np.ndarray
+    frame_stamp_ns: np.ndarray | None = None  # the recorded stamp of the frame used, -1
+    uv: np.ndarray | None = None  # (N,2) float32 px in that frame, NaN
+    frames_used: int = 0  # decoded and used for this chunk (its margins included)
+    frames_failed: int = 0
+    outside: int = 0  # points left out: outside the trajectory's span
+    used_stamps: np.ndarray | None = None  # recorded stamps of the frames its points used
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def _margin_ns(job: Job) -> int:
+    period = 0.04  # a camera's frame period, s (the window is counted in frames)
+    o = job.options
+    return round((o.max_dt_s + o.window * period + o.context_s + 0.2) * 1e9)
+
+
+@dataclass(frozen=True)
+class Placed:
+    """A log part's points in time order: ``scan`` and ``step`` (N,) indices into the
+    log's scans and beams, ``r`` (N,) m, ``time_ns`` (N,), ``P_laser`` (N,3) in the laser
+    frame at their own time, ``P_world`` (N,3) placed with the trajectory (NaN without a
+    pose there; ``P_laser`` without a trajectory), ``inside`` (N,) whether it had one."""
+
+    scan: np.ndarray
+    step: np.ndarray
+    r: np.ndarray
+    time_ns: np.ndarray
+    P_laser: np.ndarray
+    P_world: np.ndarray
+    inside: np.ndarray
+
+
+def place(
+    log: DriveLog, scan_ns: np.ndarray, keep: np.ndarray, trajectory: Any,
+    laser_to_vehicle: Rigid,
+) -> Placed:  # fmt: skip
+    """The valid points of the scans ``keep`` (S,) bool of ``log``, whose point 0 was
+    measured at ``scan_ns`` (S,), each at its own time (:class:`Placed`)."""
+    ranges = np.where(keep[:, None], log.ranges, np.nan)
+    scan_idx, step = np.nonzero(np.isfinite(ranges))
+    r = ranges[scan_idx, step].astype(np.float64)
+    beams = log.angle_min + log.angle_increment * np.arange(log.ranges.shape[1])
+    P_laser = np.zeros((r.size, 3))  # filled in place: no (N,) temporaries
+    np.multiply(r, np.cos(beams)[step], out=P_laser[:, 0])
+    np.multiply(r, np.sin(beams)[step], out=P_laser[:, 1])
+    time_ns = sync.point_times_ns(scan_ns[scan_idx], log.time_increment, step)
+    if time_ns.size and np.any(np.diff(time_ns) < 0):  # scans out of order, or overlapping
+        order = np.argsort(time_ns, kind="stable")
+        scan_idx, step, P_laser, time_ns, r = (
+            scan_idx[order], step[order], P_laser[order], time_ns[order], r[order]
+        )  # fmt: skip
+    inside = np.ones(time_ns.size, dtype=bool)
+    P_world = P_laser
+    if trajectory is not None:
+        inside = trajectory.covers(time_ns)
+        if inside.all():
+            P_world = trajectory.transform(time_ns, laser_to_vehicle.apply(P_laser))
+        else:
+            P_world = np.full_like(P_laser, np.nan)  # no pose: not placed, not coloured
+            P_world[inside] = trajectory.transform(
+                time_ns[inside], laser_to_vehicle.apply(P_laser[inside])
+            )
+    return Placed(scan_idx, step, r, time_ns, P_laser, P_world, inside)
+
+
+def colour_chunk(job: Job, chunk: Chunk, whole: DriveLog | None = None) -> ChunkResult:
+    """Read, place and colour one chunk (runs in a worker process or on a Dask worker);
+    ``whole``: the log already read (then only its part is used)."""
+    with ThreadPoolExecutor(max_workers=max(1, job.threads)) as pool:
+        return start_chunk(job, chunk, whole, pool).result()
+
+
+def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) -> ChunkColouring:
+    """Read and place one chunk and queue its frames on ``pool`` (:func:`colour_chunk`
+    without waiting: :meth:`ChunkColouring.result` does)."""
+    t0 = time.perf_counter()
+    margin = _margin_ns(job)
+    # the same scans and frames whether read here or cut from the whole log: those
+    # stamped within the margin (plus half a second), read by receipt time a second wider
+    lo, hi = chunk.start_ns - margin - 500_000_000, chunk.end_ns + margin + 500_000_000
+    if whole is None:
+        whole = read_log(
+            list(job.files), laser=job.laser, camera=job.camera or None,
+            start_ns=lo - 10**9, end_ns=hi + 10**9,
+        )  # fmt: skip
+    log = whole.between(lo, hi)
+    t_read = time.perf_counter()
+    scan_ns = remap(job.scan_old, job.scan_new, log.scan_ns)
+    frame_ns = remap(job.frame_old, job.frame_new, log.frame_ns) - job.time_offset_ns
+    core_scan = (scan_ns >= chunk.start_ns) & (scan_ns < chunk.end_ns)
+    # the margins' scans only fill best's depth buffers
+    keep_scan = (
+        (scan_ns >= chunk.start_ns - margin) & (scan_ns < chunk.end_ns + margin)
+        if job.options.view == "best"
+        else core_scan
+    )
+    l2v = job.laser_to_vehicle
+    pts = place(log, scan_ns, keep_scan, job.trajectory, l2v)
+    pose_at = job.trajectory.pose_at if job.trajectory is not None else None
+    # the chunk's own points are coloured; those of its margins only hide others
+    core = core_scan[pts.scan] & (pts.inside if job.frame_world else True)
+    size = views.point_size(pts.r, log.angle_increment, job.travel_m)
+    usable = (
+        job.trajectory.covers(frame_ns) if pose_at is not None else np.ones(frame_ns.size, bool)
+    )
+    compensate = pose_at is not None and job.options.motion_compensation
+    colouring = views.start_colouring(
+        pts.P_world if compensate else pts.P_laser, pts.time_ns, size, frame_ns, log.jpegs,
+        job.cam, l2v, pose_at, job.options,
+        pool=pool, want_uv=job.want_uv, frame_ok=usable, need=core,
+    )  # fmt: skip
+    seconds = {"read": t_read - t0, "place, queue": time.perf_counter() - t_read}
+    return ChunkColouring(job, chunk, log, scan_ns, core_scan, core, pts, colouring, seconds)
+
+
+@dataclass
+class ChunkColouring:
+    """A chunk read and placed, its frames decoding (:func:`start_chunk`)."""
+
+    job: Job
+    chunk: Chunk
+    log: DriveLog
+    scan_ns: np.ndarray
+    core_scan: np.ndarray
+    core: np.ndarray
+    pts: Placed
+    colouring: views.Colouring
+    seconds: dict[str, float]
+
+    def result(self) -> ChunkResult:
+        """Wait for the chunk's frames; its points (:class:`ChunkResult`)."""
+        t0 = time.perf_counter()
+        job, chunk, log, pts = self.job, self.chunk, self.log, self.pts
+        core: slice | np.ndarray = slice(None) if self.core.all() else self.core  # no copies
+        col = self.colouring.result()
+        t_colour = time.perf_counter()
+        l2v = job.laser_to_vehicle
+        xyz = pts.P_world if job.frame_world else pts.P_laser
+        # the laser's position at each core scan's point 0 (the track; scans with a pose)
+        core_scans = np.flatnonzero(self.core_scan)
+        origin = np.zeros((core_scans.size, 3))
+        if job.frame_world and core_scans.size:
+            ok = job.trajectory.covers(self.scan_ns[core_scans])
+            Rs, ts = job.trajectory.pose_at(self.scan_ns[core_scans][ok])
+            origin = np.einsum("nij,j->ni", Rs, l2v.translation) + ts
+        # scan indices global to the session: the chunk's scans come after the earlier ones
+        first_scan = int(np.searchsorted(job.scan_new, chunk.start_ns)) if job.scan_new.size else 0
+        local = np.cumsum(self.core_scan) - 1
+        scan_idx, step = pts.scan[core], pts.step[core]
+        frame = col.frame[core]
+        return ChunkResult(
+            index=chunk.index,
+            xyz=xyz[core],
+            rgb=col.rgb[core],
+            coloured=col.coloured[core],
+            hidden=col.hidden[core],
+            time_ns=pts.time_ns[core],
+            scan=(first_scan + local[scan_idx]).astype(np.uint32),
+            step=step.astype(np.uint32),
+            intensity=log.intensities[scan_idx, step].astype(np.float32),
+            dt_s=col.dt_s[core],
+            theta=col.theta[core],
+            scan_origin=origin,
+            frame_stamp_ns=(
+                np.where(frame >= 0, log.frame_ns[np.maximum(frame, 0)], -1)
+                if job.want_uv
+                else None
+            ),
+            uv=col.uv[core] if col.uv is not None else None,
+            frames_used=col.frames_used,
+            frames_failed=col.frames_failed,
+            outside=int(np.count_nonzero(~pts.inside & self.core_scan[pts.scan])),
+            used_stamps=np.unique(log.frame_ns[frame[frame >= 0]]),
+            seconds={
+                **self.seconds,
+                "waiting for frames": t_colour - t0,
+                "finish": time.perf_counter() - t_colour,
+            },
+        )
+
+
+def plan(scan_ns: np.ndarray, chunk_s: float) -> list[Chunk]:
+    """Chunks of ``chunk_s`` seconds covering every scan time (sorted ``scan_ns``)."""
+    if scan_ns.size == 0:
+        return []
+    start, end = int(scan_ns[0]), int(scan_ns[-1]) + 1
+    step = max(1, round(chunk_s * 1e9))
+    edges = [*range(start, end, step), end]
+    return [Chunk(i, a, b) for i, (a, b) in enumerate(itertools.pairwise(edges))]
+
+
+def frames_used(used: list[np.ndarray]) -> int:
+    """Frames the cloud's points were coloured from, given each chunk's (a frame two
+    chunks share, once)."""
+    return int(np.unique(np.concatenate(used)).size) if used else 0
+
+
+def cloud_of(results: list[ChunkResult], index: DriveLog) -> Cloud:
+    """The points of chunks' ``results`` (of the log ``index``) as one :class:`Cloud`
+    (its ``view_axis`` is the default rig's camera side, +y)."""
+
+    def cat(name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+        parts = [getattr(r, name) for r in results]
+        return np.concatenate(parts) if parts else np.zeros(shape, dtype)
+
+    return Cloud(
+        xyz=cat("xyz", (0, 3), np.float64),
+        rgb=cat("rgb", (0, 3), np.uint8),
+        coloured=cat("coloured", (0,), bool),
+        time_ns=cat("time_ns", (0,), np.int64),
+        scan=cat("scan", (0,), np.uint32),
+        step=cat("step", (0,), np.uint32),
+        intensity=cat("intensity", (0,), np.float32),
+        dt_s=cat("dt_s", (0,), np.float32),
+        scan_origin=cat("scan_origin", (0, 3), np.float64),
+        view_axis=np.array([0.0, 1.0, 0.0]),
+        clock=index.clock,
+        frames=index.n_frames,
+        frames_used=frames_used([r.used_stamps for r in results if r.used_stamps is not None]),
+        frames_failed=sum(r.frames_failed for r in results),
+    )

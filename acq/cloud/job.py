@@ -1,0 +1,246 @@
+"""What every chunk of `acq colorize` needs (:class:`Job`), made from a session's logs
+(steps 1-3 of :mod:`acq.cloud.colorize`): the log's light part, the offline re-timing of
+its scans and frames, the trajectory to place points with.
+
+Times host monotonic ns unless ``_s``; metres.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from acq import motion
+from acq.camera.calibfile import Calibration, CameraCalib
+from acq.camera.camera_models import CameraModel
+from acq.cloud import views
+from acq.cloud.report import Report
+from acq.errors import InputValueError
+from acq.geometry.transforms import Rigid
+from acq.log.drive_log import DriveLog, camera_calib, read_log
+from acq.log.vehicle_log import read_vehicle
+from acq.motion import Trajectory
+from acq.time import retime
+from acq.time.utc import host_ns_from_utc
+
+__all__ = ["Job", "prepare", "remap", "session_files"]
+
+
+@dataclass(frozen=True)
+class Job:
+    """What every chunk needs (small, picklable): the files, the devices, the camera's
+    calibration, the re-timing maps (recorded stamp -> new, sorted by recorded stamp),
+    the trajectory (an :class:`acq.motion.trajectory.Trajectory`; None: laser frame) and the
+    options."""
+
+    files: tuple[str, ...]
+    laser: str
+    camera: str
+    cam: CameraCalib
+    laser_to_vehicle: Rigid
+    scan_old: np.ndarray
+    scan_new: np.ndarray
+    frame_old: np.ndarray
+    frame_new: np.ndarray
+    time_offset_ns: int
+    trajectory: Any
+    options: views.Options
+    frame_world: bool
+    travel_m: float  # the rig's travel between two scans (m), for the points' size
+    want_uv: bool = False  # keep each point's pixel and frame (for accuracy checks)
+    threads: int = 1  # JPEG decoding threads per chunk
+
+
+def remap(old: np.ndarray, new: np.ndarray, stamps: np.ndarray) -> np.ndarray:
+    """``stamps`` through the (sorted ``old`` -> ``new``) map; unknown ones unchanged."""
+    if old.size == 0:
+        return stamps.copy()
+    i = np.clip(np.searchsorted(old, stamps), 0, old.size - 1)
+    return np.where(old[i] == stamps, new[i], stamps)
+
+
+def _retime(log: DriveLog, report: Report) -> tuple[np.ndarray, np.ndarray]:
+    """(scan_new, frame_new) for ``log``'s recorded stamps; notes in ``report``."""
+    from acq.drivers.scanner import SCANNERS
+
+    scan_new, frame_new = log.scan_ns.copy(), log.frame_ns.copy()
+    driver = log.metadata.get(f"device.{log.laser}", {}).get("driver", "")
+    try:
+        cls = SCANNERS.get(driver)
+        rs = retime.retime_scans(
+            log.scan_ns, log.scan_ticks, log.scan_recv_ns, cls.tick_hz, cls.tick_bits
+        )
+        scan_new = rs.scan_ns
+        report.retiming.update(scan_shift_rms_ms=rs.shift_rms_ms, scan_shift_max_ms=rs.shift_max_ms)
+        if rs.note:
+            report.notes.append(f"scans not re-timed: {rs.note}")
+    except (KeyError, ValueError) as e:
+        report.notes.append(f"scans not re-timed: unknown scanner driver {driver!r} ({e})")
+    if log.n_frames:
+        rf = retime.retime_frames(log.frame_ns)
+        frame_new = rf.frame_ns
+        report.retiming.update(
+            frame_period_s=rf.period_s,
+            frame_residual_rms_ms=rf.residual_rms_ms,
+            frame_shift_max_ms=rf.shift_max_ms,
+        )
+        if rf.note:
+            report.notes.append(f"frames not re-timed: {rf.note}")
+    return scan_new, frame_new
+
+
+def _trajectory(
+    files: Sequence[Path], given: Path | Trajectory | None, log: DriveLog, report: Report
+) -> Any:
+    """The trajectory to place points with, or None (see the module docstring, step 3):
+    ``given`` as it is, read from its file, or made from the log."""
+    if isinstance(given, Trajectory):
+        report.trajectory = f"given ({len(given)} poses)"
+        return given
+    path = given
+    if path is not None:
+        clock = log.clock
+        traj = motion.from_csv(path, utc_to_host_ns=lambda u: host_ns_from_utc(u, clock))
+        report.trajectory = f"{path} ({len(traj.t_ns)} poses)"
+        return traj
+    vehicle = log.vehicle
+    if vehicle is None:
+        vehicle = read_vehicle(list(files))
+    report.notes += vehicle.notes
+    odo = vehicle.odometry
+    if len(odo) < 2:
+        return None
+    fixes = vehicle.fixes
+    usable = np.isfinite(fixes.lat) & (fixes.quality > 0) if len(fixes) else np.zeros(0, bool)
+    if usable.sum() >= 5:
+        track = motion.gnss_track(
+            fixes.t_ns, fixes.lat, fixes.lon, fixes.alt, hdop=fixes.hdop, quality=fixes.quality
+        )
+        fusion = motion.fuse(odo.t_ns, odo.speed, odo.yaw_rate, track, on_gap="flag")
+        report.trajectory = (
+            f"CAN odometry ({len(odo)} samples) fused with {int(usable.sum())} GNSS fixes "
+            f"(residual {fusion.residual_rms_m:.2f} m RMS)"
+        )
+        return fusion.trajectory
+    traj = motion.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
+    report.trajectory = f"CAN odometry ({len(odo)} samples, dead reckoning)"
+    return traj
+
+
+def _warm_kernels(model: CameraModel) -> None:
+    """Load the compiled kernels colorize calls, each on a tiny input of the real types
+    (numba's first call of a cached kernel costs a tenth of a second or more, part of it
+    without the GIL): run on a thread while the log is read."""
+    from acq.camera import projection
+
+    try:
+        traj = Trajectory(np.array([0, 10**8]), np.stack([np.eye(3)] * 2), np.zeros((2, 3)))
+        t = np.array([5 * 10**7], dtype=np.int64)
+        traj.pose_at(t)
+        traj.transform(t, np.zeros((1, 3)))
+        image = np.zeros((model.height, model.width, 3), dtype=np.uint8)
+        projection.colour_into(
+            np.zeros((1, 3)), np.zeros(1, dtype=np.int64), model, (np.eye(3), np.zeros(3)),
+            image, np.zeros((1, 3), dtype=np.uint8), np.zeros(1, dtype=bool),
+        )  # fmt: skip
+    except Exception:  # only a head start: the real calls report any problem
+        pass
+
+
+def prepare(
+    logs: Sequence[Path],
+    calib: Calibration,
+    report: Report,
+    *,
+    camera: str | None = None,
+    frame: str | None = None,
+    options: views.Options | None = None,
+    trajectory: Path | Trajectory | None = None,
+    retime_offline: bool = True,
+    time_offset_s: float | None = None,
+    jpegs: bool = False,
+    threads: int = 1,
+) -> tuple[Job, DriveLog]:
+    """The :class:`Job` for ``logs`` (steps 1-3 of the module docstring) and the log's
+    light part (with the images when ``jpegs``); notes go into ``report``. ``trajectory``:
+    a file (``--trajectory``) or the poses themselves; None: from the log."""
+    options = options or views.Options()
+    files = session_files(logs)
+    first = calib.cameras.get(camera) if camera else next(iter(calib.cameras.values()), None)
+    if first is not None:
+        threading.Thread(target=_warm_kernels, args=(first.model,), daemon=True).start()
+    index = read_log(files, camera=camera, jpegs=jpegs, vehicle=trajectory is None)
+    name, cam = camera_calib(index, calib, camera)
+    report.notes += index.notes
+    scan_new, frame_new = (
+        _retime(index, report) if retime_offline else (index.scan_ns, index.frame_ns)
+    )
+    traj = _trajectory(files, trajectory, index, report)
+    world = frame == "world" if frame is not None else traj is not None
+    if world and traj is None:
+        raise InputValueError("--frame world needs a trajectory (CAN odometry in the log or "
+                         "--trajectory CSV); use --frame laser")  # fmt: skip
+    if traj is None:
+        report.notes.append(
+            "no trajectory: points in the laser frame at their own time, coloured without "
+            "motion compensation (right only while the rig stands still)"
+        )
+        options = replace(options, motion_compensation=False)
+    report.frame = "world" if world else "laser"
+    s_order = np.argsort(index.scan_ns)
+    f_order = np.argsort(index.frame_ns)
+    period = float(np.median(np.diff(np.sort(scan_new)))) * 1e-9 if scan_new.size > 1 else 0.025
+    speed = _median_speed(traj, scan_new)
+    offset = cam.time_offset_s if time_offset_s is None else float(time_offset_s)
+    job = Job(
+        files=tuple(str(f) for f in files),
+        laser=index.laser,
+        camera=name if index.camera else "",
+        cam=cam,
+        laser_to_vehicle=(
+            calib.laser_to_vehicle if calib.laser_to_vehicle is not None else Rigid.identity()
+        ),
+        scan_old=index.scan_ns[s_order],
+        scan_new=scan_new[s_order],
+        frame_old=index.frame_ns[f_order],
+        frame_new=frame_new[f_order],
+        time_offset_ns=round(offset * 1e9),
+        trajectory=traj,
+        options=options,
+        frame_world=world,
+        travel_m=speed * period,
+        threads=threads,
+    )
+    return job, index
+
+
+def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
+    """The rig's median speed over the log (m/s), 0 without a trajectory."""
+    if traj is None or scan_ns.size < 2:
+        return 0.0
+    t = np.sort(scan_ns)[:: max(1, scan_ns.size // 200)]
+    t = t[traj.covers(t)]
+    if t.size < 2:
+        return 0.0
+    _, pos = traj.pose_at(t)
+    v = np.linalg.norm(np.diff(pos, axis=0), axis=1) / (np.diff(t) * 1e-9)
+    return float(np.median(v)) if v.size else 0.0
+
+
+def session_files(logs: Sequence[Path]) -> list[Path]:
+    """The MCAP files of ``logs`` (a folder stands for its *.mcap files, sorted)."""
+    out: list[Path] = []
+    for p in logs:
+        if p.is_dir():
+            found = sorted(p.glob("*.mcap"))
+            if not found:
+                raise InputValueError(f"{p}: no .mcap files in this folder")
+            out += found
+        else:
+            out.append(p)
+    return out

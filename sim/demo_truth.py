@@ -15,7 +15,12 @@ import numpy as np
 
 from acq import cloud, motion
 from acq.log import drive_log
+from acq.log.vehicle_log import read_vehicle
+from acq.sim import sensors
+from acq.sim.camera_device import jpeg_digest
+from acq.sim.can_vehicle import true_motion
 from acq.sim.demo_rig import CAMERA_SIM, SimRig
+from acq.sim.raycast import cast
 
 __all__ = ["COLOUR_TOLERANCE", "check_log", "check_odometry", "colour_check"]
 
@@ -25,8 +30,6 @@ COLOUR_TOLERANCE = 24  # max |channel difference| for "the same colour as the tr
 def check_odometry(rig: SimRig, mcap_path: Path) -> list[str]:
     """Summary lines comparing the recorded CAN odometry with the car's true motion at
     the odometry's stamps, and its dead reckoning with the true path over the log."""
-    from acq.log.vehicle_log import read_vehicle
-    from acq.sim.can_vehicle import true_motion
 
     odo = read_vehicle([mcap_path]).odometry
     if len(odo) < 2:
@@ -62,8 +65,6 @@ def check_log(
 ) -> tuple[list[str], tuple[float, float]]:
     """Summary lines comparing the log with the simulator's truth, and the shares of
     checked coloured points whose colour is the true surface colour (see colour_check)."""
-    from acq.sim import sensors
-    from acq.sim.camera_device import jpeg_digest
 
     lines = []
     # scans: the device's record of what it sent, matched by its clock tick
@@ -146,7 +147,6 @@ def colour_check(
     rays around it, one camera pixel away as seen from the ray's origin: the camera sees
     a surface through pixels of that size, and a pixel on an edge mixes both sides.
     """
-    from acq.sim.raycast import cast
 
     rgb = np.asarray(rgb, dtype=np.int16)
     up = np.where(np.abs(dirs[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])

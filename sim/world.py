@@ -201,7 +201,7 @@ def validation_pattern(
     default); metres.
     """
     if colours is None:
-        from acq.calib.validate import DEFAULT_COLOURS  # here: it imports cv2, slow
+        from acq.calib.validate import DEFAULT_COLOURS  # here: 0.33 s with cv2; this 0.17 s
 
         colours = DEFAULT_COLOURS
     rgb = colours

@@ -16,10 +16,12 @@ from typing import Any
 import numpy as np
 
 from acq import motion
+from acq.camera import projection
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import CameraModel
 from acq.cloud import views
 from acq.cloud.report import Report
+from acq.drivers.scanner import SCANNERS
 from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
 from acq.log.drive_log import DriveLog, camera_calib, read_log
@@ -66,7 +68,6 @@ def remap(old: np.ndarray, new: np.ndarray, stamps: np.ndarray) -> np.ndarray:
 
 def _retime(log: DriveLog, report: Report) -> tuple[np.ndarray, np.ndarray]:
     """(scan_new, frame_new) for ``log``'s recorded stamps; notes in ``report``."""
-    from acq.drivers.scanner import SCANNERS
 
     scan_new, frame_new = log.scan_ns.copy(), log.frame_ns.copy()
     driver = log.metadata.get(f"device.{log.laser}", {}).get("driver", "")
@@ -136,7 +137,6 @@ def _warm_kernels(model: CameraModel) -> None:
     """Load the compiled kernels colorize calls, each on a tiny input of the real types
     (numba's first call of a cached kernel costs a tenth of a second or more, part of it
     without the GIL): run on a thread while the log is read."""
-    from acq.camera import projection
 
     try:
         traj = Trajectory(np.array([0, 10**8]), np.stack([np.eye(3)] * 2), np.zeros((2, 3)))

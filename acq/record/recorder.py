@@ -38,6 +38,7 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
+from acq import __version__
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
 from acq.drivers.can_odometry import DbcError, OdometryDecoder
@@ -45,9 +46,9 @@ from acq.errors import InputError
 from acq.log import schemas
 from acq.log.writer import LogWriter
 from acq.record.adapters import adapters_for
-from acq.record.config import CanConfig, Config
+from acq.record.config import CanConfig, Config, dump
 from acq.record.device_loop import DeviceAdapter, DeviceState, Outbox, finite, run_device
-from acq.record.sdnotify import Notifier
+from acq.record.sdnotify import JournalFormatter, Notifier, use_journal_format
 
 __all__ = ["EXIT_DISK_FULL", "Recorder", "RecorderError"]
 
@@ -163,8 +164,6 @@ class Recorder:
         return writer
 
     def _metadata(self) -> dict[str, dict[str, str]]:
-        from acq import __version__
-        from acq.record.config import dump
 
         meta = {
             "acq": {
@@ -383,7 +382,6 @@ def _camera_calibration(cam: calibfile.CameraCalib, name: str, stamp_ns: int) ->
 
 def setup_logging(verbose: bool = False) -> None:
     """Log lines for the journal (priority prefixes, no time) or for a terminal."""
-    from acq.record.sdnotify import JournalFormatter, use_journal_format
 
     handler = logging.StreamHandler(sys.stderr)
     if use_journal_format():

@@ -256,9 +256,6 @@ class ScipScanner(Scanner):
             reply, self.params, recv_ns=recv_ns, sequence=self._sequence, errors=self._errors
         )
 
-    def laser_on(self) -> None:
-        self._command("BM", ok=("00", "02"))
-
     def reset(self) -> None:
         """RS: stop measuring, laser off, settings back to defaults."""
         self._stream = None

@@ -69,10 +69,6 @@ class DriveTruth:
     frame_stamp_ns: np.ndarray  # (F,) the recorded stamps
     config: dict[str, float] = field(default_factory=dict)
 
-    def host_ns(self, t_s: np.ndarray) -> np.ndarray:
-        """Simulator seconds -> host ns."""
-        return self.start_ns + np.rint(np.asarray(t_s) * 1e9).astype(np.int64)
-
     def true_pixels(
         self, scan: np.ndarray, step: np.ndarray, frame_stamp_ns: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:

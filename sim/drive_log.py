@@ -143,7 +143,9 @@ def write_drive_log(
     """
     rig = rig or default_rig()
     rng = np.random.default_rng(seed)
-    intensity_rng = np.random.default_rng([seed, 1])  # apart: the other draws stay as they were
+    intensity_rng = np.random.default_rng(
+        [seed, 1]
+    )  # its own stream: the other draws do not depend on it
     length = speed_kmh / 3.6 * seconds + 80.0
     street = Street.generate(seed, length_m=length, pattern_at=pattern_at)
     traj = Trajectory(

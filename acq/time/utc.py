@@ -30,8 +30,8 @@ def host_ns_from_utc(utc_s: npt.ArrayLike, clock: npt.ArrayLike) -> npt.NDArray[
     """UTC seconds (POSIX, float64) -> host monotonic ns (int64) with the log's (monotonic
     ns, realtime ns) pairs: the inverse of :func:`utc_seconds` (offset
     interpolated between pairs, held at the ends). Good to the float's resolution
-    (~0.25 µs today). Raises ValueError without pairs, or where the wall clock was
-    stepped back so far that a UTC time names two host times."""
+    (~0.25 µs at present-day UTC seconds). Raises ValueError without pairs, or where the
+    wall clock was stepped back so far that a UTC time names two host times."""
     u = np.asarray(utc_s, dtype=np.float64)
     pairs = np.asarray(clock, dtype=np.int64).reshape(-1, 2)
     if pairs.shape[0] == 0:

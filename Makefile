@@ -46,8 +46,8 @@ lint: $(STAMP)
 smoke: $(STAMP)
 	tests/smoke/wheel.sh $(CURDIR)/$(BIN)/python
 
-# ruff first; the real-time tests alone, since running anything beside them, even at
-# nice 19, made the demo's live camera miss its cadence; then the rest on both cores with
+# ruff first; the real-time tests alone, since anything running beside them, even at
+# nice 19, makes the demo's live camera miss its cadence; then the rest on both cores with
 # mypy beside them; last the wheel's smoke.
 test: $(STAMP) compile
 	$(BIN)/ruff format --check $(RUFF_PATHS)

@@ -84,10 +84,6 @@ class Scan:
         """(N,) float64 angle of every point, rad."""
         return self.angle_min + self.angle_increment * np.arange(self.size, dtype=np.float64)
 
-    def point_offsets_s(self) -> np.ndarray:
-        """(N,) float64 time of every point after point 0, seconds."""
-        return self.time_increment * np.arange(self.size, dtype=np.float64)
-
     def points(self) -> np.ndarray:
         """(N,3) float64 laser-frame points (z = 0); non-finite ranges give non-finite rows."""
         a = self.angles()

@@ -23,13 +23,13 @@ import numpy as np
 from acq.drivers.cola_codec import (
     ArgReader,
     ColaFramer,
-    ProtocolError,
     Telegram,
     build,
     check_error,
     frame,
 )
 from acq.drivers.cola_scandata import ScanData, parse_scandata
+from acq.drivers.errors import ProtocolError
 from acq.drivers.scanner import ConnectionLost, DeviceError, ScanGeometry, Scanner, ScanTimeout
 from acq.records import DeviceInfo, Scan
 

@@ -47,9 +47,6 @@ STX = 0x02
 ETX = 0x03
 STX4 = b"\x02\x02\x02\x02"
 MAX_LENGTH = 1 << 20  # bytes: longer CoLa-B lengths are framing errors
-COMMAND_TYPES = frozenset(
-    {b"sRN", b"sRA", b"sWN", b"sWA", b"sMN", b"sAN", b"sMA", b"sEN", b"sEA", b"sSN", b"sFA"}
-)
 
 # SOPAS error codes carried by ``sFA`` answers.
 SOPAS_ERRORS: dict[int, str] = {

@@ -383,7 +383,10 @@ class NmeaReceiver:
         if self._ser is None:
             raise ConnectionLost("not connected")
         if self._fd is None:  # other URL handlers
-            return bytes(self._ser.read(max(1, self._ser.in_waiting)))
+            # types-pyserial types serial_for_url as SerialBase; every handler it returns has
+            # in_waiting
+            waiting = self._ser.in_waiting  # type: ignore[attr-defined]
+            return bytes(self._ser.read(max(1, waiting)))
         wait = min(_POLL_S, max(0.0, deadline - time.monotonic()))
         ready, _, _ = select.select([self._fd], [], [], wait)
         if not ready:

@@ -27,7 +27,6 @@ __all__ = [
     "Scanner",
     "ScannerError",
     "driver_names",
-    "scanner_class",
     "scanner_for",
 ]
 
@@ -113,11 +112,6 @@ SCANNERS: Registry[Scanner] = REGISTRIES["scanner"]
 
 def driver_names() -> list[str]:
     return SCANNERS.names()
-
-
-def scanner_class(driver: str) -> type[Scanner]:
-    """The class registered for a configuration's ``driver:`` value."""
-    return SCANNERS.get(driver)
 
 
 def scanner_for(driver: str, url: str, **options: Any) -> Scanner:

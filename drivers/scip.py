@@ -256,9 +256,6 @@ class ScipScanner(Scanner):
             reply, self.params, recv_ns=recv_ns, sequence=self._sequence, errors=self._errors
         )
 
-    def laser_on(self) -> None:
-        self._command("BM", ok=("00", "02"))
-
     def reset(self) -> None:
         """RS: stop measuring, laser off, settings back to defaults."""
         self._stream = None
@@ -359,7 +356,10 @@ class ScipScanner(Scanner):
         """What has arrived (waits at most until ``deadline``, in short polls)."""
         assert self._ser is not None
         if self._sock_fd is None:  # other pyserial URL handlers: in_waiting is the byte count
-            return bytes(self._ser.read(max(1, self._ser.in_waiting)))
+            # types-pyserial types serial_for_url as SerialBase; every handler it returns has
+            # in_waiting
+            waiting = self._ser.in_waiting  # type: ignore[attr-defined]
+            return bytes(self._ser.read(max(1, waiting)))
         # pyserial's socket read() goes byte by byte or waits for its whole timeout, and
         # its serial read() loops and throws away what it already read when the device
         # vanishes mid-telegram (an unplugged cable): read the descriptor directly, so

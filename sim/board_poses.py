@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from acq.calib.board_pose import BoardFit, BoardPose, board_pose_from_corners
 from acq.camera.camera_models import CameraModel
@@ -91,7 +92,8 @@ def laser_points_on_board(
         s_noisy = s[hit] + np.median(rng.normal(0.0, noise, (max(scans, 1), n_hit)), axis=0)
     else:
         s_noisy = s[hit]
-    return s_noisy[:, None] * dirs[hit]
+    P: npt.NDArray[np.float64] = s_noisy[:, None] * dirs[hit]
+    return P
 
 
 def _random_rotation(rng: np.random.Generator, lo_deg: float, hi_deg: float) -> np.ndarray:

@@ -26,12 +26,6 @@ class SimClock:
         raw = (t - self.epoch) * (1.0 + self.drift_ppm * 1e-6) * self.tick_hz + self.offset_ticks
         return int(raw // 1) % (1 << self.wrap_bits)
 
-    def time_of(self, ticks: float) -> float:
-        """True time at which the (unwrapped, current-epoch) counter reads ``ticks``."""
-        return self.epoch + (ticks - self.offset_ticks) / (
-            self.tick_hz * (1.0 + self.drift_ppm * 1e-6)
-        )
-
     def reboot(self, t: float) -> None:
         """The device restarts at true time t: the counter starts again from 0."""
         self.epoch = t

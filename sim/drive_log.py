@@ -69,10 +69,6 @@ class DriveTruth:
     frame_stamp_ns: np.ndarray  # (F,) the recorded stamps
     config: dict[str, float] = field(default_factory=dict)
 
-    def host_ns(self, t_s: np.ndarray) -> np.ndarray:
-        """Simulator seconds -> host ns."""
-        return self.start_ns + np.rint(np.asarray(t_s) * 1e9).astype(np.int64)
-
     def true_pixels(
         self, scan: np.ndarray, step: np.ndarray, frame_stamp_ns: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -147,7 +143,9 @@ def write_drive_log(
     """
     rig = rig or default_rig()
     rng = np.random.default_rng(seed)
-    intensity_rng = np.random.default_rng([seed, 1])  # apart: the other draws stay as they were
+    intensity_rng = np.random.default_rng(
+        [seed, 1]
+    )  # its own stream: the other draws do not depend on it
     length = speed_kmh / 3.6 * seconds + 80.0
     street = Street.generate(seed, length_m=length, pattern_at=pattern_at)
     traj = Trajectory(

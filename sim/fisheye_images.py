@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from acq.camera.camera_models import KannalaBrandt
 
@@ -58,7 +59,7 @@ class CircleTruth:
         )
 
 
-def _erfc(x: np.ndarray) -> np.ndarray:
+def _erfc(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Complementary error function (Abramowitz & Stegun 7.1.26, |error| < 1.5e-7)."""
     z = np.abs(x)
     t = 1.0 / (1.0 + 0.3275911 * z)
@@ -66,7 +67,8 @@ def _erfc(x: np.ndarray) -> np.ndarray:
         0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429)))
     )
     e = poly * np.exp(-z * z)
-    return np.where(x >= 0, e, 2.0 - e)
+    erfc: npt.NDArray[np.float64] = np.where(x >= 0, e, 2.0 - e)
+    return erfc
 
 
 def _street(

@@ -9,11 +9,12 @@ Distances are metres.
 from __future__ import annotations
 
 import weakref
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
 
-from acq.sim.world import N_PARAMS, Street
+from acq.sim.world import N_PARAMS, Box, Cylinder, Quad, Street
 
 __all__ = ["PackedScene", "pack"]
 
@@ -131,10 +132,10 @@ def pack(street: Street) -> PackedScene:
         n = np.cross(u, v)
         quads[q] = np.concatenate([quad.origin, u / (u @ u), v / (v @ v), n / np.linalg.norm(n)])
 
-    def params(objs: list) -> np.ndarray:
+    def params(objs: Sequence[Box | Cylinder | Quad]) -> np.ndarray:
         return np.array([o.params for o in objs], float).reshape(len(objs), N_PARAMS)
 
-    def mats(objs: list) -> np.ndarray:
+    def mats(objs: Sequence[Box | Cylinder | Quad]) -> np.ndarray:
         return np.array([int(o.material) for o in objs], np.int32)
 
     packed = PackedScene(

@@ -43,7 +43,6 @@ _CAR_BODY = int(Material.CAR_BODY)
 _CAR_CABIN = int(Material.CAR_CABIN)
 _POLE = int(Material.POLE)
 _CHECKER = int(Material.CHECKER)
-_SOLID = int(Material.SOLID)
 
 # hit kinds
 _K_NONE, _K_GROUND, _K_BOX, _K_CYL, _K_QUAD = 0, 1, 2, 3, 4

@@ -116,7 +116,8 @@ class BoardFit:
         G[:3, :3] = -skew(n)  # n' = exp([w]x) n = n + w x n
         G[3, :3] = np.cross(n, t)  # d = n . t
         G[3, 3:] = n
-        return G @ self.covariance @ G.T
+        cov: npt.NDArray[np.float64] = G @ self.covariance @ G.T
+        return cov
 
 
 def _initial_pnp(model: CameraModel, obj: np.ndarray, uv: np.ndarray) -> list[Rigid]:
@@ -187,7 +188,8 @@ def _pnp_lm(
 
     def resid(R_: np.ndarray, t_: np.ndarray) -> np.ndarray:
         proj, _ = model.project(obj @ R_.T + t_)
-        return (proj - uv).reshape(-1)
+        r: npt.NDArray[np.float64] = (proj - uv).reshape(-1)
+        return r
 
     def jacobian(R_: np.ndarray, t_: np.ndarray) -> np.ndarray:
         RX = obj @ R_.T
@@ -202,7 +204,8 @@ def _pnp_lm(
         dX[:, 1, 0], dX[:, 1, 2] = -RX[:, 2], RX[:, 0]
         dX[:, 2, 0], dX[:, 2, 1] = RX[:, 1], -RX[:, 0]
         dX[:, :, 3:] = np.eye(3)
-        return np.einsum("knc,nkp->ncp", D, dX).reshape(2 * N, 6)
+        J: npt.NDArray[np.float64] = np.einsum("knc,nkp->ncp", D, dX).reshape(2 * N, 6)
+        return J
 
     r = resid(R, t)
     cost = float(r @ r) if np.isfinite(r).all() else math.inf

@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["ImageCircle", "fit_conic", "ransac_fit", "refine_fit", "robust_fit"]
 
@@ -32,14 +33,16 @@ class ImageCircle:
         """The radius; for an ellipse the mean of the semi-axes."""
         return 0.5 * (self.rx + self.ry)
 
-    def radius_at(self, phi: np.ndarray) -> np.ndarray:
+    def radius_at(self, phi: np.ndarray) -> npt.NDArray[np.float64]:
         """Distance from the centre to the curve in direction ``phi`` (rad, from +u to +v)."""
-        return 1.0 / np.hypot(np.cos(phi) / self.rx, np.sin(phi) / self.ry)
+        r: npt.NDArray[np.float64] = 1.0 / np.hypot(np.cos(phi) / self.rx, np.sin(phi) / self.ry)
+        return r
 
-    def residuals(self, points: np.ndarray) -> np.ndarray:
+    def residuals(self, points: np.ndarray) -> npt.NDArray[np.float64]:
         """(N,) radial distance of (N,2) points from the curve, px (+ outside)."""
         d = points - (self.cx, self.cy)
-        return np.hypot(d[:, 0], d[:, 1]) - self.radius_at(np.arctan2(d[:, 1], d[:, 0]))
+        r: npt.NDArray[np.float64] = np.hypot(d[:, 0], d[:, 1])
+        return r - self.radius_at(np.arctan2(d[:, 1], d[:, 0]))
 
     def cut_sides(self, width: int, height: int, margin: float = 0.5) -> tuple[str, ...]:
         """The sensor edges the curve reaches past (left, right, top, bottom)."""
@@ -177,15 +180,19 @@ def ransac_fit(
     # score on at most 500 points, then the inliers of the best among all
     sub = q if len(q) <= 500 else q[rng.choice(len(q), 500, replace=False)]
 
-    def residuals(p: np.ndarray, x: np.ndarray) -> np.ndarray:
+    def residuals(
+        p: npt.NDArray[np.float64], x: npt.NDArray[np.float64]
+    ) -> npt.NDArray[np.float64]:
         d = x[None, :, :] - p[:, None, :2]
         dist = np.hypot(d[..., 0], d[..., 1])
         rho = np.hypot(d[..., 0] / p[:, None, 2], d[..., 1] / p[:, None, 3])
-        return np.abs(dist - dist / np.maximum(rho, 1e-12)) * scale
+        r: npt.NDArray[np.float64] = np.abs(dist - dist / np.maximum(rho, 1e-12)) * scale
+        return r
 
     counts = np.sum(residuals(params, sub) < threshold_px, axis=1)
     best = params[int(np.argmax(counts))][None, :]
-    return residuals(best, q)[0] < threshold_px
+    inliers: npt.NDArray[np.bool_] = residuals(best, q)[0] < threshold_px
+    return inliers
 
 
 def robust_fit(

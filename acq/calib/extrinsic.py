@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
+import numpy.typing as npt
 
 from acq.calib.board_pose import BoardPose
 from acq.calib.extrinsic_linear import MIN_POSES, check_geometry, linear_solution
@@ -143,12 +144,12 @@ def _pose_rms(poses: Sequence[BoardPose], camera_to_laser: Rigid) -> np.ndarray:
     return np.array([math.sqrt(np.mean(r * r)) for r in point_residuals(poses, camera_to_laser)])
 
 
-def _safe_cos(c: np.ndarray) -> np.ndarray:
+def _safe_cos(c: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """Cosines of incidence kept away from 0 (grazing rays, > 87 degrees)."""
     return np.where(c < 0, np.minimum(c, -0.05), np.maximum(c, 0.05))
 
 
-def laser_noise(poses: Sequence[BoardPose], camera_to_laser: Rigid) -> np.ndarray:
+def laser_noise(poses: Sequence[BoardPose], camera_to_laser: Rigid) -> npt.NDArray[np.float64]:
     """Per pose, the laser's range noise (m, along its rays), from the data alone.
 
     A pose's point-to-plane residuals are an affine function of the points, so along the
@@ -172,8 +173,8 @@ def laser_noise(poses: Sequence[BoardPose], camera_to_laser: Rigid) -> np.ndarra
         mad = 1.4826 * float(np.median(np.abs(e - np.median(e))))
         out[i] = mad * math.sqrt(len(r) / (len(r) - 2))
     fill = float(np.nanmedian(out)) if np.isfinite(out).any() else _MIN_LASER_NOISE
-    out = np.where(np.isfinite(out), out, fill)
-    return np.maximum(out, _MIN_LASER_NOISE)
+    noise: npt.NDArray[np.float64] = np.where(np.isfinite(out), out, fill)
+    return np.maximum(noise, _MIN_LASER_NOISE)
 
 
 def _tangent_basis(n: np.ndarray) -> np.ndarray:
@@ -185,7 +186,7 @@ def _tangent_basis(n: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(n, e1)])
 
 
-def _euler_std_deg(R: np.ndarray, cov_w: np.ndarray) -> np.ndarray:
+def _euler_std_deg(R: np.ndarray, cov_w: np.ndarray) -> npt.NDArray[np.float64]:
     """Std of (roll, pitch, yaw) in degrees from the covariance of w in R = exp([w]x) R."""
     eps = 1e-6
     Jr = np.empty((3, 3))
@@ -196,7 +197,8 @@ def _euler_std_deg(R: np.ndarray, cov_w: np.ndarray) -> np.ndarray:
         b = np.array(rotation_to_euler(matrix_from_rotvec(-dw) @ R))
         diff = (a - b + math.pi) % (2 * math.pi) - math.pi
         Jr[:, k] = diff / (2 * eps)
-    return np.degrees(np.sqrt(np.clip(np.diag(Jr @ cov_w @ Jr.T), 0.0, None)))
+    var: npt.NDArray[np.float64] = np.diag(Jr @ cov_w @ Jr.T)
+    return np.degrees(np.sqrt(np.clip(var, 0.0, None)))
 
 
 class _Problem:

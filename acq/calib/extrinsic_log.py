@@ -50,7 +50,6 @@ __all__ = [
     "PoseData",
     "average_corners",
     "board_segment",
-    "find_corners",
     "parse_poses",
     "poses_from_log",
     "scan_points",
@@ -227,19 +226,6 @@ class CornerFinder:
                 self.last = where
                 return uv
         return None
-
-
-def find_corners(
-    gray: np.ndarray,
-    spec: BoardSpec,
-    model: CameraModel,
-    *,
-    view_px: int = 900,
-    view_fov_deg: float = 90.0,
-) -> np.ndarray | None:
-    """(cols*rows, 2) board corners in the fisheye image (px), or None (see
-    :class:`CornerFinder`)."""
-    return CornerFinder(spec, model, view_px=view_px, view_fov_deg=view_fov_deg)(gray)
 
 
 def average_corners(

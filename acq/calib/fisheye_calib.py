@@ -26,6 +26,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from acq.calib.image_circle import CircleResult
 from acq.camera import calibfile
@@ -161,7 +162,7 @@ def parse_board(text: str) -> BoardSpec:
     return BoardSpec(cols, rows, square)
 
 
-def detect_corners(gray: np.ndarray, board: BoardSpec) -> np.ndarray | None:
+def detect_corners(gray: np.ndarray, board: BoardSpec) -> npt.NDArray[np.float64] | None:
     """(cols*rows, 2) sub-pixel inner corners (OpenCV's order), or None if not found."""
     img = np.clip(gray, 0, 255).astype(np.uint8)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
@@ -169,8 +170,8 @@ def detect_corners(gray: np.ndarray, board: BoardSpec) -> np.ndarray | None:
     if not found:
         return None
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
-    corners = cv2.cornerSubPix(img, corners, (5, 5), (-1, -1), crit)
-    return corners.reshape(-1, 2).astype(np.float64)
+    refined = cv2.cornerSubPix(img, corners, (5, 5), (-1, -1), crit)
+    return np.asarray(refined, dtype=np.float64).reshape(-1, 2)
 
 
 def project_kb(intr: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -300,12 +301,14 @@ def fit_kannala_brandt(
         [[init.fx, init.fy, init.cx, init.cy, *init.k], *[np.r_[r, t] for r, t in poses]]
     )
 
-    def cam_points(x: np.ndarray, v: int) -> np.ndarray:
+    def cam_points(x: npt.NDArray[np.float64], v: int) -> npt.NDArray[np.float64]:
         p = x[8 + 6 * v : 14 + 6 * v]
-        return obj @ matrix_from_rotvec(p[:3]).T + p[3:]
+        P: npt.NDArray[np.float64] = obj @ matrix_from_rotvec(p[:3]).T + p[3:]
+        return P
 
-    def view_res(x: np.ndarray, v: int) -> np.ndarray:
-        return (project_kb(x[:8], cam_points(x, v)) - corners[v]).ravel()
+    def view_res(x: npt.NDArray[np.float64], v: int) -> npt.NDArray[np.float64]:
+        r: npt.NDArray[np.float64] = (project_kb(x[:8], cam_points(x, v)) - corners[v]).ravel()
+        return r
 
     def fun(x: np.ndarray) -> np.ndarray:
         return np.concatenate([view_res(x, v) for v in range(V)])

@@ -36,6 +36,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from acq.calib.circle_fit import ImageCircle, fit_conic, refine_fit, robust_fit
 
@@ -177,7 +178,7 @@ def black_level(gray: np.ndarray, frame_px: int = 3) -> tuple[float, float]:
     return float(np.median(near)), sigma
 
 
-def disc_mask(gray: np.ndarray, threshold: float) -> np.ndarray:
+def disc_mask(gray: np.ndarray, threshold: float) -> npt.NDArray[np.bool_]:
     """(H,W) bool: the image disc, pixels above ``threshold`` after a light blur, with the
     dark parts of the scene inside it filled (dark regions not touching the image border)."""
     smooth = cv2.GaussianBlur(gray, (0, 0), 2.0)
@@ -192,7 +193,7 @@ def disc_mask(gray: np.ndarray, threshold: float) -> np.ndarray:
     # fill holes: dark components that do not touch the image border
     n, labels = cv2.connectedComponents((~disc).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    outside = np.isin(labels, border) & ~disc
+    outside: npt.NDArray[np.bool_] = np.isin(labels, border) & ~disc
     return ~outside
 
 
@@ -219,12 +220,14 @@ def barycentre(mask: np.ndarray, ellipse: bool = False) -> Estimate:
     return Estimate("barycentre", ImageCircle(cx, cy, rx, ry), len(u))
 
 
-def _off_border(points: np.ndarray, width: int, height: int, margin: float) -> np.ndarray:
+def _off_border(
+    points: npt.NDArray[np.float64], width: int, height: int, margin: float
+) -> npt.NDArray[np.bool_]:
     x, y = points[:, 0], points[:, 1]
     return (x >= margin) & (x <= width - 1 - margin) & (y >= margin) & (y <= height - 1 - margin)
 
 
-def _canny_points(gray: np.ndarray, mask: np.ndarray, band_px: int = 10) -> np.ndarray:
+def _canny_points(gray: np.ndarray, mask: np.ndarray, band_px: int = 10) -> npt.NDArray[np.float64]:
     """(N,2) Canny edge pixels of the image within ``band_px`` of the disc's rim, without
     those near the image border (where the disc is cut by the sensor, not by the lens)."""
     smooth = cv2.GaussianBlur(gray, (0, 0), 1.5)

@@ -61,7 +61,8 @@ def _nice_ticks(lo: float, hi: float, n: int = 6) -> np.ndarray:
     mag = 10 ** math.floor(math.log10(raw))
     step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw)
     first, last = math.floor(lo / step + 1e-9), math.ceil(hi / step - 1e-9)
-    return np.arange(first, max(last, first + 1) + 1) * step
+    ticks: np.ndarray = np.arange(first, max(last, first + 1) + 1) * step
+    return ticks
 
 
 def _text(
@@ -172,7 +173,7 @@ _ESTIMATOR_COLOURS = {
 }
 
 
-def _draw_curve(img: np.ndarray, c: ImageCircle, colour: tuple, thick: int) -> None:
+def _draw_curve(img: np.ndarray, c: ImageCircle, colour: tuple[int, int, int], thick: int) -> None:
     s = 16  # 4 fractional bits
     cv2.ellipse(
         img,

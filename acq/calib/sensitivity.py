@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from acq.camera.calibfile import CameraCalib
 from acq.camera.camera_models import KannalaBrandt
@@ -198,7 +199,7 @@ def criterion(uv: np.ndarray, origin: tuple[float, float]) -> np.ndarray:
 
 def sensitivities(
     uv: np.ndarray, J: np.ndarray, p: np.ndarray, origin: tuple[float, float]
-) -> np.ndarray:
+) -> npt.NDArray[np.float64]:
     """(N,12) eq. (7): ``∂f/∂p_i · p_i / f`` with f of :func:`criterion`; NaN where
     f < :data:`MIN_CRITERION_PX`."""
     f = criterion(uv, origin)
@@ -207,13 +208,15 @@ def sensitivities(
         df = (du[:, None] * J[:, 0] + dv[:, None] * J[:, 1]) / f[:, None]
         s = df * np.asarray(p)[None, :] / f[:, None]
     s[f < MIN_CRITERION_PX] = np.nan
-    return s
+    sens: npt.NDArray[np.float64] = s
+    return sens
 
 
-def pixel_shift(J: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+def pixel_shift(J: np.ndarray, sigma: np.ndarray) -> npt.NDArray[np.float64]:
     """(N,12) px a point moves for one standard deviation ``sigma`` (12,) of each
     parameter: ``|∂(u, v)/∂p_i| · σ_i``."""
-    return np.hypot(J[:, 0], J[:, 1]) * np.abs(np.asarray(sigma))[None, :]
+    shift: npt.NDArray[np.float64] = np.hypot(J[:, 0], J[:, 1]) * np.abs(np.asarray(sigma))[None, :]
+    return shift
 
 
 def default_sigma(p: np.ndarray, overrides: Mapping[str, float] | None = None) -> np.ndarray:
@@ -260,13 +263,18 @@ def rotation_axes(angles: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.
     return w / rate[:, None], rate
 
 
-def rotation_sigma(angles: Sequence[float] | np.ndarray, cov_w: np.ndarray) -> np.ndarray:
+def rotation_sigma(
+    angles: Sequence[float] | np.ndarray, cov_w: np.ndarray
+) -> npt.NDArray[np.float64]:
     """(3,) σ (rad) of roll, pitch, yaw from the (3,3) covariance (rad²) of the small
     rotation w about the laser axes (``R = exp([w]x) R_hat``): the σ of the rotation about
     each angle's axis a_i (:func:`rotation_axes`), ``sqrt(a_iᵀ Σ_w a_i) / rate_i``."""
     a, rate = rotation_axes(angles)
-    var = np.einsum("ij,jk,ik->i", a, np.asarray(cov_w, dtype=np.float64), a)
-    return np.sqrt(np.maximum(var, 0.0)) / rate
+    var: npt.NDArray[np.float64] = np.einsum(
+        "ij,jk,ik->i", a, np.asarray(cov_w, dtype=np.float64), a
+    )
+    sigma: npt.NDArray[np.float64] = np.sqrt(np.maximum(var, 0.0)) / rate
+    return sigma
 
 
 def calib_sigma(cam: CameraCalib, p: np.ndarray) -> dict[str, float]:
@@ -331,11 +339,13 @@ def format_sigma(s: float, i: int, value: float | None = None) -> str:
 # --- the third-order term (§4.1.2) -------------------------------------------------------
 
 
-def third_order_px(theta: np.ndarray, p: np.ndarray, phi: float = -math.pi / 2) -> np.ndarray:
+def third_order_px(
+    theta: np.ndarray, p: np.ndarray, phi: float = -math.pi / 2
+) -> npt.NDArray[np.float64]:
     """px error of dropping ``k2 theta³`` at theta (rad) in image direction phi (rad,
     -pi/2 = up): ``k2 theta³ sqrt((mu_x cos phi)² + (mu_y sin phi)²)``."""
     mu = math.hypot(p[10] * math.cos(phi), p[11] * math.sin(phi))
-    return np.abs(p[7]) * mu * np.asarray(theta, dtype=np.float64) ** 3
+    return abs(float(p[7])) * mu * np.asarray(theta, dtype=np.float64) ** 3
 
 
 def table3(

@@ -38,6 +38,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from acq.camera.calibfile import CameraCalib
 from acq.errors import AcqError
@@ -128,7 +129,9 @@ def _ransac_line(
     return n, c, inl
 
 
-def _cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _cross(
+    o: npt.NDArray[np.float64], a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
     return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (
         b[..., 0] - o[..., 0]
     )
@@ -232,11 +235,12 @@ def palette_of(colours: dict[str, tuple[int, int, int]]) -> tuple[list[str], np.
     return names, rgb[:, ::-1].copy()  # BGR
 
 
-def classify(bgr: np.ndarray, palette: np.ndarray) -> np.ndarray:
+def classify(bgr: np.ndarray, palette: np.ndarray) -> npt.NDArray[np.int64]:
     """(H,W) index of the nearest ``palette`` (K,3) BGR colour of each pixel."""
     img = bgr.astype(np.float32)
     d = [np.sum((img - c) ** 2, axis=2) for c in palette]
-    return np.argmin(np.stack(d), axis=0).astype(np.int64)
+    nearest: np.ndarray = np.argmin(np.stack(d), axis=0)
+    return nearest.astype(np.int64)
 
 
 def _scores(samples: np.ndarray, palette: np.ndarray, mine: np.ndarray) -> np.ndarray:

@@ -122,7 +122,8 @@ class KannalaBrandt(CameraModel):
         """Image radius per unit focal length, ``theta_d(theta)``."""
         k1, k2, k3, k4 = self.k
         t2 = theta * theta
-        return theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+        theta_d: np.ndarray = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+        return theta_d
 
     def undistort_theta(self, theta_d: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`distort_theta` by Newton's method (float64, to 1e-14 rad)."""
@@ -273,7 +274,8 @@ class Pinhole(CameraModel):
             if np.all(np.abs(da) + np.abs(db) < 1e-16):
                 break
         rays = np.stack([a, b, np.ones_like(a)], axis=1)
-        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        unit: np.ndarray = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        return unit
 
     def to_dict(self) -> dict[str, Any]:
         return {**super().to_dict(), "k": list(self.dist)}

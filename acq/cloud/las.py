@@ -20,7 +20,7 @@ import numpy as np
 
 from acq.time.gpstime import gps_adjusted_standard_time
 
-__all__ = ["LasStream", "write_las"]
+__all__ = ["LasStream"]
 
 
 class LasStream:
@@ -102,26 +102,3 @@ class LasStream:
         if self._writer is not None:
             self._writer.close()
         self._tmp.unlink(missing_ok=True)
-
-
-def write_las(
-    path: str | os.PathLike[str],
-    xyz: np.ndarray,
-    rgb: np.ndarray,
-    utc_s: np.ndarray,
-    intensity: np.ndarray,
-    scan: np.ndarray,
-    coloured: np.ndarray,
-    *,
-    crs: str | None = None,
-    comments: Sequence[str] = (),
-) -> int:
-    """Write the points (see :meth:`LasStream.write`) as LAS 1.4; returns the file's
-    size, bytes. Written to a temporary name, then renamed."""
-    out = LasStream(path, crs=crs, comments=comments)
-    try:
-        out.write(xyz, rgb, utc_s, intensity, scan, coloured)
-    except BaseException:
-        out.abort()
-        raise
-    return out.close()

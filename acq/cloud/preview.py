@@ -7,6 +7,7 @@ import os
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from acq.cloud.points import Cloud
 
@@ -73,13 +74,14 @@ def _spacing(v: np.ndarray, scan: np.ndarray, step: np.ndarray) -> np.ndarray:
     after = np.concatenate([d, [np.nan]])
     with np.errstate(invalid="ignore"):
         lo = np.fmin(before, after)
-        return np.fmin(np.fmax(before, after), 2.0 * lo)
+        gap: npt.NDArray[np.float64] = np.fmin(np.fmax(before, after), 2.0 * lo)
+    return gap
 
 
-def _heights(gap: np.ndarray, res: float, most: int = 20) -> np.ndarray:
+def _heights(gap: np.ndarray, res: float, most: int = 20) -> npt.NDArray[np.int64]:
     """Block heights, px: a pixel more than the spacing between a scan's points, 1 to
     ``most``."""
-    px = np.ceil(np.nan_to_num(gap, nan=0.0) / res) + 1
+    px: npt.NDArray[np.float64] = np.ceil(np.nan_to_num(gap, nan=0.0) / res) + 1
     return np.clip(px, 1, most).astype(np.int64)
 
 

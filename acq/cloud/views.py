@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+import numpy.typing as npt
 
 from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
@@ -166,8 +167,9 @@ class _Rig:
         return self.cam.camera_to_laser.inverse().apply(P_laser)
 
 
-def _theta(P_cam: np.ndarray) -> np.ndarray:
-    return np.arctan2(np.hypot(P_cam[:, 0], P_cam[:, 1]), P_cam[:, 2])
+def _theta(P_cam: np.ndarray) -> npt.NDArray[np.float64]:
+    theta: npt.NDArray[np.float64] = np.arctan2(np.hypot(P_cam[:, 0], P_cam[:, 1]), P_cam[:, 2])
+    return theta
 
 
 class Colouring:
@@ -346,7 +348,10 @@ def _best(
     return best, theta, hidden
 
 
-def point_size(ranges: np.ndarray, angle_increment: float, travel_m: float) -> np.ndarray:
+def point_size(
+    ranges: np.ndarray, angle_increment: float, travel_m: float
+) -> npt.NDArray[np.float32]:
     """Each point's share of surface, m: the larger of its spacing along the scan
     (range x angle step) and the rig's travel between scans."""
-    return np.maximum(np.abs(ranges) * abs(angle_increment), travel_m).astype(np.float32)
+    size: np.ndarray = np.maximum(np.abs(ranges) * abs(angle_increment), travel_m)
+    return size.astype(np.float32)

@@ -32,10 +32,13 @@ _NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 _FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
 
 
-def ned_to_enu(R_ned: npt.ArrayLike) -> np.ndarray:
+def ned_to_enu(R_ned: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """(N,3,3) attitudes of a forward-right-down body in north-east-down axes -> those of
     the forward-left-up body in east-north-up axes."""
-    return np.einsum("ij,njk,kl->nil", _NED_TO_ENU, np.asarray(R_ned), _FLU_TO_FRD)
+    R_enu: npt.NDArray[np.float64] = np.einsum(
+        "ij,njk,kl->nil", _NED_TO_ENU, np.asarray(R_ned), _FLU_TO_FRD
+    )
+    return R_enu
 
 
 def ecef_to_enu(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike) -> np.ndarray:
@@ -100,8 +103,8 @@ class WorldFrame:
     def _key(self) -> tuple[float, float, float]:
         return self.origin if self.name == "enu" else (0.0, 0.0, 0.0)
 
-    def _offset(self) -> np.ndarray:
-        return np.zeros(3) if self.name == "enu" else np.asarray(self.origin)
+    def _offset(self) -> npt.NDArray[np.float64]:
+        return np.zeros(3) if self.name == "enu" else np.asarray(self.origin, dtype=np.float64)
 
     def _need_geo(self) -> None:
         if not self.georeferenced:
@@ -138,9 +141,10 @@ class WorldFrame:
             *(np.asarray(a, dtype=np.float64).reshape(-1) for a in (lat_deg, lon_deg, h_m))
         )
         if self.name == "enu":
-            return ecef_to_enu(self.origin[0], self.origin[1])[None] @ np.swapaxes(
-                ecef_to_enu(lat, lon), -1, -2
-            )
+            R: npt.NDArray[np.float64] = ecef_to_enu(self.origin[0], self.origin[1])[
+                None
+            ] @ np.swapaxes(ecef_to_enu(lat, lon), -1, -2)
+            return R
         d = 1e-6  # degrees of latitude, ~0.1 m
         n = self.from_geodetic(lat + d, lon, h) - self.from_geodetic(lat - d, lon, h)
         # local north (ENU angle pi/2) points along n in the grid

@@ -79,7 +79,7 @@ def matrix_from_quat(q: npt.ArrayLike, out: np.ndarray | None = None) -> np.ndar
 # --- rotation vectors (axis * angle) -----------------------------------------------------
 
 
-def skew(w: npt.ArrayLike) -> np.ndarray:
+def skew(w: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """(..., 3) vectors -> (..., 3, 3) cross-product matrices: ``skew(w) @ v == w x v``."""
     w = np.asarray(w, dtype=np.float64)
     K = np.zeros((*w.shape[:-1], 3, 3))
@@ -88,11 +88,11 @@ def skew(w: npt.ArrayLike) -> np.ndarray:
     return K
 
 
-def matrix_from_rotvec(w: npt.ArrayLike) -> np.ndarray:
+def matrix_from_rotvec(w: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """(..., 3) rotation vectors (axis * angle, rad) -> (..., 3, 3) rotations (Rodrigues;
     second order in the angle below 1e-8 rad)."""
     w = np.asarray(w, dtype=np.float64)
-    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    theta: npt.NDArray[np.float64] = np.linalg.norm(w, axis=-1)[..., None, None]
     small = theta < 1e-8
     th = np.where(small, 1.0, theta)
     a = np.where(small, 1.0, np.sin(th) / th)
@@ -135,11 +135,11 @@ def rotation_angle(R: npt.ArrayLike) -> float:
     return float(math.atan2(s, c))
 
 
-def nearest_rotation(M: npt.ArrayLike) -> np.ndarray:
+def nearest_rotation(M: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """(3,3) the rotation nearest to a 3x3 matrix (Frobenius norm, by SVD): removes the
     drift of products of rotations and the noise of estimated ones."""
     U, _, Vt = np.linalg.svd(np.asarray(M, dtype=np.float64))
-    Q = U @ Vt
+    Q: npt.NDArray[np.float64] = U @ Vt
     if np.linalg.det(Q) < 0:
         Q = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
     return Q
@@ -150,7 +150,7 @@ def nearest_rotation(M: npt.ArrayLike) -> np.ndarray:
 
 def matrices_from_euler(
     roll: npt.ArrayLike, pitch: npt.ArrayLike, yaw: npt.ArrayLike
-) -> np.ndarray:
+) -> npt.NDArray[np.float64]:
     """(N,3,3) ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (rad, broadcast to (N,)), the ROS
     fixed-axis xyz convention. ``matrices_from_euler(0, 0, yaw)`` is a heading alone."""
     r, p, y = np.broadcast_arrays(
@@ -178,9 +178,10 @@ def euler_from_matrices(R: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.nd
     return np.arctan2(R[:, 2, 1], R[:, 2, 2]), pitch, np.arctan2(R[:, 1, 0], R[:, 0, 0])
 
 
-def rotation_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
+def rotation_from_euler(roll: float, pitch: float, yaw: float) -> npt.NDArray[np.float64]:
     """(3,3) ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (rad): :func:`matrices_from_euler` of one."""
-    return matrices_from_euler(roll, pitch, yaw)[0]
+    R: npt.NDArray[np.float64] = matrices_from_euler(roll, pitch, yaw)[0]
+    return R
 
 
 def rotation_to_euler(R: npt.ArrayLike) -> tuple[float, float, float]:

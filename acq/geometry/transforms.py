@@ -15,8 +15,8 @@ __all__ = ["PoseFn", "Rigid"]
 class Rigid:
     """A proper rigid transform: ``apply(P) = P @ R.T + t`` for (N,3) points."""
 
-    rotation: np.ndarray  # (3,3) float64, orthonormal, det +1
-    translation: np.ndarray  # (3,) float64, metres
+    rotation: npt.NDArray[np.float64]  # (3,3), orthonormal, det +1
+    translation: npt.NDArray[np.float64]  # (3,) metres
 
     def __post_init__(self) -> None:
         R = np.array(self.rotation, dtype=np.float64)
@@ -40,7 +40,7 @@ class Rigid:
     def identity(cls) -> Rigid:
         return cls(np.eye(3), np.zeros(3))
 
-    def apply(self, P: npt.ArrayLike) -> np.ndarray:
+    def apply(self, P: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """(N,3) or (3,) points in the source frame -> the target frame."""
         P = np.asarray(P, dtype=np.float64)
         return P @ self.rotation.T + self.translation
@@ -62,7 +62,7 @@ class Rigid:
         M[:3, 3] = self.translation
         return M
 
-    def to_dict(self) -> dict[str, list]:
+    def to_dict(self) -> dict[str, list[list[float]] | list[float]]:
         return {
             "rotation": [[float(x) for x in row] for row in self.rotation],
             "translation": [float(x) for x in self.translation],

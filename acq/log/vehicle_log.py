@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from mcap.records import Channel, Schema
 
 from acq.log.reader import LogReader
@@ -97,11 +98,16 @@ class VehicleLog:
     notes: list[str] = field(default_factory=list)
 
 
-def _interp(t: np.ndarray, ts: np.ndarray, values: np.ndarray, measured: np.ndarray) -> np.ndarray:
+def _interp(
+    t: npt.NDArray[np.int64],
+    ts: npt.NDArray[np.int64],
+    values: npt.NDArray[np.float64],
+    measured: npt.NDArray[np.bool_],
+) -> npt.NDArray[np.float64]:
     ok = measured & np.isfinite(values)
     if not ok.any():
         return np.full(t.shape, np.nan)
-    t0 = ts[ok][0]  # interpolate relative to the first: float64 keeps ns over days
+    t0 = int(ts[ok][0])  # interpolate relative to the first: float64 keeps ns over days
     return np.interp((t - t0).astype(np.float64), (ts[ok] - t0).astype(np.float64), values[ok])
 
 

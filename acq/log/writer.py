@@ -104,15 +104,10 @@ def _end_chunk(writer: McapWriter) -> None:
     """Write the open chunk now, whatever its size.
 
     mcap's Writer ends a chunk only when it grows past ``chunk_size`` (in ``add_message``)
-    or in ``finish()``. mcap >= 1.6 has ``Writer.flush()``, which ends the open chunk (when
-    it holds a message) and writes it with its message indexes. Older versions only have
-    the private ``__finalize_chunk`` that ``finish()`` calls: use it there.
+    or in ``finish()``; ``Writer.flush()`` (mcap >= 1.6, the version pyproject.toml asks
+    for) ends the open chunk when it holds a message and writes it with its message indexes.
     """
-    flush = getattr(writer, "flush", None)
-    if flush is not None:
-        flush()
-    else:  # pragma: no cover - mcap < 1.6
-        writer._Writer__finalize_chunk()  # type: ignore[attr-defined]
+    writer.flush()
 
 
 def _trailer() -> bytes:

@@ -55,7 +55,9 @@ def _rot2(theta: np.ndarray | float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
-def _window_weights(t: np.ndarray, knots: np.ndarray, half_s: float) -> np.ndarray:
+def _window_weights(
+    t: npt.NDArray[np.float64], knots: npt.NDArray[np.float64], half_s: float
+) -> npt.NDArray[np.float64]:
     """(J, K) triangular weights of fix times ``t`` (s) around knot times (s)."""
     return np.clip(1.0 - np.abs(t[None, :] - knots[:, None]) / half_s, 0.0, None)
 
@@ -328,6 +330,8 @@ def _blend(fits: list[_Knot | None], knots: np.ndarray, t: np.ndarray, P: np.nda
     return out
 
 
-def _blend_theta(fits: list[_Knot | None], knots: np.ndarray, t: np.ndarray) -> np.ndarray:
+def _blend_theta(
+    fits: list[_Knot | None], knots: np.ndarray, t: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
     times, valid = _valid(fits, knots)
     return np.interp(t, times, [k.theta for k in valid])

@@ -145,9 +145,10 @@ def from_gnss(
     lo = np.searchsorted(ts, ts - smooth_s / 2, side="left")
     hi = np.searchsorted(ts, ts + smooth_s / 2, side="right")
 
-    def window_sum(x: np.ndarray) -> np.ndarray:
+    def window_sum(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         c = np.concatenate([[0.0], np.cumsum(x)])
-        return c[hi] - c[lo]
+        s: npt.NDArray[np.float64] = c[hi] - c[lo]
+        return s
 
     sw, st, stt = window_sum(w), window_sum(w * ts), window_sum(w * ts * ts)
     # centred about each fix's own time for conditioning: sum w (t - t_k)^2 etc.

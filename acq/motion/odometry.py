@@ -43,7 +43,8 @@ def speed_from_wheels(
         raise ValueError(f"wheel_speeds must be (N,4) FL, FR, RL, RR, got shape {w.shape}")
     if which not in _WHEELS:
         raise ValueError(f"which must be one of {', '.join(_WHEELS)}, got {which!r}")
-    return w[:, list(_WHEELS[which])].mean(axis=1)
+    speed: npt.NDArray[np.float64] = w[:, list(_WHEELS[which])].mean(axis=1)
+    return speed
 
 
 def yaw_rate_from_wheels(

@@ -25,7 +25,7 @@ import typing
 from collections.abc import Mapping, Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, NoReturn
 
 import yaml
 from pydantic import (
@@ -96,7 +96,7 @@ class _Model(BaseModel):
     model_config = yamlcheck.STRICT
 
 
-def _expected(choices: list[str], value: Any) -> Any:
+def _expected(choices: list[str], value: Any) -> NoReturn:
     raise fail(f"expected one of: {', '.join(choices)}, got {show(value)}")
 
 
@@ -184,7 +184,9 @@ class ScannerConfig(_Model):
             raise fail(
                 f"only for driver {' or '.join(others)}{speaks if scanner.wire else ''}; remove it"
             )
-        return v if v in choices else _expected(list(choices), v)
+        if isinstance(v, str) and v in choices:
+            return v
+        _expected(list(choices), v)
 
     @field_validator("latency_s", mode="plain")
     @classmethod

@@ -67,13 +67,13 @@ _OFFSETS = np.array([0] + [n for _, n in LEAP_SECONDS], dtype=np.float64)
 _GPS_STEPS = _UTC_STEPS - GPS_EPOCH_UNIX + _OFFSETS[1:]
 
 
-def gps_minus_utc(utc_s: npt.ArrayLike) -> np.ndarray:
+def gps_minus_utc(utc_s: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """GPS - UTC, whole seconds (float64), at UTC instants (POSIX s); 0 before 1981-07."""
     u = np.asarray(utc_s, dtype=np.float64)
     return _OFFSETS[np.searchsorted(_UTC_STEPS, u, side="right")]
 
 
-def utc_to_gps(utc_s: npt.ArrayLike) -> np.ndarray:
+def utc_to_gps(utc_s: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """UTC (POSIX s) -> GPS seconds since the GPS epoch (float64)."""
     u = np.asarray(utc_s, dtype=np.float64)
     return u - GPS_EPOCH_UNIX + gps_minus_utc(u)

@@ -30,7 +30,6 @@ from acq.time.clocksync import DeviceClock
 __all__ = [
     "Gap",
     "Pairing",
-    "frame_mid_exposure_ns",
     "frame_stamp_ns",
     "frames_used",
     "pair_frames",
@@ -101,11 +100,6 @@ def stamp_scan(
 
 
 # --- camera frames -------------------------------------------------------------------
-
-
-def frame_mid_exposure_ns(start_ns: int, exposure_s: float) -> int:
-    """Host ns of the middle of an exposure starting at ``start_ns``, ``exposure_s`` s long."""
-    return int(start_ns) + round(exposure_s * 0.5e9)
 
 
 def frame_stamp_ns(recv_ns: int, exposure_s: float, latency_s: float) -> int:

@@ -325,8 +325,8 @@ def test_street_layout_follows_table_1(street: Street) -> None:
 
 
 def test_a_new_street_with_a_dead_streets_id_is_packed_afresh() -> None:
-    # CPython reuses the id of a freed object: a cache keyed by id alone handed a new
-    # street the old one's scene (the flaky sim-render test)
+    # CPython reuses the id of a freed object: a cache keyed by id alone would hand a new
+    # street the old one's scene
     import gc
 
     from acq.sim import packed_scene, world

@@ -8,6 +8,8 @@ messages and fields may be added. Their encoders are in :mod:`acq.log.schemas`.
 
 from __future__ import annotations
 
+from typing import Any
+
 from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
 from google.protobuf.descriptor import FileDescriptor
 from google.protobuf.message_factory import GetMessageClass
@@ -133,10 +135,11 @@ def _acq_file() -> FileDescriptor:
 
 
 _ACQ_FILE = _acq_file()
-RawTelegramMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["RawTelegram"])
-TimingMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Timing"])
-ClockMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Clock"])
-DeviceStatusMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["DeviceStatus"])
-StatusMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Status"])
-OdometryMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["Odometry"])
-CanFrameMsg = GetMessageClass(_ACQ_FILE.message_types_by_name["CanFrame"])
+# built at run time, so their fields are unknown to the type checker: Any, not Message
+RawTelegramMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["RawTelegram"])
+TimingMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["Timing"])
+ClockMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["Clock"])
+DeviceStatusMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["DeviceStatus"])
+StatusMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["Status"])
+OdometryMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["Odometry"])
+CanFrameMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["CanFrame"])

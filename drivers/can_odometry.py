@@ -15,7 +15,7 @@ sampled at different instants (here ``WHEEL_SPEEDS`` and ``YAW_RATE``, both 50 H
 Each decoded message gives one Odometry at that message's time, holding what the
 message carries and NaN for the rest. Holding the other message's last value instead
 would date it up to one period (20 ms) late; an integrator gets each quantity at the
-instants it was measured and interpolates it at any other (:mod:`acq.motion.vehicle_log`
+instants it was measured and interpolates it at any other (:mod:`acq.log.vehicle_log`
 does that for complete rows).
 
 **Time stamps.** socketcan stamps each frame in the kernel at receipt on the *wall*

@@ -15,6 +15,7 @@ capture: one line saying so.
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,10 @@ import numpy as np
 from acq.drivers.cola_codec import ColaFramer, Telegram
 from acq.drivers.cola_scandata import parse_scandata
 from acq.time.clocksync import fit_drift, retime_offline
+
+# the capture reader is a test helper (tests/wireshark_json.py), not part of acq: the
+# repository's root on the path, as pytest has it
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.wireshark_json import read_packets, reassemble, split_directions
 
 CAPTURE = (

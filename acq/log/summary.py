@@ -21,6 +21,7 @@ import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 
 from acq.log.reader import LogReader
+from acq.time.utc import utc_ns
 
 __all__ = ["ChannelInfo", "DeviceSync", "LogInfo", "format_info", "info", "info_many"]
 
@@ -159,7 +160,7 @@ class _Acc:
     sizes: dict[str, int] = field(default_factory=dict)
     timing: dict[str, _Timing] = field(default_factory=dict)
     status: Any = None
-    realtime_offset_ns: int | None = None
+    clock: list[tuple[int, int]] = field(default_factory=list)  # (monotonic, realtime) ns
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: int = 0
 
@@ -174,10 +175,10 @@ class _Acc:
             self._add_timing(topic.removeprefix("/acq/timing/"), decoded)
         elif topic == "/acq/status":
             self.status = decoded
-        elif topic == "/acq/clock" and self.realtime_offset_ns is None:
+        elif topic == "/acq/clock":
             realtime, monotonic = _field(decoded, "realtime_ns"), _field(decoded, "monotonic_ns")
             if realtime and monotonic:
-                self.realtime_offset_ns = int(realtime) - int(monotonic)
+                self.clock.append((int(monotonic), int(realtime)))
 
     def _add_timing(self, device: str, msg: Any) -> None:
         t = self.timing.setdefault(device, _Timing())
@@ -294,9 +295,7 @@ def _result(
         end_ns=end,
         duration_s=(end - start) / 1e9 if start is not None and end is not None else 0.0,
         start_realtime_ns=(
-            start + acc.realtime_offset_ns
-            if start is not None and acc.realtime_offset_ns is not None
-            else None
+            int(utc_ns(start, acc.clock)) if start is not None and acc.clock else None
         ),
         channels=channels,
         devices=devices,

@@ -5,24 +5,34 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["host_ns_from_utc", "utc_seconds"]
+__all__ = ["host_ns_from_utc", "utc_ns", "utc_seconds"]
 
 
-def utc_seconds(time_ns: npt.ArrayLike, clock: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
-    """Host monotonic ns -> UTC seconds (float64) with the log's (monotonic, realtime)
-    pairs, the offset interpolated between pairs (held at the ends); NaN without pairs."""
+def utc_ns(time_ns: npt.ArrayLike, clock: npt.ArrayLike) -> npt.NDArray[np.int64]:
+    """Host monotonic ns -> UTC ns (int64) with the log's (monotonic ns, realtime ns) pairs,
+    the offset interpolated between pairs (held at the ends). Raises ValueError without
+    pairs."""
     t = np.asarray(time_ns, dtype=np.int64)
-    if clock.size == 0:
-        return np.full(t.shape, np.nan)
-    mono = clock[:, 0]
-    offset = clock[:, 1] - mono
+    pairs = np.asarray(clock, dtype=np.int64).reshape(-1, 2)
+    if pairs.shape[0] == 0:
+        raise ValueError("no (monotonic, realtime) clock pairs: host time cannot be mapped to UTC")
+    mono = pairs[:, 0]
+    offset = pairs[:, 1] - mono
     base = int(offset[0])
     order = np.argsort(mono, kind="stable")
     rel: npt.NDArray[np.float64] = np.interp(
         t.astype(np.float64), mono[order].astype(np.float64), (offset - base)[order]
     )
+    total: npt.NDArray[np.int64] = t + base + np.rint(rel).astype(np.int64)
+    return total
+
+
+def utc_seconds(time_ns: npt.ArrayLike, clock: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
+    """Host monotonic ns -> UTC seconds (float64), as :func:`utc_ns`; NaN without pairs."""
+    if clock.size == 0:
+        return np.full(np.shape(time_ns), np.nan)
+    total = utc_ns(time_ns, clock)
     # whole seconds and the rest apart, so float64 keeps the nanoseconds' microseconds
-    total = t + base + np.rint(rel).astype(np.int64)
     return (total // 10**9).astype(np.float64) + (total % 10**9).astype(np.float64) * 1e-9
 
 

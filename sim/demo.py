@@ -44,6 +44,7 @@ from acq.log import info as log_info
 from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
 from acq.record.sdnotify import Notifier
+from acq.sim.can_vehicle import DBC_PATH
 from acq.sim.demo_rig import (
     CAMERA_SIM,
     CAN_INTERFACE,
@@ -95,7 +96,6 @@ class _Clock:
 def _config(
     scanner_url: str, camera_url: str, can_channel: str, calib: Path, seconds: float
 ) -> dict[str, Any]:
-    from acq.sim.can_vehicle import DBC_PATH
 
     return {
         "version": 1,

@@ -22,6 +22,14 @@ import numpy as np
 
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.motion.trajectory import Trajectory
+from acq.sim.can_vehicle import SimVehicle
+from acq.sim.device_clock import SimClock
+from acq.sim.mjpeg_server import MjpegServerProcess
+from acq.sim.scan_source import StreetSource
+from acq.sim.scanner_models import MODELS
+from acq.sim.scip_device import ScipDevice
+from acq.sim.transport import PtyDeviceServer
+from acq.sim.world import default_rig
 
 __all__ = [
     "CAMERA_SIM",
@@ -60,13 +68,6 @@ class SimRig:
     (host monotonic s): the same place on the street at the same time."""
 
     def __init__(self, t_origin: float) -> None:
-        from acq.sim.can_vehicle import SimVehicle
-        from acq.sim.device_clock import SimClock
-        from acq.sim.mjpeg_server import MjpegServerProcess
-        from acq.sim.scan_source import StreetSource
-        from acq.sim.scanner_models import MODELS
-        from acq.sim.scip_device import ScipDevice
-        from acq.sim.transport import PtyDeviceServer
 
         self.t_origin = t_origin
         self.camera: Any = None
@@ -148,7 +149,6 @@ class SimRig:
 
 def true_calibration() -> Calibration:
     """The simulated rig's true calibration (the lens as kannala_brandt)."""
-    from acq.sim.world import default_rig
 
     rig = default_rig()
     return Calibration(

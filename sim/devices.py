@@ -5,9 +5,11 @@ from __future__ import annotations
 import time
 from urllib.parse import urlsplit
 
+from acq.sim.cola_device import ColaDevice
 from acq.sim.device_clock import SimClock
 from acq.sim.scan_source import StreetSource
 from acq.sim.scanner_models import ScannerModel, model
+from acq.sim.scip_device import ScipDevice
 from acq.sim.transport import DeviceServer, PtyDeviceServer, SimDevice, TcpDeviceServer
 
 __all__ = ["make_scanner", "parse_listen", "serve_scanner"]
@@ -35,10 +37,7 @@ def make_scanner(
     )
     source = StreetSource(m, seed=seed)
     if m.vendor == "hokuyo":
-        from acq.sim.scip_device import ScipDevice
-
         return m, ScipDevice(m, source=source, clock=clock)
-    from acq.sim.cola_device import ColaDevice
 
     return m, ColaDevice(m, source=source, clock=clock, protocol=protocol)
 

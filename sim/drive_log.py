@@ -43,7 +43,8 @@ from acq.geometry.geodesy import WorldFrame
 from acq.log import schemas
 from acq.log.writer import LogWriter
 from acq.records import Fix, Frame, Odometry, Scan
-from acq.sim.sensors import render_frame, render_scan, return_strength
+from acq.sim.nmea_device import DEFAULT_ORIGIN
+from acq.sim.sensors import camera_to_world, render_frame, render_scan, return_strength
 from acq.sim.world import Rig, Street, Trajectory, default_rig
 from acq.time.clocksync import DeviceClock
 
@@ -75,7 +76,6 @@ class DriveTruth:
         """Where the noise-free hits of points (``scan``, ``step``) fall in the frames
         with recorded stamps ``frame_stamp_ns`` (true lens, true pose at the frame's true
         time): (N,2) px and (N,) valid (also False for an unknown frame or no hit)."""
-        from acq.sim.sensors import camera_to_world
 
         scan, step = np.asarray(scan, np.int64), np.asarray(step, np.int64)
         k = np.clip(np.searchsorted(self.frame_stamp_ns, frame_stamp_ns), 0,
@@ -271,8 +271,6 @@ def write_drive_log(
     # --- GNSS: the vehicle's true position (the antenna at its origin), street x east and
     # y north of ORIGIN, with Gaussian noise; stamped at the fix instant, received later
     if gnss_hz > 0:
-        from acq.sim.nmea_device import DEFAULT_ORIGIN
-
         gnss_rng = np.random.default_rng([seed, 2])
         ts = np.arange(0.0, seconds + 0.2, 1.0 / gnss_hz)
         _, pos = traj.poses(ts)

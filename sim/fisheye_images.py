@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from acq.camera.camera_models import KannalaBrandt
+from acq.sim import sensors, world
 
 __all__ = ["CircleTruth", "fisheye_image", "random_image"]
 
@@ -76,7 +77,6 @@ def _street(
 ) -> np.ndarray:
     """(H,W) float64 grey street view (0..255) through an equidistant lens whose 185-degree
     circle has u semi-axis ``a``; rendered out to 240 degrees, so it covers the rim."""
-    from acq.sim import sensors, world
 
     f = a / math.radians(92.5)
     lens = KannalaBrandt(width, height, f, f * aspect, cx, cy, fov_deg=240.0)

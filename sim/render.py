@@ -19,6 +19,7 @@ import numpy as np
 from acq.camera import calibfile, projection
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.transforms import Rigid
+from acq.sim import sensors, world
 
 __all__ = ["OverlayResult", "render_overlay", "write"]
 
@@ -59,7 +60,6 @@ def render_overlay(
 
     ``range_noise`` (m) overrides the simulated scanner's noise (0 for exact ranges).
     """
-    from acq.sim import sensors, world
 
     street = world.Street.generate(seed=seed)
     traj = world.Trajectory()

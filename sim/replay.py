@@ -35,21 +35,30 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 from urllib.parse import urlsplit
 
 import yaml
 from mcap.records import Channel, Schema
 
+from acq.drivers.cola_codec import unframe
+from acq.drivers.errors import ProtocolError
 from acq.drivers.registry import DriverImportError, UnknownDriver
 from acq.drivers.scanner import SCANNERS
+from acq.drivers.scip_codec import parse_scan_echo
 from acq.errors import InputError
 from acq.log import LogError, LogReader, read_metadata
 from acq.record import config as configfile
 from acq.record.config import CameraConfig, Config, ScannerConfig
-
-if TYPE_CHECKING:
-    from acq.sim.replay_devices import ReplayClock
+from acq.sim.devices import parse_listen
+from acq.sim.replay_devices import (
+    ColaReplayDevice,
+    ReplayClock,
+    ReplayMjpegServer,
+    ReplayStream,
+    ScipReplayDevice,
+)
+from acq.sim.transport import PtyDeviceServer, TcpDeviceServer
 
 __all__ = [
     "DeviceLog",
@@ -242,8 +251,6 @@ def _wire(driver: str) -> str:
 
 
 def _check_scip(dev: DeviceLog) -> None:
-    from acq.drivers.errors import ProtocolError
-    from acq.drivers.scip_codec import parse_scan_echo
 
     if "params" not in dev.metadata or "info" not in dev.metadata:
         raise ReplayError(
@@ -270,8 +277,6 @@ def _check_scip(dev: DeviceLog) -> None:
 
 
 def _check_cola(dev: DeviceLog) -> None:
-    from acq.drivers.cola_codec import unframe
-    from acq.drivers.errors import ProtocolError
 
     if "geometry" not in dev.metadata:
         raise ReplayError(
@@ -307,7 +312,6 @@ def _device_config(config: Config | None, name: str) -> ScannerConfig | CameraCo
 
 
 def _tcp_listen(listen: str) -> tuple[str, int]:
-    from acq.sim.devices import parse_listen
 
     return parse_listen(listen)
 
@@ -365,7 +369,6 @@ class Replay:
         that cannot be bound)."""
         if self._clock is not None:
             return self
-        from acq.sim.replay_devices import ReplayClock
 
         host, port = _tcp_listen(self.scanner_listen)
         chost, cport, cpath = _http_listen(self.camera_listen)
@@ -384,7 +387,6 @@ class Replay:
         return self
 
     def _stream(self, dev: DeviceLog) -> Any:
-        from acq.sim.replay_devices import ReplayStream
 
         assert self._clock is not None
         stream = ReplayStream(dev.name, dev.times_ns, dev.data, self._clock)
@@ -396,8 +398,6 @@ class Replay:
         log.error("%s", message)
 
     def _start_scanner(self, dev: DeviceLog, host: str, port: int) -> None:
-        from acq.sim.replay_devices import ColaReplayDevice, ScipReplayDevice
-        from acq.sim.transport import PtyDeviceServer, TcpDeviceServer
 
         stream = self._stream(dev)
         meta = dev.metadata
@@ -420,7 +420,6 @@ class Replay:
         server.start()
 
     def _start_camera(self, dev: DeviceLog, host: str, port: int, path: str) -> None:
-        from acq.sim.replay_devices import ReplayMjpegServer
 
         server = ReplayMjpegServer(self._stream(dev), host, port, path)
         self._servers.append(server)
@@ -528,7 +527,6 @@ def _derived_entry(dev: DeviceLog) -> dict[str, Any]:
     entry: dict[str, Any] = {"name": dev.name, "driver": dev.driver}
     if _wire(dev.driver) != SCIP:
         return entry
-    from acq.drivers.scip_codec import parse_scan_echo
 
     echo = parse_scan_echo(dev.data[0].split(b"\n", 1)[0])
     p = dev.metadata["params"]

@@ -40,9 +40,14 @@ for name in drivers sim config; do
   [ ! -e "$site/$name" ] || { echo "wheel smoke: $site/$name installed" >&2; exit 1; }
 done
 
-step "acq --version, a --help"
+step "acq --version, every command's --help"
 "$acq" --version
-"$acq" record --help > /dev/null
+for cmd in demo "sim render" "sim scanner" "sim camera" "probe scanner" "probe camera" record \
+    info replay colorize "calibrate fisheye" "calibrate extrinsic" "calibrate time-offset" \
+    "calibrate validate" "analyze sensitivity" devices; do
+  # shellcheck disable=SC2086
+  "$acq" $cmd --help > /dev/null || { echo "wheel smoke: acq $cmd --help failed" >&2; exit 1; }
+done
 
 step "acq demo --seconds 2"
 "$acq" demo --seconds 2 --out demo > demo.txt || { cat demo.txt; exit 1; }
@@ -51,6 +56,14 @@ step "acq demo --seconds 2"
 step "acq colorize on the demo's log"
 "$acq" colorize demo/demo.mcap --calib demo/calib.yaml -o drive.las --no-preview > /dev/null
 [ -s drive.las ]
+
+step "acq sim render, acq calibrate fisheye on its frame, acq analyze sensitivity"
+"$acq" sim render --out render > /dev/null
+"$acq" calibrate fisheye render/frame.png --fov 185 -o fisheye.yaml > /dev/null
+[ -s fisheye.yaml ]
+"$acq" analyze sensitivity --calib demo/calib.yaml demo/demo.mcap -o sensitivity > /dev/null
+[ -s sensitivity/sensitivity.json ]
+"$acq" devices > /dev/null
 
 step "acq record for 2 s with the default configuration, against acq sim"
 ready() {  # a simulator's first line says where it serves
@@ -63,6 +76,7 @@ pids+=($!)
 "$acq" sim camera --listen http://127.0.0.1:8080/stream.mjpg > camera.log 2>&1 &
 pids+=($!)
 ready scanner.log && ready camera.log
+"$acq" probe scanner --driver hokuyo --url socket://127.0.0.1:10940 --count 2 > /dev/null
 "$acq" record --duration 2
 "$acq" info logs/*.mcap > info.txt || { cat info.txt; exit 1; }
 grep -q '/laser/scan' info.txt && grep -q '/camera/image/compressed' info.txt

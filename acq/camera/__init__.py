@@ -1,7 +1,7 @@
 """Cameras: the models (equidistant, Kannala-Brandt, pinhole), calib.yaml that describes a
 rig's cameras and their poses, and the projection core.
 
-``acq.camera.camera_models`` (the name ARCHITECTURE.md's API uses) is this package.
+``from acq import camera_models`` (the name ARCHITECTURE.md's API uses) gives this package.
 """
 
 from __future__ import annotations

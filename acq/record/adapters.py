@@ -108,8 +108,8 @@ class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
         counts = _Counts(state.received, state.dropped)
         if not scan.device_ticks:
             return (_ScanItem(scan, scan.recv_ns - round(state.latency_s * 1e9), 0, 0, counts),)
-        state.last_tick = scan.device_ticks[0]
         clock.update(scan.device_ticks[0], scan.recv_ns)
+        state.stamped(scan.device_ticks[0])
         if self._tm_samples and clock.updates in (1, 40, 400):  # at once, then refined
             self._apply_latency_bounds(clock)
         geometry = self.device.geometry
@@ -320,6 +320,7 @@ class _FixItem:
     fix: Fix
     stamp_ns: int  # the fix instant on the host clock
     tick: int  # the fix time as UTC µs (GNSS_TICK_HZ)
+    epoch: int  # the clock's epoch when the fix came (the writer's turn may be later)
     counts: _Counts
 
 
@@ -366,14 +367,15 @@ class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
         if fix.quality > 0:  # without a fix a receiver's time may be its RTC's guess
             epoch = clock.epoch
             clock.update(tick, fix.recv_ns)
-            state.last_tick = tick
+            state.stamped(tick)
             if clock.epoch != epoch:
                 state.event("clock_reset", "the receiver's UTC jumped: "
                             "its mapping to host time starts afresh")  # fmt: skip
         state.count(fix.recv_ns)
         mapped = clock.to_host_ns(tick) if clock.updates else fix.recv_ns
         counts = _Counts(state.received, state.dropped)
-        return (record, _FixItem(fix, mapped - round(state.latency_s * 1e9), tick, counts))
+        stamp = mapped - round(state.latency_s * 1e9)
+        return (record, _FixItem(fix, stamp, tick, clock.epoch, counts))
 
     def write(self, writer: LogWriter, payload: Sentence | _FixItem) -> None:
         if isinstance(payload, Sentence):
@@ -385,7 +387,7 @@ class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
             recv_ns=fix.recv_ns,
             device_ticks=(payload.tick,),
             unwrapped_tick=payload.tick,
-            epoch=clock.epoch if clock else 0,
+            epoch=payload.epoch,
             stamp_ns=stamp,
             offset_ns=stamp - fix.recv_ns,
             drift_ppm=clock.drift_ppm if clock else 0.0,

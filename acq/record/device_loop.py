@@ -62,7 +62,7 @@ class DeviceState:
     disconnects: int = 0
     protocol_errors: int = 0
     last_recv_ns: int = 0
-    last_tick: int | None = None  # the last raw device tick
+    offset_ns: int = 0  # host ns minus device ns at the last stamp (see stamped)
     last_event: str = ""
     clock: DeviceClock | None = None
     latency_s: float = 0.0
@@ -71,11 +71,16 @@ class DeviceState:
 
     def clock_offset_ns(self) -> int:
         """Host ns minus device ns (unwrapped ticks) at the last stamp; 0 before any."""
-        clock, tick = self.clock, self.last_tick
-        if clock is None or tick is None or clock.updates == 0:
-            return 0
-        device_ns = round(clock.unwrapper.nearest(tick) * 1e9 / clock.tick_hz)
-        return clock.to_host_ns(tick) - device_ns
+        return self.offset_ns
+
+    def stamped(self, tick: int) -> None:
+        """The device's clock has just taken ``tick`` (on the device's thread): keep the
+        offset at it for the writer's thread, which must not query the clock while the
+        device's thread updates it (a reset leaves it without a line for a moment)."""
+        clock = self.clock
+        if clock is not None and clock.updates:
+            device_ns = round(clock.unwrapper.nearest(tick) * 1e9 / clock.tick_hz)
+            self.offset_ns = clock.to_host_ns(tick) - device_ns
 
     def rate_hz(self, now_ns: int) -> float:
         # a copy first: the device's thread appends while the writer's thread reads

@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from acq.drivers.errors import ConnectionLost, ProtocolError, ReadTimeout
-from acq.errors import InputError
+from acq.errors import InputValueError
 from acq.records import CanFrame, DeviceInfo, Odometry
 
 __all__ = [
@@ -81,7 +81,7 @@ _RATE_UNITS = {
 }
 
 
-class DbcError(InputError, ValueError):
+class DbcError(InputValueError):
     """A DBC that cannot serve the configuration: unreadable, or a message, signal or
     unit the configuration needs that it lacks. The message names the file."""
 

@@ -46,7 +46,7 @@ from acq.drivers.errors import ProtocolError
 from acq.drivers.registry import DriverImportError, UnknownDriver
 from acq.drivers.scanner import SCANNERS
 from acq.drivers.scip_codec import parse_scan_echo
-from acq.errors import InputError
+from acq.errors import InputValueError
 from acq.log import LogError, LogReader, read_metadata
 from acq.record import config as configfile
 from acq.record.config import CameraConfig, Config, ScannerConfig
@@ -81,7 +81,7 @@ _NOT_REPLAYED = frozenset({"/gnss/raw"})  # raw telegrams that are not a scanner
 _IMAGE_SUFFIX = "/image/compressed"
 
 
-class ReplayError(InputError, ValueError):
+class ReplayError(InputValueError):
     """A log that cannot be replayed; ``str(e)`` is one line naming the file."""
 
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from acq.errors import InputError
+from acq.errors import InputValueError
 
 __all__ = [
     "CaptureFormatError",
@@ -45,7 +45,7 @@ _RETRANSMISSION_FLAGS = (
 _SEQ_MOD = 1 << 32
 
 
-class CaptureFormatError(InputError, ValueError):
+class CaptureFormatError(InputValueError):
     """A capture export that cannot be read; names the file and the element index."""
 
     def __init__(self, path: str | Path, index: int | None, message: str) -> None:

@@ -38,7 +38,7 @@ from pydantic import BaseModel, Field, ValidationError, field_validator, model_v
 from acq import yamlcheck
 from acq.camera import camera_models
 from acq.camera.camera_models import CameraModel
-from acq.errors import InputError
+from acq.errors import InputError, InputValueError
 from acq.geometry.transforms import Rigid
 from acq.yamlcheck import did_you_mean, fail, show
 
@@ -57,7 +57,7 @@ __all__ = [
 VERSION = 1
 
 
-class CalibFileError(InputError, ValueError):
+class CalibFileError(InputValueError):
     """A calib.yaml that cannot be used; the message names the file and the key."""
 
 

@@ -48,7 +48,7 @@ from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.summary import Summary
 from mcap_protobuf.decoder import DecoderFactory
 
-from acq.errors import InputError
+from acq.errors import InputValueError
 
 __all__ = ["LogError", "LogReader", "read_messages", "read_metadata"]
 
@@ -114,7 +114,7 @@ _RECORD_ERRORS: tuple[type[BaseException], ...] = (
 )
 
 
-class LogError(InputError, ValueError):
+class LogError(InputValueError):
     """A file that is not an MCAP log at all (missing, unreadable, bad magic)."""
 
     def __init__(self, path: str | os.PathLike[str], offset: int, reason: str) -> None:

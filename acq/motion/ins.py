@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from acq.errors import InputError
+from acq.errors import InputValueError
 from acq.geometry.geodesy import WorldFrame, ned_to_enu
 from acq.geometry.rotations import euler_from_matrices, matrices_from_euler
 from acq.motion.trajectory import Trajectory
@@ -22,7 +22,7 @@ from acq.time import gpstime
 __all__ = ["TrajectoryFileError", "from_csv", "to_csv"]
 
 
-class TrajectoryFileError(InputError, ValueError):
+class TrajectoryFileError(InputValueError):
     """A trajectory file that cannot be read; the message names the file, line and
     column."""
 

@@ -42,7 +42,7 @@ from pydantic import (
 
 from acq import yamlcheck
 from acq.drivers.registry import REGISTRIES, DriverImportError, UnknownDriver
-from acq.errors import InputError
+from acq.errors import InputValueError
 from acq.yamlcheck import describe, did_you_mean, fail, show
 
 __all__ = [
@@ -69,7 +69,7 @@ _PREFIX = re.compile(r"[A-Za-z0-9_.-]+")
 _SERIAL_SCHEMES = {"socket", "tcp", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110"}
 
 
-class ConfigError(InputError, ValueError):
+class ConfigError(InputValueError):
     """A configuration that cannot be used; ``str(e)`` is one line: file, key path, problem."""
 
 

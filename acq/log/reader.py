@@ -7,7 +7,10 @@ power lost, disk full, still being written) is read linearly, one record at a ti
 until the first record that is cut short, zero-filled or garbled: every message of a
 complete chunk before that point is returned, and the point is reported. A complete
 chunk whose CRC or compression is bad is skipped and reported, and reading goes on
-after it (its length is known, so the records after it are still framed).
+after it (its length is known, so the records after it are still framed). Skipped chunks
+are also logged, one WARNING line per file naming their times and the messages lost, once
+per process (a command that reads a file several times says it once); :func:`quiet`
+leaves that to a caller that reports the damage itself (``acq info``).
 
 Messages are decoded from the schemas stored in the file, never from our own
 generated classes, so older logs with fewer fields still read: :meth:`LogReader.decode`
@@ -18,13 +21,18 @@ Times are integer nanoseconds of the host clock (MCAP ``log_time``).
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import io
+import logging
 import os
 import struct
+import threading
 import zlib
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, TypeVar
 
@@ -37,10 +45,12 @@ from mcap.records import (
     Attachment,
     Channel,
     Chunk,
+    ChunkIndex,
     Footer,
     Header,
     McapRecord,
     Message,
+    MessageIndex,
     Metadata,
     Schema,
 )
@@ -50,7 +60,17 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from acq.errors import InputValueError
 
-__all__ = ["LogError", "LogReader", "read_messages", "read_metadata"]
+__all__ = [
+    "LogError",
+    "LogReader",
+    "first_log_time",
+    "locate",
+    "quiet",
+    "read_messages",
+    "read_metadata",
+]
+
+log = logging.getLogger(__name__)
 
 MAGIC = b"\x89MCAP0\r\n"
 _HEADER = 9  # opcode (1) + record length (8), bytes
@@ -124,6 +144,46 @@ class LogError(InputValueError):
         super().__init__(f"{self.path}: {reason} (byte {offset})")
 
 
+@dataclass
+class _Skipped:
+    """A corrupt chunk skipped: its record's byte offset, its messages' first and last log
+    times (ns; None: unknown) and how many there were (None: unknown)."""
+
+    at: int
+    start_ns: int | None = None
+    end_ns: int | None = None
+    messages: int | None = None
+
+
+_REPORTED: set[tuple[str, int]] = set()  # (file, chunk offset) already logged here
+_REPORTED_LOCK = threading.Lock()
+_QUIET: contextvars.ContextVar[bool] = contextvars.ContextVar("acq_log_quiet", default=False)
+
+
+@contextlib.contextmanager
+def quiet() -> Iterator[None]:
+    """Within it, the logs read log no warning for their corrupt chunks: for a caller that
+    reports :meth:`LogReader.problem` itself."""
+    token = _QUIET.set(True)
+    try:
+        yield
+    finally:
+        _QUIET.reset(token)
+
+
+def _index_messages(data: bytes) -> int:
+    """How many messages the MessageIndex records in ``data`` list."""
+    pos, n = 0, 0
+    while pos + _HEADER <= len(data):
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        body = pos + _HEADER
+        if opcode == Opcode.MESSAGE_INDEX and length >= 6 and body + 6 <= len(data):
+            (entries,) = struct.unpack_from("<I", data, body + 2)  # after the channel id
+            n += entries // 16  # (log time, offset) pairs
+        pos = body + length
+    return n
+
+
 def _check_magic(path: Path) -> int:
     """File size in bytes, after checking that ``path`` starts with the MCAP magic."""
     try:
@@ -183,6 +243,8 @@ class LogReader:
         self.footer_at: int | None = None  # a footer the linear pass reached, byte offset
         self.metadata: list[Metadata] = []
         self.attachments = 0
+        self.skipped: list[_Skipped] = []  # the corrupt chunks skipped
+        self._start_ns: int | None = None  # the file's first log time, for the warning
         self._factory = DecoderFactory()  # per file: it caches message classes by schema id
         self._decoders: dict[int, Decoder | None] = {}  # by channel id; None: undecodable
 
@@ -211,15 +273,48 @@ class LogReader:
         """Header, Schema, Channel, Message, Metadata and Attachment records in file order
         (a closed file's schemas, channels, metadata and attachments first, from its
         summary and index)."""
-        with self.path.open("rb") as f:
-            summary = self._closed_summary(f)
-            if summary is not None and summary.chunk_indexes:
-                self.closed = True
-                yield from self._indexed(f, summary)
+        try:
+            with self.path.open("rb") as f:
+                summary = self._closed_summary(f)
+                if summary is not None and summary.chunk_indexes:
+                    self.closed = True
+                    yield from self._indexed(f, summary)
+                else:
+                    self.closed = summary is not None
+                    f.seek(len(MAGIC))
+                    yield from self._linear(f)
+        finally:  # also when the caller stops early: what was skipped until then
+            self._report_skipped()
+
+    def _report_skipped(self) -> None:
+        """One WARNING line for the corrupt chunks skipped that this process has not
+        reported yet (unless :func:`quiet`)."""
+        if not self.skipped or _QUIET.get():
+            return
+        key = str(self.path.resolve())
+        with _REPORTED_LOCK:
+            new = [s for s in self.skipped if (key, s.at) not in _REPORTED]
+            _REPORTED.update((key, s.at) for s in new)
+        if not new:
+            return
+        start = self._start_ns
+        where = []
+        for s in new[:3]:
+            if start is not None and s.start_ns is not None and s.end_ns is not None:
+                where.append(
+                    f"{(s.start_ns - start) * 1e-9:.1f}..{(s.end_ns - start) * 1e-9:.1f} s"
+                )
             else:
-                self.closed = summary is not None
-                f.seek(len(MAGIC))
-                yield from self._linear(f)
+                where.append(f"at byte {s.at}")
+        text = ", ".join(where) + (f" and {len(new) - 3} more" if len(new) > 3 else "")
+        if any(w.endswith(" s") for w in where):
+            text += " into the file"
+        known = [s.messages for s in new if s.messages is not None]
+        if known:
+            least = "" if len(known) == len(new) else "at least "
+            text += f", {least}{sum(known)} messages lost"
+        chunks = "chunk" if len(new) == 1 else "chunks"
+        log.warning("%s: %d corrupt %s skipped (%s)", self.path, len(new), chunks, text)
 
     def messages(self) -> Iterator[tuple[Schema | None, Channel, Message]]:
         """(schema, channel, message) of every readable message, in file order."""
@@ -322,6 +417,8 @@ class LogReader:
             return None
         if summary is not None and summary.statistics is not None:
             self.expected_messages = summary.statistics.message_count
+            if summary.statistics.message_count:
+                self._start_ns = summary.statistics.message_start_time
         return summary
 
     def _indexed(self, f: IO[bytes], summary: Summary) -> Iterator[McapRecord]:
@@ -339,11 +436,14 @@ class LogReader:
         yield from extras
         count = 0
         lo, hi = self.log_time or (-1, 2**64)
+        by_start = {index.chunk_start_offset: index for index in summary.chunk_indexes}
         starts = sorted(
             index.chunk_start_offset
             for index in summary.chunk_indexes
             if index.message_end_time >= lo and index.message_start_time <= hi
         )
+        if self._start_ns is None and summary.chunk_indexes:
+            self._start_ns = min(i.message_start_time for i in summary.chunk_indexes)
         # each chunk read here, decompressed and parsed on a thread two chunks ahead of
         # the caller (the decompression and its CRC run without the GIL)
         with ThreadPoolExecutor(max_workers=1) as pool:
@@ -369,6 +469,15 @@ class LogReader:
                     inner = done.result()
                 except _RECORD_ERRORS as e:
                     self.notes.append(f"corrupt chunk at byte {at} skipped ({e})")
+                    index = by_start[at]
+                    self.skipped.append(
+                        _Skipped(
+                            at,
+                            index.message_start_time,
+                            index.message_end_time,
+                            self._indexed_messages(f, index),
+                        )
+                    )
                     continue
                 for rec in inner:
                     if isinstance(rec, Message):
@@ -381,6 +490,17 @@ class LogReader:
             self.notes.append(
                 f"the summary counts {self.expected_messages} messages, the chunks hold {count}"
             )
+
+    @staticmethod
+    def _indexed_messages(f: IO[bytes], index: ChunkIndex) -> int | None:
+        """How many messages a chunk held, from its message index records (None: none)."""
+        if not index.message_index_length:
+            return None
+        try:
+            f.seek(index.chunk_start_offset + index.chunk_length)
+            return _index_messages(f.read(index.message_index_length))
+        except (OSError, struct.error):
+            return None
 
     @staticmethod
     def _chunk_records(chunk: Chunk, messages_only: bool = False) -> list[McapRecord]:
@@ -400,6 +520,7 @@ class LogReader:
         StreamReader parse each complete record."""
         pos = len(MAGIC)
         size = self.size
+        lost: _Skipped | None = None  # a corrupt chunk whose message index records follow
         while True:
             self.bytes_read = pos
             if pos == size:
@@ -437,6 +558,8 @@ class LogReader:
             except _RECORD_ERRORS as e:
                 if opcode == Opcode.CHUNK:
                     self.notes.append(f"corrupt chunk at byte {pos} skipped ({e})")
+                    self.skipped.append(_Skipped(pos))
+                    lost = None
                     pos += _HEADER + length
                     continue
                 self.stop = f"corrupt {_record_name(opcode)} record at byte {pos}: {e}"
@@ -456,12 +579,23 @@ class LogReader:
                     self.footer_at = pos
                     self.stop = self.stop or "no valid summary"
                 return
+            if isinstance(record, MessageIndex):
+                if lost is not None:
+                    lost.messages = (lost.messages or 0) + len(record.records)
+            else:
+                lost = None
             if isinstance(record, Chunk):
+                if self._start_ns is None:
+                    self._start_ns = record.message_start_time
                 try:
                     yield from self._chunk_records(record)
                 except _RECORD_ERRORS as e:
                     self.notes.append(f"corrupt chunk at byte {pos} skipped ({e})")
+                    lost = _Skipped(pos, record.message_start_time, record.message_end_time)
+                    self.skipped.append(lost)
             elif isinstance(record, Header | Schema | Channel | Message | Metadata | Attachment):
+                if isinstance(record, Message) and self._start_ns is None:
+                    self._start_ns = record.log_time
                 yield record
             pos += _HEADER + length
 
@@ -497,3 +631,38 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
         for _ in reader.messages():
             pass
         return {m.name: dict(m.metadata) for m in reader.metadata}
+
+
+def first_log_time(path: str | os.PathLike[str]) -> int | None:
+    """The log time of a log's first message, ns (None: it has none readable): from the
+    summary's statistics when the file is closed, else its first readable message."""
+    reader = LogReader(path)
+    with reader.path.open("rb") as f:
+        summary = reader._closed_summary(f)
+    if reader._start_ns is not None and summary is not None:
+        return reader._start_ns
+    for _, _, message in reader.messages():  # the pass ends here, its file closed
+        return message.log_time
+    return None
+
+
+def locate(paths: Sequence[str | os.PathLike[str]], log_time_ns: int) -> str:
+    """Where a log time lies in a log or in the files of a session (in their order):
+    "log time T s, S s into FILE" (T, S seconds)."""
+    files = [Path(p) for p in paths]
+    found, start = files[0] if files else None, None
+    for path in files:
+        try:
+            first = first_log_time(path)
+        except LogError:
+            continue
+        if first is not None and (first <= log_time_ns or start is None):
+            found, start = path, first
+        if first is not None and first > log_time_ns:
+            break
+    where = f"log time {log_time_ns * 1e-9:.3f} s"
+    if found is None:
+        return where
+    if start is None:
+        return f"{where} in {found}"
+    return f"{where}, {(log_time_ns - start) * 1e-9:.2f} s into {found}"

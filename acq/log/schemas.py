@@ -422,6 +422,7 @@ class DeviceStatus:
     clock_drift_ppm: float = 0.0
     clock_uncertainty_s: float = math.nan
     epoch: int = 0
+    odd_size: int = 0  # frames of another size than expected, recorded and flagged (cameras)
 
 
 _DEVICE_STATUS_KEYS = frozenset(f.name for f in fields(DeviceStatus))

@@ -1,5 +1,6 @@
 """What ``acq info`` tells about logs: per channel counts, rates and gaps, per device
-drops, disconnects and clock-sync quality, whether the file was closed, as tables or JSON.
+drops, disconnects and clock-sync quality, frames of an unexpected size, whether the file
+was closed, as tables or JSON.
 
 All times are integer nanoseconds of the host clock (MCAP ``log_time``) unless a name
 says otherwise (``_s`` seconds, ``_ms`` milliseconds, ``_hz`` hertz).
@@ -20,7 +21,7 @@ from typing import Any
 import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 
-from acq.log.reader import LogReader
+from acq.log.reader import LogReader, quiet
 from acq.time.utc import utc_ns
 
 __all__ = ["ChannelInfo", "DeviceSync", "LogInfo", "format_info", "info", "info_many"]
@@ -85,7 +86,9 @@ class LogInfo:
     ``start_realtime_ns`` is UTC ns of ``start_ns``, from the ``/acq/clock`` pairs.
     ``drops`` and ``disconnects`` come from the last ``/acq/status`` (the counters of
     ``/acq/timing`` for devices it does not list). ``problem`` says, in one line, what is
-    wrong with the file (not closed, corrupt chunks), or is None.
+    wrong with the file (not closed, corrupt chunks), or is None. ``odd_size``: per
+    camera, the frames of another size than expected, recorded and flagged (from the last
+    ``/acq/status``; an older log's status has no such count: none listed).
     """
 
     path: Path
@@ -106,6 +109,7 @@ class LogInfo:
     metadata: dict[str, dict[str, str]]
     attachments: int
     problem: str | None
+    odd_size: dict[str, int] = field(default_factory=dict)
 
 
 # --- summarising --------------------------------------------------------------------
@@ -226,6 +230,16 @@ class _Acc:
             )
         return out
 
+    def odd_size(self) -> dict[str, int]:
+        """Per device of the last status: its frames of an unexpected size, when any."""
+        out: dict[str, int] = {}
+        status_devices = _field(self.status, "devices") if self.status is not None else None
+        for dev in status_devices or []:
+            name, n = _field(dev, "name"), _field(dev, "odd_size")
+            if name and n:
+                out[str(name)] = int(n)
+        return out
+
     def devices(self) -> tuple[list[DeviceSync], dict[str, int], dict[str, int]]:
         drops: dict[str, int] = {}
         disconnects: dict[str, int] = {}
@@ -304,6 +318,7 @@ def _result(
         metadata=acc.metadata,
         attachments=acc.attachments,
         problem=problem,
+        odd_size=acc.odd_size(),
     )
 
 
@@ -323,11 +338,12 @@ def info_many(paths: Iterable[str | os.PathLike[str]]) -> list[LogInfo]:
     out: list[LogInfo] = []
     for reader in readers:
         acc = _Acc()
-        for schema, channel, message in reader.messages():
-            wanted = _decode_topic(channel.topic)
-            decoded = reader.decode(schema, channel, message) if wanted else None
-            acc.add(schema, channel, message, decoded)
-            session.add(schema, channel, message, decoded)
+        with quiet():  # the damage is in the summary's problem
+            for schema, channel, message in reader.messages():
+                wanted = _decode_topic(channel.topic)
+                decoded = reader.decode(schema, channel, message) if wanted else None
+                acc.add(schema, channel, message, decoded)
+                session.add(schema, channel, message, decoded)
         for record in reader.metadata:
             acc.add_metadata(record)
             session.add_metadata(record)
@@ -451,6 +467,9 @@ def _format_one(i: LogInfo) -> list[str]:
                 f"  {_opt(d.drift_ppm, '.2f'):>9}  {_opt(d.offset_spread_ms, '.3f'):>16}"
                 f"  {unc:>19}  {res:>25}"
             )
+    if i.odd_size:
+        counts = ", ".join(f"{name} {n}" for name, n in i.odd_size.items())
+        lines.append(f"  warning: frames of an unexpected size (recorded, flagged): {counts}")
     return lines
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import logging
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -28,6 +29,7 @@ from acq.geometry.rotations import (
 from acq.geometry.transforms import Rigid
 from acq.sim.world import default_rig
 from tests.cli_calls import analyze_sensitivity
+from tests.log_rewrite import corrupt_chunk, rewrite
 
 
 def _rig_params() -> tuple[np.ndarray, CameraCalib]:
@@ -235,6 +237,18 @@ def test_main_sensitivity_json_and_bad_input(
     far = tmp_path / "far.yaml"
     calibfile.save(Calibration(cameras={"camera": CameraCalib(cam.model, away)}), far)
     assert analyze_sensitivity(far, [log], tmp_path / "f", 2.0, 10.0, False) == 1
+
+
+def test_main_sensitivity_says_it_skipped_a_corrupt_chunk(
+    rig_files: tuple[Path, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    calib, log = rig_files
+    [copy], _ = rewrite([log], tmp_path, chunk_size=1 << 18)
+    corrupt_chunk(copy, 1)
+    with caplog.at_level(logging.WARNING):
+        assert analyze_sensitivity(calib, [copy], tmp_path / "out", 2.0, 10.0, True) == 0
+    [line] = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert line.startswith(f"{copy}: 1 corrupt chunk skipped (") and "messages lost)" in line
 
 
 # --- sigma from the calibration's std ------------------------------------------------------

@@ -12,6 +12,7 @@ file's own chunk index.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import random
@@ -38,7 +39,17 @@ from mcap.reader import SeekingReader, make_reader
 from mcap.writer import IndexType, Writer
 from mcap_protobuf.schema import register_schema
 
-from acq.log import LogError, LogInfo, format_info, info, info_many, read_messages, repair
+from acq.log import (
+    LogError,
+    LogInfo,
+    format_info,
+    info,
+    info_many,
+    read_messages,
+    repair,
+    schemas,
+)
+from acq.log.writer import LogWriter
 
 T0 = 1_000_000_000_000  # host monotonic ns of the first message
 REALTIME0 = 1_700_000_000_000_000_000  # UTC ns at T0
@@ -473,6 +484,56 @@ def test_bad_chunk_is_skipped_and_reported(rig: Built, tmp_path: Path, closed: b
     i = info(path)
     assert i.closed is closed and i.messages == len(want)
     assert f"corrupt chunk at byte {spans[2][0]} skipped" in (i.problem or "")
+
+
+@pytest.mark.parametrize("closed", [True, False])
+def test_a_corrupt_chunk_is_one_warning_naming_the_file_its_time_and_the_loss(
+    rig: Built, tmp_path: Path, caplog: pytest.LogCaptureFixture, closed: bool
+) -> None:
+    spans = chunk_spans(rig.path)
+    data = bytearray(rig.path.read_bytes())
+    _flip_in_chunk(data, *spans[2])
+    if not closed:
+        data = data[: spans[6][1]]
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(bytes(data))
+    with caplog.at_level(logging.WARNING):
+        info(path)  # acq info says it in its summary, not in the log
+        assert not caplog.records
+        read_back(path)
+        read_back(path)  # a command reads a file several times: said once
+        list(read_messages(path, (T0 + 2 * S, T0 + 3 * S)))
+    # chunk 2 holds the messages of log time 2 s to 2.975 s (the last scan's timing)
+    assert [(r.name, r.levelno, r.getMessage()) for r in caplog.records] == [
+        ("acq.log.reader", logging.WARNING,
+         f"{path}: 1 corrupt chunk skipped (2.0..3.0 s into the file, "
+         f"{rig.chunk_sizes[2]} messages lost)"),
+    ]  # fmt: skip
+
+
+def test_info_shows_each_cameras_frames_of_an_unexpected_size(rig: Built, tmp_path: Path) -> None:
+    """From the last /acq/status (the recorder's counts); an older log's status has no
+    such field and reads as before."""
+    writer = LogWriter(tmp_path, prefix="odd")
+    writer.add_channel("/acq/status", schemas.SCHEMAS["acq.Status"])
+    for second, odd in ((1, 1), (2, 3)):
+        devices = [
+            schemas.DeviceStatus("laser", "scanner", received=40),
+            schemas.DeviceStatus("camera", "camera", received=25, odd_size=odd),
+        ]
+        status = schemas.status(timestamp_ns=second * S, uptime_s=second, devices=devices)
+        writer.write("/acq/status", status, second * S, second * S)
+    writer.close()
+    i = info(writer.files[0])
+    assert i.odd_size == {"camera": 3}
+    assert (
+        "  warning: frames of an unexpected size (recorded, flagged): camera 3"
+        in format_info(i).splitlines()
+    )
+    assert json.loads(format_info(i, json=True))[0]["odd_size"] == {"camera": 3}
+    old = info(build(tmp_path / "old.mcap", classes=_acq_classes(old=True)).path)
+    assert old.odd_size == {} and info(rig.path).odd_size == {}
+    assert "unexpected size" not in format_info(old)
 
 
 def test_footer_without_summary_is_read_linearly(tmp_path: Path) -> None:

@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from acq.camera.calibfile import Calibration
 from acq.drivers.errors import DriverError, ProtocolError
 from acq.drivers.reconnect import CameraLink, LinkEvent, Reconnecting, Relink
 from acq.drivers.registry import REGISTRIES
@@ -186,13 +187,20 @@ class _FrameItem:
 
 
 class CameraAdapter(DeviceAdapter[Frame, _FrameItem]):
-    """A camera: ``/<name>/image/compressed`` (the JPEG as sent), ``/acq/timing/<name>``."""
+    """A camera: ``/<name>/image/compressed`` (the JPEG as sent), ``/acq/timing/<name>``.
+
+    Every frame is written; one of another size than expected is also counted
+    (``state.odd_size``) and logged at the 1st, 2nd, 4th... The expected (width, height)
+    px: ``size`` (the calibration's camera model), else the format the camera announced
+    when its first frame came, else that frame's."""
 
     kind = "camera"
 
-    def __init__(self, cfg: CameraConfig) -> None:
+    def __init__(self, cfg: CameraConfig, size: tuple[int, int] | None = None) -> None:
         super().__init__(cfg.name, cfg.driver)
         self.cfg = cfg
+        self.size = size
+        self._size_from = "the calibration's camera model"
 
     def channels(self) -> list[tuple[str, str]]:
         return [
@@ -221,7 +229,26 @@ class CameraAdapter(DeviceAdapter[Frame, _FrameItem]):
         state.count(record.recv_ns)
         state.source_drops = self.device.drops
         state.corrupt = self.device.corrupt
+        self._check_size(record)
         return (_FrameItem(record, _Counts(state.received, state.dropped + state.source_drops)),)
+
+    def _check_size(self, frame: Frame) -> None:
+        """Count and log a frame of another size than expected (see the class docstring)."""
+        got = (frame.width, frame.height)
+        if self.size is None:
+            fmt = getattr(self.device, "format", None)
+            if fmt is not None and fmt.width > 0 and fmt.height > 0:
+                self.size, self._size_from = (fmt.width, fmt.height), "the camera's format"
+            else:
+                self.size, self._size_from = got, "its first frame"
+        if got == self.size:
+            return
+        state = self.state
+        state.odd_size += 1
+        n = state.odd_size
+        if n & (n - 1) == 0:  # 1, 2, 4, 8...: no flood
+            log.warning("%s: a %dx%d frame, not %dx%d as %s: recorded, flagged (%d so far)",
+                        self.name, *got, *self.size, self._size_from, n)  # fmt: skip
 
     def write(self, writer: LogWriter, payload: _FrameItem) -> None:
         frame, name = payload.frame, self.name
@@ -401,10 +428,15 @@ class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
         ])  # fmt: skip
 
 
-def adapters_for(config: Config) -> Sequence[DeviceAdapter[Any, Any]]:
-    """The adapters of a configuration's devices: scanners, cameras, CAN bus, GNSS."""
+def adapters_for(
+    config: Config, calibration: Calibration | None = None
+) -> Sequence[DeviceAdapter[Any, Any]]:
+    """The adapters of a configuration's devices: scanners, cameras, CAN bus, GNSS; a
+    camera in ``calibration`` expects frames of its model's size."""
     adapters: list[DeviceAdapter[Any, Any]] = [ScannerAdapter(s) for s in config.scanners]
-    adapters += [CameraAdapter(c) for c in config.cameras]
+    for c in config.cameras:
+        cam = calibration.cameras.get(c.name) if calibration is not None else None
+        adapters.append(CameraAdapter(c, (cam.model.width, cam.model.height) if cam else None))
     if config.can is not None:
         adapters.append(CanAdapter(config.can))
     if config.gnss is not None:

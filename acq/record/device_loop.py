@@ -68,6 +68,7 @@ class DeviceState:
     latency_s: float = 0.0
     latency_bounds_s: tuple[float, float] | None = None
     times: deque[int] = field(default_factory=lambda: deque(maxlen=256))  # recent recv ns
+    odd_size: int = 0  # frames of another size than expected (recorded, flagged)
 
     def clock_offset_ns(self) -> int:
         """Host ns minus device ns (unwrapped ticks) at the last stamp; 0 before any."""

@@ -93,7 +93,7 @@ class Recorder:
         self.outbox = Outbox(queue_size)
         if config.can is not None:
             self._check_dbc(config.can)
-        self.adapters = adapters_for(config)
+        self.adapters = adapters_for(config, self.calibration)
         self.devices: dict[str, DeviceState] = {a.name: a.state for a in self.adapters}
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -238,6 +238,7 @@ class Recorder:
                     received=d.received,
                     dropped=d.dropped + d.source_drops,
                     corrupt=d.corrupt,
+                    odd_size=d.odd_size,
                     disconnects=d.disconnects,
                     protocol_errors=d.protocol_errors,
                     gap_s=gap,

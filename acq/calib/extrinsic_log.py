@@ -22,12 +22,16 @@ From the log (:func:`acq.log.drive_log.read_log`):
    board's distance from the camera; trimmed by ``trim_m`` at each end;
 4. :func:`acq.calib.extrinsic.calibrate` on all poses.
 
+Frames of another size than the camera model's are skipped, and a WARNING says how many
+and where the first is (log time and file).
+
 Units: metres, radians unless ``_deg``; times host ns unless ``_s``.
 """
 
 from __future__ import annotations
 
 import itertools
+import logging
 import math
 import warnings
 from collections.abc import Sequence
@@ -43,6 +47,7 @@ from acq.camera.camera_models import CameraModel
 from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
 from acq.log import drive_log
+from acq.log.reader import locate
 
 __all__ = [
     "METHOD",
@@ -57,6 +62,8 @@ __all__ = [
 ]
 
 METHOD = "zhang_pless"
+
+logger = logging.getLogger(__name__)
 
 
 # --- still poses ----------------------------------------------------------------------
@@ -387,6 +394,8 @@ def poses_from_log(
     obj = spec.object_points()
     finder = CornerFinder(spec, model)
     out = []
+    size = (model.height, model.width)
+    odd: dict[int, tuple[int, int]] = {}  # frames of another size: index -> (w, h) px
     for start, end in intervals:
         s = (log.scan_ns >= start) & (log.scan_ns <= end)
         f = np.flatnonzero((log.frame_ns >= start) & (log.frame_ns <= end))
@@ -399,12 +408,20 @@ def poses_from_log(
         detections, used = [], -1
         for k in order[::step][:frames_per_pose]:
             gray = cv2.imdecode(np.frombuffer(log.jpegs[k], np.uint8), cv2.IMREAD_GRAYSCALE)
+            if gray is not None and gray.shape != size:
+                odd[int(k)] = (gray.shape[1], gray.shape[0])
+                continue
             found = None if gray is None else finder(gray)
             if found is not None:
                 detections.append(found)
                 used = int(log.frame_ns[k]) if used < 0 else used
         if not detections:
-            out.append(PoseData(start, end, -1, math.nan, None, "board not found in the image"))
+            why = (
+                "no frame of the camera model's size"
+                if all(int(k) in odd for k in order[::step][:frames_per_pose])
+                else "board not found in the image"
+            )
+            out.append(PoseData(start, end, -1, math.nan, None, why))
             continue
         uv, n_frames = average_corners(detections)
         fit = board_pose_from_corners(model, obj, uv)
@@ -424,4 +441,13 @@ def poses_from_log(
         pid = f"{(start - int(log.scan_ns[0])) * 1e-9:.2f}s"
         pose = BoardPose.from_fit(fit, pts, id=pid)
         out.append(PoseData(start, end, used, fit.rms_px, pose, frames=n_frames))
+    if odd:
+        first = min(odd, key=lambda k: int(log.frame_ns[k]))
+        recv = int(log.frame_recv_ns[first]) if first < log.frame_recv_ns.size else -1
+        sizes = ", ".join(sorted({f"{w}x{h}" for w, h in odd.values()}))
+        where = locate(log.files, recv if recv >= 0 else int(log.frame_ns[first]))
+        logger.warning(
+            "%d frames of another size (%s) than the camera model's %dx%d skipped; "
+            "the first at %s", len(odd), sizes, model.width, model.height, where,
+        )  # fmt: skip
     return out

@@ -159,6 +159,8 @@ def estimate_time_offset(
         for r, (f, image) in enumerate(
             zip(frames, decoded_frames(jpegs, jpeg_order, threads), strict=True)
         ):
+            if image is not None and image.shape[:2] != (model.height, model.width):
+                image = None  # not sampled: its pixels are not the model's (callers say so)
             n = f.points.size
             g = np.zeros((offsets_s.size, n), dtype=np.float32)
             good = np.zeros(n, dtype=bool) if image is None else np.ones(n, dtype=bool)

@@ -21,6 +21,7 @@ from acq.cloud.job import Job, remap
 from acq.cloud.points import Cloud
 from acq.geometry.transforms import Rigid
 from acq.log.drive_log import DriveLog, read_log
+from acq.log.reader import quiet
 from acq.time import sync
 
 __all__ = [
@@ -73,6 +74,8 @@ class ChunkResult:
     outside: int = 0  # points left out: outside the trajectory's span
     used_stamps: np.ndarray | None = None  # recorded stamps of the frames its points used
     seconds: dict[str, float] = field(default_factory=dict)
+    # frames of another size than the camera model's, not used: recorded stamp -> (w, h) px
+    odd_size: dict[int, tuple[int, int]] = field(default_factory=dict)
 
 
 def _margin_ns(job: Job) -> int:
@@ -132,8 +135,9 @@ def place(
 
 def colour_chunk(job: Job, chunk: Chunk, whole: DriveLog | None = None) -> ChunkResult:
     """Read, place and colour one chunk (runs in a worker process or on a Dask worker);
-    ``whole``: the log already read (then only its part is used)."""
-    with ThreadPoolExecutor(max_workers=max(1, job.threads)) as pool:
+    ``whole``: the log already read (then only its part is used). The damage its part of
+    the log may have is not logged again: reading the whole log first did."""
+    with quiet(), ThreadPoolExecutor(max_workers=max(1, job.threads)) as pool:
         return start_chunk(job, chunk, whole, pool).result()
 
 
@@ -170,6 +174,9 @@ def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) 
     usable = (
         job.trajectory.covers(frame_ns) if pose_at is not None else np.ones(frame_ns.size, bool)
     )
+    odd = views.odd_sized(log.jpegs, job.cam.model)
+    if odd:
+        usable[list(odd)] = False
     compensate = pose_at is not None and job.options.motion_compensation
     colouring = views.start_colouring(
         pts.P_world if compensate else pts.P_laser, pts.time_ns, size, frame_ns, log.jpegs,
@@ -177,7 +184,10 @@ def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) 
         pool=pool, want_uv=job.want_uv, frame_ok=usable, need=core,
     )  # fmt: skip
     seconds = {"read": t_read - t0, "place, queue": time.perf_counter() - t_read}
-    return ChunkColouring(job, chunk, log, scan_ns, core_scan, core, pts, colouring, seconds)
+    odd_size = {int(log.frame_ns[k]): size for k, size in odd.items()}
+    return ChunkColouring(
+        job, chunk, log, scan_ns, core_scan, core, pts, colouring, seconds, odd_size
+    )
 
 
 @dataclass
@@ -193,6 +203,7 @@ class ChunkColouring:
     pts: Placed
     colouring: views.Colouring
     seconds: dict[str, float]
+    odd_size: dict[int, tuple[int, int]] = field(default_factory=dict)
 
     def result(self) -> ChunkResult:
         """Wait for the chunk's frames; its points (:class:`ChunkResult`)."""
@@ -243,6 +254,7 @@ class ChunkColouring:
                 "waiting for frames": t_colour - t0,
                 "finish": time.perf_counter() - t_colour,
             },
+            odd_size=self.odd_size,
         )
 
 

@@ -24,6 +24,9 @@
    and whether it was coloured; ``--frame world`` (with a trajectory) or ``laser``; PLY
    or LAS by the output's extension; a preview PNG.
 
+Frames of another size than the camera model's are not used, and the report says how
+many and where the first is (log time and file).
+
 Steps 1-3 make the :class:`Job` (:mod:`acq.cloud.job`), step 4 is :mod:`acq.cloud.chunks`,
 step 5 :mod:`acq.cloud.writer`; this module runs them (:func:`run`: the chunks here, on
 workers or on Dask; ``--time-offset auto``; the :class:`Report`).
@@ -33,6 +36,7 @@ Times host monotonic ns unless ``_s``; metres; colours RGB.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import sys
@@ -47,6 +51,7 @@ import numpy as np
 
 from acq.calib.time_offset import OffsetEstimate, estimate_time_offset
 from acq.camera.calibfile import Calibration
+from acq.camera.camera_models import CameraModel
 from acq.cloud import views
 from acq.cloud.chunks import (
     PER_POINT,
@@ -66,6 +71,7 @@ from acq.cloud.report import Report
 from acq.cloud.writer import FORMATS, CloudWriter
 from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
+from acq.log.reader import locate
 from acq.motion import Trajectory
 
 # the pipeline's parts, as callers of `acq colorize` and its bench know them
@@ -87,6 +93,24 @@ __all__ = [
 
 READ_ONCE_BYTES = 2 * 2**30  # logs up to this size are read once, images included
 PREVIEW_POINTS = 4_000_000  # at most about this many points kept for the preview
+
+log = logging.getLogger(__name__)
+
+
+def _odd_size_note(
+    drive: DriveLog, odd: dict[int, tuple[int, int]], model: CameraModel, files: Sequence[str]
+) -> str:
+    """What was skipped: ``odd`` (recorded stamp -> (w, h) px) frames of ``drive``, not of
+    ``model``'s size; the first named by its log time (its receipt) and file."""
+    first = min(odd)
+    i = int(np.searchsorted(drive.frame_ns, first))
+    recv = int(drive.frame_recv_ns[i]) if i < drive.frame_recv_ns.size else -1
+    sizes = ", ".join(sorted({f"{w}x{h}" for w, h in odd.values()}))
+    return (
+        f"{len(odd)} frames of another size ({sizes}) than the camera model's "
+        f"{model.width}x{model.height} skipped; the first at "
+        f"{locate(files, recv if recv >= 0 else first)}"
+    )
 
 
 def _run_chunks(
@@ -189,6 +213,11 @@ def estimate_offset(
         )
     in_span = (frame_ns - job.time_offset_ns >= lo) & (frame_ns - job.time_offset_ns < hi)
     sel = np.flatnonzero(in_span)
+    odd = views.odd_sized([whole.jpegs[int(i)] for i in sel], job.cam.model)
+    if odd:
+        stamps = {int(whole.frame_ns[sel[k]]): size for k, size in odd.items()}
+        log.warning("time offset: %s", _odd_size_note(whole, stamps, job.cam.model, job.files))
+        sel = np.delete(sel, list(odd))
     return estimate_time_offset(
         pts.P_world, pts.time_ns, strength.astype(np.float64), frame_ns[sel],
         [whole.jpegs[int(i)] for i in sel], job.cam, job.laser_to_vehicle,
@@ -279,6 +308,9 @@ def run(
     report.frames, report.scans = index.n_frames, index.n_scans
     report.frames_used = frames_used(tally.used)
     report.frames_failed = tally.failed
+    if tally.odd_size:
+        report.frames_odd_size = len(tally.odd_size)
+        report.notes.append(_odd_size_note(index, tally.odd_size, job.cam.model, job.files))
     report.duration_s = float(np.ptp(scan_new)) * 1e-9 if scan_new.size else 0.0
     report.chunks = len(chunks)
     report.bytes = size
@@ -321,9 +353,11 @@ class _Tally:
     used: list[np.ndarray] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     preview: list[ChunkResult] = field(default_factory=list)
+    odd_size: dict[int, tuple[int, int]] = field(default_factory=dict)  # stamp -> (w, h)
 
     def add(self, r: ChunkResult) -> None:
         self.points += r.time_ns.size
+        self.odd_size.update(r.odd_size)
         self.coloured += int(np.count_nonzero(r.coloured))
         self.hidden += int(np.count_nonzero(r.hidden))
         self.failed += r.frames_failed

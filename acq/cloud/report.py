@@ -19,6 +19,7 @@ class Report:
     frames: int = 0
     frames_used: int = 0
     frames_failed: int = 0
+    frames_odd_size: int = 0  # of another size than the camera model's: not used
     scans: int = 0
     duration_s: float = 0.0
     frame: str = "world"

@@ -16,7 +16,9 @@ rig, which is right only for a rig standing still.
   surface covers). A point hidden in every candidate is not coloured.
 
 Points no frame sees (behind the camera, outside the image, too far in time, hidden)
-keep ``coloured = False``. Units: metres, host ns, pixels; colours RGB uint8.
+keep ``coloured = False``. A frame of another size than the camera model's is not used
+(:func:`odd_sized` finds them from their JPEG headers). Units: metres, host ns, pixels;
+colours RGB uint8.
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
 from acq.camera.camera_models import CameraModel
 from acq.camera.jpeg import decode_jpeg
+from acq.drivers.errors import ProtocolError
+from acq.drivers.mjpeg import jpeg_size
 from acq.geometry.transforms import PoseFn, Rigid
 from acq.time import sync
 
@@ -42,6 +46,7 @@ __all__ = [
     "Colouring",
     "Options",
     "occlusion_depths",
+    "odd_sized",
     "point_size",
     "start_colouring",
 ]
@@ -122,6 +127,21 @@ def occlusion_depths(
     return np.asarray(_splat(cu, cv_, depth.astype(np.float32), r.astype(np.int64), w, h))
 
 
+def odd_sized(jpegs: Sequence[bytes], model: CameraModel) -> dict[int, tuple[int, int]]:
+    """The frames of ``jpegs`` whose JPEG header gives another size than ``model``'s:
+    index -> (width, height) px (a header that does not parse is left to the decoder)."""
+    want = (model.width, model.height)
+    out: dict[int, tuple[int, int]] = {}
+    for k, jpeg in enumerate(jpegs):
+        try:
+            size = jpeg_size(jpeg)
+        except ProtocolError:
+            continue
+        if size != want:
+            out[k] = size
+    return out
+
+
 class _Rig:
     """Camera poses: ``laser_frame(P_world, t_ns)`` -> the laser frame as the rig stood
     at t (or the points as given without motion compensation)."""
@@ -195,9 +215,10 @@ class Colouring:
 
     def colour_frame(self, jpeg: bytes, idx: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:
         """Decode one frame and colour its points ``idx`` (the camera at rotation ``R``
-        and position ``t`` in the points' frame); False when it does not decode."""
+        and position ``t`` in the points' frame); False when it does not decode or is not
+        of the camera model's size."""
         image = decode_jpeg(jpeg)
-        if image is None:
+        if image is None or image.shape[:2] != (self.model.height, self.model.width):
             return False
         projection.colour_into(
             self.P, idx, self.model, (R, t), image, self.bgr, self.coloured, self.uv,

@@ -3,20 +3,26 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
+import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from acq.calib.extrinsic_log import average_corners, parse_poses, still_intervals
+from acq.calib.extrinsic_log import average_corners, parse_poses, poses_from_log, still_intervals
+from acq.calib.fisheye_calib import parse_board
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.rotations import rotation_angle
 from acq.geometry.transforms import Rigid
 from acq.log import drive_log
+from acq.log.reader import first_log_time
 from acq.sim.board_log import BoardLog, write_board_log
 from tests.cli_calls import calibrate_extrinsic
+from tests.log_rewrite import jpeg
 
 
 @pytest.fixture(scope="module")
@@ -81,6 +87,37 @@ def test_given_poses_and_a_coarse_extrinsic(
     assert "camera_to_laser" in text and png.exists()
     rot, trans = _errors(calibfile.load(out).camera().camera_to_laser, log.truth)
     assert rot < 0.5 and trans < 0.02
+
+
+def test_frames_of_another_size_are_skipped_and_said(
+    rec: tuple[BoardLog, Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    """The first hold's frames all 640x480: that pose has no frame to use; the second is
+    found as ever; one WARNING line names the count and the first frame's time and file."""
+    board, _ = rec
+    log = drive_log.read_log(board.files)
+    (a, b), second = board.holds[0], board.holds[1]
+    held = np.flatnonzero((log.frame_ns >= a) & (log.frame_ns <= b))
+    odd = jpeg(640, 480)
+    log = replace(log, jpegs=[odd if k in held else j for k, j in enumerate(log.jpegs)])
+    model = board.calibration.camera("camera").model
+    with caplog.at_level(logging.WARNING):
+        first, ok = poses_from_log(log, model, parse_board(board.spec), [(a, b), second])
+    assert first.pose is None and first.problem == "no frame of the camera model's size"
+    assert ok.pose is not None and ok.problem == ""
+    [line] = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    # 10 frames a pose are tried; this log has no timing records: the frames' stamps
+    found = re.fullmatch(
+        r"10 frames of another size \(640x480\) than the camera model's 780x582 skipped; "
+        r"the first at log time (\d+\.\d{3}) s, (-?\d+\.\d{2}) s into (.+)",
+        line,
+    )
+    assert found is not None, line
+    t = float(found[1])
+    assert min(abs(log.frame_ns[held] * 1e-9 - t)) < 1e-3
+    start = (first_log_time(board.files[0]) or 0) * 1e-9
+    assert float(found[2]) == pytest.approx(t - start, abs=0.01)
+    assert found[3] == str(board.files[0])
 
 
 def test_average_corners_aligns_and_drops_a_moved_board() -> None:

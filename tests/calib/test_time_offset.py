@@ -5,6 +5,7 @@ configuration gets 10 ms wrong."""
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,9 @@ from acq.calib.time_offset import mutual_information
 from acq.camera import calibfile
 from acq.cli import main as acq_main
 from acq.cloud.colorize import run
+from acq.log.reader import first_log_time
 from acq.sim.drive_log import DriveTruth, write_drive_log
+from tests.log_rewrite import corrupt_chunk, jpeg, rewrite
 
 
 def _true_error(truth: DriveTruth) -> float:
@@ -141,3 +144,30 @@ def test_bad_input_is_one_line_and_exit_2(
         acq_main(["colorize", str(truth.files[0]), "--calib", str(calib), "-o", "x.ply",
                   "--time-offset", "soon"])  # fmt: skip
     assert "expected seconds or 'auto'" in capsys.readouterr().err
+
+
+def test_frames_of_another_size_and_a_corrupt_chunk_are_skipped_and_said(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """One WARNING line each: the corrupt chunk (the log is read twice: said once), the
+    frames of another size with the first one's time and file; the estimate is made."""
+    truth, calib = drive
+    odd = jpeg(640, 480)
+    files, times = rewrite(truth.files, tmp_path, frames={30: odd, 45: odd}, chunk_size=1 << 20)
+    lo, hi, _ = corrupt_chunk(files[0], -1)  # after the odd frames
+    assert times[45] < lo
+    argv = ["calibrate", "time-offset", *map(str, files), "--calib", str(calib),
+            "-o", str(tmp_path / "calib.yaml"), "--frames", "60"]  # fmt: skip
+    with caplog.at_level(logging.WARNING):
+        assert acq_main(argv) == 0
+    first = first_log_time(files[0]) or 0
+    corrupt, sizes = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert corrupt.startswith(
+        f"{files[0]}: 1 corrupt chunk skipped "
+        f"({(lo - first) * 1e-9:.1f}..{(hi - first) * 1e-9:.1f} s into the file, "
+    ) and corrupt.endswith(" messages lost)")
+    assert sizes == (
+        "time offset: 2 frames of another size (640x480) than the camera model's 780x582 "
+        f"skipped; the first at log time {times[30] * 1e-9:.3f} s, "
+        f"{(times[30] - first) * 1e-9:.2f} s into {files[0]}"
+    )

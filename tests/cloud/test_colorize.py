@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import logging
 from pathlib import Path
 
 import laspy
@@ -17,7 +18,9 @@ from acq.cloud import colorize
 from acq.cloud.colorize import plan, run
 from acq.cloud.views import Options
 from acq.log import drive_log
+from acq.log.reader import first_log_time
 from acq.sim.drive_log import DriveTruth, write_drive_log
+from tests.log_rewrite import corrupt_chunk, jpeg, rewrite
 
 
 @pytest.fixture(scope="module")
@@ -171,6 +174,43 @@ def test_bad_input_is_one_line_and_exit_2(
     junk.write_bytes(b"not an mcap file")
     assert acq_main(_args(str(junk), "--calib", str(calib), "-o", str(tmp_path / "j.ply"))) == 2
     assert "junk.mcap" in capsys.readouterr().err
+
+
+def test_frames_of_another_size_are_skipped_with_a_count_naming_the_first(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two frames of a camera that sent 640x480 among its 780x582 ones: the others colour
+    the cloud, and the report says how many were skipped and where the first is."""
+    truth, calib = drive
+    odd = jpeg(640, 480)
+    files, times = rewrite(truth.files, tmp_path, frames={20: odd, 41: odd})
+    out = tmp_path / "c.ply"
+    argv = _args(*map(str, files), "--calib", str(calib), "-o", str(out), "--no-preview")
+    assert acq_main(argv) == 0
+    text = capsys.readouterr().out
+    v = PlyData.read(str(out))["vertex"].data
+    assert len(v) > 10_000 and 0.2 < v["coloured"].mean() < 0.9
+    into = (times[20] - (first_log_time(files[0]) or 0)) * 1e-9
+    assert (
+        "note: 2 frames of another size (640x480) than the camera model's 780x582 skipped; "
+        f"the first at log time {times[20] * 1e-9:.3f} s, {into:.2f} s into {files[0]}"
+    ) in text.splitlines(), text
+
+
+def test_a_corrupt_chunk_is_skipped_with_one_warning(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    truth, calib = drive
+    files, _ = rewrite(truth.files, tmp_path, chunk_size=1 << 20)
+    *_, chunks = corrupt_chunk(files[0], 1)
+    assert chunks >= 3
+    out = tmp_path / "c.ply"
+    with caplog.at_level(logging.WARNING):
+        argv = _args(*map(str, files), "--calib", str(calib), "-o", str(out), "--no-preview")
+        assert acq_main(argv) == 0
+    assert len(PlyData.read(str(out))["vertex"].data) > 10_000
+    [line] = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert line.startswith(f"{files[0]}: 1 corrupt chunk skipped (") and "messages lost)" in line
 
 
 def _pixel_errors(truth: DriveTruth, results: list) -> np.ndarray:

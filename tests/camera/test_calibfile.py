@@ -146,6 +146,15 @@ def test_unknown_key_names_path_and_suggests(tmp_path: Path) -> None:
             lambda d: d["cameras"]["camera"].update(cx=10**400),
             r"cameras\.camera\.cx: expected a number, got 1000",
         ),
+        (
+            lambda d: d["cameras"]["camera"].update(time_offset_s="1e12"),  # YAML 1.1: text
+            r"time_offset_s: expected a number, got '1e12' \(text to YAML; write "
+            r"1000000000000\.0 for the number\)$",
+        ),
+        (
+            lambda d: d["cameras"]["camera"].update(fx="1e308"),
+            r"fx: expected a number, got '1e308' \(text to YAML; write 1\.0e\+308 for the",
+        ),
     ],
 )
 def test_bad_values_are_reported_with_their_path(

@@ -11,6 +11,7 @@ did-you-mean for an unknown key). Each caller raises its own error class with th
 from __future__ import annotations
 
 import difflib
+import math
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -127,6 +128,23 @@ _BOUNDS = {
 }
 
 
+def _number_hint(kind: str, value: Any) -> str:
+    """For a number YAML read as text (YAML 1.1 wants a dot: ``1e12`` is a string), how
+    to write it."""
+    if kind not in ("float_type", "int_type") or not isinstance(value, str):
+        return ""
+    try:
+        number = float(value)
+    except ValueError:
+        return ""
+    if not math.isfinite(number) or (kind == "int_type" and not number.is_integer()):
+        return ""
+    text = str(int(number)) if kind == "int_type" else repr(number)
+    if "e" in text and "." not in text:
+        text = text.replace("e", ".0e")
+    return f" (text to YAML; write {text} for the number)"
+
+
 def describe(err: ErrorDetails, keys: list[str]) -> str:
     """A pydantic error in plain words; ``keys``: those allowed beside an unknown one."""
     kind = err["type"]
@@ -141,13 +159,15 @@ def describe(err: ErrorDetails, keys: list[str]) -> str:
     if kind == "missing":
         return "required key missing"
     if kind in _TYPES:
-        return _TYPES[kind] + got
+        return _TYPES[kind] + got + _number_hint(kind, err.get("input"))
     if kind == "literal_error":
         expected = str(ctx.get("expected", "")).replace("'", "").replace(" or ", ", ")
         return f"expected one of: {expected}{got}"
     if kind in _BOUNDS:
         bound = next(iter(ctx.values()), "?")
-        shown = f"{bound:g}" if isinstance(bound, int | float) else bound
+        shown = (
+            bound if isinstance(bound, int) else f"{bound:g}" if isinstance(bound, float) else bound
+        )
         return f"must be {_BOUNDS[kind]} {shown}{got}"
     if kind == "string_too_short":
         return "must not be empty"

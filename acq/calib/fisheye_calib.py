@@ -92,14 +92,15 @@ def update_calibration(
 
     ``std``: the intrinsics' standard deviations (its fx, fy, cx, cy, k; none if None),
     which replace the old ones. The camera's extrinsics, their std and time offset, the
-    other cameras and the laser entries are kept. ``camera`` None: the file's only camera,
-    or ``camera`` for a new file. Returns the calibration, the camera's name and notes for
+    other cameras and the laser entries are kept; a new camera has no ``camera_to_laser``
+    (``acq calibrate extrinsic`` adds it). ``camera`` None: the file's only camera, or
+    ``camera`` for a new file. Returns the calibration, the camera's name and notes for
     the user. Raises CalibFileError.
     """
     intr = (std or CalibStd()).merged(CalibStd(), CalibStd.EXTRINSICS)
     notes: list[str] = []
     if path.exists():
-        old = calibfile.load(path)
+        old = calibfile.load(path, intrinsics_only=True)
         if camera is None:
             if len(old.cameras) != 1:
                 raise CalibFileError(
@@ -109,7 +110,7 @@ def update_calibration(
         cameras = dict(old.cameras)
         prev = cameras.get(camera)
         if prev is None:
-            entry = CameraCalib(model, method=method, std=intr)
+            entry = CameraCalib(model, None, method=method, std=intr)
             notes.append(f"camera {camera!r} added to {path}")
         else:
             size = (prev.model.width, prev.model.height)
@@ -119,12 +120,12 @@ def update_calibration(
                     f"{model.width}x{model.height}; check its extrinsics"
                 )
             kept = prev.std.merged(intr, CalibStd.INTRINSICS)
-            entry = CameraCalib(model, prev.camera_to_laser, prev.time_offset_s, method, kept)
+            entry = CameraCalib(model, prev.extrinsics, prev.time_offset_s, method, kept)
         cameras[camera] = entry
         calib = Calibration(old.laser, cameras, old.laser_to_vehicle)
     else:
         camera = camera or "camera"
-        calib = Calibration(cameras={camera: CameraCalib(model, method=method, std=intr)})
+        calib = Calibration(cameras={camera: CameraCalib(model, None, method=method, std=intr)})
     return calib, camera, notes
 
 
@@ -405,17 +406,27 @@ def model_gap_px(a: KannalaBrandt, b: KannalaBrandt, theta_max: float) -> float:
 
 
 def read_images(paths: Sequence[Path]) -> list[np.ndarray]:
-    """The images as stored (grey or BGR uint8); ValueError naming an unreadable file."""
+    """The images as stored (grey or BGR uint8, 16-bit scaled down, alpha dropped);
+    InputValueError naming a file that is not an 8- or 16-bit grey or colour image."""
     images = []
     for p in paths:
-        if not Path(p).is_file():
+        path = Path(p)
+        if path.is_dir():
+            raise InputValueError(f"{p}: a directory, not an image")
+        if not path.is_file():
             raise InputValueError(f"{p}: no such file")
         img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-        if img is None:
+        if img is None or img.size == 0:
             raise InputValueError(f"{p}: cannot read as an image")
         if img.dtype == np.uint16:
             img = (img / 257.0).astype(np.uint8)
-        if img.ndim == 3 and img.shape[2] == 4:
-            img = img[:, :, :3]
+        if img.dtype != np.uint8:
+            raise InputValueError(f"{p}: {img.dtype} pixels; expected an 8- or 16-bit image")
+        if img.ndim == 3 and img.shape[2] in (2, 4):  # grey or colour with alpha
+            img = img[:, :, : img.shape[2] - 1]
+        if img.ndim == 3 and img.shape[2] == 1:
+            img = img[:, :, 0]
+        if img.ndim != 2 and not (img.ndim == 3 and img.shape[2] == 3):
+            raise InputValueError(f"{p}: {img.shape} pixels; expected a grey or colour image")
         images.append(img)
     return images

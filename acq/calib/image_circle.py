@@ -25,6 +25,9 @@ The black level and noise are measured on the image border, not assumed zero, an
 disc threshold sits a few noise sigmas above it, so the paper's threshold estimators move
 little with noise; they still move with vignetting and soft edges (a threshold meets a
 faded rim further in or out), which the gradient-based sub-pixel estimator does not.
+
+An image with no image circle (an ordinary photograph, a uniform or black frame, one too
+small) raises :class:`ImageCircleError` naming the image and saying what is missing.
 """
 
 from __future__ import annotations
@@ -39,12 +42,15 @@ import numpy as np
 import numpy.typing as npt
 
 from acq.calib.circle_fit import ImageCircle, fit_conic, refine_fit, robust_fit
+from acq.errors import InputError
 
 __all__ = [
     "ESTIMATORS",
+    "MIN_SIDE_PX",
     "CircleResult",
     "EdgePoints",
     "Estimate",
+    "ImageCircleError",
     "RayEdges",
     "barycentre",
     "black_level",
@@ -58,6 +64,14 @@ __all__ = [
 ]
 
 ESTIMATORS = ("barycentre", "canny_fit", "hough", "subpixel")
+MIN_SIDE_PX = 32
+"""The smallest image width and height that can hold an image circle, px."""
+_DARK_DN = 48.0  # a border darker than this is black: the image shows nothing
+
+
+class ImageCircleError(InputError):
+    """Images in which no fisheye image circle is found, or that cannot go together; the
+    message names the image and says why."""
 
 
 @dataclass(frozen=True)
@@ -429,7 +443,10 @@ def subpixel(
     for i in range(passes):
         rays = ray_edges(gray, circle, black, noise, n_rays, window_px=None if i == 0 else 6.0)
         if len(rays.points) < 8:
-            raise ValueError(f"only {len(rays.points)} rays found the rim")
+            raise ValueError(
+                f"only {len(rays.points)} of {rays.cast} rays from the centre of its edges "
+                "found a rim (a sharp fall to a dark surround)"
+            )
         circle, inl, res, sigma = robust_fit(rays.points, ellipse, 1.5, rng)
     rms = float(np.sqrt(np.mean(res[inl] ** 2)))
     est = Estimate("subpixel", circle, int(inl.sum()), rms, sigma)
@@ -453,18 +470,98 @@ def _largest_gap_deg(points: np.ndarray, centre: ImageCircle) -> float:
     return float(gaps.max())
 
 
-def detect(images: Sequence[np.ndarray], ellipse: bool = False, n_rays: int = 720) -> CircleResult:
-    """The image circle of one camera from one or more of its images (same size).
+def _plausible(circle: ImageCircle, width: int, height: int) -> bool:
+    """A lens's image circle: centre on the sensor, radius between a few pixels and the
+    sensor's diagonal."""
+    return (
+        0.0 <= circle.cx <= width
+        and 0.0 <= circle.cy <= height
+        and 4.0 <= min(circle.rx, circle.ry)
+        and max(circle.rx, circle.ry) <= math.hypot(width, height)
+    )
 
-    Raises ValueError when an image shows no disc, or the images differ in size.
+
+def _no_disc(gray: np.ndarray, black: float, threshold: float) -> str:
+    """Why an image has no bright disc on a dark surround."""
+    if black > _DARK_DN:
+        return (
+            f"no dark surround: its border is at {black:.0f} DN and nothing inside is "
+            "brighter (a fisheye's image circle lies in a black surround)"
+        )
+    if float(gray.max()) <= threshold:
+        return f"the image is black (nothing above {threshold:.0f} DN)"
+    return "no bright disc stands out from its dark border"
+
+
+def _estimate(
+    g: np.ndarray,
+    black: float,
+    noise: float,
+    ellipse: bool,
+    n_rays: int,
+    rng: np.random.Generator,
+) -> tuple[dict[str, Estimate], np.ndarray, np.ndarray, np.ndarray, RayEdges]:
+    """Every estimator on one grey image: the estimates, the Canny rim pixels, the
+    sub-pixel rim points and their inliers, the ray counts. ValueError saying why when
+    the image shows no image circle."""
+    h, w = g.shape
+    if min(h, w) < MIN_SIDE_PX:
+        raise ValueError(
+            f"{w}x{h} px is too small to hold one (at least {MIN_SIDE_PX}x{MIN_SIDE_PX})"
+        )
+    thr = _threshold(black, noise)
+    mask = disc_mask(g, thr)
+    if np.count_nonzero(mask) < 10:
+        raise ValueError(_no_disc(g, black, thr))
+    est = {"barycentre": barycentre(mask, ellipse)}
+    est["canny_fit"], pts = canny_fit(g, mask, ellipse)
+    # the first guess: the rim's Canny pixels that agree on one circle (RANSAC), robust
+    # to a rim that fades into a dark scene where the mask strays inwards
+    guess, *_ = robust_fit(pts, ellipse, 2.0, rng)
+    if not _plausible(guess, w, h):
+        raise ValueError(
+            f"the edges of its bright part do not outline a circle on the sensor (their best "
+            f"circle: centre ({guess.cx:.0f}, {guess.cy:.0f}), radius {guess.radius:.0f} px)"
+        )
+    r_bar = est["barycentre"].circle.radius
+    aspect = guess.ry / guess.rx if ellipse else 1.0
+    est["hough"] = hough(g, pts, (0.7 * r_bar, 1.3 * r_bar), aspect)
+    est["subpixel"], spts, sinl, rays = subpixel(g, guess, black, noise, ellipse, n_rays, rng=rng)
+    if not _plausible(est["subpixel"].circle, w, h):
+        c = est["subpixel"].circle
+        raise ValueError(
+            f"its rim points do not outline a circle on the sensor (their best circle: "
+            f"centre ({c.cx:.0f}, {c.cy:.0f}), radius {c.radius:.0f} px)"
+        )
+    return est, pts, spts, sinl, rays
+
+
+def detect(
+    images: Sequence[np.ndarray],
+    ellipse: bool = False,
+    n_rays: int = 720,
+    names: Sequence[str] | None = None,
+) -> CircleResult:
+    """The image circle of one camera from one or more of its images (same size);
+    ``names``: the images' files, for messages (default ``image 1``, ...).
+
+    Raises ImageCircleError naming the image when one shows no image circle, or the images
+    differ in size.
     """
+
+    def name(i: int) -> str:
+        return names[i] if names is not None and i < len(names) else f"image {i + 1}"
+
     if not images:
-        raise ValueError("no images")
+        raise ImageCircleError("no images")
     grays = [to_gray(im) for im in images]
     h, w = grays[0].shape
     for i, g in enumerate(grays):
         if g.shape != (h, w):
-            raise ValueError(f"image {i} is {g.shape[1]}x{g.shape[0]}, the first {w}x{h}")
+            raise ImageCircleError(
+                f"{name(i)}: {g.shape[1]}x{g.shape[0]} px, {name(0)} {w}x{h}: the images of "
+                "one camera have one size"
+            )
     rng = np.random.default_rng(0)
     per_image: list[dict[str, Estimate]] = []
     canny_pts: list[np.ndarray] = []
@@ -474,20 +571,11 @@ def detect(images: Sequence[np.ndarray], ellipse: bool = False, n_rays: int = 72
     levels = [black_level(g) for g in grays]
     counts = {"cast": 0, "kept": 0, "off_sensor": 0, "saturated": 0, "no_edge": 0}
     for i, (g, (black, noise)) in enumerate(zip(grays, levels, strict=True)):
-        thr = _threshold(black, noise)
-        mask = disc_mask(g, thr)
-        est = {"barycentre": barycentre(mask, ellipse)}
-        est["canny_fit"], pts = canny_fit(g, mask, ellipse)
+        try:
+            est, pts, spts, sinl, rays = _estimate(g, black, noise, ellipse, n_rays, rng)
+        except ValueError as e:  # numpy's LinAlgError too
+            raise ImageCircleError(f"{name(i)}: no image circle found: {e}") from None
         canny_pts.append(pts)
-        # the first guess: the rim's Canny pixels that agree on one circle (RANSAC), robust
-        # to a rim that fades into a dark scene where the mask strays inwards
-        guess, *_ = robust_fit(pts, ellipse, 2.0, rng)
-        r_bar = est["barycentre"].circle.radius
-        aspect = guess.ry / guess.rx if ellipse else 1.0
-        est["hough"] = hough(g, pts, (0.7 * r_bar, 1.3 * r_bar), aspect)
-        est["subpixel"], spts, sinl, rays = subpixel(
-            g, guess, black, noise, ellipse, n_rays, rng=rng
-        )
         sub_pts.append(spts)
         sub_inl.append(sinl)
         sub_img.append(np.full(len(spts), i))
@@ -515,11 +603,16 @@ def detect(images: Sequence[np.ndarray], ellipse: bool = False, n_rays: int = 72
                 int(sum(e["hough"].n_points for e in per_image)),
             ),
         }
-        combined["canny_fit"], _ = canny_fit(
-            grays[0], np.ones((h, w), bool), ellipse, points=np.concatenate(canny_pts)
-        )
         all_sub = np.concatenate(sub_pts)
-        circle, inl, res, sigma = robust_fit(all_sub, ellipse, 1.5, np.random.default_rng(1))
+        try:
+            combined["canny_fit"], _ = canny_fit(
+                grays[0], np.ones((h, w), bool), ellipse, points=np.concatenate(canny_pts)
+            )
+            circle, inl, res, sigma = robust_fit(all_sub, ellipse, 1.5, np.random.default_rng(1))
+        except ValueError as e:
+            raise ImageCircleError(
+                f"{name(0)} .. {name(len(grays) - 1)}: no image circle common to the images: {e}"
+            ) from None
         rms = float(np.sqrt(np.mean(res[inl] ** 2)))
         combined["subpixel"] = Estimate("subpixel", circle, int(inl.sum()), rms, sigma)
     combined = {k: combined[k] for k in ESTIMATORS}

@@ -16,4 +16,4 @@ __all__ = ["CameraModel", "Equidistant", "KannalaBrandt", "Pinhole", "from_dict"
 
 def load(path: str | Path, camera: str | None = None) -> CameraModel:
     """The camera model of ``camera`` (or of the only camera) in a calib.yaml."""
-    return calibfile.load(path).camera(camera).model
+    return calibfile.load(path, intrinsics_only=True).camera(camera).model

@@ -20,6 +20,14 @@ valid::
 extrinsic`` rotation_deg and translation_m, ``acq calibrate time-offset``
 time_offset_s; each keeps the others' part.
 
+Every number is checked against the bounds below (finite, focal lengths and image sizes
+positive and bounded, the principal point near the image, distortion coefficients,
+translations and the time offset bounded), so what loads projects without overflow.
+A camera without ``camera_to_laser`` is an error unless the file is read for its
+intrinsics only (``load(..., intrinsics_only=True)``, as ``acq calibrate fisheye`` and
+``acq calibrate extrinsic --intrinsics`` do); such a camera keeps no pose
+(:attr:`CameraCalib.extrinsics` None) and is written back without one.
+
 Every problem is reported as a :class:`CalibFileError` naming the file and the key
 path, e.g. ``calib.yaml: cameras.camera.fxx: unknown key; did you mean fx?``.
 """
@@ -30,7 +38,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import yaml
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
@@ -55,6 +63,17 @@ __all__ = [
 ]
 
 VERSION = 1
+
+MAX_SIDE_PX = 65535
+"""The largest image width or height, px (JPEG's limit)."""
+FOCAL_PX = (1.0, 1e6)
+"""The range of fx and fy, px (per radian for the fisheye models)."""
+MAX_K = 1e3
+"""The largest magnitude of a distortion coefficient."""
+MAX_TRANSLATION_M = 100.0
+"""The largest magnitude of a translation's component, m (a rig's sensors are nearer)."""
+MAX_TIME_OFFSET_S = 3600.0
+"""The largest magnitude of ``time_offset_s``, s."""
 
 
 class CalibFileError(InputValueError):
@@ -143,17 +162,38 @@ class CalibStd:
 @dataclass(frozen=True)
 class CameraCalib:
     """One camera's intrinsics and its pose relative to the laser (paper eq. 2), with
-    the standard deviations of whichever of them were calibrated (``std``)."""
+    the standard deviations of whichever of them were calibrated (``std``).
+
+    ``extrinsics`` is ``camera_to_laser`` as known: None for a camera read for its
+    intrinsics only from a file without one, whose :attr:`camera_to_laser` then raises
+    (``source`` and ``name`` say where it was read, for that message).
+    """
 
     model: CameraModel
-    camera_to_laser: Rigid = field(default_factory=Rigid.identity)
+    extrinsics: Rigid | None = field(default_factory=Rigid.identity)
     time_offset_s: float = 0.0  # camera time minus laser time
     method: str = ""
     std: CalibStd = field(default_factory=CalibStd)
+    source: str = field(default="", compare=False, repr=False)
+    name: str = field(default="", compare=False, repr=False)
+
+    @property
+    def camera_to_laser(self) -> Rigid:
+        """``P_laser = R @ P_camera + t``; CalibFileError when the camera has none."""
+        if self.extrinsics is None:
+            raise CalibFileError(
+                yamlcheck.line(
+                    self.source or "calib.yaml",
+                    f"cameras.{self.name or 'camera'}.camera_to_laser",
+                    _NO_EXTRINSICS,
+                )
+            )
+        return self.extrinsics
 
     def to_dict(self) -> dict[str, Any]:
         d = self.model.to_dict()
-        d["camera_to_laser"] = self.camera_to_laser.to_dict()
+        if self.extrinsics is not None:
+            d["camera_to_laser"] = self.extrinsics.to_dict()
         d["time_offset_s"] = float(self.time_offset_s)
         if self.method:
             d["method"] = self.method
@@ -195,8 +235,20 @@ class Calibration:
         return d
 
 
+_NO_EXTRINSICS = (
+    "required key missing (the camera's pose relative to the laser, which acq calibrate "
+    "extrinsic writes)"
+)
+
+
 class _Model(BaseModel):
     model_config = yamlcheck.STRICT
+
+
+_K = Annotated[float, Field(ge=-MAX_K, le=MAX_K)]
+_Metres = Annotated[float, Field(ge=-MAX_TRANSLATION_M, le=MAX_TRANSLATION_M)]
+_Focal = Annotated[float, Field(ge=FOCAL_PX[0], le=FOCAL_PX[1])]
+_Offset = Annotated[float, Field(ge=-MAX_TIME_OFFSET_S, le=MAX_TIME_OFFSET_S)]
 
 
 def _count(v: list[float], n: int, *subpath: str) -> list[float]:
@@ -216,13 +268,17 @@ class _Rigid(_Model):
     """``P_to = rotation @ P_from + translation``: a rotation matrix, metres."""
 
     rotation: list[list[float]]
-    translation: list[float]
+    translation: list[_Metres]
 
     @field_validator("rotation")
     @classmethod
     def _rows(cls, v: list[list[float]]) -> list[list[float]]:
         if len(v) != 3 or any(len(row) != 3 for row in v):
             raise fail("expected 3 rows of 3 numbers")
+        for i, row in enumerate(v):
+            for j, x in enumerate(row):
+                if abs(x) > 1.0 + 1e-6:  # before R R^T, which would overflow
+                    raise fail(f"not a rotation: an entry of {show(x)}", i, j)
         return v
 
     _three = field_validator("translation")(lambda v: _count(v, 3))
@@ -239,17 +295,21 @@ class _Rigid(_Model):
         return Rigid(self.rotation, self.translation)  # type: ignore[arg-type]
 
 
-class _Std(_Model):
-    """A camera's ``std`` (:class:`CalibStd`); ``k``'s length is checked by the camera."""
+_Px = Annotated[float, Field(le=FOCAL_PX[1])]
 
-    fx: float | None = None
-    fy: float | None = None
-    cx: float | None = None
-    cy: float | None = None
-    k: list[float] | None = None
-    rotation_deg: list[float] | None = None
-    translation_m: list[float] | None = None
-    time_offset_s: float | None = None
+
+class _Std(_Model):
+    """A camera's ``std`` (:class:`CalibStd`), each bounded as its parameter; ``k``'s
+    length is checked by the camera."""
+
+    fx: _Px | None = None
+    fy: _Px | None = None
+    cx: _Px | None = None
+    cy: _Px | None = None
+    k: list[Annotated[float, Field(le=MAX_K)]] | None = None
+    rotation_deg: list[Annotated[float, Field(le=180.0)]] | None = None
+    translation_m: list[Annotated[float, Field(le=MAX_TRANSLATION_M)]] | None = None
+    time_offset_s: Annotated[float, Field(le=MAX_TIME_OFFSET_S)] | None = None
 
     _three = field_validator("rotation_deg", "translation_m")(
         lambda v: v if v is None else _count(v, 3)
@@ -262,14 +322,14 @@ class _Camera(_Model):
 
     model: str
     image_size: list[float]  # width, height, px (whole numbers, 780.0 too)
-    fx: float = Field(gt=0)
-    fy: float | None = Field(default=None, gt=0)  # default fx
-    cx: float
+    fx: _Focal
+    fy: _Focal | None = None  # default fx
+    cx: float  # within one image size of the image (checked below)
     cy: float
-    fov_deg: float | None = Field(default=None, gt=0)  # fisheye models; default 185
-    k: list[float] | None = None
-    camera_to_laser: _Rigid | None = None  # default identity
-    time_offset_s: float = 0.0
+    fov_deg: float | None = Field(default=None, gt=0, lt=360)  # fisheye models; default 185
+    k: list[_K] | None = None
+    camera_to_laser: _Rigid | None = None  # None: intrinsics only
+    time_offset_s: _Offset = 0.0
     method: str = ""
     std: _Std | None = None
 
@@ -289,12 +349,22 @@ class _Camera(_Model):
     @classmethod
     def _size(cls, v: list[float]) -> list[float]:
         _count(v, 2)
-        if any(s <= 0 or s != int(s) for s in v):
-            raise fail(f"expected two positive whole numbers, got {v}")
+        if any(not 0 < s <= MAX_SIDE_PX or s != int(s) for s in v):
+            raise fail(f"expected two whole numbers 1..{MAX_SIDE_PX}, got {v}")
         return v
 
     @model_validator(mode="after")
     def _consistent(self) -> _Camera:
+        for key, c, side in (
+            ("cx", self.cx, self.image_size[0]),
+            ("cy", self.cy, self.image_size[1]),
+        ):
+            if not -side <= c <= 2 * side:
+                raise fail(
+                    f"the principal point must be within one image size of the image "
+                    f"({-side:g}..{2 * side:g} px), got {show(c)}",
+                    key,
+                )
         n_k = 5 if self.model == "pinhole" else 4
         if self.k is not None:
             _count(self.k, n_k, "k")
@@ -323,16 +393,16 @@ class _Camera(_Model):
             entry["k"] = self.k
         return camera_models.from_dict(entry)
 
-    def calib(self) -> CameraCalib:
+    def calib(self, source: str, name: str) -> CameraCalib:
         std = self.std.model_dump(exclude_none=True) if self.std is not None else {}
         return CameraCalib(
             model=self.camera_model(),
-            camera_to_laser=(
-                Rigid.identity() if self.camera_to_laser is None else self.camera_to_laser.rigid()
-            ),
+            extrinsics=None if self.camera_to_laser is None else self.camera_to_laser.rigid(),
             time_offset_s=self.time_offset_s,
             method=self.method,
             std=CalibStd(**std),
+            source=source,
+            name=name,
         )
 
 
@@ -368,9 +438,10 @@ class _File(_Model):
         return {str(name): entry for name, entry in v.items()}
 
 
-def parse(data: Any, source: str = "calib.yaml") -> Calibration:
+def parse(data: Any, source: str = "calib.yaml", *, intrinsics_only: bool = False) -> Calibration:
     """A :class:`Calibration` from an already-parsed YAML tree; ``source`` names the file
-    in error messages."""
+    in error messages. A camera without ``camera_to_laser`` is an error unless
+    ``intrinsics_only``."""
     if not isinstance(data, Mapping):
         raise CalibFileError(
             yamlcheck.line(
@@ -381,17 +452,23 @@ def parse(data: Any, source: str = "calib.yaml") -> Calibration:
         f = _File.model_validate(dict(data))
     except ValidationError as e:
         raise CalibFileError(yamlcheck.message(e, source, _File)) from None
+    if not intrinsics_only:
+        for name, cam in f.cameras.items():
+            if cam.camera_to_laser is None:
+                where = f"cameras.{name}.camera_to_laser"
+                raise CalibFileError(yamlcheck.line(source, where, _NO_EXTRINSICS))
     return Calibration(
         laser=f.laser,
-        cameras={name: cam.calib() for name, cam in f.cameras.items()},
+        cameras={name: cam.calib(source, name) for name, cam in f.cameras.items()},
         laser_to_vehicle=None if f.laser_to_vehicle is None else f.laser_to_vehicle.rigid(),
     )
 
 
-def load(path: str | Path) -> Calibration:
-    """Read and validate a calib.yaml."""
+def load(path: str | Path, *, intrinsics_only: bool = False) -> Calibration:
+    """Read and validate a calib.yaml; ``intrinsics_only``: for the cameras' models only
+    (a camera may lack ``camera_to_laser``)."""
     path = Path(path)
-    return parse(yamlcheck.read(path, CalibFileError), str(path))
+    return parse(yamlcheck.read(path, CalibFileError), str(path), intrinsics_only=intrinsics_only)
 
 
 def dump(calib: Calibration) -> str:

@@ -248,7 +248,7 @@ def run_fisheye(args: argparse.Namespace) -> int:
     spec = parse_board(args.board) if args.board else None
     imgs = read_images(images)
     try:
-        result = image_circle.detect(imgs, ellipse=args.ellipse)
+        result = image_circle.detect(imgs, ellipse=args.ellipse, names=list(map(str, images)))
         model: KannalaBrandt = circle_model(result, fov_deg)
     except ValueError as e:  # no circle in these images
         raise AcqError(str(e)) from e
@@ -371,19 +371,21 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     )  # fmt: skip
     lens_swap, pupil_shift_m = args.lens_swap, args.pupil_shift
     spec = parse_board(board)
-    calib = calibfile.load(intrinsics)
+    calib = calibfile.load(intrinsics, intrinsics_only=True)
     log = drive_log.read_log(list(logs), camera=camera)
     name, cam = drive_log.camera_calib(log, calib, camera)
     target, target_cam = calib, cam
     if lens_swap is not None:
-        target = calibfile.load(lens_swap)
+        target = calibfile.load(lens_swap, intrinsics_only=True)
         try:
             target_cam = target.camera(name)
         except calibfile.UnknownCameraError as e:
             raise InputError(f"--lens-swap {lens_swap}: {e}") from None
     t0 = int(log.scan_ns[0])
     intervals = parse_poses(args.poses, t0) if args.poses else still_intervals(log)
-    coarse = None if np.allclose(cam.camera_to_laser.rotation, np.eye(3)) else cam.camera_to_laser
+    coarse = cam.extrinsics
+    if coarse is not None and np.allclose(coarse.rotation, np.eye(3)):
+        coarse = None
     data = poses_from_log(log, cam.model, spec, intervals, coarse=coarse)
     good = [p.pose for p in data if p.pose is not None]
     try:

@@ -6,7 +6,10 @@ text is one line naming the file, the key path and what was expected, e.g.
 checked against the keyword parameters of the driver class the ``driver:`` key selects;
 driver names are those of the driver registry (:mod:`acq.drivers.registry`: ours and any
 installed through its entry points), and what a scanner's ``url``, ``protocol`` and
-``latency_s`` accept is what its driver class declares.
+``latency_s`` accept is what its driver class declares. A camera's ``source`` is checked
+against what our drivers open (:data:`CAMERA_SOURCES`). Every number is bounded (finite;
+rates, sizes and times positive where they must be, and below a sane maximum), driver
+options named as ours too (:data:`OPTION_BOUNDS`).
 
 Relative paths in a file (``calibration``, ``output.dir``, ``can.dbc``) are relative to
 the folder of that file, not to the working directory; ``~`` is the user's home.
@@ -21,11 +24,13 @@ import inspect
 import math
 import os
 import re
+import types
 import typing
 from collections.abc import Mapping, Sequence
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal, NoReturn
+from urllib.parse import urlsplit
 
 import yaml
 from pydantic import (
@@ -67,6 +72,41 @@ _NAME = re.compile(r"[A-Za-z0-9_]+")
 _PREFIX = re.compile(r"[A-Za-z0-9_.-]+")
 # pyserial's URL handlers (serial.protocol_handler_*); tcp:// is taken as socket://
 _SERIAL_SCHEMES = {"socket", "tcp", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110"}
+_SCHEME = re.compile(r"([A-Za-z][A-Za-z0-9+.-]*)://")
+# the URLs OpenCV's FFmpeg backend streams from (http and https are read natively)
+_OPENCV_SCHEMES = ("http", "https", "rtsp", "rtsps", "rtmp", "rtmps", "rtp", "udp", "tcp", "srt")
+CAMERA_SOURCES = {
+    "opencv": "an index (0), /dev/videoN, a video file, a GStreamer pipeline (with '!') or a "
+    "URL (" + ", ".join(f"{s}://" for s in _OPENCV_SCHEMES) + ")",
+    "v4l2": "an index (0) or a device path (/dev/videoN, /dev/v4l/by-id/...)",
+}
+"""What each of our camera drivers opens (a third-party driver's ``source`` is its own)."""
+
+MAX_LATENCY_S = 10.0
+"""The largest constant transport latency, s."""
+MAX_SIDE_PX = 65535
+"""The largest requested image width or height, px (JPEG's limit)."""
+MAX_MEGABYTES = 1e9
+"""The largest file size or disk reserve, MB (a petabyte)."""
+MAX_BAUD = 10_000_000
+"""The largest serial or CAN bit rate, bit/s."""
+OPTION_BOUNDS: dict[str, tuple[float, float]] = {
+    "timeout": (0.01, 60.0),  # s, a read's wait
+    "exposure_s": (1e-6, 10.0),  # s
+    "gain": (-(2**31), 2**31 - 1),  # device units (a V4L2 control is 32-bit)
+    "white_balance_k": (1000, 20000),  # K
+    "buffers": (1, 32),  # mmap buffers queued (VIDEO_MAX_FRAME)
+    "jpeg_quality": (1, 100),
+    "baudrate": (1, MAX_BAUD),  # bit/s
+    "initial_baudrate": (1, MAX_BAUD),
+    "cluster": (1, 99),  # SCIP: steps grouped per range
+    "angle_min": (-2 * math.pi, 2 * math.pi),  # rad
+    "angle_max": (-2 * math.pi, 2 * math.pi),
+}
+"""(min, max) of the numeric driver options of these names (our drivers' meaning)."""
+_LOGIN = tuple[
+    Annotated[int, Field(ge=0, le=255)], Annotated[int, Field(ge=0, le=2**32 - 1)]
+]  # CoLa's SetAccessMode: a user level byte and a 32-bit password hash
 
 
 class ConfigError(InputValueError):
@@ -166,7 +206,7 @@ class ScannerConfig(_Model):
         if scanner is not None and scanner.url_kind == "serial":
             return _serial_url(v)
         if scanner is not None and scanner.url_kind == "tcp":
-            return _tcp_url(v)
+            return _tcp_url(v, info.data["driver"])
         return v
 
     @field_validator("protocol", mode="plain")
@@ -197,10 +237,11 @@ class ScannerConfig(_Model):
                 probing = [(d, c.latency_probe) for d, c in _scanners() if c.latency_probe]
                 raise fail(
                     f"auto is measured with {' or '.join(p for _, p in probing)}, for driver "
-                    f"{', '.join(d for d, _ in probing)} only; expected a number of seconds >= 0"
+                    f"{', '.join(d for d, _ in probing)} only; expected a number of seconds "
+                    f"0..{MAX_LATENCY_S:g}"
                 )
             return v
-        return _seconds(v, "a number of seconds >= 0 or auto")
+        return _seconds(v, f"a number of seconds 0..{MAX_LATENCY_S:g} or auto")
 
     @field_validator("options")
     @classmethod
@@ -214,12 +255,13 @@ class CameraConfig(_Model):
 
     name: str
     driver: str  # a camera driver of the registry: opencv, v4l2, ...
-    source: str  # an index, /dev/videoN, a URL or a pipeline
-    fps: float = Field(default=25.0, gt=0)  # requested frame rate, 1/s
-    width: int | None = Field(default=None, gt=0)  # requested size, px
-    height: int | None = Field(default=None, gt=0)
+    source: str  # an index, /dev/videoN, a URL or a pipeline (CAMERA_SOURCES)
+    fps: float = Field(default=25.0, ge=0.01, le=1000)  # requested frame rate, 1/s
+    width: int | None = Field(default=None, gt=0, le=MAX_SIDE_PX)  # requested size, px
+    height: int | None = Field(default=None, gt=0, le=MAX_SIDE_PX)
     fourcc: str | None = None  # requested pixel format, e.g. MJPG
-    latency_s: float = Field(default=0.0, ge=0)  # middle of exposure to receipt, s, where unknown
+    # middle of exposure to receipt, s, where unknown
+    latency_s: float = Field(default=0.0, ge=0, le=MAX_LATENCY_S)
     options: dict[str, Any] = {}  # keyword arguments of the driver class
 
     @field_validator("name")
@@ -238,6 +280,12 @@ class CameraConfig(_Model):
         if v == "":
             raise fail("expected an index, a device, a URL or a pipeline, got ''")
         return v
+
+    @field_validator("source")
+    @classmethod
+    def _opens(cls, v: str, info: ValidationInfo) -> str:
+        driver = info.data.get("driver")
+        return v if driver is None else _camera_source(driver, v)
 
     @field_validator("fourcc")
     @classmethod
@@ -258,9 +306,9 @@ class OutputConfig(_Model):
 
     dir: _Path = Path("./logs")
     prefix: str = "acq"  # file names start with it
-    split_minutes: float = Field(default=10.0, gt=0)  # start a new file after this long, min
-    split_megabytes: float = Field(default=2048.0, gt=0)  # ... or this large, MB
-    reserve_megabytes: float = Field(default=512.0, ge=0)  # stop with this much disk left, MB
+    split_minutes: float = Field(default=10.0, ge=0.01, le=1e6)  # a new file after this long, min
+    split_megabytes: float = Field(default=2048.0, ge=1, le=MAX_MEGABYTES)  # ... or this large, MB
+    reserve_megabytes: float = Field(default=512.0, ge=0, le=MAX_MEGABYTES)  # disk kept free, MB
 
     @field_validator("prefix")
     @classmethod
@@ -287,7 +335,7 @@ class CanConfig(_Model):
     interface: str = Field(min_length=1)  # python-can interface: socketcan, pcan...
     channel: str = Field(min_length=1)  # e.g. can0
     dbc: _Path
-    bitrate: int | None = Field(default=None, gt=0)  # bit/s; None: as the interface is set up
+    bitrate: int | None = Field(default=None, gt=0, le=MAX_BAUD)  # bit/s; None: as set up
     wheel_speeds: list[str] = [
         f"WHEEL_SPEEDS.WHEEL_SPEED_{w}" for w in ("FL", "FR", "RL", "RR")
     ]  # front left, front right, rear left, rear right
@@ -340,8 +388,8 @@ class GnssConfig(_Model):
 
     driver: str = "nmea"  # a GNSS driver of the registry
     url: str
-    baudrate: int = Field(default=9600, gt=0)
-    latency_s: float = Field(default=0.0, ge=0)
+    baudrate: int = Field(default=9600, gt=0, le=MAX_BAUD)
+    latency_s: float = Field(default=0.0, ge=0, le=MAX_LATENCY_S)
 
     _driver = field_validator("driver", mode="plain")(_driver_name("gnss"))
 
@@ -429,8 +477,8 @@ def _signal_name(v: str, *subpath: str | int) -> str:
 def _seconds(v: Any, expected: str) -> float:
     if isinstance(v, bool) or not isinstance(v, int | float):
         raise fail(f"expected {expected}, got {show(v)}")
-    if not math.isfinite(v) or v < 0:
-        raise fail(f"expected {expected}, got {v!r}")
+    if not (math.isfinite(v) and 0 <= v <= MAX_LATENCY_S):
+        raise fail(f"expected {expected}, got {show(v)}")
     return float(v)
 
 
@@ -460,12 +508,46 @@ def _serial_url(v: str) -> str:
     return v
 
 
-def _tcp_url(v: str) -> str:
-    """tcp://host:port (also socket://, or host[:port] as the SICK driver takes it)."""
+def _tcp_url(v: str, driver: str) -> str:
+    """tcp://host:port or host[:port], as the SICK driver takes it (socket:// is pyserial's
+    spelling, for serial drivers: refused)."""
+    expected = "tcp://host:port or host[:port]"
     scheme, sep, rest = v.partition("://")
-    if sep and scheme not in ("tcp", "socket"):
-        raise fail(f"expected tcp://host:port, got {v!r}")
+    if sep and scheme == "socket":
+        raise fail(
+            f"expected {expected} for driver {driver} (a TCP device); socket:// is a pyserial "
+            f"URL, for serial drivers: write tcp://{rest}"
+        )
+    if sep and scheme != "tcp":
+        raise fail(f"expected {expected} for driver {driver}, got {v!r}")
     _host_port(v, rest if sep else v, 2112, "tcp://host:port")
+    return v
+
+
+def _camera_source(driver: str, v: str) -> str:
+    """``v`` if camera driver ``driver`` can open it (see :data:`CAMERA_SOURCES`)."""
+    accepted = CAMERA_SOURCES.get(driver)
+    if accepted is None:
+        return v
+    expected = f"expected {accepted} for driver {driver}"
+    if not v.strip() or not v.isprintable():
+        raise fail(f"{expected}, got {v!r}")
+    scheme = _SCHEME.match(v)
+    if driver == "v4l2":
+        if v.isdigit() or (v.startswith("/") and scheme is None):
+            return v
+        raise fail(f"{expected}, got {v!r}")
+    if scheme is None:
+        return v  # an index, a device, a file, an image-sequence pattern or a pipeline
+    if scheme.group(1).lower() not in _OPENCV_SCHEMES:
+        raise fail(f"{expected}; unknown scheme {scheme.group(1)}://")
+    try:
+        url = urlsplit(v)
+        url.port  # noqa: B018 (raises for a port out of range)
+    except ValueError:
+        raise fail(f"{expected}; a bad host or port in {v!r}") from None
+    if not url.hostname:
+        raise fail(f"{expected}; no host in {v!r}")
     return v
 
 
@@ -490,13 +572,30 @@ def _driver_params(kind: str, driver: str) -> dict[str, TypeAdapter[Any]]:
             elif p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and p.name not in params:
                 try:  # a parameter no YAML value can fill (a test hook) is not an option
                     params[p.name] = TypeAdapter(
-                        hints.get(p.name, Any), config=ConfigDict(allow_inf_nan=False)
+                        _bounded(p.name, hints.get(p.name, Any)),
+                        config=ConfigDict(allow_inf_nan=False),
                     )
                 except Exception:
                     continue
         if not forwards:
             break
     return params
+
+
+def _bounded(name: str, hint: Any) -> Any:
+    """``hint`` with the bounds :data:`OPTION_BOUNDS` gives ``name`` (a number, optional or
+    not); CoLa's ``login`` bounded per element."""
+    if name == "login" and hint == tuple[int, int]:
+        return _LOGIN
+    bounds = OPTION_BOUNDS.get(name)
+    args = typing.get_args(hint)
+    optional = typing.get_origin(hint) in (typing.Union, types.UnionType) and type(None) in args
+    inner = [a for a in args if a is not type(None)] if optional else [hint]
+    if bounds is None or len(inner) != 1 or inner[0] not in (int, float):
+        return hint
+    annotated: Any = Annotated  # a type built at run time
+    number = annotated[inner[0], Field(ge=bounds[0], le=bounds[1])]
+    return number | None if optional else number
 
 
 def _check_options(

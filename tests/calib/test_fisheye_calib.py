@@ -15,7 +15,7 @@ import pytest
 from acq import camera_models  # the API name of ARCHITECTURE.md
 from acq.calib import fisheye_calib, image_circle
 from acq.camera import calibfile
-from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
+from acq.camera.calibfile import CalibFileError, Calibration, CalibStd, CameraCalib
 from acq.camera.camera_models import Equidistant, KannalaBrandt
 from acq.geometry.rotations import rotation_from_euler
 from acq.geometry.transforms import Rigid
@@ -47,7 +47,12 @@ def test_writes_the_equidistant_model_from_the_circle(
     assert (cam.width, cam.height) == (780, 582)
     assert cam.f == pytest.approx(truth.radius / THETA_MAX, abs=0.3 / THETA_MAX)
     assert math.hypot(cam.cx - truth.cx, cam.cy - truth.cy) < 0.2
-    assert calibfile.load(out).camera("camera").method == "image_circle"
+    written = calibfile.load(out, intrinsics_only=True).camera("camera")
+    assert written.method == "image_circle"
+    # the pose is not known yet: written without one, not as the identity
+    assert written.extrinsics is None and "camera_to_laser" not in out.read_text()
+    with pytest.raises(CalibFileError, match=r"cameras\.camera\.camera_to_laser: required key"):
+        calibfile.load(out)
     text = capsys.readouterr().out
     assert "f = r / theta_max" in text and "subpixel" in text
     overlay = cv2.imread(str(tmp_path / "calib_circle.png"))
@@ -153,6 +158,37 @@ def test_bad_input_exits_2_with_one_line(
     out.write_text("version: 1\ncameras: {camera: {model: equidistant}}\n")
     assert calibrate_fisheye([path], 185.0, out) == 2
     assert "cameras.camera.image_size: required key missing" in capsys.readouterr().err
+
+
+def test_an_image_that_is_no_fisheyes_exits_2_naming_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fisheye = tmp_path / "fisheye.png"
+    cv2.imwrite(str(fisheye), fisheye_image(640, 480, 320.0, 240.0, radius=220.0, seed=5)[0])
+    grey = tmp_path / "grey.png"
+    cv2.imwrite(str(grey), np.full((480, 640, 3), 128, np.uint8))
+    board = tmp_path / "board.png"
+    v, u = np.mgrid[0:480, 0:640]
+    cv2.imwrite(str(board), (((u // 40 + v // 40) % 2) * 255).astype(np.uint8))
+    dot = tmp_path / "dot.png"
+    cv2.imwrite(str(dot), np.full((1, 1), 200, np.uint8))
+    text, empty = tmp_path / "text.png", tmp_path / "empty.png"
+    text.write_text("not an image\n")
+    empty.write_bytes(b"")
+    out = tmp_path / "c.yaml"
+    cases = [
+        ([fisheye, grey], f"{grey}: no image circle found: no dark surround"),
+        ([board], f"{board}: no image circle found: "),
+        ([dot], f"{dot}: no image circle found: 1x1 px is too small"),
+        ([text], f"{text}: cannot read as an image"),
+        ([empty], f"{empty}: cannot read as an image"),
+        ([tmp_path], f"{tmp_path}: a directory, not an image"),
+    ]
+    for images, line in cases:
+        assert calibrate_fisheye(images, 185.0, out) == 2, line
+        err = capsys.readouterr().err
+        assert err.startswith(f"acq calibrate fisheye: {line}") and err.count("\n") == 1, err
+        assert not out.exists()
     assert not out.with_name("c_circle.png").exists()
     assert fisheye_calib.parse_board("8x6x0.117") == fisheye_calib.BoardSpec(8, 6, 0.117)
 
@@ -301,7 +337,7 @@ def test_real_images_circle_then_board(
     cam = camera_models.load(out)
     assert type(cam) is KannalaBrandt and cam.k[0] < 0
     # the fit's standard deviations are in calib.yaml (3 significant digits)
-    std = calibfile.load(out).camera().std
+    std = calibfile.load(out, intrinsics_only=True).camera().std
     assert (std.fx, std.fy, std.cx, std.cy) == tuple(
         b["sigma"][n] for n in ("fx", "fy", "cx", "cy")
     )

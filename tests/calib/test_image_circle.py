@@ -12,7 +12,8 @@ import pytest
 
 from acq.calib import circle_fit, image_circle
 from acq.calib.circle_fit import ImageCircle
-from acq.calib.image_circle import CircleResult
+from acq.calib.image_circle import CircleResult, ImageCircleError
+from acq.errors import InputError
 from acq.sim.fisheye_images import CircleTruth, fisheye_image
 
 REFERENCE_PP = (384.8, 240.0)  # ../shared/data/README.md, fisheye/
@@ -164,13 +165,52 @@ def test_fits_recover_exact_points_and_ransac_drops_outliers() -> None:
 
 
 def test_bad_input_is_refused() -> None:
-    with pytest.raises(ValueError, match="black"):
+    with pytest.raises(ImageCircleError, match=r"^image 1: no image circle found: .*black"):
         image_circle.detect([np.full((120, 160), 7, np.uint8)])
     a = np.zeros((100, 100), np.uint8)
-    with pytest.raises(ValueError, match="100x100"):
-        image_circle.detect([a, np.zeros((90, 100), np.uint8)])
-    with pytest.raises(ValueError, match="no images"):
+    with pytest.raises(ImageCircleError, match=r"^b\.png: 100x90 px, a\.png 100x100"):
+        image_circle.detect([a, np.zeros((90, 100), np.uint8)], names=["a.png", "b.png"])
+    with pytest.raises(ImageCircleError, match="no images"):
         image_circle.detect([])
+
+
+def _photo(kind: str) -> np.ndarray:
+    """A 640x480 image that is no fisheye's: nothing dark around a bright disc."""
+    v, u = np.mgrid[0:480, 0:640]
+    if kind == "uniform":
+        return np.full((480, 640, 3), 128, np.uint8)
+    if kind == "gradient":
+        return np.repeat((u * 255 // 639).astype(np.uint8)[:, :, None], 3, axis=2)
+    if kind == "checkerboard":
+        return (((u // 40 + v // 40) % 2) * 255).astype(np.uint8)
+    if kind == "rectangle":
+        return np.where((abs(u - 320) < 200) & (abs(v - 240) < 150), 200, 0).astype(np.uint8)
+    if kind == "line":
+        return np.where(abs(u - v) < 3, 255, 0).astype(np.uint8)
+    return np.full((1, 1), 200, np.uint8)  # 1x1
+
+
+@pytest.mark.parametrize(
+    ("kind", "why"),
+    [
+        ("uniform", "no dark surround: its border is at 128 DN"),
+        ("gradient", "too few rim edge pixels"),
+        ("checkerboard", "do not outline a circle on the sensor"),
+        ("rectangle", "do not outline a circle on the sensor"),
+        ("line", "do not outline a circle on the sensor"),  # OpenCV failed on its circle
+        ("1x1", "1x1 px is too small to hold one"),
+    ],
+)
+def test_an_image_without_a_circle_is_named_with_why(kind: str, why: str) -> None:
+    fisheye, _ = fisheye_image(640, 480, 320.0, 240.0, radius=220.0, seed=5)
+    images, names = [fisheye, _photo(kind)], ["fisheye.png", f"{kind}.png"]
+    if kind == "1x1":
+        images, names = images[1:], names[1:]
+    with pytest.raises(ImageCircleError) as e:
+        image_circle.detect(images, names=names)
+    assert str(e.value).startswith(f"{kind}.png: ")
+    assert "no image circle found: " in str(e.value) and why in str(e.value)
+    assert isinstance(e.value, InputError)
 
 
 def real_images(shared_dir: Path) -> list[np.ndarray]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import re
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -127,11 +128,11 @@ def test_unknown_key_names_path_and_suggests(tmp_path: Path) -> None:
         ),
         (
             lambda d: d["cameras"]["camera"].update(fx=-1),
-            r"cameras\.camera\.fx: must be > 0, got -1",
+            r"cameras\.camera\.fx: must be >= 1, got -1",
         ),
         (
             lambda d: d["cameras"]["camera"].update(image_size=[780.5, 582]),
-            r"image_size: expected two positive whole numbers",
+            r"image_size: expected two whole numbers 1..65535",
         ),
         (
             lambda d: d["cameras"]["camera"]["camera_to_laser"].update(rotation=[[1, 0, 0]]),
@@ -144,6 +145,15 @@ def test_unknown_key_names_path_and_suggests(tmp_path: Path) -> None:
         (
             lambda d: d["cameras"]["camera"].update(cx=10**400),
             r"cameras\.camera\.cx: expected a number, got 1000",
+        ),
+        (
+            lambda d: d["cameras"]["camera"].update(time_offset_s="1e12"),  # YAML 1.1: text
+            r"time_offset_s: expected a number, got '1e12' \(text to YAML; write "
+            r"1000000000000\.0 for the number\)$",
+        ),
+        (
+            lambda d: d["cameras"]["camera"].update(fx="1e308"),
+            r"fx: expected a number, got '1e308' \(text to YAML; write 1\.0e\+308 for the",
         ),
     ],
 )
@@ -159,13 +169,12 @@ def test_bad_values_are_reported_with_their_path(
 def test_whole_floats_and_null_optional_sections_read(tmp_path: Path) -> None:
     data = yaml.safe_load(yaml.safe_dump(GOOD))
     cam = data["cameras"]["camera"]
-    cam.update(image_size=[780.0, 582.0], std=None, camera_to_laser=None, fy=None)
+    cam.update(image_size=[780.0, 582.0], std=None, fy=None)
     data["laser_to_vehicle"] = None
     calib = calibfile.load(write(tmp_path, data))
     model = calib.camera().model
     assert (model.width, model.height) == (780, 582) and model.fy == model.fx
     assert calib.laser_to_vehicle is None
-    np.testing.assert_array_equal(calib.camera().camera_to_laser.matrix(), np.eye(4))
     with pytest.raises(CalibFileError, match=r"calib\.yaml: expected a mapping with version"):
         calibfile.parse([GOOD])
 
@@ -183,6 +192,76 @@ def test_missing_file_and_bad_yaml(tmp_path: Path) -> None:
     bad.write_bytes(b"version: 1\nlaser: \xff\n")
     with pytest.raises(CalibFileError, match=r"bad\.yaml: not UTF-8 text \(byte 18\)"):
         calibfile.load(bad)
+
+
+@pytest.mark.parametrize("absent", [None, "removed"])
+def test_a_camera_without_its_pose_is_refused_unless_read_for_intrinsics(
+    tmp_path: Path, absent: str | None
+) -> None:
+    data = yaml.safe_load(yaml.safe_dump(GOOD))
+    data["cameras"]["left"] = copy.deepcopy(data["cameras"]["camera"])
+    if absent is None:
+        data["cameras"]["left"]["camera_to_laser"] = None
+    else:
+        del data["cameras"]["left"]["camera_to_laser"]
+    path = write(tmp_path, data)
+    where = re.escape(f"{path}: cameras.left.camera_to_laser: required key missing")
+    with pytest.raises(CalibFileError, match="^" + where):
+        calibfile.load(path)
+    calib = calibfile.load(path, intrinsics_only=True)
+    left = calib.camera("left")
+    assert left.extrinsics is None and calib.camera("camera").extrinsics is not None
+    assert camera_models.load(path, camera="left") == left.model
+    with pytest.raises(CalibFileError, match="^" + where):
+        left.camera_to_laser  # noqa: B018 (the access raises)
+    # written back without a pose, not with the identity
+    again = yaml.safe_load(calibfile.dump(calib))
+    assert "camera_to_laser" not in again["cameras"]["left"]
+    assert calibfile.parse(again, intrinsics_only=True).to_dict() == calib.to_dict()
+
+
+_RANGE_CASES = [
+    ("fx", 1e308, r"cameras\.camera\.fx: must be <= 1e\+06, got 1e\+308"),
+    ("fx", 1e-300, r"cameras\.camera\.fx: must be >= 1, got 1e-300"),
+    ("cx", 1e300, r"cameras\.camera\.cx: the principal point must be within one image size "
+     r"of the image \(-780\.\.1560 px\), got 1e\+300"),
+    ("cy", -1e9, r"cameras\.camera\.cy: the principal point .*\(-582\.\.1164 px\)"),
+    ("image_size", [10**9, 582], r"cameras\.camera\.image_size: expected two whole numbers"),
+    ("fov_deg", 360.0, r"cameras\.camera\.fov_deg: must be < 360, got 360\.0"),
+    ("time_offset_s", 1e12,
+     r"cameras\.camera\.time_offset_s: must be <= 3600, got 1000000000000\.0"),
+    ("time_offset_s", -3600.5, r"cameras\.camera\.time_offset_s: must be >= -3600"),
+    ("translation", [1e308, 0, 0],
+     r"cameras\.camera\.camera_to_laser\.translation\[0\]: must be <= 100, got 1e\+308"),
+    ("rotation", [[1e200, 0, 0], [0, 1, 0], [0, 0, 1]],
+     r"cameras\.camera\.camera_to_laser\.rotation\[0\]\[0\]: not a rotation"),
+    ("k", [1e300, 0, 0, 0], r"cameras\.camera\.k\[0\]: must be <= 1000, got 1e\+300"),
+    ("std", {"fx": 1e308}, r"cameras\.camera\.std\.fx: must be <= 1e\+06, got 1e\+308"),
+    ("std", {"rotation_deg": [0.1, 400.0, 0.1]},
+     r"cameras\.camera\.std\.rotation_deg\[1\]: must be <= 180, got 400\.0"),
+    ("laser_to_vehicle", {"rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+                          "translation": [0, 0, 1e6]},
+     r"^\S*calib\.yaml: laser_to_vehicle\.translation\[2\]: must be <= 100"),
+]  # fmt: skip
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize(("key", "value", "message"), _RANGE_CASES)
+def test_numbers_out_of_range_are_refused_with_their_key(
+    tmp_path: Path, key: str, value: object, message: str
+) -> None:
+    data = yaml.safe_load(yaml.safe_dump(GOOD))
+    cam = data["cameras"]["camera"]
+    if key == "k":
+        cam["model"] = "kannala_brandt"
+    if key in ("translation", "rotation"):
+        cam["camera_to_laser"][key] = value
+    elif key == "laser_to_vehicle":
+        data[key] = value
+    else:
+        cam[key] = value
+    with pytest.raises(CalibFileError, match=message):
+        calibfile.load(write(tmp_path, data))
 
 
 # --- std: the calibrations' standard deviations -------------------------------------------
@@ -323,6 +402,10 @@ _FULL = {
             "cx": 390.0,
             "cy": 291.0,
             "k": [0.0] * 4,
+            "camera_to_laser": {
+                "rotation": [[0, 0, 1], [-1, 0, 0], [0, -1, 0]],
+                "translation": [0.2, -0.1, 0.3],
+            },
             "time_offset_s": 0.01,
             "method": "board",
             "std": STD,
@@ -388,3 +471,66 @@ def test_fuzz_edited_files_parse_or_say_where(data: dict[str, Any]) -> None:
 @given(st.dictionaries(_NAMES, _VALUES, max_size=5))
 def test_fuzz_any_mapping_parses_or_says_where(data: dict[Any, Any]) -> None:
     _parses_or_says_where(data)
+
+
+# --- fuzzing the numbers: what loads projects without a numpy warning --------------------
+
+
+def _at(tree: Any, path: tuple[Any, ...]) -> Any:
+    for key in path:
+        tree = tree[key]
+    return tree
+
+
+_NUMERIC_PATHS = [
+    path
+    for path in _nodes(_FULL)
+    if isinstance(_at(_FULL, path), int | float) and path[-1] != "version"
+]
+_NUMBERS = (
+    st.floats()
+    | st.integers()
+    | st.sampled_from([1e308, -1e308, -0.0, 1e-300, 10**400, 65535, 65536, 3600.5, 1e6, 1001])
+    | st.text(max_size=3)
+)
+_POINTS = np.array([[0.1, 0.2, 1.0], [1.0, 0.0, 0.01], [0.0, 0.0, -1.0], [3.0, -2.0, 5.0]])
+
+
+def _key_text(path: tuple[Any, ...]) -> str:
+    """A node's path as the messages write it: ``cameras.kb.k[2]``."""
+    return "".join(f"[{k}]" if isinstance(k, int) else f".{k}" for k in path).lstrip(".")
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.sampled_from(_NUMERIC_PATHS), _NUMBERS), min_size=1, max_size=3))
+def test_fuzz_numbers_load_and_project_quietly_or_name_the_key(
+    edits: list[tuple[tuple[Any, ...], Any]],
+) -> None:
+    from acq.camera import projection
+
+    data: dict[str, Any] = copy.deepcopy(_FULL)
+    for path, value in edits:
+        parent: Any = data
+        for key in path[:-1]:
+            parent = parent[key]
+        parent[path[-1]] = value
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            calib = calibfile.parse(data, "f.yaml")
+        except CalibFileError as e:
+            text = str(e)
+            assert text.startswith("f.yaml: ") and "\n" not in text, text
+            where = text.removeprefix("f.yaml: ").split(": ", 1)[0]
+            edited = [_key_text(path) for path, _ in edits]
+            # the key itself, or the camera or section it belongs to
+            assert any(k.startswith(where) or where.startswith(k.rsplit(".", 1)[0])
+                       for k in edited), (where, edited)  # fmt: skip
+            return
+        for cam in calib.cameras.values():
+            uv, valid = cam.model.project(_POINTS)
+            assert uv.shape == (4, 2) and valid.shape == (4,)
+            uv32, _ = projection.project(_POINTS, cam.model, cam.camera_to_laser)
+            assert uv32.shape == (4, 2)
+            assert abs(round(cam.time_offset_s * 1e9)) <= 3600 * 10**9
+        assert calibfile.parse(yaml.safe_load(calibfile.dump(calib))).to_dict() == calib.to_dict()

@@ -269,7 +269,7 @@ def test_models_are_frozen() -> None:
         ),
         (
             lambda d: d["output"].update(split_minutes=-1),
-            "rig.yaml: output.split_minutes: must be > 0, got -1",
+            "rig.yaml: output.split_minutes: must be >= 0.01, got -1",
         ),
         (
             lambda d: d["output"].update(reserve_megabytes=-5),
@@ -281,7 +281,7 @@ def test_models_are_frozen() -> None:
         ),
         (
             lambda d: d["scanners"][0].update(latency_s=-0.1),
-            "rig.yaml: scanners[0].latency_s: expected a number of seconds >= 0 or auto, got -0.1",
+            "rig.yaml: scanners[0].latency_s: expected a number of seconds 0..10 or auto, got -0.1",
         ),
         (
             lambda d: d["cameras"][0].update(fps=float("inf")),
@@ -333,11 +333,12 @@ def test_models_are_frozen() -> None:
         (
             lambda d: d["scanners"][0].update(driver="sick", url="tcp://h:2112", latency_s="auto"),
             "rig.yaml: scanners[0].latency_s: auto is measured with SCIP TM round trips, "
-            "for driver hokuyo only; expected a number of seconds >= 0",
+            "for driver hokuyo only; expected a number of seconds 0..10",
         ),
         (
             lambda d: d["scanners"][0].update(driver="sick", url="http://h:2112"),
-            "rig.yaml: scanners[0].url: expected tcp://host:port, got 'http://h:2112'",
+            "rig.yaml: scanners[0].url: expected tcp://host:port or host[:port] for driver sick, "
+            "got 'http://h:2112'",
         ),
         (
             lambda d: d["scanners"][0].update(url="socket://127.0.0.1"),
@@ -373,6 +374,98 @@ def test_models_are_frozen() -> None:
 )
 def test_errors(change: Callable[[dict[str, Any]], object], expected: str) -> None:
     assert error_of(changed(change)) == expected
+
+
+def _camera(**entry: Any) -> Callable[[dict[str, Any]], object]:
+    return lambda d: d["cameras"][0].update(entry)
+
+
+def _scanner(**entry: Any) -> Callable[[dict[str, Any]], object]:
+    return lambda d: d["scanners"][0].update(entry)
+
+
+_OPENCV = (
+    "expected an index (0), /dev/videoN, a video file, a GStreamer pipeline (with '!') or a "
+    "URL (http://, https://, rtsp://, rtsps://, rtmp://, rtmps://, rtp://, udp://, tcp://, "
+    "srt://) for driver opencv"
+)
+_V4L2 = "expected an index (0) or a device path (/dev/videoN, /dev/v4l/by-id/...) for driver v4l2"
+_CAN = {"interface": "socketcan", "channel": "can0", "dbc": "car.dbc"}
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        (_scanner(driver="sick", url="socket://10.0.0.2:2112"),
+         "rig.yaml: scanners[0].url: expected tcp://host:port or host[:port] for driver sick "
+         "(a TCP device); socket:// is a pyserial URL, for serial drivers: write "
+         "tcp://10.0.0.2:2112"),
+        (_scanner(latency_s=1e300),
+         "rig.yaml: scanners[0].latency_s: expected a number of seconds 0..10 or auto, "
+         "got 1e+300"),
+        (_camera(latency_s=1e6), "rig.yaml: cameras[0].latency_s: must be <= 10, got 1000000.0"),
+        (_camera(fps=1e-300), "rig.yaml: cameras[0].fps: must be >= 0.01, got 1e-300"),
+        (_camera(fps=1e9), "rig.yaml: cameras[0].fps: must be <= 1000, got 1000000000.0"),
+        (_camera(width=10**9), "rig.yaml: cameras[0].width: must be <= 65535, got 1000000000"),
+        (lambda d: d["output"].update(split_megabytes=1e308),
+         "rig.yaml: output.split_megabytes: must be <= 1e+09, got 1e+308"),
+        (lambda d: d["output"].update(split_megabytes=1e-300),
+         "rig.yaml: output.split_megabytes: must be >= 1, got 1e-300"),
+        (lambda d: d["output"].update(split_minutes=1e-300),
+         "rig.yaml: output.split_minutes: must be >= 0.01, got 1e-300"),
+        (lambda d: d["output"].update(reserve_megabytes=1e308),
+         "rig.yaml: output.reserve_megabytes: must be <= 1e+09, got 1e+308"),
+        (lambda d: d.update(gnss={"url": "/dev/ttyUSB0", "baudrate": 10**12}),
+         "rig.yaml: gnss.baudrate: must be <= 10000000, got 1000000000000"),
+        (lambda d: d.update(gnss={"url": "/dev/ttyUSB0", "latency_s": 1e3}),
+         "rig.yaml: gnss.latency_s: must be <= 10, got 1000.0"),
+        (lambda d: d.update(can={**_CAN, "bitrate": 10**12}),
+         "rig.yaml: can.bitrate: must be <= 10000000, got 1000000000000"),
+        (_scanner(options={"timeout": -1}),
+         "rig.yaml: scanners[0].options.timeout: must be >= 0.01, got -1"),
+        (_scanner(options={"cluster": 0}),
+         "rig.yaml: scanners[0].options.cluster: must be >= 1, got 0"),
+        (_scanner(driver="sick", url="tcp://h:2112", options={"login": [3, 2**40]}),
+         "rig.yaml: scanners[0].options.login[1]: must be <= 4294967295, got 1099511627776"),
+        (_camera(driver="v4l2", source="/dev/video0", options={"buffers": 10**6}),
+         "rig.yaml: cameras[0].options.buffers: must be <= 32, got 1000000"),
+        (_camera(options={"timeout": 1e300}),
+         "rig.yaml: cameras[0].options.timeout: must be <= 60, got 1e+300"),
+    ],
+)  # fmt: skip
+def test_sources_and_numbers_out_of_range_name_the_key(
+    change: Callable[[dict[str, Any]], object], expected: str
+) -> None:
+    assert error_of(changed(change)) == expected
+
+
+def test_a_camera_source_is_what_its_driver_opens() -> None:
+    for driver, source in [
+        ("opencv", "0"),
+        ("opencv", "/dev/video2"),
+        ("opencv", "drive/front_%04d.jpg"),
+        ("opencv", "rtsp://admin@10.0.0.9:554/stream1"),
+        ("opencv", "rtspsrc location=rtsp://10.0.0.9/s ! decodebin ! videoconvert ! appsink"),
+        ("v4l2", "2"),
+        ("v4l2", "/dev/v4l/by-id/usb-Fisheye_USB_Camera_0001-video-index0"),
+    ]:
+        cfg = config.parse(changed(_camera(driver=driver, source=source)))
+        assert cfg.cameras[0].source == source
+    refused = [
+        (_camera(source="gopher://cam/stream"),
+         f"rig.yaml: cameras[0].source: {_OPENCV}; unknown scheme gopher://"),
+        (_camera(source="http:///stream.mjpg"),
+         f"rig.yaml: cameras[0].source: {_OPENCV}; no host in 'http:///stream.mjpg'"),
+        (_camera(source="http://cam:99999/x"),
+         f"rig.yaml: cameras[0].source: {_OPENCV}; a bad host or port in "
+         "'http://cam:99999/x'"),
+        (_camera(driver="v4l2", source="http://cam/stream"),
+         f"rig.yaml: cameras[0].source: {_V4L2}, got 'http://cam/stream'"),
+        (_camera(driver="v4l2", source="video0"),
+         f"rig.yaml: cameras[0].source: {_V4L2}, got 'video0'"),
+    ]  # fmt: skip
+    for change, expected in refused:
+        assert error_of(changed(change)) == expected
 
 
 @pytest.mark.parametrize(

@@ -231,9 +231,9 @@ def test_main_sensitivity_json_and_bad_input(
     assert analyze_sensitivity(calib, [tmp_path / "nope.mcap"], tmp_path, 2, 10, False) == 2
     assert capsys.readouterr().err.count("\n") == 1
     assert analyze_sensitivity(calib, [log], tmp_path / "c", 2.0, 0.0, False) == 2
-    # a camera 500 m above the scan plane, looking up: every laser point is behind it
+    # a camera 90 m above the scan plane, looking up: every laser point is behind it
     cam = calibfile.load(calib).camera()
-    away = Rigid(np.eye(3), np.array([0.0, 0.0, 500.0]))
+    away = Rigid(np.eye(3), np.array([0.0, 0.0, 90.0]))
     far = tmp_path / "far.yaml"
     calibfile.save(Calibration(cameras={"camera": CameraCalib(cam.model, away)}), far)
     assert analyze_sensitivity(far, [log], tmp_path / "f", 2.0, 10.0, False) == 1

@@ -1,8 +1,9 @@
 """The `acq` command line: the parser root, and the one place where an error becomes a
 line on stderr and an exit status.
 
-Exit status: 0 success; 2 bad usage or bad input (:class:`acq.errors.InputError`: one
-line naming the file and the key); 1 a runtime failure (any other error: one line, the
+Exit status: 0 success; 2 bad usage or bad input (a bad option or value, refused while
+the command line is parsed, or :class:`acq.errors.InputError`: one line naming the
+option, or the file and the key); 1 a runtime failure (any other error: one line, the
 traceback with ``--debug``); 130 Ctrl-C; ``acq record`` also 3, the disk below its
 reserve. A closed stdout (``acq info LOG | head``) ends the command quietly.
 
@@ -23,6 +24,7 @@ import sys
 import traceback
 from collections.abc import Callable, Sequence
 from types import ModuleType
+from typing import NoReturn
 
 from acq import __version__
 from acq.cli import (
@@ -58,10 +60,19 @@ VERSION = f"acq {__version__}"
 EXIT_FAILURE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, its usage errors one line (``acq colorize: argument --chunk:
+    expected seconds in [1, 600], got 'nan'``) and exit status 2; its sub-parsers too."""
+
+    def error(self, message: str) -> NoReturn:
+        _say(self.prog, message)
+        raise SystemExit(EXIT_USAGE)
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The whole parser; with ``only``, every command but that one without its arguments
     (what its --help and its run need, without importing what the others list)."""
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="acq",
         description="Mobile-mapping acquisition: laser scanner + fisheye cameras, "
         "synchronised, logged, calibrated and coloured.",
@@ -102,7 +113,10 @@ def _command(argv: Sequence[str]) -> str | None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run `acq` with ``argv`` (default: the process's); the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser(_command(argv) or "").parse_args(argv)
+    try:
+        args = build_parser(_command(argv) or "").parse_args(argv)
+    except SystemExit as e:  # --help, --version, or a usage error (its line printed)
+        return e.code if isinstance(e.code, int) else EXIT_USAGE
     handler: Callable[[argparse.Namespace], int] = args.handler
     prog: str = args._prog
     # what the imports made lives as long as the process: out of the collector's scans

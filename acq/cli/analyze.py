@@ -28,7 +28,9 @@ def _sigma_arg(text: str) -> tuple[str, float]:
     except ValueError as e:
         raise argparse.ArgumentTypeError(str(e).removeprefix("--sigma ")) from None
     if not SIGMA.contains(sigma):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected {SIGMA.what} in {SIGMA.range_text()}")
+        raise argparse.ArgumentTypeError(
+            f"expected {SIGMA.what} in {SIGMA.range_text()}, got {text!r}"
+        )
     return name, sigma
 
 

@@ -24,7 +24,7 @@ import sys
 import traceback
 from collections.abc import Callable, Sequence
 from types import ModuleType
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from acq import __version__
 from acq.cli import (
@@ -40,6 +40,9 @@ from acq.cli import (
     sim,
 )
 from acq.errors import AcqError, InputError
+
+if TYPE_CHECKING:
+    from _typeshed import SupportsWrite
 
 __all__ = ["build_parser", "main"]
 
@@ -67,6 +70,11 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         _say(self.prog, message)
         raise SystemExit(EXIT_USAGE)
+
+    def _print_message(self, message: str, file: SupportsWrite[str] | None = None) -> None:
+        # argparse's own ignores a failed write: --help on a full disk would exit 0
+        if message:
+            (file or sys.stderr).write(message)
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
@@ -116,7 +124,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser(_command(argv) or "").parse_args(argv)
     except SystemExit as e:  # --help, --version, or a usage error (its line printed)
-        return e.code if isinstance(e.code, int) else EXIT_USAGE
+        return _flushed("acq", e.code if isinstance(e.code, int) else EXIT_USAGE)
+    except OSError as e:  # --help or --version into a closed or full stdout
+        return _flushed("acq", EXIT_FAILURE, e)
     handler: Callable[[argparse.Namespace], int] = args.handler
     prog: str = args._prog
     # what the imports made lives as long as the process: out of the collector's scans
@@ -140,6 +150,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             traceback.print_exc()
         _say(prog, _describe(e, args.debug))
         return EXIT_FAILURE
+
+
+def _flushed(prog: str, code: int, failed: OSError | None = None) -> int:
+    """``code`` once stdout is written out, unless writing it ``failed`` or fails now: a
+    closed stdout ends quietly (141), a full one is a failure (one line, 1)."""
+    try:
+        if failed is not None:
+            raise failed
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _drop_stdout()
+        return EXIT_BROKEN_PIPE
+    except OSError as e:
+        _drop_stdout()
+        _say(prog, _describe(e, False))
+        return EXIT_FAILURE
+    return code
 
 
 def _describe(e: Exception, debug: bool) -> str:

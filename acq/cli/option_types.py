@@ -57,8 +57,7 @@ class Number:
             return x in self.words
         if not isinstance(x, self.kind) or isinstance(x, bool):
             return False
-        assert isinstance(x, int | float)
-        if not math.isfinite(x):
+        if isinstance(x, float) and not math.isfinite(x):
             return False
         above = x > self.lo if self.lo_open else x >= self.lo
         below = x < self.hi if self.hi_open else x <= self.hi

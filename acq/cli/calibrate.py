@@ -545,6 +545,8 @@ def run_validate(args: argparse.Namespace) -> int:
 
     overlay = args.out / "validate_overlay.png" if args.out is not None else None
     if overlay is not None:
+        if args.out.exists() and not args.out.is_dir():
+            raise InputError(f"-o {args.out}: is a file; give a folder")
         inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
         output_files.check(inputs, [Output("-o", overlay, "image")])
     cal = calibfile.load(args.calib)

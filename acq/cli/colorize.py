@@ -120,7 +120,6 @@ def run(args: argparse.Namespace) -> int:
             pyproj.CRS.from_user_input(args.crs)
         except pyproj.exceptions.CRSError as e:
             raise InputError(f"--crs {args.crs}: {e}") from None
-    calib = calibfile.load(args.calib)
     options = views.Options(
         view=args.view,
         motion_compensation=not args.no_motion_compensation,
@@ -136,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
     if args.trajectory is not None:
         inputs.append(("--trajectory", args.trajectory))
     output_files.check(inputs, outputs)
+    calib = calibfile.load(args.calib)
     report = colorize.run(
         args.logs, calib, args.output, camera=args.camera, frame=args.frame,
         options=options, trajectory=args.trajectory, crs=args.crs,

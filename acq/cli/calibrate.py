@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from acq.camera.camera_models import KannalaBrandt
 
 HELP = "calibrate the rig's sensors"
-FORCE_HELP = "replace an existing CALIB (or update --calib's file in place), keeping CALIB.bak"
+FORCE_HELP = "replace an existing output YAML (or update the input one in place), keeping NAME.bak"
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

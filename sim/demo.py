@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import shutil
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -56,12 +57,14 @@ from acq.sim.demo_rig import (
 )
 from acq.sim.demo_truth import check_log, check_odometry
 
-__all__ = ["DemoResult", "run"]
+__all__ = ["MAX_SECONDS", "OUT_MARK", "DemoResult", "run"]
 
 EXIT_OK, EXIT_FAILURE = 0, 1
 
 STOP_AHEAD_S = 0.005  # the recorder is stopped this long before a scan is due (see _record)
 MAX_SECONDS = 170.0  # the simulated drive loops over its 1 km street every 180 s
+OUT_MARK = ".acq-demo"  # in a folder the demo wrote: it may write there again
+FILES = ("demo.mcap", "cloud.ply", "preview.png", "calib.yaml", "config.yaml")
 
 
 @dataclass
@@ -258,6 +261,24 @@ def run(
     return result
 
 
+def _claim(out: Path) -> None:
+    """Make folder ``out`` the demo's, marked with :data:`OUT_MARK`: new, empty, or an
+    earlier demo's (whose files the demo replaces, leaving anything else there alone);
+    InputError for any other."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: is a file; give a folder")
+    if out.is_dir() and not (out / OUT_MARK).is_file() and any(out.iterdir()):
+        raise InputError(
+            f"--out {out}: holds files and is not an earlier demo's folder (no {OUT_MARK}); "
+            "give a new or empty folder"
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    (out / OUT_MARK).write_text(
+        f"acq demo writes {', '.join(FILES)} here, replacing its own files on a new run\n",
+        encoding="utf-8",
+    )
+
+
 def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) -> None:
     out = result.out
     if not (math.isfinite(seconds) and 0 < seconds <= MAX_SECONDS):
@@ -265,14 +286,13 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
             f"--seconds {seconds:g}: expected 0 < seconds <= {MAX_SECONDS:g} "
             "(one drive down the simulated 1 km street)"
         )
+    _claim(out)
     clock = _Clock(progress)
     progress(
         f"acq demo: a simulated UTM-30LX and 185-degree fisheye driving down a synthetic street,"
         f"\nrecorded for {seconds:g} s by the real recorder, coloured into a cloud; into {out}/"
     )
-    out.mkdir(parents=True, exist_ok=True)
-    rec_dir = out / ".recording"
-    shutil.rmtree(rec_dir, ignore_errors=True)
+    rec_dir = Path(tempfile.mkdtemp(prefix=".recording-", dir=out))
     calib = true_calibration()
     calib_path = out / "calib.yaml"
     calibfile.save(calib, calib_path)

@@ -7,16 +7,31 @@ import json
 from pathlib import Path
 from typing import Any
 
+from acq.cli import output_files
+from acq.cli.option_types import real
+from acq.cli.output_files import Output
+from acq.errors import InputError
+
 HELP = "analyse a calibration against logs"
+SIGMA = real(0, 1e6, what="a standard deviation")  # rad, m, px or px/m
+# what it writes into its folder (acq.calib.sensitivity_log)
+WRITES = (("fig7_rigid.png", "image"), ("fig8_camera.png", "image"),
+          ("fig9_third_order.png", "image"), ("sensitivity.json", "json"))  # fmt: skip
 
 
 def _sigma_arg(text: str) -> tuple[str, float]:
+    """``NAME=VALUE``: a parameter's name and its standard deviation, in range."""
     from acq.calib.sensitivity import parse_sigma
 
     try:
-        return parse_sigma(text)
+        name, sigma = parse_sigma(text)
     except ValueError as e:
         raise argparse.ArgumentTypeError(str(e).removeprefix("--sigma ")) from None
+    if not SIGMA.contains(sigma):
+        raise argparse.ArgumentTypeError(
+            f"expected {SIGMA.what} in {SIGMA.range_text()}, got {text!r}"
+        )
+    return name, sigma
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -31,7 +46,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "principal point, not pixel (0, 0) as printed) to the 3 rotation angles, 3 "
         "translations, k1, k2, u0, v0, mu_x, mu_y, with the pixels one standard deviation of "
         "each moves a point; Figures 7-9 as PNGs; Table 3 (height on a facade at which "
-        "dropping k2 theta^3 reaches 0.5..4 px); DIR/sensitivity.json.",
+        "dropping k2 theta^3 reaches 0.5..4 px); DIR/sensitivity.json. Files of their kind "
+        "in DIR are replaced, any other is refused.",
     )
     sens.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP logs of one session")
     sens.add_argument("--calib", type=Path, required=True, metavar="CALIB", help="calib.yaml")
@@ -40,11 +56,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="where to write the PNGs and sensitivity.json (default: ./sensitivity)",
     )  # fmt: skip
     sens.add_argument(
-        "--camera-height", type=float, default=2.0, metavar="M",
+        "--camera-height", type=real(0, 100, lo_open=True, what="metres"), default=2.0,
+        metavar="M",
         help="Table 3: camera height above the ground, m (default 2)",
     )  # fmt: skip
     sens.add_argument(
-        "--building-distance", type=float, default=10.0, metavar="M",
+        "--building-distance", type=real(0, 1000, lo_open=True, what="metres"),
+        default=10.0, metavar="M",
         help="Table 3: distance from the camera to the facade, m (default 10)",
     )  # fmt: skip
     sens.add_argument(
@@ -76,6 +94,10 @@ def run_sensitivity(args: argparse.Namespace) -> int:
     from acq.calib import sensitivity, sensitivity_log
 
     out: Path = args.output
+    if out.exists() and not out.is_dir():
+        raise InputError(f"-o {out}: is a file; give a folder")
+    inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
+    output_files.check(inputs, [Output("-o", out / name, kind) for name, kind in WRITES])
     report = sensitivity_log.analyze_logs(
         args.calib, args.logs, out, args.camera_height, args.building_distance,
         sigma=dict(args.sigma or ()),

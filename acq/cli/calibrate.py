@@ -12,6 +12,9 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from acq.cli import output_files
+from acq.cli.option_types import LONGEST_S, integer, real
+from acq.cli.output_files import IMAGE_SUFFIXES, Output
 from acq.errors import AcqError, InputError
 
 if TYPE_CHECKING:
@@ -22,6 +25,7 @@ if TYPE_CHECKING:
     from acq.camera.camera_models import KannalaBrandt
 
 HELP = "calibrate the rig's sensors"
+FORCE_HELP = "replace an existing output YAML (or update the input one in place), keeping NAME.bak"
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -36,11 +40,14 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "circles cut by the sensor edges. Writes u0, v0 = the centre and f = r / theta_max "
         "(theta_max = fov / 2) into the camera's entry of CALIB (equidistant model; the rest "
         "of an existing file is kept), and an overlay PNG. With --board, also fits the "
-        "Kannala-Brandt model (k1..k4) to a checkerboard in the images and writes that instead.",
+        "Kannala-Brandt model (k1..k4) to a checkerboard in the images and writes that instead. "
+        "An existing CALIB is updated, its old content kept as CALIB.bak; an IMAGE or any file "
+        "that is not YAML is refused as CALIB.",
     )
     fish.add_argument("images", nargs="+", type=Path, metavar="IMAGE", help="images of one camera")
     fish.add_argument(
-        "--fov", type=float, required=True, metavar="DEG",
+        "--fov", type=real(0, 360, lo_open=True, hi_open=True, what="degrees"),
+        required=True, metavar="DEG",
         help="the lens's full aperture in degrees, from its data sheet (e.g. 185)",
     )  # fmt: skip
     fish.add_argument(
@@ -49,7 +56,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )  # fmt: skip
     fish.add_argument(
         "-o", "--output", type=Path, required=True, metavar="CALIB",
-        help="calib.yaml to create or update",
+        help="calib.yaml to create or update (the old one kept as CALIB.bak)",
     )  # fmt: skip
     fish.add_argument(
         "--ellipse", action="store_true",
@@ -76,7 +83,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "projection centre along the optical axis) and its laser line, and fit camera_to_laser "
         "(Zhang & Pless: linear solution, then robust Levenberg-Marquardt on point-to-plane "
         "distances). Writes CALIB: a copy of --intrinsics with the camera's camera_to_laser "
-        "set, and a residual plot PNG.",
+        "set, and a residual plot PNG. " + output_files.RULE + " `--intrinsics C -o C --force` "
+        "updates C in place.",
     )
     ext.add_argument(
         "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s)"
@@ -113,11 +121,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "default (no lens swap, the fisheye seeing the board) has no such error",
     )  # fmt: skip
     ext.add_argument(
-        "--pupil-shift", type=float, default=0.0, metavar="M",
+        "--pupil-shift", type=real(-1, 1, what="metres"), default=0.0, metavar="M",
         help="with --lens-swap: the fisheye's projection centre minus the regular lens's, "
         "along the optical axis, metres, + towards the scene (default 0, the paper's "
         "assumption)",
     )  # fmt: skip
+    ext.add_argument("--force", action="store_true", help=FORCE_HELP)
     ext.set_defaults(handler=run_extrinsic)
 
     tof = cal_sub.add_parser(
@@ -131,8 +140,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "the rig moving (CAN odometry in the log or --trajectory), textured surfaces "
         "(facades, road markings) and return strengths in the log (SCIP ME / CoLa RSSI1). "
         "Writes OUT: a copy of CALIB with the camera's time_offset_s and its standard "
-        "deviation set. Exit status: 0 written, 1 no clear estimate (why is printed), 2 bad "
-        "input.",
+        "deviation set. " + output_files.RULE + " `--calib C -o C --force` updates C in place. "
+        "Exit status: 0 written, 1 no clear estimate (why is printed), 2 bad input.",
     )
     tof.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files or a folder")
     tof.add_argument(
@@ -147,22 +156,24 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="post-processed GNSS/INS trajectory (default: the log's CAN odometry)",
     )  # fmt: skip
     tof.add_argument(
-        "--start", type=float, metavar="S",
+        "--start", type=real(0, LONGEST_S, what="seconds"), metavar="S",
         help="use the log from S seconds after its first scan (default: its middle part)",
     )  # fmt: skip
     tof.add_argument(
-        "--seconds", type=float, default=60.0, metavar="S",
+        "--seconds", type=real(0, 600, lo_open=True, what="seconds"), default=60.0,
+        metavar="S",
         help="how much of the log to use, seconds (default 60)",
     )  # fmt: skip
     tof.add_argument(
-        "--search", type=float, default=0.06, metavar="S",
+        "--search", type=real(0, 1, lo_open=True, what="seconds"), default=0.06, metavar="S",
         help="search CALIB's offset +- S seconds (default 0.06)",
     )  # fmt: skip
     tof.add_argument(
-        "--frames", type=int, default=1500, metavar="N",
+        "--frames", type=integer(1, 10_000), default=1500, metavar="N",
         help="at most N frames, spread over the part used (default 1500)",
     )  # fmt: skip
     tof.add_argument("--json", action="store_true", help="JSON (with the curve) instead of text")
+    tof.add_argument("--force", action="store_true", help=FORCE_HELP)
     tof.set_defaults(handler=run_time_offset)
 
     val = cal_sub.add_parser(
@@ -181,7 +192,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     val.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
     val.add_argument("--json", action="store_true", help="JSON instead of text")
     val.add_argument(
-        "-o", dest="out", type=Path, metavar="DIR", help="write DIR/validate_overlay.png"
+        "-o",
+        dest="out",
+        type=Path,
+        metavar="DIR",
+        help="write DIR/validate_overlay.png (replacing an image there, no other file)",
     )
     val.set_defaults(handler=run_validate)
 
@@ -243,8 +258,11 @@ def run_fisheye(args: argparse.Namespace) -> int:
     from acq.camera import calibfile
 
     images, fov_deg, output = args.images, args.fov, args.output
-    if not 0.0 < fov_deg < 360.0:
-        raise InputError(f"--fov {fov_deg}: expected degrees in (0, 360)")
+    overlay = args.overlay or output.with_name(output.stem + "_circle.png")
+    if overlay.suffix.lower() not in IMAGE_SUFFIXES:
+        raise InputError(f"--overlay {overlay}: expected a .png or .jpg file")
+    outputs = [Output("-o", output, "yaml", update=True), Output("--overlay", overlay, "image")]
+    backups = output_files.check([("IMAGE", p) for p in images], outputs)
     spec = parse_board(args.board) if args.board else None
     imgs = read_images(images)
     try:
@@ -279,11 +297,12 @@ def run_fisheye(args: argparse.Namespace) -> int:
         )
         model, method, std = m, METHOD_BOARD, fit.std()
     calib, name, notes = update_calibration(output, args.camera, model, method, std)
+    output_files.keep_backups("acq calibrate fisheye", backups)
     calibfile.save(calib, output)
-    overlay = args.overlay or output.with_name(output.stem + "_circle.png")
     title = f"{Path(images[0]).name}: {len(imgs)} image(s)"
-    if not cv2.imwrite(str(overlay), draw_overlay(imgs[0], result, title)):
-        raise InputError(f"{overlay}: cannot write the overlay")
+    with output_files.atomic(overlay) as tmp:
+        if not cv2.imwrite(str(tmp), draw_overlay(imgs[0], result, title)):
+            raise InputError(f"{overlay}: cannot write the overlay")
     report |= {"camera": name, "calib": str(output), "model": model.to_dict()}
     report |= {"method": method, "overlay": str(overlay)}
     if args.json:
@@ -370,6 +389,17 @@ def run_extrinsic(args: argparse.Namespace) -> int:
         args.logs, args.camera, args.intrinsics, args.board, args.output
     )  # fmt: skip
     lens_swap, pupil_shift_m = args.lens_swap, args.pupil_shift
+    plot = args.plot if args.plot is not None else output.with_name(output.stem + "_extrinsic.png")
+    inputs = [("--intrinsics", intrinsics), *(("LOG", p) for p in logs)]
+    if lens_swap is not None:
+        inputs.append(("--lens-swap", lens_swap))
+    outputs = [
+        Output("-o", output, "yaml", in_place_of=("--intrinsics", "--lens-swap")),
+        Output("--plot", plot, "image"),
+    ]
+    if plot.suffix.lower() not in IMAGE_SUFFIXES:
+        raise InputError(f"--plot {plot}: expected a .png or .jpg file")
+    backups = output_files.check(inputs, outputs, force=args.force)
     spec = parse_board(board)
     calib = calibfile.load(intrinsics, intrinsics_only=True)
     log = drive_log.read_log(list(logs), camera=camera)
@@ -402,9 +432,10 @@ def run_extrinsic(args: argparse.Namespace) -> int:
         method = f"{METHOD}+lens_swap"
     entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std)
     out = Calibration(target.laser, {**target.cameras, name: entry}, target.laser_to_vehicle)
-    plot = args.plot if args.plot is not None else output.with_name(output.stem + "_extrinsic.png")
+    output_files.keep_backups("acq calibrate extrinsic", backups)
     calibfile.save(out, output)
-    residual_plot(result, good, plot)
+    with output_files.atomic(plot) as tmp:
+        residual_plot(result, good, tmp)
     if args.json:
         report = {
             "camera": name,
@@ -445,6 +476,11 @@ def run_time_offset(args: argparse.Namespace) -> int:
     from acq.camera.calibfile import CalibStd
     from acq.cloud import colorize
 
+    inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
+    if args.trajectory is not None:
+        inputs.append(("--trajectory", args.trajectory))
+    target = Output("-o", args.output, "yaml", in_place_of=("--calib",))
+    backups = output_files.check(inputs, [target], force=args.force)
     calib = calibfile.load(args.calib)
     report = colorize.Report(output=str(args.output))
     job, _ = colorize.prepare(
@@ -468,6 +504,7 @@ def run_time_offset(args: argparse.Namespace) -> int:
         std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
     cams = dict(calib.cameras)
     cams[name] = replace(cam, time_offset_s=round(est.offset_s, 6), std=std)
+    output_files.keep_backups("acq calibrate time-offset", backups)
     calibfile.save(replace(calib, cameras=cams), args.output)
     if not args.json:
         print(
@@ -508,10 +545,15 @@ def run_validate(args: argparse.Namespace) -> int:
     from acq.camera import calibfile
     from acq.log import drive_log
 
+    overlay = args.out / "validate_overlay.png" if args.out is not None else None
+    if overlay is not None:
+        if args.out.exists() and not args.out.is_dir():
+            raise InputError(f"-o {args.out}: is a file; give a folder")
+        inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
+        output_files.check(inputs, [Output("-o", overlay, "image")])
     cal = calibfile.load(args.calib)
     log = drive_log.read_log(list(args.logs), camera=args.camera)
     name, cam = drive_log.camera_calib(log, cal, args.camera)
-    overlay = args.out / "validate_overlay.png" if args.out is not None else None
     res = validate(log, cam, overlay=overlay)
     if args.json:
         report = {"camera": name, "logs": [str(p) for p in args.logs], "calib": str(args.calib)}

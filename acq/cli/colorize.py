@@ -8,18 +8,14 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
+from acq.cli import output_files
+from acq.cli.option_types import integer, real
+from acq.cli.output_files import Output
 from acq.errors import InputError
 
 HELP = "coloured 3D cloud of a drive (PLY or LAS)"
-
-
-def _time_offset_arg(text: str) -> float | str:
-    if text == "auto":
-        return text
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds or 'auto', got {text!r}") from None
+# a chunk's scans and their points are in memory at once: a few seconds at the least
+CHUNK_S = real(1, 600, what="seconds")
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -37,7 +33,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "The trajectory: --trajectory CSV, else the log's CAN odometry, else none (points "
         "stay in the laser frame). Points no frame sees are kept, flagged 'coloured' 0. Every "
         "point keeps its time (PLY 'time': UTC s; LAS: Adjusted Standard GPS time), scan "
-        "index and intensity. Exit status: 0 written, 2 bad input.",
+        "index and intensity. OUT and the preview replace files of their kind; an input or "
+        "any other file is refused. Exit status: 0 written, 2 bad input.",
     )
     col.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files or a folder")
     col.add_argument("--calib", type=Path, required=True, help="calib.yaml (camera and laser)")
@@ -66,15 +63,15 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="coordinate reference system of the output, written into the LAS header",
     )  # fmt: skip
     col.add_argument(
-        "--window", type=int, default=3, metavar="N",
+        "--window", type=integer(0, 50), default=3, metavar="N",
         help="--view best: frames either side of the nearest to consider (default 3)",
     )  # fmt: skip
     col.add_argument(
-        "--max-dt", type=float, default=0.1, metavar="S",
+        "--max-dt", type=real(0, 10, lo_open=True, what="seconds"), default=0.1, metavar="S",
         help="farthest frame from a point's time, seconds (default 0.1)",
     )  # fmt: skip
     col.add_argument(
-        "--time-offset", type=_time_offset_arg, metavar="S|auto",
+        "--time-offset", type=real(-60, 60, what="seconds", words=("auto",)), metavar="S|auto",
         help="camera time minus laser time, seconds (default: CALIB's time_offset_s): what "
         "the camera's configured latency got wrong; at 20 km/h 10 ms move colours 5.6 cm. "
         "'auto': estimate it from this log first, as 'acq calibrate time-offset' does "
@@ -88,7 +85,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "(for comparison)",
     )  # fmt: skip
     col.add_argument(
-        "--workers", type=int, default=1, metavar="N",
+        "--workers", type=integer(1, 256), default=1, metavar="N",
         help="processes on this machine (default 1); the output is the same for any N",
     )  # fmt: skip
     col.add_argument(
@@ -97,8 +94,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "see the log files at the same paths",
     )  # fmt: skip
     col.add_argument(
-        "--chunk", type=float, default=30.0, metavar="S",
-        help="seconds of scans per chunk (default 30)",
+        "--chunk", type=CHUNK_S, default=30.0, metavar="S",
+        help=f"seconds of scans per chunk, {CHUNK_S.range_text()} (default 30)",
     )  # fmt: skip
     col.add_argument(
         "--preview", type=Path, metavar="PNG",
@@ -123,7 +120,6 @@ def run(args: argparse.Namespace) -> int:
             pyproj.CRS.from_user_input(args.crs)
         except pyproj.exceptions.CRSError as e:
             raise InputError(f"--crs {args.crs}: {e}") from None
-    calib = calibfile.load(args.calib)
     options = views.Options(
         view=args.view,
         motion_compensation=not args.no_motion_compensation,
@@ -131,6 +127,15 @@ def run(args: argparse.Namespace) -> int:
         window=args.window,
     )
     preview = args.preview or args.output.with_name(args.output.stem + "_preview.png")
+    if not args.no_preview and preview.suffix.lower() != ".png":
+        raise InputError(f"--preview {preview}: expected a .png file")
+    outputs = [Output("-o", args.output, "cloud")]
+    outputs += [] if args.no_preview else [Output("--preview", preview, "image")]
+    inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
+    if args.trajectory is not None:
+        inputs.append(("--trajectory", args.trajectory))
+    output_files.check(inputs, outputs)
+    calib = calibfile.load(args.calib)
     report = colorize.run(
         args.logs, calib, args.output, camera=args.camera, frame=args.frame,
         options=options, trajectory=args.trajectory, crs=args.crs,

@@ -5,12 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from acq.cli.option_types import real
 from acq.errors import AcqError
 
 HELP = "record the simulated rig and colour its cloud, end to end"
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from acq.sim.demo import MAX_SECONDS, OUT_MARK
+
     demo = sub.add_parser(
         "demo",
         help=HELP,
@@ -22,10 +25,15 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "(x y z, colour, UTC time, scan, intensity), DIR/preview.png (the coloured facade "
         "and a top view), calib.yaml and config.yaml, and prints a summary checked against "
         "the simulator's truth. `acq colorize DIR/demo.mcap --calib DIR/calib.yaml -o "
-        "OUT.ply` colours the same log from its recorded odometry.",
+        "OUT.ply` colours the same log from its recorded odometry. DIR must be new, empty, "
+        f"or an earlier demo's (it holds {OUT_MARK}): the demo replaces its own files "
+        "there and nothing else.",
     )
     demo.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    demo.add_argument("--seconds", type=float, default=10.0, help="how long to record (default 10)")
+    demo.add_argument(
+        "--seconds", type=real(0, MAX_SECONDS, lo_open=True, what="seconds"), default=10.0,
+        help=f"how long to record, at most {MAX_SECONDS:g} (default 10)",
+    )  # fmt: skip
     demo.set_defaults(handler=run)
 
 

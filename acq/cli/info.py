@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from acq.cli import output_files
+from acq.cli.output_files import Output
 from acq.errors import InputError
 
 HELP = "channels, rates, gaps, drops and clock-sync quality of logs"
@@ -25,9 +27,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     info.add_argument(
         "--repair",
         action="store_true",
-        help="write an indexed copy of each LOG (LOG.repaired.mcap, or --output)",
+        help="write an indexed copy of each LOG (LOG.repaired.mcap, or --output); an "
+        "existing file is never overwritten",
     )
-    info.add_argument("-o", "--output", type=Path, help="with --repair and one LOG: the copy")
+    info.add_argument(
+        "-o", "--output", type=Path, help="with --repair and one LOG: the copy (a new file)"
+    )
     info.set_defaults(handler=run)
 
 
@@ -36,12 +41,16 @@ def run(args: argparse.Namespace) -> int:
     from acq.log.repair import repair
 
     if args.repair:
+        if args.output is not None and len(args.logs) > 1:
+            raise InputError("-o: with one LOG only (each LOG's copy is LOG.repaired.mcap)")
         for src in args.logs:
             dst = args.output if args.output else src.with_suffix(".repaired.mcap")
-            try:
-                n = repair(src, dst)
-            except FileExistsError as e:
-                raise InputError(f"{e.filename}: exists; not overwritten") from None
+            option = "-o" if args.output else "the copy"
+            output_files.check([("LOG", p) for p in args.logs], [Output(option, dst, "mcap")])
+            if dst.exists():
+                raise InputError(f"{dst}: exists; not overwritten")
+            with output_files.atomic(dst) as tmp:  # a failure leaves no half copy
+                n = repair(src, tmp)
             print(f"{src} -> {dst}: {n} messages, indexed")
         return 0
     print(summary.format_info(summary.info_many(args.logs), json=args.json))

@@ -1,8 +1,9 @@
 """The `acq` command line: the parser root, and the one place where an error becomes a
 line on stderr and an exit status.
 
-Exit status: 0 success; 2 bad usage or bad input (:class:`acq.errors.InputError`: one
-line naming the file and the key); 1 a runtime failure (any other error: one line, the
+Exit status: 0 success; 2 bad usage or bad input (a bad option or value, refused while
+the command line is parsed, or :class:`acq.errors.InputError`: one line naming the
+option, or the file and the key); 1 a runtime failure (any other error: one line, the
 traceback with ``--debug``); 130 Ctrl-C; ``acq record`` also 3, the disk below its
 reserve. A closed stdout (``acq info LOG | head``) ends the command quietly.
 
@@ -23,6 +24,7 @@ import sys
 import traceback
 from collections.abc import Callable, Sequence
 from types import ModuleType
+from typing import TYPE_CHECKING, NoReturn
 
 from acq import __version__
 from acq.cli import (
@@ -38,6 +40,9 @@ from acq.cli import (
     sim,
 )
 from acq.errors import AcqError, InputError
+
+if TYPE_CHECKING:
+    from _typeshed import SupportsWrite
 
 __all__ = ["build_parser", "main"]
 
@@ -58,10 +63,24 @@ VERSION = f"acq {__version__}"
 EXIT_FAILURE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, its usage errors one line (``acq colorize: argument --chunk:
+    expected seconds in [1, 600], got 'nan'``) and exit status 2; its sub-parsers too."""
+
+    def error(self, message: str) -> NoReturn:
+        _say(self.prog, message)
+        raise SystemExit(EXIT_USAGE)
+
+    def _print_message(self, message: str, file: SupportsWrite[str] | None = None) -> None:
+        # argparse's own ignores a failed write: --help on a full disk would exit 0
+        if message:
+            (file or sys.stderr).write(message)
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The whole parser; with ``only``, every command but that one without its arguments
     (what its --help and its run need, without importing what the others list)."""
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="acq",
         description="Mobile-mapping acquisition: laser scanner + fisheye cameras, "
         "synchronised, logged, calibrated and coloured.",
@@ -102,7 +121,12 @@ def _command(argv: Sequence[str]) -> str | None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run `acq` with ``argv`` (default: the process's); the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser(_command(argv) or "").parse_args(argv)
+    try:
+        args = build_parser(_command(argv) or "").parse_args(argv)
+    except SystemExit as e:  # --help, --version, or a usage error (its line printed)
+        return _flushed("acq", e.code if isinstance(e.code, int) else EXIT_USAGE)
+    except OSError as e:  # --help or --version into a closed or full stdout
+        return _flushed("acq", EXIT_FAILURE, e)
     handler: Callable[[argparse.Namespace], int] = args.handler
     prog: str = args._prog
     # what the imports made lives as long as the process: out of the collector's scans
@@ -126,6 +150,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             traceback.print_exc()
         _say(prog, _describe(e, args.debug))
         return EXIT_FAILURE
+
+
+def _flushed(prog: str, code: int, failed: OSError | None = None) -> int:
+    """``code`` once stdout is written out, unless writing it ``failed`` or fails now: a
+    closed stdout ends quietly (141), a full one is a failure (one line, 1)."""
+    try:
+        if failed is not None:
+            raise failed
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _drop_stdout()
+        return EXIT_BROKEN_PIPE
+    except OSError as e:
+        _drop_stdout()
+        _say(prog, _describe(e, False))
+        return EXIT_FAILURE
+    return code
 
 
 def _describe(e: Exception, debug: bool) -> str:

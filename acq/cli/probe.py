@@ -12,11 +12,17 @@ import math
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
+from acq.cli import output_files
+from acq.cli.option_types import integer, real
+from acq.cli.output_files import IMAGE_SUFFIXES, Output
 from acq.errors import InputError
 
 HELP = "talk to one device and print what it says"
+MAX_COUNT = 1_000_000  # scans or frames; a frame's time is kept for the rate
+TIMEOUT = real(0, 3600, lo_open=True, what="seconds")
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -39,9 +45,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="hokuyo: a pyserial URL (/dev/ttyACM0, /dev/serial/by-id/..., "
         "socket://192.168.0.10:10940); sick: tcp://192.168.0.1:2112",
     )
-    pscan.add_argument("--count", type=int, default=10, help="scans to read (default 10)")
+    pscan.add_argument(
+        "--count", type=integer(0, MAX_COUNT), default=10, help="scans to read (default 10)"
+    )
     pscan.add_argument("--json", action="store_true", help="JSON lines instead of text")
-    pscan.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for data")
+    pscan.add_argument(
+        "--timeout", type=TIMEOUT, default=2.0, help="seconds to wait for data (default 2)"
+    )
     pscan.set_defaults(handler=run_scanner)
 
     pcam = probe_sub.add_parser(
@@ -58,11 +68,22 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="opencv: an index, /dev/videoN, an http(s)/rtsp URL or a GStreamer pipeline; "
         "v4l2: /dev/videoN or /dev/v4l/by-id/...",
     )
-    pcam.add_argument("--count", type=int, default=25, help="frames to grab (default 25)")
-    pcam.add_argument("--fps", type=float, default=25.0, help="frame rate to request")
+    pcam.add_argument(
+        "--count", type=integer(1, MAX_COUNT), default=25, help="frames to grab (default 25)"
+    )
+    pcam.add_argument(
+        "--fps", type=real(0, 1000, lo_open=True, what="frames per second"), default=25.0,
+        help="frame rate to request (default 25)",
+    )  # fmt: skip
     pcam.add_argument("--json", action="store_true", help="JSON lines instead of text")
-    pcam.add_argument("--snapshot", metavar="PNG", help="write the last frame to this PNG")
-    pcam.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for a frame")
+    pcam.add_argument(
+        "--snapshot", type=Path, metavar="PNG",
+        help="write the last frame to this PNG (or .jpg); an existing image is replaced, "
+        "any other file refused",
+    )  # fmt: skip
+    pcam.add_argument(
+        "--timeout", type=TIMEOUT, default=2.0, help="seconds to wait for a frame (default 2)"
+    )
     pcam.set_defaults(handler=run_camera)
 
 
@@ -97,8 +118,6 @@ def run_scanner(args: argparse.Namespace) -> int:
     from acq.drivers.scanner import scanner_for
     from acq.record.probe import scan_json, scanner_device
 
-    if args.count < 0:
-        raise InputError(f"--count {args.count}: expected 0 or more")
     scanner = scanner_for(args.driver, args.url, timeout=args.timeout)
     try:
         with _reported("acq probe scanner", args.url, scanner.close):
@@ -144,9 +163,11 @@ def run_camera(args: argparse.Namespace) -> int:
     from acq.drivers.camera import camera_for
     from acq.record.probe import camera_device, frame_json, write_snapshot
 
-    if args.count < 1:
-        raise InputError(f"--count {args.count}: expected 1 or more")
     source, snapshot = args.source, args.snapshot
+    if snapshot is not None:
+        if snapshot.suffix.lower() not in IMAGE_SUFFIXES:
+            raise InputError(f"--snapshot {snapshot}: expected a .png or .jpg file")
+        output_files.check([], [Output("--snapshot", snapshot, "image")])
     camera = camera_for(args.driver, source, fps=args.fps, timeout=args.timeout)
     try:
         with _reported("acq probe camera", source, camera.close):
@@ -182,8 +203,9 @@ def run_camera(args: argparse.Namespace) -> int:
                 "corrupt": camera.corrupt,
             }
             if snapshot is not None and last is not None:
-                write_snapshot(last, snapshot)
-                summary["snapshot"] = snapshot
+                with output_files.atomic(snapshot) as tmp:
+                    write_snapshot(last, str(tmp))
+                summary["snapshot"] = str(snapshot)
             if args.json:
                 _emit({"summary": summary})
             else:

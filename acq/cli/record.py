@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from acq.cli.option_types import LONGEST_S, real
+
 HELP = "record the rig's devices to MCAP (the daemon systemd runs)"
 
 
@@ -27,7 +29,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     rec.add_argument("--out", type=Path, help="output folder (default: the config's output.dir)")
     rec.add_argument(
         "--duration",
-        type=float,
+        type=real(0, LONGEST_S, lo_open=True, what="seconds"),
         metavar="S",
         help="stop after S seconds (default: run until stopped)",
     )

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import signal
 import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from acq.cli import output_files
+from acq.cli.exposure import warn_if_exposed
+from acq.cli.option_types import real
+from acq.cli.output_files import Output
 from acq.errors import InputError
 
 if TYPE_CHECKING:
@@ -27,12 +30,15 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "(TCP, or a pseudo-terminal with --pty) or CoLa (TCP), each camera's JPEG bytes as "
         "MJPEG over HTTP, at their recorded receive times. Prints the devices' URLs and a "
         "configuration for `acq record -c`. The replay starts when a client first asks a "
-        "device for data, and ends with the log (or Ctrl-C / SIGTERM). Exit status: 0 "
-        "served, 1 runtime failure, 2 bad log or address.",
+        "device for data, and ends with the log (or Ctrl-C / SIGTERM). An address on every "
+        "interface (0.0.0.0, ::) is warned of: the devices have no authentication. "
+        + output_files.RULE
+        + " Exit status: 0 served, 1 runtime failure, 2 bad log or "
+        "address.",
     )
     replay.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files, in order")
     replay.add_argument(
-        "--speed", type=float, default=1.0, metavar="X",
+        "--speed", type=real(0.01, 1000, what="a speed"), default=1.0, metavar="X",
         help="playback speed (default 1, the recorded pace; 2 plays twice as fast)",
     )  # fmt: skip
     replay.add_argument(
@@ -50,8 +56,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )  # fmt: skip
     replay.add_argument(
         "--config-out", type=Path, metavar="YAML",
-        help="write the recorder configuration here (and the log's calibration beside it) "
-        "instead of printing it",
+        help="write the recorder configuration here (and the log's calibration beside it, "
+        "YAML.calib.yaml) instead of printing it",
+    )  # fmt: skip
+    replay.add_argument(
+        "--force", action="store_true",
+        help="replace an existing --config-out (and its calibration), keeping NAME.bak",
     )  # fmt: skip
     replay.set_defaults(handler=run)
 
@@ -66,6 +76,17 @@ def _describe_session(replay: Replay) -> str:
     return f"replaying {files}, {s.duration_s:.1f} s at speed {replay.speed:g}: " + "; ".join(parts)
 
 
+def _calibration_beside(config: Path) -> Path:
+    """Where --config-out's calibration goes: ``NAME.calib.yaml`` beside it."""
+    return config.with_name(config.stem + ".calib.yaml")
+
+
+def _write(path: Path, text: str, backups: list[Output]) -> None:
+    """Write ``path`` atomically, keeping the old file first when it is to be replaced."""
+    output_files.keep_backups("acq replay", [o for o in backups if o.path == path])
+    output_files.write_text(path, text)
+
+
 def run(args: argparse.Namespace) -> int:
     """Serve the logs until they end or Ctrl-C / SIGTERM. Prints the devices' URLs and a
     configuration for ``acq record -c`` (or writes it to --config-out, with the recorded
@@ -76,8 +97,15 @@ def run(args: argparse.Namespace) -> int:
     speed, write_config = args.speed, args.config_out
     if not logging.getLogger().handlers:
         logging.basicConfig(level=logging.INFO, format="acq replay: %(message)s")
-    if not (math.isfinite(speed) and speed > 0):
-        raise InputError(f"--speed {speed:g}: expected a number > 0")
+    warn_if_exposed("acq replay", "--listen", args.listen)
+    warn_if_exposed("acq replay", "--camera-listen", args.camera_listen)
+    backups: list[Output] = []
+    if write_config is not None:
+        outputs = [
+            Output("--config-out", write_config, "yaml"),
+            Output("--config-out", _calibration_beside(write_config), "yaml"),
+        ]
+        backups = output_files.check([("LOG", p) for p in args.logs], outputs, force=args.force)
     replay = Replay(
         args.logs, speed=speed, scanner_listen=args.listen, pty=args.pty,
         camera_listen=args.camera_listen,
@@ -101,14 +129,14 @@ def run(args: argparse.Namespace) -> int:
         if write_config is not None and replay.session.calibration_yaml:
             rec = replay.session.config
             if rec is None or rec.calibration is None or not rec.calibration.exists():
-                calibration = write_config.with_name(write_config.stem + ".calib.yaml")
-                calibration.write_text(replay.session.calibration_yaml)
+                calibration = _calibration_beside(write_config)
+                _write(calibration, replay.session.calibration_yaml, backups)
                 print(f"wrote the recorded calibration to {calibration}")
         text = configfile.dump(
             replay.config(calibration=calibration.resolve() if calibration else None)
         )
         if write_config is not None:
-            write_config.write_text(text)
+            _write(write_config, text, backups)
             print(f"wrote the configuration to {write_config}: acq record -c {write_config}")
         else:
             print("configuration for `acq record -c FILE` (--config-out writes it):")

@@ -60,9 +60,7 @@ def test_bad_input_exits_2_naming_the_command(
              ["sim", "scanner", "--version"], ["devices", "--version"]],
 )  # fmt: skip
 def test_version_on_every_subcommand(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
-    with pytest.raises(SystemExit) as e:
-        main(argv)
-    assert e.value.code == 0
+    assert main(argv) == 0
     assert capsys.readouterr().out == f"acq {__version__}\n"
 
 
@@ -93,3 +91,13 @@ def test_python_m_acq_cli() -> None:
         [sys.executable, "-m", "acq.cli", "info", "--version"], capture_output=True, text=True
     )
     assert done.returncode == 0 and done.stdout == f"acq {__version__}\n"
+
+
+def test_help_into_a_full_stdout_exits_1_with_one_line() -> None:
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(
+            [sys.executable, "-m", "acq.cli", "colorize", "--help"],
+            stdout=full, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+    assert done.returncode == 1
+    assert done.stderr == "acq: No space left on device\n"

@@ -1,0 +1,226 @@
+"""What a command may write over, checked before it runs, and writing a file so that a
+failure leaves the old one as it was.
+
+The rule every command that writes follows (its --help says it in :data:`RULE`):
+
+- an output that is one of the command's inputs is refused, naming both, except a
+  calibration updated in place (``--calib C -o C``), which needs --force as below;
+- an output that exists and is recognisably another kind of file (an MCAP log, an image,
+  a point cloud where a YAML goes, or any binary file there) is refused, even with --force;
+- an existing calibration or configuration (YAML) is replaced only with --force, and then
+  kept beside it as ``NAME.bak``; products made from the inputs (clouds, images, plots)
+  are replaced;
+- two outputs of one command never name the same file.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+import sys
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from acq.errors import InputError
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "RULE",
+    "Output",
+    "atomic",
+    "backup_name",
+    "check",
+    "keep_backup",
+    "keep_backups",
+    "kind_of",
+    "write_text",
+]
+
+RULE = (
+    "An output that is one of the inputs, or an existing file of another kind (a log or "
+    "an image where a YAML goes), is refused; an existing YAML is replaced only with "
+    "--force, its old content kept as NAME.bak."
+)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")  # the images a command writes, by their name
+
+# what an existing file holds, by its first bytes
+_MAGIC: dict[bytes, str] = {
+    b"\x89MCAP": "mcap",
+    b"\x89PNG\r\n\x1a\n": "png",
+    b"\xff\xd8\xff": "jpeg",
+    b"BM": "bmp",
+    b"II*\x00": "tiff",
+    b"MM\x00*": "tiff",
+    b"RIFF": "webp",
+    b"ply\n": "ply",
+    b"ply\r\n": "ply",
+    b"LASF": "las",
+    b"%PDF": "pdf",
+    b"PK\x03\x04": "zip",
+    b"\x1f\x8b": "gzip",
+    b"\x7fELF": "elf",
+}
+_NAMES = {
+    "mcap": "an MCAP log",
+    "png": "a PNG image",
+    "jpeg": "a JPEG image",
+    "bmp": "a BMP image",
+    "tiff": "a TIFF image",
+    "webp": "a WebP image",
+    "ply": "a PLY cloud",
+    "las": "a LAS cloud",
+    "pdf": "a PDF",
+    "zip": "a zip archive",
+    "gzip": "a gzip file",
+    "elf": "a program",
+    "data": "binary data",
+    "text": "text",
+    "yaml": "a YAML file",
+    "image": "an image",
+    "cloud": "a point cloud",
+    "json": "a JSON file",
+}
+# the kinds an output of each kind may replace ("text" and "data": no known format)
+_REPLACES: dict[str, frozenset[str]] = {
+    "yaml": frozenset({"text"}),
+    "image": frozenset({"png", "jpeg", "bmp", "tiff", "webp", "text", "data"}),
+    "cloud": frozenset({"ply", "las", "text", "data"}),
+    "json": frozenset({"text"}),
+    "mcap": frozenset({"mcap", "data"}),
+}
+_PRECIOUS = frozenset({"yaml"})  # replaced only with --force, with a backup
+
+
+def kind_of(path: Path) -> str:
+    """What the existing file ``path`` holds, by its first bytes: a key of the known
+    formats, ``text`` (UTF-8 without NUL: YAML, JSON, CSV...) or ``data``."""
+    with path.open("rb") as f:
+        head = f.read(4096)
+    for magic, kind in _MAGIC.items():
+        if head.startswith(magic):
+            return kind
+    if b"\x00" in head:
+        return "data"
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as e:
+        if e.start < len(head) - 3:  # not just a character cut at the 4096th byte
+            return "data"
+    return "text"
+
+
+@dataclass(frozen=True)
+class Output:
+    """A file a command writes: the option naming it (``-o``), its path, and its kind
+    (``yaml``: a calibration or configuration, replaced only with --force; ``image``,
+    ``json``, ``cloud``, ``mcap``: products, replaced). ``update``: the command reads
+    the existing file and writes it back changed (``calibrate fisheye -o``): no --force
+    needed, the old one is kept as NAME.bak all the same. ``in_place_of``: the input
+    options (``--calib``) this output may be the same file as, to update it in place
+    (with --force, as any existing YAML)."""
+
+    option: str
+    path: Path
+    kind: str
+    update: bool = False
+    in_place_of: tuple[str, ...] = ()
+
+    def named(self) -> str:
+        return f"{self.option} {self.path}"
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return a.absolute().resolve() == b.absolute().resolve()
+
+
+def check(
+    inputs: Sequence[tuple[str, Path]], outputs: Sequence[Output], *, force: bool = False
+) -> list[Output]:
+    """Refuse (InputError, exit 2) what the rule of this module forbids, before a
+    command runs; ``inputs``: (option or metavar, path). Returns the outputs that exist
+    and will be replaced with a backup (:func:`keep_backup` them before writing)."""
+    backups: list[Output] = []
+    for i, out in enumerate(outputs):
+        for other in outputs[:i]:
+            if _same(out.path, other.path):
+                raise InputError(f"{other.named()} and {out.option} name the same file")
+        same_input = next(((opt, p) for opt, p in inputs if _same(out.path, p)), None)
+        if same_input is not None and same_input[0] not in out.in_place_of:
+            opt, p = same_input
+            raise InputError(f"{out.named()}: is the input {opt} {p}; give another file")
+        if not out.path.exists():
+            continue
+        if out.path.is_dir():
+            raise InputError(f"{out.named()}: is a folder; give a file")
+        found = kind_of(out.path)
+        if found not in _REPLACES[out.kind]:
+            raise InputError(
+                f"{out.named()}: exists and is {_NAMES[found]}, not {_NAMES[out.kind]}; "
+                "not overwritten"
+            )
+        if out.kind not in _PRECIOUS:
+            continue
+        if not (force or out.update):
+            what, does = (
+                (f"is the input {same_input[0]} {same_input[1]}", "updates it in place")
+                if same_input
+                else ("exists", "replaces it")
+            )
+            raise InputError(
+                f"{out.named()}: {what}; --force {does}, keeping the old one as "
+                f"{backup_name(out.path).name}"
+            )
+        backups.append(out)
+    return backups
+
+
+def backup_name(path: Path) -> Path:
+    """Where :func:`keep_backup` keeps the old ``path``: ``NAME.bak``."""
+    return path.with_name(path.name + ".bak")
+
+
+def keep_backup(path: Path) -> Path:
+    """Copy the existing ``path`` to ``NAME.bak`` (atomically); the backup's path."""
+    bak = backup_name(path)
+    with atomic(bak) as tmp:
+        shutil.copy2(path, tmp)
+    return bak
+
+
+def keep_backups(prog: str, outputs: Sequence[Output]) -> None:
+    """:func:`keep_backup` each output :func:`check` returned, saying so on stderr."""
+    for out in outputs:
+        bak = keep_backup(out.path)
+        print(f"{prog}: kept the old {out.path} as {bak}", file=sys.stderr, flush=True)
+
+
+@contextmanager
+def atomic(path: Path) -> Iterator[Path]:
+    """A fresh temporary path beside ``path`` (same suffix, not created) to write; moved
+    onto ``path`` when the block ends, removed when it fails, so that ``path`` is the
+    old file or the new one, never half of one. A write error names ``path``."""
+    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as e:  # named for the file meant, not the temporary one
+        if e.strerror and e.filename in (None, str(tmp)):
+            raise OSError(e.errno, e.strerror, str(path)) from e
+        if not e.strerror and str(tmp) in str(e):
+            raise OSError(str(e).replace(str(tmp), str(path))) from e
+        raise
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`atomic`)."""
+    with atomic(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")

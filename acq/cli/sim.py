@@ -137,8 +137,10 @@ def run_scanner(args: argparse.Namespace) -> int:
         print(f"acq sim scanner: {args.listen}: {e.strerror or e}", file=sys.stderr)
         return 1
     driver = "hokuyo" if m.vendor == "hokuyo" else "sick"
-    print(f"simulated {m.name} ({m.protocol}) on {server.url}", flush=True)
-    print(f"try: acq probe scanner --driver {driver} --url {server.url}", flush=True)
+    # pyserial's socket:// for the SCIP driver, tcp:// for a SICK device (as in a config)
+    url = server.url if driver == "hokuyo" else server.url.replace("socket://", "tcp://", 1)
+    print(f"simulated {m.name} ({m.protocol}) on {url}", flush=True)
+    print(f"try: acq probe scanner --driver {driver} --url {url}", flush=True)
     try:
         _wait_for_signal()
     finally:

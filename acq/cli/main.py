@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import logging
 import os
 import sys
 import traceback
@@ -129,6 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _flushed("acq", EXIT_FAILURE, e)
     handler: Callable[[argparse.Namespace], int] = args.handler
     prog: str = args._prog
+    _log_lines(prog)
     # what the imports made lives as long as the process: out of the collector's scans
     # (its full collections otherwise walk it again while a log's messages are read)
     gc.freeze()
@@ -150,6 +152,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             traceback.print_exc()
         _say(prog, _describe(e, args.debug))
         return EXIT_FAILURE
+
+
+def _log_lines(prog: str) -> None:
+    """Library warnings as the command's own lines on stderr (``acq colorize: X.mcap: 1
+    corrupt chunk skipped ...``), unless something already takes them (``acq record``
+    sets its own; a test's log capture)."""
+    root = logging.getLogger()
+    if root.handlers:
+        return
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(f"{prog}: %(message)s"))
+    root.addHandler(handler)
+    root.setLevel(logging.WARNING)
 
 
 def _flushed(prog: str, code: int, failed: OSError | None = None) -> int:

@@ -95,8 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from acq.sim.replay import Replay, log
 
     speed, write_config = args.speed, args.config_out
-    if not logging.getLogger().handlers:
-        logging.basicConfig(level=logging.INFO, format="acq replay: %(message)s")
+    logging.getLogger().setLevel(logging.INFO)  # what it serves, where, and when it ends
     warn_if_exposed("acq replay", "--listen", args.listen)
     warn_if_exposed("acq replay", "--camera-listen", args.camera_listen)
     backups: list[Output] = []

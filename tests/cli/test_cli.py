@@ -3,6 +3,7 @@ a closed or full stdout."""
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -101,3 +102,17 @@ def test_help_into_a_full_stdout_exits_1_with_one_line() -> None:
         )  # fmt: skip
     assert done.returncode == 1
     assert done.stderr == "acq: No space left on device\n"
+
+
+def test_library_warnings_are_the_commands_lines(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Outside a test's log capture, what a library logs at WARNING reaches stderr as the
+    command's line; INFO does not."""
+    root = logging.getLogger()
+    monkeypatch.setattr(root, "handlers", [])
+    monkeypatch.setattr(root, "level", root.level)
+    sys.modules["acq.cli.main"]._log_lines("acq colorize")
+    logging.getLogger("acq.log").warning("x.mcap: 1 corrupt chunk skipped")
+    logging.getLogger("acq.log").info("read x.mcap")
+    assert capsys.readouterr().err == "acq colorize: x.mcap: 1 corrupt chunk skipped\n"

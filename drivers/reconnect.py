@@ -7,10 +7,10 @@ the driver and tries again with exponential backoff (0.5 s doubling to 5 s). Any
 exception the driver raises (a bug, a parser meeting bytes it was not written for) is a
 ``fault``: the link closes the driver too and waits its own backoff before connecting
 again (growing while faults keep coming), so one device's bug neither ends the stream
-nor spins reconnecting. While it
-waits it watches, cheaply, whether the device is reachable again (the serial node is
-back, the TCP port answers), and then tries at once: scans flow again well within 2 s
-of the device coming back, whatever the backoff had reached. :class:`Reconnecting`
+nor spins reconnecting. While it waits it watches, cheaply, whether the device is
+reachable again (the serial node is back, the TCP port answers), and then tries at once:
+scans flow again well within 2 s of the device coming back, whatever the backoff had
+reached. :class:`Reconnecting`
 is the scanners' version: it also reports a device clock that restarted (a reboot),
 never hiding it. Cameras use :class:`Relink` with their frame period.
 """

@@ -3,21 +3,26 @@
 :class:`Reconnecting` wraps any :class:`acq.drivers.scanner.Scanner`: it connects, starts
 measurement and yields scans; when the link fails (an I/O error, end of stream, a
 device error, or nothing complete for ``stall_periods`` record periods) it closes
-the driver and tries again with exponential backoff (0.5 s doubling to 5 s). While it
-waits it watches, cheaply, whether the device is reachable again (the serial node is
-back, the TCP port answers), and then tries at once: scans flow again well within 2 s
-of the device coming back, whatever the backoff had reached. :class:`Reconnecting`
+the driver and tries again with exponential backoff (0.5 s doubling to 5 s). Any other
+exception the driver raises (a bug, a parser meeting bytes it was not written for) is a
+``fault``: the link closes the driver too and waits its own backoff before connecting
+again (growing while faults keep coming), so one device's bug neither ends the stream
+nor spins reconnecting. While it waits it watches, cheaply, whether the device is
+reachable again (the serial node is back, the TCP port answers), and then tries at once:
+scans flow again well within 2 s of the device coming back, whatever the backoff had
+reached. :class:`Reconnecting`
 is the scanners' version: it also reports a device clock that restarted (a reboot),
 never hiding it. Cameras use :class:`Relink` with their frame period.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 from urllib.parse import urlsplit
@@ -28,7 +33,15 @@ from acq.drivers.scanner import Scanner
 from acq.records import DeviceInfo, Frame, Scan
 from acq.time.clocksync import Unwrapper
 
-__all__ = ["Backoff", "CameraLink", "LinkEvent", "Reconnecting", "Relink", "url_reachable"]
+__all__ = [
+    "Backoff",
+    "CameraLink",
+    "LinkEvent",
+    "Reconnecting",
+    "Relink",
+    "describe",
+    "url_reachable",
+]
 
 R = TypeVar("R")
 
@@ -52,9 +65,10 @@ class LinkEvent:
     """Something that happened to a device's link, for logs and /acq/status."""
 
     kind: str  # connected | connect_failed | disconnected | stalled | protocol_error
-    #            | device_error | clock_reset
+    #            | device_error | fault | clock_reset
     mono_ns: int  # host monotonic time
     detail: str = ""
+    error: BaseException | None = None  # what was raised, for a traceback (a fault's)
 
 
 @dataclass
@@ -78,6 +92,16 @@ class Backoff:
 
 
 _DEFAULT_PORTS = {"http": 80, "https": 443, "rtsp": 554}
+FAULTS_FORGOTTEN_S = 30.0  # after this long without a fault, the fault backoff starts afresh
+
+
+def describe(e: BaseException) -> str:
+    """One line for an exception: a driver's message as it is; anything else (a bug)
+    with its type, which its message alone may not make clear (``IndexError: 4``)."""
+    text = str(e).splitlines()[0] if str(e) else ""
+    if isinstance(e, DriverError | OSError):
+        return text or type(e).__name__
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
 def url_reachable(url: str, timeout: float = 0.2) -> bool:
@@ -107,7 +131,7 @@ class Relink(Generic[R]):
     """Yields the records ``read()`` returns for as long as asked, reconnecting as needed.
 
     ``on_event`` receives every :class:`LinkEvent`; counters (``disconnects``,
-    ``protocol_errors``) are kept for status reports.
+    ``protocol_errors``, ``faults``) are kept for status reports.
     """
 
     def __init__(
@@ -131,11 +155,14 @@ class Relink(Generic[R]):
         self.connected = False
         self.disconnects = 0
         self.protocol_errors = 0
+        self.faults = 0
+        self._fault_backoff = Backoff(self.backoff.first, self.backoff.cap)
+        self._last_fault = -math.inf  # monotonic s
         self._command_timeout = device.timeout  # for replies during connect
 
-    def _emit(self, kind: str, detail: str = "") -> None:
+    def _emit(self, kind: str, detail: str = "", error: BaseException | None = None) -> None:
         if self.on_event is not None:
-            self.on_event(LinkEvent(kind, time.monotonic_ns(), detail))
+            self.on_event(LinkEvent(kind, time.monotonic_ns(), detail, error))
 
     def period(self) -> float | None:
         """Seconds between records once connected (None: unknown, keep the timeout)."""
@@ -157,14 +184,27 @@ class Relink(Generic[R]):
         self.backoff.reset()
         self._emit("connected", f"{info.vendor} {info.model} {info.serial}".strip())
 
-    def _drop(self, kind: str, detail: str) -> None:
+    def _drop(self, kind: str, detail: str, error: BaseException | None = None) -> None:
         self.connected = False
         self.disconnects += 1
-        self._emit(kind, detail)
+        self._emit(kind, detail, error)
+        self._close()
+
+    def _close(self) -> None:
+        """Close the driver, whatever its close raises (it is being given up on)."""
         try:
             self.device.close()
-        except (DriverError, OSError):
+        except Exception:
             pass
+
+    def _fault_delay(self) -> float:
+        """Seconds to wait after a fault of a connected device: its own backoff (a
+        successful connection resets the other), afresh after a quiet while."""
+        now = time.monotonic()
+        if now - self._last_fault > FAULTS_FORGOTTEN_S:
+            self._fault_backoff.reset()
+        self._last_fault = now
+        return self._fault_backoff.next()
 
     def _wait(self, delay: float, stop: threading.Event) -> None:
         """Sleep up to ``delay`` s, returning early when the device becomes reachable."""
@@ -181,7 +221,7 @@ class Relink(Generic[R]):
                 return  # it came back: try at once
             was_reachable = now_reachable
 
-    def records(self, stop: threading.Event | None = None) -> Iterator[R]:
+    def records(self, stop: threading.Event | None = None) -> Generator[R, None, None]:
         """Records until ``stop`` is set (forever without one)."""
         stop = stop if stop is not None else threading.Event()
         errors_in_row = 0
@@ -191,15 +231,20 @@ class Relink(Generic[R]):
                     try:
                         self._connect()
                     except (DriverError, OSError) as e:
-                        self._emit("connect_failed", str(e))
-                        try:
-                            self.device.close()
-                        except (DriverError, OSError):
-                            pass
+                        self._emit("connect_failed", describe(e))
+                        self._close()
+                        self._wait(self.backoff.next(), stop)
+                        continue
+                    except Exception as e:  # a driver's bug, or bytes it cannot parse
+                        self.connected = False
+                        self.faults += 1
+                        self._emit("fault", describe(e), e)
+                        self._close()
                         self._wait(self.backoff.next(), stop)
                         continue
                 try:
                     record = self.read()
+                    self.check(record)
                 except ProtocolError as e:
                     self.protocol_errors += 1
                     errors_in_row += 1
@@ -216,19 +261,20 @@ class Relink(Generic[R]):
                 except (ConnectionLost, OSError) as e:
                     self._drop("disconnected", str(e))
                     continue
+                except Exception as e:  # a driver's bug, or bytes it cannot parse
+                    self.faults += 1
+                    self._drop("fault", describe(e), e)
+                    self._wait(self._fault_delay(), stop)
+                    continue
                 errors_in_row = 0
-                self.check(record)
                 yield record
         finally:
             if self.connected:
                 try:
                     self.device.stop()
-                except (DriverError, OSError):
+                except Exception:
                     pass
-            try:
-                self.device.close()
-            except (DriverError, OSError):
-                pass
+            self._close()
             self.connected = False
 
 

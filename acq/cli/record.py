@@ -17,7 +17,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         description="Record every scanner and camera of a configuration into MCAP files: "
         "one thread per device, reconnection with backoff, device clocks mapped to the host "
         "clock, zstd chunks fsynced every second, files split by size and duration. Ctrl-C "
-        "or SIGTERM finish the file. Exit status: 0 stopped, 1 runtime failure, 2 bad "
+        "or SIGTERM finish the file. Exit status: 0 stopped, 1 runtime failure (or a "
+        "required device without a record), 2 bad "
         "configuration, 3 disk below its reserve (the file is closed first).",
     )
     rec.add_argument(
@@ -33,11 +34,22 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="S",
         help="stop after S seconds (default: run until stopped)",
     )
+    rec.add_argument(
+        "--require",
+        nargs="+",
+        action="extend",
+        default=[],
+        metavar="NAME",
+        help="devices that must record: without a record from each within 10 s of the start "
+        "(at most the duration) the file is closed and the exit status is 1; one that goes "
+        "away later is reconnected (as `required: true` on a device of the configuration)",
+    )
     rec.add_argument("-v", "--verbose", action="store_true", help="debug log lines")
     rec.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from acq.errors import InputValueError
     from acq.record import config as configfile
     from acq.record import recorder
 
@@ -47,4 +59,7 @@ def run(args: argparse.Namespace) -> int:
         out = args.out if args.out is not None else Path("logs")
     else:
         cfg, out = configfile.load(args.config), args.out
-    return recorder.record(cfg, out_dir=out, duration_s=args.duration)
+    try:
+        return recorder.record(cfg, out_dir=out, duration_s=args.duration, required=args.require)
+    except recorder.UnknownDevice as e:
+        raise InputValueError(f"--require: {e}") from None

@@ -190,6 +190,7 @@ class ScannerConfig(_Model):
     protocol: str | None = Field(default=None, validate_default=True)  # sick: cola-b | cola-a
     latency_s: float | Literal["auto"] = 0.0  # constant transport latency, s; auto: hokuyo
     options: dict[str, Any] = {}  # keyword arguments of the driver class
+    required: bool = False  # no record from it soon after the start stops the recorder
 
     @field_validator("name")
     @classmethod
@@ -263,6 +264,7 @@ class CameraConfig(_Model):
     # middle of exposure to receipt, s, where unknown
     latency_s: float = Field(default=0.0, ge=0, le=MAX_LATENCY_S)
     options: dict[str, Any] = {}  # keyword arguments of the driver class
+    required: bool = False  # no record from it soon after the start stops the recorder
 
     @field_validator("name")
     @classmethod
@@ -342,6 +344,7 @@ class CanConfig(_Model):
     yaw_rate: str = "YAW_RATE.YAW_RATE"  # positive counter-clockwise (left turn)
     speed: str | None = None  # a vehicle speed signal; None: mean of the wheel speeds
     options: dict[str, Any] = {}  # keyword arguments of can.Bus
+    required: bool = False  # no odometry soon after the start stops the recorder
 
     _driver = field_validator("driver", mode="plain")(_driver_name("can"))
     _empty = field_validator("options", mode="before")(_none_is_empty)
@@ -390,6 +393,7 @@ class GnssConfig(_Model):
     url: str
     baudrate: int = Field(default=9600, gt=0, le=MAX_BAUD)
     latency_s: float = Field(default=0.0, ge=0, le=MAX_LATENCY_S)
+    required: bool = False  # no fix soon after the start stops the recorder
 
     _driver = field_validator("driver", mode="plain")(_driver_name("gnss"))
 

@@ -13,27 +13,43 @@ No reader ever waits for the writer: records go through the :class:`Outbox`'s bo
 queue, and a full queue drops the record (counted in ``DeviceState.dropped``); a device's
 description (its ``device.<name>`` metadata) is kept aside, the latest per device, so a
 full queue can neither drop it nor block on it.
+
+Whatever fails in a device's loop stays that device's: an exception from its driver, its
+link or its adapter (a bug, bytes a parser was not written for) is a ``fault``, logged in
+one line (its traceback at debug level), counted as a disconnection in the status; the
+device is closed and opened again after a backoff while the other devices record on.
+A device that delivers no record for :data:`SILENT_FIRST_S` (from the start, or since its
+last record) is a warning naming it and why (:meth:`DeviceState.watch`), repeated after
+5, 10, 20 s... up to every :data:`SILENT_CAP_S`.
+
+Device URLs may carry a password: event texts and descriptions go through
+:func:`acq.credentials.redact` before they are kept.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
 import math
 import queue
 import threading
+import time
 from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Generic, TypeVar
 
-from acq.drivers.reconnect import LinkEvent, Relink
+from acq.credentials import redact
+from acq.drivers.reconnect import FAULTS_FORGOTTEN_S, Backoff, LinkEvent, Relink, describe
 from acq.log.writer import LogWriter
 from acq.time.clocksync import DeviceClock
 
 __all__ = [
+    "SILENT_CAP_S",
+    "SILENT_FIRST_S",
     "DeviceAdapter",
     "DeviceState",
     "Outbox",
@@ -46,6 +62,10 @@ log = logging.getLogger("acq.record")
 
 R = TypeVar("R")  # what the driver reads (Scan, Frame, CanFrame, Sentence)
 P = TypeVar("P")  # what goes through the queue to the writer
+
+SILENT_FIRST_S = 4.0  # no record for this long: a warning (then after 5, 10, 20 s ...)
+SILENT_REPEAT_S = 5.0
+SILENT_CAP_S = 300.0  # the longest time between two warnings about one silence
 
 
 @dataclass
@@ -69,6 +89,11 @@ class DeviceState:
     latency_bounds_s: tuple[float, float] | None = None
     times: deque[int] = field(default_factory=lambda: deque(maxlen=256))  # recent recv ns
     odd_size: int = 0  # frames of another size than expected (recorded, flagged)
+    faults: int = 0
+    # the silence watch, on the writer's thread: since when, the next warning, how many
+    _silent_from_ns: int = field(default=0, init=False, repr=False)
+    _next_warning_s: float = field(default=SILENT_FIRST_S, init=False, repr=False)
+    _warnings: int = field(default=0, init=False, repr=False)
 
     def clock_offset_ns(self) -> int:
         """Host ns minus device ns (unwrapped ticks) at the last stamp; 0 before any."""
@@ -96,10 +121,14 @@ class DeviceState:
         self.last_recv_ns = recv_ns
         self.times.append(recv_ns)
 
-    def event(self, kind: str, detail: str) -> None:
-        """A link event (:class:`acq.drivers.reconnect.LinkEvent`): state, counters, log."""
+    def event(self, kind: str, detail: str, error: BaseException | None = None) -> None:
+        """A link event (:class:`acq.drivers.reconnect.LinkEvent`): state, counters, log;
+        ``error`` is what was raised (a fault's traceback goes to the debug log)."""
+        detail = redact(detail)
         self.last_event = f"{kind}: {detail}" if detail else kind
-        if kind == "connected":
+        if kind == "fault":
+            self._fault(detail, error)
+        elif kind == "connected":
             self.connected = True
             log.info("%s connected: %s", self.name, detail)
         elif kind == "connect_failed":
@@ -115,10 +144,55 @@ class DeviceState:
         elif kind == "clock_reset":
             log.warning("%s: %s", self.name, detail)
 
+    def _fault(self, detail: str, error: BaseException | None) -> None:
+        """An unexpected exception (a bug): the device is closed and opened again; logged
+        at the 1st, 2nd, 4th, 8th... so a device failing at every connection does not
+        flood the journal (the silence warnings go on saying why it records nothing)."""
+        if self.connected:
+            self.connected = False
+            self.disconnects += 1
+        self.faults += 1
+        n = self.faults
+        if n & (n - 1) == 0:
+            log.error("%s failed (%d so far), closed and reopened after a backoff: %s "
+                      "(its traceback at debug level)", self.name, n, detail)  # fmt: skip
+        if error is not None:
+            log.debug("%s: the failure's traceback (a bug to report)", self.name,
+                      exc_info=error)  # fmt: skip
+
+    def why_silent(self) -> str:
+        """Why no record comes: not connected and the last connect error, or what the
+        connected device did last."""
+        if not self.connected:
+            return f"not connected ({self.last_event or 'no answer yet'})"
+        return f"connected, but no record ({self.last_event})"
+
+    def watch(self, now_ns: int, started_ns: int) -> None:
+        """The silence watch (on the writer's thread): a warning when no record came for
+        :data:`SILENT_FIRST_S` since the start or the last record, again after 5, 10,
+        20 s... (at most :data:`SILENT_CAP_S` apart); a line when records come again."""
+        since = self.last_recv_ns or started_ns
+        if since != self._silent_from_ns:
+            if self._warnings and self._silent_from_ns:
+                log.info("%s: recording again after %.1f s without a record", self.name,
+                         (since - self._silent_from_ns) * 1e-9)  # fmt: skip
+            self._silent_from_ns, self._warnings = since, 0
+            self._next_warning_s = SILENT_FIRST_S
+        silent_s = (now_ns - since) * 1e-9
+        if silent_s < self._next_warning_s:
+            return
+        self._warnings += 1
+        step = min(SILENT_REPEAT_S * 2 ** (self._warnings - 1), SILENT_CAP_S)
+        self._next_warning_s = silent_s + step
+        after = "since the start" if not self.received else "since the last one"
+        log.warning("%s: no record for %.0f s %s: %s", self.name, silent_s, after,
+                    self.why_silent())  # fmt: skip
+
     def bad_record(self, what: str, detail: str) -> None:
         """A record that does not decode, from a stream that goes on (a CAN bus, NMEA):
         counted; logged at the 1st, 2nd, 4th, 8th... so a wrong DBC does not flood."""
         self.protocol_errors += 1
+        detail = redact(detail)
         self.last_event = f"protocol_error: {detail}"
         n = self.protocol_errors
         if n & (n - 1) == 0:
@@ -128,12 +202,13 @@ class DeviceState:
 def device_metadata(driver: str, device: Any) -> dict[str, str]:
     """JSON strings describing a connected driver's device, for a ``device.<name>`` metadata
     record: ``driver``, ``info`` (identity), ``geometry`` (scanners: ScanGeometry, in
-    rad, s, m), ``params`` (Hokuyo: the PP values), ``format`` (cameras)."""
+    rad, s, m), ``params`` (Hokuyo: the PP values), ``format`` (cameras); the
+    credentials of URLs in them redacted."""
     out = {"driver": driver, "class": type(device).__name__}
     for key in ("info", "geometry", "params", "format"):
         value = getattr(device, key, None)
         if value is not None and dataclasses.is_dataclass(value):
-            out[key] = json.dumps(dataclasses.asdict(value))  # type: ignore[arg-type]
+            out[key] = redact(json.dumps(dataclasses.asdict(value)))  # type: ignore[arg-type]
     return out
 
 
@@ -222,21 +297,55 @@ class Outbox:
         return self.queue.qsize()
 
 
-def run_device(adapter: DeviceAdapter[Any, Any], outbox: Outbox, stop: threading.Event) -> None:
-    """The device loop: records until ``stop``; each (re)connection describes the device."""
+def run_device(
+    adapter: DeviceAdapter[Any, Any],
+    outbox: Outbox,
+    stop: threading.Event,
+    backoff: Backoff | None = None,
+) -> None:
+    """The device loop: records until ``stop``; each (re)connection describes the device.
+
+    Any exception from opening the device or from the adapter's handling of a record is
+    a fault of this device: reported (:meth:`DeviceState.event`), the link closed, and
+    after ``backoff`` (0.5 s doubling to 5 s; afresh after a quiet half minute) the
+    device opened again. The loop ends when its link does: once ``stop`` is set.
+    """
     state = adapter.state
+    backoff = backoff if backoff is not None else Backoff()
+    last_fault = -math.inf
 
     def on_event(e: LinkEvent) -> None:
-        state.event(e.kind, e.detail)
+        state.event(e.kind, e.detail, e.error)
 
-    link = adapter.open(on_event)
+    link: Relink[Any] | None = None
+    while not stop.is_set():
+        try:
+            if link is None:
+                link = adapter.open(on_event)
+            _pump(adapter, link, outbox, stop)
+            return  # the link ends only when stopped
+        except Exception as e:
+            state.event("fault", describe(e), e)
+            now = time.monotonic()
+            if now - last_fault > FAULTS_FORGOTTEN_S:
+                backoff.reset()
+            last_fault = now
+            stop.wait(backoff.next())
+
+
+def _pump(
+    adapter: DeviceAdapter[Any, Any], link: Relink[Any], outbox: Outbox, stop: threading.Event
+) -> None:
+    """Records from ``link`` to the outbox until ``stop``; the link is closed on the way
+    out, whatever ends it."""
     described: object = None
-    for record in link.records(stop):
-        identity = adapter.identity()
-        if identity is not described:  # (re)connected: describe the device
-            described = identity
-            outbox.describe(
-                f"device.{adapter.name}", device_metadata(adapter.driver, adapter.device)
-            )
-        for payload in adapter.receive(record):
-            outbox.put(adapter, payload)
+    with contextlib.closing(link.records(stop)) as records:
+        for record in records:
+            identity = adapter.identity()
+            if identity is not described:  # (re)connected: describe the device
+                described = identity
+                outbox.describe(
+                    f"device.{adapter.name}", device_metadata(adapter.driver, adapter.device)
+                )
+            for payload in adapter.receive(record):
+                outbox.put(adapter, payload)

@@ -19,8 +19,19 @@ with its fix instant: the receiver's UTC fix time is a device clock like a scann
 mapped to host time by the one-way estimator (:class:`acq.time.clocksync.DeviceClock`) less
 the configured ``latency_s``, so neither the host's wall clock nor its NTP steps enter.
 
-Exit codes: 0 stopped (signal or ``--duration``), 1 runtime failure, 2 bad
-configuration, 3 disk below its reserve (listed in the unit's ``RestartPreventExitStatus``).
+A device's failure is its own (:func:`acq.record.device_loop.run_device`): it is closed,
+reported and opened again after a backoff while the others record on; a device with no
+record for a few seconds is a warning, repeated with backoff. A *required* device
+(``required: true`` in the configuration, or named in ``required``) that has delivered
+no record :data:`REQUIRED_WITHIN_S` after the start (or by the end of a shorter
+duration) stops the recorder: the file is closed, one error line names the device and
+why, and the exit code is 1. Once it has recorded, a required device that goes away is
+reconnected like any other. The credentials of device URLs are redacted in the log
+lines (:func:`setup_logging`), the metadata and the status.
+
+Exit codes: 0 stopped (signal or ``--duration``), 1 runtime failure (a required device
+absent), 2 bad configuration, 3 disk below its reserve (listed in the unit's
+``RestartPreventExitStatus``).
 """
 
 from __future__ import annotations
@@ -35,22 +46,31 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
 
 from acq import __version__
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
+from acq.credentials import RedactingFilter, redact
 from acq.drivers.can_odometry import DbcError, OdometryDecoder
-from acq.errors import InputError
+from acq.drivers.reconnect import describe
+from acq.errors import InputError, InputValueError
 from acq.log import schemas
 from acq.log.writer import LogWriter
-from acq.record.adapters import adapters_for
+from acq.record.adapters import GNSS, VEHICLE, adapters_for
 from acq.record.config import CanConfig, Config, dump
-from acq.record.device_loop import DeviceAdapter, DeviceState, Outbox, finite, run_device
+from acq.record.device_loop import DeviceState, Outbox, Queued, finite, run_device
 from acq.record.sdnotify import JournalFormatter, Notifier, use_journal_format
 
-__all__ = ["EXIT_DISK_FULL", "Recorder", "RecorderError"]
+__all__ = [
+    "EXIT_DISK_FULL",
+    "REQUIRED_WITHIN_S",
+    "Recorder",
+    "RecorderError",
+    "UnknownDevice",
+    "required_devices",
+]
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -61,6 +81,7 @@ log = logging.getLogger("acq.record")
 QUEUE_SIZE = 512  # records; at 25 frames/s of ~60 kB that is 20 s of a stalled disk
 STATUS_PERIOD_S = 1.0
 DRAIN_S = 1.0  # on stop: the time left to write what is queued before the file closes
+REQUIRED_WITHIN_S = 10.0  # a required device's first record must come within this, s
 
 
 class RecorderError(InputError, RuntimeError):
@@ -68,11 +89,29 @@ class RecorderError(InputError, RuntimeError):
     that cannot be written)."""
 
 
+class UnknownDevice(InputValueError):
+    """A device asked for by name (``required``) that the configuration does not have."""
+
+
+def required_devices(config: Config) -> list[str]:
+    """The names of the devices the configuration marks ``required: true``."""
+    names = [s.name for s in config.scanners if s.required]
+    names += [c.name for c in config.cameras if c.required]
+    if config.can is not None and config.can.required:
+        names.append(VEHICLE)
+    if config.gnss is not None and config.gnss.required:
+        names.append(GNSS)
+    return names
+
+
 class Recorder:
     """Records ``config``'s devices until :meth:`stop` (or ``duration_s``).
 
     ``out_dir`` overrides ``config.output.dir``; ``calibration`` overrides the file the
-    config names. :meth:`run` returns the exit code.
+    config names; ``required`` names devices that must deliver a record within
+    ``required_within_s`` of the start (besides those the configuration marks
+    ``required``; :class:`UnknownDevice` for a name it does not have). :meth:`run`
+    returns the exit code.
     """
 
     def __init__(
@@ -84,6 +123,8 @@ class Recorder:
         calibration: Calibration | None = None,
         notifier: Notifier | None = None,
         queue_size: int = QUEUE_SIZE,
+        required: Iterable[str] = (),
+        required_within_s: float = REQUIRED_WITHIN_S,
     ) -> None:
         self.config = config
         self.out_dir = Path(out_dir if out_dir is not None else config.output.dir)
@@ -95,6 +136,14 @@ class Recorder:
             self._check_dbc(config.can)
         self.adapters = adapters_for(config, self.calibration)
         self.devices: dict[str, DeviceState] = {a.name: a.state for a in self.adapters}
+        self.required = list(dict.fromkeys([*required_devices(config), *required]))
+        for name in self.required:
+            if name not in self.devices:
+                raise UnknownDevice(
+                    f"no device named {name!r}; the configuration's devices: "
+                    + ", ".join(self.devices)
+                )
+        self.required_within_s = required_within_s
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.writer: LogWriter | None = None
@@ -174,7 +223,7 @@ class Recorder:
                 "clock": "log_time and timestamps are host CLOCK_MONOTONIC ns; "
                 "/acq/clock maps them to UTC",
             },
-            "config": {"yaml": dump(self.config)},
+            "config": {"yaml": redact(dump(self.config))},
         }
         if self.calibration is not None:
             meta["calibration"] = {"yaml": calibfile.dump(self.calibration)}
@@ -182,14 +231,32 @@ class Recorder:
 
     # --- the device threads and the writer ---------------------------------------------
 
-    def _guard(self, adapter: DeviceAdapter[Any, Any]) -> None:
-        """Run a device's loop; an unexpected error stops the recorder (exit 1)."""
+    def _write(self, writer: LogWriter, item: Queued) -> None:
+        """Encode and write one record; one that cannot be encoded (a device's bytes that
+        an encoder cannot take: a bug) is counted as that device's bad record, not the
+        end of the recording. A write that fails (OSError: the disk) goes up."""
         try:
-            run_device(adapter, self.outbox, self._stop)
-        except Exception:
-            log.exception("%s: device thread failed", adapter.name)
-            self.exit_code = EXIT_FAILURE
-            self._stop.set()
+            item.adapter.write(writer, item.payload)
+        except OSError:
+            raise
+        except Exception as e:
+            state = item.adapter.state
+            state.bad_record("record not written", describe(e))
+            log.debug("%s: the failure's traceback (a bug to report)", state.name, exc_info=e)
+
+    def _check_required(self, now_ns: int) -> bool:
+        """False (after one error line) when a required device has no record yet."""
+        missing = [self.devices[n] for n in self.required if not self.devices[n].received]
+        if not missing:
+            return True
+        waited = (now_ns - self.started_ns) * 1e-9
+        log.error(
+            "required %s without a record %.0f s after the start: %s; closing the file",
+            "device" if len(missing) == 1 else "devices",
+            waited,
+            "; ".join(f"{d.name} {d.why_silent()}" for d in missing),
+        )
+        return False
 
     def _write_rate(self) -> float:
         """Bytes per second written over the last half minute (0 until known)."""
@@ -281,9 +348,19 @@ class Recorder:
         deadline = (
             self.started_ns + round(self.duration_s * 1e9) if self.duration_s is not None else None
         )
+        # the required devices are checked once: at the timeout, or at a shorter duration's end
+        within_ns = round(self.required_within_s * 1e9)
+        if deadline is not None:
+            within_ns = min(within_ns, deadline - self.started_ns)
+        check_required = self.started_ns + within_ns if self.required else None
         drain_until: int | None = None
         while True:
             now = time.monotonic_ns()
+            if check_required is not None and now >= check_required and drain_until is None:
+                check_required = None
+                if not self._check_required(now):
+                    self.exit_code = EXIT_FAILURE
+                    self._stop.set()
             if deadline is not None and now >= deadline:
                 self._stop.set()
             if self._stop.is_set() and drain_until is None:
@@ -292,7 +369,7 @@ class Recorder:
             for name, values in self.outbox.descriptions().items():
                 writer.update_metadata(name, values)  # before the device's records
             if item is not None:
-                item.adapter.write(writer, item.payload)
+                self._write(writer, item)
             elif drain_until is not None:
                 return  # stopping, and everything queued is written
             now = time.monotonic_ns()
@@ -301,6 +378,9 @@ class Recorder:
                 if left:
                     log.warning("stopping: %d queued records not written", left)
                 return
+            if drain_until is None:
+                for state in self.devices.values():
+                    state.watch(now, self.started_ns)
             if now >= next_status:
                 next_status = now + round(STATUS_PERIOD_S * 1e9)
                 writer.sync()
@@ -335,11 +415,14 @@ class Recorder:
         self.writer = writer
         self.started_ns = time.monotonic_ns()
         for adapter in self.adapters:
-            t = threading.Thread(target=self._guard, args=(adapter,), name=adapter.name,
-                                 daemon=True)  # fmt: skip
+            t = threading.Thread(target=run_device, args=(adapter, self.outbox, self._stop),
+                                 name=adapter.name, daemon=True)  # fmt: skip
             t.start()
             self._threads.append(t)
         log.info("recording %s to %s", ", ".join(self.devices), self.out_dir)
+        if self.required:
+            log.info("required: %s (each must record within %.0f s)", ", ".join(self.required),
+                     min(self.required_within_s, self.duration_s or math.inf))  # fmt: skip
         self.notifier.ready(f"recording {', '.join(self.devices)}")
         try:
             self._writer_loop(writer)
@@ -382,9 +465,11 @@ def _camera_calibration(cam: calibfile.CameraCalib, name: str, stamp_ns: int) ->
 
 
 def setup_logging(verbose: bool = False) -> None:
-    """Log lines for the journal (priority prefixes, no time) or for a terminal."""
+    """Log lines for the journal (priority prefixes, no time) or for a terminal, the
+    credentials of any URL in them redacted."""
 
     handler = logging.StreamHandler(sys.stderr)
+    handler.addFilter(RedactingFilter())
     if use_journal_format():
         handler.setFormatter(JournalFormatter())
     else:
@@ -400,11 +485,14 @@ def record(
     out_dir: Path | None = None,
     duration_s: float | None = None,
     notifier: Notifier | None = None,
+    required: Iterable[str] = (),
 ) -> int:
     """Run a :class:`Recorder` with SIGTERM and SIGINT finishing the file; the exit code."""
     import signal
 
-    recorder = Recorder(config, out_dir=out_dir, duration_s=duration_s, notifier=notifier)
+    recorder = Recorder(
+        config, out_dir=out_dir, duration_s=duration_s, notifier=notifier, required=required
+    )
 
     def finish(signum: int, _frame: object) -> None:
         log.info("%s: finishing the file", signal.Signals(signum).name)

@@ -184,3 +184,57 @@ def test_url_reachable(tmp_path) -> None:  # type: ignore[no-untyped-def]
     assert not url_reachable(str(tmp_path / "ttyACM0"))
     (tmp_path / "ttyACM0").touch()
     assert url_reachable(str(tmp_path / "ttyACM0"))
+
+
+class BuggyScanner(LineScanner):
+    """A driver with a bug: every 5th scan its parser indexes past what it was sent."""
+
+    def read_scan(self) -> Scan:
+        scan = super().read_scan()
+        if scan.sequence % 5 == 0:
+            raise IndexError("list index out of range")
+        return scan
+
+
+def test_a_driver_bug_closes_the_link_and_reconnects_after_a_growing_backoff() -> None:
+    events: list[LinkEvent] = []
+    scans: list[Scan] = []
+    stop = threading.Event()
+    with TcpDeviceServer(LineDevice()) as srv:
+        link = Reconnecting(BuggyScanner(srv.url), backoff=Backoff(0.1, 1.0),
+                            on_event=events.append)  # fmt: skip
+
+        def consume() -> None:
+            scans.extend(link.scans(stop))
+
+        thread = threading.Thread(target=consume, daemon=True)
+        thread.start()
+        t0 = time.monotonic()
+
+        def reconnected_after_third_fault() -> bool:
+            faults = [e.mono_ns for e in events if e.kind == "fault"]
+            return len(faults) >= 3 and any(
+                e.kind == "connected" and e.mono_ns > faults[2] for e in list(events)
+            )
+
+        while not reconnected_after_third_fault() and time.monotonic() - t0 < 10:
+            time.sleep(0.01)
+        n = len(scans)
+        while len(scans) < n + 2 and time.monotonic() - t0 < 10:
+            time.sleep(0.01)
+        assert thread.is_alive() and len(scans) >= n + 2  # scans flow again
+        stop.set()
+        thread.join(5)
+    faults = [e for e in events if e.kind == "fault"]
+    assert len(faults) >= 3 and link.faults == len(faults) and link.disconnects >= 3
+    assert all(e.detail == "IndexError: list index out of range" for e in faults)
+    assert all(isinstance(e.error, IndexError) for e in faults)  # for its traceback
+    # after each fault, the next connection waits 0.1, 0.2, 0.4 s: a backoff that grows
+    # while the faults go on, although each connection succeeds (a busy host adds to it)
+    waits = []
+    for fault in faults[:3]:
+        after = next(e for e in events if e.kind == "connected" and e.mono_ns > fault.mono_ns)
+        waits.append((after.mono_ns - fault.mono_ns) * 1e-9)
+    expected = (0.1, 0.2, 0.4)
+    assert all(w - 0.01 < got < w + 0.3 for got, w in zip(waits, expected, strict=True)), waits
+    assert waits[2] > waits[0] + 0.2, waits

@@ -40,6 +40,7 @@ from acq.cli import (
     replay,
     sim,
 )
+from acq.credentials import RedactingFilter, redact
 from acq.errors import AcqError, InputError
 
 if TYPE_CHECKING:
@@ -163,6 +164,7 @@ def _log_lines(prog: str) -> None:
         return
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter(f"{prog}: %(message)s"))
+    handler.addFilter(RedactingFilter())
     root.addHandler(handler)
     root.setLevel(logging.WARNING)
 
@@ -199,7 +201,7 @@ def _describe(e: Exception, debug: bool) -> str:
 
 
 def _say(prog: str, message: str) -> None:
-    print(f"{prog}: {message}", file=sys.stderr, flush=True)
+    print(f"{prog}: {redact(message)}", file=sys.stderr, flush=True)
 
 
 def _drop_stdout() -> None:

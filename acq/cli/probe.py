@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from acq.cli import output_files
+from acq.credentials import redact
 from acq.cli.option_types import integer, real
 from acq.cli.output_files import IMAGE_SUFFIXES, Output
 from acq.errors import InputError
@@ -101,14 +102,14 @@ def _reported(command: str, where: str, close: Callable[[], None]) -> Iterator[N
         yield
     except (DriverError, OSError) as e:
         kind = f"{type(e).__name__}: " if isinstance(e, DriverError) else ""
-        print(f"{command}: {where}: {kind}{e}", file=sys.stderr)
+        print(redact(f"{command}: {where}: {kind}{e}"), file=sys.stderr)
         raise _Failed from e
     finally:
         close()
 
 
 def _emit(record: dict[str, Any]) -> None:
-    print(json.dumps(record), flush=True)
+    print(redact(json.dumps(record)), flush=True)
 
 
 def run_scanner(args: argparse.Namespace) -> int:
@@ -176,7 +177,7 @@ def run_camera(args: argparse.Namespace) -> int:
             if args.json:
                 _emit({"device": camera_device(args.driver, source, info, fmt)})
             else:
-                print(f"{info.vendor} {info.model} {info.serial}".strip() or source)
+                print(f"{info.vendor} {info.model} {info.serial}".strip() or redact(source))
                 if fmt is not None:
                     print(f"format {fmt.width}x{fmt.height} {fmt.fourcc} at {fmt.fps:g} fps "
                           "(as applied by the device)")  # fmt: skip

@@ -55,7 +55,10 @@ def test_probe_camera_reads_the_simulated_camera_at_25_hz(
 
 
 def test_probe_camera_reports_an_unreachable_source(capsys: pytest.CaptureFixture[str]) -> None:
-    url = f"http://127.0.0.1:{free_port()}/stream.mjpg"
+    """Naming the source without its password."""
+    where = f"127.0.0.1:{free_port()}/stream.mjpg"
+    url = f"http://admin:S3CRET@{where}"
     assert cli.main(["probe", "camera", "--driver", "opencv", "--source", url, "--count", "1",
                      "--timeout", "0.5"]) == 1  # fmt: skip
-    assert url in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"http://***@{where}" in err and "S3CRET" not in err

@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from acq.cli import output_files
-from acq.credentials import redact
 from acq.cli.option_types import integer, real
 from acq.cli.output_files import IMAGE_SUFFIXES, Output
+from acq.credentials import redact
 from acq.errors import InputError
 
 HELP = "talk to one device and print what it says"

@@ -7,8 +7,12 @@ video file or image-sequence pattern, or a GStreamer pipeline (any text with ``!
 ``multipart/x-mixed-replace`` stream is parsed (:mod:`acq.drivers.mjpeg`) so every JPEG is
 kept byte for byte as the camera sent it (``Frame.jpeg``) and never decoded; its size
 comes from its SOF header, and a JPEG whose markers are broken is counted in
-``corrupt`` and skipped. Other sources give decoded BGR images (``Frame.image``); a
-V4L2 camera asked for ``MJPG`` hands its JPEG buffers through undecoded.
+``corrupt`` and skipped. A camera that sends more parts that are not JPEG (empty, broken)
+than frames, beyond a small allowance, has its connection dropped with a
+:class:`ProtocolError` (the link reconnects with backoff): the parts of one read are
+parsed only until then, so a flood costs bounded work. Other sources give decoded BGR
+images (``Frame.image``); a V4L2 camera asked for ``MJPG`` hands its JPEG buffers through
+undecoded.
 
 Time: on V4L2, ``CAP_PROP_POS_MSEC`` is the kernel's buffer timestamp on the monotonic
 clock (``time_source="kernel"``); elsewhere the host time at which the frame's last byte
@@ -39,7 +43,6 @@ from acq.drivers.errors import ConnectionLost, DeviceError, ProtocolError
 from acq.drivers.mjpeg import (
     MAX_HEAD,
     MultipartReader,
-    Part,
     boundary_of,
     jpeg_size,
     parse_response_head,
@@ -51,6 +54,10 @@ __all__ = ["OpenCVCamera", "fourcc_text"]
 _RECV = 256 * 1024  # bytes per recv
 _MAX_BATCH = 8 * 1024 * 1024  # bytes read back-to-back before parts are handed out
 _KERNEL_WINDOW_NS = 10_000_000_000  # a kernel time this far from receipt is not monotonic
+# parts that are not JPEG (or stretches that are not multipart) a connection may send
+# beyond one per good frame before it is dropped: a corrupt frame now and then is
+# skipped, a flood is not read on
+_JUNK_ALLOWANCE = 16
 
 
 def fourcc_text(code: float) -> str:
@@ -88,7 +95,12 @@ class OpenCVCamera(Camera):
         self.native_http = native_http
         self._sock: socket.socket | None = None
         self._reader: MultipartReader | None = None
-        self._parts: deque[tuple[Part, int]] = deque()  # (part, receipt host ns)
+        # (JPEG or None for a broken frame, width, height, receipt host ns)
+        self._parts: deque[tuple[bytes | None, int, int, int]] = deque()
+        self._credit = _JUNK_ALLOWANCE  # junk the connection may still send
+        self._junk_parts = self._good_parts = 0  # on this connection
+        self._closed_why = "not connected"
+        self._error: ProtocolError | None = None  # raised once the frames before it are read
         self._cap: cv2.VideoCapture | None = None
         self._kernel_time = False
         self._passthrough = False
@@ -137,9 +149,10 @@ class OpenCVCamera(Camera):
         return info
 
     def start(self) -> None:
-        """Nothing to do: the stream flows from ``connect()``."""
-        if self._sock is None and self._cap is None:
-            raise ConnectionLost(f"{self.source}: not connected")
+        """Nothing to do: the stream flows from ``connect()`` (whose first frame is read
+        first, even if the camera's connection has been dropped since)."""
+        if self._sock is None and self._cap is None and self._pending is None:
+            raise ConnectionLost(f"{self.source}: {self._closed_why}")
 
     def stop(self) -> None:
         """Nothing to do: an HTTP stream or a capture is stopped by ``close()``."""
@@ -148,11 +161,11 @@ class OpenCVCamera(Camera):
         if self._pending is not None:
             frame, self._pending = self._pending, None
             return frame
-        if self._sock is not None:
+        if self._sock is not None or self._parts or self._error is not None:
             return self._read_http(time.monotonic() + self.timeout)
         if self._cap is not None:
             return self._read_capture()
-        raise ConnectionLost(f"{self.source}: not connected")
+        raise ConnectionLost(f"{self.source}: {self._closed_why}")
 
     def close(self) -> None:
         if self._sock is not None:
@@ -167,6 +180,8 @@ class OpenCVCamera(Camera):
         self._reader = None
         self._parts.clear()
         self._pending = None
+        self._closed_why = "not connected"
+        self._error = None
 
     def _requested(self) -> str:
         size = f"{self.width or '?'}x{self.height or '?'}"
@@ -186,6 +201,7 @@ class OpenCVCamera(Camera):
         except OSError as e:
             raise ConnectionLost(f"{self.source}: cannot connect: {e}") from e
         self._sock = sock
+        self._credit, self._junk_parts, self._good_parts = _JUNK_ALLOWANCE, 0, 0
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
         path = url.path or "/"
         if url.query:
@@ -240,7 +256,7 @@ class OpenCVCamera(Camera):
         """Bytes from the socket by ``deadline`` (monotonic s) and their receipt host ns."""
         sock = self._sock
         if sock is None:
-            raise ConnectionLost(f"{self.source}: not connected")
+            raise ConnectionLost(f"{self.source}: {self._closed_why}")
         left = deadline - time.monotonic()
         if left <= 0:
             raise FrameTimeout(f"{self.source}: no frame within {self.timeout:g} s")
@@ -268,57 +284,107 @@ class OpenCVCamera(Camera):
             buf += data
 
     def _feed(self, data: bytes, recv_ns: int) -> None:
+        """Parse what arrived: JPEG parts are queued with their receipt time, a part that
+        begins like one but does not parse as a placeholder (its frame number is used).
+        Every part that is not a JPEG, and every multipart error, spends the junk
+        allowance (:meth:`_junk`); a multipart error is raised once the frames before it
+        are read, and the parser starts again at the next delimiter."""
         reader = self._reader
-        assert reader is not None
-        try:
-            parts = reader.feed(data)
-        except ProtocolError as e:
-            # start again at the next delimiter: the stream may well recover
-            self._reader = MultipartReader(reader.boundary)
-            raise ProtocolError(f"{self.source}: {e}") from e
-        for part in parts:
-            self._parts.append((part, recv_ns))
+        if reader is None:
+            return
+        reader.push(data)
+        while True:
+            try:
+                part = reader.next_part()
+            except ProtocolError as e:
+                self._reader = MultipartReader(reader.boundary)
+                self._error = ProtocolError(f"{self.source}: {e}")
+                self._junk(str(e))
+                return
+            if part is None:
+                return
+            body = part.body
+            try:
+                width, height = jpeg_size(body)
+            except ProtocolError as e:
+                self.corrupt += 1
+                if body.startswith(b"\xff\xd8"):  # a frame, broken
+                    self._parts.append((None, 0, 0, recv_ns))
+                if not self._junk(f"a {len(body)}-byte part: {e}"):
+                    return
+                continue
+            self._good_parts += 1
+            self._credit = min(_JUNK_ALLOWANCE, self._credit + 1)
+            self._parts.append((body, width, height, recv_ns))
+
+    def _junk(self, what: str) -> bool:
+        """One part that is not a JPEG (or bytes that are not multipart); False when that
+        was beyond the allowance: the connection is closed, a ProtocolError saying why
+        raised once the frames before it are read."""
+        self._junk_parts += 1
+        self._credit -= 1
+        if self._credit >= 0:
+            return True
+        why = (
+            f"dropped the connection: {self._junk_parts} parts were not JPEG, "
+            f"{self._good_parts} were (the last bad one: {what})"
+        )
+        if self._sock is not None:
+            try:
+                self._sock.close()
+            except OSError:
+                pass
+            self._sock = None
+        self._reader = None
+        self._closed_why = why
+        self._error = ProtocolError(f"{self.source}: {why}")
+        return False
 
     def _fill(self, deadline: float) -> None:
-        """Read until at least one part is complete, then whatever else is already
-        waiting (a backlog), so the parts of one burst are timed as one batch."""
-        sock = self._sock
-        assert sock is not None
+        """Read until at least one part is complete (or an error is pending), then
+        whatever else is already waiting (a backlog), so the parts of one burst are timed
+        as one batch."""
         batch = 0
         while True:
             data, recv_ns = self._recv(deadline)
             self._feed(data, recv_ns)
             batch += len(data)
-            if self._parts and batch < _MAX_BATCH:
+            sock = self._sock
+            if self._error is not None or sock is None:
+                return
+            if self._parts:
+                if batch >= _MAX_BATCH:
+                    return
                 ready, _, _ = select.select([sock], [], [], 0)
                 if not ready and not (isinstance(sock, ssl.SSLSocket) and sock.pending()):
                     return
-            elif self._parts:
-                return
-            if self._reader is not None and self._reader.finished and not self._parts:
+            elif self._reader is not None and self._reader.finished:
                 raise ConnectionLost(f"{self.source}: the camera ended the stream")
 
     def _read_http(self, deadline: float) -> Frame:
         while True:
             if not self._parts:
+                if self._error is not None:
+                    error, self._error = self._error, None
+                    raise error
                 self._fill(deadline)
+                if not self._parts:
+                    continue  # an error is pending
                 # sequence numbers for the whole batch: frames that arrive together
                 # explain the time since the previous batch
-                first = self._advance(self._parts[-1][1], len(self._parts))
+                first = self._advance(self._parts[-1][3], len(self._parts))
                 self._sequence = first - 1
-            part, recv_ns = self._parts.popleft()
+            body, width, height, recv_ns = self._parts.popleft()
             self._sequence += 1
             sequence = self._sequence
-            body = part.body
-            try:
-                width, height = jpeg_size(body)
-                if self.verify == "decode":
-                    img = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_UNCHANGED)
-                    if img is None:
-                        raise ProtocolError("JPEG: does not decode")
-            except ProtocolError:
-                self.corrupt += 1
+            if body is None:
                 continue
+            if self.verify == "decode":
+                img = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_UNCHANGED)
+                if img is None:
+                    self.corrupt += 1
+                    self._junk("a JPEG that does not decode")
+                    continue
             self.frames += 1
             return Frame(
                 recv_ns=recv_ns,

@@ -13,6 +13,7 @@ markers (SOI first, a parsable header up to SOS, EOI last) without decoding the 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from acq.drivers.errors import ProtocolError
 
@@ -27,8 +28,10 @@ __all__ = [
 ]
 
 MAX_HEAD = 16 * 1024  # bytes: an HTTP head or a part's headers longer than this is an error
+MAX_HEADER_LINES = 64  # header lines in an HTTP head or a part's headers
 MAX_PART = 32 * 1024 * 1024  # bytes: the largest part (a 4K JPEG is a few MB)
 MAX_PREAMBLE = 1024 * 1024  # bytes of junk tolerated between parts
+_MAX_LENGTH_DIGITS = len(str(MAX_PART))
 
 _SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
 
@@ -55,16 +58,29 @@ def _parse_headers(lines: list[bytes], where: str) -> dict[str, str]:
     return headers
 
 
+def _ascii_int(text: bytes, max_digits: int) -> int | None:
+    """``text`` as a decimal of 1 to ``max_digits`` ASCII digits, else None (``int()`` and
+    ``isdigit()`` take other Unicode digits, spaces, signs and underscores)."""
+    if not 0 < len(text) <= max_digits or not text.isdigit():  # bytes: ASCII digits only
+        return None
+    return int(text)
+
+
 def parse_response_head(head: bytes) -> tuple[int, str, dict[str, str]]:
     """An HTTP response head (up to, not including, the blank line) -> (status, reason,
-    headers with lower-case names)."""
+    headers with lower-case names); ProtocolError for anything else."""
+    if len(head) > MAX_HEAD:
+        raise ProtocolError(f"HTTP response: head over {MAX_HEAD} bytes")
     lines = head.split(b"\r\n") if b"\r\n" in head else head.split(b"\n")
+    if len(lines) > MAX_HEADER_LINES + 1:
+        raise ProtocolError(f"HTTP response: over {MAX_HEADER_LINES} header lines")
     status_line = lines[0]
     parts = status_line.split(None, 2)
-    if len(parts) < 2 or not parts[0].startswith(b"HTTP/") or not parts[1].isdigit():
+    status = _ascii_int(parts[1], 3) if len(parts) >= 2 else None
+    if status is None or not parts[0].startswith(b"HTTP/") or len(parts[1]) != 3:
         raise ProtocolError(f"HTTP response: bad status line {status_line[:80]!r}")
     reason = parts[2].decode("latin-1") if len(parts) > 2 else ""
-    return int(parts[1]), reason, _parse_headers([x for x in lines[1:] if x], "HTTP response")
+    return status, reason, _parse_headers([x for x in lines[1:] if x], "HTTP response")
 
 
 def boundary_of(content_type: str) -> bytes | None:
@@ -84,7 +100,14 @@ class MultipartReader:
 
     ``boundary`` as in the Content-Type (with or without the leading ``--`` that some
     cameras put there); None: learnt from the first line that starts with ``--``.
+
+    The work is bounded per byte received: lines that cannot be a delimiter are skipped
+    in bulk, and between two parts at most :data:`MAX_PREAMBLE` bytes and
+    ``MAX_CANDIDATES`` lines holding the boundary are looked at. :meth:`push` and
+    :meth:`next_part` let a caller stop after the parts it wants.
     """
+
+    MAX_CANDIDATES: ClassVar[int] = 256  # boundary strings between parts, not delimiters
 
     boundary: bytes | None = None
     parts: int = 0  # complete parts seen
@@ -93,10 +116,12 @@ class MultipartReader:
     _state: str = "preamble"  # preamble | headers | body
     _headers: dict[str, str] = field(default_factory=dict)
     _length: int | None = None
-    _scan_from: int = 0
+    _scan_from: int = 0  # body: where to look for the delimiter; preamble: the boundary
     _consumed: int = 0  # bytes consumed before _buf[0], for error offsets
     _junk: int = 0  # bytes skipped since the last part while looking for a delimiter
+    _candidates: int = 0  # boundary strings looked at since the last part
     _head_bytes: int = 0  # bytes of the current part's headers
+    _head_lines: int = 0
 
     def __post_init__(self) -> None:
         if self.boundary is not None:
@@ -130,6 +155,16 @@ class MultipartReader:
         self._consumed += n
         return out
 
+    def _skip(self, n: int) -> None:
+        """Drop ``n`` bytes of junk between parts."""
+        del self._buf[:n]
+        self._consumed += n
+        self._junk += n
+        if self._junk > MAX_PREAMBLE:
+            raise ProtocolError(
+                f"multipart: no boundary within {MAX_PREAMBLE} bytes (offset {self._consumed})"
+            )
+
     def _line(self, limit: int, what: str) -> bytes | None:
         """The next line without its end, or None when incomplete."""
         end = self._buf.find(b"\n")
@@ -142,61 +177,104 @@ class MultipartReader:
         line = self._take(end + 1)[:-1]
         return line[:-1] if line.endswith(b"\r") else line
 
-    def feed(self, data: bytes) -> list[Part]:
-        """Bytes as received -> the parts they complete (possibly none)."""
-        if self.finished:
-            return []
-        self._buf += data
-        out: list[Part] = []
+    def _delimiter_line(self) -> bytes | None:
+        """Skips what cannot be a delimiter (a line without the boundary string within its
+        first 4 bytes) in bulk; the next line that may be one, or None when more bytes are
+        needed. The buffer starts at a line start, and ``buf[:_scan_from]`` holds no line
+        end and no boundary string not yet looked at."""
+        buf = self._buf
         while True:
-            part = self._step()
-            if part is None:
-                return out
-            out.append(part)
-
-    def _step(self) -> Part | None:
-        while True:
-            if self.finished:
+            token = self.boundary if self.boundary is not None else b"--"
+            at = buf.find(token, self._scan_from)
+            nl = buf.rfind(b"\n", self._scan_from, at if at >= 0 else len(buf))
+            if nl >= 0:  # whole lines before the boundary string (or all, without one)
+                self._skip(nl + 1)
+                at = at - nl - 1 if at >= 0 else at
+                self._scan_from = 0
+            if at < 0:  # the unfinished line is junk so far
+                if self._junk + len(buf) > MAX_PREAMBLE:
+                    self._skip(len(buf))
+                self._scan_from = max(self._scan_from, len(buf) - len(token) + 1)
                 return None
+            end = buf.find(b"\n", at)
+            if at > 4:  # deep inside its line: not a delimiter
+                self._candidate()
+                if end < 0:
+                    self._scan_from = at + 1
+                    continue
+                self._skip(end + 1)
+                self._scan_from = 0
+                continue
+            if end < 0:
+                if len(buf) > MAX_HEAD:
+                    raise ProtocolError(
+                        f"multipart: line of over {MAX_HEAD} bytes at offset {self._consumed}"
+                    )
+                self._scan_from = at
+                return None
+            self._scan_from = 0
+            line = self._take(end + 1)[:-1]
+            self._junk += len(line) + 1
+            return line[:-1] if line.endswith(b"\r") else line
+
+    def _candidate(self) -> None:
+        self._candidates += 1
+        if self._candidates > self.MAX_CANDIDATES:
+            raise ProtocolError(
+                f"multipart: {self._candidates} boundary strings that are not a delimiter "
+                f"(offset {self._consumed})"
+            )
+
+    def push(self, data: bytes) -> None:
+        """Bytes as received, kept for :meth:`next_part`."""
+        if not self.finished:
+            self._buf += data
+
+    def next_part(self) -> Part | None:
+        """The next complete part of the bytes pushed so far, None when there is none."""
+        while not self.finished:
             if self._state == "preamble":
-                line = self._line(MAX_PREAMBLE, "line before a delimiter")
+                line = self._delimiter_line()
                 if line is None:
                     return None
-                self._junk += len(line) + 1
-                if self._junk > MAX_PREAMBLE:
-                    raise ProtocolError(
-                        f"multipart: no boundary within {self._junk} bytes "
-                        f"(offset {self._consumed})"
-                    )
                 kind = self._is_boundary(line)
                 if kind is None:
                     self.finished = True
                 elif kind:
-                    self._state, self._headers, self._head_bytes = "headers", {}, 0
-                    self._junk = 0
+                    self._state, self._headers = "headers", {}
+                    self._head_bytes = self._head_lines = 0
+                    self._junk = self._candidates = 0
+                else:
+                    self._candidate()
             elif self._state == "headers":
                 line = self._line(MAX_HEAD, "part header")
                 if line is None:
                     return None
                 self._head_bytes += len(line) + 2
-                if self._head_bytes > MAX_HEAD:
-                    raise ProtocolError(f"multipart: part headers over {MAX_HEAD} bytes")
+                self._head_lines += 1
+                if self._head_bytes > MAX_HEAD or self._head_lines > MAX_HEADER_LINES + 1:
+                    raise ProtocolError(
+                        f"multipart: part headers over {MAX_HEAD} bytes or "
+                        f"{MAX_HEADER_LINES} lines (offset {self._consumed})"
+                    )
                 if line:
                     self._headers.update(_parse_headers([line], "multipart part"))
                     continue
                 self._length = None
                 text = self._headers.get("content-length")
                 if text is not None:
-                    if not text.isdigit() or int(text) > MAX_PART:
+                    length = _ascii_int(text.encode("latin-1"), _MAX_LENGTH_DIGITS)
+                    if length is None or length > MAX_PART:
                         raise ProtocolError(f"multipart: bad Content-Length {text[:40]!r}")
-                    self._length = int(text)
+                    self._length = length
                 self._state, self._scan_from = "body", 0
             else:  # body
                 if self._length is not None:
                     if len(self._buf) < self._length:
                         return None
                     body = self._take(self._length)
-                    self._state = "preamble"  # skip the CRLF and find the next delimiter
+                    # skip the CRLF and find the next delimiter
+                    self._state, self._scan_from = "preamble", 0
                     self.parts += 1
                     return Part(self._headers, body)
                 assert self.boundary is not None
@@ -213,9 +291,18 @@ class MultipartReader:
                     self._scan_from = max(0, len(self._buf) - len(delim))
                     return None
                 body = self._take(at)
-                self._state = "preamble"
+                self._state, self._scan_from = "preamble", 0
                 self.parts += 1
                 return Part(self._headers, body)
+        return None
+
+    def feed(self, data: bytes) -> list[Part]:
+        """Bytes as received -> the parts they complete (possibly none)."""
+        self.push(data)
+        out: list[Part] = []
+        while (part := self.next_part()) is not None:
+            out.append(part)
+        return out
 
 
 def jpeg_size(data: bytes) -> tuple[int, int]:

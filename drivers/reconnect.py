@@ -315,17 +315,60 @@ class Reconnecting(Relink[Scan]):
 
 
 class CameraLink(Relink[Frame]):
-    """A camera's frames through reconnections (an unplugged or stalled camera)."""
+    """A camera's frames through reconnections (an unplugged, stalled or hostile camera).
 
-    def __init__(self, camera: Camera, **options: Any) -> None:
+    A camera that takes a connection but sends no frame within the timeout (stalled, or
+    its process frozen) is tried again at once, not after a growing backoff: each attempt
+    waits its timeout anyway, and the attempt in flight gets the first frame the moment
+    the camera sends again. A connection that ends, other than by a stall, within
+    ``settle_s`` of being made (a camera that floods junk after a good frame, or hangs
+    up after each) is not made again at once: the next attempt waits a backoff of its
+    own, which grows while that goes on and is reset by a connection that lasts.
+    """
+
+    def __init__(self, camera: Camera, *, settle_s: float = 1.0, **options: Any) -> None:
         """``options`` as for :class:`Relink`."""
         super().__init__(camera, camera.read_frame, **options)
         self.camera = camera
+        self.settle_s = settle_s
+        self.hold_off = Backoff()  # before reconnecting after a connection that did not last
+        self._stop = threading.Event()
+        self._connected_at = 0.0  # monotonic s
+        self._timed_out = False  # the last connection attempt: a frame was not sent in time
 
     def period(self) -> float | None:
         fmt = self.camera.format
         fps = fmt.fps if fmt is not None and fmt.fps > 0 else self.camera.fps
         return 1.0 / fps if fps > 0 else None
+
+    def _connect(self) -> None:
+        self._timed_out = False
+        try:
+            super()._connect()
+        except ReadTimeout:
+            self._timed_out = True
+            raise
+        self._connected_at = time.monotonic()
+
+    def _wait(self, delay: float, stop: threading.Event) -> None:
+        if self._timed_out:
+            self._timed_out = False
+            return  # the attempt waited its timeout: try again at once
+        super()._wait(delay, stop)
+
+    def _drop(self, kind: str, detail: str) -> None:
+        super()._drop(kind, detail)
+        if kind == "stalled":
+            return
+        if time.monotonic() - self._connected_at >= self.settle_s:
+            self.hold_off.reset()
+            return
+        super()._wait(self.hold_off.next(), self._stop)
+
+    def records(self, stop: threading.Event | None = None) -> Iterator[Frame]:
+        """Frames until ``stop`` is set (forever without one)."""
+        self._stop = stop if stop is not None else threading.Event()
+        return super().records(self._stop)
 
     def frames(self, stop: threading.Event | None = None) -> Iterator[Frame]:
         """Frames until ``stop`` is set (forever without one)."""

@@ -39,8 +39,9 @@ def jpeg_digest(data: bytes) -> str:
 class FrameTruth:
     """What happened to one frame. ``status``: ``pending`` (made, not yet served),
     ``sent``, ``corrupt`` (sent broken), ``skipped`` (not sent, on demand), ``stalled``
-    (not sent during a stall), ``unsent`` (no client connected), ``late`` (the server
-    fell more than ``late_s`` behind and dropped it)."""
+    (not sent during a stall), ``flooded`` (not sent during a flood of parts that are
+    not JPEG), ``unsent`` (no client connected), ``late`` (the server fell more than
+    ``late_s`` behind and dropped it)."""
 
     sequence: int
     t_mid: float  # s, true middle of the exposure (host monotonic)
@@ -165,12 +166,12 @@ class SimCamera:
                 del self._truth[next(iter(self._truth))]
         return SimFrame(k, jpeg, t_mid, t_available, self.exposure_s)
 
-    def skip_until(self, t: float) -> int:
-        """Consume, unrendered (status ``unsent``), every frame available before ``t``;
-        returns how many."""
+    def skip_until(self, t: float, status: str = "unsent") -> int:
+        """Consume, unrendered (with ``status``), every frame whose exposure end plus the
+        constant latency is before ``t`` (s); returns how many."""
         n = 0
         while self.exposure_start(self._next) + self.exposure_s + self.latency_s < t:
-            self.record(self.next_frame(render=False).sequence, status="unsent")
+            self.record(self.next_frame(render=False).sequence, status=status)
             n += 1
         return n
 

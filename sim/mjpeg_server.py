@@ -2,9 +2,10 @@
 
 :class:`MjpegServer` serves a :class:`SimCamera`'s frames over real HTTP on 127.0.0.1,
 each when it becomes available, with faults on demand (stalls, dropped connections,
-corrupt or skipped frames); :func:`serve_camera` starts a camera and its server from a
-URL. The stream carries the JPEG bytes and nothing else: no sequence number, no
-timestamp. A client learns only the bytes and when they arrived.
+corrupt or skipped frames, a flood of parts that are not JPEG); :func:`serve_camera`
+starts a camera and its server from a URL. The stream carries the JPEG bytes and nothing
+else: no sequence number, no timestamp. A client learns only the bytes and when they
+arrived.
 
 :class:`MjpegServerProcess` runs camera and server in a child process, so a client's
 timing is not disturbed by the renderer holding the GIL in its own process.
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import select
+import signal
 import socket
 import threading
 import time
@@ -70,11 +72,14 @@ class MjpegServer:
         self._clients: list[socket.socket] = []
         self._requests: dict[socket.socket, tuple[bytes, float]] = {}
         self._stall_until = 0.0
+        self._flood_until = 0.0
+        self._flood_part = b""
         self._drop = False
         self._corrupt = 0
         self._skip = 0
         self.connections = 0  # clients served since start
         self.frames_sent = 0
+        self._flood_sent = 0
 
     @property
     def url(self) -> str:
@@ -92,6 +97,23 @@ class MjpegServer:
         connections stay open."""
         with self._lock:
             self._stall_until = time.monotonic() + seconds
+
+    def flood(self, seconds: float, body: bytes = b"") -> None:
+        """For ``seconds``, send every client parts holding ``body`` (empty by default: no
+        JPEG) back to back, as fast as the sockets take them, instead of frames (frames
+        meanwhile are lost: ``flooded``). New connections are flooded too."""
+        head = f"--{self.boundary}\r\nContent-Type: image/jpeg\r\n"
+        if self.content_length:
+            head += f"Content-Length: {len(body)}\r\n"
+        part = head.encode("ascii") + b"\r\n" + body + b"\r\n"
+        with self._lock:
+            self._flood_part = part * max(1, 65536 // len(part))  # one send's worth
+            self._flood_until = time.monotonic() + seconds
+        self._wake()
+
+    def flooded_bytes(self) -> int:
+        """Bytes of flood parts sent so far (to all clients)."""
+        return self._flood_sent
 
     def drop_connection(self) -> None:
         """Close every client's connection now (the camera keeps running)."""
@@ -151,6 +173,9 @@ class MjpegServer:
             if frame is None:
                 with self._lock:
                     watched = bool(self._clients or self._requests)
+                # frames too late to be sent (the server was held up: its process stopped,
+                # say) are not rendered, as a camera would not expose them
+                cam.skip_until(time.monotonic() - self.late_s - 4 * cam.jitter_s, "late")
                 frame = cam.next_frame(render=watched)
             self._service(frame.t_available)
             if self._stop.is_set():
@@ -160,27 +185,65 @@ class MjpegServer:
                 frame = None
 
     def _service(self, until: float) -> None:
-        """Accept connections and read requests until ``until`` (monotonic s)."""
+        """Accept connections, read requests, forget clients that hung up, and send the
+        flood if one is on, until ``until`` (monotonic s)."""
         while not self._stop.is_set():
             self._apply_drop()
-            left = until - time.monotonic()
+            now = time.monotonic()
+            left = until - now
             if left <= 0:
                 return
-            watch = [self._listener, self._wake_r, *self._requests]
-            ready, _, _ = select.select(watch, [], [], left)
+            with self._lock:
+                clients = list(self._clients)
+                flood = self._flood_part if now < self._flood_until else b""
+            watch = [self._listener, self._wake_r, *self._requests, *clients]
+            ready, _, _ = select.select(watch, [], [], 0 if flood and clients else left)
             for sock in ready:
                 if sock is self._wake_r:
                     with contextlib.suppress(OSError):
                         self._wake_r.recv(4096)
                 elif sock is self._listener:
                     self._accept()
-                else:
+                elif sock in self._requests:
                     self._read_request(sock)
+                else:
+                    self._read_client(sock)
             now = time.monotonic()
             for sock, (_, since) in list(self._requests.items()):
                 if now - since > 5.0:
                     self._requests.pop(sock)
                     sock.close()
+            if flood:
+                self._send_flood(flood)
+
+    def _read_client(self, sock: socket.socket) -> None:
+        """A client sends nothing after its request: readable means it hung up (a camera
+        that notices frees the client's slot at once, not at the next frame)."""
+        try:
+            data = sock.recv(4096)
+        except (BlockingIOError, InterruptedError, TimeoutError):
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self._forget(sock)
+
+    def _forget(self, sock: socket.socket) -> None:
+        with self._lock:
+            if sock in self._clients:
+                self._clients.remove(sock)
+        with contextlib.suppress(OSError):
+            sock.close()
+
+    def _send_flood(self, data: bytes) -> None:
+        with self._lock:
+            clients = list(self._clients)
+        for sock in clients:
+            try:
+                sock.sendall(data)
+                self._flood_sent += len(data)
+            except OSError:
+                self._forget(sock)
 
     def _apply_drop(self) -> None:
         with self._lock:
@@ -261,8 +324,9 @@ class MjpegServer:
         with self._lock:
             clients = list(self._clients)
             stalled = now < self._stall_until
+            flooded = now < self._flood_until
             skip = corrupt = False
-            if clients and frame.jpeg and not stalled:
+            if clients and frame.jpeg and not stalled and not flooded:
                 if self._skip:
                     self._skip -= 1
                     skip = True
@@ -274,6 +338,9 @@ class MjpegServer:
             return
         if stalled:
             cam.record(frame.sequence, status="stalled")
+            return
+        if flooded:
+            cam.record(frame.sequence, status="flooded")
             return
         if skip:
             cam.record(frame.sequence, status="skipped")
@@ -295,11 +362,7 @@ class MjpegServer:
                 sock.sendall(data)
                 sent += 1
             except OSError:
-                with self._lock:
-                    if sock in self._clients:
-                        self._clients.remove(sock)
-                with contextlib.suppress(OSError):
-                    sock.close()
+                self._forget(sock)
         self.frames_sent += 1
         cam.record(frame.sequence, t_sent=time.monotonic(), clients=sent)
 
@@ -367,6 +430,11 @@ def _child_main() -> None:
                 value = time.process_time()
             elif command in ("stall", "drop_connection", "corrupt_next", "skip_next"):
                 value = getattr(server, command)(*args)
+            elif command == "flood":
+                server.flood(args[0], bytes.fromhex(args[1]))
+                value = None
+            elif command == "flooded_bytes":
+                value = server.flooded_bytes()
             else:
                 value = None
             print(json.dumps({"value": value}), flush=True)
@@ -418,6 +486,21 @@ class MjpegServerProcess:
     def skip_next(self) -> None:
         self._call("skip_next")
 
+    def flood(self, seconds: float, body: bytes = b"") -> None:
+        self._call("flood", seconds, body.hex())
+
+    def freeze(self) -> None:
+        """Stop the camera's process (SIGSTOP): its port still takes connections (they
+        queue in the listen backlog), nothing is read, rendered or sent until :meth:`thaw`."""
+        self._proc.send_signal(signal.SIGSTOP)
+
+    def thaw(self) -> None:
+        """Resume the process :meth:`freeze` stopped (SIGCONT)."""
+        self._proc.send_signal(signal.SIGCONT)
+
+    def flooded_bytes(self) -> int:
+        return int(self._call("flooded_bytes"))
+
     def truth(self) -> list[FrameTruth]:
         return [FrameTruth(**t) for t in self._call("truth")]
 
@@ -427,6 +510,7 @@ class MjpegServerProcess:
 
     def close(self) -> None:
         if self._proc.poll() is None:
+            self.thaw()
             assert self._proc.stdin is not None
             with contextlib.suppress(OSError, ValueError):
                 self._proc.stdin.write(self._json.dumps(["close"]) + "\n")

@@ -199,6 +199,42 @@ def test_faults(server: MjpegServer) -> None:
     assert server.connections == 2
 
 
+def test_flood(server: MjpegServer) -> None:
+    """A flood: empty parts back to back instead of frames, to every client, then frames
+    again."""
+    reader = PlainReader(server.port)
+    reader.head()
+    reader.part()
+    server.flood(0.5)
+    while reader.part()[1]:  # a frame sent before the flood began
+        pass
+    parts = [reader.part() for _ in range(1000)]
+    assert all(body == b"" and headers["content-length"] == "0" for headers, body, _ in parts)
+    while not reader.part()[1]:  # frames once the flood is over
+        pass
+    reader.close()
+    assert server.flooded_bytes() >= 1000 * len(b"--acqframe\r\n\r\n\r\n")
+    assert any(t.status == "flooded" for t in server.camera.truth())
+
+
+def test_clients_that_hang_up_in_a_stall_free_their_slot(
+    camera_args: dict[str, object],
+) -> None:
+    """During a stall nothing is sent, which would show that a client is gone: the
+    server notices a hang-up itself, so clients that come and go in a stall do not use
+    up ``max_clients``."""
+    cam = SimCamera(**camera_args, seed=3)  # type: ignore[arg-type]
+    with MjpegServer(cam, max_clients=2) as srv:
+        srv.stall(5.0)
+        for _ in range(4):
+            reader = PlainReader(srv.port)
+            assert reader.head()[0] == "HTTP/1.0 200 OK"
+            reader.close()
+            deadline = time.monotonic() + 2.0
+            while srv.clients and time.monotonic() < deadline:
+                time.sleep(0.01)
+
+
 def test_in_process_frames_and_clock(camera_args: dict[str, object]) -> None:
     cam = SimCamera(
         **camera_args,  # type: ignore[arg-type]

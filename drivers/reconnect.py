@@ -356,8 +356,8 @@ class CameraLink(Relink[Frame]):
             return  # the attempt waited its timeout: try again at once
         super()._wait(delay, stop)
 
-    def _drop(self, kind: str, detail: str) -> None:
-        super()._drop(kind, detail)
+    def _drop(self, kind: str, detail: str, error: BaseException | None = None) -> None:
+        super()._drop(kind, detail, error)
         if kind == "stalled":
             return
         if time.monotonic() - self._connected_at >= self.settle_s:
@@ -365,7 +365,7 @@ class CameraLink(Relink[Frame]):
             return
         super()._wait(self.hold_off.next(), self._stop)
 
-    def records(self, stop: threading.Event | None = None) -> Iterator[Frame]:
+    def records(self, stop: threading.Event | None = None) -> Generator[Frame, None, None]:
         """Frames until ``stop`` is set (forever without one)."""
         self._stop = stop if stop is not None else threading.Event()
         return super().records(self._stop)

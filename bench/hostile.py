@@ -18,9 +18,11 @@ another device's timing. One JSON line per result.
     empty body, back to back, for the whole run; ``garbage``: the same with 8-byte bodies
     that are not JPEG. Per case: the laser's receive-minus-stamp (``recv_ns - stamp_ns`` of
     ``/acq/timing/laser``, the delay the recorder sees above its device-clock line) p50,
-    p99 and max in ms, and for the floods the difference to ``good``; the camera's
-    frames, disconnects, corrupt parts and protocol errors (the last ``/acq/status``).
-    Target: the p99 difference at most 2 ms.
+    p99 and max in ms and p99 minus p50 (each run's clock line has its own constant
+    offset: the spread is what a device costs), and for the floods the differences to
+    ``good``; the camera's frames, disconnects, corrupt parts and protocol errors (the
+    last ``/acq/status``). Target: the p99 difference, and that of p99 minus p50, at
+    most 2 ms.
 
 Every line carries ``os.getloadavg()``: the machine may be busy with other work.
 Run as a script: ``python bench/hostile.py [--stall] [--flood] [--runs N] [--seconds S]``
@@ -234,6 +236,8 @@ def _figures(out: Path) -> dict[str, Any]:
         "p50_ms": round(float(p50), 3),
         "p99_ms": round(float(p99), 3),
         "max_ms": round(float(r.max()), 3),
+        # the spread above the median: each run's clock line sets its own constant offset
+        "p99_above_p50_ms": round(float(p99 - p50), 3),
     }
     if camera is not None:
         out_fig["camera"] = {
@@ -278,10 +282,12 @@ def flood_cases(seconds: float) -> Iterator[dict[str, Any]]:
                     good = figures
                 else:
                     diff = figures["p99_ms"] - good["p99_ms"]
+                    cost = figures["p99_above_p50_ms"] - good["p99_above_p50_ms"]
                     line["p99_minus_good_ms"] = round(diff, 3)
                     line["max_minus_good_ms"] = round(figures["max_ms"] - good["max_ms"], 3)
+                    line["p99_above_p50_minus_good_ms"] = round(cost, 3)
                     line["target_ms"] = TARGET_P99_COST_MS
-                    line["ok"] = diff <= TARGET_P99_COST_MS
+                    line["ok"] = max(diff, cost) <= TARGET_P99_COST_MS
                 yield line
         finally:
             _end(scanner)

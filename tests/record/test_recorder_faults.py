@@ -1,8 +1,8 @@
 """The recorder against hostile and absent devices, over real transports on 127.0.0.1: a
-camera whose MJPEG part header is hostile (a superscript digit in its length), a camera URL with nothing
-listening (and a password in it), and a good simulated UTM-30LX that must record on
-through both; required devices; the credentials of device URLs kept out of the log
-lines and the MCAP file."""
+camera whose MJPEG part header is hostile (a superscript digit in its length), a camera
+URL with nothing listening (and a password in it), and a good simulated UTM-30LX that
+must record on through both; required devices; the credentials of device URLs kept out
+of the log lines and the MCAP file."""
 
 from __future__ import annotations
 

@@ -35,7 +35,6 @@ import argparse
 import contextlib
 import json
 import os
-import select
 import signal
 import statistics
 import subprocess
@@ -49,6 +48,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from processes import acq_command, end, start_simulator
 
 from acq.drivers.camera_opencv import OpenCVCamera
 from acq.drivers.reconnect import CameraLink
@@ -56,7 +56,6 @@ from acq.log import LogReader
 from acq.sim.mjpeg_server import MjpegServerProcess
 
 FPS = 25.0
-START_TIMEOUT_S = 60.0
 TARGET_RECOVERY_S = 2.0
 TARGET_P99_COST_MS = 2.0
 WARMUP_S = 3.0  # recorder: both devices connected and the laser's clock settled
@@ -65,40 +64,6 @@ WARMUP_S = 3.0  # recorder: both devices connected and the laser's clock settled
 def _line(**values: Any) -> None:
     load = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps({"bench": "hostile", **values, "loadavg": load}), flush=True)
-
-
-def _acq() -> list[str]:
-    exe = Path(sys.executable).with_name("acq")
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "acq.cli"]
-
-
-def _start(cmd: list[str], marker: str, stderr: Any) -> tuple[subprocess.Popen[str], str]:
-    """A simulator command and the URL it prints after ``marker``."""
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True)
-    assert proc.stdout is not None
-    deadline = time.monotonic() + START_TIMEOUT_S
-    while time.monotonic() < deadline and proc.poll() is None:
-        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
-        if ready:
-            line = proc.stdout.readline()
-            if marker in line:
-                return proc, line.rsplit(" on ", 1)[1].strip()
-    _end(proc)
-    raise RuntimeError(f"{' '.join(cmd)}: no address within {START_TIMEOUT_S:g} s")
-
-
-def _end(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        with contextlib.suppress(ProcessLookupError):
-            proc.send_signal(signal.SIGCONT)
-        proc.terminate()
-        try:
-            proc.wait(5.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    if proc.stdout is not None:
-        proc.stdout.close()
 
 
 # --- (1) a stalled camera -------------------------------------------------------------------
@@ -153,9 +118,9 @@ def stall_runs(mode: str, runs: int, stall_s: float) -> dict[str, Any]:
             server = stack.enter_context(MjpegServerProcess(seed=1))
             url = server.url
         else:
-            cmd = [*_acq(), "sim", "camera", "--listen", "http://127.0.0.1:0/stream.mjpg"]
-            proc, url = _start(cmd, " on http://", err)
-            stack.callback(_end, proc)
+            cmd = [*acq_command(), "sim", "camera", "--listen", "http://127.0.0.1:0/stream.mjpg"]
+            proc, url = start_simulator(cmd, " on http://", err)
+            stack.callback(end, proc)
         reader = LinkReader(url)
         stack.callback(reader.close)
         for _ in range(runs):
@@ -205,7 +170,7 @@ def _record(work: Path, scanner_url: str, camera_url: str | None, seconds: float
     path = work / "rig.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     with (work / "record.log").open("w") as log:
-        cmd = [*_acq(), "record", "-c", str(path), "--duration", str(seconds + WARMUP_S)]
+        cmd = [*acq_command(), "record", "-c", str(path), "--duration", str(seconds + WARMUP_S)]
         code = subprocess.run(cmd, stderr=log, stdout=log, timeout=seconds + 60).returncode
     if code != 0:
         text = (work / "record.log").read_text(errors="replace")
@@ -257,8 +222,8 @@ FLOODS = {"good": None, "empty": b"", "garbage": b"notjpeg!"}
 def flood_cases(seconds: float) -> Iterator[dict[str, Any]]:
     good: dict[str, Any] | None = None
     with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryFile("w+") as err:
-        cmd = [*_acq(), "sim", "scanner", "--model", "utm-30lx"]
-        scanner, scanner_url = _start(cmd, " on socket://", err)
+        cmd = [*acq_command(), "sim", "scanner", "--model", "utm-30lx"]
+        scanner, scanner_url = start_simulator(cmd, " on socket://", err)
         try:
             work = Path(tmp) / "none"
             work.mkdir()
@@ -290,7 +255,7 @@ def flood_cases(seconds: float) -> Iterator[dict[str, Any]]:
                     line["ok"] = max(diff, cost) <= TARGET_P99_COST_MS
                 yield line
         finally:
-            _end(scanner)
+            end(scanner)
 
 
 def main() -> int:

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import select
 import subprocess
 import sys
 import tempfile
@@ -33,10 +32,10 @@ import time
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
+from processes import acq_command, end, start_simulator
 
 from acq.drivers.scip import ScipScanner
 from acq.time.clocksync import DeviceClock, fit_drift, retime_offline
@@ -46,7 +45,6 @@ SIM_DRIFT_PPM = 50.0  # a real crystal's order; the fit should find about -50
 TICK_HZ = 1000.0
 WRAP_BITS = 24
 WARMUP_S = 5.0
-START_TIMEOUT_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -61,34 +59,10 @@ class Log:
 # --- the simulated device, in its own process -------------------------------------------
 
 
-def start_simulator(stderr: TextIO) -> tuple[subprocess.Popen[str], str]:
+def start_scanner(stderr: TextIO) -> tuple[subprocess.Popen[str], str]:
     """``acq sim scanner`` on a free port; the process and its socket:// URL."""
-    exe = Path(sys.executable).with_name("acq")
-    head = [str(exe)] if exe.exists() else [sys.executable, "-m", "acq.cli"]
-    cmd = [*head, "sim", "scanner", "--model", MODEL, "--drift-ppm", str(SIM_DRIFT_PPM)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, text=True)
-    assert proc.stdout is not None
-    deadline = time.monotonic() + START_TIMEOUT_S
-    while time.monotonic() < deadline and proc.poll() is None:
-        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
-        if ready:
-            line = proc.stdout.readline()
-            if " on socket://" in line:
-                return proc, line.rsplit(" on ", 1)[1].strip()
-    stop_simulator(proc)
-    raise RuntimeError(f"{' '.join(cmd)}: no address within {START_TIMEOUT_S:.0f} s")
-
-
-def stop_simulator(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(5.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    if proc.stdout is not None:
-        proc.stdout.close()
+    cmd = [*acq_command(), "sim", "scanner", "--model", MODEL, "--drift-ppm", str(SIM_DRIFT_PPM)]
+    return start_simulator(cmd, " on socket://", stderr)
 
 
 # --- busy work ------------------------------------------------------------------------------
@@ -149,8 +123,8 @@ def record(url: str, seconds: float, work: Callable[[], None] | None) -> Log:
         try:
             scanner.connect()
             scanner.start()
-            end = time.monotonic() + seconds
-            while time.monotonic() < end:
+            deadline = time.monotonic() + seconds
+            while time.monotonic() < deadline:
                 scan = scanner.read_scan()
                 ticks.append(scan.device_ticks[0])
                 recv.append(scan.recv_ns)
@@ -248,7 +222,7 @@ def main() -> int:
     }
     print(json.dumps({**head, **setup}), flush=True)
     with tempfile.TemporaryFile("w+") as err:
-        proc, url = start_simulator(err)
+        proc, url = start_scanner(err)
         try:
             record(url, 2.0, None)  # warm-up: the simulator compiles its ray caster
             default_switch = sys.getswitchinterval()
@@ -266,7 +240,7 @@ def main() -> int:
             print(f"receive_jitter: {e}\n{err.read()}", file=sys.stderr)
             return 1
         finally:
-            stop_simulator(proc)
+            end(proc)
     return 0
 
 

@@ -53,7 +53,6 @@ import contextlib
 import json
 import os
 import re
-import select
 import shutil
 import signal
 import socket
@@ -69,6 +68,7 @@ from typing import IO, Any
 
 import yaml
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from processes import acq_command, wait_line
 
 from acq.log import LogInfo, LogReader, info_many
 from acq.sim.camera_device import jpeg_digest
@@ -77,7 +77,6 @@ from acq.sim.mjpeg_server import MjpegServerProcess
 ROOT = Path(__file__).resolve().parents[1]
 SCAN_HZ = 40.0  # UTM-30LX
 FPS = 25.0
-START_TIMEOUT_S = 60.0
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 RATE_STEPS = (1, 2, 5, 10, 15, 20, 25, 30, 40)
 TARGET_CPU_SHARE = 0.10
@@ -91,11 +90,6 @@ def _load() -> list[float]:
 
 def _line(bench: str, **values: Any) -> None:
     print(json.dumps({"bench": bench, **values, "loadavg": _load()}), flush=True)
-
-
-def _acq() -> list[str]:
-    exe = Path(sys.executable).with_name("acq")
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "acq.cli"]
 
 
 # --- processes --------------------------------------------------------------------------
@@ -153,28 +147,15 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _wait_line(proc: subprocess.Popen[str], marker: str) -> str:
-    """The first stdout line of ``proc`` holding ``marker``."""
-    assert proc.stdout is not None
-    deadline = time.monotonic() + START_TIMEOUT_S
-    while time.monotonic() < deadline and proc.poll() is None:
-        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
-        if ready:
-            line = proc.stdout.readline()
-            if marker in line:
-                return line
-    raise RuntimeError(f"{proc.args}: no {marker!r} within {START_TIMEOUT_S:g} s")
-
-
 def live_scanner(procs: Procs, stderr: IO[str], port: int = 0) -> tuple[subprocess.Popen[str], str]:
     """``acq sim scanner --model utm-30lx`` (a free port for 0): (process, socket:// URL)."""
     listen = ["--listen", f"tcp://127.0.0.1:{port}"] if port else []
     proc = procs.start(
-        [*_acq(), "sim", "scanner", "--model", "utm-30lx", *listen],
+        [*acq_command(), "sim", "scanner", "--model", "utm-30lx", *listen],
         stdout=subprocess.PIPE,
         stderr=stderr,
     )
-    return proc, _wait_line(proc, " on socket://").rsplit(" on ", 1)[1].strip()
+    return proc, wait_line(proc, " on socket://").rsplit(" on ", 1)[1].strip()
 
 
 def live_camera(procs: Procs, port: int = 0) -> MjpegServerProcess:
@@ -230,7 +211,7 @@ class Prerendered:
             stdout=subprocess.PIPE,
             stderr=stderr,
         )
-        self.url: str = json.loads(_wait_line(self.proc, '"url"'))["url"]
+        self.url: str = json.loads(wait_line(self.proc, '"url"'))["url"]
 
     def stats(self) -> dict[str, Any]:
         assert self.proc.stdin is not None and self.proc.stdout is not None
@@ -365,7 +346,7 @@ def start_recorder(
     log = work / "record.log"
     with log.open("w") as err:
         t0 = time.monotonic()
-        proc = procs.start([*_acq(), "record", "-c", str(path)], stderr=err)
+        proc = procs.start([*acq_command(), "record", "-c", str(path)], stderr=err)
     return Run(proc, work / "logs", log, t0)
 
 

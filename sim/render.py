@@ -19,6 +19,7 @@ import numpy as np
 from acq.camera import calibfile, projection
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.transforms import Rigid
+from acq.provenance import SOFTWARE, write_image
 from acq.sim import sensors, world
 
 __all__ = ["OverlayResult", "render_overlay", "write"]
@@ -166,9 +167,8 @@ def write(out: str | Path, time_s: float, seed: int, exact_equidistant: bool) ->
     out.mkdir(parents=True, exist_ok=True)
     result = render_overlay(time_s, seed, exact_equidistant)
     for name, image in (("frame.png", result.image), ("overlay.png", result.overlay)):
-        if not cv2.imwrite(str(out / name), image):
-            raise OSError(f"{out / name}: cannot write")
+        write_image(out / name, image)
     calibfile.save(result.calibration, out / "calib.yaml")
-    summary = asdict(result.stats)
+    summary = {"software": SOFTWARE} | asdict(result.stats)  # the mark first (provenance)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     return result.stats

@@ -18,6 +18,7 @@ from acq.calib.extrinsic import ExtrinsicResult, point_residuals
 from acq.calib.image_circle import CircleResult
 from acq.calib.sensitivity import PARAMS, Analysis, bin_by_theta, format_sigma, third_order_px
 from acq.camera.camera_models import KannalaBrandt
+from acq.provenance import write_image
 
 __all__ = [
     "PALETTE",
@@ -26,7 +27,6 @@ __all__ = [
     "residual_plot",
     "sensitivity_figure",
     "third_order_figure",
-    "write_png",
 ]
 
 # --- primitives --------------------------------------------------------------------------
@@ -46,12 +46,6 @@ PALETTE = [
     (40, 120, 40),
 ]
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
-
-
-def write_png(path: str | Path, img: np.ndarray) -> None:
-    """Write ``img`` (BGR uint8) to ``path`` (the format by its suffix); OSError if it cannot."""
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"{path}: cannot write")
 
 
 def _nice_ticks(lo: float, hi: float, n: int = 6) -> np.ndarray:
@@ -290,7 +284,7 @@ def residual_plot(
     cv2.putText(img, f"{lim:.1f} mm", (x1 - 30, y1 + 16), _FONT, 0.35, black, 1)
     title = f"point residuals, kept poses (n={len(vals)}, RMS {sd:.2f} mm)"
     cv2.putText(img, title, (x0, y0 - 15), _FONT, 0.45, black, 1)
-    write_png(path, img)
+    write_image(path, img)
     return img
 
 

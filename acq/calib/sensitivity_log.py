@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from acq.calib.plots import sensitivity_figure, third_order_figure, write_png
+from acq.calib.plots import sensitivity_figure, third_order_figure
 from acq.calib.sensitivity import (
     CAMERA,
     MIN_CRITERION_PX,
@@ -33,6 +33,7 @@ from acq.camera import calibfile
 from acq.camera.camera_models import KannalaBrandt
 from acq.errors import AcqError, InputValueError
 from acq.log import drive_log
+from acq.provenance import SOFTWARE, write_image
 
 __all__ = ["analyze_logs"]
 
@@ -148,8 +149,9 @@ def analyze_logs(
         "fig9": third_order_figure(p, lens.theta_max, lens=lens),
     }
     for k, path in figs.items():
-        write_png(path, images[k])
-    (out / "sensitivity.json").write_text(json.dumps(report, indent=2) + "\n")
+        write_image(path, images[k])
+    mark = {"software": SOFTWARE}  # first: what acq.provenance looks for
+    (out / "sensitivity.json").write_text(json.dumps(mark | report, indent=2) + "\n")
     return report
 
 

@@ -43,6 +43,7 @@ import numpy.typing as npt
 from acq.camera.calibfile import CameraCalib
 from acq.errors import AcqError
 from acq.log import drive_log
+from acq.provenance import write_image
 
 __all__ = [
     "BACK",
@@ -426,6 +427,5 @@ def validate(
             colour = (0, 255, 0) if good else (0, 0, 255)
             cv2.circle(draw, (round(float(u)), round(float(v))), 1, colour, -1)
         overlay.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(overlay), draw):
-            raise OSError(f"cannot write {overlay}")
+        write_image(overlay, draw)
     return res

@@ -71,6 +71,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "yaw=0.002; repeatable; overrides calib.yaml's std and the defaults",
     )  # fmt: skip
     sens.add_argument("--json", action="store_true", help="JSON instead of text")
+    sens.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     sens.set_defaults(handler=run_sensitivity)
 
 
@@ -97,7 +98,8 @@ def run_sensitivity(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise InputError(f"-o {out}: is a file; give a folder")
     inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
-    output_files.check(inputs, [Output("-o", out / name, kind) for name, kind in WRITES])
+    outputs = [Output("-o", out / name, kind) for name, kind in WRITES]
+    output_files.check(inputs, outputs, force=args.force)
     report = sensitivity_log.analyze_logs(
         args.calib, args.logs, out, args.camera_height, args.building_distance,
         sigma=dict(args.sigma or ()),

@@ -25,7 +25,10 @@ if TYPE_CHECKING:
     from acq.camera.camera_models import KannalaBrandt
 
 HELP = "calibrate the rig's sensors"
-FORCE_HELP = "replace an existing output YAML (or update the input one in place), keeping NAME.bak"
+FORCE_HELP = (
+    "replace an existing output YAML (or update the input one in place), keeping NAME.bak, "
+    "and outputs that acq did not write"
+)
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -73,6 +76,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="also fit Kannala-Brandt to this checkerboard (inner corners, square in metres, "
         "e.g. 8x6x0.117), starting from the circle",
     )  # fmt: skip
+    fish.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     fish.set_defaults(handler=run_fisheye)
 
     ext = cal_sub.add_parser(
@@ -198,6 +202,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="DIR",
         help="write DIR/validate_overlay.png (replacing an image there, no other file)",
     )
+    val.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     val.set_defaults(handler=run_validate)
 
 
@@ -241,7 +246,6 @@ def run_fisheye(args: argparse.Namespace) -> int:
     """Write the camera's intrinsics from its image circle (and, with --board, a
     Kannala-Brandt checkerboard fit) into CALIB; print a summary (or JSON), write the
     overlay PNG (default: beside CALIB). 0; 2 bad input; 1 nothing found."""
-    import cv2
 
     from acq.calib import image_circle
     from acq.calib.fisheye_calib import (
@@ -256,13 +260,14 @@ def run_fisheye(args: argparse.Namespace) -> int:
     )
     from acq.calib.plots import draw_overlay
     from acq.camera import calibfile
+    from acq.provenance import write_image
 
     images, fov_deg, output = args.images, args.fov, args.output
     overlay = args.overlay or output.with_name(output.stem + "_circle.png")
     if overlay.suffix.lower() not in IMAGE_SUFFIXES:
         raise InputError(f"--overlay {overlay}: expected a .png or .jpg file")
     outputs = [Output("-o", output, "yaml", update=True), Output("--overlay", overlay, "image")]
-    backups = output_files.check([("IMAGE", p) for p in images], outputs)
+    backups = output_files.check([("IMAGE", p) for p in images], outputs, force=args.force)
     spec = parse_board(args.board) if args.board else None
     imgs = read_images(images)
     try:
@@ -300,9 +305,7 @@ def run_fisheye(args: argparse.Namespace) -> int:
     output_files.keep_backups("acq calibrate fisheye", backups)
     calibfile.save(calib, output)
     title = f"{Path(images[0]).name}: {len(imgs)} image(s)"
-    with output_files.atomic(overlay) as tmp:
-        if not cv2.imwrite(str(tmp), draw_overlay(imgs[0], result, title)):
-            raise InputError(f"{overlay}: cannot write the overlay")
+    write_image(overlay, draw_overlay(imgs[0], result, title))
     report |= {"camera": name, "calib": str(output), "model": model.to_dict()}
     report |= {"method": method, "overlay": str(overlay)}
     if args.json:
@@ -550,7 +553,7 @@ def run_validate(args: argparse.Namespace) -> int:
         if args.out.exists() and not args.out.is_dir():
             raise InputError(f"-o {args.out}: is a file; give a folder")
         inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
-        output_files.check(inputs, [Output("-o", overlay, "image")])
+        output_files.check(inputs, [Output("-o", overlay, "image")], force=args.force)
     cal = calibfile.load(args.calib)
     log = drive_log.read_log(list(args.logs), camera=args.camera)
     name, cam = drive_log.camera_calib(log, cal, args.camera)

@@ -104,6 +104,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.add_argument("--no-preview", action="store_true", help="no preview image")
     col.add_argument("--progress", action="store_true", help="a progress bar even when piped")
     col.add_argument("--json", action="store_true", help="JSON report instead of text")
+    col.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     col.set_defaults(handler=run)
 
 
@@ -134,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
     if args.trajectory is not None:
         inputs.append(("--trajectory", args.trajectory))
-    output_files.check(inputs, outputs)
+    output_files.check(inputs, outputs, force=args.force)
     calib = calibfile.load(args.calib)
     report = colorize.run(
         args.logs, calib, args.output, camera=args.camera, frame=args.frame,

@@ -8,8 +8,10 @@ The rule every command that writes follows (its --help says it in :data:`RULE`):
 - an output that exists and is recognisably another kind of file (an MCAP log, an image,
   a point cloud where a YAML goes, or any binary file there) is refused, even with --force;
 - an existing calibration or configuration (YAML) is replaced only with --force, and then
-  kept beside it as ``NAME.bak``; products made from the inputs (clouds, images, plots)
-  are replaced;
+  kept beside it as ``NAME.bak``;
+- an existing product (a cloud, an image, a JSON report) is replaced when acq wrote it
+  (its mark, :mod:`acq.provenance`: the same command run again), otherwise only with
+  --force; an existing MCAP log never;
 - two outputs of one command never name the same file.
 """
 
@@ -25,8 +27,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from acq.errors import InputError
+from acq.provenance import made_by_acq
 
 __all__ = [
+    "FORCE_HELP",
     "IMAGE_SUFFIXES",
     "RULE",
     "Output",
@@ -42,8 +46,11 @@ __all__ = [
 RULE = (
     "An output that is one of the inputs, or an existing file of another kind (a log or "
     "an image where a YAML goes), is refused; an existing YAML is replaced only with "
-    "--force, its old content kept as NAME.bak."
+    "--force, its old content kept as NAME.bak; an existing cloud, image or report only "
+    "when acq wrote it, or with --force."
 )
+
+FORCE_HELP = "replace existing outputs that acq did not write"
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")  # the images a command writes, by their name
 
@@ -117,7 +124,8 @@ def kind_of(path: Path) -> str:
 class Output:
     """A file a command writes: the option naming it (``-o``), its path, and its kind
     (``yaml``: a calibration or configuration, replaced only with --force; ``image``,
-    ``json``, ``cloud``, ``mcap``: products, replaced). ``update``: the command reads
+    ``json``, ``cloud``: products, replaced when acq wrote them; ``mcap``: never
+    replaced). ``update``: the command reads
     the existing file and writes it back changed (``calibrate fisheye -o``): no --force
     needed, the old one is kept as NAME.bak all the same. ``in_place_of``: the input
     options (``--calib``) this output may be the same file as, to update it in place
@@ -166,6 +174,12 @@ def check(
                 "not overwritten"
             )
         if out.kind not in _PRECIOUS:
+            if out.kind == "mcap":
+                raise InputError(f"{out.named()}: exists and is an MCAP log; not overwritten")
+            if not (force or made_by_acq(out.path)):
+                raise InputError(
+                    f"{out.named()}: exists and was not written by acq; --force replaces it"
+                )
             continue
         if not (force or out.update):
             what, does = (

@@ -85,6 +85,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     pcam.add_argument(
         "--timeout", type=TIMEOUT, default=2.0, help="seconds to wait for a frame (default 2)"
     )
+    pcam.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     pcam.set_defaults(handler=run_camera)
 
 
@@ -168,7 +169,7 @@ def run_camera(args: argparse.Namespace) -> int:
     if snapshot is not None:
         if snapshot.suffix.lower() not in IMAGE_SUFFIXES:
             raise InputError(f"--snapshot {snapshot}: expected a .png or .jpg file")
-        output_files.check([], [Output("--snapshot", snapshot, "image")])
+        output_files.check([], [Output("--snapshot", snapshot, "image")], force=args.force)
     camera = camera_for(args.driver, source, fps=args.fps, timeout=args.timeout)
     try:
         with _reported("acq probe camera", source, camera.close):

@@ -39,7 +39,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )  # fmt: skip
     render.add_argument("--seed", type=SEED, default=0, help="street seed")
     render.add_argument(
-        "--force", action="store_true", help="replace an existing calib.yaml (keeping a .bak)"
+        "--force",
+        action="store_true",
+        help="replace an existing calib.yaml (keeping a .bak) and outputs that acq did not write",
     )
     render.add_argument(
         "--equidistant",

@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from acq.cloud.points import Cloud
+from acq.provenance import write_image
 
 UNCOLOURED_RGB = (128, 128, 128)  # what the preview draws for a point no frame sees
 
@@ -170,6 +171,5 @@ def preview_png(
 ) -> tuple[int, int]:
     """Write :func:`preview_image` as a PNG; returns its (width, height), px."""
     img = preview_image(cloud, metres_per_px=metres_per_px, title=title)
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"{path}: cannot write the PNG")
+    write_image(path, img)
     return int(img.shape[1]), int(img.shape[0])

@@ -11,6 +11,7 @@ import numpy as np
 
 from acq.drivers.camera import FrameFormat
 from acq.drivers.scanner import ScanGeometry
+from acq.provenance import write_image
 from acq.records import DeviceInfo, Frame, Scan
 
 __all__ = ["camera_device", "frame_json", "scan_json", "scanner_device", "write_snapshot"]
@@ -102,5 +103,6 @@ def write_snapshot(frame: Frame, path: str) -> None:
     image = frame.image
     if image is None:
         image = cv2.imdecode(np.frombuffer(frame.jpeg, np.uint8), cv2.IMREAD_COLOR)
-    if image is None or not cv2.imwrite(path, image):
-        raise OSError(f"{path}: cannot write the snapshot")
+    if image is None:
+        raise OSError(f"{path}: the frame does not decode: no snapshot")
+    write_image(path, image)

@@ -214,3 +214,60 @@ def test_a_failed_repair_names_its_file_and_leaves_nothing(tmp_path: Path) -> No
     assert done.returncode == 1
     assert done.stderr == f"acq info: {out}: File too large\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap"]
+
+
+# (argv with {log}, {img}, {cal} and {out} for the existing product, its name in tmp_path)
+PRODUCTS = [
+    (["colorize", "{log}", "--calib", "{cal}", "-o", "{out}", "--no-preview"], "c.ply"),
+    (["colorize", "{log}", "--calib", "{cal}", "-o", "c.las", "--preview", "{out}"], "p.png"),
+    (
+        [
+            "probe",
+            "camera",
+            "--driver",
+            "opencv",
+            "--source",
+            "http://127.0.0.1:9/x",
+            "--snapshot",
+            "{out}",
+        ],
+        "snap.jpg",
+    ),
+    (["analyze", "sensitivity", "{log}", "--calib", "{cal}", "-o", "{dir}"], "s/sensitivity.json"),
+    (
+        ["calibrate", "fisheye", "{img}", "--fov", "185", "-o", "c.yaml", "--overlay", "{out}"],
+        "o.png",
+    ),
+    (
+        ["calibrate", "validate", "{log}", "--calib", "{cal}", "-o", "{dir}"],
+        "v/validate_overlay.png",
+    ),
+    (["sim", "render", "--out", "{dir}"], "r/frame.png"),
+]
+
+
+@pytest.mark.parametrize(("argv", "name"), PRODUCTS)
+def test_a_product_acq_did_not_write_is_replaced_only_with_force(
+    argv: list[str], name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A cloud, image or report that is not acq's (no mark: acq.provenance) is refused
+    by name; one that acq wrote passes the check (the command then fails on its fake
+    inputs, for another reason)."""
+    from acq.provenance import marked_image
+
+    files = _files(tmp_path)
+    out = tmp_path / name
+    out.parent.mkdir(exist_ok=True)
+    foreign = {".ply": b"ply\nformat ascii 1.0\nend_header\n", ".json": b'{"mine": 1}\n'}
+    out.write_bytes(foreign.get(out.suffix, b"\xff\xd8\xff\xe0" + bytes(64)))
+    before = _digest(out)
+    args = [a.format(**files, out=out, dir=out.parent) for a in argv]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"{out}: exists and was not written by acq; --force replaces it" in err, err
+    assert _digest(out) == before
+    mine = {".ply": b"ply\nformat ascii 1.0\ncomment acq 0.1.0\nend_header\n",
+            ".json": b'{\n  "software": "acq 0.1.0"}\n'}  # fmt: skip
+    out.write_bytes(mine.get(out.suffix, marked_image(b"\xff\xd8\xff\xe0\x00\x10" + bytes(64))))
+    main(args)
+    assert "not written by acq" not in capsys.readouterr().err

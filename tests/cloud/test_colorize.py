@@ -138,7 +138,8 @@ def test_a_full_disk_midway_is_one_line_and_leaves_the_old_output(
 ) -> None:  # fmt: skip
     truth, calib = drive
     out = tmp_path / "c.ply"
-    out.write_bytes(b"an earlier cloud")
+    earlier = b"ply\nformat ascii 1.0\ncomment acq 0.1.0: an earlier cloud\nend_header\n"
+    out.write_bytes(earlier)
     real, calls = cloud.PlyStream.write, []
 
     def write(self: cloud.PlyStream, *columns: np.ndarray) -> None:
@@ -153,7 +154,7 @@ def test_a_full_disk_midway_is_one_line_and_leaves_the_old_output(
     assert acq_main(args) == 1  # a runtime failure, not bad input
     err = capsys.readouterr().err
     assert err == f"acq colorize: {out}: No space left on device\n"
-    assert out.read_bytes() == b"an earlier cloud" and sorted(tmp_path.iterdir()) == [out]
+    assert out.read_bytes() == earlier and sorted(tmp_path.iterdir()) == [out]
 
 
 def test_bad_input_is_one_line_and_exit_2(

@@ -1,0 +1,84 @@
+"""Which files acq wrote. Every image, cloud and JSON report acq writes carries a mark (a
+PNG text chunk, a JPEG comment, a PLY header comment, the LAS header's generating
+software, a ``"software"`` key), so a later run may replace its own product while a file
+of anyone else is kept (the rule of :mod:`acq.cli.output_files`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import secrets
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from acq import __version__
+
+__all__ = ["SOFTWARE", "made_by_acq", "marked_image", "write_image"]
+
+SOFTWARE = f"acq {__version__}"  # as the marks give it
+
+_HEAD_BYTES = 64 * 1024  # where a mark must be: headers, the first chunks
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_TEXT = b"Software\x00" + SOFTWARE.encode()
+_JPEG_COMMENT = b"\xff\xfe" + (2 + len(SOFTWARE)).to_bytes(2, "big") + SOFTWARE.encode()
+_JSON_KEY = re.compile(rb'\A\s*\{\s*"software"\s*:\s*"acq[ "]')
+
+
+def marked_image(data: bytes) -> bytes:
+    """An encoded PNG or JPEG with acq's mark added (a ``Software`` text chunk after the
+    header; a comment after the JFIF segment); other bytes as they are."""
+    if data.startswith(_PNG_SIGNATURE):
+        end_of_ihdr = len(_PNG_SIGNATURE) + 8 + int.from_bytes(data[8:12], "big") + 4
+        chunk = b"tEXt" + _PNG_TEXT
+        crc = zlib.crc32(chunk).to_bytes(4, "big")
+        text = len(_PNG_TEXT).to_bytes(4, "big") + chunk + crc
+        return data[:end_of_ihdr] + text + data[end_of_ihdr:]
+    if data.startswith(b"\xff\xd8"):
+        at = 2
+        if data[2:4] == b"\xff\xe0":  # JFIF's APP0 stays first
+            at = 4 + int.from_bytes(data[4:6], "big")
+        return data[:at] + _JPEG_COMMENT + data[at:]
+    return data
+
+
+def write_image(path: str | os.PathLike[str], image: np.ndarray) -> None:
+    """Write ``image`` (BGR or grey, uint8) in the format of ``path``'s suffix (PNG when
+    it has none that OpenCV knows), marked as acq's; whole or not at all (a temporary
+    file beside it, then renamed). OSError naming ``path`` when it cannot."""
+    import cv2  # 0.3 s to import: only where an image is written
+
+    path = Path(path)
+    suffix = path.suffix.lower() if path.suffix.lower() in (".png", ".jpg", ".jpeg") else ".png"
+    try:
+        ok, buf = cv2.imencode(suffix, image)
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise OSError(f"{path}: cannot encode the image ({image.shape}, {image.dtype})")
+    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{suffix}")
+    try:
+        tmp.write_bytes(marked_image(buf.tobytes()))
+        os.replace(tmp, path)
+    except OSError as e:
+        raise OSError(e.errno, e.strerror or str(e), str(path)) from e
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def made_by_acq(path: str | os.PathLike[str]) -> bool:
+    """Whether the existing file ``path`` carries acq's mark (any version of acq)."""
+    with open(path, "rb") as f:
+        head = f.read(_HEAD_BYTES)
+    if head.startswith(_PNG_SIGNATURE):
+        return b"tEXtSoftware\x00acq " in head
+    if head.startswith(b"\xff\xd8"):
+        return re.search(rb"\xff\xfe..acq ", head, re.DOTALL) is not None
+    if head.startswith(b"ply"):
+        header = head.split(b"end_header", 1)[0]
+        return b"\ncomment acq " in header
+    if head.startswith(b"LASF"):
+        return head[58:90].startswith(b"acq ")  # the header's generating software
+    return _JSON_KEY.match(head) is not None

@@ -6,10 +6,11 @@ text is one line naming the file, the key path and what was expected, e.g.
 checked against the keyword parameters of the driver class the ``driver:`` key selects;
 driver names are those of the driver registry (:mod:`acq.drivers.registry`: ours and any
 installed through its entry points), and what a scanner's ``url``, ``protocol`` and
-``latency_s`` accept is what its driver class declares. A camera's ``source`` is checked
-against what our drivers open (:data:`CAMERA_SOURCES`). Every number is bounded (finite;
-rates, sizes and times positive where they must be, and below a sane maximum), driver
-options named as ours too (:data:`OPTION_BOUNDS`).
+``latency_s`` accept is what its driver class declares. A device's address (a scanner's
+``url``, a camera's ``source``) is checked against what its driver opens
+(:mod:`acq.record.device_addresses`). Every number is bounded (finite; rates, sizes and
+times positive where they must be, and below a sane maximum), driver options named as
+ours too (:data:`acq.record.driver_options.OPTION_BOUNDS`).
 
 Relative paths in a file (``calibration``, ``output.dir``, ``can.dbc``) are relative to
 the folder of that file, not to the working directory; ``~`` is the user's home.
@@ -19,26 +20,19 @@ seconds, rates in frames per second, sizes in megabytes (10**6 bytes).
 
 from __future__ import annotations
 
-import functools
-import inspect
 import math
 import os
 import re
-import types
-import typing
 from collections.abc import Mapping, Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Literal, NoReturn
-from urllib.parse import urlsplit
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import (
     BaseModel,
     BeforeValidator,
-    ConfigDict,
     Field,
-    TypeAdapter,
     ValidationError,
     ValidationInfo,
     field_validator,
@@ -46,9 +40,11 @@ from pydantic import (
 )
 
 from acq import yamlcheck
-from acq.drivers.registry import REGISTRIES, DriverImportError, UnknownDriver
+from acq.drivers.registry import REGISTRIES, DriverImportError
 from acq.errors import InputValueError
-from acq.yamlcheck import describe, did_you_mean, fail, show
+from acq.record.device_addresses import camera_source, serial_url, tcp_url
+from acq.record.driver_options import MAX_BAUD, check_options, driver_class, expected_one_of
+from acq.yamlcheck import did_you_mean, fail, show
 
 __all__ = [
     "DEFAULT",
@@ -70,43 +66,12 @@ DEFAULT = "sim.yaml"
 """The configuration ``acq record`` uses without ``-c``: the simulated rig."""
 _NAME = re.compile(r"[A-Za-z0-9_]+")
 _PREFIX = re.compile(r"[A-Za-z0-9_.-]+")
-# pyserial's URL handlers (serial.protocol_handler_*); tcp:// is taken as socket://
-_SERIAL_SCHEMES = {"socket", "tcp", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp2110"}
-_SCHEME = re.compile(r"([A-Za-z][A-Za-z0-9+.-]*)://")
-# the URLs OpenCV's FFmpeg backend streams from (http and https are read natively)
-_OPENCV_SCHEMES = ("http", "https", "rtsp", "rtsps", "rtmp", "rtmps", "rtp", "udp", "tcp", "srt")
-CAMERA_SOURCES = {
-    "opencv": "an index (0), /dev/videoN, a video file, a GStreamer pipeline (with '!') or a "
-    "URL (" + ", ".join(f"{s}://" for s in _OPENCV_SCHEMES) + ")",
-    "v4l2": "an index (0) or a device path (/dev/videoN, /dev/v4l/by-id/...)",
-}
-"""What each of our camera drivers opens (a third-party driver's ``source`` is its own)."""
-
 MAX_LATENCY_S = 10.0
 """The largest constant transport latency, s."""
 MAX_SIDE_PX = 65535
 """The largest requested image width or height, px (JPEG's limit)."""
 MAX_MEGABYTES = 1e9
 """The largest file size or disk reserve, MB (a petabyte)."""
-MAX_BAUD = 10_000_000
-"""The largest serial or CAN bit rate, bit/s."""
-OPTION_BOUNDS: dict[str, tuple[float, float]] = {
-    "timeout": (0.01, 60.0),  # s, a read's wait
-    "exposure_s": (1e-6, 10.0),  # s
-    "gain": (-(2**31), 2**31 - 1),  # device units (a V4L2 control is 32-bit)
-    "white_balance_k": (1000, 20000),  # K
-    "buffers": (1, 32),  # mmap buffers queued (VIDEO_MAX_FRAME)
-    "jpeg_quality": (1, 100),
-    "baudrate": (1, MAX_BAUD),  # bit/s
-    "initial_baudrate": (1, MAX_BAUD),
-    "cluster": (1, 99),  # SCIP: steps grouped per range
-    "angle_min": (-2 * math.pi, 2 * math.pi),  # rad
-    "angle_max": (-2 * math.pi, 2 * math.pi),
-}
-"""(min, max) of the numeric driver options of these names (our drivers' meaning)."""
-_LOGIN = tuple[
-    Annotated[int, Field(ge=0, le=255)], Annotated[int, Field(ge=0, le=2**32 - 1)]
-]  # CoLa's SetAccessMode: a user level byte and a 32-bit password hash
 
 
 class ConfigError(InputValueError):
@@ -136,29 +101,13 @@ class _Model(BaseModel):
     model_config = yamlcheck.STRICT
 
 
-def _expected(choices: list[str], value: Any) -> NoReturn:
-    raise fail(f"expected one of: {', '.join(choices)}, got {show(value)}")
-
-
-def _driver_class(kind: str, name: str) -> type:
-    """The registered class of a driver name (a validation error when it is unknown or its
-    module cannot be imported)."""
-    registry = REGISTRIES[kind]
-    try:
-        return registry.get(name)
-    except UnknownDriver:
-        return _expected(registry.names(), name)
-    except DriverImportError as e:
-        raise fail(str(e)) from None
-
-
 def _driver_name(kind: str) -> Any:
     """A validator of the ``driver`` key of a device of ``kind``."""
 
     def check(cls: type[BaseModel], v: Any) -> str:
         if not isinstance(v, str) or v not in REGISTRIES[kind].entries:
-            _expected(REGISTRIES[kind].names(), v)
-        _driver_class(kind, v)
+            expected_one_of(REGISTRIES[kind].names(), v)
+        driver_class(kind, v)
         return v
 
     return classmethod(check)
@@ -167,7 +116,7 @@ def _driver_name(kind: str) -> Any:
 def _scanner(info: ValidationInfo) -> Any:
     """The driver class of the scanner being validated; None when its driver is invalid."""
     driver = info.data.get("driver")
-    return None if driver is None else _driver_class("scanner", driver)
+    return None if driver is None else driver_class("scanner", driver)
 
 
 def _scanners() -> list[tuple[str, Any]]:
@@ -205,9 +154,9 @@ class ScannerConfig(_Model):
     def _url(cls, v: str, info: ValidationInfo) -> str:
         scanner = _scanner(info)
         if scanner is not None and scanner.url_kind == "serial":
-            return _serial_url(v)
+            return serial_url(v)
         if scanner is not None and scanner.url_kind == "tcp":
-            return _tcp_url(v, info.data["driver"])
+            return tcp_url(v, info.data["driver"])
         return v
 
     @field_validator("protocol", mode="plain")
@@ -215,7 +164,7 @@ class ScannerConfig(_Model):
     def _protocol(cls, v: Any, info: ValidationInfo) -> str | None:
         scanner = _scanner(info)
         if scanner is None:
-            return v if v is None or isinstance(v, str) else _expected(["a string"], v)
+            return v if v is None or isinstance(v, str) else expected_one_of(["a string"], v)
         choices = scanner.protocols
         if v is None:
             return choices[0] if choices else None
@@ -227,7 +176,7 @@ class ScannerConfig(_Model):
             )
         if isinstance(v, str) and v in choices:
             return v
-        _expected(list(choices), v)
+        expected_one_of(list(choices), v)
 
     @field_validator("latency_s", mode="plain")
     @classmethod
@@ -248,7 +197,7 @@ class ScannerConfig(_Model):
     @classmethod
     def _options(cls, v: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
         driver = info.data.get("driver")
-        return v if driver is None else _check_options("scanner", driver, v, cls)
+        return v if driver is None else check_options("scanner", driver, v, cls)
 
 
 class CameraConfig(_Model):
@@ -287,7 +236,7 @@ class CameraConfig(_Model):
     @classmethod
     def _opens(cls, v: str, info: ValidationInfo) -> str:
         driver = info.data.get("driver")
-        return v if driver is None else _camera_source(driver, v)
+        return v if driver is None else camera_source(driver, v)
 
     @field_validator("fourcc")
     @classmethod
@@ -300,7 +249,7 @@ class CameraConfig(_Model):
     @classmethod
     def _options(cls, v: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
         driver = info.data.get("driver")
-        return v if driver is None else _check_options("camera", driver, v, cls)
+        return v if driver is None else check_options("camera", driver, v, cls)
 
 
 class OutputConfig(_Model):
@@ -400,7 +349,7 @@ class GnssConfig(_Model):
     @field_validator("url")
     @classmethod
     def _url(cls, v: str) -> str:
-        return _serial_url(v)
+        return serial_url(v)
 
 
 class Config(_Model):
@@ -484,142 +433,6 @@ def _seconds(v: Any, expected: str) -> float:
     if not (math.isfinite(v) and 0 <= v <= MAX_LATENCY_S):
         raise fail(f"expected {expected}, got {show(v)}")
     return float(v)
-
-
-def _host_port(v: str, rest: str, default_port: int | None, expected: str) -> None:
-    host, sep, port = rest.rstrip("/").rpartition(":")
-    if not sep:
-        host, port = rest.rstrip("/"), ""
-    if not host or (not port and default_port is None):
-        raise fail(f"expected {expected}, got {v!r}")
-    if port and not (port.isdigit() and 0 < int(port) < 65536):
-        raise fail(f"expected {expected} with a port 1..65535, got {v!r}")
-
-
-def _serial_url(v: str) -> str:
-    """A pyserial URL (a device path or scheme://...); tcp://host:port becomes socket://."""
-    expected = "a pyserial URL (/dev/..., socket://host:port)"
-    scheme, sep, rest = v.partition("://")
-    if not sep:
-        if not v.strip():
-            raise fail(f"expected {expected}, got {v!r}")
-        return v
-    if scheme not in _SERIAL_SCHEMES:
-        raise fail(f"expected {expected}; unknown scheme {scheme}://")
-    if scheme in ("socket", "tcp"):
-        _host_port(v, rest.split("?")[0], None, "socket://host:port")
-        return "socket://" + rest
-    return v
-
-
-def _tcp_url(v: str, driver: str) -> str:
-    """tcp://host:port or host[:port], as the SICK driver takes it (socket:// is pyserial's
-    spelling, for serial drivers: refused)."""
-    expected = "tcp://host:port or host[:port]"
-    scheme, sep, rest = v.partition("://")
-    if sep and scheme == "socket":
-        raise fail(
-            f"expected {expected} for driver {driver} (a TCP device); socket:// is a pyserial "
-            f"URL, for serial drivers: write tcp://{rest}"
-        )
-    if sep and scheme != "tcp":
-        raise fail(f"expected {expected} for driver {driver}, got {v!r}")
-    _host_port(v, rest if sep else v, 2112, "tcp://host:port")
-    return v
-
-
-def _camera_source(driver: str, v: str) -> str:
-    """``v`` if camera driver ``driver`` can open it (see :data:`CAMERA_SOURCES`)."""
-    accepted = CAMERA_SOURCES.get(driver)
-    if accepted is None:
-        return v
-    expected = f"expected {accepted} for driver {driver}"
-    if not v.strip() or not v.isprintable():
-        raise fail(f"{expected}, got {v!r}")
-    scheme = _SCHEME.match(v)
-    if driver == "v4l2":
-        if v.isdigit() or (v.startswith("/") and scheme is None):
-            return v
-        raise fail(f"{expected}, got {v!r}")
-    if scheme is None:
-        return v  # an index, a device, a file, an image-sequence pattern or a pipeline
-    if scheme.group(1).lower() not in _OPENCV_SCHEMES:
-        raise fail(f"{expected}; unknown scheme {scheme.group(1)}://")
-    try:
-        url = urlsplit(v)
-        url.port  # noqa: B018 (raises for a port out of range)
-    except ValueError:
-        raise fail(f"{expected}; a bad host or port in {v!r}") from None
-    if not url.hostname:
-        raise fail(f"{expected}; no host in {v!r}")
-    return v
-
-
-@functools.cache
-def _driver_params(kind: str, driver: str) -> dict[str, TypeAdapter[Any]]:
-    """The keyword parameters of the driver class (and of the bases it forwards
-    ``**options`` to) that a YAML value can fill, with their validators."""
-    cls = _driver_class(kind, driver)
-    params: dict[str, TypeAdapter[Any]] = {}
-    for klass in cls.__mro__:
-        init = klass.__dict__.get("__init__")
-        if init is None:
-            continue
-        try:
-            hints = typing.get_type_hints(init)
-        except Exception:
-            hints = {}
-        forwards = False
-        for p in list(inspect.signature(init).parameters.values())[1:]:
-            if p.kind is p.VAR_KEYWORD:
-                forwards = True
-            elif p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and p.name not in params:
-                try:  # a parameter no YAML value can fill (a test hook) is not an option
-                    params[p.name] = TypeAdapter(
-                        _bounded(p.name, hints.get(p.name, Any)),
-                        config=ConfigDict(allow_inf_nan=False),
-                    )
-                except Exception:
-                    continue
-        if not forwards:
-            break
-    return params
-
-
-def _bounded(name: str, hint: Any) -> Any:
-    """``hint`` with the bounds :data:`OPTION_BOUNDS` gives ``name`` (a number, optional or
-    not); CoLa's ``login`` bounded per element."""
-    if name == "login" and hint == tuple[int, int]:
-        return _LOGIN
-    bounds = OPTION_BOUNDS.get(name)
-    args = typing.get_args(hint)
-    optional = typing.get_origin(hint) in (typing.Union, types.UnionType) and type(None) in args
-    inner = [a for a in args if a is not type(None)] if optional else [hint]
-    if bounds is None or len(inner) != 1 or inner[0] not in (int, float):
-        return hint
-    annotated: Any = Annotated  # a type built at run time
-    number = annotated[inner[0], Field(ge=bounds[0], le=bounds[1])]
-    return number | None if optional else number
-
-
-def _check_options(
-    kind: str, driver: str, options: dict[str, Any], model: type[BaseModel]
-) -> dict[str, Any]:
-    params = _driver_params(kind, driver)
-    checked: dict[str, Any] = {}
-    for key, value in options.items():
-        if key in model.model_fields:
-            raise fail(f"set {key} on the {kind} itself, not under options", key)
-        adapter = params.get(key)
-        if adapter is None:
-            hint = did_you_mean(key, [p for p in params if p not in model.model_fields])
-            raise fail(f"unknown option of the {driver} driver{hint}", key)
-        try:
-            checked[key] = adapter.validate_python(value)
-        except ValidationError as e:
-            err = e.errors()[0]
-            raise fail(describe(err, []), key, *err["loc"]) from None
-    return checked
 
 
 # --- errors ------------------------------------------------------------------------------

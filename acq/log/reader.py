@@ -36,7 +36,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, TypeVar
 
-import zstandard
 from google.protobuf.message import DecodeError
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
@@ -54,11 +53,19 @@ from mcap.records import (
     Metadata,
     Schema,
 )
-from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 from mcap_protobuf.decoder import DecoderFactory
 
 from acq.errors import InputValueError
+from acq.log.mcap_records import (
+    HEADER_BYTES,
+    KNOWN_OPCODES,
+    RECORD_ERRORS,
+    chunk_messages,
+    index_messages,
+    record_name,
+)
 
 __all__ = [
     "LogError",
@@ -73,65 +80,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 MAGIC = b"\x89MCAP0\r\n"
-_HEADER = 9  # opcode (1) + record length (8), bytes
-_FOOTER = _HEADER + 8 + 8 + 4  # a whole Footer record, bytes
+_FOOTER = HEADER_BYTES + 8 + 8 + 4  # a whole Footer record, bytes
 _MAX_CHUNK_BYTES = 4 * 2**30  # a larger uncompressed size in a chunk header is garbage
-_KNOWN = frozenset(int(op) for op in Opcode)
 _NO_SUMMARY = "no summary section"
-
-# What mcap's record parsers raise on a cut or garbled record or chunk, and nothing else:
-# EndOfFile / RecordLengthLimitExceeded / UnsupportedCompressionError are McapErrors, a short
-# read of a fixed field is a struct.error, a cut string a UnicodeDecodeError.
-_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
-
-
-def _chunk_messages(chunk: Chunk) -> list[McapRecord]:
-    """The messages of a zstd or uncompressed chunk, its CRC checked: what mcap's
-    ``breakup_chunk`` gives (less the schema and channel records, which a closed file's
-    summary holds), parsed with struct (a 60 s drive's 13,000 messages: 0.2 s less)."""
-    data = chunk.data
-    if chunk.compression == "zstd":
-        data = zstandard.ZstdDecompressor().decompress(
-            chunk.data, max_output_size=chunk.uncompressed_size
-        )
-    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
-        raise McapError(f"bad chunk CRC (expected {chunk.uncompressed_crc})")
-    out: list[McapRecord] = []
-    view = memoryview(data)
-    pos, end = 0, len(data)
-    head = _MESSAGE_HEAD.size
-    while pos < end:
-        if pos + 9 > end:
-            raise McapError(f"a record cut at byte {pos} of the chunk")
-        opcode = data[pos]
-        (length,) = struct.unpack_from("<Q", data, pos + 1)
-        body = pos + 9
-        pos = body + length
-        if pos > end:
-            raise McapError(f"a record of {length} bytes runs past the chunk's end")
-        if opcode == Opcode.MESSAGE:
-            if length < head:
-                raise McapError(f"a message record of {length} bytes")
-            channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(data, body)
-            out.append(
-                Message(
-                    channel_id=channel_id,
-                    log_time=log_time,
-                    data=bytes(view[body + head : pos]),
-                    publish_time=publish_time,
-                    sequence=sequence,
-                )
-            )
-    return out
-
-
-_RECORD_ERRORS: tuple[type[BaseException], ...] = (
-    McapError,
-    CRCValidationError,
-    struct.error,
-    UnicodeDecodeError,
-    zstandard.ZstdError,
-)
 
 
 class LogError(InputValueError):
@@ -171,19 +122,6 @@ def quiet() -> Iterator[None]:
         _QUIET.reset(token)
 
 
-def _index_messages(data: bytes) -> int:
-    """How many messages the MessageIndex records in ``data`` list."""
-    pos, n = 0, 0
-    while pos + _HEADER <= len(data):
-        opcode, length = struct.unpack_from("<BQ", data, pos)
-        body = pos + _HEADER
-        if opcode == Opcode.MESSAGE_INDEX and length >= 6 and body + 6 <= len(data):
-            (entries,) = struct.unpack_from("<I", data, body + 2)  # after the channel id
-            n += entries // 16  # (log time, offset) pairs
-        pos = body + length
-    return n
-
-
 def _check_magic(path: Path) -> int:
     """File size in bytes, after checking that ``path`` starts with the MCAP magic."""
     try:
@@ -203,13 +141,6 @@ def _check_magic(path: Path) -> int:
     if head != MAGIC:
         raise LogError(path, 0, f"not an MCAP file: bad magic {head!r}")
     return size
-
-
-def _record_name(opcode: int) -> str:
-    try:
-        return Opcode(opcode).name.lower().replace("_", " ")
-    except ValueError:
-        return f"opcode 0x{opcode:02x}"
 
 
 Decoder = Callable[[bytes], Any]
@@ -387,7 +318,7 @@ class LogReader:
             return None
         opcode, length, start, offsets_start, crc = struct.unpack("<BQQQI", tail[:_FOOTER])
         footer_at = size - _FOOTER - len(MAGIC)
-        if opcode != Opcode.FOOTER or length != _FOOTER - _HEADER:
+        if opcode != Opcode.FOOTER or length != _FOOTER - HEADER_BYTES:
             return None
         if start == 0:
             self.stop = _NO_SUMMARY
@@ -405,14 +336,14 @@ class LogReader:
                     break
                 calculated = zlib.crc32(block, calculated)
                 remaining -= len(block)
-            calculated = zlib.crc32(tail[: _HEADER + 16], calculated)
+            calculated = zlib.crc32(tail[: HEADER_BYTES + 16], calculated)
             if calculated != crc:
                 self.stop = f"bad summary CRC (summary at byte {start})"
                 return None
         try:
             f.seek(0)  # SeekingReader checks the magic where the stream is, not at byte 0
             summary = SeekingReader(f, validate_crcs=True).get_summary()
-        except _RECORD_ERRORS as e:
+        except RECORD_ERRORS as e:
             self.stop = f"unreadable summary at byte {start}: {e}"
             return None
         if summary is not None and summary.statistics is not None:
@@ -430,7 +361,7 @@ class LogReader:
         yield from summary.channels.values()
         try:
             extras: list[McapRecord] = [*reader.iter_metadata(), *reader.iter_attachments()]
-        except _RECORD_ERRORS as e:
+        except RECORD_ERRORS as e:
             extras = []
             self.notes.append(f"unreadable metadata or attachments ({e})")
         yield from extras
@@ -455,7 +386,7 @@ class LogReader:
                     if not isinstance(record, Chunk):
                         raise McapError(f"expected a chunk, found {type(record).__name__}")
                     return pool.submit(self._chunk_records, record, True)
-                except _RECORD_ERRORS as e:
+                except RECORD_ERRORS as e:
                     failed: Future[list[McapRecord]] = Future()
                     failed.set_exception(e)
                     return failed
@@ -467,7 +398,7 @@ class LogReader:
                     queued.append(ahead(starts[k + 2]))
                 try:
                     inner = done.result()
-                except _RECORD_ERRORS as e:
+                except RECORD_ERRORS as e:
                     self.notes.append(f"corrupt chunk at byte {at} skipped ({e})")
                     index = by_start[at]
                     self.skipped.append(
@@ -498,7 +429,7 @@ class LogReader:
             return None
         try:
             f.seek(index.chunk_start_offset + index.chunk_length)
-            return _index_messages(f.read(index.message_index_length))
+            return index_messages(f.read(index.message_index_length))
         except (OSError, struct.error):
             return None
 
@@ -509,7 +440,7 @@ class LogReader:
         if chunk.uncompressed_size > _MAX_CHUNK_BYTES:
             raise McapError(f"implausible uncompressed size {chunk.uncompressed_size}")
         if messages_only and chunk.compression in ("zstd", ""):
-            return _chunk_messages(chunk)
+            return chunk_messages(chunk)
         return breakup_chunk(chunk, validate_crc=True)
 
     # -- anything else: a linear scan that stops at the cut ---------------------------
@@ -526,24 +457,25 @@ class LogReader:
             if pos == size:
                 self.stop = "no footer after the last complete record"
                 return
-            head = f.read(_HEADER)
-            if len(head) < _HEADER:
+            head = f.read(HEADER_BYTES)
+            if len(head) < HEADER_BYTES:
                 self.stop = f"truncated record header at byte {pos}"
                 return
             opcode, length = struct.unpack("<BQ", head)
             if opcode == 0:
                 self.stop = self._zeros_or_garbage(f, pos)
                 return
-            present = size - pos - _HEADER
+            present = size - pos - HEADER_BYTES
             if length > present:
                 self.stop = (
-                    f"truncated {_record_name(opcode)} record at byte {pos}:"
+                    f"truncated {record_name(opcode)} record at byte {pos}:"
                     f" {length} bytes declared, {present} present"
                 )
                 return
             body = f.read(length)
-            if opcode not in _KNOWN:  # a private (0x80+) or newer record: skip it, as mcap does
-                pos += _HEADER + length
+            # a private (0x80+) or newer record: skipped, as mcap does
+            if opcode not in KNOWN_OPCODES:
+                pos += HEADER_BYTES + length
                 continue
             try:
                 record = next(
@@ -555,17 +487,17 @@ class LogReader:
                     ).records,
                     None,
                 )
-            except _RECORD_ERRORS as e:
+            except RECORD_ERRORS as e:
                 if opcode == Opcode.CHUNK:
                     self.notes.append(f"corrupt chunk at byte {pos} skipped ({e})")
                     self.skipped.append(_Skipped(pos))
                     lost = None
-                    pos += _HEADER + length
+                    pos += HEADER_BYTES + length
                     continue
-                self.stop = f"corrupt {_record_name(opcode)} record at byte {pos}: {e}"
+                self.stop = f"corrupt {record_name(opcode)} record at byte {pos}: {e}"
                 return
             if isinstance(record, Footer):
-                end = pos + _HEADER + length
+                end = pos + HEADER_BYTES + length
                 trailer = f.read(len(MAGIC))
                 if trailer != MAGIC:
                     self.bytes_read = end
@@ -589,7 +521,7 @@ class LogReader:
                     self._start_ns = record.message_start_time
                 try:
                     yield from self._chunk_records(record)
-                except _RECORD_ERRORS as e:
+                except RECORD_ERRORS as e:
                     self.notes.append(f"corrupt chunk at byte {pos} skipped ({e})")
                     lost = _Skipped(pos, record.message_start_time, record.message_end_time)
                     self.skipped.append(lost)
@@ -597,7 +529,7 @@ class LogReader:
                 if isinstance(record, Message) and self._start_ns is None:
                     self._start_ns = record.log_time
                 yield record
-            pos += _HEADER + length
+            pos += HEADER_BYTES + length
 
     def _zeros_or_garbage(self, f: IO[bytes], pos: int) -> str:
         f.seek(pos)

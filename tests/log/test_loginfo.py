@@ -348,13 +348,13 @@ def test_a_time_span_reads_only_the_chunks_that_hold_it(
     import acq.log.reader
 
     parsed: list[int] = []
-    real = acq.log.reader._chunk_messages
+    real = acq.log.reader.chunk_messages
 
     def counted(chunk: Any) -> Any:
         parsed.append(chunk.message_start_time)
         return real(chunk)
 
-    monkeypatch.setattr(acq.log.reader, "_chunk_messages", counted)
+    monkeypatch.setattr(acq.log.reader, "chunk_messages", counted)
     span = (T0 + 3 * S + S // 2, T0 + 4 * S + S // 2)  # in chunks 3 and 4 only
     got = [(c.topic, m.log_time, m.data) for _, c, m in read_messages(rig.path, span)]
     first = sum(rig.chunk_sizes[:3])
@@ -769,7 +769,7 @@ def test_chunk_messages_match_mcaps_own_parser() -> None:
     from mcap.records import Message
     from mcap.stream_reader import breakup_chunk
 
-    from acq.log.reader import _chunk_messages
+    from acq.log.mcap_records import chunk_messages
 
     rng = random.Random(3)
     body = b""
@@ -781,7 +781,7 @@ def test_chunk_messages_match_mcaps_own_parser() -> None:
             body += struct.pack("<BQ", 0x7F, 4) + b"abcd"
     for compression in ("", "zstd"):
         chunk = _chunk_of(body, compression)
-        ours = _chunk_messages(chunk)
+        ours = chunk_messages(chunk)
         theirs = [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, Message)]
         assert ours == theirs and len(ours) == 200
 
@@ -789,9 +789,9 @@ def test_chunk_messages_match_mcaps_own_parser() -> None:
 @given(st.binary(max_size=400))
 @settings(max_examples=300, deadline=None)
 def test_chunk_messages_of_any_bytes_are_messages_or_a_typed_error(data: bytes) -> None:
-    from acq.log.reader import _chunk_messages
+    from acq.log.mcap_records import chunk_messages
 
     try:
-        _chunk_messages(_chunk_of(data))
+        chunk_messages(_chunk_of(data))
     except McapError:
         pass

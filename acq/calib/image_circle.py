@@ -8,12 +8,12 @@ Four estimators, each on a grey image (pixel centres at integers, as in OpenCV):
   on the sensor edges.
 - ``hough``: a Hough circle transform of those edge pixels, each voting along its
   gradient (whole pixels; OpenCV's ``HoughCircles`` strays by 10 px on the real images).
-- ``subpixel``: along rays from a first centre, the rim is where the intensity falls
-  fastest (the extremum of the radial derivative of the lightly blurred image, to a
-  fraction of a pixel); rays that leave the sensor, cross saturated glare or find no dark
-  outside are dropped, RANSAC rejects the rest of the outliers, and a geometric least
-  squares fit (radial distances) gives the circle. Twice, the second time from the
-  refined centre.
+- ``subpixel``: along rays from a first centre (:mod:`acq.calib.rim_rays`), the rim is
+  where the intensity falls fastest (the extremum of the radial derivative of the lightly
+  blurred image, to a fraction of a pixel); rays that leave the sensor, cross saturated
+  glare or find no dark outside are dropped, RANSAC rejects the rest of the outliers, and
+  a geometric least squares fit (radial distances) gives the circle. Twice, the second
+  time from the refined centre.
 
 With ``ellipse=True`` every estimator fits an axis-aligned ellipse instead (non-square
 pixels: semi-axes ``rx`` along u and ``ry`` along v). Several images of the same camera
@@ -42,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from acq.calib.circle_fit import ImageCircle, fit_conic, refine_fit, robust_fit
+from acq.calib.rim_rays import RayEdges, ray_edges
 from acq.errors import InputError
 
 __all__ = [
@@ -51,14 +52,12 @@ __all__ = [
     "EdgePoints",
     "Estimate",
     "ImageCircleError",
-    "RayEdges",
     "barycentre",
     "black_level",
     "canny_fit",
     "detect",
     "disc_mask",
     "hough",
-    "ray_edges",
     "subpixel",
     "to_gray",
 ]
@@ -331,98 +330,6 @@ def hough(
 
 
 # --- the sub-pixel estimator ------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RayEdges:
-    """The rim points found along rays, and how many rays were dropped and why."""
-
-    points: np.ndarray  # (N,2) kept edge points
-    cast: int
-    off_sensor: int
-    saturated: int
-    no_edge: int
-
-
-def ray_edges(
-    gray: np.ndarray,
-    guess: ImageCircle,
-    black: float,
-    noise: float,
-    n_rays: int = 720,
-    window_px: float | None = None,
-    step_px: float = 0.25,
-    blur_px: float = 1.0,
-    saturation: float = 250.0,
-) -> RayEdges:
-    """Sub-pixel rim points along ``n_rays`` rays from the guess's centre.
-
-    On each ray, within ``window_px`` of the guessed rim, the rim is the outermost strong
-    minimum of the radial derivative of the image blurred by ``blur_px`` (parabolic
-    interpolation between samples ``step_px`` apart), accepted only when the image beyond
-    it is dark (near the black level) and the inside brighter than the noise. Rays whose
-    window leaves the sensor, or that cross saturated pixels near the rim, are dropped.
-    """
-    h, w = gray.shape
-    window = max(10.0, 0.05 * guess.radius) if window_px is None else window_px
-    g = cv2.GaussianBlur(gray, (0, 0), blur_px)
-    phi = np.arange(n_rays) * (2.0 * math.pi / n_rays)
-    r_e = guess.radius_at(phi)
-    s = np.arange(-window, window + step_px / 2, step_px)
-    radii = r_e[:, None] + s[None, :]
-    X = guess.cx + radii * np.cos(phi)[:, None]
-    Y = guess.cy + radii * np.sin(phi)[:, None]
-    on_sensor = np.all((X >= 1) & (X <= w - 2) & (Y >= 1) & (Y <= h - 2), axis=1)
-    Xf, Yf = X.astype(np.float32), Y.astype(np.float32)
-    prof = cv2.remap(g, Xf, Yf, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    raw = cv2.remap(gray, Xf, Yf, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-    prof = prof.astype(np.float64)
-    d = np.zeros_like(prof)
-    d[:, 1:-1] = (prof[:, 2:] - prof[:, :-2]) / (2.0 * step_px)
-    # noise of the derivative of the blurred, interpolated image (about)
-    d_noise = noise / (blur_px**2 * math.sqrt(8.0 * math.pi))
-    strongest = d.min(axis=1)
-    strong = d <= np.minimum(0.35 * strongest, -4.0 * d_noise)[:, None]
-    local_min = np.zeros_like(strong)
-    local_min[:, 1:-1] = (d[:, 1:-1] <= d[:, :-2]) & (d[:, 1:-1] < d[:, 2:])
-    cand = strong & local_min
-    cand[:, :2] = cand[:, -2:] = False
-    has = cand.any(axis=1)
-    m = len(s)
-    k = m - 1 - np.argmax(cand[:, ::-1], axis=1)  # outermost candidate
-    k = np.clip(k, 1, m - 2)
-    rows = np.arange(n_rays)
-    d0, d1, d2 = d[rows, k - 1], d[rows, k], d[rows, k + 1]
-    den = d0 - 2.0 * d1 + d2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        frac = np.where(den > 0, 0.5 * (d0 - d2) / den, 0.0)
-    frac = np.clip(frac, -0.5, 0.5)
-    r_edge = r_e + s[k] + frac * step_px
-    # dark outside, bright inside
-    gap = max(3.0, 2.5 * blur_px) / step_px
-    idx = np.arange(m)[None, :]
-    outside = idx >= (k + gap)[:, None]
-    inside = (idx <= (k - gap)[:, None]) & (idx >= (k - 3 * gap)[:, None])
-    out_max = np.max(np.where(outside, prof, -np.inf), axis=1)
-    n_in = inside.sum(axis=1)
-    in_mean = np.where(
-        n_in > 0, np.sum(np.where(inside, prof, 0.0), axis=1) / np.maximum(n_in, 1), -np.inf
-    )
-    contrast = in_mean - black
-    dark = out_max <= black + np.maximum(4.0 * noise / blur_px, 0.25 * contrast)
-    bright = contrast >= np.maximum(4.0 * noise / blur_px, 3.0)
-    near = np.abs(idx - k[:, None]) <= gap * 2
-    saturated = np.any(near & (raw >= saturation), axis=1)
-    ok = has & dark & bright
-    keep = on_sensor & ~saturated & ok
-    pts = np.stack([guess.cx + r_edge * np.cos(phi), guess.cy + r_edge * np.sin(phi)], axis=1)[keep]
-    return RayEdges(
-        points=pts,
-        cast=n_rays,
-        off_sensor=int(np.sum(~on_sensor)),
-        saturated=int(np.sum(on_sensor & saturated)),
-        no_edge=int(np.sum(on_sensor & ~saturated & ~ok)),
-    )
 
 
 def subpixel(

@@ -47,7 +47,7 @@ from acq.camera.camera_models import CameraModel
 from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
 from acq.log import drive_log
-from acq.log.reader import locate
+from acq.log.locate import locate
 
 __all__ = [
     "METHOD",

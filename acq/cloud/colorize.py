@@ -71,7 +71,7 @@ from acq.cloud.report import Report
 from acq.cloud.writer import FORMATS, CloudWriter
 from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
-from acq.log.reader import locate
+from acq.log.locate import locate
 from acq.motion import Trajectory
 
 # the pipeline's parts, as callers of `acq colorize` and its bench know them

@@ -30,7 +30,7 @@ import struct
 import threading
 import zlib
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,8 +70,6 @@ from acq.log.mcap_records import (
 __all__ = [
     "LogError",
     "LogReader",
-    "first_log_time",
-    "locate",
     "quiet",
     "read_messages",
     "read_metadata",
@@ -302,7 +300,10 @@ class LogReader:
     def _decoder_for(self, schema: Schema | None, channel: Channel) -> Decoder | None:
         try:
             return self._factory.decoder_for(channel.message_encoding, schema)
-        except Exception:  # a broken schema in the file: its messages are counted, not decoded
+        except Exception as e:  # a schema the file garbled: its messages counted, not decoded
+            name = schema.name if schema is not None else "no schema"
+            log.warning("%s: %s (%s) cannot be decoded: %s: %s; its messages are skipped",
+                        self.path, channel.topic, name, type(e).__name__, e)  # fmt: skip
             return None
 
     # -- closed files: mcap's seeking reader and the chunk index ----------------------
@@ -563,38 +564,3 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
         for _ in reader.messages():
             pass
         return {m.name: dict(m.metadata) for m in reader.metadata}
-
-
-def first_log_time(path: str | os.PathLike[str]) -> int | None:
-    """The log time of a log's first message, ns (None: it has none readable): from the
-    summary's statistics when the file is closed, else its first readable message."""
-    reader = LogReader(path)
-    with reader.path.open("rb") as f:
-        summary = reader._closed_summary(f)
-    if reader._start_ns is not None and summary is not None:
-        return reader._start_ns
-    for _, _, message in reader.messages():  # the pass ends here, its file closed
-        return message.log_time
-    return None
-
-
-def locate(paths: Sequence[str | os.PathLike[str]], log_time_ns: int) -> str:
-    """Where a log time lies in a log or in the files of a session (in their order):
-    "log time T s, S s into FILE" (T, S seconds)."""
-    files = [Path(p) for p in paths]
-    found, start = files[0] if files else None, None
-    for path in files:
-        try:
-            first = first_log_time(path)
-        except LogError:
-            continue
-        if first is not None and (first <= log_time_ns or start is None):
-            found, start = path, first
-        if first is not None and first > log_time_ns:
-            break
-    where = f"log time {log_time_ns * 1e-9:.3f} s"
-    if found is None:
-        return where
-    if start is None:
-        return f"{where} in {found}"
-    return f"{where}, {(log_time_ns - start) * 1e-9:.2f} s into {found}"

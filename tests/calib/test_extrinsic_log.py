@@ -19,7 +19,7 @@ from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.rotations import rotation_angle
 from acq.geometry.transforms import Rigid
 from acq.log import drive_log
-from acq.log.reader import first_log_time
+from acq.log.locate import first_log_time
 from acq.sim.board_log import BoardLog, write_board_log
 from tests.cli_calls import calibrate_extrinsic
 from tests.log_rewrite import jpeg

@@ -15,7 +15,7 @@ from acq.calib.time_offset import mutual_information
 from acq.camera import calibfile
 from acq.cli import main as acq_main
 from acq.cloud.colorize import run
-from acq.log.reader import first_log_time
+from acq.log.locate import first_log_time
 from acq.sim.drive_log import DriveTruth, write_drive_log
 from tests.log_rewrite import corrupt_chunk, jpeg, rewrite
 

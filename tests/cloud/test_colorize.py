@@ -18,7 +18,7 @@ from acq.cloud import colorize
 from acq.cloud.colorize import plan, run
 from acq.cloud.views import Options
 from acq.log import drive_log
-from acq.log.reader import first_log_time
+from acq.log.locate import first_log_time
 from acq.sim.drive_log import DriveTruth, write_drive_log
 from tests.log_rewrite import corrupt_chunk, jpeg, rewrite
 

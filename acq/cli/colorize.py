@@ -102,7 +102,6 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="the preview image (default: OUT's name + _preview.png)",
     )  # fmt: skip
     col.add_argument("--no-preview", action="store_true", help="no preview image")
-    col.add_argument("--progress", action="store_true", help="a progress bar even when piped")
     col.add_argument("--json", action="store_true", help="JSON report instead of text")
     col.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     col.set_defaults(handler=run)

@@ -27,7 +27,7 @@ from collections.abc import Callable, Sequence
 from types import ModuleType
 from typing import TYPE_CHECKING, NoReturn
 
-from acq import __version__
+from acq import __version__, progress
 from acq.cli import (
     analyze,
     calibrate,
@@ -106,6 +106,12 @@ def _add_common(parser: argparse.ArgumentParser, top: bool = False) -> None:
     error lines (``acq calibrate fisheye: ...``)."""
     if not top:
         parser.add_argument("--version", action="version", version=VERSION)
+        if "logs" in {a.dest for a in parser._actions}:
+            parser.add_argument(
+                "--progress", action="store_true",
+                help="progress bars even when stderr is not a terminal (reading the logs, "
+                "and the command's own work)",
+            )  # fmt: skip
         parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                             help=argparse.SUPPRESS)  # fmt: skip
     parser.set_defaults(_prog=parser.prog)
@@ -135,8 +141,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     # what the imports made lives as long as the process: out of the collector's scans
     # (its full collections otherwise walk it again while a log's messages are read)
     gc.freeze()
+    logs: list[os.PathLike[str]] = getattr(args, "logs", None) or []
     try:
-        code = handler(args)
+        with progress.reading(logs, progress.wanted(getattr(args, "progress", False))):
+            code = handler(args)
         sys.stdout.flush()  # a closed or full stdout fails here, not at exit
         return code
     except InputError as e:

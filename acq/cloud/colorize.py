@@ -125,18 +125,22 @@ def _run_chunks(
     """Every chunk's result to ``emit``, in chunk order, however they run (``whole``:
     the log read already with its images, for running here; else each chunk reads its
     part). Here, the next chunk is read and placed and the last one emitted (written)
-    while a chunk's frames decode."""
+    while a chunk's frames decode. The bar counts scans."""
     from tqdm import tqdm
 
-    bar = tqdm(total=len(chunks), unit="chunk", disable=not progress, file=sys.stderr)
+    stamps = np.sort(job.scan_new)
+    scans = {c.index: int(np.sum((stamps >= c.start_ns) & (stamps < c.end_ns))) for c in chunks}
+    bar = tqdm(total=sum(scans.values()), unit="scan", desc="colouring", disable=not progress,
+               file=sys.stderr, mininterval=0.5)  # fmt: skip
     waiting: dict[int, ChunkResult] = {}  # done out of order
     expected = deque(c.index for c in chunks)
 
     def done(result: ChunkResult) -> None:
         waiting[result.index] = result
         while expected and expected[0] in waiting:
-            emit(waiting.pop(expected.popleft()))
-            bar.update()
+            index = expected.popleft()
+            emit(waiting.pop(index))
+            bar.update(scans[index])
 
     try:
         if dask:

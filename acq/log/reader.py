@@ -57,6 +57,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 from mcap_protobuf.decoder import DecoderFactory
 
+from acq import progress
 from acq.errors import InputValueError
 from acq.log.mcap_records import (
     HEADER_BYTES,
@@ -166,6 +167,7 @@ class LogReader:
         self.size = _check_magic(self.path)
         self.closed = False
         self.bytes_read = len(MAGIC)
+        self._shown = 0  # bytes reported to a progress bar (acq.progress)
         self.stop: str | None = None  # why a linear pass stopped before a valid footer
         self.notes: list[str] = []  # damage that did not stop the pass
         self.expected_messages: int | None = None  # from the summary's statistics
@@ -214,6 +216,13 @@ class LogReader:
                     yield from self._linear(f)
         finally:  # also when the caller stops early: what was skipped until then
             self._report_skipped()
+            self._shown_to(self.size)
+
+    def _shown_to(self, pos: int) -> None:
+        """Reading has got to byte ``pos``: the bytes since the last call to a progress bar."""
+        if pos > self._shown:
+            progress.advance(pos - self._shown)
+            self._shown = pos
 
     def _report_skipped(self) -> None:
         """One WARNING line for the corrupt chunks skipped that this process has not
@@ -411,6 +420,7 @@ class LogReader:
                         )
                     )
                     continue
+                self._shown_to(at + by_start[at].chunk_length)
                 for rec in inner:
                     if isinstance(rec, Message):
                         count += 1
@@ -455,6 +465,7 @@ class LogReader:
         lost: _Skipped | None = None  # a corrupt chunk whose message index records follow
         while True:
             self.bytes_read = pos
+            self._shown_to(pos)
             if pos == size:
                 self.stop = "no footer after the last complete record"
                 return

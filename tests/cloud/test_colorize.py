@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 from pathlib import Path
 
@@ -297,3 +298,18 @@ def test_undecodable_frames_are_none_not_an_error() -> None:
     from acq.camera.jpeg import decode_jpeg
 
     assert decode_jpeg(b"") is None and decode_jpeg(b"\xff\xd8 not a jpeg") is None
+
+
+def test_progress_reads_in_bytes_and_colours_in_scans(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    truth, calib = drive
+    argv = _args(*map(str, truth.files), "--calib", str(calib), "-o", str(tmp_path / "c.ply"),
+                 "--no-preview", "--chunk", "1", "--progress", "--json")  # fmt: skip
+    assert acq_main(argv) == 0
+    out, err = capsys.readouterr()
+    scans = json.loads(out)["scans"]
+    lines = [x for x in err.replace("\r", "\n").splitlines() if x]
+    colouring = [x for x in lines if x.startswith("colouring:")]
+    assert any(x.startswith("reading: 100%") for x in lines), err
+    assert colouring[-1].startswith("colouring: 100%") and f" {scans}/{scans} " in colouring[-1]

@@ -1,0 +1,68 @@
+"""Progress bars on stderr for long work, in the work's own units, with a rate and an
+estimated time left (tqdm), quiet when stderr is not a terminal unless asked.
+
+A command opens a bar around the work (:func:`bar`); the library code doing it reports
+what it has done (:func:`advance`) without knowing whether anyone shows it. Reading
+logs reports bytes: every command that reads logs shows that phase by opening a bar in
+bytes (:func:`reading`) around it.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+__all__ = ["advance", "bar", "reading", "wanted"]
+
+_lock = threading.Lock()
+_bars: dict[str, Any] = {}  # unit -> the open bar counting it (at most one per unit)
+
+
+def wanted(forced: bool = False) -> bool:
+    """Whether to show bars: ``forced`` (``--progress``), or stderr is a terminal."""
+    return forced or sys.stderr.isatty()
+
+
+@contextmanager
+def bar(total: float, unit: str, desc: str, shown: bool) -> Iterator[None]:
+    """A bar of ``total`` ``unit`` (``B`` for bytes, shown as MB) while the block runs;
+    what :func:`advance` reports in ``unit`` moves it, at most twice a second."""
+    from tqdm import tqdm
+
+    with _lock:
+        if unit in _bars or not shown:  # an outer bar counts this already, or none wanted
+            opened = None
+        else:
+            opened = _bars[unit] = tqdm(
+                total=total, unit=unit, desc=desc, file=sys.stderr, mininterval=0.5,
+                unit_scale=unit == "B", unit_divisor=1000, dynamic_ncols=True, leave=True,
+            )  # fmt: skip
+    try:
+        yield
+    finally:
+        if opened is not None:
+            with _lock:
+                del _bars[unit]
+            opened.close()  # again if it filled: tqdm closes once
+
+
+def reading(paths: Sequence[str | os.PathLike[str]], shown: bool) -> Any:
+    """A bar in bytes over reading the files ``paths`` (those that exist)."""
+    total = sum(os.path.getsize(p) for p in paths if os.path.isfile(p))
+    return bar(total, "B", "reading", shown)
+
+
+def advance(n: float, unit: str = "B") -> None:
+    """``n`` more ``unit`` of work done (nothing when no bar counts ``unit``)."""
+    if not _bars:
+        return
+    with _lock:
+        b = _bars.get(unit)
+        if b is not None:
+            b.update(n)
+            if b.total and b.n >= b.total:  # done: the line ends before what is printed next
+                b.close()

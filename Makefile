@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 SHELL := /bin/bash
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow lint typecheck smoke compile bench clean
+.PHONY: demo test test-slow interop lint typecheck smoke compile bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -54,14 +54,22 @@ test: $(STAMP) compile
 	$(BIN)/ruff check $(RUFF_PATHS)
 	@nice -n 19 $(MAKE) --no-print-directory typecheck > .mypy.out 2>&1 & mypy=$$!; \
 	nice -n 19 $(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
-	$(BIN)/pytest -q -m "not slow and realtime"; realtime=$$?; \
-	$(BIN)/pytest -q -m "not slow and not realtime" -n 2; rest=$$?; \
+	$(BIN)/pytest -q -m "not slow and realtime and not interop"; realtime=$$?; \
+	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2; rest=$$?; \
 	wait $$mypy; typed=$$?; wait $$smoke; smoked=$$?; \
 	echo "mypy:"; cat .mypy.out; echo "wheel smoke:"; cat .smoke.out; rm -f .mypy.out .smoke.out; \
 	test $$realtime -eq 0 && test $$rest -eq 0 && test $$typed -eq 0 && test $$smoked -eq 0
 
 test-slow: $(STAMP)
 	$(BIN)/pytest -q -m slow
+
+# our files opened in the readers users open them with: the `interop` extra (Open3D,
+# trimesh) from PyPI; PCL's and CloudCompare's tools from the system when installed
+# (Debian: pcl-tools, cloudcompare, xvfb), skipped otherwise
+interop: $(STAMP)
+	( $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[test,interop]' ) || \
+	$(BIN)/python -m pip install --quiet -e '.[test,interop]'
+	$(BIN)/pytest -q -rs -m interop tests/interop
 
 bench: $(STAMP)
 	@for f in bench/*.py; do $(BIN)/python $$f || exit 1; done

@@ -1,4 +1,10 @@
-"""Coloured clouds as binary PLY: x y z, colour, UTC time, scan index, intensity, coloured."""
+"""Coloured clouds as binary PLY: x y z, colour, UTC time, scan index, intensity, coloured.
+
+The property names and types are those every common reader keeps: CloudCompare imports a
+vertex property as a scalar field only when its name holds ``scalar`` (or is ``intensity``)
+and drops the ``scalar_`` prefix, the name it writes itself; Open3D's tensor reader skips
+``char``, ``short`` and ``uint`` properties. Integers are therefore ``uchar``, ``ushort``
+or ``int``; PCL, plyfile and trimesh read all of these."""
 
 from __future__ import annotations
 
@@ -16,21 +22,22 @@ PLY_DTYPE = np.dtype(
         ("red", "u1"),
         ("green", "u1"),
         ("blue", "u1"),
-        ("time", "<f8"),
-        ("scan", "<u4"),
+        ("scalar_time", "<f8"),
+        ("scalar_scan", "<i4"),
         ("intensity", "<f4"),
-        ("coloured", "u1"),
+        ("scalar_coloured", "u1"),
     ]
 )
 
 
-_PLY_TYPES = {"<f8": "double", "|u1": "uchar", "<u4": "uint", "<f4": "float"}
+# the PLY types every reader above keeps, by numpy type
+_PLY_TYPES = {"|u1": "uchar", "<u2": "ushort", "<i4": "int", "<f4": "float", "<f8": "double"}
 
 
 class PlyStream:
     """A binary little-endian PLY, one ``vertex`` per point: x y z (double, m, world),
-    red green blue (uchar), time (double, UTC s), scan (uint), intensity (float),
-    coloured (uchar 0/1); written part by part to
+    red green blue (uchar), scalar_time (double, UTC s), scalar_scan (int), intensity
+    (float), scalar_coloured (uchar 0/1); written part by part to
     ``path``.tmp, renamed on :meth:`close` (:meth:`abort` removes it). Its header, with
     the counts known only at the end, is written last into the room kept for it (the
     rest of the room a comment of spaces)."""
@@ -48,7 +55,7 @@ class PlyStream:
         lines = [
             "ply",
             "format binary_little_endian 1.0",
-            "comment acq coloured cloud: x y z metres in the world frame; time UTC seconds",
+            "comment acq coloured cloud: x y z metres in the world frame; scalar_time UTC s",
             f"comment {coloured} of {points} points coloured",
             *(f"comment {c}" for c in self._comments),
             "comment " + " " * pad,  # what is left of the room kept for the header
@@ -67,10 +74,10 @@ class PlyStream:
         v = np.empty(utc_s.size, dtype=PLY_DTYPE)
         v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         v["red"], v["green"], v["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-        v["time"] = utc_s
-        v["scan"] = scan
+        v["scalar_time"] = utc_s
+        v["scalar_scan"] = scan
         v["intensity"] = intensity
-        v["coloured"] = coloured
+        v["scalar_coloured"] = coloured
         v.tofile(self._file)
         self.points += int(v.size)
         self.coloured += int(np.count_nonzero(coloured))

@@ -37,10 +37,10 @@ def test_ply_in_parts_reads_back_whole_with_its_counts(tmp_path: Path) -> None:
     assert len(v) == 3500
     np.testing.assert_array_equal(np.stack([v["x"], v["y"], v["z"]], axis=1), xyz)
     np.testing.assert_array_equal(np.stack([v["red"], v["green"], v["blue"]], axis=1), rgb)
-    np.testing.assert_array_equal(v["time"], utc)
+    np.testing.assert_array_equal(v["scalar_time"], utc)
     np.testing.assert_array_equal(v["intensity"], intensity)
-    np.testing.assert_array_equal(v["scan"], scan)
-    np.testing.assert_array_equal(v["coloured"], coloured)
+    np.testing.assert_array_equal(v["scalar_scan"], scan)
+    np.testing.assert_array_equal(v["scalar_coloured"], coloured)
     assert f"{int(coloured.sum())} of 3500 points coloured" in ply.comments
     assert "frame world" in ply.comments
 
@@ -83,3 +83,24 @@ def test_a_bad_crs_is_refused_before_anything_is_written(tmp_path: Path, bad: st
     with pytest.raises(pyproj.exceptions.CRSError):
         LasStream(tmp_path / "c.las", crs=bad)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_ply_header_holds_only_types_and_names_every_common_reader_keeps(tmp_path: Path) -> None:
+    # Open3D's tensor reader skips char, short and uint properties; CloudCompare imports a
+    # property as a scalar field only when its name holds "scalar" (or is intensity)
+    out = PlyStream(tmp_path / "c.ply")
+    out.write(*_points(3, 0))
+    out.close()
+    ply = PlyData.read(str(tmp_path / "c.ply"))
+    assert (
+        ply.text is False and ply.byte_order == "<" and [e.name for e in ply.elements] == ["vertex"]
+    )
+    props = [(p.name, p.val_dtype) for p in ply["vertex"].properties]
+    kept = {"u1", "u2", "i4", "f4", "f8"}
+    assert all(dtype.lstrip("<>=|") in kept for _, dtype in props), props
+    standard = {"x", "y", "z", "red", "green", "blue", "intensity"}
+    assert all(name in standard or name.startswith("scalar_") for name, _ in props), props
+    assert [name for name, _ in props] == [
+        "x", "y", "z", "red", "green", "blue",
+        "scalar_time", "scalar_scan", "intensity", "scalar_coloured",
+    ]  # fmt: skip

@@ -53,8 +53,8 @@ def test_ply_and_las_carry_every_point_with_its_time(
     v = PlyData.read(str(ply))["vertex"].data
     n_valid = int(np.isfinite(drive_log.read_log(truth.files).ranges).sum())
     assert len(v) == n_valid
-    assert 0.2 < v["coloured"].mean() < 0.9  # the camera looks to one side
-    assert np.all(np.diff(v["time"]) >= -1e-9)  # UTC seconds, in time order
+    assert 0.2 < v["scalar_coloured"].mean() < 0.9  # the camera looks to one side
+    assert np.all(np.diff(v["scalar_time"]) >= -1e-9)  # UTC seconds, in time order
     assert (tmp_path / "c_preview.png").stat().st_size > 0
     pc = laspy.read(str(las))
     assert pc.header.version == "1.4" and pc.header.point_format.id >= 7
@@ -63,9 +63,9 @@ def test_ply_and_las_carry_every_point_with_its_time(
     assert len(pc.points) == len(v)
     np.testing.assert_allclose(pc.x, v["x"], atol=6e-4)  # millimetres kept
     # Adjusted Standard GPS time = UTC + leap seconds - GPS epoch - 1e9
-    gps = v["time"] - 315_964_800 + 18 - 1e9
+    gps = v["scalar_time"] - 315_964_800 + 18 - 1e9
     np.testing.assert_allclose(pc.gps_time, gps, atol=1e-6)
-    assert np.array_equal(np.asarray(pc.coloured), v["coloured"])
+    assert np.array_equal(np.asarray(pc.coloured), v["scalar_coloured"])
     assert np.array_equal(np.asarray(pc.red) // 257, v["red"])
     assert np.all(np.asarray(pc.return_number) == 1) and pc.header.point_count == len(v)
     np.testing.assert_allclose(pc.header.mins, [v["x"].min(), v["y"].min(), v["z"].min()],
@@ -191,7 +191,7 @@ def test_frames_of_another_size_are_skipped_with_a_count_naming_the_first(
     assert acq_main(argv) == 0
     text = capsys.readouterr().out
     v = PlyData.read(str(out))["vertex"].data
-    assert len(v) > 10_000 and 0.2 < v["coloured"].mean() < 0.9
+    assert len(v) > 10_000 and 0.2 < v["scalar_coloured"].mean() < 0.9
     into = (times[20] - (first_log_time(files[0]) or 0)) * 1e-9
     assert (
         "note: 2 frames of another size (640x480) than the camera model's 780x582 skipped; "

@@ -37,10 +37,10 @@ PLY_PROPERTIES = [
     ("red", "uchar"),
     ("green", "uchar"),
     ("blue", "uchar"),
-    ("time", "double"),
-    ("scan", "uint"),
+    ("scalar_time", "double"),
+    ("scalar_scan", "int"),
     ("intensity", "float"),
-    ("coloured", "uchar"),
+    ("scalar_coloured", "uchar"),
 ]
 
 
@@ -148,13 +148,13 @@ def test_log_and_cloud_agree(demo: Demo) -> None:
     v = PlyData.read(str(out / "cloud.ply"))["vertex"].data
     assert len(v) == valid
     # UTC times within the run, one scan index per recorded scan
-    assert np.all(np.isfinite(v["time"]))
-    assert utc0 < v["time"].min() < v["time"].max() < utc0 + 60
-    assert np.unique(v["scan"]).size == pytest.approx(scans, abs=2)
+    assert np.all(np.isfinite(v["scalar_time"]))
+    assert utc0 < v["scalar_time"].min() < v["scalar_time"].max() < utc0 + 60
+    assert np.unique(v["scalar_scan"]).size == pytest.approx(scans, abs=2)
     assert v["intensity"].max() > 0
 
     # the camera looks left (+y): what lies in front of it is coloured, behind it not
-    coloured = v["coloured"].astype(bool)
+    coloured = v["scalar_coloured"].astype(bool)
     share = coloured.mean()
     print(f"coloured share {share:.3f}")
     assert share > 0.40  # the measured share is about 0.46: one camera, one side
@@ -170,7 +170,7 @@ def test_colours_are_the_true_surface_colours(demo: Demo) -> None:
     out, code, _, _ = demo
     assert code == 0
     v = PlyData.read(str(out / "cloud.ply"))["vertex"].data
-    c = v[v["coloured"].astype(bool)]
+    c = v[v["scalar_coloured"].astype(bool)]
     xyz = np.stack([c["x"], c["y"], c["z"]], axis=1)
     rgb = np.stack([c["red"], c["green"], c["blue"]], axis=1)
     origins, dirs = _laser_rays(xyz)
@@ -179,8 +179,10 @@ def test_colours_are_the_true_surface_colours(demo: Demo) -> None:
     # the frames each point was coloured by (the nearest in time), and whether they kept
     # the camera's cadence
     frame_utc = _read_log(out / "demo.mcap").frame_utc
-    i = np.clip(np.searchsorted(frame_utc, c["time"]), 1, frame_utc.size - 1)
-    nearest = np.where(c["time"] - frame_utc[i - 1] < frame_utc[i] - c["time"], i - 1, i)
+    i = np.clip(np.searchsorted(frame_utc, c["scalar_time"]), 1, frame_utc.size - 1)
+    nearest = np.where(
+        c["scalar_time"] - frame_utc[i - 1] < frame_utc[i] - c["scalar_time"], i - 1, i
+    )
     steady = _on_cadence(frame_utc)[nearest]
     print(
         f"colour agreement of {strict.size} coloured points, within {COLOUR_TOLERANCE}/255: "
@@ -249,7 +251,7 @@ def test_colorize_places_the_demo_log_with_its_can_odometry(demo: Demo, tmp_path
     log = drive_log.read_log(out / "demo.mcap", jpegs=False)
     d_scan, d_step = np.nonzero(np.isfinite(log.ranges))
     v = PlyData.read(str(out / "cloud.ply"))["vertex"].data
-    assert np.array_equal(v["scan"], d_scan)
+    assert np.array_equal(v["scalar_scan"], d_scan)
     d_key = d_scan.astype(np.int64) * 10_000 + d_step
     at = np.searchsorted(d_key, key)
     assert np.array_equal(d_key[np.minimum(at, d_key.size - 1)], key)  # the same points
@@ -270,7 +272,7 @@ def test_colorize_places_the_demo_log_with_its_can_odometry(demo: Demo, tmp_path
     assert coloured[xyz[:, 1] > 0.5].mean() > 0.97
     assert coloured[xyz[:, 1] < -0.5].mean() < 0.01
     # colours: those of the demo's own colouring, and the true surface colours
-    both = coloured & d["coloured"].astype(bool)
+    both = coloured & d["scalar_coloured"].astype(bool)
     assert both.sum() >= 0.95 * coloured.sum()
     same = np.abs(rgb[both].astype(np.int16) - d_rgb[both]).max(axis=1) <= COLOUR_TOLERANCE
     origins, dirs = _laser_rays(d_xyz[coloured])

@@ -32,9 +32,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "offline first (scans from their device ticks, frames onto the camera's frame grid). "
         "The trajectory: --trajectory CSV, else the log's CAN odometry, else none (points "
         "stay in the laser frame). Points no frame sees are kept, flagged 'coloured' 0. Every "
-        "point keeps its time (PLY 'time': UTC s; LAS: Adjusted Standard GPS time), scan "
-        "index and intensity. OUT and the preview replace files of their kind; an input or "
-        "any other file is refused. Exit status: 0 written, 2 bad input.",
+        "point keeps its time (PLY 'scalar_time': UTC s; LAS: Adjusted Standard GPS time), scan "
+        "index and intensity. OUT and the preview replace what acq wrote before; an input, a "
+        "file of another kind or anyone else's is refused (--force replaces the last). Exit "
+        "status: 0 written, 2 bad input.",
     )
     col.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files or a folder")
     col.add_argument("--calib", type=Path, required=True, help="calib.yaml (camera and laser)")

@@ -183,11 +183,14 @@ def export_ros2(
     geometry: dict[str, ScanGeometry] = {}
     read = 0
     try:
-        _write_odometry(session, build, put)
+        odometry = _OdometryTrack(session, build, put)
+        if odometry.note:
+            report.notes.append(odometry.note)
         for path in files:
             reader = LogReader(path)
             for schema, channel, message in reader.messages():
                 read += 1
+                odometry.until(int(message.log_time))
                 if progress is not None and read % 256 == 0:
                     progress(read)
                 topic, name = channel.topic, schema.name if schema else ""
@@ -229,6 +232,7 @@ def export_ros2(
             problem = reader.problem()
             if problem:
                 report.notes.append(f"{path.name}: {problem}")
+        odometry.until(2**63 - 1)  # what is after the last converted message
     except (WriterError, OSError) as e:
         raise AcqError(f"{bag_path}: cannot write the bag: {e}") from e
     finally:
@@ -252,23 +256,43 @@ _CONVERTED = frozenset(
 _LATCHED = frozenset({"foxglove.CameraCalibration", "foxglove.FrameTransforms"})
 
 
-def _write_odometry(session: _Session, build: Messages, put: Callable[..., None]) -> None:
+class _OdometryTrack:
     """/odom and /tf (odom -> base_link), one of each per odometry message: planar dead
     reckoning from the first one (speed and yaw rate, each interval's mean), stamped
-    with the message's stamp."""
-    odo = session.odometry.result(()).odometry
-    if len(odo) == 0:
-        return
-    t = odo.t_ns.astype(np.int64)
-    x, y, psi = dead_reckon(np.diff(t) * 1e-9,
-                            0.5 * (odo.speed[:-1] + odo.speed[1:]),
-                            0.5 * (odo.yaw_rate[:-1] + odo.yaw_rate[1:]))  # fmt: skip
-    for i in range(t.size):
-        stamp = session.clock.to_utc(int(t[i]))
-        c, s = math.cos(0.5 * psi[i]), math.sin(0.5 * psi[i])
-        xyz, xyzw = (float(x[i]), float(y[i]), 0.0), (0.0, 0.0, s, c)
-        speed, yaw_rate = float(odo.speed[i]), float(odo.yaw_rate[i])
-        put("/odom", "nav_msgs/msg/Odometry",
-            build.odometry(stamp, xyz, xyzw, speed, yaw_rate), int(t[i]))  # fmt: skip
-        put("/tf", "tf2_msgs/msg/TFMessage",
-            build.tf([build.transform(stamp, ODOM, BASE_LINK, xyz, xyzw)]), int(t[i]))  # fmt: skip
+    with the message's stamp; written in time order among the other messages
+    (:meth:`until`)."""
+
+    def __init__(self, session: _Session, build: Messages, put: Callable[..., None]) -> None:
+        odo = session.odometry.result(()).odometry
+        self.t = odo.t_ns.astype(np.int64)
+        self.speed, self.yaw_rate = odo.speed, odo.yaw_rate
+        self.clock, self.build, self.put = session.clock, build, put
+        self.next = 0
+        self.note = None
+        if self.t.size and not (np.isfinite(self.speed).all() and np.isfinite(self.yaw_rate).all()):
+            self.note = "the odometry lacks its speed or its yaw rate: no /odom nor /tf"
+            self.t = self.t[:0]
+        if self.t.size:
+            self.x, self.y, self.psi = dead_reckon(
+                np.diff(self.t) * 1e-9,
+                0.5 * (self.speed[:-1] + self.speed[1:]),
+                0.5 * (self.yaw_rate[:-1] + self.yaw_rate[1:]),
+            )
+
+    def until(self, log_ns: int) -> None:
+        """Write the messages stamped at or before ``log_ns`` (log ns) not written yet."""
+        build = self.build
+        while self.next < self.t.size and self.t[self.next] <= log_ns:
+            i = self.next
+            self.next += 1
+            t = int(self.t[i])
+            stamp = self.clock.to_utc(t)
+            half = 0.5 * float(self.psi[i])
+            xyz, xyzw = (
+                (float(self.x[i]), float(self.y[i]), 0.0),
+                (0.0, 0.0, math.sin(half), math.cos(half)),
+            )
+            twist = (float(self.speed[i]), float(self.yaw_rate[i]))
+            self.put("/odom", "nav_msgs/msg/Odometry", build.odometry(stamp, xyz, xyzw, *twist), t)
+            tf = build.transform(stamp, ODOM, BASE_LINK, xyz, xyzw)
+            self.put("/tf", "tf2_msgs/msg/TFMessage", build.tf([tf]), t)

@@ -7,10 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from acq.cli import main as acq_main
+from acq.export import export_ros2
 from acq.export.log_clock import LogClock, log_is_utc
 from acq.log import schemas
 from acq.log.writer import LogWriter
@@ -26,7 +28,7 @@ def _stamp(msg: object, ns: int) -> None:
     msg.timestamp.seconds, msg.timestamp.nanos = divmod(ns, 10**9)  # type: ignore[attr-defined]
 
 
-def _write_log(directory: Path) -> Path:
+def _write_log(directory: Path, split_s: float = 600.0) -> list[Path]:
     """1 s: scans, frames, calibration, /tf_static, odometry, fixes and one clock pair
     (UTC = monotonic + UTC0 - MONO0), each message received 3 ms after its stamp."""
     cls = schemas.message_class
@@ -35,7 +37,7 @@ def _write_log(directory: Path) -> Path:
         "device.laser": {"geometry": json.dumps(GEOMETRY)},
         "device.camera": {"driver": "sim"},
     }
-    w = LogWriter(directory, metadata=meta)
+    w = LogWriter(directory, metadata=meta, split_s=split_s)
     for topic, name in (
         ("/acq/clock", "acq.Clock"),
         ("/tf_static", "foxglove.FrameTransforms"),
@@ -63,6 +65,7 @@ def _write_log(directory: Path) -> Path:
     cal.R.extend([1.0, 0, 0, 0, 1, 0, 0, 0, 1])
     cal.P.extend([300.0, 0, 320, 0, 0, 300, 240, 0, 0, 0, 1, 0])
     w.set_latched("/camera/calibration", cal.SerializeToString(), MONO0)
+    out: list[tuple[int, str, bytes, int]] = []  # written in log-time order, as recorded
     rng = np.random.default_rng(0)
     for i in range(SCANS):
         t = MONO0 + 1_000_000 + i * STEP
@@ -70,19 +73,19 @@ def _write_log(directory: Path) -> Path:
         _stamp(scan, t)
         scan.ranges.extend(rng.uniform(1, 20, 101).tolist())
         scan.intensities.extend(rng.uniform(0, 1000, 101).tolist())
-        w.write("/laser/scan", scan.SerializeToString(), t + 3_000_000, t)
-        w.write("/acq/timing/laser", b"", t + 3_000_000, t)
+        out.append((t + 3_000_000, "/laser/scan", scan.SerializeToString(), t))
+        out.append((t + 3_000_000, "/acq/timing/laser", b"", t))
     for i in range(FRAMES):
         t = MONO0 + 20_000_000 + i * 200_000_000
         img = cls("foxglove.CompressedImage")(frame_id="camera", format="jpeg")
         img.data = bytes([0xFF, 0xD8, i, 0xFF, 0xD9])
         _stamp(img, t)
-        w.write("/camera/image/compressed", img.SerializeToString(), t + 3_000_000, t)
+        out.append((t + 3_000_000, "/camera/image/compressed", img.SerializeToString(), t))
     for i in range(ODOMETRY):
         t = MONO0 + i * 40_000_000  # 5 m/s, 0.1 rad/s
         odo = cls("acq.Odometry")(recv_ns=t, speed_mps=5.0, yaw_rate_rps=0.1)
         _stamp(odo, t)
-        w.write("/vehicle/odometry", odo.SerializeToString(), t, t)
+        out.append((t, "/vehicle/odometry", odo.SerializeToString(), t))
     for i in range(FIXES):
         t = MONO0 + i * 200_000_000
         fix = cls("foxglove.LocationFix")(
@@ -91,9 +94,11 @@ def _write_log(directory: Path) -> Path:
         fix.position_covariance.extend([0.0] * 9)
         fix.metadata.add(key="quality", value="4")
         _stamp(fix, t)
-        w.write("/gnss/fix", fix.SerializeToString(), t + 3_000_000, t)
+        out.append((t + 3_000_000, "/gnss/fix", fix.SerializeToString(), t))
+    for log_ns, topic, data, stamp in sorted(out):
+        w.write(topic, data, log_ns, stamp)
     w.close()
-    return w.files[0]
+    return w.files
 
 
 @pytest.fixture(scope="module")
@@ -101,7 +106,7 @@ def bag(
     tmp_path_factory: pytest.TempPathFactory,
 ) -> tuple[Path, dict[str, list[tuple[int, object]]]]:
     d = tmp_path_factory.mktemp("ros2")
-    log = _write_log(d / "log")
+    (log,) = _write_log(d / "log")
     out = d / "bag"
     assert acq_main(["export", "ros2", str(log), "-o", str(out)]) == 0
     typestore = get_typestore(Stores.ROS2_JAZZY)
@@ -134,6 +139,9 @@ def test_every_message_with_its_type_counted(bag: tuple[Path, dict]) -> None:
     meta = (out / "metadata.yaml").read_text()
     assert "storage_identifier: mcap" in meta and "serialization_format: cdr" in meta
     assert "durability: transient_local" in meta  # /tf_static latched for late joiners
+    with (out / "bag.mcap").open("rb") as f:  # in time order, as a recorder writes
+        times = [m.log_time for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert times == sorted(times) and len(times) == sum(counts.values())
 
 
 def test_scans_stamped_at_their_first_point_in_utc_with_their_fields(
@@ -222,3 +230,16 @@ def test_a_log_without_clock_pairs_is_refused(tmp_path: Path) -> None:
 
     with pytest.raises(InputValueError, match="/acq/clock"):
         LogClock(False, np.zeros((0, 2)))
+
+
+def test_a_split_sessions_latched_messages_go_in_once(tmp_path: Path) -> None:
+    """Each file of a split session starts with /tf_static and the calibration again."""
+    files = _write_log(tmp_path / "log", split_s=0.3)
+    assert len(files) >= 3
+    report = export_ros2(files, tmp_path / "bag")
+    assert report.counts == {
+        "/tf_static": 1, "/camera/camera_info": 1, "/laser/scan": SCANS,
+        "/camera/image/compressed": FRAMES, "/odom": ODOMETRY, "/tf": ODOMETRY,
+        "/gnss/fix": FIXES,
+    }  # fmt: skip
+    assert report.left_out == {"/acq/timing/laser": SCANS} and not report.utc

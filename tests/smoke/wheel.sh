@@ -44,7 +44,7 @@ step "acq --version, every command's --help"
 "$acq" --version
 for cmd in demo "sim render" "sim scanner" "sim camera" "probe scanner" "probe camera" record \
     info replay colorize "calibrate fisheye" "calibrate extrinsic" "calibrate time-offset" \
-    "calibrate validate" "analyze sensitivity" devices; do
+    "calibrate validate" "analyze sensitivity" devices "export ros2"; do
   # shellcheck disable=SC2086
   "$acq" $cmd --help > /dev/null || { echo "wheel smoke: acq $cmd --help failed" >&2; exit 1; }
 done
@@ -56,6 +56,10 @@ step "acq demo --seconds 2"
 step "acq colorize on the demo's log"
 "$acq" colorize demo/demo.mcap --calib demo/calib.yaml -o drive.las --no-preview > /dev/null
 [ -s drive.las ]
+
+step "acq export ros2 on the demo's log"
+"$acq" export ros2 demo/demo.mcap -o drive_bag > /dev/null 2>&1
+[ -s drive_bag/metadata.yaml ] && [ -s drive_bag/drive_bag.mcap ]
 
 step "acq sim render, acq calibrate fisheye on its frame, acq analyze sensitivity"
 "$acq" sim render --out render > /dev/null

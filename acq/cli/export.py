@@ -1,0 +1,83 @@
+"""`acq export ros2`: a session's logs as a ROS 2 bag."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import secrets
+import shutil
+import sys
+from pathlib import Path
+
+from acq.cli import output_files
+from acq.cli.output_files import Output
+from acq.errors import InputError
+
+HELP = "logs for other tools: a ROS 2 bag (rosbag2, MCAP storage)"
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    export = sub.add_parser("export", help=HELP, description=HELP)
+    kinds = export.add_subparsers(dest="kind", required=True, metavar="KIND")
+    ros2 = kinds.add_parser(
+        "ros2",
+        help="a rosbag2 folder (MCAP storage, CDR) that `ros2 bag play BAG` replays",
+        description="Write the logs of one session (LOG: its split files, in order) as a "
+        "rosbag2 folder BAG with MCAP storage, CDR messages of ROS 2 Jazzy: /<laser>/scan "
+        "(sensor_msgs/LaserScan, stamped at the first point), /<camera>/image/compressed "
+        "(sensor_msgs/CompressedImage, at mid-exposure), /<camera>/camera_info "
+        "(sensor_msgs/CameraInfo; a fisheye's model is 'equidistant'), /tf_static "
+        "(transient local: base_link -> laser -> <camera>_optical), /odom (nav_msgs/Odometry) "
+        "and /tf (odom -> base_link) dead-reckoned from the CAN odometry, /gnss/fix "
+        "(sensor_msgs/NavSatFix). Stamps are UTC (a log on the host's monotonic clock is "
+        "mapped through its /acq/clock pairs). acq's timing and raw records are left out. "
+        "Replay: ros2 bag play BAG. An existing BAG is replaced when acq wrote it, another "
+        "folder only with --force; an input or a file is refused. "
+        "Exit status: 0 written, 2 bad input, 1 another failure.",
+    )
+    ros2.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files of a session")
+    ros2.add_argument(
+        "-o", "--output", type=Path, required=True, metavar="BAG", help="the bag's folder"
+    )
+    ros2.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
+    ros2.set_defaults(handler=run)
+
+
+def _check_bag(logs: list[Path], bag: Path, force: bool) -> None:
+    """Refuse a BAG that is an input, an existing file, or a folder acq did not write
+    (without --force)."""
+    from acq.export.ros2 import made_by_acq
+
+    if not bag.is_dir():  # absent, or a file: the files' rule says why not
+        output_files.check([("LOG", p) for p in logs], [Output("-o", bag, "mcap")])
+        return
+    if any(p.resolve().is_relative_to(bag.resolve()) for p in logs):
+        raise InputError(f"-o {bag}: holds an input LOG; give another folder")
+    if not (force or made_by_acq(bag) or not any(bag.iterdir())):
+        raise InputError(f"-o {bag}: exists and is not a bag acq wrote; --force replaces it")
+
+
+def run(args: argparse.Namespace) -> int:
+    from acq.export import export_ros2
+
+    bag: Path = args.output
+    _check_bag(args.logs, bag, args.force)
+    # written in a folder beside (rosbags names its storage file after the bag's folder),
+    # then put in place: a failure leaves the old bag as it was
+    work = bag.with_name(f".{bag.name}.{secrets.token_hex(4)}.tmp")
+    try:
+        work.mkdir()
+        report = export_ros2(args.logs, work / bag.name)
+        if bag.is_dir():
+            os.replace(bag, work / "old")
+        os.replace(work / bag.name, bag)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    counts = ", ".join(f"{topic} {n}" for topic, n in sorted(report.counts.items()))
+    print(f"{bag}: {counts}")
+    if report.left_out:
+        left = ", ".join(f"{topic} {n}" for topic, n in sorted(report.left_out.items()))
+        print(f"left out (no ROS 2 counterpart): {left}", file=sys.stderr)
+    for note in report.notes:
+        print(f"note: {note}", file=sys.stderr)
+    return 0

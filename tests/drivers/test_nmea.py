@@ -25,7 +25,7 @@ from acq.drivers.nmea import (
 )
 from acq.drivers.reconnect import Backoff, Relink
 from acq.geometry.geodesy import WorldFrame
-from acq.records import Fix, Sentence
+from acq.records import CovarianceType, Fix, Sentence
 from acq.sim.nmea_device import DEFAULT_ORIGIN, NmeaDevice, NmeaPtyServer, sentence
 from acq.sim.world import Trajectory
 
@@ -48,9 +48,11 @@ def receiver() -> Iterator[tuple[NmeaDevice, NmeaPtyServer]]:
         server.close()
 
 
-def decode_all(lines: list[bytes]) -> list[Fix | None]:
-    decoder = NmeaDecoder()
-    return [decoder.decode(Sentence(i, line)) for i, line in enumerate(lines)]
+def decode_all(lines: list[bytes], decoder: NmeaDecoder | None = None) -> list[Fix]:
+    """Every fix the lines give, those the end of the stream flushes included."""
+    decoder = decoder or NmeaDecoder()
+    fixes = [decoder.decode(Sentence(i, line)) for i, line in enumerate(lines)]
+    return [f for f in fixes if f is not None] + decoder.flush()
 
 
 # --- the simulated receiver on a pty ---------------------------------------------------------
@@ -155,31 +157,32 @@ def test_a_port_that_does_not_open_is_connection_lost() -> None:
 # --- the decoder -------------------------------------------------------------------------------
 
 
-def test_gga_and_rmc_make_a_full_fix() -> None:
-    assert decode_all([GGA]) == [None]  # no date yet
-    rmc, fix = decode_all([RMC, GGA])
-    assert rmc is None and fix is not None
-    assert fix.utc_s == pytest.approx(764426119.0)  # 1994-03-23 12:35:19 UTC
-    assert fix.latitude == pytest.approx(48 + 7.038 / 60)
-    assert fix.longitude == pytest.approx(11 + 31.0 / 60)
-    assert fix.altitude == pytest.approx(545.4 + 46.9) and fix.geoid_separation == 46.9
-    assert (fix.quality, fix.satellites, fix.hdop) == (1, 8, 0.9)
-    assert fix.speed == pytest.approx(22.4 * 1852 / 3600)
-    assert fix.course == pytest.approx(math.radians(84.4))
-    assert fix.recv_ns == 1
+def test_gga_and_rmc_make_a_full_fix_in_either_order() -> None:
+    decoder = NmeaDecoder()
+    assert decode_all([GGA], decoder) == [] and decoder.undated == 1  # no date yet
+    for lines in ([RMC, GGA], [GGA, RMC]):
+        (fix,) = decode_all(lines)
+        assert fix.utc_s == pytest.approx(764426119.0)  # 1994-03-23 12:35:19 UTC
+        assert fix.latitude == pytest.approx(48 + 7.038 / 60)
+        assert fix.longitude == pytest.approx(11 + 31.0 / 60)
+        assert fix.altitude == pytest.approx(545.4 + 46.9) and fix.geoid_separation == 46.9
+        assert (fix.quality, fix.satellites, fix.hdop) == (1, 8, 0.9)
+        assert fix.speed == pytest.approx(22.4 * 1852 / 3600)
+        assert fix.course == pytest.approx(math.radians(84.4))
+        assert fix.recv_ns == 1  # the epoch's last sentence
 
 
 def test_the_date_rolls_over_at_midnight_and_hemispheres_sign() -> None:
     rmc = sentence("GNRMC,235959.90,A,3345.0000000,S,07030.0000000,W,0.0,0.0,311225,,,A")
     gga = sentence("GNGGA,000000.00,3345.0000000,S,07030.0000000,W,4,20,0.5,500.0,M,30.0,M,,")
-    _, fix = decode_all([rmc.strip(), gga.strip()])
-    assert fix is not None and fix.quality == 4
+    (fix,) = decode_all([rmc.strip(), gga.strip()])
+    assert fix.quality == 4
     assert fix.utc_s == pytest.approx(1767225600.0)  # 2026-01-01 00:00:00
     assert (fix.latitude, fix.longitude) == pytest.approx((-33.75, -70.5))
     assert math.isnan(fix.speed)  # RMC of another epoch
 
 
-def test_no_fix_is_nan_and_other_sentences_are_none() -> None:
+def test_no_fix_is_nan_and_other_sentences_are_ignored() -> None:
     lines = [
         RMC,
         sentence("GPGGA,123520,,,,,0,00,99.99,,,,,,").strip(),
@@ -187,19 +190,20 @@ def test_no_fix_is_nan_and_other_sentences_are_none() -> None:
         sentence("PUBX,00,123519.00,4807.03800,N").strip(),
         sentence("GPGSV,1,1,01,01,40,083,46").strip(),
     ]
-    _, no_fix, *others = decode_all(lines)
-    assert no_fix is not None and no_fix.quality == 0
+    (no_fix,) = decode_all(lines)  # the RMC's epoch has no GGA: no fix
+    assert no_fix.quality == 0 and no_fix.covariance_type == CovarianceType.UNKNOWN
     assert no_fix.utc_s == pytest.approx(764426120.0)  # a time, a date: reported
     assert math.isnan(no_fix.latitude) and math.isnan(no_fix.altitude)
-    assert others == [None, None, None]
     # a receiver before its first fix sends no time, maybe no date: nothing, no error
     cold = [
         sentence("GPRMC,,V,,,,,,,,,,N").strip(),
         sentence("GPGGA,,,,,,0,00,99.99,,,,,,").strip(),
         sentence("GPRMC,123521,V,,,,,,,,,,N").strip(),  # a time, no date yet
     ]
-    assert decode_all(cold) == [None, None, None]
-    assert decode_all([RMC, *cold, GGA])[-1] is not None  # the last date is kept
+    assert decode_all(cold) == []
+    later = sentence("GPGGA,123522,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,").strip()
+    (fix,) = decode_all([RMC, *cold, later])  # the last date is kept
+    assert fix.utc_s == pytest.approx(764426122.0) and math.isnan(fix.speed)
 
 
 @pytest.mark.parametrize(
@@ -225,6 +229,7 @@ def test_no_fix_is_nan_and_other_sentences_are_none() -> None:
 def test_bad_sentences_are_typed_errors(line: bytes, error: type, match: str) -> None:
     with pytest.raises(error, match=match):
         NmeaDecoder().decode(Sentence(0, line))
+
 
 
 # --- the framer --------------------------------------------------------------------------------
@@ -319,8 +324,7 @@ def test_fuzz_what_the_sim_sends_the_driver_reads(lat: float, lon: float, alt: f
     lo, ew = _ddmm(lon, 3, 7, "EW")
     rmc = sentence(f"GNRMC,101010.50,A,{la},{ns},{lo},{ew},1.0,90.0,010125,,,A").strip()
     gga = sentence(f"GNGGA,101010.50,{la},{ns},{lo},{ew},1,12,0.8,{alt:.3f},M,0.0,M,,").strip()
-    _, fix = decode_all([rmc, gga])
-    assert fix is not None
+    (fix,) = decode_all([rmc, gga])
     assert fix.latitude == pytest.approx(lat, abs=2e-9)
     assert fix.longitude == pytest.approx(lon, abs=2e-9)
     assert fix.altitude == pytest.approx(alt, abs=6e-4)

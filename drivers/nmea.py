@@ -259,6 +259,7 @@ class NmeaDecoder:
         self._expected: Counter[str] = Counter()  # what a whole epoch holds
         self._last: tuple[str, _Epoch] | None = None  # the last sentence filed: kind, epoch
         self._emitted: float | None = None  # time of day of the last epoch given out
+        self._out: _Epoch | None = None  # the last epoch, if given out once complete
         self._ready: deque[Fix] = deque()
         self.undated = 0  # fixes skipped for want of a date
         self.late = 0  # timed sentences of an epoch already given out (dropped)
@@ -336,8 +337,11 @@ class NmeaDecoder:
             if epoch.time_of_day is not None and abs(tod - epoch.time_of_day) >= _SAME_S:
                 self._expected = Counter(epoch.kinds)  # a whole epoch, as this receiver sends
                 self._close()
+                self._out = None
                 epoch = self._open
             epoch.time_of_day = tod
+        elif self._straggler(kind):
+            return
         elif self._held.kinds or epoch.kinds[kind]:
             # after the next epoch's, or of a kind the open epoch has and not in a run of
             # its kind (one GSA per constellation in a row): the next epoch's
@@ -350,6 +354,24 @@ class NmeaDecoder:
         epoch = self._open
         if self._expected and epoch.gga is not None and self._expected <= epoch.kinds:
             self._close()
+            self._out = epoch
+
+    def _straggler(self, kind: str) -> bool:
+        """Whether an untimed sentence that comes after its epoch was given out (and
+        before any of the next epoch) belongs to it: one more of a run of its kind, or
+        a kind that epoch lacked. It is dropped (counted in ``late``) and waited for
+        from then on; any other is the next epoch's."""
+        out = self._out
+        if out is None or self._open.kinds:
+            return False
+        run = self._last is not None and self._last[0] == kind and self._last[1] is out
+        if not (run or out.kinds[kind] == 0):
+            return False
+        self.late += 1
+        out.kinds[kind] += 1
+        self._expected[kind] = max(self._expected[kind], out.kinds[kind])
+        self._last = (kind, out)
+        return True
 
     def _close(self) -> None:
         """Give out the open epoch's fix (if it has a GGA); the next epoch starts with

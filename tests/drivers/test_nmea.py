@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from acq.drivers.errors import ConnectionLost
 from acq.drivers.nmea import (
     MAX_LINE,
+    UERE_M,
     LineFramer,
     NmeaChecksumError,
     NmeaDecoder,
@@ -231,7 +232,6 @@ def test_bad_sentences_are_typed_errors(line: bytes, error: type, match: str) ->
         NmeaDecoder().decode(Sentence(0, line))
 
 
-
 # --- the framer --------------------------------------------------------------------------------
 
 
@@ -328,3 +328,226 @@ def test_fuzz_what_the_sim_sends_the_driver_reads(lat: float, lon: float, alt: f
     assert fix.latitude == pytest.approx(lat, abs=2e-9)
     assert fix.longitude == pytest.approx(lon, abs=2e-9)
     assert fix.altitude == pytest.approx(alt, abs=6e-4)
+
+
+# --- epochs: any order, any grouping ------------------------------------------------------------
+
+
+def _epoch(
+    k: int, order: tuple[str, ...], rmc_motion: bool = True, gsa_runs: int = 1
+) -> list[bytes]:
+    """Epoch k of a 1 Hz receiver sending ``order``: values that differ per epoch."""
+    hms = f"1200{k:02d}.00"
+    knots, course = 10.0 + k, 20.0 + k
+    motion = f"{knots:.1f},{course:.1f}" if rmc_motion else ","
+    bodies = {
+        "GGA": f"GNGGA,{hms},4807.{k:03d},N,01131.000,E,1,12,{0.5 + k / 100:.2f},545.4,M,46.9,M,,",
+        "RMC": f"GNRMC,{hms},A,4807.{k:03d},N,01131.000,E,{motion},230394,,,A",
+        "VTG": f"GNVTG,{course:.1f},T,,M,{knots:.1f},N,,K,A",
+        "GST": f"GNGST,{hms},0.1,,,,{0.01 * (k + 1):.3f},{0.02 * (k + 1):.3f},{0.03 * (k + 1):.3f}",
+        "GSA": f"GNGSA,A,3,01,02,,,,,,,,,,,1.5,{0.5 + k / 100:.2f},{0.8 + k / 100:.2f}",
+    }
+    out = []
+    for kind in order:
+        out += [sentence(bodies[kind]).strip()] * (gsa_runs if kind == "GSA" else 1)
+    return out
+
+
+def _check_epoch_fix(fix: Fix, k: int, kinds: set[str], rmc_motion: bool = True) -> None:
+    assert fix.utc_s == pytest.approx(764424000.0 + k)
+    assert fix.latitude == pytest.approx(48 + (7 + k / 1000) / 60)
+    if (rmc_motion and "RMC" in kinds) or "VTG" in kinds:
+        assert fix.speed == pytest.approx((10.0 + k) * 1852 / 3600)
+        assert fix.course == pytest.approx(math.radians(20.0 + k))
+    else:
+        assert math.isnan(fix.speed) and math.isnan(fix.course)
+    if "GST" in kinds:
+        assert fix.covariance_type == CovarianceType.DIAGONAL_KNOWN
+        sigmas = (fix.sigma_north, fix.sigma_east, fix.sigma_up)
+        assert sigmas == pytest.approx((0.01 * (k + 1), 0.02 * (k + 1), 0.03 * (k + 1)))
+    else:
+        hdop = 0.5 + k / 100
+        assert fix.covariance_type == CovarianceType.APPROXIMATED
+        assert fix.sigma_east == fix.sigma_north == pytest.approx(hdop * UERE_M / math.sqrt(2))
+        up = (0.8 + k / 100) if "GSA" in kinds else 2 * hdop
+        assert fix.sigma_up == pytest.approx(up * UERE_M)
+        assert math.isnan(fix.vdop) != ("GSA" in kinds)
+
+
+ORDERS = [
+    ("RMC", "VTG", "GGA"),  # u-blox's default
+    ("GGA", "RMC"),  # GGA first: a fix is the GGA's epoch, not the RMC before it
+    ("GGA", "GSA", "GST", "RMC", "VTG"),
+    ("GSA", "GSA", "VTG", "GGA", "GST", "RMC"),  # untimed sentences lead the epoch
+    ("GST", "GGA", "RMC"),
+    ("RMC", "GGA", "GSA"),
+    ("GGA", "VTG", "RMC"),
+]
+
+
+@pytest.mark.parametrize("order", ORDERS, ids="-".join)
+@pytest.mark.parametrize("rmc_motion", [True, False], ids=["rmc-motion", "vtg-motion"])
+def test_each_epoch_gives_one_whole_fix_at_its_last_sentence(
+    order: tuple[str, ...], rmc_motion: bool
+) -> None:
+    decoder = NmeaDecoder()
+    fixes: list[tuple[int, int, Fix]] = []  # epoch, sentence index in it, fix
+    for k in range(6):
+        for i, line in enumerate(_epoch(k, order, rmc_motion)):
+            fix = decoder.decode(Sentence(k * 100 + i, line))
+            if fix is not None:
+                fixes.append((k, i, fix))
+    tail = decoder.flush()
+    assert len(fixes) + len(tail) == 6 and decoder.late == 0
+    got = [f for _, _, f in fixes] + tail
+    for k, fix in enumerate(got):
+        _check_epoch_fix(fix, k, set(order), rmc_motion)
+        assert fix.recv_ns == k * 100 + len(order) - 1  # the receipt of its last sentence
+    # the first fix waits for the next epoch's first timed sentence (what an epoch holds is
+    # not known yet); then each comes with its epoch's last sentence: no latency
+    first_timed = min(i for i, kind in enumerate(order) if kind in ("GGA", "RMC", "GST"))
+    assert fixes[0][:2] == (1, first_timed)
+    assert [(k, i) for k, i, _ in fixes[1:]] == [(k, len(order) - 1) for k in range(1, 6)]
+    assert tail == []
+
+
+def test_a_gsa_per_constellation_stays_in_its_epoch() -> None:
+    decoder = NmeaDecoder()
+    lines = [line for k in range(4) for line in _epoch(k, ("RMC", "GGA", "GSA"), gsa_runs=3)]
+    fixes = decode_all(lines, decoder)
+    assert len(fixes) == 4
+    for k, fix in enumerate(fixes):
+        _check_epoch_fix(fix, k, {"RMC", "GGA", "GSA"})
+
+
+def test_a_receiver_that_starts_sending_gst_late_loses_no_fix_and_duplicates_none() -> None:
+    decoder = NmeaDecoder()
+    lines = _epoch(0, ("RMC", "GGA")) + _epoch(1, ("RMC", "GGA")) + _epoch(2, ("RMC", "GGA", "GST"))
+    lines += _epoch(3, ("RMC", "GGA", "GST")) + _epoch(4, ("RMC", "GGA", "GST"))
+    fixes = decode_all(lines, decoder)
+    assert [round(f.utc_s) - 764424000 for f in fixes] == [0, 1, 2, 3, 4]
+    # epoch 2 went out at its GGA; its GST came late (dropped, then waited for)
+    assert decoder.late == 1
+    assert [f.covariance_type for f in fixes] == [1, 1, 1, 2, 2]
+
+
+def test_an_untimed_sentence_after_its_epoch_went_out_is_waited_for_from_then_on() -> None:
+    decoder = NmeaDecoder()
+    lines = [line for k in range(2) for line in _epoch(k, ("RMC", "GGA"), rmc_motion=False)]
+    lines += [line for k in range(2, 5) for line in _epoch(k, ("RMC", "GGA", "VTG", "GSA"), False)]
+    fixes = decode_all(lines, decoder)
+    assert [round(f.utc_s) - 764424000 for f in fixes] == [0, 1, 2, 3, 4]
+    # epoch 2 went out at its GGA, before its VTG and GSA: those were late, not the
+    # next epoch's; from epoch 3 on each fix has its own
+    assert decoder.late == 2 and math.isnan(fixes[2].course)
+    for k in (3, 4):
+        _check_epoch_fix(fixes[k], k, {"RMC", "GGA", "VTG", "GSA"}, rmc_motion=False)
+
+
+def test_without_gst_or_dops_the_covariance_is_unknown() -> None:
+    gga = sentence("GNGGA,120000.00,4807.000,N,01131.000,E,1,12,,545.4,M,46.9,M,,").strip()
+    rmc = sentence("GNRMC,120000.00,A,4807.000,N,01131.000,E,1.0,2.0,230394,,,A").strip()
+    (fix,) = decode_all([gga, rmc])
+    assert fix.covariance_type == CovarianceType.UNKNOWN and math.isnan(fix.sigma_east)
+
+
+# --- every order and choice of sentences from the simulated receiver, over its pty ---------------
+
+
+RECEIVERS = [
+    (("GGA", "RMC"), True),  # GGA first
+    (("RMC", "GGA", "GSA"), True),  # RMC first, no GST: DOPs x UERE
+    (("GGA", "GST", "RMC", "VTG", "GSA"), True),  # with GST
+    (("GGA", "VTG", "RMC"), False),  # course and speed in VTG only
+]
+
+
+def test_the_simulated_receiver_in_each_order() -> None:
+    """One receiver on its pty, reconfigured in turn to each order and choice of
+    sentences (a pty costs 0.5 s to close: one for all)."""
+    device = NmeaDevice(CURVY, rate_hz=20.0, jitter_s=0.0, latency_s=0.01)
+    with NmeaPtyServer(device).start() as server, NmeaReceiver(server.url) as rx:
+        rx.connect()
+        for sentences, rmc_motion in RECEIVERS:
+            device.sentences, device.rmc_motion = sentences, rmc_motion
+            switched = time.monotonic() + device.utc_offset_s
+            fixes: list[Fix] = []
+            while len(fixes) < 5:
+                fix = rx.read_fix()
+                if fix.utc_s > switched + 0.15:  # from the second epoch in the new order
+                    fixes.append(fix)
+            check_against_truth(device, fixes, sentences)
+
+
+def check_against_truth(device: NmeaDevice, fixes: list[Fix], sentences: tuple[str, ...]) -> None:
+    truth = {round(t.utc_s, 2): t for t in device.truth}
+    np.testing.assert_allclose(np.diff([f.utc_s for f in fixes]), 0.05, atol=1e-6)
+    for fix in fixes:
+        t = truth[round(fix.utc_s, 2)]
+        assert fix.latitude == pytest.approx(t.latitude, abs=2e-9)
+        assert fix.speed == pytest.approx(t.speed, abs=3e-4)
+        assert fix.course == pytest.approx(t.course, abs=1e-4)
+        if "GST" in sentences:
+            assert fix.covariance_type == CovarianceType.DIAGONAL_KNOWN
+            assert (fix.sigma_north, fix.sigma_east, fix.sigma_up) == device.gst_sigma
+        else:
+            assert fix.covariance_type == CovarianceType.APPROXIMATED
+            assert fix.sigma_east == pytest.approx(device.hdop * UERE_M / math.sqrt(2))
+            vdop = device.vdop if "GSA" in sentences else 2 * device.hdop
+            assert fix.sigma_up == pytest.approx(vdop * UERE_M)
+
+
+# --- fuzz: sequences of sentences ---------------------------------------------------------------
+
+
+_POOL = [line for k in range(3) for line in _epoch(k, ("GGA", "RMC", "VTG", "GST", "GSA"))] + [
+    sentence(
+        "GNGGA,120001.00,4807.000,N,01131.000,E,1,12,0.5,545.4,M,46.9,M,,", corrupt=True
+    ).strip(),
+    sentence("GNGST,120001.00,0.1,,,,-1,0.2,0.3").strip(),
+    sentence("GNGSA,A,3,,,,,,,,,,,,,x,y,z").strip(),
+    sentence("GNVTG,abc,T,,M,1,N,,K,A").strip(),
+    sentence("GNGGA,120002.00,,,,,0,00,99.99,,,,,,").strip(),
+    sentence("GNRMC,235959.99,A,4807.000,N,01131.000,E,1.0,2.0,010100,,,A").strip(),
+    sentence("GNGST,,,,,,,,").strip(),
+    sentence("GNGSA,A,1,,,,,,,,,,,,,,,").strip(),
+    b"$GNGGA,\\x00*00",
+]
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.sampled_from(_POOL), max_size=40))
+def test_fuzz_any_sequence_of_sentences_gives_fixes_or_typed_errors(lines: list[bytes]) -> None:
+    decoder = NmeaDecoder()
+    fixes: list[Fix] = []
+    for i, line in enumerate(lines):
+        try:
+            fix = decoder.decode(Sentence(i, line))
+        except NmeaError:
+            continue
+        if fix is not None:
+            fixes.append(fix)
+    fixes += decoder.flush()
+    assert decoder.flush() == []
+    for fix in fixes:
+        assert isinstance(fix, Fix) and math.isfinite(fix.utc_s)
+        assert fix.covariance_type in tuple(CovarianceType)
+        sigmas = (fix.sigma_east, fix.sigma_north, fix.sigma_up)
+        assert all(s >= 0 for s in sigmas) or fix.covariance_type == CovarianceType.UNKNOWN
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    order=st.permutations(["GGA", "RMC", "VTG", "GST", "GSA"]),
+    keep=st.sets(st.sampled_from(["VTG", "GST", "GSA"])),
+    epochs=st.integers(1, 5),
+)
+def test_fuzz_any_fixed_order_gives_each_epoch_once_and_whole(
+    order: list[str], keep: set[str], epochs: int
+) -> None:
+    sent = tuple(k for k in order if k in keep | {"GGA", "RMC"})
+    lines = [line for k in range(epochs) for line in _epoch(k, sent)]
+    fixes = decode_all(lines)
+    assert len(fixes) == epochs
+    for k, fix in enumerate(fixes):
+        _check_epoch_fix(fix, k, set(sent))

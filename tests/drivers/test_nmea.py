@@ -5,6 +5,7 @@ after the port goes away; the framer and the decoder fuzzed. Nothing is mocked."
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 from collections.abc import Iterator
@@ -14,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from acq.drivers.errors import ConnectionLost
+from acq.drivers.errors import ConnectionLost, ReadTimeout
 from acq.drivers.nmea import (
     MAX_LINE,
     UERE_M,
@@ -496,6 +497,23 @@ def check_against_truth(device: NmeaDevice, fixes: list[Fix], sentences: tuple[s
             assert fix.sigma_east == pytest.approx(device.hdop * UERE_M / math.sqrt(2))
             vdop = device.vdop if "GSA" in sentences else 2 * device.hdop
             assert fix.sigma_up == pytest.approx(vdop * UERE_M)
+
+
+def test_the_last_epoch_comes_out_when_the_receiver_falls_silent() -> None:
+    """A receiver that stops after one epoch (never learned whole): its fix is given out
+    at the read timeout, once, then the timeout is raised."""
+    master, slave = os.openpty()
+    try:
+        with NmeaReceiver(os.ttyname(slave), timeout=0.1) as rx:
+            rx.connect()
+            os.write(master, b"\r\n".join([GGA, RMC, b""]))
+            fix = rx.read_fix()
+            assert fix.utc_s == pytest.approx(764426119.0) and math.isfinite(fix.course)
+            with pytest.raises(ReadTimeout):
+                rx.read_fix()
+    finally:
+        os.close(master)
+        os.close(slave)
 
 
 # --- fuzz: sequences of sentences ---------------------------------------------------------------

@@ -7,15 +7,17 @@ Three parts, the first two sans-I/O (any bytes give sentences, fixes, None or a 
   with the receive time of its last byte; bytes before a ``$`` are line noise and are
   dropped, a line longer than :data:`MAX_LINE` is an error.
 - :class:`NmeaDecoder` checks each sentence's checksum, parses it with pynmea2 and
-  merges the GGA, RMC, VTG, GST and GSA of one epoch into one fix, in whatever order
-  and grouping the receiver sends them. An epoch is the sentences with one UTC time of
-  fix (GGA, RMC, GST); VTG and GSA carry no time and join the epoch they arrive in (the
-  open one; after it was given out, the next). GGA gives the position, altitude,
-  quality, satellites and HDOP; RMC the date (the latest one serves epochs without,
-  the midnight rollover handled) and the speed and course, VTG them when RMC does
-  not; GST the position's sigmas (covariance DIAGONAL_KNOWN), else HDOP and GSA's VDOP
-  times :data:`UERE_M` (APPROXIMATED), else none (UNKNOWN). An epoch without GGA or
-  without any date gives no fix.
+  merges the GGA, RMC, VTG, GST and GSA of one epoch into one fix, in whatever order and
+  grouping the receiver sends them. An epoch is the sentences with one UTC time of fix
+  (GGA, RMC, GST); VTG and GSA carry no time and join the epoch they arrive in: the open
+  one, unless it has one of their kind already (outside a run of GSA, one per
+  constellation), then the next; after the open one was given out, the next, unless it
+  is of a kind that epoch lacked or continues its run (then it was late). GGA gives the
+  position, altitude, quality, satellites and HDOP; RMC the date (the latest one serves
+  epochs without, the midnight rollover handled) and the speed and course, VTG them when
+  RMC does not; GST the position's sigmas (covariance DIAGONAL_KNOWN), else HDOP and
+  GSA's VDOP times :data:`UERE_M` (APPROXIMATED), else none (UNKNOWN). An epoch without
+  GGA or without any date gives no fix.
 
   When a fix is given out: as soon as its epoch holds every kind of sentence the
   receiver's last whole epoch held (so, in steady state, with the epoch's last
@@ -23,8 +25,9 @@ Three parts, the first two sans-I/O (any bytes give sentences, fixes, None or a 
   epoch late: the first fix, and when a receiver stops sending a kind), else by
   :meth:`NmeaDecoder.flush` at the end of a stream. Waiting for a fixed list instead
   would lose GST or VTG from receivers that send them, or wait forever on those that
-  do not. A timed sentence of an epoch already given out is dropped (counted in
-  ``late``) and waited for from then on: a fix is never given out twice.
+  do not. A sentence of an epoch already given out is dropped (counted in ``late``)
+  and waited for from then on: a fix is never given out twice. :meth:`NmeaReceiver.
+  read_fix` flushes when the receiver falls silent for its ``timeout``.
 - :class:`NmeaReceiver` reads the port (one thread) and hands out sentences and fixes.
 
 The fix time is the receiver's measurement instant in UTC, not the host's clock: the

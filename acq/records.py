@@ -9,11 +9,21 @@ This module imports nothing of acq's own.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import IntEnum
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["CanFrame", "DeviceInfo", "Fix", "Frame", "Odometry", "Scan", "Sentence"]
+__all__ = [
+    "CanFrame",
+    "CovarianceType",
+    "DeviceInfo",
+    "Fix",
+    "Frame",
+    "Odometry",
+    "Scan",
+    "Sentence",
+]
 
 
 def _frozen_array(values: npt.ArrayLike, dtype: npt.DTypeLike, name: str) -> np.ndarray:
@@ -162,15 +172,28 @@ class Odometry:
     arbitration_id: int = 0  # the CAN message it was decoded from
 
 
+class CovarianceType(IntEnum):
+    """How a fix's position sigmas were obtained (the values of ``foxglove.LocationFix``'s
+    and ROS ``NavSatFix``'s position covariance type)."""
+
+    UNKNOWN = 0
+    APPROXIMATED = 1  # from dilutions of precision and an assumed range error
+    DIAGONAL_KNOWN = 2  # the receiver's own estimate per axis (GST)
+    KNOWN = 3
+
+
 @dataclass(frozen=True, slots=True)
 class Fix:
-    """A GNSS fix (NMEA GGA, with the date and motion of the same epoch's RMC).
+    """A GNSS fix: one epoch's NMEA sentences merged (GGA's position, the date of RMC,
+    motion from RMC or VTG, accuracy from GST or the DOPs of GGA and GSA).
 
     WGS-84 degrees; ``altitude`` metres above the WGS-84 ellipsoid (GGA's mean-sea-level
     altitude plus its geoid separation); ``utc_s`` the fix time, UTC seconds since the
     Unix epoch; ``quality`` GGA's fix quality (0 none, 1 GPS, 2 DGPS, 4 RTK fixed, 5 RTK
     float...), with NaN latitude/longitude/altitude when it is 0; ``speed`` m/s over
-    ground and ``course`` rad clockwise from true north (RMC; NaN where not sent).
+    ground and ``course`` rad clockwise from true north (RMC or VTG; NaN where not sent).
+    ``sigma_east``, ``sigma_north``, ``sigma_up``: the position's 1-sigma, m (NaN when
+    unknown), of the kind ``covariance_type`` says (:class:`CovarianceType`).
     """
 
     recv_ns: int  # host monotonic ns at receipt of the sentence's last byte
@@ -184,6 +207,11 @@ class Fix:
     speed: float = float("nan")
     course: float = float("nan")
     geoid_separation: float = float("nan")  # m, geoid above the ellipsoid (GGA)
+    vdop: float = float("nan")  # GSA
+    sigma_east: float = float("nan")
+    sigma_north: float = float("nan")
+    sigma_up: float = float("nan")
+    covariance_type: int = 0  # a CovarianceType
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,9 +11,13 @@ is exact (:class:`acq.geometry.geodesy.WorldFrame`, pyproj's topocentric convers
 Fix epochs fall on whole multiples of ``1 / rate_hz`` of UTC (as a receiver's do);
 UTC is host monotonic time plus ``utc_offset_s`` (by default what the host's wall
 clock says at start; a test can make the receiver's time disagree with the host's).
-Each epoch's sentences (RMC, VTG, GGA) go out ``latency_s`` plus an exponential jitter
-of mean ``jitter_s`` after the epoch. Optional Gaussian noise (``noise_m`` east and
-north, ``noise_up_m`` up) is added to the reported position, not to the truth.
+Each epoch's sentences go out ``latency_s`` plus an exponential jitter of mean
+``jitter_s`` after the epoch, in the order ``sentences`` names them (any of RMC, VTG,
+GGA, GST, GSA; RMC, VTG, GGA by default); ``rmc_motion=False`` leaves RMC's speed and
+course empty (a receiver that sends them in VTG only). GST reports ``gst_sigma`` (m,
+latitude, longitude, altitude 1-sigma), GSA ``hdop`` and ``vdop``. Optional Gaussian
+noise (``noise_m`` east and north, ``noise_up_m`` up) is added to the reported position,
+not to the truth.
 
 :class:`NmeaPtyServer` serves it on a pseudo-terminal (``acq.sim.transport``'s
 machinery); output that no client reads is dropped, as a UART overruns, rather than
@@ -107,6 +111,10 @@ class NmeaDevice:
         quality: int = 1,
         satellites: int = 14,
         hdop: float = 0.7,
+        vdop: float = 1.1,
+        sentences: tuple[str, ...] = ("RMC", "VTG", "GGA"),
+        rmc_motion: bool = True,
+        gst_sigma: tuple[float, float, float] = (0.012, 0.009, 0.025),
         talker: str = "GN",
         decimals: int = 7,
         t_origin: float | None = None,
@@ -130,6 +138,13 @@ class NmeaDevice:
         self.quality = quality
         self.satellites = satellites
         self.hdop = hdop
+        self.vdop = vdop
+        unknown = set(sentences) - {"RMC", "VTG", "GGA", "GST", "GSA"}
+        if unknown:
+            raise ValueError(f"sentences: unknown {sorted(unknown)}")
+        self.sentences = sentences
+        self.rmc_motion = rmc_motion
+        self.gst_sigma = gst_sigma
         self.talker = talker
         self.decimals = decimals
         self.t_origin = time.monotonic() if t_origin is None else t_origin
@@ -206,20 +221,31 @@ class NmeaDevice:
         course = math.degrees(truth.course)
         msl = h - self.geoid_separation
         tk = self.talker
+        sn, se, su = self.gst_sigma
+        motion = f"{knots:.3f},{course:.2f}" if self.rmc_motion else ","
         if fix:
-            rmc = f"{tk}RMC,{hms},A,{la},{ns},{lo},{ew},{knots:.3f},{course:.2f},{date},,,A"
-            vtg = f"{tk}VTG,{course:.2f},T,,M,{knots:.3f},N,{knots * 1.852:.3f},K,A"
-            gga = (f"{tk}GGA,{hms},{la},{ns},{lo},{ew},{self.quality},{self.satellites:02d},"
-                   f"{self.hdop:.2f},{msl:.3f},M,{self.geoid_separation:.3f},M,,")  # fmt: skip
+            bodies = {
+                "RMC": f"RMC,{hms},A,{la},{ns},{lo},{ew},{motion},{date},,,A",
+                "VTG": f"VTG,{course:.2f},T,,M,{knots:.3f},N,{knots * 1.852:.3f},K,A",
+                "GGA": (f"GGA,{hms},{la},{ns},{lo},{ew},{self.quality},{self.satellites:02d},"
+                        f"{self.hdop:.2f},{msl:.3f},M,{self.geoid_separation:.3f},M,,"),
+                "GST": f"GST,{hms},0.1,,,,{sn:.3f},{se:.3f},{su:.3f}",
+                "GSA": f"GSA,A,3,01,02,03,04,,,,,,,,,{self.hdop * 1.5:.2f},{self.hdop:.2f},"
+                       f"{self.vdop:.2f}",
+            }  # fmt: skip
             with self._truth_lock:
                 self._truth.append(truth)
         else:
-            rmc = f"{tk}RMC,{hms},V,,,,,,,{date},,,N"
-            vtg = f"{tk}VTG,,T,,M,,N,,K,N"
-            gga = f"{tk}GGA,{hms},,,,,0,00,99.99,,,,,,"
+            bodies = {
+                "RMC": f"RMC,{hms},V,,,,,,,{date},,,N",
+                "VTG": "VTG,,T,,M,,N,,K,N",
+                "GGA": f"GGA,{hms},,,,,0,00,99.99,,,,,,",
+                "GST": f"GST,{hms},,,,,,,",
+                "GSA": "GSA,A,1,,,,,,,,,,,,,99.99,99.99,99.99",
+            }
         out = b""
-        for body in (rmc, vtg, gga):
-            out += sentence(body, corrupt=self._corrupt > 0)
+        for kind in self.sentences:
+            out += sentence(tk + bodies[kind], corrupt=self._corrupt > 0)
             self._corrupt = max(self._corrupt - 1, 0)
         return out
 

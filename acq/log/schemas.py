@@ -307,8 +307,10 @@ def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
 
     Latitude and longitude in degrees, altitude above the ellipsoid (NaN without a fix);
     ``heading`` (rad clockwise from north) and ENU ``velocity`` from RMC's course and
-    speed where the receiver sent them; covariance unknown. ``metadata`` holds the fix
-    time (``utc``, ISO 8601, and ``utc_s``), ``quality``, ``satellites``, ``hdop`` and
+    speed where the receiver sent them; the position covariance (m², east, north, up,
+    row-major: diagonal) and its type from the fix's sigmas (:class:`acq.records.
+    CovarianceType`, the same values). ``metadata`` holds the fix time (``utc``, ISO
+    8601, and ``utc_s``), ``quality``, ``satellites``, ``hdop``, ``vdop`` and
     ``geoid_separation_m``.
     """
     import datetime as dt
@@ -318,10 +320,15 @@ def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
         latitude=fix.latitude,
         longitude=fix.longitude,
         altitude=fix.altitude,
-        position_covariance_type=LocationFix.PositionCovarianceType.UNKNOWN,
     )
     _set_stamp(msg.timestamp, stamp_ns)
-    msg.position_covariance.extend([0.0] * 9)
+    sigmas = (fix.sigma_east, fix.sigma_north, fix.sigma_up)
+    known = fix.covariance_type != 0 and all(math.isfinite(s) for s in sigmas)
+    covariance = [0.0] * 9
+    if known:
+        msg.position_covariance_type = fix.covariance_type  # type: ignore[assignment]
+        covariance[0], covariance[4], covariance[8] = (s * s for s in sigmas)
+    msg.position_covariance.extend(covariance)
     if math.isfinite(fix.course):
         msg.heading = fix.course
         if math.isfinite(fix.speed):
@@ -338,6 +345,7 @@ def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
         "quality": str(fix.quality),
         "satellites": str(fix.satellites),
         "hdop": f"{fix.hdop:g}",
+        "vdop": f"{fix.vdop:g}",
         "geoid_separation_m": f"{fix.geoid_separation:g}",
     }
     msg.metadata.extend(KeyValuePair(key=k, value=v) for k, v in values.items())

@@ -5,6 +5,7 @@ after the port goes away; the framer and the decoder fuzzed. Nothing is mocked."
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 from collections.abc import Iterator
@@ -14,9 +15,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from acq.drivers.errors import ConnectionLost
+from acq.drivers.errors import ConnectionLost, ReadTimeout
 from acq.drivers.nmea import (
     MAX_LINE,
+    UERE_M,
     LineFramer,
     NmeaChecksumError,
     NmeaDecoder,
@@ -25,7 +27,7 @@ from acq.drivers.nmea import (
 )
 from acq.drivers.reconnect import Backoff, Relink
 from acq.geometry.geodesy import WorldFrame
-from acq.records import Fix, Sentence
+from acq.records import CovarianceType, Fix, Sentence
 from acq.sim.nmea_device import DEFAULT_ORIGIN, NmeaDevice, NmeaPtyServer, sentence
 from acq.sim.world import Trajectory
 
@@ -48,9 +50,11 @@ def receiver() -> Iterator[tuple[NmeaDevice, NmeaPtyServer]]:
         server.close()
 
 
-def decode_all(lines: list[bytes]) -> list[Fix | None]:
-    decoder = NmeaDecoder()
-    return [decoder.decode(Sentence(i, line)) for i, line in enumerate(lines)]
+def decode_all(lines: list[bytes], decoder: NmeaDecoder | None = None) -> list[Fix]:
+    """Every fix the lines give, those the end of the stream flushes included."""
+    decoder = decoder or NmeaDecoder()
+    fixes = [decoder.decode(Sentence(i, line)) for i, line in enumerate(lines)]
+    return [f for f in fixes if f is not None] + decoder.flush()
 
 
 # --- the simulated receiver on a pty ---------------------------------------------------------
@@ -155,31 +159,32 @@ def test_a_port_that_does_not_open_is_connection_lost() -> None:
 # --- the decoder -------------------------------------------------------------------------------
 
 
-def test_gga_and_rmc_make_a_full_fix() -> None:
-    assert decode_all([GGA]) == [None]  # no date yet
-    rmc, fix = decode_all([RMC, GGA])
-    assert rmc is None and fix is not None
-    assert fix.utc_s == pytest.approx(764426119.0)  # 1994-03-23 12:35:19 UTC
-    assert fix.latitude == pytest.approx(48 + 7.038 / 60)
-    assert fix.longitude == pytest.approx(11 + 31.0 / 60)
-    assert fix.altitude == pytest.approx(545.4 + 46.9) and fix.geoid_separation == 46.9
-    assert (fix.quality, fix.satellites, fix.hdop) == (1, 8, 0.9)
-    assert fix.speed == pytest.approx(22.4 * 1852 / 3600)
-    assert fix.course == pytest.approx(math.radians(84.4))
-    assert fix.recv_ns == 1
+def test_gga_and_rmc_make_a_full_fix_in_either_order() -> None:
+    decoder = NmeaDecoder()
+    assert decode_all([GGA], decoder) == [] and decoder.undated == 1  # no date yet
+    for lines in ([RMC, GGA], [GGA, RMC]):
+        (fix,) = decode_all(lines)
+        assert fix.utc_s == pytest.approx(764426119.0)  # 1994-03-23 12:35:19 UTC
+        assert fix.latitude == pytest.approx(48 + 7.038 / 60)
+        assert fix.longitude == pytest.approx(11 + 31.0 / 60)
+        assert fix.altitude == pytest.approx(545.4 + 46.9) and fix.geoid_separation == 46.9
+        assert (fix.quality, fix.satellites, fix.hdop) == (1, 8, 0.9)
+        assert fix.speed == pytest.approx(22.4 * 1852 / 3600)
+        assert fix.course == pytest.approx(math.radians(84.4))
+        assert fix.recv_ns == 1  # the epoch's last sentence
 
 
 def test_the_date_rolls_over_at_midnight_and_hemispheres_sign() -> None:
     rmc = sentence("GNRMC,235959.90,A,3345.0000000,S,07030.0000000,W,0.0,0.0,311225,,,A")
     gga = sentence("GNGGA,000000.00,3345.0000000,S,07030.0000000,W,4,20,0.5,500.0,M,30.0,M,,")
-    _, fix = decode_all([rmc.strip(), gga.strip()])
-    assert fix is not None and fix.quality == 4
+    (fix,) = decode_all([rmc.strip(), gga.strip()])
+    assert fix.quality == 4
     assert fix.utc_s == pytest.approx(1767225600.0)  # 2026-01-01 00:00:00
     assert (fix.latitude, fix.longitude) == pytest.approx((-33.75, -70.5))
     assert math.isnan(fix.speed)  # RMC of another epoch
 
 
-def test_no_fix_is_nan_and_other_sentences_are_none() -> None:
+def test_no_fix_is_nan_and_other_sentences_are_ignored() -> None:
     lines = [
         RMC,
         sentence("GPGGA,123520,,,,,0,00,99.99,,,,,,").strip(),
@@ -187,19 +192,20 @@ def test_no_fix_is_nan_and_other_sentences_are_none() -> None:
         sentence("PUBX,00,123519.00,4807.03800,N").strip(),
         sentence("GPGSV,1,1,01,01,40,083,46").strip(),
     ]
-    _, no_fix, *others = decode_all(lines)
-    assert no_fix is not None and no_fix.quality == 0
+    (no_fix,) = decode_all(lines)  # the RMC's epoch has no GGA: no fix
+    assert no_fix.quality == 0 and no_fix.covariance_type == CovarianceType.UNKNOWN
     assert no_fix.utc_s == pytest.approx(764426120.0)  # a time, a date: reported
     assert math.isnan(no_fix.latitude) and math.isnan(no_fix.altitude)
-    assert others == [None, None, None]
     # a receiver before its first fix sends no time, maybe no date: nothing, no error
     cold = [
         sentence("GPRMC,,V,,,,,,,,,,N").strip(),
         sentence("GPGGA,,,,,,0,00,99.99,,,,,,").strip(),
         sentence("GPRMC,123521,V,,,,,,,,,,N").strip(),  # a time, no date yet
     ]
-    assert decode_all(cold) == [None, None, None]
-    assert decode_all([RMC, *cold, GGA])[-1] is not None  # the last date is kept
+    assert decode_all(cold) == []
+    later = sentence("GPGGA,123522,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,").strip()
+    (fix,) = decode_all([RMC, *cold, later])  # the last date is kept
+    assert fix.utc_s == pytest.approx(764426122.0) and math.isnan(fix.speed)
 
 
 @pytest.mark.parametrize(
@@ -319,8 +325,248 @@ def test_fuzz_what_the_sim_sends_the_driver_reads(lat: float, lon: float, alt: f
     lo, ew = _ddmm(lon, 3, 7, "EW")
     rmc = sentence(f"GNRMC,101010.50,A,{la},{ns},{lo},{ew},1.0,90.0,010125,,,A").strip()
     gga = sentence(f"GNGGA,101010.50,{la},{ns},{lo},{ew},1,12,0.8,{alt:.3f},M,0.0,M,,").strip()
-    _, fix = decode_all([rmc, gga])
-    assert fix is not None
+    (fix,) = decode_all([rmc, gga])
     assert fix.latitude == pytest.approx(lat, abs=2e-9)
     assert fix.longitude == pytest.approx(lon, abs=2e-9)
     assert fix.altitude == pytest.approx(alt, abs=6e-4)
+
+
+# --- epochs: any order, any grouping ------------------------------------------------------------
+
+
+def _epoch(
+    k: int, order: tuple[str, ...], rmc_motion: bool = True, gsa_runs: int = 1
+) -> list[bytes]:
+    """Epoch k of a 1 Hz receiver sending ``order``: values that differ per epoch."""
+    hms = f"1200{k:02d}.00"
+    knots, course = 10.0 + k, 20.0 + k
+    motion = f"{knots:.1f},{course:.1f}" if rmc_motion else ","
+    bodies = {
+        "GGA": f"GNGGA,{hms},4807.{k:03d},N,01131.000,E,1,12,{0.5 + k / 100:.2f},545.4,M,46.9,M,,",
+        "RMC": f"GNRMC,{hms},A,4807.{k:03d},N,01131.000,E,{motion},230394,,,A",
+        "VTG": f"GNVTG,{course:.1f},T,,M,{knots:.1f},N,,K,A",
+        "GST": f"GNGST,{hms},0.1,,,,{0.01 * (k + 1):.3f},{0.02 * (k + 1):.3f},{0.03 * (k + 1):.3f}",
+        "GSA": f"GNGSA,A,3,01,02,,,,,,,,,,,1.5,{0.5 + k / 100:.2f},{0.8 + k / 100:.2f}",
+    }
+    out = []
+    for kind in order:
+        out += [sentence(bodies[kind]).strip()] * (gsa_runs if kind == "GSA" else 1)
+    return out
+
+
+def _check_epoch_fix(fix: Fix, k: int, kinds: set[str], rmc_motion: bool = True) -> None:
+    assert fix.utc_s == pytest.approx(764424000.0 + k)
+    assert fix.latitude == pytest.approx(48 + (7 + k / 1000) / 60)
+    if (rmc_motion and "RMC" in kinds) or "VTG" in kinds:
+        assert fix.speed == pytest.approx((10.0 + k) * 1852 / 3600)
+        assert fix.course == pytest.approx(math.radians(20.0 + k))
+    else:
+        assert math.isnan(fix.speed) and math.isnan(fix.course)
+    if "GST" in kinds:
+        assert fix.covariance_type == CovarianceType.DIAGONAL_KNOWN
+        sigmas = (fix.sigma_north, fix.sigma_east, fix.sigma_up)
+        assert sigmas == pytest.approx((0.01 * (k + 1), 0.02 * (k + 1), 0.03 * (k + 1)))
+    else:
+        hdop = 0.5 + k / 100
+        assert fix.covariance_type == CovarianceType.APPROXIMATED
+        assert fix.sigma_east == fix.sigma_north == pytest.approx(hdop * UERE_M / math.sqrt(2))
+        up = (0.8 + k / 100) if "GSA" in kinds else 2 * hdop
+        assert fix.sigma_up == pytest.approx(up * UERE_M)
+        assert math.isnan(fix.vdop) != ("GSA" in kinds)
+
+
+ORDERS = [
+    ("RMC", "VTG", "GGA"),  # u-blox's default
+    ("GGA", "RMC"),  # GGA first: a fix is the GGA's epoch, not the RMC before it
+    ("GGA", "GSA", "GST", "RMC", "VTG"),
+    ("GSA", "GSA", "VTG", "GGA", "GST", "RMC"),  # untimed sentences lead the epoch
+    ("GST", "GGA", "RMC"),
+    ("RMC", "GGA", "GSA"),
+    ("GGA", "VTG", "RMC"),
+]
+
+
+@pytest.mark.parametrize("order", ORDERS, ids="-".join)
+@pytest.mark.parametrize("rmc_motion", [True, False], ids=["rmc-motion", "vtg-motion"])
+def test_each_epoch_gives_one_whole_fix_at_its_last_sentence(
+    order: tuple[str, ...], rmc_motion: bool
+) -> None:
+    decoder = NmeaDecoder()
+    fixes: list[tuple[int, int, Fix]] = []  # epoch, sentence index in it, fix
+    for k in range(6):
+        for i, line in enumerate(_epoch(k, order, rmc_motion)):
+            fix = decoder.decode(Sentence(k * 100 + i, line))
+            if fix is not None:
+                fixes.append((k, i, fix))
+    tail = decoder.flush()
+    assert len(fixes) + len(tail) == 6 and decoder.late == 0
+    got = [f for _, _, f in fixes] + tail
+    for k, fix in enumerate(got):
+        _check_epoch_fix(fix, k, set(order), rmc_motion)
+        assert fix.recv_ns == k * 100 + len(order) - 1  # the receipt of its last sentence
+    # the first fix waits for the next epoch's first timed sentence (what an epoch holds is
+    # not known yet); then each comes with its epoch's last sentence: no latency
+    first_timed = min(i for i, kind in enumerate(order) if kind in ("GGA", "RMC", "GST"))
+    assert fixes[0][:2] == (1, first_timed)
+    assert [(k, i) for k, i, _ in fixes[1:]] == [(k, len(order) - 1) for k in range(1, 6)]
+    assert tail == []
+
+
+def test_a_gsa_per_constellation_stays_in_its_epoch() -> None:
+    decoder = NmeaDecoder()
+    lines = [line for k in range(4) for line in _epoch(k, ("RMC", "GGA", "GSA"), gsa_runs=3)]
+    fixes = decode_all(lines, decoder)
+    assert len(fixes) == 4
+    for k, fix in enumerate(fixes):
+        _check_epoch_fix(fix, k, {"RMC", "GGA", "GSA"})
+
+
+def test_a_receiver_that_starts_sending_gst_late_loses_no_fix_and_duplicates_none() -> None:
+    decoder = NmeaDecoder()
+    lines = _epoch(0, ("RMC", "GGA")) + _epoch(1, ("RMC", "GGA")) + _epoch(2, ("RMC", "GGA", "GST"))
+    lines += _epoch(3, ("RMC", "GGA", "GST")) + _epoch(4, ("RMC", "GGA", "GST"))
+    fixes = decode_all(lines, decoder)
+    assert [round(f.utc_s) - 764424000 for f in fixes] == [0, 1, 2, 3, 4]
+    # epoch 2 went out at its GGA; its GST came late (dropped, then waited for)
+    assert decoder.late == 1
+    assert [f.covariance_type for f in fixes] == [1, 1, 1, 2, 2]
+
+
+def test_an_untimed_sentence_after_its_epoch_went_out_is_waited_for_from_then_on() -> None:
+    decoder = NmeaDecoder()
+    lines = [line for k in range(2) for line in _epoch(k, ("RMC", "GGA"), rmc_motion=False)]
+    lines += [line for k in range(2, 5) for line in _epoch(k, ("RMC", "GGA", "VTG", "GSA"), False)]
+    fixes = decode_all(lines, decoder)
+    assert [round(f.utc_s) - 764424000 for f in fixes] == [0, 1, 2, 3, 4]
+    # epoch 2 went out at its GGA, before its VTG and GSA: those were late, not the
+    # next epoch's; from epoch 3 on each fix has its own
+    assert decoder.late == 2 and math.isnan(fixes[2].course)
+    for k in (3, 4):
+        _check_epoch_fix(fixes[k], k, {"RMC", "GGA", "VTG", "GSA"}, rmc_motion=False)
+
+
+def test_without_gst_or_dops_the_covariance_is_unknown() -> None:
+    gga = sentence("GNGGA,120000.00,4807.000,N,01131.000,E,1,12,,545.4,M,46.9,M,,").strip()
+    rmc = sentence("GNRMC,120000.00,A,4807.000,N,01131.000,E,1.0,2.0,230394,,,A").strip()
+    (fix,) = decode_all([gga, rmc])
+    assert fix.covariance_type == CovarianceType.UNKNOWN and math.isnan(fix.sigma_east)
+
+
+# --- every order and choice of sentences from the simulated receiver, over its pty ---------------
+
+
+RECEIVERS = [
+    (("GGA", "RMC"), True),  # GGA first
+    (("RMC", "GGA", "GSA"), True),  # RMC first, no GST: DOPs x UERE
+    (("GGA", "GST", "RMC", "VTG", "GSA"), True),  # with GST
+    (("GGA", "VTG", "RMC"), False),  # course and speed in VTG only
+]
+
+
+def test_the_simulated_receiver_in_each_order() -> None:
+    """One receiver on its pty, reconfigured in turn to each order and choice of
+    sentences (a pty costs 0.5 s to close: one for all)."""
+    device = NmeaDevice(CURVY, rate_hz=20.0, jitter_s=0.0, latency_s=0.01)
+    with NmeaPtyServer(device).start() as server, NmeaReceiver(server.url) as rx:
+        rx.connect()
+        for sentences, rmc_motion in RECEIVERS:
+            device.sentences, device.rmc_motion = sentences, rmc_motion
+            switched = time.monotonic() + device.utc_offset_s
+            fixes: list[Fix] = []
+            while len(fixes) < 4:
+                fix = rx.read_fix()
+                # from the second epoch in the new order (the first may be half the old one's)
+                if fix.utc_s > switched + 0.075:
+                    fixes.append(fix)
+            check_against_truth(device, fixes, sentences)
+
+
+def check_against_truth(device: NmeaDevice, fixes: list[Fix], sentences: tuple[str, ...]) -> None:
+    truth = {round(t.utc_s, 2): t for t in device.truth}
+    np.testing.assert_allclose(np.diff([f.utc_s for f in fixes]), 0.05, atol=1e-6)
+    for fix in fixes:
+        t = truth[round(fix.utc_s, 2)]
+        assert fix.latitude == pytest.approx(t.latitude, abs=2e-9)
+        assert fix.speed == pytest.approx(t.speed, abs=3e-4)
+        assert fix.course == pytest.approx(t.course, abs=1e-4)
+        if "GST" in sentences:
+            assert fix.covariance_type == CovarianceType.DIAGONAL_KNOWN
+            assert (fix.sigma_north, fix.sigma_east, fix.sigma_up) == device.gst_sigma
+        else:
+            assert fix.covariance_type == CovarianceType.APPROXIMATED
+            assert fix.sigma_east == pytest.approx(device.hdop * UERE_M / math.sqrt(2))
+            vdop = device.vdop if "GSA" in sentences else 2 * device.hdop
+            assert fix.sigma_up == pytest.approx(vdop * UERE_M)
+
+
+def test_the_last_epoch_comes_out_when_the_receiver_falls_silent() -> None:
+    """A receiver that stops after one epoch (never learned whole): its fix is given out
+    at the read timeout, once, then the timeout is raised."""
+    master, slave = os.openpty()
+    try:
+        with NmeaReceiver(os.ttyname(slave), timeout=0.1) as rx:
+            rx.connect()
+            os.write(master, b"\r\n".join([GGA, RMC, b""]))
+            fix = rx.read_fix()
+            assert fix.utc_s == pytest.approx(764426119.0) and math.isfinite(fix.course)
+            with pytest.raises(ReadTimeout):
+                rx.read_fix()
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+# --- fuzz: sequences of sentences ---------------------------------------------------------------
+
+
+_POOL = [line for k in range(3) for line in _epoch(k, ("GGA", "RMC", "VTG", "GST", "GSA"))] + [
+    sentence(
+        "GNGGA,120001.00,4807.000,N,01131.000,E,1,12,0.5,545.4,M,46.9,M,,", corrupt=True
+    ).strip(),
+    sentence("GNGST,120001.00,0.1,,,,-1,0.2,0.3").strip(),
+    sentence("GNGSA,A,3,,,,,,,,,,,,,x,y,z").strip(),
+    sentence("GNVTG,abc,T,,M,1,N,,K,A").strip(),
+    sentence("GNGGA,120002.00,,,,,0,00,99.99,,,,,,").strip(),
+    sentence("GNRMC,235959.99,A,4807.000,N,01131.000,E,1.0,2.0,010100,,,A").strip(),
+    sentence("GNGST,,,,,,,,").strip(),
+    sentence("GNGSA,A,1,,,,,,,,,,,,,,,").strip(),
+    b"$GNGGA,\\x00*00",
+]
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.sampled_from(_POOL), max_size=40))
+def test_fuzz_any_sequence_of_sentences_gives_fixes_or_typed_errors(lines: list[bytes]) -> None:
+    decoder = NmeaDecoder()
+    fixes: list[Fix] = []
+    for i, line in enumerate(lines):
+        try:
+            fix = decoder.decode(Sentence(i, line))
+        except NmeaError:
+            continue
+        if fix is not None:
+            fixes.append(fix)
+    fixes += decoder.flush()
+    assert decoder.flush() == []
+    for fix in fixes:
+        assert isinstance(fix, Fix) and math.isfinite(fix.utc_s)
+        assert fix.covariance_type in tuple(CovarianceType)
+        sigmas = (fix.sigma_east, fix.sigma_north, fix.sigma_up)
+        assert all(s >= 0 for s in sigmas) or fix.covariance_type == CovarianceType.UNKNOWN
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    order=st.permutations(["GGA", "RMC", "VTG", "GST", "GSA"]),
+    keep=st.sets(st.sampled_from(["VTG", "GST", "GSA"])),
+    epochs=st.integers(1, 5),
+)
+def test_fuzz_any_fixed_order_gives_each_epoch_once_and_whole(
+    order: list[str], keep: set[str], epochs: int
+) -> None:
+    sent = tuple(k for k in order if k in keep | {"GGA", "RMC"})
+    lines = [line for k in range(epochs) for line in _epoch(k, sent)]
+    fixes = decode_all(lines)
+    assert len(fixes) == epochs
+    for k, fix in enumerate(fixes):
+        _check_epoch_fix(fix, k, set(sent))

@@ -17,7 +17,7 @@ from acq.camera.camera_models import Equidistant, KannalaBrandt, Pinhole
 from acq.geometry.rotations import matrix_from_quat, rotation_from_euler
 from acq.geometry.transforms import Rigid
 from acq.log import schemas
-from acq.records import CanFrame, Fix, Frame, Odometry, Scan
+from acq.records import CanFrame, CovarianceType, Fix, Frame, Odometry, Scan
 
 FOXGLOVE = [
     "foxglove.LaserScan",
@@ -403,3 +403,17 @@ def test_location_fix_carries_the_fix_and_its_time() -> None:
     msg = schemas.decode("foxglove.LocationFix", schemas.location_fix(no_fix, 1))
     assert math.isnan(msg.latitude) and not msg.HasField("heading")
     assert not msg.HasField("velocity")
+
+
+@pytest.mark.parametrize("kind", [CovarianceType.APPROXIMATED, CovarianceType.DIAGONAL_KNOWN])
+def test_location_fix_carries_the_position_covariance(kind: CovarianceType) -> None:
+    fix = Fix(1, 1_795_337_897.4, 48.8584, 2.2945, 81.5, 4, 14, 0.7, vdop=1.1,
+              sigma_east=0.02, sigma_north=0.01, sigma_up=0.03, covariance_type=kind)  # fmt: skip
+    msg = decode_with_mcap("foxglove.LocationFix", schemas.location_fix(fix, STAMP))
+    assert msg.position_covariance_type == int(kind)
+    expected = [0.0] * 9
+    expected[0], expected[4], expected[8] = 0.02**2, 0.01**2, 0.03**2  # east, north, up
+    assert list(msg.position_covariance) == pytest.approx(expected)
+    assert {kv.key: kv.value for kv in msg.metadata}["vdop"] == "1.1"
+    unknown = schemas.decode("foxglove.LocationFix", schemas.location_fix(Fix(1, 0.0, 1, 2, 3), 1))
+    assert unknown.position_covariance_type == 0 and list(unknown.position_covariance) == [0] * 9

@@ -40,7 +40,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.add_argument("--calib", type=Path, required=True, help="calib.yaml (camera and laser)")
     col.add_argument(
         "-o", "--output", type=Path, required=True, metavar="OUT",
-        help="OUT.ply or OUT.las (LAS 1.4, point format 7)",
+        help="the format from the suffix: OUT.ply, OUT.las (LAS 1.4, point format 7) or "
+        "OUT.laz (the same, LASzip-compressed)",
     )  # fmt: skip
     col.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
     col.add_argument(
@@ -111,9 +112,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 def run(args: argparse.Namespace) -> int:
     from acq.camera import calibfile
     from acq.cloud import colorize, views
+    from acq.cloud.writer import format_of
 
-    if args.output.suffix.lower() not in colorize.FORMATS:
-        raise InputError(f"{args.output}: expected a {' or '.join(colorize.FORMATS)} file")
+    format_of(args.output, "-o")
     if args.crs:
         import pyproj
 

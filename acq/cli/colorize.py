@@ -61,7 +61,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )  # fmt: skip
     col.add_argument(
         "--crs", metavar="EPSG:CODE",
-        help="coordinate reference system of the output, written into the LAS header",
+        help="projected coordinate reference system of the output (e.g. EPSG:25831), written "
+        "into the LAS header as WKT 1: the GNSS fixes (or --trajectory's latitudes and "
+        "longitudes) are projected into it. Only where it is true: refused (exit 2) for "
+        "points in the laser frame and for a local trajectory (CAN odometry alone, dead "
+        "reckoning); without --crs such clouds are written in their local frame",
     )  # fmt: skip
     col.add_argument(
         "--window", type=integer(0, 50), default=3, metavar="N",
@@ -119,9 +123,16 @@ def run(args: argparse.Namespace) -> int:
         import pyproj
 
         try:
-            pyproj.CRS.from_user_input(args.crs)
+            crs = pyproj.CRS.from_user_input(args.crs)
         except pyproj.exceptions.CRSError as e:
             raise InputError(f"--crs {args.crs}: {e}") from None
+        if not crs.is_projected:
+            raise InputError(f"--crs {args.crs}: not a projected CRS (metres), as the cloud's is")
+        if args.frame == "laser":
+            raise InputError(
+                f"--crs {args.crs}: the points would be in the laser frame (--frame laser); "
+                "--crs needs --frame world and a georeferenced trajectory"
+            )
     options = views.Options(
         view=args.view,
         motion_compensation=not args.no_motion_compensation,

@@ -1,5 +1,5 @@
 """The coloured cloud's file, written chunk by chunk (step 5 of :mod:`acq.cloud.colorize`):
-PLY, LAS or LAZ by the output's suffix (:func:`format_of`), under a temporary name
+PLY, LAS, LAZ or E57 by the output's suffix (:func:`format_of`), under a temporary name
 renamed at the end."""
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from acq.cloud.chunks import ChunkResult
+from acq.cloud.e57 import E57Stream
 from acq.cloud.las import LasStream
 from acq.cloud.ply import PlyStream
 from acq.cloud.report import Report
@@ -20,13 +21,13 @@ from acq.time.utc import utc_seconds
 
 __all__ = ["FORMATS", "CloudWriter", "format_of"]
 
-FORMATS = (".ply", ".las", ".laz")
+FORMATS = (".ply", ".las", ".laz", ".e57")
 # suffixes users may expect that are not written yet: refused, not written as another kind
-_NOT_YET = {".copc.laz": "COPC", ".e57": "E57"}
+_NOT_YET = {".copc.laz": "COPC"}
 
 
 def format_of(output: Path, option: str = "-o") -> str:
-    """The format ``output``'s suffix names ("ply", "las" or "laz"); InputValueError
+    """The format ``output``'s suffix names ("ply", "las", "laz", "e57"); InputValueError
     naming ``option`` and the accepted suffixes for any other."""
     name = output.name.lower()
     for suffix, what in _NOT_YET.items():
@@ -54,7 +55,7 @@ def _naming(output: Path) -> Iterator[None]:
 
 
 class CloudWriter:
-    """The output file, written chunk by chunk in chunk order: PLY, LAS or LAZ by
+    """The output file, written chunk by chunk in chunk order: PLY, LAS, LAZ or E57 by
     ``output``'s suffix; ``seconds`` spent writing. Its OSErrors name ``output``."""
 
     def __init__(self, output: Path, crs: str | None, clock: np.ndarray, report: Report) -> None:
@@ -62,12 +63,15 @@ class CloudWriter:
         kind = format_of(output)
         comments = [f"frame {report.frame}", f"view {report.view}", *(
             [f"crs {crs}"] if crs else [])]  # fmt: skip
-        self.stream: PlyStream | LasStream
+        self.stream: PlyStream | LasStream | E57Stream
         if kind == "ply":
             with _naming(output):
                 self.stream = PlyStream(output, comments)
             if crs:
                 report.notes.append("PLY has no CRS field: --crs written as a comment")
+        elif kind == "e57":
+            with _naming(output):
+                self.stream = E57Stream(output, crs=crs, comments=comments)
         else:
             with _naming(output):
                 self.stream = LasStream(output, crs=crs, comments=comments)

@@ -31,7 +31,10 @@ from acq.time.gpstime import gps_adjusted_standard_time
 if TYPE_CHECKING:
     import laspy
 
-__all__ = ["SYSTEM_IDENTIFIER", "LasStream", "write_extra_bytes_ranges"]
+__all__ = [
+    "SYSTEM_IDENTIFIER", "LasStream", "extra_dims", "grow_ranges", "pack_points",
+    "write_extra_bytes_ranges",
+]  # fmt: skip
 
 SYSTEM_IDENTIFIER = "OTHER"
 _EXTRA = ("scan_index", "coloured")  # the extra-bytes dimensions, in the record's order
@@ -62,12 +65,7 @@ class LasStream:
             wkt = pyproj.CRS.from_user_input(crs).to_wkt(pyproj.enums.WktVersion.WKT1_GDAL)
             header.vlrs.append(WktCoordinateSystemVlr(wkt))
             header.global_encoding.wkt = True
-        header.add_extra_dims(
-            [
-                laspy.ExtraBytesParams(name="scan_index", type=np.uint32),
-                laspy.ExtraBytesParams(name="coloured", type=np.uint8),
-            ]
-        )
+        header.add_extra_dims(extra_dims())
         self._header = header
         self._writer: laspy.LasWriter | None = None
         # each extra dimension's (min, max) over the points written; None before any
@@ -79,8 +77,6 @@ class LasStream:
     ) -> None:  # fmt: skip
         """Append points: ``xyz`` (N,3) m, ``rgb`` (N,3) uint8, ``utc_s`` (N,) UTC
         seconds, ``intensity``, ``scan`` index, ``coloured`` flag."""
-        import laspy
-
         n = xyz.shape[0]
         if n == 0:
             return
@@ -89,26 +85,11 @@ class LasStream:
             self._header.offsets = np.floor([xyz[:, k].min() for k in range(3)])
             self._writer = self._open()
         header = self._writer.header
-        # the raw record array filled column by column (laspy's scaled setters copy and
-        # check each one: three times slower on millions of points)
-        record = laspy.PackedPointRecord.zeros(n, header.point_format)
-        a = record.array
-        for axis, name in enumerate("XYZ"):
-            a[name] = np.rint((xyz[:, axis] - header.offsets[axis]) / header.scales[axis])
-        rgb16 = rgb.astype(np.uint16) * 257
-        a["red"], a["green"], a["blue"] = rgb16[:, 0], rgb16[:, 1], rgb16[:, 2]
-        a["intensity"] = np.clip(np.nan_to_num(intensity), 0, 65535).astype(np.uint16)
-        a["gps_time"] = gps_adjusted_standard_time(utc_s)
-        # one return per pulse (a 2D scanner's first echo): valid per the specification,
-        # whose return numbers start at 1
-        a["bit_fields"] = 0b0001_0001  # return number 1 of 1
-        a["user_data"] = coloured.astype(np.uint8)
-        a["scan_index"] = scan.astype(np.uint32)
-        a["coloured"] = coloured.astype(np.uint8)
-        for name in _EXTRA:
-            lo, hi = int(a[name].min()), int(a[name].max())
-            was = self._ranges.get(name, (lo, hi))
-            self._ranges[name] = (min(was[0], lo), max(was[1], hi))
+        record = pack_points(
+            header.point_format, header.offsets, header.scales,
+            xyz, rgb, utc_s, intensity, scan, coloured,
+        )  # fmt: skip
+        grow_ranges(self._ranges, record.array)
         self._writer.write_points(record)
 
     def _open(self) -> laspy.LasWriter:
@@ -135,6 +116,53 @@ class LasStream:
         if self._writer is not None:
             self._writer.close()
         self._tmp.unlink(missing_ok=True)
+
+
+def extra_dims() -> list[laspy.ExtraBytesParams]:
+    """The extra-bytes dimensions of acq's point records (module docstring)."""
+    import laspy
+
+    return [
+        laspy.ExtraBytesParams(name="scan_index", type=np.uint32),
+        laspy.ExtraBytesParams(name="coloured", type=np.uint8),
+    ]
+
+
+def pack_points(
+    point_format: laspy.PointFormat, offsets: np.ndarray, scales: np.ndarray,
+    xyz: np.ndarray, rgb: np.ndarray, utc_s: np.ndarray, intensity: np.ndarray,
+    scan: np.ndarray, coloured: np.ndarray,
+) -> laspy.PackedPointRecord:  # fmt: skip
+    """The raw records of points (as :meth:`LasStream.write` takes them) in
+    ``point_format`` (7 with :func:`extra_dims`), integer coordinates of ``offsets`` and
+    ``scales``."""
+    import laspy
+
+    # the raw record array filled column by column (laspy's scaled setters copy and
+    # check each one: three times slower on millions of points)
+    record = laspy.PackedPointRecord.zeros(xyz.shape[0], point_format)
+    a = record.array
+    for axis, name in enumerate("XYZ"):
+        a[name] = np.rint((xyz[:, axis] - offsets[axis]) / scales[axis])
+    rgb16 = rgb.astype(np.uint16) * 257
+    a["red"], a["green"], a["blue"] = rgb16[:, 0], rgb16[:, 1], rgb16[:, 2]
+    a["intensity"] = np.clip(np.nan_to_num(intensity), 0, 65535).astype(np.uint16)
+    a["gps_time"] = gps_adjusted_standard_time(utc_s)
+    # one return per pulse (a 2D scanner's first echo): valid per the specification,
+    # whose return numbers start at 1
+    a["bit_fields"] = 0b0001_0001  # return number 1 of 1
+    a["user_data"] = coloured.astype(np.uint8)
+    a["scan_index"] = scan.astype(np.uint32)
+    a["coloured"] = coloured.astype(np.uint8)
+    return record
+
+
+def grow_ranges(ranges: dict[str, tuple[int, int]], a: np.ndarray) -> None:
+    """Widen ``ranges`` (extra dimension -> (min, max)) to the records ``a`` (non-empty)."""
+    for name in _EXTRA:
+        lo, hi = int(a[name].min()), int(a[name].max())
+        was = ranges.get(name, (lo, hi))
+        ranges[name] = (min(was[0], lo), max(was[1], hi))
 
 
 # the LAS 1.4 extra-bytes descriptor (192 bytes): its options byte, and where its

@@ -158,7 +158,9 @@ def test_an_empty_file_says_its_extra_ranges_do_not_hold(tmp_path: Path) -> None
     assert ranges and all(r == (r[0] & ~0b110, None, None) for r in ranges.values())
 
 
-@pytest.mark.parametrize(("name", "kind"), [("a.ply", "ply"), ("a.LAS", "las"), ("d.x.laz", "laz")])
+@pytest.mark.parametrize(
+    ("name", "kind"), [("a.ply", "ply"), ("a.LAS", "las"), ("d.x.laz", "laz"), ("a.E57", "e57")]
+)
 def test_the_format_is_the_suffix(name: str, kind: str) -> None:
     assert format_of(Path(name)) == kind
 

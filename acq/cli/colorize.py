@@ -13,7 +13,7 @@ from acq.cli.option_types import integer, real
 from acq.cli.output_files import Output
 from acq.errors import InputError
 
-HELP = "coloured 3D cloud of a drive (PLY, LAS, LAZ or E57)"
+HELP = "coloured 3D cloud of a drive (PLY, LAS, LAZ, COPC or E57)"
 # a chunk's scans and their points are in memory at once: a few seconds at the least
 CHUNK_S = real(1, 600, what="seconds")
 
@@ -41,7 +41,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.add_argument(
         "-o", "--output", type=Path, required=True, metavar="OUT",
         help="the format from the suffix: OUT.ply, OUT.las (LAS 1.4, point format 7) or "
-        "OUT.laz (the same, LASzip-compressed) or OUT.e57 (ASTM E57)",
+        "OUT.laz (the same, LASzip-compressed), OUT.copc.laz (Cloud-Optimized Point Cloud, "
+        "for streaming; the cloud is held in memory) or OUT.e57 (ASTM E57)",
     )  # fmt: skip
     col.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
     col.add_argument(

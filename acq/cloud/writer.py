@@ -1,5 +1,5 @@
 """The coloured cloud's file, written chunk by chunk (step 5 of :mod:`acq.cloud.colorize`):
-PLY, LAS, LAZ or E57 by the output's suffix (:func:`format_of`), under a temporary name
+PLY, LAS, LAZ, COPC or E57 by the output's suffix (:func:`format_of`), under a temporary name
 renamed at the end."""
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from acq.cloud.chunks import ChunkResult
+from acq.cloud.copc import CopcStream
 from acq.cloud.e57 import E57Stream
 from acq.cloud.las import LasStream
 from acq.cloud.ply import PlyStream
@@ -21,21 +22,14 @@ from acq.time.utc import utc_seconds
 
 __all__ = ["FORMATS", "CloudWriter", "format_of"]
 
-FORMATS = (".ply", ".las", ".laz", ".e57")
-# suffixes users may expect that are not written yet: refused, not written as another kind
-_NOT_YET = {".copc.laz": "COPC"}
+FORMATS = (".ply", ".las", ".laz", ".copc.laz", ".e57")
 
 
 def format_of(output: Path, option: str = "-o") -> str:
-    """The format ``output``'s suffix names ("ply", "las", "laz", "e57"); InputValueError
-    naming ``option`` and the accepted suffixes for any other."""
-    name = output.name.lower()
-    for suffix, what in _NOT_YET.items():
-        if name.endswith(suffix):
-            raise InputValueError(
-                f"{option} {output}: {what} ({suffix}) is not written by acq; "
-                f"expected a {', '.join(FORMATS)} file"
-            )
+    """The format ``output``'s suffix names ("ply", "las", "laz", "copc", "e57");
+    InputValueError naming ``option`` and the accepted suffixes for any other."""
+    if output.name.lower().endswith(".copc.laz"):
+        return "copc"
     suffix = output.suffix.lower()
     if suffix not in FORMATS:
         raise InputValueError(
@@ -55,7 +49,7 @@ def _naming(output: Path) -> Iterator[None]:
 
 
 class CloudWriter:
-    """The output file, written chunk by chunk in chunk order: PLY, LAS, LAZ or E57 by
+    """The output file, written chunk by chunk in chunk order: PLY, LAS, LAZ, COPC or E57 by
     ``output``'s suffix; ``seconds`` spent writing. Its OSErrors name ``output``."""
 
     def __init__(self, output: Path, crs: str | None, clock: np.ndarray, report: Report) -> None:
@@ -63,12 +57,15 @@ class CloudWriter:
         kind = format_of(output)
         comments = [f"frame {report.frame}", f"view {report.view}", *(
             [f"crs {crs}"] if crs else [])]  # fmt: skip
-        self.stream: PlyStream | LasStream | E57Stream
+        self.stream: PlyStream | LasStream | CopcStream | E57Stream
         if kind == "ply":
             with _naming(output):
                 self.stream = PlyStream(output, comments)
             if crs:
                 report.notes.append("PLY has no CRS field: --crs written as a comment")
+        elif kind == "copc":
+            with _naming(output):
+                self.stream = CopcStream(output, crs=crs, comments=comments)
         elif kind == "e57":
             with _naming(output):
                 self.stream = E57Stream(output, crs=crs, comments=comments)

@@ -159,17 +159,27 @@ def test_an_empty_file_says_its_extra_ranges_do_not_hold(tmp_path: Path) -> None
 
 
 @pytest.mark.parametrize(
-    ("name", "kind"), [("a.ply", "ply"), ("a.LAS", "las"), ("d.x.laz", "laz"), ("a.E57", "e57")]
+    ("name", "kind"),
+    [
+        ("a.ply", "ply"),
+        ("a.LAS", "las"),
+        ("d.x.laz", "laz"),
+        ("a.E57", "e57"),
+        ("a.COPC.laz", "copc"),
+        ("a.copc.las", "las"),
+    ],
 )
 def test_the_format_is_the_suffix(name: str, kind: str) -> None:
     assert format_of(Path(name)) == kind
 
 
-@pytest.mark.parametrize("name", ["a.xyz", "a", "a.copc.laz", "a.las.gz"])
+@pytest.mark.parametrize("name", ["a.xyz", "a", "a.copc", "a.las.gz"])
 def test_an_unknown_suffix_is_refused_naming_the_option_before_any_work(
     tmp_path: Path, name: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    with pytest.raises(InputValueError, match=r"^-o .*expected a \.ply, \.las, \.laz, \.e57 file"):
+    with pytest.raises(
+        InputValueError, match=r"^-o .*expected a \.ply, \.las, \.laz, \.copc\.laz, \.e57 file"
+    ):
         format_of(Path(name))
     # the log and calibration do not exist: the suffix is refused first
     argv = ["colorize", str(tmp_path / "none.mcap"), "--calib", str(tmp_path / "none.yaml")]

@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.add_argument("--calib", type=Path, required=True, help="calib.yaml (camera and laser)")
     col.add_argument(
         "-o", "--output", type=Path, required=True, metavar="OUT",
-        help="the format from the suffix: OUT.ply, OUT.las (LAS 1.4, point format 7) or "
+        help="the format from the suffix: OUT.ply, OUT.las (LAS 1.4, point format 7), "
         "OUT.laz (the same, LASzip-compressed), OUT.copc.laz (Cloud-Optimized Point Cloud, "
         "for streaming; the cloud is held in memory) or OUT.e57 (ASTM E57)",
     )  # fmt: skip
@@ -63,10 +63,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.add_argument(
         "--crs", metavar="EPSG:CODE",
         help="projected coordinate reference system of the output (e.g. EPSG:25831), written "
-        "into the LAS header as WKT 1: the GNSS fixes (or --trajectory's latitudes and "
-        "longitudes) are projected into it. Only where it is true: refused (exit 2) for "
-        "points in the laser frame and for a local trajectory (CAN odometry alone, dead "
-        "reckoning); without --crs such clouds are written in their local frame",
+        "into the LAS/LAZ/COPC header as WKT 1 (E57: coordinateMetadata): the GNSS "
+        "fixes (or --trajectory's latitudes and longitudes) are projected into it. Only "
+        "where it is true: refused (exit 2) for points in the laser frame and for a local "
+        "trajectory (CAN odometry alone, dead reckoning); without --crs such clouds are "
+        "written in their local frame",
     )  # fmt: skip
     col.add_argument(
         "--window", type=integer(0, 50), default=3, metavar="N",

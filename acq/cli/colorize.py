@@ -13,7 +13,7 @@ from acq.cli.option_types import integer, real
 from acq.cli.output_files import Output
 from acq.errors import InputError
 
-HELP = "coloured 3D cloud of a drive (PLY or LAS)"
+HELP = "coloured 3D cloud of a drive (PLY, LAS, LAZ, COPC or E57)"
 # a chunk's scans and their points are in memory at once: a few seconds at the least
 CHUNK_S = real(1, 600, what="seconds")
 
@@ -41,7 +41,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.add_argument("--calib", type=Path, required=True, help="calib.yaml (camera and laser)")
     col.add_argument(
         "-o", "--output", type=Path, required=True, metavar="OUT",
-        help="OUT.ply or OUT.las (LAS 1.4, point format 7)",
+        help="the format from the suffix: OUT.ply, OUT.las (LAS 1.4, point format 7), "
+        "OUT.laz (the same, LASzip-compressed), OUT.copc.laz (Cloud-Optimized Point Cloud, "
+        "for streaming; the cloud is held in memory) or OUT.e57 (ASTM E57)",
     )  # fmt: skip
     col.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
     col.add_argument(
@@ -61,7 +63,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )  # fmt: skip
     col.add_argument(
         "--crs", metavar="EPSG:CODE",
-        help="coordinate reference system of the output, written into the LAS header",
+        help="projected coordinate reference system of the output (e.g. EPSG:25831), written "
+        "into the LAS/LAZ/COPC header as WKT 1 (E57: coordinateMetadata): the GNSS "
+        "fixes (or --trajectory's latitudes and longitudes) are projected into it. Only "
+        "where it is true: refused (exit 2) for points in the laser frame and for a local "
+        "trajectory (CAN odometry alone, dead reckoning); without --crs such clouds are "
+        "written in their local frame",
     )  # fmt: skip
     col.add_argument(
         "--window", type=integer(0, 50), default=3, metavar="N",
@@ -111,16 +118,23 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 def run(args: argparse.Namespace) -> int:
     from acq.camera import calibfile
     from acq.cloud import colorize, views
+    from acq.cloud.writer import format_of
 
-    if args.output.suffix.lower() not in colorize.FORMATS:
-        raise InputError(f"{args.output}: expected a {' or '.join(colorize.FORMATS)} file")
+    format_of(args.output, "-o")
     if args.crs:
         import pyproj
 
         try:
-            pyproj.CRS.from_user_input(args.crs)
+            crs = pyproj.CRS.from_user_input(args.crs)
         except pyproj.exceptions.CRSError as e:
             raise InputError(f"--crs {args.crs}: {e}") from None
+        if not crs.is_projected:
+            raise InputError(f"--crs {args.crs}: not a projected CRS (metres), as the cloud's is")
+        if args.frame == "laser":
+            raise InputError(
+                f"--crs {args.crs}: the points would be in the laser frame (--frame laser); "
+                "--crs needs --frame world and a georeferenced trajectory"
+            )
     options = views.Options(
         view=args.view,
         motion_compensation=not args.no_motion_compensation,

@@ -271,7 +271,7 @@ def run(
         logs, calib, report, camera=camera, frame=frame, options=options,
         trajectory=trajectory, retime_offline=retime_offline,
         time_offset_s=None if isinstance(time_offset_s, str) else time_offset_s, jpegs=once,
-        threads=(os.cpu_count() or 1) if local else 1,
+        threads=(os.cpu_count() or 1) if local else 1, crs=crs,
     )  # fmt: skip
     job = replace(job, want_uv=want_uv)
     t_offset = time.perf_counter()

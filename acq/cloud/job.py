@@ -30,7 +30,7 @@ from acq.motion import Trajectory
 from acq.time import retime
 from acq.time.utc import host_ns_from_utc
 
-__all__ = ["Job", "prepare", "remap", "session_files"]
+__all__ = ["Job", "check_crs", "prepare", "remap", "session_files"]
 
 
 @dataclass(frozen=True)
@@ -96,17 +96,22 @@ def _retime(log: DriveLog, report: Report) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _trajectory(
-    files: Sequence[Path], given: Path | Trajectory | None, log: DriveLog, report: Report
+    files: Sequence[Path],
+    given: Path | Trajectory | None,
+    log: DriveLog,
+    report: Report,
+    crs: str | None = None,
 ) -> Any:
     """The trajectory to place points with, or None (see the module docstring, step 3):
-    ``given`` as it is, read from its file, or made from the log."""
+    ``given`` as it is, read from its file, or made from the log; in ``crs`` when one
+    is asked for (GNSS fixes and a file's latitudes/longitudes projected into it)."""
     if isinstance(given, Trajectory):
         report.trajectory = f"given ({len(given)} poses)"
         return given
     path = given
     if path is not None:
         clock = log.clock
-        traj = motion.from_csv(path, utc_to_host_ns=lambda u: host_ns_from_utc(u, clock))
+        traj = motion.from_csv(path, utc_to_host_ns=lambda u: host_ns_from_utc(u, clock), frame=crs)
         report.trajectory = f"{path} ({len(traj.t_ns)} poses)"
         return traj
     vehicle = log.vehicle
@@ -120,8 +125,9 @@ def _trajectory(
     usable = np.isfinite(fixes.lat) & (fixes.quality > 0) if len(fixes) else np.zeros(0, bool)
     if usable.sum() >= 5:
         track = motion.gnss_track(
-            fixes.t_ns, fixes.lat, fixes.lon, fixes.alt, hdop=fixes.hdop, quality=fixes.quality
-        )
+            fixes.t_ns, fixes.lat, fixes.lon, fixes.alt, hdop=fixes.hdop, quality=fixes.quality,
+            frame=crs or "enu",
+        )  # fmt: skip
         fusion = motion.fuse(odo.t_ns, odo.speed, odo.yaw_rate, track, on_gap="flag")
         report.trajectory = (
             f"CAN odometry ({len(odo)} samples) fused with {int(usable.sum())} GNSS fixes "
@@ -131,6 +137,39 @@ def _trajectory(
     traj = motion.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
     report.trajectory = f"CAN odometry ({len(odo)} samples, dead reckoning)"
     return traj
+
+
+def check_crs(crs: str, traj: Any, world: bool, what: str) -> None:
+    """InputValueError unless the points will really be in ``crs``: placed in the world
+    frame (``world``) by a trajectory ``traj`` whose frame is that CRS. ``what``: the
+    trajectory as the report names it."""
+    import pyproj
+
+    need = (
+        "--crs needs a georeferenced trajectory: GNSS fixes in the log, or --trajectory CSV "
+        "(GNSS/INS)"
+    )
+    if not world:
+        place = "the laser frame" if traj is None else "the laser frame (--frame laser)"
+        raise InputValueError(f"--crs {crs}: the points would be in {place}; {need}")
+    frame = str(getattr(traj, "frame", "odometry"))
+    if frame == "odometry":
+        raise InputValueError(
+            f"--crs {crs}: the trajectory is {what}, local coordinates with no tie to the "
+            f"Earth; {need}"
+        )
+    if frame == "enu" or not pyproj.CRS.from_user_input(frame).equals(
+        pyproj.CRS.from_user_input(crs)
+    ):
+        raise InputValueError(
+            f"--crs {crs}: the trajectory ({what}) is in {frame}, not reprojected; give "
+            f"the trajectory in {crs}"
+        )
+    if any(getattr(traj, "origin", (0.0, 0.0, 0.0))):
+        raise InputValueError(
+            f"--crs {crs}: the trajectory's coordinates are {crs} minus an origin offset "
+            f"{traj.origin}; give them whole"
+        )
 
 
 def _warm_kernels(model: CameraModel) -> None:
@@ -165,10 +204,12 @@ def prepare(
     time_offset_s: float | None = None,
     jpegs: bool = False,
     threads: int = 1,
+    crs: str | None = None,
 ) -> tuple[Job, DriveLog]:
     """The :class:`Job` for ``logs`` (steps 1-3 of the module docstring) and the log's
     light part (with the images when ``jpegs``); notes go into ``report``. ``trajectory``:
-    a file (``--trajectory``) or the poses themselves; None: from the log."""
+    a file (``--trajectory``) or the poses themselves; None: from the log. ``crs``: the
+    output's CRS, InputValueError (:func:`check_crs`) unless the trajectory is in it."""
     options = options or views.Options()
     files = session_files(logs)
     first = calib.cameras.get(camera) if camera else next(iter(calib.cameras.values()), None)
@@ -180,11 +221,13 @@ def prepare(
     scan_new, frame_new = (
         _retime(index, report) if retime_offline else (index.scan_ns, index.frame_ns)
     )
-    traj = _trajectory(files, trajectory, index, report)
+    traj = _trajectory(files, trajectory, index, report, crs)
     world = frame == "world" if frame is not None else traj is not None
     if world and traj is None:
         raise InputValueError("--frame world needs a trajectory (CAN odometry in the log or "
                          "--trajectory CSV); use --frame laser")  # fmt: skip
+    if crs:
+        check_crs(crs, traj, world, report.trajectory or "none")
     if traj is None:
         report.notes.append(
             "no trajectory: points in the laser frame at their own time, coloured without "

@@ -1,5 +1,6 @@
 """The coloured cloud's file, written chunk by chunk (step 5 of :mod:`acq.cloud.colorize`):
-PLY or LAS by the output's extension, under a temporary name renamed at the end."""
+PLY, LAS, LAZ, COPC or E57 by the output's suffix (:func:`format_of`), under a temporary name
+renamed at the end."""
 
 from __future__ import annotations
 
@@ -11,15 +12,31 @@ from pathlib import Path
 import numpy as np
 
 from acq.cloud.chunks import ChunkResult
+from acq.cloud.copc import CopcStream
+from acq.cloud.e57 import E57Stream
 from acq.cloud.las import LasStream
 from acq.cloud.ply import PlyStream
 from acq.cloud.report import Report
 from acq.errors import InputValueError
 from acq.time.utc import utc_seconds
 
-__all__ = ["FORMATS", "CloudWriter"]
+__all__ = ["FORMATS", "CloudWriter", "format_of"]
 
-FORMATS = (".ply", ".las", ".laz")
+FORMATS = (".ply", ".las", ".laz", ".copc.laz", ".e57")
+
+
+def format_of(output: Path, option: str = "-o") -> str:
+    """The format ``output``'s suffix names ("ply", "las", "laz", "copc", "e57");
+    InputValueError naming ``option`` and the accepted suffixes for any other."""
+    if output.name.lower().endswith(".copc.laz"):
+        return "copc"
+    suffix = output.suffix.lower()
+    if suffix not in FORMATS:
+        raise InputValueError(
+            f"{option} {output}: unknown cloud format {suffix or '(no suffix)'}; "
+            f"expected a {', '.join(FORMATS)} file"
+        )
+    return suffix[1:]
 
 
 @contextmanager
@@ -32,25 +49,29 @@ def _naming(output: Path) -> Iterator[None]:
 
 
 class CloudWriter:
-    """The output file, written chunk by chunk in chunk order: PLY or LAS by
-    ``output``'s extension; ``seconds`` spent writing. Its OSErrors name ``output``."""
+    """The output file, written chunk by chunk in chunk order: PLY, LAS, LAZ, COPC or E57 by
+    ``output``'s suffix; ``seconds`` spent writing. Its OSErrors name ``output``."""
 
     def __init__(self, output: Path, crs: str | None, clock: np.ndarray, report: Report) -> None:
         self.output = output
-        suffix = output.suffix.lower()
+        kind = format_of(output)
         comments = [f"frame {report.frame}", f"view {report.view}", *(
             [f"crs {crs}"] if crs else [])]  # fmt: skip
-        self.stream: PlyStream | LasStream
-        if suffix == ".ply":
+        self.stream: PlyStream | LasStream | CopcStream | E57Stream
+        if kind == "ply":
             with _naming(output):
                 self.stream = PlyStream(output, comments)
             if crs:
                 report.notes.append("PLY has no CRS field: --crs written as a comment")
-        elif suffix in (".las", ".laz"):
+        elif kind == "copc":
+            with _naming(output):
+                self.stream = CopcStream(output, crs=crs, comments=comments)
+        elif kind == "e57":
+            with _naming(output):
+                self.stream = E57Stream(output, crs=crs, comments=comments)
+        else:
             with _naming(output):
                 self.stream = LasStream(output, crs=crs, comments=comments)
-        else:
-            raise InputValueError(f"{output}: unknown format; expected {', '.join(FORMATS)}")
         self.clock = clock
         self.seconds = 0.0
 

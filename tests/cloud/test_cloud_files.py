@@ -1,4 +1,5 @@
-"""PLY and LAS written part by part (acq.cloud.PlyStream, acq.cloud.las.LasStream)."""
+"""PLY, LAS and LAZ written part by part (acq.cloud.PlyStream, acq.cloud.las.LasStream),
+the format from the output's suffix (acq.cloud.writer.format_of)."""
 
 from __future__ import annotations
 
@@ -9,8 +10,12 @@ import numpy as np
 import pytest
 from plyfile import PlyData
 
+from acq.cli import main as acq_main
 from acq.cloud import PlyStream
 from acq.cloud.las import LasStream
+from acq.cloud.writer import format_of
+from acq.errors import InputValueError
+from acq.provenance import made_by_acq
 
 
 def _points(n: int, seed: int) -> tuple[np.ndarray, ...]:
@@ -104,3 +109,102 @@ def test_ply_header_holds_only_types_and_names_every_common_reader_keeps(tmp_pat
         "x", "y", "z", "red", "green", "blue",
         "scalar_time", "scalar_scan", "intensity", "scalar_coloured",
     ]  # fmt: skip
+
+
+def _extra_ranges(las: laspy.LasData) -> dict[str, tuple[int, int | None, int | None]]:
+    """Each extra dimension's (options byte, min, max) as the extra-bytes VLR says (None
+    where its options bit says it does not hold)."""
+    vlr = las.header.vlrs.get("ExtraBytesVlr")[0]
+    return {
+        eb.name.rstrip(b"\0").decode(): (
+            eb.options,
+            None if eb.min is None else int(eb.min[0]),
+            None if eb.max is None else int(eb.max[0]),
+        )
+        for eb in vlr.extra_bytes_structs
+    }
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_las_and_laz_carry_true_extra_bytes_ranges_wkt1_and_a_real_system(
+    tmp_path: Path, suffix: str
+) -> None:
+    parts = [_points(n, seed) for seed, n in enumerate((800, 1700))]
+    out = LasStream(tmp_path / f"c{suffix}", crs="EPSG:25831")
+    for p in parts:
+        out.write(*p)
+    out.close()
+    las = laspy.read(tmp_path / f"c{suffix}")
+    assert las.header.are_points_compressed == (suffix == ".laz")
+    scan = np.concatenate([p[4] for p in parts])
+    coloured = np.concatenate([p[5] for p in parts])
+    np.testing.assert_array_equal(np.asarray(las.scan_index), scan)
+    np.testing.assert_array_equal(np.asarray(las.coloured), coloured)
+    ranges = _extra_ranges(las)
+    # options bits 1 and 2: min and max hold
+    assert ranges["scan_index"][0] & 0b110 == 0b110
+    assert ranges["scan_index"][1:] == (int(scan.min()), int(scan.max()))
+    assert ranges["coloured"][0] & 0b110 == 0b110 and ranges["coloured"][1:] == (0, 1)
+    wkt = las.header.vlrs.get("WktCoordinateSystemVlr")[0].string
+    assert wkt.startswith("PROJCS[") and las.header.global_encoding.wkt
+    assert las.header.parse_crs().to_epsg() == 25831
+    assert las.header.system_identifier == "OTHER"
+    assert las.header.generating_software.startswith("acq ")
+    assert made_by_acq(tmp_path / f"c{suffix}")
+
+
+def test_laz_is_compressed_and_smaller_than_las(tmp_path: Path) -> None:
+    # a scanner's cloud: neighbours close in space and time (LASzip's case)
+    n = 20_000
+    t = np.linspace(0, 10, n)
+    xyz = np.stack([t * 5, np.sin(t * 50) * 3, np.cos(t * 50) * 3], axis=1) + 500_000
+    rgb = np.full((n, 3), 128, dtype=np.uint8)
+    scan = (t * 40).astype(np.uint32)
+    p = (xyz, rgb, 1.7e9 + t, np.full(n, 100.0, np.float32), scan, np.ones(n, bool))
+    sizes = {}
+    for suffix in (".las", ".laz"):
+        out = LasStream(tmp_path / f"c{suffix}")
+        out.write(*p)
+        sizes[suffix] = out.close()
+    assert sizes[".laz"] < sizes[".las"] / 4, sizes
+    las, laz = (laspy.read(tmp_path / f"c{s}") for s in (".las", ".laz"))
+    for dim in ("X", "Y", "Z", "gps_time", "red", "scan_index", "coloured"):
+        np.testing.assert_array_equal(np.asarray(laz[dim]), np.asarray(las[dim]))
+
+
+def test_an_empty_file_says_its_extra_ranges_do_not_hold(tmp_path: Path) -> None:
+    out = LasStream(tmp_path / "e.laz")
+    out.close()
+    ranges = _extra_ranges(laspy.read(tmp_path / "e.laz"))
+    assert ranges and all(r == (r[0] & ~0b110, None, None) for r in ranges.values())
+
+
+@pytest.mark.parametrize(
+    ("name", "kind"),
+    [
+        ("a.ply", "ply"),
+        ("a.LAS", "las"),
+        ("d.x.laz", "laz"),
+        ("a.E57", "e57"),
+        ("a.COPC.laz", "copc"),
+        ("a.copc.las", "las"),
+    ],
+)
+def test_the_format_is_the_suffix(name: str, kind: str) -> None:
+    assert format_of(Path(name)) == kind
+
+
+@pytest.mark.parametrize("name", ["a.xyz", "a", "a.copc", "a.las.gz"])
+def test_an_unknown_suffix_is_refused_naming_the_option_before_any_work(
+    tmp_path: Path, name: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(
+        InputValueError, match=r"^-o .*expected a \.ply, \.las, \.laz, \.copc\.laz, \.e57 file"
+    ):
+        format_of(Path(name))
+    # the log and calibration do not exist: the suffix is refused first
+    argv = ["colorize", str(tmp_path / "none.mcap"), "--calib", str(tmp_path / "none.yaml")]
+    assert acq_main([*argv, "-o", str(tmp_path / name)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"acq colorize: -o {tmp_path / name}") and err.count("\n") == 1, err
+    assert list(tmp_path.iterdir()) == []

@@ -1,7 +1,8 @@
 """Which files acq wrote. Every image, cloud and JSON report acq writes carries a mark (a
 PNG text chunk, a JPEG comment, a PLY header comment, the LAS header's generating
-software, a ``"software"`` key), so a later run may replace its own product while a file
-of anyone else is kept (the rule of :mod:`acq.cli.output_files`).
+software, an E57 scan's sensor software version, a ``"software"`` key), so a later run
+may replace its own product while a file of anyone else is kept (the rule of
+:mod:`acq.cli.output_files`).
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import os
 import re
 import secrets
+import struct
 import zlib
 from pathlib import Path
 
@@ -25,6 +27,8 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_TEXT = b"Software\x00" + SOFTWARE.encode()
 _JPEG_COMMENT = b"\xff\xfe" + (2 + len(SOFTWARE)).to_bytes(2, "big") + SOFTWARE.encode()
 _JSON_KEY = re.compile(rb'\A\s*\{\s*"software"\s*:\s*"acq[ "]')
+_E57_MARK = re.compile(rb"<sensorSoftwareVersion[^>]*>(<!\[CDATA\[)?acq ")
+_E57_XML_BYTES = 16 * 2**20  # a larger XML section is not one acq wrote
 
 
 def marked_image(data: bytes) -> bytes:
@@ -81,4 +85,22 @@ def made_by_acq(path: str | os.PathLike[str]) -> bool:
         return b"\ncomment acq " in header
     if head.startswith(b"LASF"):
         return head[58:90].startswith(b"acq ")  # the header's generating software
+    if head.startswith(b"ASTM-E57"):
+        return _E57_MARK.search(_e57_xml(path, head)) is not None
     return _JSON_KEY.match(head) is not None
+
+
+def _e57_xml(path: str | os.PathLike[str], head: bytes) -> bytes:
+    """The XML section of an E57 file (at its end; every page of ``pageSize`` bytes ends
+    in a 4-byte CRC, ASTM E2807 §8); empty when the header or the file is short."""
+    if len(head) < 48:
+        return b""
+    offset, length, page = struct.unpack_from("<QQQ", head, 24)
+    if not (64 <= page <= 1 << 20 and length <= _E57_XML_BYTES):
+        return b""
+    start = offset - offset % page
+    with open(path, "rb") as f:
+        f.seek(start)
+        raw = f.read(offset % page + length + (length // (page - 4) + 2) * 4)
+    data = b"".join(raw[i : i + page - 4] for i in range(0, len(raw), page))
+    return data[offset % page : offset % page + length]

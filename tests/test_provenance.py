@@ -60,3 +60,16 @@ def test_reports_and_other_files(tmp_path: Path) -> None:
                  b"\x89PNG\r\n\x1a\n" + bytes(64), b"acq 0.1.0"):  # fmt: skip
         other.write_bytes(data)
         assert not made_by_acq(other), data
+
+
+def test_an_e57_carries_the_mark_in_its_xml_section(tmp_path: Path) -> None:
+    from acq.cloud.e57 import E57Stream
+
+    path = tmp_path / "c.e57"
+    s = E57Stream(path)
+    s.write(*_points(5))
+    s.close()
+    assert made_by_acq(path)
+    data = path.read_bytes()
+    path.write_bytes(data.replace(b"[acq ", b"[abc "))
+    assert not made_by_acq(path)

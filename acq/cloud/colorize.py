@@ -39,16 +39,18 @@ from __future__ import annotations
 import logging
 import math
 import os
-import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
+from acq import progress as progress_bars
 from acq.calib.time_offset import OffsetEstimate, estimate_time_offset
 from acq.camera.calibfile import Calibration
 from acq.camera.camera_models import CameraModel
@@ -126,12 +128,9 @@ def _run_chunks(
     the log read already with its images, for running here; else each chunk reads its
     part). Here, the next chunk is read and placed and the last one emitted (written)
     while a chunk's frames decode. The bar counts scans."""
-    from tqdm import tqdm
-
     stamps = np.sort(job.scan_new)
     scans = {c.index: int(np.sum((stamps >= c.start_ns) & (stamps < c.end_ns))) for c in chunks}
-    bar = tqdm(total=sum(scans.values()), unit="scan", desc="colouring", disable=not progress,
-               file=sys.stderr, mininterval=0.5)  # fmt: skip
+    shares = _ChunkShares(scans)
     waiting: dict[int, ChunkResult] = {}  # done out of order
     expected = deque(c.index for c in chunks)
 
@@ -140,42 +139,100 @@ def _run_chunks(
         while expected and expected[0] in waiting:
             index = expected.popleft()
             emit(waiting.pop(index))
-            bar.update(scans[index])
+            shares.finish(index)
 
-    try:
-        if dask:
-            from dask.distributed import Client, as_completed
+    with progress_bars.bar(sum(scans.values()), "scan", "colouring", progress):
+        _run_each(job, chunks, workers, dask, done, whole, shares)
 
-            with Client(dask) as client:
-                job_f = client.scatter(job, broadcast=True)
-                futures = [client.submit(colour_chunk, job_f, c, pure=False) for c in chunks]
-                for fut in as_completed(futures):
-                    done(fut.result())
-        elif workers > 1:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor
-            from concurrent.futures import as_completed as completed
 
-            ctx = multiprocessing.get_context("spawn")  # numba and threads: no fork
-            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                pending = [pool.submit(colour_chunk, job, c) for c in chunks]
-                for fut in completed(pending):
-                    done(fut.result())
-        else:  # one process: the log read once (whole), or each chunk its part
-            threads = ThreadPoolExecutor(max_workers=max(1, job.threads))
-            try:
-                started: ChunkColouring | None = None
-                for c in chunks:
-                    following = start_chunk(job, c, whole, threads)
-                    if started is not None:
-                        done(started.result())
-                    started = following
+_P = ParamSpec("_P")
+_T = TypeVar("_T")
+
+
+class _CountedPool(Executor):
+    """``pool``, keeping the tasks submitted through it."""
+
+    def __init__(self, pool: Executor) -> None:
+        self.pool = pool
+        self.tasks: list[Future[Any]] = []
+
+    def submit(self, fn: Callable[_P, _T], /, *args: _P.args, **kwargs: _P.kwargs) -> Future[_T]:
+        task = self.pool.submit(fn, *args, **kwargs)
+        self.tasks.append(task)
+        return task
+
+
+class _ChunkShares:
+    """A chunk's scans on the progress bar (:mod:`acq.progress`): when it runs in this
+    process, a share for each of its frames decoded (so the bar moves within a chunk);
+    the rest when it is written."""
+
+    def __init__(self, scans: dict[int, int]) -> None:
+        self.scans = scans
+        self._shown: dict[int, float] = dict.fromkeys(scans, 0.0)
+        self._lock = threading.Lock()
+
+    def watch(self, index: int, tasks: Sequence[Future[Any]]) -> None:
+        """Chunk ``index``'s frame tasks: each one done moves the bar."""
+        share = 0.9 * self.scans[index] / max(len(tasks), 1)  # the rest when written
+        for task in tasks:
+            task.add_done_callback(lambda _t: self._add(index, share))
+
+    def _add(self, index: int, n: float) -> None:
+        with self._lock:
+            before = self._shown[index]
+            self._shown[index] = before + n
+        progress_bars.advance(math.floor(before + n) - math.floor(before), "scan")
+
+    def finish(self, index: int) -> None:
+        with self._lock:
+            before, self._shown[index] = self._shown[index], self.scans[index]
+        progress_bars.advance(self.scans[index] - math.floor(before), "scan")
+
+
+def _run_each(
+    job: Job,
+    chunks: list[Chunk],
+    workers: int,
+    dask: str | None,
+    done: Callable[[ChunkResult], None],
+    whole: DriveLog | None,
+    shares: _ChunkShares,
+) -> None:
+    """Each chunk's result to ``done`` as it comes, however the chunks run."""
+    if dask:
+        from dask.distributed import Client, as_completed
+
+        with Client(dask) as client:
+            job_f = client.scatter(job, broadcast=True)
+            futures = [client.submit(colour_chunk, job_f, c, pure=False) for c in chunks]
+            for fut in as_completed(futures):
+                done(fut.result())
+    elif workers > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures import as_completed as completed
+
+        ctx = multiprocessing.get_context("spawn")  # numba and threads: no fork
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            pending = [pool.submit(colour_chunk, job, c) for c in chunks]
+            for fut in completed(pending):
+                done(fut.result())
+    else:  # one process: the log read once (whole), or each chunk its part
+        threads = ThreadPoolExecutor(max_workers=max(1, job.threads))
+        try:
+            started: ChunkColouring | None = None
+            for c in chunks:
+                counted = _CountedPool(threads)
+                following = start_chunk(job, c, whole, counted)
+                shares.watch(c.index, counted.tasks)
                 if started is not None:
                     done(started.result())
-            finally:  # on an error (a full disk, Ctrl-C) the queued frames are dropped
-                threads.shutdown(cancel_futures=True)
-    finally:
-        bar.close()
+                started = following
+            if started is not None:
+                done(started.result())
+        finally:  # on an error (a full disk, Ctrl-C) the queued frames are dropped
+            threads.shutdown(cancel_futures=True)
 
 
 def estimate_offset(

@@ -313,3 +313,26 @@ def test_progress_reads_in_bytes_and_colours_in_scans(
     colouring = [x for x in lines if x.startswith("colouring:")]
     assert any(x.startswith("reading: 100%") for x in lines), err
     assert colouring[-1].startswith("colouring: 100%") and f" {scans}/{scans} " in colouring[-1]
+
+
+def test_the_bar_moves_as_a_chunks_frames_are_done(capsys: pytest.CaptureFixture[str]) -> None:
+    """In one process a chunk's scans go on the bar frame by frame (90 % shared among its
+    frames), the rest when it is written: whole numbers, never past the chunk."""
+    from concurrent.futures import Future
+
+    from acq import progress
+    from acq.cloud.colorize import _ChunkShares
+
+    shares = _ChunkShares({0: 10, 1: 7})
+    frames: list[Future[None]] = [Future() for _ in range(3)]
+    with progress.bar(17, "scan", "colouring", shown=True):
+        shares.watch(0, frames)
+        counted = progress._bars["scan"]
+        for f in frames:
+            f.set_result(None)
+        assert counted.n == 9  # 3 x 3 of the chunk's 10, the rest when written
+        shares.finish(0)
+        assert counted.n == 10
+        shares.watch(1, [])
+        shares.finish(1)
+    assert "17/17" in capsys.readouterr().err

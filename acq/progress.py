@@ -1,10 +1,10 @@
 """Progress bars on stderr for long work, in the work's own units, with a rate and an
 estimated time left (tqdm), quiet when stderr is not a terminal unless asked.
 
-A command opens a bar around the work (:func:`bar`); the library code doing it reports
-what it has done (:func:`advance`) without knowing whether anyone shows it. Reading
-logs reports bytes: every command that reads logs shows that phase by opening a bar in
-bytes (:func:`reading`) around it.
+The command says once whether bars are shown (:func:`enable`); the library code doing
+long work opens a bar around it (:func:`bar`) and reports what it has done
+(:func:`advance`) without knowing whether anyone shows it. Reading logs reports bytes:
+every command that reads logs shows that phase in a bar in bytes (:func:`reading`).
 """
 
 from __future__ import annotations
@@ -16,9 +16,10 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["advance", "bar", "reading", "wanted"]
+__all__ = ["advance", "bar", "enable", "reading", "wanted"]
 
 _lock = threading.Lock()
+_enabled = False  # what the command said (enable)
 _bars: dict[str, Any] = {}  # unit -> the open bar counting it (at most one per unit)
 
 
@@ -27,12 +28,20 @@ def wanted(forced: bool = False) -> bool:
     return forced or sys.stderr.isatty()
 
 
+def enable(on: bool) -> None:
+    """Whether the bars opened from now on are shown (the command's choice)."""
+    global _enabled
+    _enabled = on
+
+
 @contextmanager
-def bar(total: float, unit: str, desc: str, shown: bool) -> Iterator[None]:
-    """A bar of ``total`` ``unit`` (``B`` for bytes, shown as MB) while the block runs;
-    what :func:`advance` reports in ``unit`` moves it, at most twice a second."""
+def bar(total: float, unit: str, desc: str, shown: bool | None = None) -> Iterator[None]:
+    """A bar of ``total`` ``unit`` (``B`` for bytes, shown as MB) while the block runs,
+    shown as the command said (:func:`enable`) unless ``shown`` says; what
+    :func:`advance` reports in ``unit`` moves it, at most twice a second."""
     from tqdm import tqdm
 
+    shown = _enabled if shown is None else shown
     with _lock:
         if unit in _bars or not shown:  # an outer bar counts this already, or none wanted
             opened = None
@@ -50,7 +59,7 @@ def bar(total: float, unit: str, desc: str, shown: bool) -> Iterator[None]:
             opened.close()  # again if it filled: tqdm closes once
 
 
-def reading(paths: Sequence[str | os.PathLike[str]], shown: bool) -> Any:
+def reading(paths: Sequence[str | os.PathLike[str]], shown: bool | None = None) -> Any:
     """A bar in bytes over reading the files ``paths`` (those that exist)."""
     total = sum(os.path.getsize(p) for p in paths if os.path.isfile(p))
     return bar(total, "B", "reading", shown)

@@ -41,6 +41,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from acq import progress
 from acq.calib.board_pose import BoardPose, board_pose_from_corners
 from acq.calib.fisheye_calib import BoardSpec, detect_corners
 from acq.camera.camera_models import CameraModel
@@ -95,7 +96,11 @@ def still_intervals(
     if log.n_frames < 2 or log.n_scans < 2:
         return []
     flag = cv2.IMREAD_REDUCED_GRAYSCALE_4
-    small = [cv2.imdecode(np.frombuffer(j, np.uint8), flag) for j in log.jpegs]
+    small: list[np.ndarray | None] = []
+    with progress.bar(log.n_frames, "frame", "still intervals"):
+        for jpeg in log.jpegs:
+            small.append(cv2.imdecode(np.frombuffer(jpeg, np.uint8), flag))
+            progress.advance(1, "frame")
     fchange = np.ones(log.n_frames)
     for k in range(1, log.n_frames):
         a, b = small[k - 1], small[k]
@@ -379,6 +384,61 @@ class PoseData:
         }
 
 
+def _pose_in(
+    log: drive_log.DriveLog,
+    start: int,
+    end: int,
+    model: CameraModel,
+    spec: BoardSpec,
+    finder: CornerFinder,
+    coarse: Rigid | None,
+    frames_per_pose: int,
+    odd: dict[int, tuple[int, int]],
+) -> PoseData:
+    """The board's pose in one still interval (:func:`poses_from_log`); frames of another
+    size than the model's go into ``odd`` (index -> (w, h) px)."""
+    obj = spec.object_points()
+    size = (model.height, model.width)
+    s = (log.scan_ns >= start) & (log.scan_ns <= end)
+    f = np.flatnonzero((log.frame_ns >= start) & (log.frame_ns <= end))
+    if not s.any() or not f.size:
+        return PoseData(start, end, -1, math.nan, None, "no scan or no frame")
+    # the middle frames first, spread over the interval
+    order = f[np.argsort(np.abs(f - f[len(f) // 2]))]
+    step = max(1, len(order) // frames_per_pose)
+    detections, used = [], -1
+    for k in order[::step][:frames_per_pose]:
+        gray = cv2.imdecode(np.frombuffer(log.jpegs[k], np.uint8), cv2.IMREAD_GRAYSCALE)
+        if gray is not None and gray.shape != size:
+            odd[int(k)] = (gray.shape[1], gray.shape[0])
+            continue
+        found = None if gray is None else finder(gray)
+        if found is not None:
+            detections.append(found)
+            used = int(log.frame_ns[k]) if used < 0 else used
+    if not detections:
+        why = (
+            "no frame of the camera model's size"
+            if all(int(k) in odd for k in order[::step][:frames_per_pose])
+            else "board not found in the image"
+        )
+        return PoseData(start, end, -1, math.nan, None, why)
+    uv, n_frames = average_corners(detections)
+    fit = board_pose_from_corners(model, obj, uv)
+    with warnings.catch_warnings():  # beams with no return in any scan stay NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ranges = np.nanmedian(np.where(np.isfinite(log.ranges[s]), log.ranges[s], np.nan), 0)
+    pts = board_segment(
+        ranges, log.angle_min, log.angle_increment, fit.plane(), spec, coarse=coarse
+    )
+    if pts is None:
+        why = "board not found in the scan"
+        return PoseData(start, end, used, fit.rms_px, None, why, n_frames)
+    pid = f"{(start - int(log.scan_ns[0])) * 1e-9:.2f}s"
+    pose = BoardPose.from_fit(fit, pts, id=pid)
+    return PoseData(start, end, used, fit.rms_px, pose, frames=n_frames)
+
+
 def poses_from_log(
     log: drive_log.DriveLog,
     model: CameraModel,
@@ -391,56 +451,13 @@ def poses_from_log(
     """A :class:`PoseData` per interval (see the module docstring, steps 2–3); the
     corners averaged over up to ``frames_per_pose`` of the interval's frames (the middle
     ones first)."""
-    obj = spec.object_points()
     finder = CornerFinder(spec, model)
     out = []
-    size = (model.height, model.width)
     odd: dict[int, tuple[int, int]] = {}  # frames of another size: index -> (w, h) px
-    for start, end in intervals:
-        s = (log.scan_ns >= start) & (log.scan_ns <= end)
-        f = np.flatnonzero((log.frame_ns >= start) & (log.frame_ns <= end))
-        if not s.any() or not f.size:
-            out.append(PoseData(start, end, -1, math.nan, None, "no scan or no frame"))
-            continue
-        # the middle frames first, spread over the interval
-        order = f[np.argsort(np.abs(f - f[len(f) // 2]))]
-        step = max(1, len(order) // frames_per_pose)
-        detections, used = [], -1
-        for k in order[::step][:frames_per_pose]:
-            gray = cv2.imdecode(np.frombuffer(log.jpegs[k], np.uint8), cv2.IMREAD_GRAYSCALE)
-            if gray is not None and gray.shape != size:
-                odd[int(k)] = (gray.shape[1], gray.shape[0])
-                continue
-            found = None if gray is None else finder(gray)
-            if found is not None:
-                detections.append(found)
-                used = int(log.frame_ns[k]) if used < 0 else used
-        if not detections:
-            why = (
-                "no frame of the camera model's size"
-                if all(int(k) in odd for k in order[::step][:frames_per_pose])
-                else "board not found in the image"
-            )
-            out.append(PoseData(start, end, -1, math.nan, None, why))
-            continue
-        uv, n_frames = average_corners(detections)
-        fit = board_pose_from_corners(model, obj, uv)
-        with warnings.catch_warnings():  # beams with no return in any scan stay NaN
-            warnings.simplefilter("ignore", RuntimeWarning)
-            ranges = np.nanmedian(np.where(np.isfinite(log.ranges[s]), log.ranges[s], np.nan), 0)
-        pts = board_segment(
-            ranges, log.angle_min, log.angle_increment, fit.plane(), spec, coarse=coarse
-        )
-        if pts is None:
-            out.append(
-                PoseData(
-                    start, end, used, fit.rms_px, None, "board not found in the scan", n_frames
-                )
-            )
-            continue
-        pid = f"{(start - int(log.scan_ns[0])) * 1e-9:.2f}s"
-        pose = BoardPose.from_fit(fit, pts, id=pid)
-        out.append(PoseData(start, end, used, fit.rms_px, pose, frames=n_frames))
+    with progress.bar(len(intervals), "pose", "board poses"):
+        for start, end in intervals:
+            out.append(_pose_in(log, start, end, model, spec, finder, coarse, frames_per_pose, odd))
+            progress.advance(1, "pose")
     if odd:
         first = min(odd, key=lambda k: int(log.frame_ns[k]))
         recv = int(log.frame_recv_ns[first]) if first < log.frame_recv_ns.size else -1

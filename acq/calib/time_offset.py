@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from acq import progress
 from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
 from acq.camera.jpeg import decoded_frames
@@ -156,36 +157,37 @@ def estimate_time_offset(
         oks: list[np.ndarray] = []
         fold: list[np.ndarray] = []
         jpeg_order = np.array([f.index for f in frames])
-        for r, (f, image) in enumerate(
-            zip(frames, decoded_frames(jpegs, jpeg_order, threads), strict=True)
-        ):
-            if image is not None and image.shape[:2] != (model.height, model.width):
-                image = None  # not sampled: its pixels are not the model's (callers say so)
-            n = f.points.size
-            g = np.zeros((offsets_s.size, n), dtype=np.float32)
-            good = np.zeros(n, dtype=bool) if image is None else np.ones(n, dtype=bool)
-            if image is not None:
-                grey: np.ndarray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32)
-                if blur_px > 0:
-                    grey = cv2.GaussianBlur(grey, (0, 0), blur_px)
-                t = f.t_ns - np.rint(offsets_s * 1e9).astype(np.int64)
-                inside = covers(t)
-                good &= bool(inside.all())
-                if inside.all():
-                    R, tr = pose_at(t)
-                    P = P_world[f.points]
-                    for k in range(offsets_s.size):
-                        P_l = v2l.apply((P - tr[k]) @ R[k])
-                        uv, ok = projection.project(P_l, model, c2l)
-                        good &= ok
-                        m = uv.astype(np.float32).reshape(-1, 1, 2)
-                        g[k] = cv2.remap(
-                            grey, m[..., 0], m[..., 1], cv2.INTER_LINEAR,
-                            borderMode=cv2.BORDER_REPLICATE,
-                        ).ravel()  # fmt: skip
-            cols.append(g)
-            oks.append(good)
-            fold.append(np.full(n, r % max(folds, 1)))
+        decoded = decoded_frames(jpegs, jpeg_order, threads)
+        with progress.bar(len(frames), "frame", f"time offset ({offsets_s.size} offsets)"):
+            for r, (f, image) in enumerate(zip(frames, decoded, strict=True)):
+                if image is not None and image.shape[:2] != (model.height, model.width):
+                    image = None  # not sampled: its pixels are not the model's (callers say so)
+                n = f.points.size
+                g = np.zeros((offsets_s.size, n), dtype=np.float32)
+                good = np.zeros(n, dtype=bool) if image is None else np.ones(n, dtype=bool)
+                if image is not None:
+                    grey: np.ndarray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32)
+                    if blur_px > 0:
+                        grey = cv2.GaussianBlur(grey, (0, 0), blur_px)
+                    t = f.t_ns - np.rint(offsets_s * 1e9).astype(np.int64)
+                    inside = covers(t)
+                    good &= bool(inside.all())
+                    if inside.all():
+                        R, tr = pose_at(t)
+                        P = P_world[f.points]
+                        for k in range(offsets_s.size):
+                            P_l = v2l.apply((P - tr[k]) @ R[k])
+                            uv, ok = projection.project(P_l, model, c2l)
+                            good &= ok
+                            m = uv.astype(np.float32).reshape(-1, 1, 2)
+                            g[k] = cv2.remap(
+                                grey, m[..., 0], m[..., 1], cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_REPLICATE,
+                            ).ravel()  # fmt: skip
+                cols.append(g)
+                oks.append(good)
+                fold.append(np.full(n, r % max(folds, 1)))
+                progress.advance(1, "frame")
         return np.concatenate(cols, axis=1), np.concatenate(oks), np.concatenate(fold)
 
     def curve(grey: np.ndarray, s_bins: np.ndarray) -> np.ndarray:

@@ -145,7 +145,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     gc.freeze()
     logs: list[os.PathLike[str]] = getattr(args, "logs", None) or []
     try:
-        with progress.reading(logs, progress.wanted(getattr(args, "progress", False))):
+        progress.enable(progress.wanted(getattr(args, "progress", False)))
+        with progress.reading(logs):
             code = handler(args)
         sys.stdout.flush()  # a closed or full stdout fails here, not at exit
         return code

@@ -146,17 +146,19 @@ def test_bad_input_is_one_line_and_exit_2(
 
 
 def test_frames_of_another_size_and_a_corrupt_chunk_are_skipped_and_said(
-    drive: tuple[DriveTruth, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
-) -> None:
+    drive: tuple[DriveTruth, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
     """One WARNING line each: the corrupt chunk (the log is read twice: said once), the
-    frames of another size with the first one's time and file; the estimate is made."""
+    frames of another size with the first one's time and file; the estimate is made, its
+    reading and its frames on progress bars (--progress)."""
     truth, calib = drive
     odd = jpeg(640, 480)
     files, times = rewrite(truth.files, tmp_path, frames={30: odd, 45: odd}, chunk_size=1 << 20)
     lo, hi, _ = corrupt_chunk(files[0], -1)  # after the odd frames
     assert times[45] < lo
     argv = ["calibrate", "time-offset", *map(str, files), "--calib", str(calib),
-            "-o", str(tmp_path / "calib.yaml"), "--frames", "60"]  # fmt: skip
+            "-o", str(tmp_path / "calib.yaml"), "--frames", "60", "--progress"]  # fmt: skip
     with caplog.at_level(logging.WARNING):
         assert acq_main(argv) == 0
     first = first_log_time(files[0]) or 0
@@ -170,3 +172,6 @@ def test_frames_of_another_size_and_a_corrupt_chunk_are_skipped_and_said(
         f"skipped; the first at log time {times[30] * 1e-9:.3f} s, "
         f"{(times[30] - first) * 1e-9:.2f} s into {files[0]}"
     )
+    bars = [x for x in capsys.readouterr().err.replace("\r", "\n").splitlines() if x]
+    assert any(x.startswith("reading: 100%") for x in bars)
+    assert any(x.startswith("time offset (") and "100%" in x for x in bars), bars

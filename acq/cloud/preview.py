@@ -6,6 +6,7 @@ import math
 import os
 
 import cv2
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -52,17 +53,34 @@ def _splat(
     img = np.empty((h * w, 3), dtype=np.uint8)
     img[:] = _BG
     nearest_first = np.argsort(depth, kind="stable")
-    counts = heights[nearest_first].astype(np.int64) * width
-    src = np.repeat(nearest_first, counts)
-    k = np.arange(src.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    cc = col[src] + k % width
-    rr = row[src] + k // width - heights[src] // 2
-    inside = (cc >= 0) & (cc < w) & (rr >= 0) & (rr < h)
-    flat = (rr * w + cc)[inside]
-    src = src[inside]
-    pixels, first = np.unique(flat, return_index=True)  # the first is the nearest
-    img[pixels] = colour[src[first]]
+    _paint_blocks(img, h, w, nearest_first, col, row, heights, width, colour)
     return img.reshape(h, w, 3)
+
+
+@numba.njit(cache=True, nogil=True)
+def _paint_blocks(
+    img: np.ndarray,
+    h: int,
+    w: int,
+    order: np.ndarray,
+    col: np.ndarray,
+    row: np.ndarray,
+    heights: np.ndarray,
+    width: int,
+    colour: np.ndarray,
+) -> None:
+    """Paint each point's block into ``img`` (H*W,3) in ``order``, a pixel keeping the
+    first colour painted there (one pass, no per-pixel temporaries: a 60 s drive's
+    blocks cover tens of millions of pixels)."""
+    painted = np.zeros(h * w, dtype=np.bool_)
+    for i in order:
+        top = row[i] - heights[i] // 2
+        for r in range(max(top, 0), min(top + heights[i], h)):
+            for c in range(max(col[i], 0), min(col[i] + width, w)):
+                p = r * w + c
+                if not painted[p]:
+                    painted[p] = True
+                    img[p] = colour[i]
 
 
 def _spacing(v: np.ndarray, scan: np.ndarray, step: np.ndarray) -> np.ndarray:

@@ -437,8 +437,7 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     out = Calibration(target.laser, {**target.cameras, name: entry}, target.laser_to_vehicle)
     output_files.keep_backups("acq calibrate extrinsic", backups)
     calibfile.save(out, output)
-    with output_files.atomic(plot) as tmp:
-        residual_plot(result, good, tmp)
+    residual_plot(result, good, plot)  # whole or not at all (acq.provenance.write_image)
     if args.json:
         report = {
             "camera": name,

@@ -205,8 +205,7 @@ def run_camera(args: argparse.Namespace) -> int:
                 "corrupt": camera.corrupt,
             }
             if snapshot is not None and last is not None:
-                with output_files.atomic(snapshot) as tmp:
-                    write_snapshot(last, str(tmp))
+                write_snapshot(last, str(snapshot))  # whole or not at all
                 summary["snapshot"] = str(snapshot)
             if args.json:
                 _emit({"summary": summary})

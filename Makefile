@@ -64,11 +64,13 @@ test-slow: $(STAMP)
 	$(BIN)/pytest -q -m slow
 
 # our files opened in the readers users open them with: the `interop` extra (Open3D,
-# trimesh) from PyPI; PCL's and CloudCompare's tools from the system when installed
+# trimesh) from PyPI; the TypeScript MCAP reader Foxglove uses (@mcap/core) from npm, when
+# Node.js is installed; PCL's and CloudCompare's tools from the system when installed
 # (Debian: pcl-tools, cloudcompare, xvfb), skipped otherwise
 interop: $(STAMP)
 	( $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[test,interop]' ) || \
 	$(BIN)/python -m pip install --quiet -e '.[test,interop]'
+	if command -v npm >/dev/null; then cd tests/interop/node && npm ci --silent; fi
 	$(BIN)/pytest -q -rs -m interop tests/interop
 
 bench: $(STAMP)

@@ -33,10 +33,15 @@ from acq.camera.camera_models import CameraModel
 from acq.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
 from acq.log import schemas
+from acq.log.timebase import TimeBase
 from acq.log.writer import LogWriter
 from acq.records import Frame, Scan
 from acq.sim.board_poses import Checkerboard, simulate
 from acq.sim.world import Rig, default_rig
+
+# The simulated logs' host monotonic times map to UTC through this one offset (their
+# /acq/clock pairs and their UTC log times alike): 2027-01-15 08:00:00 UTC at monotonic 0.
+SIM_TIME_BASE = TimeBase(True, 1_800_000_000 * 10**9)
 
 __all__ = ["BoardLog", "board_at", "pixel_rays", "render_frame", "simulate_scan", "write_board_log"]
 
@@ -192,7 +197,7 @@ def open_sim_log(directory: Path, prefix: str, rig: Rig, calib: Calibration) -> 
         "device.camera": {"driver": "sim"},
         "calibration": {"yaml": calibfile.dump(calib)},
     }
-    writer = LogWriter(directory, prefix=prefix, metadata=metadata)
+    writer = LogWriter(directory, prefix=prefix, metadata=metadata, time_base=SIM_TIME_BASE)
     writer.add_channel("/laser/scan", schemas.SCHEMAS["foxglove.LaserScan"])
     writer.add_channel("/laser/raw", schemas.SCHEMAS["acq.RawTelegram"])
     writer.add_channel("/camera/image/compressed", schemas.SCHEMAS["foxglove.CompressedImage"])
@@ -215,7 +220,7 @@ def scan_events(rig: Rig, ranges: np.ndarray, k: int, stamp: int) -> list[tuple[
     )
     raw = schemas.raw_telegram(device="laser", data=b"", recv_ns=stamp, stamp_ns=stamp)
     return [
-        (stamp, "/laser/scan", schemas.laser_scan(scan, "laser", stamp)),
+        (stamp, "/laser/scan", schemas.laser_scan(scan, "laser", SIM_TIME_BASE.to_log(stamp))),
         (stamp, "/laser/raw", raw),
     ]
 
@@ -227,7 +232,7 @@ def write_events(
     close the writer."""
     for k in range(int(duration_s) + 1):
         stamp = start_ns + k * 10**9
-        clock = schemas.clock(realtime_ns=1_800_000_000 * 10**9 + stamp, monotonic_ns=stamp)
+        clock = schemas.clock(realtime_ns=SIM_TIME_BASE.to_log(stamp), monotonic_ns=stamp)
         events.append((stamp, "/acq/clock", clock))
     events.sort(key=lambda e: e[0])
     try:
@@ -292,7 +297,11 @@ def write_board_log(
         stamp = start_ns + round(t * 1e9)
         frame = Frame(stamp + 2_000_000, stamp, k, lens.width, lens.height, jpeg=buf.tobytes())
         events.append(
-            (stamp, "/camera/image/compressed", schemas.compressed_image(frame, "camera"))
+            (
+                stamp,
+                "/camera/image/compressed",
+                schemas.compressed_image(frame, "camera", SIM_TIME_BASE.to_log(stamp)),
+            )
         )
     n_scans = int(duration / rig.scan_period) + 1
     for k in range(n_scans):

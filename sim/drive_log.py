@@ -43,6 +43,7 @@ from acq.geometry.geodesy import WorldFrame
 from acq.log import schemas
 from acq.log.writer import LogWriter
 from acq.records import Fix, Frame, Odometry, Scan
+from acq.sim.board_log import SIM_TIME_BASE
 from acq.sim.nmea_device import DEFAULT_ORIGIN
 from acq.sim.sensors import camera_to_world, render_frame, render_scan, return_strength
 from acq.sim.world import Rig, Street, Trajectory, default_rig
@@ -161,7 +162,11 @@ def write_drive_log(
         "device.camera": {"driver": "sim"},
         "calibration": {"yaml": calibfile.dump(calib)},
     }
-    writer = LogWriter(directory, prefix="drive", metadata=metadata, split_s=seconds + 600.0)
+    writer = LogWriter(
+        directory, prefix="drive", metadata=metadata, split_s=seconds + 600.0,
+        time_base=SIM_TIME_BASE,
+    )  # fmt: skip
+    to_log = SIM_TIME_BASE.to_log
     for topic, schema in (
         ("/laser/scan", "foxglove.LaserScan"),
         ("/laser/raw", "acq.RawTelegram"),
@@ -217,7 +222,7 @@ def write_drive_log(
         raw = schemas.raw_telegram(device="laser", data=b"", device_ticks=(tick,), sequence=k,
                                    recv_ns=recv, stamp_ns=stamp)  # fmt: skip
         events += [
-            (recv, stamp, "/laser/scan", schemas.laser_scan(scan, "laser", stamp)),
+            (recv, stamp, "/laser/scan", schemas.laser_scan(scan, "laser", to_log(stamp))),
             (recv, stamp, "/laser/raw", raw),
             (recv, stamp, "/acq/timing/laser", timing),
         ]
@@ -247,7 +252,12 @@ def write_drive_log(
         frame = Frame(recv, stamp, k, lens.width, lens.height, jpeg=buf.tobytes())
         timing = schemas.timing(recv_ns=recv, stamp_ns=stamp, sequence=k, received=k + 1)
         events += [
-            (recv, stamp, "/camera/image/compressed", schemas.compressed_image(frame, "camera")),
+            (
+                recv,
+                stamp,
+                "/camera/image/compressed",
+                schemas.compressed_image(frame, "camera", to_log(stamp)),
+            ),
             (recv, stamp, "/acq/timing/camera", timing),
         ]
     # --- odometry (true speed and yaw rate, by central differences of the trajectory)
@@ -278,14 +288,16 @@ def write_drive_log(
         geo = WorldFrame("enu", DEFAULT_ORIGIN).to_geodetic(noisy)
         for t, lat, lon, h in zip(ts.tolist(), *(a.tolist() for a in geo), strict=True):
             stamp = host(t)
-            fix = Fix(recv_ns=stamp + 45_000_000, utc_s=1_800_000_000 + stamp * 1e-9,
+            fix = Fix(recv_ns=stamp + 45_000_000, utc_s=to_log(stamp) * 1e-9,
                       latitude=lat, longitude=lon, altitude=h, quality=4, satellites=14,
                       hdop=0.7)  # fmt: skip
-            events.append((fix.recv_ns, stamp, "/gnss/fix", schemas.location_fix(fix, stamp)))
+            events.append(
+                (fix.recv_ns, stamp, "/gnss/fix", schemas.location_fix(fix, to_log(stamp)))
+            )
     # --- clock pairs, then everything in receipt order
     for k in range(int(seconds) + 2):
         stamp = host(float(k))
-        pair = schemas.clock(realtime_ns=1_800_000_000 * 10**9 + stamp, monotonic_ns=stamp)
+        pair = schemas.clock(realtime_ns=to_log(stamp), monotonic_ns=stamp)
         events.append((stamp, stamp, "/acq/clock", pair))
     events.sort(key=lambda e: e[0])
     try:

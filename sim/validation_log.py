@@ -32,7 +32,7 @@ from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.transforms import Rigid
 from acq.log import schemas
 from acq.records import Frame
-from acq.sim.board_log import open_sim_log, pixel_rays, scan_events, write_events
+from acq.sim.board_log import SIM_TIME_BASE, open_sim_log, pixel_rays, scan_events, write_events
 from acq.sim.raycast import NO_RAY, cast
 from acq.sim.sensors import camera_to_world, render_scan
 from acq.sim.world import Material, Rig, Street, Trajectory, default_rig
@@ -151,7 +151,11 @@ def write_validation_log(
             raise RuntimeError("JPEG encoding failed")
         frame = Frame(stamp + 2_000_000, stamp, k, lens.width, lens.height, jpeg=buf.tobytes())
         events.append(
-            (stamp, "/camera/image/compressed", schemas.compressed_image(frame, "camera"))
+            (
+                stamp,
+                "/camera/image/compressed",
+                schemas.compressed_image(frame, "camera", SIM_TIME_BASE.to_log(stamp)),
+            )
         )
     scans = [
         render_scan(street, vehicle, rig, k * rig.scan_period, rng)

@@ -12,7 +12,8 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from mcap.reader import SeekingReader
 
 from acq.log import schemas
-from acq.log.reader import read_messages, read_metadata
+from acq.log.reader import LogReader, read_metadata
+from acq.log.timebase import MONOTONIC, TimeBase
 from acq.log.writer import LogWriter
 
 IMAGE_TOPIC = "/camera/image/compressed"
@@ -31,25 +32,40 @@ def rewrite(
     *,
     frames: Mapping[int, bytes] | None = None,
     chunk_size: int = 8 << 20,
+    time_base: TimeBase | None = None,
 ) -> tuple[list[Path], dict[int, int]]:
     """The messages of ``files`` written anew into ``directory`` (one file per source
     file), the camera frames numbered in ``frames`` (0: the first) given those JPEG bytes,
-    in chunks of ``chunk_size`` bytes. The new files, and the log time (ns) of each
-    replaced frame by its number."""
+    in chunks of ``chunk_size`` bytes, on the source's clock or ``time_base`` (its
+    Foxglove stamps converted; MONOTONIC: a log as acq wrote them before UTC logs). The
+    new files, and the log time (ns, host monotonic) of each replaced frame by its number."""
     out: list[Path] = []
     times: dict[int, int] = {}
     k = 0
     for src in files:
+        metadata = read_metadata(src)
+        source = TimeBase.of_metadata(metadata)
+        target = source if time_base is None else time_base
+        if target == MONOTONIC:  # as such logs were: no offset, the old clock line
+            metadata["acq"] = {k: v for k, v in metadata["acq"].items() if k != "utc_offset_ns"}
         writer = LogWriter(
-            directory / src.stem, prefix="copy", metadata=read_metadata(src), chunk_size=chunk_size
-        )
+            directory / src.stem, prefix="copy", metadata=metadata, chunk_size=chunk_size,
+            time_base=target,
+        )  # fmt: skip
         topics: set[str] = set()
-        for schema, channel, message in read_messages(src):
+        reader = LogReader(src)
+        for schema, channel, message in reader.messages():
             if channel.topic not in topics:
                 assert schema is not None
                 writer.add_channel(channel.topic, schemas.SCHEMAS[schema.name])
                 topics.add(channel.topic)
             data = message.data
+            if target != source and schema is not None and schema.name.startswith("foxglove."):
+                msg = reader.decode(schema, channel, message)  # stamps host monotonic
+                for stamped in (msg, *getattr(msg, "transforms", ())):
+                    ts = stamped.timestamp
+                    ts.FromNanoseconds(target.to_log(ts.ToNanoseconds()))
+                data = msg.SerializeToString()
             if channel.topic == IMAGE_TOPIC:
                 if frames and k in frames:
                     image = CompressedImage.FromString(data)
@@ -65,7 +81,8 @@ def rewrite(
 
 def corrupt_chunk(path: Path, which: int) -> tuple[int, int, int]:
     """Flip a byte inside the compressed data of the ``which``-th chunk of a closed log:
-    (its first and last log time, ns; the number of chunks)."""
+    (its first and last log time, host monotonic ns as the reader gives them; the number
+    of chunks)."""
     with path.open("rb") as f:
         summary = SeekingReader(f).get_summary()
     assert summary is not None
@@ -74,4 +91,5 @@ def corrupt_chunk(path: Path, which: int) -> tuple[int, int, int]:
     data = bytearray(path.read_bytes())
     data[c.chunk_start_offset + c.chunk_length // 2] ^= 0xFF
     path.write_bytes(bytes(data))
-    return c.message_start_time, c.message_end_time, len(chunks)
+    to_host = TimeBase.of_metadata(read_metadata(path)).to_host
+    return to_host(c.message_start_time), to_host(c.message_end_time), len(chunks)

@@ -7,9 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import yaml
-from mcap.reader import make_reader
-from mcap_protobuf.decoder import DecoderFactory
 
+from acq.log.reader import LogReader
 from acq.record import config as configfile
 from acq.sim.mjpeg_server import MjpegServerProcess
 from acq.sim.scanner_models import MODELS
@@ -70,12 +69,11 @@ class Rig:
 
 
 def read_log(path: Path) -> dict[str, list[tuple[int, int, object]]]:
-    """topic -> [(log_time, publish_time, decoded message)] with the seeking reader."""
+    """topic -> [(log_time, publish_time, decoded message)], all host monotonic ns, as
+    acq's reader gives them (the file's UTC times less the session's offset)."""
     out: dict[str, list[tuple[int, int, object]]] = {}
-    with path.open("rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _schema, channel, message, decoded in reader.iter_decoded_messages():
-            out.setdefault(channel.topic, []).append(
-                (message.log_time, message.publish_time, decoded)
-            )
+    reader = LogReader(path)
+    for schema, channel, message in reader.messages():
+        decoded = reader.decode(schema, channel, message)
+        out.setdefault(channel.topic, []).append((message.log_time, message.publish_time, decoded))
     return out

@@ -32,9 +32,10 @@ from typing import Any, Final
 import numpy as np
 
 from acq.errors import AcqError, InputValueError
-from acq.export.log_clock import LogClock, log_is_utc
+from acq.export.log_clock import LogClock
 from acq.export.ros_messages import BASE_LINK, ODOM, Messages, ScanGeometry
 from acq.log.reader import LogReader, read_metadata
+from acq.log.timebase import TimeBase
 from acq.log.vehicle_log import ODOMETRY_TOPIC, VehicleReader
 from acq.motion.odometry import dead_reckon
 from acq.provenance import SOFTWARE
@@ -119,7 +120,7 @@ def _first_pass(files: Sequence[Path]) -> _Session:
                     pairs.append((int(msg.monotonic_ns), int(msg.realtime_ns)))
             else:
                 vehicle.add(topic, msg)
-    clock = LogClock(log_is_utc(metadata), np.array(pairs, np.int64).reshape(-1, 2))
+    clock = LogClock(TimeBase.of_metadata(metadata), np.array(pairs, np.int64).reshape(-1, 2))
     return _Session(metadata, clock, vehicle, sorted(cameras))
 
 

@@ -7,19 +7,21 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from acq.log.reader import LogError, LogReader
+from acq.log.reader import LogError, LogReader, read_metadata
+from acq.log.timebase import TimeBase
 
 __all__ = ["first_log_time", "locate"]
 
 
 def first_log_time(path: str | os.PathLike[str]) -> int | None:
-    """The log time of a log's first message, ns (None: it has none readable): from the
-    summary's statistics when the file is closed, else its first readable message."""
+    """The log time of a log's first message, host monotonic ns as the reader gives it
+    (None: it has none readable): from the summary's statistics when the file is closed,
+    else its first readable message."""
     reader = LogReader(path)
     with reader.path.open("rb") as f:
         summary = reader._closed_summary(f)
     if reader._start_ns is not None and summary is not None:
-        return reader._start_ns
+        return TimeBase.of_metadata(read_metadata(path)).to_host(reader._start_ns)
     for _, _, message in reader.messages():  # the pass ends here, its file closed
         return message.log_time
     return None

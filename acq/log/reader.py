@@ -16,7 +16,12 @@ Messages are decoded from the schemas stored in the file, never from our own
 generated classes, so older logs with fewer fields still read: :meth:`LogReader.decode`
 makes one decoder per channel, the first time a message of that channel is decoded
 (mcap's ``McapReader`` with a ``DecoderFactory`` does the same for closed files).
-Times are integer nanoseconds of the host clock (MCAP ``log_time``).
+
+Times are integer nanoseconds of the host monotonic clock, whatever the log's clock
+(:mod:`acq.log.timebase`): in a UTC log, :meth:`LogReader.messages` gives ``log_time``
+and ``publish_time`` less the session's offset, and :meth:`LogReader.decode` the
+Foxglove messages' timestamps likewise; :meth:`LogReader.records` gives the records as
+they are in the file.
 """
 
 from __future__ import annotations
@@ -34,9 +39,11 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, TypeVar
+from typing import IO, Any, TypeVar, cast
 
+from google.protobuf.descriptor import Descriptor, FieldDescriptor
 from google.protobuf.message import DecodeError
+from google.protobuf.message import Message as Protobuf
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
@@ -67,6 +74,7 @@ from acq.log.mcap_records import (
     index_messages,
     record_name,
 )
+from acq.log.timebase import MONOTONIC, TimeBase
 
 __all__ = [
     "LogError",
@@ -145,6 +153,42 @@ def _check_magic(path: Path) -> int:
 Decoder = Callable[[bytes], Any]
 T = TypeVar("T")
 
+_TIMESTAMP = "google.protobuf.Timestamp"
+_STAMP_FIELDS: dict[str, tuple[tuple[FieldDescriptor, bool], ...]] = {}  # by message type
+
+
+def _stamp_fields(descriptor: Descriptor) -> tuple[tuple[FieldDescriptor, bool], ...]:
+    """The message fields of a message type that are or may hold a Timestamp, each with
+    whether it is one."""
+    name = descriptor.full_name
+    if name not in _STAMP_FIELDS:
+        _STAMP_FIELDS[name] = ()  # a type that holds itself ends here
+        found = []
+        for field in descriptor.fields:
+            sub = field.message_type
+            if sub is None:
+                continue
+            if sub.full_name == _TIMESTAMP or _stamp_fields(sub):
+                found.append((field, sub.full_name == _TIMESTAMP))
+        _STAMP_FIELDS[name] = tuple(found)
+    return _STAMP_FIELDS[name]
+
+
+def _shift_stamps(msg: Protobuf, delta_ns: int) -> None:
+    """Add ``delta_ns`` to every Timestamp set in ``msg``, nested ones included."""
+    for field, is_stamp in _stamp_fields(cast(Descriptor, msg.DESCRIPTOR)):
+        if field.is_repeated:
+            items = list(getattr(msg, field.name))
+        elif msg.HasField(field.name):
+            items = [getattr(msg, field.name)]
+        else:
+            continue
+        for item in items:
+            if is_stamp:
+                item.FromNanoseconds(item.ToNanoseconds() + delta_ns)
+            else:
+                _shift_stamps(item, delta_ns)
+
 
 class LogReader:
     """One pass over a log: :meth:`records` (every record, in file order), :meth:`messages`
@@ -155,8 +199,10 @@ class LogReader:
     that is not MCAP. After the pass, ``closed``, ``bytes_read`` (where reading stopped,
     bytes; the file size when closed) and :meth:`problem` say how it went, and
     :meth:`messages` leaves the file's ``metadata`` records and its ``attachments`` count.
-    ``log_time`` (first, last) ns: a closed file's chunks whose messages all lie outside
-    it are not read (others may still yield messages outside it: the caller filters).
+    ``log_time`` (first, last) host monotonic ns: a closed file's chunks whose messages all
+    lie outside it are not read (others may still yield messages outside it: the caller
+    filters). ``time_base``: the log's clock, from its ``acq`` metadata record once
+    reading has passed it (the writer puts it first).
     """
 
     def __init__(
@@ -173,6 +219,7 @@ class LogReader:
         self.expected_messages: int | None = None  # from the summary's statistics
         self.footer_at: int | None = None  # a footer the linear pass reached, byte offset
         self.metadata: list[Metadata] = []
+        self.time_base: TimeBase = MONOTONIC
         self.attachments = 0
         self.skipped: list[_Skipped] = []  # the corrupt chunks skipped
         self._start_ns: int | None = None  # the file's first log time, for the warning
@@ -265,6 +312,10 @@ class LogReader:
                 if channel is None:
                     orphans += 1
                     continue
+                offset = self.time_base.utc_offset_ns
+                if offset:
+                    record.log_time -= offset
+                    record.publish_time -= offset
                 yield schemas.get(channel.schema_id), channel, record
             elif isinstance(record, Schema):
                 schemas[record.id] = record
@@ -279,7 +330,8 @@ class LogReader:
 
     def decode(self, schema: Schema | None, channel: Channel, message: Message) -> Any:
         """The message decoded by its channel's schema (a protobuf message), or None when
-        the schema or the payload cannot be decoded."""
+        the schema or the payload cannot be decoded. A Foxglove message's timestamps are
+        host monotonic ns (see the module docstring)."""
         try:
             decoder = self._decoders[channel.id]
         except KeyError:
@@ -287,9 +339,13 @@ class LogReader:
         if decoder is None:
             return None
         try:
-            return decoder(message.data)
+            decoded = decoder(message.data)
         except DecodeError:  # a garbled payload
             return None
+        offset = self.time_base.utc_offset_ns
+        if offset and schema is not None and schema.name.startswith("foxglove."):
+            _shift_stamps(decoded, -offset)
+        return decoded
 
     def decoded(
         self, wanted: Callable[[Schema | None, Channel], T | None]
@@ -374,9 +430,11 @@ class LogReader:
         except RECORD_ERRORS as e:
             extras = []
             self.notes.append(f"unreadable metadata or attachments ({e})")
+        self._take_time_base(extras)
         yield from extras
         count = 0
-        lo, hi = self.log_time or (-1, 2**64)
+        lo, hi = self.log_time or (-(2**63), 2**64)
+        lo, hi = self.time_base.to_log(lo), self.time_base.to_log(hi)
         by_start = {index.chunk_start_offset: index for index in summary.chunk_indexes}
         starts = sorted(
             index.chunk_start_offset
@@ -540,8 +598,19 @@ class LogReader:
             elif isinstance(record, Header | Schema | Channel | Message | Metadata | Attachment):
                 if isinstance(record, Message) and self._start_ns is None:
                     self._start_ns = record.log_time
+                if isinstance(record, Metadata):
+                    self._take_time_base([record])
                 yield record
             pos += HEADER_BYTES + length
+
+    def _take_time_base(self, records: list[McapRecord]) -> None:
+        """The log's time base from its ``acq`` metadata record, if among ``records``."""
+        for record in records:
+            if isinstance(record, Metadata) and record.name == "acq":
+                try:
+                    self.time_base = TimeBase.of_acq_record(record.metadata)
+                except InputValueError as e:
+                    raise InputValueError(f"{self.path}: {e}") from None
 
     def _zeros_or_garbage(self, f: IO[bytes], pos: int) -> str:
         f.seek(pos)

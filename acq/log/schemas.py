@@ -10,11 +10,13 @@ Two families of schemas:
   ``acq.Clock``, ``acq.Status``, ``acq.DeviceStatus``, ``acq.Odometry`` and
   ``acq.CanFrame``.
 
-Times: every ``timestamp`` field is a ``google.protobuf.Timestamp`` holding host
-*monotonic* nanoseconds (``time.monotonic_ns()``), the same clock as MCAP ``log_time``;
-a log maps them to UTC with the (realtime, monotonic) pairs on ``/acq/clock``. Fields
-named ``*_ns`` are int64 nanoseconds on the same monotonic clock, except
-``acq.Clock.realtime_ns`` (``CLOCK_REALTIME``, ns since the Unix epoch).
+Times: a Foxglove message's ``timestamp`` is on the log's clock, the same as MCAP
+``log_time`` (UTC: host monotonic plus the session's offset, :mod:`acq.log.timebase`);
+the encoders here write the stamp they are given, so the caller converts
+(``writer.time_base.to_log``). Every ``acq.*`` ``timestamp`` and every field named
+``*_ns`` hold host *monotonic* nanoseconds (``time.monotonic_ns()``), except
+``acq.Clock.realtime_ns`` (``CLOCK_REALTIME``, ns since the Unix epoch); a log maps
+them to UTC with the (realtime, monotonic) pairs on ``/acq/clock``.
 
 Encoders return the serialized bytes; :func:`decode` turns bytes back into a message.
 """
@@ -182,7 +184,7 @@ def _packed_doubles(field_number: int, values: np.ndarray) -> bytes:
 
 
 def laser_scan(scan: Scan, frame_id: str, stamp_ns: int) -> bytes:
-    """``foxglove.LaserScan``: ``stamp_ns`` is the first point's time (host monotonic ns).
+    """``foxglove.LaserScan``: ``stamp_ns`` is the first point's time (the log's clock, ns).
 
     Angles follow REP-103 (``start_angle = angle_min``, ``end_angle`` the last point's);
     ranges keep ``+inf``/``-inf``/``nan`` (REP-117); intensities are omitted when the
@@ -201,13 +203,13 @@ def laser_scan(scan: Scan, frame_id: str, stamp_ns: int) -> bytes:
     )
 
 
-def compressed_image(frame: Frame, frame_id: str) -> bytes:
-    """``foxglove.CompressedImage``: the JPEG exactly as the camera sent it, stamped with
-    the middle of the exposure (``frame.stamp_ns``, host monotonic ns)."""
+def compressed_image(frame: Frame, frame_id: str, stamp_ns: int) -> bytes:
+    """``foxglove.CompressedImage``: the JPEG exactly as the camera sent it, stamped
+    ``stamp_ns``: the middle of the exposure (``frame.stamp_ns``) on the log's clock."""
     if not frame.jpeg:
         raise ValueError("compressed_image needs a Frame with jpeg bytes (encode it first)")
     msg = CompressedImage(frame_id=frame_id, data=frame.jpeg, format="jpeg")
-    _set_stamp(msg.timestamp, frame.stamp_ns)
+    _set_stamp(msg.timestamp, stamp_ns)
     return _serialized(msg)
 
 
@@ -303,7 +305,7 @@ def point_cloud(points: np.ndarray, rgb: np.ndarray, frame_id: str, stamp_ns: in
 
 def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
     """``foxglove.LocationFix`` for ``/gnss/fix``, stamped ``stamp_ns`` (the fix instant
-    on the host monotonic clock).
+    on the log's clock).
 
     Latitude and longitude in degrees, altitude above the ellipsoid (NaN without a fix);
     ``heading`` (rad clockwise from north) and ENU ``velocity`` from RMC's course and

@@ -22,6 +22,7 @@ import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 
 from acq.log.reader import LogReader, quiet
+from acq.log.timebase import MONOTONIC, TimeBase
 from acq.time.utc import utc_ns
 
 __all__ = ["ChannelInfo", "DeviceSync", "LogInfo", "format_info", "info", "info_many"]
@@ -83,7 +84,9 @@ class LogInfo:
     ``closed`` is True when the footer and the summary are present and valid.
     ``bytes_read`` is where reading stopped (the end of the last good record; the file
     size when closed). ``readable_until_ns`` is the latest ``log_time`` read.
-    ``start_realtime_ns`` is UTC ns of ``start_ns``, from the ``/acq/clock`` pairs.
+    Times are host monotonic ns, as the reader gives them. ``start_realtime_ns`` is UTC
+    ns of ``start_ns``: as the file has it for a UTC log (``time_base``), else from the
+    ``/acq/clock`` pairs.
     ``drops`` and ``disconnects`` come from the last ``/acq/status`` (the counters of
     ``/acq/timing`` for devices it does not list). ``problem`` says, in one line, what is
     wrong with the file (not closed, corrupt chunks), or is None. ``odd_size``: per
@@ -110,6 +113,7 @@ class LogInfo:
     attachments: int
     problem: str | None
     odd_size: dict[str, int] = field(default_factory=dict)
+    time_base: TimeBase = MONOTONIC
 
 
 # --- summarising --------------------------------------------------------------------
@@ -297,6 +301,15 @@ def _result(
     devices, drops, disconnects = acc.devices()
     start = min((c.first_ns for c in channels), default=None)
     end = max((c.last_ns for c in channels), default=None)
+    time_base = TimeBase.of_metadata(acc.metadata)
+    if start is None:
+        start_utc = None
+    elif time_base.utc:
+        start_utc = time_base.to_log(start)
+    elif acc.clock:
+        start_utc = int(utc_ns(start, acc.clock))
+    else:
+        start_utc = None
     return LogInfo(
         path=path,
         files=files,
@@ -308,9 +321,7 @@ def _result(
         start_ns=start,
         end_ns=end,
         duration_s=(end - start) / 1e9 if start is not None and end is not None else 0.0,
-        start_realtime_ns=(
-            int(utc_ns(start, acc.clock)) if start is not None and acc.clock else None
-        ),
+        start_realtime_ns=start_utc,
         channels=channels,
         devices=devices,
         drops=drops,
@@ -319,6 +330,7 @@ def _result(
         attachments=acc.attachments,
         problem=problem,
         odd_size=acc.odd_size(),
+        time_base=time_base,
     )
 
 
@@ -413,6 +425,14 @@ def _format_one(i: LogInfo) -> list[str]:
         if i.start_realtime_ns is not None:
             where += f", from {_utc(i.start_realtime_ns)}"
         lines.append(f"  span      {i.duration_s:.3f} s ({where})")
+    if i.time_base.utc:
+        clock = (
+            f"UTC (host monotonic + {i.time_base.utc_offset_ns / 1e9:.6f} s, fixed at the"
+            " session start); acq.* messages host monotonic"
+        )
+    else:
+        clock = "host monotonic (a log from before acq's UTC logs); UTC from /acq/clock"
+    lines.append(f"  clock     {clock}")
     lines.append(
         f"  messages  {i.messages} in {len(i.channels)} channels, attachments {i.attachments};"
         f" read {_bytes(i.bytes_read)} of {_bytes(i.bytes_total)}"

@@ -37,6 +37,7 @@ from mcap.writer import Writer as McapWriter
 
 from acq import __version__
 from acq.log.schemas import Schema
+from acq.log.timebase import TimeBase
 
 __all__ = ["LatchedData", "LogWriter"]
 
@@ -121,11 +122,16 @@ def _trailer() -> bytes:
 class LogWriter:
     """Writes a session as a series of standalone MCAP files (see the module docstring).
 
-    Sizes in bytes, durations in seconds, times in host monotonic ns. A file rolls over
-    before a message when it holds ``split_bytes`` or more (the open chunk counted
+    Sizes in bytes, durations in seconds, times given in host monotonic ns. A file rolls
+    over before a message when it holds ``split_bytes`` or more (the open chunk counted
     uncompressed) or the message's ``log_time`` is ``split_s`` or more after the file's
     first message; every message lands in exactly one file. ``metadata`` (name -> string
     map, e.g. the config, the calibration, versions) is written at the start of every file.
+
+    ``time_base`` (default: UTC, its offset measured now, at the session start) is the
+    clock of the files' ``log_time`` and ``publish_time``: the times given are written
+    through :meth:`TimeBase.to_log`, and the ``acq`` metadata record names it. Whoever
+    encodes a Foxglove message's ``timestamp`` does the same (``writer.time_base``).
     """
 
     def __init__(
@@ -140,6 +146,7 @@ class LogWriter:
         sync_interval_s: float = 1.0,
         metadata: dict[str, dict[str, str]] | None = None,
         profile: str = "",
+        time_base: TimeBase | None = None,
     ) -> None:
         if compression not in _COMPRESSION:
             raise ValueError(
@@ -155,8 +162,12 @@ class LogWriter:
         self.compression = _COMPRESSION[compression]
         self.sync_interval_ns = int(sync_interval_s * 1e9)
         self.profile = profile
+        self.time_base = TimeBase.session_start() if time_base is None else time_base
+        given = {name: dict(values) for name, values in (metadata or {}).items()}
+        # the ``acq`` record first: a reader knows the time base before any message
         self._metadata: dict[str, dict[str, str]] = {
-            name: dict(values) for name, values in (metadata or {}).items()
+            "acq": {**given.pop("acq", {}), **self.time_base.metadata()},
+            **given,
         }
         self._channels: dict[str, _Channel] = {}
         self._latched: dict[str, tuple[LatchedData, int]] = {}
@@ -235,8 +246,9 @@ class LogWriter:
         ``/tf_static``); written now to the current file too, at ``publish_time_ns``.
 
         In a later file it is stamped (log and publish time) with the file's start, the
-        first message's log time; ``data`` may be a function of that time returning the
-        encoded message, so that the protobuf timestamp says the same.
+        first message's log time; ``data`` may be a function of that time (in the log's
+        time base) returning the encoded message, so that the protobuf timestamp says the
+        same.
         """
         self._check_usable()
         self._channel_id(topic)  # must be registered
@@ -247,6 +259,8 @@ class LogWriter:
         """Set metadata ``name``: written now to the current file (a reader takes the last
         record of a name) and at the start of every later file."""
         self._check_usable()
+        if name == "acq":  # the time base stays named
+            values = {**values, **self.time_base.metadata()}
         self._metadata[name] = dict(values)
         writer = self._require_writer()
         self._guard(lambda: writer.add_metadata(name, dict(values)))
@@ -283,7 +297,12 @@ class LogWriter:
         if self._file_start_ns is None:
             self._file_start_ns = log_time_ns
         before = out.pos
-        self._guard(lambda: writer.add_message(channel_id, log_time_ns, data, publish_time_ns))
+        to_log = self.time_base.to_log
+        self._guard(
+            lambda: writer.add_message(
+                channel_id, to_log(log_time_ns), data, to_log(publish_time_ns)
+            )
+        )
         # The chunk was written when the file grew: the message went with it.
         self._pending = 0 if out.pos != before else self._pending + len(data) + _MESSAGE_OVERHEAD
         self._messages += 1
@@ -430,7 +449,7 @@ class LogWriter:
     def _write_latched(self, topic: str, start_ns: int | None) -> None:
         writer = self._require_writer()
         data, publish_ns = self._latched[topic]
-        stamp = publish_ns if start_ns is None else start_ns
+        stamp = self.time_base.to_log(publish_ns if start_ns is None else start_ns)
         payload = data(stamp) if callable(data) else data
         writer.add_message(self._chan_ids[topic], stamp, payload, stamp)
         self._pending += len(payload) + _MESSAGE_OVERHEAD

@@ -140,7 +140,8 @@ class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
             sequence=scan.sequence, recv_ns=scan.recv_ns, stamp_ns=stamp,
         )  # fmt: skip
         writer.write_group([
-            (f"/{name}/scan", schemas.laser_scan(scan, name, stamp), scan.recv_ns, stamp),
+            (f"/{name}/scan", schemas.laser_scan(scan, name, writer.time_base.to_log(stamp)),
+             scan.recv_ns, stamp),
             (f"/{name}/raw", raw, scan.recv_ns, stamp),
             (f"/acq/timing/{name}", timing, scan.recv_ns, stamp),
         ])  # fmt: skip
@@ -260,7 +261,7 @@ class CameraAdapter(DeviceAdapter[Frame, _FrameItem]):
             received=payload.counts.received,
             dropped=payload.counts.dropped,
         )
-        image = schemas.compressed_image(frame, name)
+        image = schemas.compressed_image(frame, name, writer.time_base.to_log(frame.stamp_ns))
         writer.write_group([
             (f"/{name}/image/compressed", image, frame.recv_ns, frame.stamp_ns),
             (f"/acq/timing/{name}", timing, frame.recv_ns, frame.stamp_ns),
@@ -423,7 +424,8 @@ class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
             dropped=payload.counts.dropped,
         )
         writer.write_group([
-            (f"/{GNSS}/fix", schemas.location_fix(fix, stamp, GNSS), fix.recv_ns, stamp),
+            (f"/{GNSS}/fix", schemas.location_fix(fix, writer.time_base.to_log(stamp), GNSS),
+             fix.recv_ns, stamp),
             (f"/acq/timing/{GNSS}", timing, fix.recv_ns, stamp),
         ])  # fmt: skip
 

@@ -220,8 +220,6 @@ class Recorder:
                 "host": socket.gethostname(),
                 "python": sys.version.split()[0],
                 "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                "clock": "log_time and timestamps are host CLOCK_MONOTONIC ns; "
-                "/acq/clock maps them to UTC",
             },
             "config": {"yaml": redact(dump(self.config))},
         }

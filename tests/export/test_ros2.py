@@ -13,8 +13,9 @@ from rosbags.typesys import Stores, get_typestore
 
 from acq.cli import main as acq_main
 from acq.export import export_ros2
-from acq.export.log_clock import LogClock, log_is_utc
+from acq.export.log_clock import LogClock
 from acq.log import schemas
+from acq.log.timebase import MONOTONIC, TimeBase
 from acq.log.writer import LogWriter
 
 MONO0 = 5_000_000_000_000  # host monotonic ns at the log's start
@@ -22,22 +23,28 @@ UTC0 = 1_800_000_000_123_456_789  # the wall clock then
 SCANS, FRAMES, ODOMETRY, FIXES = 20, 5, 25, 5
 STEP = 40_000_000  # ns between scans
 GEOMETRY = {"time_increment": 1e-4, "scan_period": 0.025, "range_min": 0.1, "range_max": 30.0}
+# a log of today (UTC, its offset fixed at the start) whose wall clock was later stepped 5 ms
+# (its clock pair says so: its own times must win), and one of before (host monotonic)
+UTC_LOG = TimeBase(True, UTC0 - MONO0)
+PAIR_STEP = {UTC_LOG: 5_000_000, MONOTONIC: 0}
 
 
-def _stamp(msg: object, ns: int) -> None:
-    msg.timestamp.seconds, msg.timestamp.nanos = divmod(ns, 10**9)  # type: ignore[attr-defined]
-
-
-def _write_log(directory: Path, split_s: float = 600.0) -> list[Path]:
+def _write_log(
+    directory: Path, split_s: float = 600.0, time_base: TimeBase = UTC_LOG
+) -> list[Path]:
     """1 s: scans, frames, calibration, /tf_static, odometry, fixes and one clock pair
     (UTC = monotonic + UTC0 - MONO0), each message received 3 ms after its stamp."""
     cls = schemas.message_class
     meta = {
-        "acq": {"clock": "log_time and timestamps are host CLOCK_MONOTONIC ns"},
         "device.laser": {"geometry": json.dumps(GEOMETRY)},
         "device.camera": {"driver": "sim"},
     }
-    w = LogWriter(directory, metadata=meta, split_s=split_s)
+    w = LogWriter(directory, metadata=meta, split_s=split_s, time_base=time_base)
+
+    def _stamp(msg: object, mono_ns: int) -> None:  # a Foxglove stamp on the log's clock
+        ns = time_base.to_log(mono_ns)
+        msg.timestamp.seconds, msg.timestamp.nanos = divmod(ns, 10**9)  # type: ignore[attr-defined]
+
     for topic, name in (
         ("/acq/clock", "acq.Clock"),
         ("/tf_static", "foxglove.FrameTransforms"),
@@ -49,7 +56,8 @@ def _write_log(directory: Path, split_s: float = 600.0) -> list[Path]:
         ("/acq/timing/laser", "acq.Timing"),
     ):
         w.add_channel(topic, schemas.SCHEMAS[name])
-    w.write("/acq/clock", schemas.clock(realtime_ns=UTC0, monotonic_ns=MONO0), MONO0, MONO0)
+    pair = schemas.clock(realtime_ns=UTC0 + PAIR_STEP[time_base], monotonic_ns=MONO0)
+    w.write("/acq/clock", pair, MONO0, MONO0)
     tf = cls("foxglove.FrameTransforms")()
     for parent, child, z in (("vehicle", "laser", 2.2), ("laser", "camera", 0.1)):
         t = tf.transforms.add(parent_frame_id=parent, child_frame_id=child)
@@ -84,7 +92,7 @@ def _write_log(directory: Path, split_s: float = 600.0) -> list[Path]:
     for i in range(ODOMETRY):
         t = MONO0 + i * 40_000_000  # 5 m/s, 0.1 rad/s
         odo = cls("acq.Odometry")(recv_ns=t, speed_mps=5.0, yaw_rate_rps=0.1)
-        _stamp(odo, t)
+        odo.timestamp.seconds, odo.timestamp.nanos = divmod(t, 10**9)  # acq.*: monotonic
         out.append((t, "/vehicle/odometry", odo.SerializeToString(), t))
     for i in range(FIXES):
         t = MONO0 + i * 200_000_000
@@ -101,12 +109,14 @@ def _write_log(directory: Path, split_s: float = 600.0) -> list[Path]:
     return w.files
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="module", params=[UTC_LOG, MONOTONIC], ids=["utc", "monotonic"])
 def bag(
-    tmp_path_factory: pytest.TempPathFactory,
+    tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest
 ) -> tuple[Path, dict[str, list[tuple[int, object]]]]:
+    """The bag of a log of today (UTC) and of one written before (host monotonic): the
+    same stamps."""
     d = tmp_path_factory.mktemp("ros2")
-    (log,) = _write_log(d / "log")
+    (log,) = _write_log(d / "log", time_base=request.param)
     out = d / "bag"
     assert acq_main(["export", "ros2", str(log), "-o", str(out)]) == 0
     typestore = get_typestore(Stores.ROS2_JAZZY)
@@ -239,19 +249,17 @@ def test_an_existing_bag_is_kept_unless_acq_wrote_it_or_force(
     assert not (other / "notes.txt").exists() and (other / "metadata.yaml").exists()
 
 
-def test_a_utc_log_is_left_as_it_is() -> None:
-    assert not log_is_utc({"acq": {"clock": "log_time and timestamps are host CLOCK_MONOTONIC ns"}})
-    assert log_is_utc({"acq": {"clock": "log_time and timestamps are UTC ns"}})
-    assert LogClock(True, np.zeros((0, 2))).to_utc(123) == 123
+def test_a_utc_log_keeps_its_own_times() -> None:
+    assert LogClock(TimeBase(True, 7), np.zeros((0, 2))).to_utc(123) == 130
     pairs = np.array([[10, 1_000_010], [1_000, 1_001_010]])  # the wall clock gained 10 ns
-    assert LogClock(False, pairs).to_utc(505) == 1_000_510
+    assert LogClock(MONOTONIC, pairs).to_utc(505) == 1_000_510
 
 
 def test_a_log_without_clock_pairs_is_refused(tmp_path: Path) -> None:
     from acq.errors import InputValueError
 
     with pytest.raises(InputValueError, match="/acq/clock"):
-        LogClock(False, np.zeros((0, 2)))
+        LogClock(MONOTONIC, np.zeros((0, 2)))
 
 
 def test_a_split_sessions_latched_messages_go_in_once(tmp_path: Path) -> None:
@@ -264,4 +272,4 @@ def test_a_split_sessions_latched_messages_go_in_once(tmp_path: Path) -> None:
         "/camera/image/compressed": FRAMES, "/odom": ODOMETRY, "/tf": ODOMETRY,
         "/gnss/fix": FIXES,
     }  # fmt: skip
-    assert report.left_out == {"/acq/timing/laser": SCANS} and not report.utc
+    assert report.left_out == {"/acq/timing/laser": SCANS} and report.utc

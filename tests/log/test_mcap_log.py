@@ -25,6 +25,8 @@ from mcap_protobuf.decoder import DecoderFactory
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import Equidistant
 from acq.log import schemas, writer
+from acq.log.reader import LogReader
+from acq.log.timebase import MONOTONIC, TimeBase, measure_utc_offset_ns
 from acq.log.writer import LogWriter
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,8 +58,15 @@ def number(channel_topic: str, data: bytes) -> int:
     return int(schemas.decode("acq.RawTelegram", data).sequence)
 
 
+META = {"config": {"version": "1"}, "software": {"acq": "test"}}
+# what a file's metadata says: the writer adds the time base (here host monotonic, so the
+# times the tests give are the times in the file)
+WRITTEN_META = {**META, "acq": MONOTONIC.metadata()}
+
+
 def new_writer(directory: Path, **kw: Any) -> LogWriter:
-    kw.setdefault("metadata", {"config": {"version": "1"}, "software": {"acq": "test"}})
+    kw.setdefault("metadata", META)
+    kw.setdefault("time_base", MONOTONIC)
     w = LogWriter(directory, **kw)
     w.add_channel(CLOCK, schemas.SCHEMAS["acq.Clock"])
     w.add_channel(RAW, schemas.SCHEMAS["acq.RawTelegram"], {"device": "laser"})
@@ -147,7 +156,7 @@ def test_a_file_opens_decodes_and_is_named(tmp_path: Path) -> None:
     assert w.close() is None
     assert w.close() is None and w.path is None  # idempotent
     assert w.files == [path] and w.bytes_written == path.stat().st_size
-    assert_file_starts_standalone(path, {"config": {"version": "1"}, "software": {"acq": "test"}})
+    assert_file_starts_standalone(path, WRITTEN_META)
 
     msgs = read_file(path)
     data = [m for m in msgs if m[0] not in LATCHED]
@@ -170,6 +179,63 @@ def test_a_file_opens_decodes_and_is_named(tmp_path: Path) -> None:
         f.seek(0)
         header = make_reader(f).get_header()
         assert header.library.startswith("acq/") and header.profile == ""
+
+
+def test_times_are_utc_from_one_offset_and_read_back_as_host_monotonic(tmp_path: Path) -> None:
+    """By default a log's log_time, publish_time and Foxglove timestamps are UTC: host
+    monotonic plus one offset measured when the writer starts, named in the ``acq``
+    metadata; acq.* messages keep host monotonic. LogReader gives host monotonic back."""
+    w = LogWriter(tmp_path, metadata={"acq": {"version": "x"}})
+    mono = time.monotonic_ns()
+    offset = w.time_base.utc_offset_ns
+    assert w.time_base.utc and abs(offset - measure_utc_offset_ns()) < 1_000_000
+    w.add_channel(CLOCK, schemas.SCHEMAS["acq.Clock"])
+    w.add_channel(TF, schemas.SCHEMAS["foxglove.FrameTransforms"])
+    w.add_channel("/laser/scan", schemas.SCHEMAS["foxglove.LaserScan"])
+    w.set_latched(TF, lambda t: schemas.frame_transforms(CAL, t), mono)
+    clock = schemas.clock(realtime_ns=time.time_ns(), monotonic_ns=mono)
+    w.write(CLOCK, clock, mono, mono)
+    w.write("/laser/scan", schemas.message_class("foxglove.LaserScan")(
+        timestamp={"seconds": 0, "nanos": 0}).SerializeToString(), mono + 2, mono + 1)  # fmt: skip
+    w.close()
+    (path,) = w.files
+    with open(path, "rb") as f:  # as any MCAP reader sees it: today's date
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert meta["acq"]["version"] == "x" and meta["acq"]["utc_offset_ns"] == str(offset)
+        assert "UTC" in meta["acq"]["clock"]
+        got = {c.topic: (m.log_time, m.publish_time, d) for _, c, m, d in
+               reader.iter_decoded_messages(log_time_order=False)}  # fmt: skip
+    assert abs(got[CLOCK][0] - time.time_ns()) < 60 * 10**9
+    assert got[CLOCK][:2] == (mono + offset, mono + offset)
+    assert got[CLOCK][2].monotonic_ns == mono  # acq.*: host monotonic
+    tf = got[TF][2].transforms[0].timestamp
+    assert got[TF][:2] == (mono + offset,) * 2 and tf.ToNanoseconds() == mono + offset
+    reader = LogReader(path)
+    back = {}
+    for schema, channel, message in reader.messages():
+        back[channel.topic] = (message.log_time, message.publish_time,
+                               reader.decode(schema, channel, message))  # fmt: skip
+    assert reader.time_base == w.time_base
+    assert back[CLOCK][:2] == (mono, mono) and back[CLOCK][2].monotonic_ns == mono
+    assert back[TF][:2] == (mono, mono)
+    assert back[TF][2].transforms[0].timestamp.ToNanoseconds() == mono
+    assert back["/laser/scan"][:2] == (mono + 2, mono + 1)
+    assert back["/laser/scan"][2].timestamp.ToNanoseconds() == -offset  # 0 was written
+    # a window in host monotonic time reads the chunk; one outside it does not
+    assert len(list(LogReader(path, (mono, mono + 2)).messages())) == 3
+    assert list(LogReader(path, (mono + 10, mono + 20)).messages()) == []
+
+
+def test_a_bad_time_base_is_an_input_error(tmp_path: Path) -> None:
+    w = LogWriter(tmp_path, metadata={"x": {}}, time_base=MONOTONIC)
+    w.update_metadata("acq", {"utc_offset_ns": "soon"})
+    w.close()
+    from acq.errors import InputValueError
+
+    assert TimeBase.of_metadata({}) == MONOTONIC
+    with pytest.raises(InputValueError, match=r"acq\.utc_offset_ns: 'soon'"):
+        list(LogReader(w.files[0]).messages())
 
 
 def test_writer_errors_are_clear(tmp_path: Path) -> None:
@@ -323,9 +389,7 @@ def test_rollover_by_size(tmp_path: Path) -> None:
         seen += numbers
         if k < len(files) - 1:
             assert split * 0.9 < path.stat().st_size < split + 4096 + 8000, path
-        assert_file_starts_standalone(
-            path, {"config": {"version": "1"}, "software": {"acq": "test"}}
-        )
+        assert_file_starts_standalone(path, WRITTEN_META)
         # latched messages carry the file's start: its first data message's log time
         first = min(lt for t, lt, _, _ in msgs if t not in LATCHED)
         for t, lt, pt, d in msgs:
@@ -362,14 +426,16 @@ def test_metadata_updates_reach_the_current_and_later_files(tmp_path: Path) -> N
     first, second = w.files
     with open(first, "rb") as f:
         records = [(m.name, m.metadata) for m in make_reader(f).iter_metadata()]
+    acq = ("acq", MONOTONIC.metadata())  # first: the time base
     assert records == [
+        acq,
         ("config", {"v": "1"}),
         ("calibration", {"yaml": "new"}),
         ("config", {"v": "2"}),
     ]
     with open(second, "rb") as f:
         records = [(m.name, m.metadata) for m in make_reader(f).iter_metadata()]
-    assert records == [("config", {"v": "2"}), ("calibration", {"yaml": "new"})]
+    assert records == [acq, ("config", {"v": "2"}), ("calibration", {"yaml": "new"})]
 
 
 # --- a full disk ---------------------------------------------------------------------------

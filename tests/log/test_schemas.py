@@ -129,12 +129,14 @@ def test_laser_scan_without_intensities_or_points() -> None:
 def test_compressed_image_keeps_the_jpeg() -> None:
     jpeg = b"\xff\xd8" + bytes(range(256)) * 200 + b"\xff\xd9"
     frame = Frame(recv_ns=STAMP + 9, stamp_ns=STAMP, sequence=3, width=780, height=582, jpeg=jpeg)
-    msg = schemas.decode("foxglove.CompressedImage", schemas.compressed_image(frame, "camera"))
+    msg = schemas.decode(
+        "foxglove.CompressedImage", schemas.compressed_image(frame, "camera", STAMP)
+    )
     assert msg.data == jpeg and msg.format == "jpeg" and msg.frame_id == "camera"
     assert ts_ns(msg.timestamp) == STAMP
     raw = Frame(0, 0, 0, 2, 1, image=np.zeros((1, 2, 3), np.uint8))
     with pytest.raises(ValueError, match="jpeg"):
-        schemas.compressed_image(raw, "camera")
+        schemas.compressed_image(raw, "camera", 0)
 
 
 def test_camera_calibration_equidistant_is_kannala_brandt_with_zero_d() -> None:

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from acq.log.reader import LogReader
 from acq.record.recorder import EXIT_DISK_FULL, Recorder
 from tests.sim_rig import Rig, read_log
 
@@ -91,6 +92,21 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     with files[0].open("rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert "config" in meta and "acq" in meta
+    # as any MCAP tool sees the file: UTC times (today's), the host monotonic ones plus the
+    # session's offset, in log and publish times and the Foxglove stamps; acq.* monotonic
+    offset = int(meta["acq"]["utc_offset_ns"])
+    assert abs(offset - (time.time_ns() - time.monotonic_ns())) < 10**9
+    with files[0].open("rb") as f:
+        seen = {}
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            seen.setdefault(channel.topic, (message.log_time, message.publish_time))
+    assert abs(seen["/laser/scan"][0] - time.time_ns()) < 60 * 10**9
+    for topic in ("/laser/scan", "/camera/image/compressed", "/acq/timing/laser"):
+        log_ns, pub_ns, _ = log[topic][0]
+        assert seen[topic] == (log_ns + offset, pub_ns + offset)
+    assert scans[0][2].timestamp.ToNanoseconds() == scans[0][1]  # monotonic, as read back
+    timing = log["/acq/timing/laser"][0]
+    assert timing[2].stamp_ns == timing[1] and timing[2].recv_ns == timing[0]
     import json
 
     geometry = json.loads(meta["device.laser"]["geometry"])
@@ -351,9 +367,8 @@ def test_files_roll_over_with_nothing_lost_or_repeated(rig: Rig, tmp_path: Path)
         # stamped when the recorder started, in a later file with the log time of the record
         # that opened it (records of other devices may follow with earlier receive times:
         # their threads queue them in turn)
-        with path.open("rb") as f:
-            in_file_order = make_reader(f).iter_messages(log_time_order=False)
-            opening = next(m for _, c, m in in_file_order if c.topic not in LATCHED)
+        in_file_order = LogReader(path).messages()
+        opening = next(m for _, c, m in in_file_order if c.topic not in LATCHED)
         start = min(t for msgs in log.values() for t, _, _ in msgs)
         assert log["/tf_static"][0][0] == (start if path == files[0] else opening.log_time)
         tf = log["/tf_static"][0][2]

@@ -80,26 +80,25 @@ class Log(NamedTuple):
 
 
 def _read_log(path: Path) -> Log:
-    """What the test needs of the log, through mcap's seeking reader (needs the summary)."""
+    """What the test needs of the log, through mcap's seeking reader (needs the summary),
+    as any MCAP tool sees it: the frames' publish times are UTC already."""
     scans = valid = 0
     frames: list[int] = []
-    offsets: list[int] = []
     with path.open("rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
+        assert "utc_offset_ns" in {m.name: m.metadata for m in reader.iter_metadata()}["acq"]
         for _, channel, message, msg in reader.iter_decoded_messages(
-            topics=["/laser/scan", "/camera/image/compressed", "/acq/clock"]
+            topics=["/laser/scan", "/camera/image/compressed"]
         ):
             if channel.topic == "/laser/scan":
                 scans += 1
                 valid += int(np.isfinite(np.asarray(msg.ranges)).sum())
-            elif channel.topic == "/acq/clock":
-                offsets.append(msg.realtime_ns - msg.monotonic_ns)
             else:
+                assert msg.timestamp.ToNanoseconds() == message.publish_time
                 frames.append(message.publish_time)
-    utc = (np.array(frames) + int(np.median(offsets))) * 1e-9
-    return Log(scans, valid, utc)
+    return Log(scans, valid, np.array(frames) * 1e-9)
 
 
 def _on_cadence(stamps: np.ndarray, period_s: float = 0.04, slack_s: float = 0.006) -> np.ndarray:

@@ -450,6 +450,15 @@ class Replay:
         """Records sent so far, per device."""
         return {name: s.sent for name, s in self._streams.items()}
 
+    def served_s(self) -> float:
+        """Seconds of the log served so far (log time, 0 before the clock starts)."""
+        clock = self._clock
+        if clock is None or not clock.started:
+            return 0.0
+        session = self.session
+        served = (clock.log_ns_at(time.monotonic()) - session.start_ns) * 1e-9
+        return min(max(served, 0.0), session.duration_s)
+
     def end_time(self) -> float | None:
         """When the last record is due (monotonic s); None before the clock starts."""
         if self._clock is None or not self._clock.started:

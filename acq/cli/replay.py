@@ -9,6 +9,7 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from acq import progress
 from acq.cli import output_files
 from acq.cli.exposure import warn_if_exposed
 from acq.cli.option_types import real
@@ -87,6 +88,18 @@ def _write(path: Path, text: str, backups: list[Output]) -> None:
     output_files.write_text(path, text)
 
 
+def _serve_with_a_bar(replay: Replay, stop: threading.Event) -> None:
+    """Until the log has been served or ``stop``: a bar in seconds of the log served."""
+    done = 0.0
+    with progress.bar(round(replay.session.duration_s, 1), "s", "replaying"):
+        while not stop.is_set() and not replay.wait(0.2):
+            served = replay.served_s()
+            progress.advance(served - done, "s")
+            done = served
+        if not stop.is_set():
+            progress.advance(replay.session.duration_s - done, "s")
+
+
 def run(args: argparse.Namespace) -> int:
     """Serve the logs until they end or Ctrl-C / SIGTERM. Prints the devices' URLs and a
     configuration for ``acq record -c`` (or writes it to --config-out, with the recorded
@@ -141,17 +154,16 @@ def run(args: argparse.Namespace) -> int:
             print("configuration for `acq record -c FILE` (--config-out writes it):")
             print(text, end="")
         print("the replay starts when a client asks a device for data", flush=True)
-        announced = False
-        while not stop.is_set():
-            if replay.started and not announced:
-                announced = True
+        while not stop.is_set() and not replay.wait(0.2):
+            if replay.started:
                 log.info("started: the log plays for %.1f s", replay.session.duration_s / speed)
-            if replay.wait(0.2):
-                log.info(
-                    "the log has been served to its end: %s",
-                    ", ".join(f"{k} {v}" for k, v in replay.sent().items()),
-                )
+                _serve_with_a_bar(replay, stop)
                 break
+        if replay.wait(0):
+            log.info(
+                "the log has been served to its end: %s",
+                ", ".join(f"{k} {v}" for k, v in replay.sent().items()),
+            )
         return 0
     finally:
         replay.close()

@@ -10,9 +10,17 @@ from __future__ import annotations
 
 import itertools
 import time
-from concurrent.futures import Executor, ThreadPoolExecutor
+from collections.abc import Callable, Sequence
+from concurrent.futures import (
+    ALL_COMPLETED,
+    FIRST_COMPLETED,
+    Executor,
+    Future,
+    ThreadPoolExecutor,
+    wait,
+)
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ParamSpec, Protocol, TypeVar
 
 import numpy as np
 
@@ -29,7 +37,9 @@ __all__ = [
     "Chunk",
     "ChunkColouring",
     "ChunkResult",
+    "CountedPool",
     "Placed",
+    "ProgressSink",
     "cloud_of",
     "colour_chunk",
     "frames_used",
@@ -133,12 +143,60 @@ def place(
     return Placed(scan_idx, step, r, time_ns, P_laser, P_world, inside)
 
 
-def colour_chunk(job: Job, chunk: Chunk, whole: DriveLog | None = None) -> ChunkResult:
+_P = ParamSpec("_P")
+_T = TypeVar("_T")
+
+
+class CountedPool(Executor):
+    """``pool``, keeping the tasks submitted through it (a chunk's frames)."""
+
+    def __init__(self, pool: Executor) -> None:
+        self.pool = pool
+        self.tasks: list[Future[Any]] = []
+
+    def submit(self, fn: Callable[_P, _T], /, *args: _P.args, **kwargs: _P.kwargs) -> Future[_T]:
+        task = self.pool.submit(fn, *args, **kwargs)
+        self.tasks.append(task)
+        return task
+
+
+class ProgressSink(Protocol):
+    """Where a chunk run elsewhere reports its frames: a queue shared with the process
+    that shows the bar (a multiprocessing manager's, or Dask's ``distributed.Queue``)."""
+
+    def put(self, item: tuple[int, int, int]) -> Any: ...
+
+
+def _report_frames(index: int, tasks: Sequence[Future[Any]], sink: ProgressSink) -> None:
+    """Wait for ``tasks``, putting (chunk ``index``, frames done, frames in all) into
+    ``sink``: when the first ends, then at most every REPORT_S, and when the last ends.
+    On this thread: a Dask worker takes a queue's puts from its task's thread only."""
+    total, pending, reported = len(tasks), set(tasks), 0
+    while pending:
+        how = FIRST_COMPLETED if reported == 0 else ALL_COMPLETED
+        pending = wait(pending, timeout=REPORT_S, return_when=how).not_done
+        done = total - len(pending)
+        if done > reported:
+            sink.put((index, done, total))
+            reported = done
+
+
+REPORT_S = 0.25  # how often a chunk run elsewhere reports its frames
+
+
+def colour_chunk(
+    job: Job, chunk: Chunk, whole: DriveLog | None = None, sink: ProgressSink | None = None
+) -> ChunkResult:
     """Read, place and colour one chunk (runs in a worker process or on a Dask worker);
-    ``whole``: the log already read (then only its part is used). The damage its part of
-    the log may have is not logged again: reading the whole log first did."""
-    with quiet(), ThreadPoolExecutor(max_workers=max(1, job.threads)) as pool:
-        return start_chunk(job, chunk, whole, pool).result()
+    ``whole``: the log already read (then only its part is used); ``sink``: where to
+    report its frames as they are done. The damage its part of the log may have is not
+    logged again: reading the whole log first did."""
+    with quiet(), ThreadPoolExecutor(max_workers=max(1, job.threads)) as threads:
+        pool = CountedPool(threads)
+        started = start_chunk(job, chunk, whole, pool)
+        if sink is not None:
+            _report_frames(chunk.index, pool.tasks, sink)
+        return started.result()
 
 
 def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) -> ChunkColouring:

@@ -42,11 +42,12 @@ import os
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
-from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, ParamSpec, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -60,6 +61,7 @@ from acq.cloud.chunks import (
     Chunk,
     ChunkColouring,
     ChunkResult,
+    CountedPool,
     cloud_of,
     colour_chunk,
     frames_used,
@@ -145,23 +147,6 @@ def _run_chunks(
         _run_each(job, chunks, workers, dask, done, whole, shares)
 
 
-_P = ParamSpec("_P")
-_T = TypeVar("_T")
-
-
-class _CountedPool(Executor):
-    """``pool``, keeping the tasks submitted through it."""
-
-    def __init__(self, pool: Executor) -> None:
-        self.pool = pool
-        self.tasks: list[Future[Any]] = []
-
-    def submit(self, fn: Callable[_P, _T], /, *args: _P.args, **kwargs: _P.kwargs) -> Future[_T]:
-        task = self.pool.submit(fn, *args, **kwargs)
-        self.tasks.append(task)
-        return task
-
-
 class _ChunkShares:
     """A chunk's scans on the progress bar (:mod:`acq.progress`): when it runs in this
     process, a share for each of its frames decoded (so the bar moves within a chunk);
@@ -184,6 +169,27 @@ class _ChunkShares:
             self._shown[index] = before + n
         progress_bars.advance(math.floor(before + n) - math.floor(before), "scan")
 
+    def frames_done(self, index: int, done: int, total: int) -> None:
+        """Chunk ``index``, run elsewhere, has ``done`` of its ``total`` frames done."""
+        target = 0.9 * self.scans[index] * done / max(total, 1)
+        with self._lock:
+            before = self._shown[index]
+            if target <= before:  # an old report, or the chunk was written already
+                return
+            self._shown[index] = target
+        progress_bars.advance(math.floor(target) - math.floor(before), "scan")
+
+    def drain(self, take: Callable[[], list[Any]], stop: threading.Event) -> None:
+        """Until ``stop`` and then what is left: the (chunk, done, total) reports
+        ``take`` gets (it waits a moment for them)."""
+        while True:
+            stopping = stop.is_set()
+            reports = take()
+            for index, done, total in reports:
+                self.frames_done(index, done, total)
+            if stopping and not reports:
+                return
+
     def finish(self, index: int) -> None:
         with self._lock:
             before, self._shown[index] = self._shown[index], self.scans[index]
@@ -201,29 +207,54 @@ def _run_each(
 ) -> None:
     """Each chunk's result to ``done`` as it comes, however the chunks run."""
     if dask:
-        from dask.distributed import Client, as_completed
+        from dask.distributed import Client, Queue, as_completed
 
         with Client(dask) as client:
-            job_f = client.scatter(job, broadcast=True)
-            futures = [client.submit(colour_chunk, job_f, c, pure=False) for c in chunks]
-            for fut in as_completed(futures):
-                done(fut.result())
+            queue = Queue(client=client)
+
+            def take_dask() -> list[Any]:
+                items: list[Any] = queue.get(batch=True)  # at once, what is there
+                if not items:
+                    time.sleep(0.2)
+                return items
+
+            with _draining(shares, take_dask):
+                job_f = client.scatter(job, broadcast=True)
+                sink = DaskQueueSink(queue.name)
+                futures = [
+                    client.submit(colour_chunk, job_f, c, None, sink, pure=False) for c in chunks
+                ]
+                for fut in as_completed(futures):
+                    done(fut.result())
     elif workers > 1:
         import multiprocessing
+        import queue as queues
         from concurrent.futures import ProcessPoolExecutor
         from concurrent.futures import as_completed as completed
 
         ctx = multiprocessing.get_context("spawn")  # numba and threads: no fork
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            pending = [pool.submit(colour_chunk, job, c) for c in chunks]
-            for fut in completed(pending):
-                done(fut.result())
+        with ctx.Manager() as manager:
+            reports = manager.Queue()
+
+            def take() -> list[Any]:
+                try:
+                    return [reports.get(timeout=0.2)]
+                except queues.Empty:
+                    return []
+
+            with (
+                _draining(shares, take),
+                ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool,
+            ):
+                pending = [pool.submit(colour_chunk, job, c, None, reports) for c in chunks]
+                for fut in completed(pending):
+                    done(fut.result())
     else:  # one process: the log read once (whole), or each chunk its part
         threads = ThreadPoolExecutor(max_workers=max(1, job.threads))
         try:
             started: ChunkColouring | None = None
             for c in chunks:
-                counted = _CountedPool(threads)
+                counted = CountedPool(threads)
                 following = start_chunk(job, c, whole, counted)
                 shares.watch(c.index, counted.tasks)
                 if started is not None:
@@ -233,6 +264,40 @@ def _run_each(
                 done(started.result())
         finally:  # on an error (a full disk, Ctrl-C) the queued frames are dropped
             threads.shutdown(cancel_futures=True)
+
+
+@contextmanager
+def _draining(shares: _ChunkShares, take: Callable[[], list[Any]]) -> Iterator[None]:
+    """The chunks' reports (``take``: from the queue they put them in) to ``shares``, on
+    a thread while the block runs."""
+    stop = threading.Event()
+    drainer = threading.Thread(target=shares.drain, args=(take, stop), daemon=True)
+    drainer.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        drainer.join()
+
+
+class DaskQueueSink:
+    """A chunk's reports into the Dask queue named ``name``, opened on the worker (a
+    ``distributed.Queue`` given as a task's argument is opened on the scheduler too,
+    where it blocks)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self._queue: Any = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"name": self.name, "_queue": None}
+
+    def put(self, item: tuple[int, int, int]) -> None:
+        if self._queue is None:
+            from dask.distributed import Queue
+
+            self._queue = Queue(self.name)
+        self._queue.put(item)
 
 
 def estimate_offset(

@@ -10,6 +10,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 from plyfile import PlyData
 
 from acq import cloud
@@ -18,8 +19,10 @@ from acq.cli import main as acq_main
 from acq.cloud import colorize
 from acq.cloud.colorize import plan, run
 from acq.cloud.views import Options
-from acq.log import drive_log
+from acq.log import drive_log, info
 from acq.log.locate import first_log_time
+from acq.log.reader import read_metadata
+from acq.log.timebase import MONOTONIC
 from acq.sim.drive_log import DriveTruth, write_drive_log
 from tests.log_rewrite import corrupt_chunk, jpeg, rewrite
 
@@ -70,6 +73,31 @@ def test_ply_and_las_carry_every_point_with_its_time(
     assert np.all(np.asarray(pc.return_number) == 1) and pc.header.point_count == len(v)
     np.testing.assert_allclose(pc.header.mins, [v["x"].min(), v["y"].min(), v["z"].min()],
                                atol=1e-3)  # fmt: skip
+
+
+def test_a_log_from_before_utc_logs_gives_the_same_cloud_and_info(
+    drive: tuple[DriveTruth, Path], tmp_path: Path
+) -> None:
+    """A log written before log times became UTC (host monotonic throughout, its metadata
+    without an offset) is known by its metadata and reads the same in every command."""
+    truth, calib = drive
+    old, _ = rewrite(truth.files, tmp_path / "old", time_base=MONOTONIC)
+    assert "utc_offset_ns" not in read_metadata(old[0])["acq"]
+    with old[0].open("rb") as f:  # host monotonic in the file: 1000 s after boot
+        first = next(m for _, _, m in make_reader(f).iter_messages())
+    assert first.log_time < 10**13 < truth.files[0].stat().st_mtime_ns
+    clouds = []
+    for files, name in ((truth.files, "new.ply"), (old, "old.ply")):
+        out = tmp_path / name
+        args = _args(*map(str, files), "--calib", str(calib), "-o", str(out), "--no-preview")
+        assert acq_main(args) == 0
+        clouds.append(PlyData.read(str(out))["vertex"].data)
+    assert clouds[0].dtype == clouds[1].dtype and np.array_equal(clouds[0], clouds[1])
+    assert clouds[0]["scalar_time"][0] > 1.8e9  # UTC seconds, 2027 in the simulation
+    new_info, old_info = info(truth.files[0]), info(old[0])
+    assert new_info.time_base.utc and not old_info.time_base.utc
+    assert new_info.start_ns == old_info.start_ns
+    assert new_info.start_realtime_ns == old_info.start_realtime_ns
 
 
 def test_offline_retiming_brings_stamps_to_the_truth(
@@ -193,6 +221,7 @@ def test_frames_of_another_size_are_skipped_with_a_count_naming_the_first(
     v = PlyData.read(str(out))["vertex"].data
     assert len(v) > 10_000 and 0.2 < v["scalar_coloured"].mean() < 0.9
     into = (times[20] - (first_log_time(files[0]) or 0)) * 1e-9
+    assert 0.5 < into < 1.0  # frame 20 at 25 Hz
     assert (
         "note: 2 frames of another size (640x480) than the camera model's 780x582 skipped; "
         f"the first at log time {times[20] * 1e-9:.3f} s, {into:.2f} s into {files[0]}"
@@ -336,3 +365,41 @@ def test_the_bar_moves_as_a_chunks_frames_are_done(capsys: pytest.CaptureFixture
         shares.watch(1, [])
         shares.finish(1)
     assert "17/17" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("where", ["workers", "dask"])
+def test_chunks_run_elsewhere_report_their_frames_as_they_go(
+    where: str, drive: tuple[DriveTruth, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With --workers or --dask each chunk reports its frames done through a queue (its
+    first frame at once, then at most every 0.25 s, and its last), so the bar moves
+    within chunks there too; the reports reach the bar in this process."""
+    from acq.cloud.colorize import _ChunkShares
+
+    truth, calib = drive
+    reports: list[tuple[int, int, int]] = []
+    real = _ChunkShares.frames_done
+
+    def seen(self: _ChunkShares, index: int, done: int, total: int) -> None:
+        reports.append((index, done, total))
+        real(self, index, done, total)
+
+    monkeypatch.setattr(_ChunkShares, "frames_done", seen)
+    out = tmp_path / "c.ply"
+    kw: dict[str, object] = {"frame": "laser", "chunk_s": 1.5, "progress": True}
+    if where == "workers":
+        report = run(truth.files, calibfile.load(calib), out, workers=2, **kw)  # type: ignore[arg-type]
+    else:
+        from dask.distributed import LocalCluster
+
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                          dashboard_address=None) as cluster:  # fmt: skip
+            report = run(truth.files, calibfile.load(calib), out,  # type: ignore[arg-type]
+                         dask=cluster.scheduler_address, **kw)  # fmt: skip
+    assert report.chunks == 3
+    within = 0
+    for index in range(report.chunks):
+        mine = [(d, t) for i, d, t in reports if i == index]
+        assert mine and (mine[0][1],) * 2 in mine  # the last frame reported
+        within += min(d for d, _ in mine) < mine[0][1]
+    assert within  # and before (all of a chunk's frames done at once only if starved)

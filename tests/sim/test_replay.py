@@ -257,3 +257,42 @@ def read_topic(files: list[Path], topic: str, schema: str) -> list[tuple[int, ob
         for _schema, channel, message in read_messages(path)
         if channel.topic == topic
     ]
+
+
+def test_the_cli_shows_a_bar_of_the_log_served(recorded: list[Path]) -> None:
+    """`acq replay --progress`: once a client starts it, a bar in seconds of the log
+    served, moving at least every second, full when the log ends; exit 0."""
+    import subprocess
+    import sys
+
+    from acq.drivers.scip import ScipScanner
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", "replay", *map(str, recorded), "--speed", "2",
+         "--progress"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        url = None
+        for line in proc.stdout:
+            if line.strip().startswith("laser: "):
+                url = line.split(": ", 1)[1].strip()
+            if line.startswith("the replay starts"):
+                break
+        assert url is not None
+        scanner = ScipScanner(url, intensity=True)
+        try:
+            scanner.connect()
+            scanner.start()
+            scanner.read_scan()
+        finally:
+            scanner.close()  # the replay serves on to the log's end
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    states = [s for s in err.replace("\r", "\n").splitlines() if s.startswith("replaying")]
+    assert states and "100%" in states[-1], err
+    assert len(states) >= 3  # RECORD_S / 2 s of serving, redrawn at least every second
+    assert "the log has been served to its end" in err

@@ -71,7 +71,9 @@ def test_ten_seconds_at_25_hz_nothing_lost_bytes_exact() -> None:
     window = [s for s in sent if seq_true[0] <= s <= seq_true[-1]]
     assert list(seq_true) == window
     assert len(frames) >= 245
-    assert np.all(seq_driver - seq_true == seq_driver[0] - seq_true[0])
+    # the driver numbers what it receives (MJPEG carries no number); the simulator may
+    # skip a frame it could not render in time on a busy machine: not a loss
+    assert np.all(np.diff(seq_driver) == 1)
     assert cam.drops == 0 and cam.corrupt == 0 and cam.frames == len(frames)
     assert all(f.width == 780 and f.height == 582 and f.time_source == "receipt" for f in frames)
 

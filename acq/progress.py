@@ -35,10 +35,13 @@ def enable(on: bool) -> None:
 
 
 @contextmanager
-def bar(total: float, unit: str, desc: str, shown: bool | None = None) -> Iterator[None]:
+def bar(
+    total: float, unit: str, desc: str, shown: bool | None = None, scale: float | None = None
+) -> Iterator[None]:
     """A bar of ``total`` ``unit`` (``B`` for bytes, shown as MB) while the block runs,
     shown as the command said (:func:`enable`) unless ``shown`` says; what
-    :func:`advance` reports in ``unit`` moves it, at most twice a second."""
+    :func:`advance` reports in ``unit`` moves it, at most twice a second. ``scale``: the
+    counts are shown times it (e.g. whole ms counted, 0.001: shown as seconds)."""
     from tqdm import tqdm
 
     shown = _enabled if shown is None else shown
@@ -48,7 +51,8 @@ def bar(total: float, unit: str, desc: str, shown: bool | None = None) -> Iterat
         else:
             opened = _bars[unit] = tqdm(
                 total=total, unit=unit, desc=desc, file=sys.stderr, mininterval=0.5,
-                unit_scale=unit == "B", unit_divisor=1000, dynamic_ncols=True, leave=True,
+                unit_scale=scale or unit == "B", unit_divisor=1000, dynamic_ncols=True,
+                leave=True,
             )  # fmt: skip
     try:
         yield

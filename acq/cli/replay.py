@@ -89,15 +89,16 @@ def _write(path: Path, text: str, backups: list[Output]) -> None:
 
 
 def _serve_with_a_bar(replay: Replay, stop: threading.Event) -> None:
-    """Until the log has been served or ``stop``: a bar in seconds of the log served."""
-    done = 0.0
-    with progress.bar(round(replay.session.duration_s, 1), "s", "replaying"):
+    """Until the log has been served or ``stop``: a bar of the log served (counted in ms,
+    shown in seconds)."""
+    done, total = 0, round(replay.session.duration_s * 1000)
+    with progress.bar(total, "s", "replaying", scale=0.001):
         while not stop.is_set() and not replay.wait(0.2):
-            served = replay.served_s()
+            served = round(replay.served_s() * 1000)
             progress.advance(served - done, "s")
             done = served
         if not stop.is_set():
-            progress.advance(replay.session.duration_s - done, "s")
+            progress.advance(total - done, "s")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,7 +14,8 @@ the machine has 2 cores and may be busy with other work.
     between the first and the last (25 ms of its clock apart), frames written / frames
     the camera sent between the first and the last, drops and disconnects (``acq info``),
     bytes written per second, and how far the live renderer fell behind. Target: under
-    10 %.
+    10 % per camera. ``--cameras N``: N such cameras (``camera``, ``camera_2``...), each
+    its own street.
 (2) ``record_rate``: both devices sped up ``k`` times (the scanner a ``ScannerModel``
     with ``k``x the scan rate, the camera ``k``x25 fps cycling 50 JPEGs rendered once,
     both from ``python -m acq.sim.prerendered`` in processes of their own), 20 s per step
@@ -158,33 +159,45 @@ def live_scanner(procs: Procs, stderr: IO[str], port: int = 0) -> tuple[subproce
     return proc, wait_line(proc, " on socket://").rsplit(" on ", 1)[1].strip()
 
 
-def live_camera(procs: Procs, port: int = 0) -> MjpegServerProcess:
+def live_camera(procs: Procs, port: int = 0, seed: int = 0) -> MjpegServerProcess:
     """The simulated camera rendering the street live at 25 Hz, in its own process
-    (``MjpegServerProcess``, which also reports what it sent)."""
-    camera = MjpegServerProcess(f"http://127.0.0.1:{port}/stream.mjpg", seed=0)
+    (``MjpegServerProcess``, which also reports what it sent); ``seed``: its street."""
+    camera = MjpegServerProcess(f"http://127.0.0.1:{port}/stream.mjpg", seed=seed)
     procs.closers.append(camera.close)
     return camera
 
 
+def camera_names(n: int) -> list[str]:
+    """The recorded cameras' names: ``camera``, then ``camera_2``, ``camera_3``..."""
+    return ["camera", *(f"camera_{k}" for k in range(2, n + 1))]
+
+
 def nominal_rig(
-    procs: Procs, stderr: IO[str], work: Path, recorder_first: bool, **output: Any
-) -> tuple[subprocess.Popen[str], MjpegServerProcess, Run]:
-    """The live simulators and ``acq record`` at nominal rates, connected; with
-    ``recorder_first`` the devices come up after the recorder has started."""
+    procs: Procs,
+    stderr: IO[str],
+    work: Path,
+    recorder_first: bool,
+    cameras: int = 1,
+    **output: Any,
+) -> tuple[subprocess.Popen[str], list[MjpegServerProcess], Run]:
+    """The live simulators (a scanner, ``cameras`` cameras) and ``acq record`` at nominal
+    rates, connected; with ``recorder_first`` the devices come up after the recorder has
+    started."""
+    names = camera_names(cameras)
     if recorder_first:
-        ports = _free_port(), _free_port()
-        run = start_recorder(procs, work, f"socket://127.0.0.1:{ports[0]}",
-                             f"http://127.0.0.1:{ports[1]}/stream.mjpg", FPS, **output)  # fmt: skip
+        ports = [_free_port() for _ in range(cameras + 1)]
+        urls = [f"http://127.0.0.1:{p}/stream.mjpg" for p in ports[1:]]
+        run = start_recorder(procs, work, f"socket://127.0.0.1:{ports[0]}", urls, FPS, **output)
         run.wait_for("recording ")
         time.sleep(1.5)
         scanner, _ = live_scanner(procs, stderr, ports[0])
-        camera = live_camera(procs, ports[1])
+        live = [live_camera(procs, p, seed=k) for k, p in enumerate(ports[1:])]
     else:
         scanner, scanner_url = live_scanner(procs, stderr)
-        camera = live_camera(procs)
-        run = start_recorder(procs, work, scanner_url, camera.url, FPS, **output)
-    run.wait_for("laser connected", "camera connected")
-    return scanner, camera, run
+        live = [live_camera(procs, seed=k) for k in range(cameras)]
+        run = start_recorder(procs, work, scanner_url, [c.url for c in live], FPS, **output)
+    run.wait_for("laser connected", *(f"{n} connected" for n in names))
+    return scanner, live, run
 
 
 def sent_frames(truth: list[Any]) -> list[list[Any]]:
@@ -309,9 +322,9 @@ class Run:
         return [ln.split(" ", 2)[2] for ln in lines if " WARNING " in ln or " ERROR " in ln]
 
 
-def _true_calibration(work: Path) -> Path:
+def _true_calibration(work: Path, names: list[str]) -> Path:
     """The simulated rig's true calibration as a file (so every log file starts with its
-    camera calibration and transforms, as on a real rig)."""
+    camera calibration and transforms, as on a real rig), for the cameras ``names``."""
     from acq.camera import calibfile
     from acq.sim import world
 
@@ -319,7 +332,8 @@ def _true_calibration(work: Path) -> Path:
     calib = calibfile.Calibration(
         laser="laser",
         cameras={
-            "camera": calibfile.CameraCalib(rig.lens, rig.camera_to_laser, method="simulator truth")
+            name: calibfile.CameraCalib(rig.lens, rig.camera_to_laser, method="simulator truth")
+            for name in names
         },
         laser_to_vehicle=rig.laser_to_vehicle,
     )
@@ -329,18 +343,27 @@ def _true_calibration(work: Path) -> Path:
 
 
 def start_recorder(
-    procs: Procs, work: Path, scanner_url: str, camera_url: str, fps: float, **output: Any
+    procs: Procs,
+    work: Path,
+    scanner_url: str,
+    camera_urls: str | list[str],
+    fps: float,
+    **output: Any,
 ) -> Run:
+    urls = [camera_urls] if isinstance(camera_urls, str) else camera_urls
     config = {
         "version": 1,
         "scanners": [
             {"name": "laser", "driver": "hokuyo", "url": scanner_url,
              "options": {"intensity": True}},
         ],
-        "cameras": [{"name": "camera", "driver": "opencv", "source": camera_url, "fps": fps}],
+        "cameras": [
+            {"name": name, "driver": "opencv", "source": url, "fps": fps}
+            for name, url in zip(camera_names(len(urls)), urls, strict=True)
+        ],
         "output": {"dir": str(work / "logs"), **output},
     }  # fmt: skip
-    config["calibration"] = str(_true_calibration(work))
+    config["calibration"] = str(_true_calibration(work, camera_names(len(urls))))
     path = work / "rig.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     log = work / "record.log"
@@ -437,20 +460,23 @@ def _nominal_scans(ticks: list[int]) -> int:
     return round((ticks[-1] - ticks[0]) / (1000.0 / SCAN_HZ)) + 1 if ticks else 0
 
 
-def part_cpu(work: Path, warmup_s: float, measure_s: float, recorder_first: bool) -> None:
+def part_cpu(
+    work: Path, warmup_s: float, measure_s: float, recorder_first: bool, cameras: int = 1
+) -> None:
     procs = Procs()
     err = (work / "sim.log").open("w")
     try:
-        scanner, camera, run = nominal_rig(procs, err, work, recorder_first)
+        scanner, live, run = nominal_rig(procs, err, work, recorder_first, cameras)
+        camera = live[0]
         warmup_s = max(warmup_s, time.monotonic() - run.t_start + 2.0)
         run.sleep_until(warmup_s)
         t0, c0, _ = run.sample()
         b0 = run.bytes_on_disk()
-        sims0 = cpu_s(scanner.pid), camera.cpu_seconds()
+        sims0 = cpu_s(scanner.pid), sum(c.cpu_seconds() for c in live)
         run.sleep_until(warmup_s + measure_s)
         t1, c1, rss = run.sample()
         b1 = run.bytes_on_disk()
-        sims1 = cpu_s(scanner.pid), camera.cpu_seconds()
+        sims1 = cpu_s(scanner.pid), sum(c.cpu_seconds() for c in live)
         run.stop()
         truth = camera.truth()
         files = run.files()
@@ -460,15 +486,19 @@ def part_cpu(work: Path, warmup_s: float, measure_s: float, recorder_first: bool
         frames = len(rec.image_times)
         _line(
             "record_cpu",
+            cameras=cameras,
             seconds=round(t1 - t0, 1),
             cpu_share_steady=round(share, 4),
+            cpu_share_per_camera=round(share / cameras, 4),
             cpu_share_whole_run=round(run.rusage_cpu_s / run.wall_s, 4),
             whole_run_s=round(run.wall_s, 1),
             startup_cpu_s=round(c0 - share * t0, 2),
             scans=f"{len(rec.scan_ticks)}/{_nominal_scans(rec.scan_ticks)}",
             frames=f"{frames}/{_expected_frames(sent_frames(truth), rec)}",
             scan_hz=round(_rate(info, "/laser/scan"), 2),
-            frame_hz=round(_rate(info, "/camera/image/compressed"), 2),
+            frame_hz={
+                n: round(_rate(info, f"/{n}/image/compressed"), 2) for n in camera_names(cameras)
+            },
             drops=info.drops,
             scanner_queue_drops=scanner_queue_drops(rec),
             disconnects=info.disconnects,
@@ -479,11 +509,11 @@ def part_cpu(work: Path, warmup_s: float, measure_s: float, recorder_first: bool
             warnings=_short(run.warnings()),
             sim_cpu_share={
                 "scanner": round((sims1[0] - sims0[0]) / (t1 - t0), 4),
-                "camera_live_render": round((sims1[1] - sims0[1]) / (t1 - t0), 4),
+                "cameras_live_render": round((sims1[1] - sims0[1]) / (t1 - t0), 4),
             },
             sim_camera_lag=camera_lag(truth),
-            target_share=TARGET_CPU_SHARE,
-            ok=share < TARGET_CPU_SHARE,
+            target_share_per_camera=TARGET_CPU_SHARE,
+            ok=share / cameras < TARGET_CPU_SHARE,
         )
     finally:
         procs.close()
@@ -691,7 +721,7 @@ def part_memory(work: Path, minutes: float, split_mb: float, recorder_first: boo
     procs = Procs()
     err = (work / "sim.log").open("w")
     try:
-        _scanner, camera, run = nominal_rig(
+        _scanner, (camera,), run = nominal_rig(
             procs, err, work, recorder_first, split_megabytes=split_mb
         )
         end = minutes * 60.0
@@ -774,6 +804,10 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, help="memory run length (default 10)")
     parser.add_argument("--quick", action="store_true", help="every part short (~3 min)")
     parser.add_argument("--keep", action="store_true", help="keep the work folders")
+    parser.add_argument(
+        "--cameras", type=int, default=1, choices=range(1, 5), metavar="N",
+        help="(1) with N cameras at 25 Hz (default 1); the target is per camera",
+    )  # fmt: skip
     args = parser.parse_args()
     everything = not (args.cpu or args.rate or args.memory)
     minutes = args.minutes if args.minutes is not None else (2.0 if args.quick else 10.0)
@@ -782,7 +816,9 @@ def main() -> None:
     warmup, measure = (3.0, 12.0) if args.quick else (10.0, 60.0)
     parts: list[tuple[str, Callable[[Path, bool], None]]] = []
     if everything or args.cpu:
-        parts.append(("record_cpu", lambda w, first: part_cpu(w, warmup, measure, first)))
+        parts.append(
+            ("record_cpu", lambda w, first: part_cpu(w, warmup, measure, first, args.cameras))
+        )
     if everything or args.rate:
         parts.append(
             (

@@ -17,12 +17,14 @@ from acq.sim.transport import TcpDeviceServer
 
 
 class Rig:
-    """A simulated rig: a UTM-30LX on TCP and a fisheye camera over HTTP."""
+    """A simulated rig: a UTM-30LX on TCP and fisheye cameras over HTTP, each in its own
+    process (default one, ``camera``; ``self.camera`` is the first)."""
 
-    def __init__(self) -> None:
+    def __init__(self, cameras: tuple[str, ...] = ("camera",)) -> None:
         self.scanner = ScipDevice(MODELS["utm-30lx"])
         self.scanner_server = TcpDeviceServer(self.scanner).start()
-        self.camera = MjpegServerProcess()
+        self.cameras = {name: MjpegServerProcess(seed=k) for k, name in enumerate(cameras)}
+        self.camera = next(iter(self.cameras.values()))
 
     def config(
         self, tmp_path: Path, latency: float | str = "auto", **output: object
@@ -34,8 +36,9 @@ class Rig:
                  "options": {"intensity": True}, "latency_s": latency},
             ],
             "cameras": [
-                {"name": "camera", "driver": "opencv", "source": self.camera.url, "fps": 25,
-                 "latency_s": 0.022},
+                {"name": name, "driver": "opencv", "source": camera.url, "fps": 25,
+                 "latency_s": 0.022}
+                for name, camera in self.cameras.items()
             ],
             "output": {"dir": str(tmp_path / "logs"), **output},
         }  # fmt: skip
@@ -48,11 +51,12 @@ class Rig:
         from acq.drivers.camera_opencv import OpenCVCamera
         from acq.drivers.scip import ScipScanner
 
-        with OpenCVCamera(self.camera.url, timeout=30.0) as cam:
-            cam.connect()
-            cam.start()
-            for _ in range(3):
-                cam.read_frame()
+        for camera in self.cameras.values():
+            with OpenCVCamera(camera.url, timeout=30.0) as cam:
+                cam.connect()
+                cam.start()
+                for _ in range(3):
+                    cam.read_frame()
         scanner = ScipScanner(self.scanner_server.url, timeout=5.0)
         try:
             scanner.connect()
@@ -65,7 +69,8 @@ class Rig:
 
     def close(self) -> None:
         self.scanner_server.close()
-        self.camera.close()
+        for camera in self.cameras.values():
+            camera.close()
 
 
 def read_log(path: Path) -> dict[str, list[tuple[int, int, object]]]:

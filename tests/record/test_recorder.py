@@ -391,3 +391,38 @@ def test_files_roll_over_with_nothing_lost_or_repeated(rig: Rig, tmp_path: Path)
     assert np.all((steps >= 24) & (steps <= 26)), steps[(steps < 24) | (steps > 26)]
     # every frame the recorder received, once (its running count goes up by one)
     assert np.all(np.diff(frames) == 1)
+
+
+def test_two_cameras_each_recorded_whole_on_their_own_topics(tmp_path: Path) -> None:
+    """A rig with a left and a right fisheye (each its own MJPEG server): every frame each
+    camera sent between its first and last recorded is on its own topics, once, bytes as
+    sent; its timing, its device status and its row in `acq info`."""
+    from acq.log import info
+    from acq.sim.camera_device import jpeg_digest
+
+    two = Rig(cameras=("left", "right"))
+    try:
+        two.warm_up()
+        assert Recorder(two.config(tmp_path), duration_s=5.0).run() == 0
+        truths = {name: camera.truth() for name, camera in two.cameras.items()}
+    finally:
+        two.close()
+    (path,) = sorted((tmp_path / "logs").glob("*.mcap"))
+    log = read_log(path)
+    for name, truth in truths.items():
+        images, timing = log[f"/{name}/image/compressed"], log[f"/acq/timing/{name}"]
+        sent = [t for t in truth if t.status == "sent"]
+        by_digest = {t.digest: t.sequence for t in sent}
+        got = [by_digest[jpeg_digest(m.data)] for _, _, m in images]  # KeyError: not its own
+        window = [t.sequence for t in sent if got[0] <= t.sequence <= got[-1]]
+        assert got == window and len(got) > 0.9 * 5.0 * 25, name  # none lost, none twice
+        assert len(timing) == len(images)
+        assert [m.received for _, _, m in timing] == list(range(timing[0][2].received,
+                                                                timing[0][2].received + len(timing)))  # fmt: skip
+    status = {d.name: d for d in log["/acq/status"][-1][2].devices}
+    assert status.keys() == {"laser", "left", "right"}
+    assert all(status[n].connected and status[n].rate_hz > 20 for n in ("left", "right"))
+    summary = info(path)
+    assert {d for d in summary.drops} >= {"left", "right"}
+    assert {c.topic for c in summary.channels} >= {"/left/image/compressed",
+                                                   "/right/image/compressed"}  # fmt: skip

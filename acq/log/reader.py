@@ -154,24 +154,28 @@ Decoder = Callable[[bytes], Any]
 T = TypeVar("T")
 
 _TIMESTAMP = "google.protobuf.Timestamp"
-_STAMP_FIELDS: dict[str, tuple[tuple[FieldDescriptor, bool], ...]] = {}  # by message type
+# by message type (its descriptor: two files may hold two versions of one schema)
+_STAMP_FIELDS: dict[Descriptor, tuple[tuple[FieldDescriptor, bool], ...]] = {}
 
 
-def _stamp_fields(descriptor: Descriptor) -> tuple[tuple[FieldDescriptor, bool], ...]:
+def _stamp_fields(
+    descriptor: Descriptor, within: frozenset[Descriptor] = frozenset()
+) -> tuple[tuple[FieldDescriptor, bool], ...]:
     """The message fields of a message type that are or may hold a Timestamp, each with
-    whether it is one."""
-    name = descriptor.full_name
-    if name not in _STAMP_FIELDS:
-        _STAMP_FIELDS[name] = ()  # a type that holds itself ends here
-        found = []
-        for field in descriptor.fields:
-            sub = field.message_type
-            if sub is None:
-                continue
-            if sub.full_name == _TIMESTAMP or _stamp_fields(sub):
-                found.append((field, sub.full_name == _TIMESTAMP))
-        _STAMP_FIELDS[name] = tuple(found)
-    return _STAMP_FIELDS[name]
+    whether it is one (``within``: the types being looked into, so a type that holds
+    itself ends). Cached whole, so threads decoding at once see all or nothing."""
+    known = _STAMP_FIELDS.get(descriptor)
+    if known is not None:
+        return known
+    found = []
+    for field in descriptor.fields:
+        sub = field.message_type
+        if sub is None or sub in within:
+            continue
+        if sub.full_name == _TIMESTAMP or _stamp_fields(sub, within | {descriptor}):
+            found.append((field, sub.full_name == _TIMESTAMP))
+    _STAMP_FIELDS[descriptor] = result = tuple(found)
+    return result
 
 
 def _shift_stamps(msg: Protobuf, delta_ns: int) -> None:

@@ -69,7 +69,7 @@ from typing import IO, Any
 
 import yaml
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-from processes import acq_command, wait_line
+from processes import acq_command, end, wait_line
 
 from acq.log import LogInfo, LogReader, info_many
 from acq.sim.camera_device import jpeg_digest
@@ -129,17 +129,10 @@ class Procs:
             with contextlib.suppress(Exception):
                 close()
         for proc in self.procs:
-            if proc.returncode is None and proc.poll() is None:
-                proc.terminate()
-                try:
-                    proc.wait(5.0)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
-            for f in (proc.stdin, proc.stdout):
-                if f is not None:
-                    with contextlib.suppress(OSError):
-                        f.close()
+            end(proc)
+            if proc.stdin is not None:
+                with contextlib.suppress(OSError):
+                    proc.stdin.close()
 
 
 def _free_port() -> int:

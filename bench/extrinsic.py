@@ -253,7 +253,7 @@ def main() -> None:
     # the paper's way (§3.2): a regular lens on the camera for the extrinsic calibration
     rig = default_rig()
     pinhole = Pinhole(width=780, height=582, fx=600.0, fy=600.0, cx=390.0, cy=291.0)
-    regular = dataclasses.replace(rig, lens=pinhole)  # type: ignore[arg-type]
+    regular = rig.with_camera(lens=pinhole)
     datasets = [
         simulate(20, seed=3000 + s, rig=regular, distance=(1.5, 4.0), bearing_spread_deg=20.0)
         for s in seeds

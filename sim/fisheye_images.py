@@ -13,7 +13,7 @@ mask is 50 %. ``aspect`` is the pixel aspect ratio fy / fx (1 for square pixels)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -80,7 +80,7 @@ def _street(
 
     f = a / math.radians(92.5)
     lens = KannalaBrandt(width, height, f, f * aspect, cx, cy, fov_deg=240.0)
-    rig = replace(world.default_rig(), lens=lens)
+    rig = world.default_rig().with_camera(lens=lens)
     bgr = sensors.render_frame(world.Street.generate(seed=seed), world.Trajectory(), rig, t)
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(np.float64)
 

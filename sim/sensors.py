@@ -20,6 +20,7 @@ from acq.sim.world import Rig, Street, Trajectory
 __all__ = [
     "FrameTruth",
     "ScanTruth",
+    "apply_gains",
     "camera_to_world",
     "laser_to_world",
     "pixel_rays",
@@ -46,9 +47,9 @@ def pixel_rays(lens: KannalaBrandt) -> tuple[np.ndarray, np.ndarray]:
     return rays, np.flatnonzero(inside).astype(np.int64)
 
 
-def camera_to_world(trajectory: Trajectory, rig: Rig, t: float) -> Rigid:
-    """Camera optical frame -> world at time t (s)."""
-    return trajectory.pose(t) @ rig.camera_to_vehicle
+def camera_to_world(trajectory: Trajectory, rig: Rig, t: float, camera: str | None = None) -> Rigid:
+    """Camera ``camera``'s (None: the rig's first) optical frame -> world at time t (s)."""
+    return trajectory.pose(t) @ rig.camera_to_vehicle(camera)
 
 
 def laser_to_world(
@@ -69,26 +70,47 @@ class FrameTruth:
     image: np.ndarray  # (H,W,3) uint8 BGR, black outside the image circle
     depth: np.ndarray  # (H,W) float64 m along the ray; +inf sky, NaN outside the circle
     material: np.ndarray  # (H,W) uint8 acq.sim.world.Material, raycast.NO_RAY outside
+    gains: np.ndarray  # (3,) BGR: the camera's exposure and white balance at t
 
 
-def render_frame_truth(street: Street, trajectory: Trajectory, rig: Rig, t: float) -> FrameTruth:
-    """The fisheye view at time t (s) with per-pixel depth and material."""
-    lens = rig.lens
+def render_frame_truth(
+    street: Street, trajectory: Trajectory, rig: Rig, t: float, camera: str | None = None
+) -> FrameTruth:
+    """Camera ``camera``'s (None: the rig's first) fisheye view at time t (s) with
+    per-pixel depth and material: the surface colours times the camera's gains at t
+    (:class:`acq.sim.world.Photometry`), rounded and clipped to 0-255."""
+    cam = rig.camera(camera)
+    lens = cam.lens
     rays, index = pixel_rays(lens)
-    pose = camera_to_world(trajectory, rig, t)
+    pose = camera_to_world(trajectory, rig, t, camera)
     hit = cast(street, pose.translation, rays, pose.rotation, index, lens.width * lens.height)
     shape = (lens.height, lens.width)
+    image = hit.colour.reshape(*shape, 3)
+    gains = cam.photometry.gains(t)
+    if not cam.photometry.constant:
+        image = apply_gains(image, gains)
     return FrameTruth(
         t=float(t),
-        image=hit.colour.reshape(*shape, 3),
+        image=image,
         depth=hit.distance.reshape(shape),
         material=hit.material.reshape(shape),
+        gains=gains,
     )
 
 
-def render_frame(street: Street, trajectory: Trajectory, rig: Rig, t: float) -> np.ndarray:
-    """The fisheye image at time t (s): (H,W,3) uint8 BGR, black outside the image circle."""
-    return render_frame_truth(street, trajectory, rig, t).image
+def apply_gains(bgr: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """``bgr`` (..., 3) uint8 times ``gains`` (3,), rounded and clipped: uint8."""
+    out = np.asarray(bgr, dtype=np.float32) * np.asarray(gains, dtype=np.float32)
+    clipped: np.ndarray = np.clip(out + 0.5, 0, 255).astype(np.uint8)
+    return clipped
+
+
+def render_frame(
+    street: Street, trajectory: Trajectory, rig: Rig, t: float, camera: str | None = None
+) -> np.ndarray:
+    """Camera ``camera``'s (None: the rig's first) fisheye image at time t (s): (H,W,3)
+    uint8 BGR, black outside the image circle."""
+    return render_frame_truth(street, trajectory, rig, t, camera).image
 
 
 @dataclass(frozen=True)
@@ -166,9 +188,13 @@ def return_strength(
 
 
 def true_pixels(
-    world_points: np.ndarray, trajectory: Trajectory, rig: Rig, t: float
+    world_points: np.ndarray,
+    trajectory: Trajectory,
+    rig: Rig,
+    t: float,
+    camera: str | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Where world points (N,3) m fall in the frame at time t with the true lens:
     (N,2) px and (N,) valid (inside the lens's fov and the image; occlusion not checked)."""
-    P_cam = camera_to_world(trajectory, rig, t).inverse().apply(world_points)
-    return rig.lens.project(P_cam)
+    P_cam = camera_to_world(trajectory, rig, t, camera).inverse().apply(world_points)
+    return rig.camera(camera).lens.project(P_cam)

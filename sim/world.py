@@ -18,6 +18,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import Any
 
 import numpy as np
 
@@ -26,15 +27,19 @@ from acq.geometry.rotations import matrices_from_euler, rotation_from_euler
 from acq.geometry.transforms import Rigid
 
 __all__ = [
+    "LEFT_PHOTOMETRY",
     "N_PARAMS",
     "PATTERN_BACK_Y",
     "PATTERN_CLEAR_M",
     "PATTERN_FRONT_Y",
+    "RIGHT_PHOTOMETRY",
     "Box",
     "Cylinder",
     "Material",
+    "Photometry",
     "Quad",
     "Rig",
+    "RigCamera",
     "Street",
     "Trajectory",
     "checkerboard_quad",
@@ -523,19 +528,82 @@ def default_lens(exact_equidistant: bool = False) -> KannalaBrandt:
 
 
 @dataclass(frozen=True)
+class Photometry:
+    """How a camera renders brightness over the drive: per-channel gains (BGR) at time t
+    (s from the drive's start) multiplying the surface colour, as auto-exposure and
+    auto-white-balance do.
+
+    ``white_balance`` (3,) the camera's own channel gains; ``wb_drift`` (3,) the
+    amplitude of a slow sinusoidal drift of each channel over ``wb_period_s`` s (phase
+    ``wb_phase`` rad); ``steps`` ((t, gain), ...) auto-exposure steps: from t on, the
+    exposure gain is ``gain`` (1 before the first); ``clouds`` ((t, half_width_s,
+    depth), ...) a cloud passing: the light dims by ``depth`` (0.2: 20 %) at t, smoothly
+    (a raised cosine) over t ± half_width_s.
+    """
+
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    wb_drift: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    wb_period_s: float = 40.0
+    wb_phase: float = 0.0
+    steps: tuple[tuple[float, float], ...] = ()
+    clouds: tuple[tuple[float, float, float], ...] = ()
+
+    @property
+    def constant(self) -> bool:
+        """Whether the gains are 1 throughout (nothing to apply)."""
+        return (
+            self.white_balance == (1.0, 1.0, 1.0)
+            and not any(self.wb_drift)
+            and not self.steps
+            and not self.clouds
+        )
+
+    def gains(self, t: float | np.ndarray) -> np.ndarray:
+        """(..., 3) BGR gains at time(s) ``t`` (s)."""
+        t = np.asarray(t, dtype=np.float64)
+        exposure = np.ones_like(t)
+        for when, gain in sorted(self.steps):
+            exposure = np.where(t >= when, gain, exposure)
+        for when, half, depth in self.clouds:
+            x = np.clip((t - when) / half, -1.0, 1.0)
+            exposure = exposure * (1.0 - depth * 0.5 * (1.0 + np.cos(math.pi * x)))
+        phase = 2 * math.pi * t / self.wb_period_s + self.wb_phase
+        wb = np.asarray(self.white_balance) * (
+            1.0 + np.asarray(self.wb_drift) * np.sin(phase)[..., None]
+        )
+        out: np.ndarray = exposure[..., None] * wb
+        return out
+
+
+@dataclass(frozen=True)
+class RigCamera:
+    """One camera of the rig: its ``name`` (topics ``/<name>/...``), mounting
+    (``camera_to_laser``: P_laser = R @ P_camera + t, paper eq. 2; camera optical frame:
+    z along the axis, x right, y down), ``lens``, ``latency_s`` (end of exposure ->
+    frame available, s), ``exposure`` s and :class:`Photometry`."""
+
+    name: str
+    camera_to_laser: Rigid
+    lens: KannalaBrandt
+    latency_s: float = 0.020
+    exposure: float = 0.004
+    photometry: Photometry = Photometry()
+
+
+@dataclass(frozen=True)
 class Rig:
     """The simulated sensors and their mounting (the truth).
 
-    ``laser_to_vehicle``: P_vehicle = R @ P_laser + t. ``camera_to_laser``: P_laser =
-    R @ P_camera + t (paper eq. 2), camera optical frame (z along the axis, x right, y
-    down). Scanner: REP-103 angles (rad), ``scan_period`` s per rotation,
-    ``time_increment`` s per step, ranges in metres with Gaussian noise of
-    ``range_noise`` m. Camera: ``fps`` frames per second, ``exposure`` s.
+    ``laser_to_vehicle``: P_vehicle = R @ P_laser + t. ``cameras``: one or more
+    :class:`RigCamera`; ``lens``, ``camera_to_laser`` and ``exposure`` are the first
+    one's (what single-camera code uses; :meth:`only` makes a rig of any one camera).
+    Scanner: REP-103 angles (rad), ``scan_period`` s per rotation, ``time_increment``
+    s per step, ranges in metres with Gaussian noise of ``range_noise`` m. Cameras:
+    ``fps`` frames per second.
     """
 
     laser_to_vehicle: Rigid
-    camera_to_laser: Rigid
-    lens: KannalaBrandt
+    cameras: tuple[RigCamera, ...]
     angle_min: float = math.radians(-135.0)
     angle_increment: float = math.radians(0.25)
     n_steps: int = 1081
@@ -545,7 +613,11 @@ class Rig:
     min_range: float = 0.1
     range_noise: float = 0.01
     fps: float = 25.0
-    exposure: float = 0.004
+
+    def __post_init__(self) -> None:
+        names = [c.name for c in self.cameras]
+        if not names or len(set(names)) != len(names):
+            raise ValueError(f"a rig needs cameras with distinct names, got {names}")
 
     @property
     def angles(self) -> np.ndarray:
@@ -553,24 +625,113 @@ class Rig:
         return self.angle_min + self.angle_increment * np.arange(self.n_steps)
 
     @property
-    def camera_to_vehicle(self) -> Rigid:
-        return self.laser_to_vehicle @ self.camera_to_laser
+    def camera_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.cameras)
+
+    def camera(self, name: str | None = None) -> RigCamera:
+        """The camera ``name`` (None: the first); KeyError naming the rig's cameras."""
+        if name is None:
+            return self.cameras[0]
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        raise KeyError(f"no camera {name!r} on the rig (has {', '.join(self.camera_names)})")
+
+    def only(self, name: str) -> Rig:
+        """This rig with only the camera ``name``."""
+        return dataclasses.replace(self, cameras=(self.camera(name),))
+
+    def with_camera(self, name: str | None = None, **changes: Any) -> Rig:
+        """This rig with camera ``name``'s (None: the first's) fields ``changes``
+        (:class:`RigCamera`'s: ``lens``, ``camera_to_laser``...) replaced."""
+        cam = self.camera(name)
+        new = dataclasses.replace(cam, **changes)
+        return dataclasses.replace(
+            self, cameras=tuple(new if c is cam else c for c in self.cameras)
+        )
+
+    @property
+    def lens(self) -> KannalaBrandt:
+        return self.cameras[0].lens
+
+    @property
+    def camera_to_laser(self) -> Rigid:
+        return self.cameras[0].camera_to_laser
+
+    @property
+    def exposure(self) -> float:
+        return self.cameras[0].exposure
+
+    def camera_to_vehicle(self, name: str | None = None) -> Rigid:
+        """Camera ``name``'s (None: the first's) optical frame -> vehicle."""
+        return self.laser_to_vehicle @ self.camera(name).camera_to_laser
 
 
 # laser x = vehicle up, laser y = vehicle right, laser z = vehicle forward
 _LASER_AXES = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
-# camera x = vehicle forward, y = vehicle down, z (optical axis) = vehicle left
+# left camera: x = vehicle forward, y = vehicle down, z (optical axis) = vehicle left
 _CAMERA_AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+# right camera: x = vehicle backward, y = vehicle down, z (optical axis) = vehicle right
+_RIGHT_AXES = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
 
 
-def default_rig(exact_equidistant: bool = False) -> Rig:
-    """UTM-30LX at the rear of the roof (2.2 m) scanning across the street, and the fisheye
-    0.4 m ahead of it, 0.25 m lower, looking left with a small tilt."""
+def _right_lens() -> KannalaBrandt:
+    """The right camera's fisheye: the same make, its own centre, focal length and
+    distortion (a second unit of one model)."""
+    return KannalaBrandt(
+        width=780, height=582, fx=168.6, fy=168.6, cx=388.7, cy=292.6,
+        k=(0.0061, 0.0006, -0.00025, 0.00004), fov_deg=185.0,
+    )  # fmt: skip
+
+
+# Each camera's auto-exposure and white balance over the drive (s from its start): its
+# own white balance drifting slowly, exposure steps, and a cloud that dims both.
+LEFT_PHOTOMETRY = Photometry(
+    white_balance=(0.95, 1.0, 1.05),
+    wb_drift=(0.03, 0.0, -0.02),
+    wb_period_s=47.0,
+    steps=((9.0, 1.12), (23.0, 0.93), (41.0, 1.05)),
+    clouds=((31.0, 4.0, 0.2),),
+)
+RIGHT_PHOTOMETRY = Photometry(
+    white_balance=(1.06, 1.0, 0.93),
+    wb_drift=(-0.02, 0.0, 0.03),
+    wb_period_s=53.0,
+    wb_phase=1.3,
+    steps=((5.0, 0.9), (17.0, 1.08), (36.0, 0.96), (52.0, 1.1)),
+    clouds=((31.5, 4.0, 0.2),),
+)
+
+
+def default_rig(exact_equidistant: bool = False, cameras: int = 1) -> Rig:
+    """UTM-30LX at the rear of the roof (2.2 m) scanning across the street, and a
+    fisheye 0.4 m ahead of it, 0.25 m lower, looking left with a small tilt.
+
+    ``cameras=1``: that camera alone, named ``camera``, with constant photometry (the
+    rig of the single-camera tests). ``cameras=2``: ``left`` (the same camera) and
+    ``right`` (its mirror image: looking right, its own mounting error, lens, latency),
+    each with its own exposure and white balance changing over the drive."""
+    if cameras not in (1, 2):
+        raise ValueError(f"the simulated rig has 1 or 2 cameras, not {cameras}")
     laser_to_vehicle = Rigid(_LASER_AXES, np.array([-0.6, 0.0, 2.2]))
     tilt = rotation_from_euler(math.radians(1.2), math.radians(-1.5), math.radians(0.8))
-    camera_to_vehicle = Rigid(tilt @ _CAMERA_AXES, np.array([-0.2, 0.12, 1.95]))
-    return Rig(
-        laser_to_vehicle=laser_to_vehicle,
-        camera_to_laser=laser_to_vehicle.inverse() @ camera_to_vehicle,
+    left_to_vehicle = Rigid(tilt @ _CAMERA_AXES, np.array([-0.2, 0.12, 1.95]))
+    vehicle_to_laser = laser_to_vehicle.inverse()
+    left = RigCamera(
+        name="camera" if cameras == 1 else "left",
+        camera_to_laser=vehicle_to_laser @ left_to_vehicle,
         lens=default_lens(exact_equidistant),
+        photometry=Photometry() if cameras == 1 else LEFT_PHOTOMETRY,
     )
+    if cameras == 1:
+        return Rig(laser_to_vehicle=laser_to_vehicle, cameras=(left,))
+    tilt_r = rotation_from_euler(math.radians(-0.9), math.radians(1.1), math.radians(-0.7))
+    right_to_vehicle = Rigid(tilt_r @ _RIGHT_AXES, np.array([-0.18, -0.13, 1.96]))
+    right = RigCamera(
+        name="right",
+        camera_to_laser=vehicle_to_laser @ right_to_vehicle,
+        lens=default_lens(True) if exact_equidistant else _right_lens(),
+        latency_s=0.026,
+        photometry=RIGHT_PHOTOMETRY,
+    )
+    return Rig(laser_to_vehicle=laser_to_vehicle, cameras=(left, right))

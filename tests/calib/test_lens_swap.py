@@ -9,7 +9,6 @@ by how much the centre moved.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 
@@ -34,11 +33,7 @@ def swap(tmp_path_factory: pytest.TempPathFactory) -> tuple[BoardLog, Path, Path
     fisheye = default_rig()
     pinhole = Pinhole(width=780, height=582, fx=600.0, fy=600.0, cx=390.0, cy=291.0)
     behind = Rigid(np.eye(3), np.array([0.0, 0.0, -SHIFT_M]))
-    rig = dataclasses.replace(
-        fisheye,
-        lens=pinhole,  # type: ignore[arg-type]
-        camera_to_laser=fisheye.camera_to_laser @ behind,
-    )
+    rig = fisheye.with_camera(lens=pinhole, camera_to_laser=fisheye.camera_to_laser @ behind)
     log = write_board_log(d, n_poses=10, seed=3, hold_s=1.0, move_s=0.3, rig=rig,
                           distance=(1.5, 2.5))  # fmt: skip
     regular = d / "regular.yaml"

@@ -107,7 +107,7 @@ def test_trajectory_moves_at_20_kmh() -> None:
 
 
 def test_rig_geometry(rig) -> None:  # type: ignore[no-untyped-def]
-    cam = rig.camera_to_vehicle
+    cam = rig.camera_to_vehicle()
     # the optical axis looks left, image x forward, image y down (within the small tilt)
     assert cam.rotation[:, 2] @ [0, 1, 0] > math.cos(math.radians(3))
     assert cam.rotation[:, 0] @ [1, 0, 0] > math.cos(math.radians(3))

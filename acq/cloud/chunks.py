@@ -33,6 +33,7 @@ from acq.log.reader import quiet
 from acq.time import sync
 
 __all__ = [
+    "NO_CAMERA",
     "PER_POINT",
     "Chunk",
     "ChunkColouring",
@@ -49,7 +50,8 @@ __all__ = [
 ]
 
 PER_POINT = ("xyz", "rgb", "coloured", "hidden", "time_ns", "scan", "step", "intensity",
-              "dt_s", "theta")  # fmt: skip
+              "dt_s", "theta", "camera", "frame")  # fmt: skip
+NO_CAMERA = 255  # ChunkResult.camera of a point no camera coloured
 
 
 @dataclass(frozen=True)
@@ -63,7 +65,10 @@ class Chunk:
 
 @dataclass
 class ChunkResult:
-    """One chunk's points (see :class:`acq.cloud.Cloud`) and its counters."""
+    """One chunk's points (see :class:`acq.cloud.Cloud`) and its counters. ``camera``
+    (N,) uint8: the index in the job's cameras of the camera a point was coloured from
+    (``NO_CAMERA`` none); ``frame`` (N,) int32: the index of its frame among that
+    camera's frames in the session, in time order (-1 none)."""
 
     index: int
     xyz: np.ndarray
@@ -76,6 +81,8 @@ class ChunkResult:
     intensity: np.ndarray
     dt_s: np.ndarray
     theta: np.ndarray
+    camera: np.ndarray
+    frame: np.ndarray
     scan_origin: np.ndarray
     frame_stamp_ns: np.ndarray | None = None  # the recorded stamp of the frame used, -1
     uv: np.ndarray | None = None  # (N,2) float32 px in that frame, NaN
@@ -296,6 +303,12 @@ class ChunkColouring:
             intensity=log.intensities[scan_idx, step].astype(np.float32),
             dt_s=col.dt_s[core],
             theta=col.theta[core],
+            camera=np.where(col.coloured[core], 0, NO_CAMERA).astype(np.uint8),
+            frame=np.where(
+                frame >= 0,
+                np.searchsorted(job.frame_old, log.frame_ns[np.maximum(frame, 0)]),
+                -1,
+            ).astype(np.int32),
             scan_origin=origin,
             frame_stamp_ns=(
                 np.where(frame >= 0, log.frame_ns[np.maximum(frame, 0)], -1)
@@ -332,9 +345,10 @@ def frames_used(used: list[np.ndarray]) -> int:
     return int(np.unique(np.concatenate(used)).size) if used else 0
 
 
-def cloud_of(results: list[ChunkResult], index: DriveLog) -> Cloud:
-    """The points of chunks' ``results`` (of the log ``index``) as one :class:`Cloud`
-    (its ``view_axis`` is the default rig's camera side, +y)."""
+def cloud_of(results: list[ChunkResult], index: DriveLog, cameras: Sequence[str] = ()) -> Cloud:
+    """The points of chunks' ``results`` (of the log ``index``, coloured from
+    ``cameras``, in the job's order) as one :class:`Cloud` (its ``view_axis`` is the
+    default rig's camera side, +y)."""
 
     def cat(name: str, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
         parts = [getattr(r, name) for r in results]
@@ -349,6 +363,9 @@ def cloud_of(results: list[ChunkResult], index: DriveLog) -> Cloud:
         step=cat("step", (0,), np.uint32),
         intensity=cat("intensity", (0,), np.float32),
         dt_s=cat("dt_s", (0,), np.float32),
+        camera=cat("camera", (0,), np.uint8),
+        frame=cat("frame", (0,), np.int32),
+        camera_names=tuple(cameras),
         scan_origin=cat("scan_origin", (0, 3), np.float64),
         view_axis=np.array([0.0, 1.0, 0.0]),
         clock=index.clock,

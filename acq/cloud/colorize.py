@@ -446,7 +446,7 @@ def run(
             + ("left out (no pose)" if world else "kept, not coloured")
         )
     if preview is not None:
-        pc = cloud_of(tally.preview, index)
+        pc = cloud_of(tally.preview, index, [job.camera])
         preview_png(preview, pc, title=f"acq colorize {output.name}")
         if every > 1:
             report.notes.append(f"the preview shows one scan in {every}")

@@ -6,7 +6,7 @@ are metres in the world frame; colours RGB uint8.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -19,7 +19,10 @@ class Cloud:
     where not coloured); ``coloured`` (P,) bool; ``time_ns`` (P,) int64 host monotonic
     ns of the measurement; ``scan`` (P,) uint32 index of its scan in the log; ``step``
     (P,) uint32 its index within the scan; ``intensity`` (P,) float32 device units;
-    ``dt_s`` (P,) float32 its time minus its frame's (NaN where not coloured).
+    ``dt_s`` (P,) float32 its time minus its frame's (NaN where not coloured);
+    ``camera`` (P,) uint8 the index in ``camera_names`` of the camera it was coloured
+    from (255 none); ``frame`` (P,) int32 the index of that frame among the camera's
+    frames in the session, in time order (-1 none).
     Per scan: ``scan_origin`` (S,3) the laser's position in the world at point 0.
     ``view_axis`` (3,) the camera's mean optical axis in the world (unit). ``clock``
     (K,2) the log's (monotonic ns, realtime ns) pairs. ``frames`` frames in the log,
@@ -37,6 +40,9 @@ class Cloud:
     scan_origin: np.ndarray
     view_axis: np.ndarray
     clock: np.ndarray
+    camera: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))
+    frame: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    camera_names: tuple[str, ...] = ()
     frames: int = 0
     frames_used: int = 0
     frames_failed: int = 0

@@ -29,6 +29,38 @@ from acq.log.vehicle_log import VehicleLog, VehicleReader
 
 
 @dataclass(frozen=True)
+class CameraFrames:
+    """One camera's frames in a log: ``frame_ns`` (F,) host ns of the middle of
+    exposure, sorted; ``frame_seq`` (F,) the driver's sequence numbers (-1 where unknown;
+    they restart on a reconnect); ``frame_recv_ns`` (F,) receipt (-1 where unknown);
+    ``jpegs`` the bytes as the camera sent them (empty when read without them)."""
+
+    frame_ns: np.ndarray
+    frame_seq: np.ndarray
+    frame_recv_ns: np.ndarray
+    jpegs: list[bytes]
+
+    @staticmethod
+    def empty() -> CameraFrames:
+        none = np.zeros(0, np.int64)
+        return CameraFrames(none, none, none, [])
+
+    def between(self, lo_ns: int, hi_ns: int) -> CameraFrames:
+        """The frames stamped in [lo_ns, hi_ns)."""
+        f = np.flatnonzero((self.frame_ns >= lo_ns) & (self.frame_ns < hi_ns))
+
+        def part(a: np.ndarray) -> np.ndarray:
+            return a[f] if a.size else a
+
+        return CameraFrames(
+            frame_ns=self.frame_ns[f],
+            frame_seq=part(self.frame_seq),
+            frame_recv_ns=part(self.frame_recv_ns),
+            jpegs=[self.jpegs[int(i)] for i in f] if self.jpegs else [],
+        )
+
+
+@dataclass(frozen=True)
 class DriveLog:
     """What colouring needs from one log or the split files of one session.
 
@@ -36,11 +68,12 @@ class DriveLog:
     float32 (REP-117 ranges, m; intensities zero where the device sends none);
     ``angle_min``, ``angle_increment`` rad and ``time_increment`` s per point;
     ``scan_ticks`` (S,) the device clock tick of each scan (-1 where unknown). Frames:
-    ``frame_ns`` (F,) host ns of the middle of exposure, ``frame_seq`` (F,) the
-    driver's sequence numbers (-1 where unknown; they restart on a reconnect), ``jpegs``
-    the bytes as the camera sent them. ``clock`` (K,2) int64 pairs (monotonic ns,
-    realtime ns). ``metadata`` by name (the last record of each name). ``vehicle``: the
-    odometry and GNSS fixes (:class:`acq.log.vehicle_log.VehicleLog`) when read with them.
+    ``cameras`` every camera read, by name (:class:`CameraFrames`); ``camera`` the one
+    that ``frame_ns``, ``frame_seq``, ``frame_recv_ns`` and ``jpegs`` are of ("" for a
+    log without frames; :meth:`with_camera` picks another). ``clock`` (K,2) int64 pairs
+    (monotonic ns, realtime ns). ``metadata`` by name (the last record of each name).
+    ``vehicle``: the odometry and GNSS fixes (:class:`acq.log.vehicle_log.VehicleLog`)
+    when read with them.
     """
 
     files: tuple[Path, ...]
@@ -53,15 +86,33 @@ class DriveLog:
     angle_increment: float
     time_increment: float
     scan_ticks: np.ndarray
-    frame_ns: np.ndarray
-    frame_seq: np.ndarray
-    jpegs: list[bytes]
+    cameras: dict[str, CameraFrames]
     clock: np.ndarray
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)  # what was missing and assumed
     scan_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    frame_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     vehicle: VehicleLog | None = None
+
+    @property
+    def frames(self) -> CameraFrames:
+        """The frames of ``camera``."""
+        return self.cameras.get(self.camera) or CameraFrames.empty()
+
+    @property
+    def frame_ns(self) -> np.ndarray:
+        return self.frames.frame_ns
+
+    @property
+    def frame_seq(self) -> np.ndarray:
+        return self.frames.frame_seq
+
+    @property
+    def frame_recv_ns(self) -> np.ndarray:
+        return self.frames.frame_recv_ns
+
+    @property
+    def jpegs(self) -> list[bytes]:
+        return self.frames.jpegs
 
     @property
     def n_scans(self) -> int:
@@ -71,25 +122,34 @@ class DriveLog:
     def n_frames(self) -> int:
         return int(self.frame_ns.size)
 
+    def with_camera(self, name: str) -> DriveLog:
+        """This log with ``camera`` = ``name`` (one of ``cameras``)."""
+        if name not in self.cameras:
+            raise InputValueError(
+                f"no camera {name!r} in the log (has {', '.join(sorted(self.cameras)) or 'none'})"
+            )
+        return replace(self, camera=name)
+
+    def with_frames(self, **changes: Any) -> DriveLog:
+        """This log with fields of ``camera``'s :class:`CameraFrames` replaced."""
+        frames = replace(self.frames, **changes)
+        return replace(self, cameras={**self.cameras, self.camera: frames})
+
     def between(self, lo_ns: int, hi_ns: int) -> DriveLog:
         """The scans and frames stamped in [lo_ns, hi_ns) (recorded stamps)."""
         s = (self.scan_ns >= lo_ns) & (self.scan_ns < hi_ns)
-        f = np.flatnonzero((self.frame_ns >= lo_ns) & (self.frame_ns < hi_ns))
 
-        def part(a: np.ndarray, sel: np.ndarray) -> np.ndarray:
-            return a[sel] if a.size else a
+        def part(a: np.ndarray) -> np.ndarray:
+            return a[s] if a.size else a
 
         return replace(
             self,
             scan_ns=self.scan_ns[s],
             ranges=self.ranges[s],
             intensities=self.intensities[s],
-            scan_ticks=part(self.scan_ticks, s),
-            scan_recv_ns=part(self.scan_recv_ns, s),
-            frame_ns=self.frame_ns[f],
-            frame_seq=part(self.frame_seq, f),
-            frame_recv_ns=part(self.frame_recv_ns, f),
-            jpegs=[self.jpegs[int(i)] for i in f],
+            scan_ticks=part(self.scan_ticks),
+            scan_recv_ns=part(self.scan_recv_ns),
+            cameras={name: c.between(lo_ns, hi_ns) for name, c in self.cameras.items()},
         )
 
 
@@ -132,13 +192,16 @@ def read_log(
     *,
     laser: str | None = None,
     camera: str | None = None,
+    cameras: Sequence[str] | None = None,
     start_ns: int | None = None,
     end_ns: int | None = None,
     jpegs: bool = True,
     vehicle: bool = False,
 ) -> DriveLog:
     """Scans, frames, clock pairs and metadata of a log (or of a session's files, in the
-    order given). ``laser``/``camera`` name the devices where the log has several.
+    order given). ``laser``/``camera`` name the devices where the log has several;
+    ``cameras``: the cameras to read (the first is ``camera`` unless it is named; the
+    log may lack some: they read with no frames); by default only ``camera``.
     ``start_ns``/``end_ns``: only messages received (MCAP log time) in that span, and
     only the chunks of a closed file that hold some (a long log's part reads in the
     time of that part): the clock pairs, and with ``vehicle`` the odometry and GNSS
@@ -217,14 +280,19 @@ def read_log(
             except AttributeError:  # a message of another schema on a topic of that name
                 bad += 1
     laser = _pick(scans, laser, "laser scanner", "/scan")
-    camera = "" if camera is None and not frames else _pick(frames, camera, "camera", "/image")
+    if cameras:
+        camera = camera or cameras[0]
+        names = list(dict.fromkeys([camera, *cameras]))
+    else:
+        camera = "" if camera is None and not frames else _pick(frames, camera, "camera", "/image")
+        names = [camera] if camera else []
     notes = [f"{bad} undecodable messages skipped"] if bad else []
     log = _assemble(
         files,
         laser,
         camera,
         scans[laser],
-        frames.get(camera, []),
+        {name: frames.get(name, []) for name in names},
         timing,
         clock,
         metadata,
@@ -240,7 +308,7 @@ def _assemble(
     laser: str,
     camera: str,
     scans: list[_ScanMsg],
-    frames: list[tuple[int, bytes]],
+    frames: dict[str, list[tuple[int, bytes]]],
     timing: dict[str, dict[int, tuple[int, int, int]]],
     clock: list[tuple[int, int]],
     metadata: dict[str, dict[str, str]],
@@ -275,11 +343,6 @@ def _assemble(
     lt = timing.get(laser, {})
     scan_ticks = np.array([lt.get(int(t), (-1, 0, -1))[0] for t in scan_ns], dtype=np.int64)
     scan_recv = np.array([lt.get(int(t), (-1, 0, -1))[2] for t in scan_ns], dtype=np.int64)
-    frames.sort(key=lambda f: f[0])
-    frame_ns = np.array([t for t, _ in frames], dtype=np.int64)
-    ct = timing.get(camera, {})
-    frame_seq = np.array([ct.get(int(t), (0, -1, -1))[1] for t in frame_ns], dtype=np.int64)
-    frame_recv = np.array([ct.get(int(t), (0, -1, -1))[2] for t in frame_ns], dtype=np.int64)
     return DriveLog(
         files=files,
         laser=laser,
@@ -291,15 +354,23 @@ def _assemble(
         angle_increment=inc,
         time_increment=time_increment,
         scan_ticks=scan_ticks,
-        frame_ns=frame_ns,
-        frame_seq=frame_seq,
-        jpegs=[j for _, j in frames],
+        cameras={name: _camera_frames(f, timing.get(name, {})) for name, f in frames.items()},
         clock=np.array(clock, dtype=np.int64).reshape(-1, 2),
         metadata=metadata,
         notes=notes,
         scan_recv_ns=scan_recv,
-        frame_recv_ns=frame_recv,
     )
+
+
+def _camera_frames(
+    frames: list[tuple[int, bytes]], timing: dict[int, tuple[int, int, int]]
+) -> CameraFrames:
+    """One camera's (stamp, JPEG) messages and its timing records, in stamp order."""
+    frames.sort(key=lambda f: f[0])
+    frame_ns = np.array([t for t, _ in frames], dtype=np.int64)
+    seq = np.array([timing.get(int(t), (0, -1, -1))[1] for t in frame_ns], dtype=np.int64)
+    recv = np.array([timing.get(int(t), (0, -1, -1))[2] for t in frame_ns], dtype=np.int64)
+    return CameraFrames(frame_ns, seq, recv, [j for _, j in frames])
 
 
 # --- colouring -------------------------------------------------------------------------

@@ -99,7 +99,7 @@ def test_frames_of_another_size_are_skipped_and_said(
     (a, b), second = board.holds[0], board.holds[1]
     held = np.flatnonzero((log.frame_ns >= a) & (log.frame_ns <= b))
     odd = jpeg(640, 480)
-    log = replace(log, jpegs=[odd if k in held else j for k, j in enumerate(log.jpegs)])
+    log = log.with_frames(jpegs=[odd if k in held else j for k, j in enumerate(log.jpegs)])
     model = board.calibration.camera("camera").model
     with caplog.at_level(logging.WARNING):
         first, ok = poses_from_log(log, model, parse_board(board.spec), [(a, b), second])
@@ -175,7 +175,6 @@ def test_too_few_poses_exits_1(
 def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std(
     rec: tuple[BoardLog, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from dataclasses import replace
 
     from acq.camera.calibfile import CalibStd
 

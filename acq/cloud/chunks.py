@@ -24,7 +24,7 @@ from typing import Any, ParamSpec, Protocol, TypeVar
 
 import numpy as np
 
-from acq.cloud import views
+from acq.cloud import balance, multiview, views
 from acq.cloud.job import Job, remap
 from acq.cloud.points import Cloud
 from acq.geometry.transforms import Rigid
@@ -89,10 +89,14 @@ class ChunkResult:
     frames_used: int = 0  # decoded and used for this chunk (its margins included)
     frames_failed: int = 0
     outside: int = 0  # points left out: outside the trajectory's span
-    used_stamps: np.ndarray | None = None  # recorded stamps of the frames its points used
+    # (camera index, recorded stamp) of the frames its points used, (U,2) int64
+    used_stamps: np.ndarray | None = None
     seconds: dict[str, float] = field(default_factory=dict)
-    # frames of another size than the camera model's, not used: recorded stamp -> (w, h) px
-    odd_size: dict[int, tuple[int, int]] = field(default_factory=dict)
+    # frames of another size than the camera model's, not used, by camera: stamp -> (w, h)
+    odd_size: dict[str, dict[int, tuple[int, int]]] = field(default_factory=dict)
+    gains: balance.Gains | None = None  # the colour balance applied (None: off)
+    # with want_uv, per camera: its own (rgb, balanced rgb, coloured) of every point
+    samples: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
 
 def _margin_ns(job: Job) -> int:
@@ -207,8 +211,8 @@ def colour_chunk(
 
 
 def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) -> ChunkColouring:
-    """Read and place one chunk and queue its frames on ``pool`` (:func:`colour_chunk`
-    without waiting: :meth:`ChunkColouring.result` does)."""
+    """Read and place one chunk and queue its frames, every camera's, on ``pool``
+    (:func:`colour_chunk` without waiting: :meth:`ChunkColouring.result` does)."""
     t0 = time.perf_counter()
     margin = _margin_ns(job)
     # the same scans and frames whether read here or cut from the whole log: those
@@ -216,13 +220,12 @@ def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) 
     lo, hi = chunk.start_ns - margin - 500_000_000, chunk.end_ns + margin + 500_000_000
     if whole is None:
         whole = read_log(
-            list(job.files), laser=job.laser, camera=job.camera or None,
+            list(job.files), laser=job.laser, cameras=[c.name for c in job.cameras] or None,
             start_ns=lo - 10**9, end_ns=hi + 10**9,
         )  # fmt: skip
     log = whole.between(lo, hi)
     t_read = time.perf_counter()
     scan_ns = remap(job.scan_old, job.scan_new, log.scan_ns)
-    frame_ns = remap(job.frame_old, job.frame_new, log.frame_ns) - job.time_offset_ns
     core_scan = (scan_ns >= chunk.start_ns) & (scan_ns < chunk.end_ns)
     # the margins' scans only fill best's depth buffers
     keep_scan = (
@@ -236,28 +239,45 @@ def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) 
     # the chunk's own points are coloured; those of its margins only hide others
     core = core_scan[pts.scan] & (pts.inside if job.frame_world else True)
     size = views.point_size(pts.r, log.angle_increment, job.travel_m)
-    usable = (
-        job.trajectory.covers(frame_ns) if pose_at is not None else np.ones(frame_ns.size, bool)
-    )
-    odd = views.odd_sized(log.jpegs, job.cam.model)
-    if odd:
-        usable[list(odd)] = False
     compensate = pose_at is not None and job.options.motion_compensation
-    colouring = views.start_colouring(
-        pts.P_world if compensate else pts.P_laser, pts.time_ns, size, frame_ns, log.jpegs,
-        job.cam, l2v, pose_at, job.options,
-        pool=pool, want_uv=job.want_uv, frame_ok=usable, need=core,
-    )  # fmt: skip
+    colourings, odd_size = [], {}
+    for cj in job.cameras:
+        frames = log.cameras[cj.name]
+        frame_ns = remap(cj.frame_old, cj.frame_new, frames.frame_ns) - cj.time_offset_ns
+        usable = (
+            job.trajectory.covers(frame_ns) if pose_at is not None else np.ones(frame_ns.size, bool)
+        )
+        odd = views.odd_sized(frames.jpegs, cj.cam.model)
+        if odd:
+            usable[list(odd)] = False
+            odd_size[cj.name] = {int(frames.frame_ns[k]): wh for k, wh in odd.items()}
+        colourings.append(
+            views.start_colouring(
+                pts.P_world if compensate else pts.P_laser,
+                pts.time_ns,
+                size,
+                frame_ns,
+                frames.jpegs,
+                cj.cam,
+                l2v,
+                pose_at,
+                job.options,
+                pool=pool,
+                want_uv=job.want_uv,
+                frame_ok=usable,
+                need=core,
+            )
+        )
     seconds = {"read": t_read - t0, "place, queue": time.perf_counter() - t_read}
-    odd_size = {int(log.frame_ns[k]): size for k, size in odd.items()}
     return ChunkColouring(
-        job, chunk, log, scan_ns, core_scan, core, pts, colouring, seconds, odd_size
+        job, chunk, log, scan_ns, core_scan, core, pts, colourings, seconds, odd_size
     )
 
 
 @dataclass
 class ChunkColouring:
-    """A chunk read and placed, its frames decoding (:func:`start_chunk`)."""
+    """A chunk read and placed, its frames decoding (:func:`start_chunk`): one
+    colouring per camera of the job."""
 
     job: Job
     chunk: Chunk
@@ -266,17 +286,69 @@ class ChunkColouring:
     core_scan: np.ndarray
     core: np.ndarray
     pts: Placed
-    colouring: views.Colouring
+    colourings: list[views.Colouring]
     seconds: dict[str, float]
-    odd_size: dict[int, tuple[int, int]] = field(default_factory=dict)
+    # frames of another size than the camera model's, by camera: recorded stamp -> (w, h)
+    odd_size: dict[str, dict[int, tuple[int, int]]] = field(default_factory=dict)
 
     def result(self) -> ChunkResult:
-        """Wait for the chunk's frames; its points (:class:`ChunkResult`)."""
+        """Wait for the chunk's frames; its points (:class:`ChunkResult`): each
+        camera's colours balanced (:mod:`acq.cloud.balance`), each point's camera
+        chosen (:mod:`acq.cloud.multiview`)."""
         t0 = time.perf_counter()
         job, chunk, log, pts = self.job, self.chunk, self.log, self.pts
         core: slice | np.ndarray = slice(None) if self.core.all() else self.core  # no copies
-        col = self.colouring.result()
+        cols = [c.result() for c in self.colourings]
         t_colour = time.perf_counter()
+        n = pts.time_ns.size
+        frames = [log.cameras[cj.name] for cj in job.cameras]
+        gains = (
+            balance.estimate_gains(cols, [f.frame_ns.size for f in frames])
+            if job.options.balance and cols
+            else None
+        )
+        rgbs = [
+            gains.apply(c, col.rgb, col.frame) if gains is not None else col.rgb
+            for c, col in enumerate(cols)
+        ]
+        if cols:
+            choice = multiview.choose(
+                cols, rgbs, [cj.cam.model for cj in job.cameras], job.options.max_dt_s,
+                job.options.blend,
+            )  # fmt: skip
+            cam_idx = choice.camera
+        else:
+            cam_idx = np.full(n, -1, dtype=np.int64)
+        pick = np.maximum(cam_idx, 0)
+        rows = np.arange(n)
+
+        def chosen(name: str, fill: Any) -> np.ndarray:
+            stack = np.stack([getattr(col, name) for col in cols]) if cols else None
+            if stack is None:
+                return np.full(n, fill)
+            out: np.ndarray = np.where(cam_idx >= 0, stack[pick, rows], fill)
+            return out
+
+        frame = chosen("frame", -1)
+        # the frame's recorded stamp and its index among its camera's frames in the session
+        stamp = np.full(n, -1, dtype=np.int64)
+        session_frame = np.full(n, -1, dtype=np.int64)
+        for c, (cj, f) in enumerate(zip(job.cameras, frames, strict=True)):
+            sel = np.flatnonzero(cam_idx == c)
+            stamp[sel] = f.frame_ns[frame[sel]]
+            session_frame[sel] = np.searchsorted(cj.frame_old, stamp[sel])
+        uv = None
+        if job.want_uv and cols:
+            uv = np.stack([col.uv for col in cols])[pick, rows]  # type: ignore[misc]
+            uv[cam_idx < 0] = np.nan
+        hidden = (
+            np.any(np.stack([col.hidden for col in cols]), axis=0) & (cam_idx < 0)
+            if cols
+            else np.zeros(n, bool)
+        )
+        coloured = cam_idx >= 0
+        rgb = choice.rgb if cols else np.zeros((n, 3), np.uint8)
+        t_choose = time.perf_counter()
         l2v = job.laser_to_vehicle
         xyz = pts.P_world if job.frame_world else pts.P_laser
         # the laser's position at each core scan's point 0 (the track; scans with a pose)
@@ -290,42 +362,44 @@ class ChunkColouring:
         first_scan = int(np.searchsorted(job.scan_new, chunk.start_ns)) if job.scan_new.size else 0
         local = np.cumsum(self.core_scan) - 1
         scan_idx, step = pts.scan[core], pts.step[core]
-        frame = col.frame[core]
+        used_pairs = np.unique(np.stack([cam_idx, stamp], axis=1)[coloured], axis=0)
         return ChunkResult(
             index=chunk.index,
             xyz=xyz[core],
-            rgb=col.rgb[core],
-            coloured=col.coloured[core],
-            hidden=col.hidden[core],
+            rgb=rgb[core],
+            coloured=coloured[core],
+            hidden=hidden[core],
             time_ns=pts.time_ns[core],
             scan=(first_scan + local[scan_idx]).astype(np.uint32),
             step=step.astype(np.uint32),
             intensity=log.intensities[scan_idx, step].astype(np.float32),
-            dt_s=col.dt_s[core],
-            theta=col.theta[core],
-            camera=np.where(col.coloured[core], 0, NO_CAMERA).astype(np.uint8),
-            frame=np.where(
-                frame >= 0,
-                np.searchsorted(job.frame_old, log.frame_ns[np.maximum(frame, 0)]),
-                -1,
-            ).astype(np.int32),
+            dt_s=chosen("dt_s", np.nan).astype(np.float32)[core],
+            theta=chosen("theta", np.nan).astype(np.float32)[core],
+            camera=np.where(coloured, cam_idx, NO_CAMERA).astype(np.uint8)[core],
+            frame=session_frame.astype(np.int32)[core],
             scan_origin=origin,
-            frame_stamp_ns=(
-                np.where(frame >= 0, log.frame_ns[np.maximum(frame, 0)], -1)
-                if job.want_uv
-                else None
-            ),
-            uv=col.uv[core] if col.uv is not None else None,
-            frames_used=col.frames_used,
-            frames_failed=col.frames_failed,
+            frame_stamp_ns=stamp[core] if job.want_uv else None,
+            uv=uv[core] if uv is not None else None,
+            frames_used=sum(col.frames_used for col in cols),
+            frames_failed=sum(col.frames_failed for col in cols),
             outside=int(np.count_nonzero(~pts.inside & self.core_scan[pts.scan])),
-            used_stamps=np.unique(log.frame_ns[frame[frame >= 0]]),
+            used_stamps=used_pairs,
             seconds={
                 **self.seconds,
                 "waiting for frames": t_colour - t0,
-                "finish": time.perf_counter() - t_colour,
+                "balance, choice": t_choose - t_colour,
+                "finish": time.perf_counter() - t_choose,
             },
             odd_size=self.odd_size,
+            gains=gains,
+            samples=(
+                {
+                    cj.name: (cols[c].rgb[core], rgbs[c][core], cols[c].coloured[core])
+                    for c, cj in enumerate(job.cameras)
+                }
+                if job.want_uv
+                else None
+            ),
         )
 
 
@@ -342,7 +416,7 @@ def plan(scan_ns: np.ndarray, chunk_s: float) -> list[Chunk]:
 def frames_used(used: list[np.ndarray]) -> int:
     """Frames the cloud's points were coloured from, given each chunk's (a frame two
     chunks share, once)."""
-    return int(np.unique(np.concatenate(used)).size) if used else 0
+    return int(np.unique(np.concatenate(used), axis=0).shape[0]) if used else 0
 
 
 def cloud_of(results: list[ChunkResult], index: DriveLog, cameras: Sequence[str] = ()) -> Cloud:

@@ -69,7 +69,7 @@ from acq.cloud.chunks import (
     plan,
     start_chunk,
 )
-from acq.cloud.job import Job, prepare, remap, session_files
+from acq.cloud.job import CameraJob, Job, prepare, remap, session_files
 from acq.cloud.preview import preview_png
 from acq.cloud.report import Report
 from acq.cloud.writer import FORMATS, CloudWriter
@@ -303,6 +303,7 @@ class DaskQueueSink:
 def estimate_offset(
     job: Job,
     *,
+    camera: CameraJob | None = None,
     whole: DriveLog | None = None,
     start_s: float | None = None,
     seconds: float = 60.0,
@@ -310,26 +311,29 @@ def estimate_offset(
     max_frames: int = 1500,
     threads: int = 1,
 ) -> OffsetEstimate:
-    """The camera's time offset (:mod:`acq.calib.time_offset`) from ``seconds`` of the job's
-    log from ``start_s`` after its first scan (default: the middle ``seconds``), with
-    CALIB's offset as the prior; ``whole``: the log already read, with its images."""
+    """The time offset of ``camera`` (default: the job's first) (:mod:`acq.calib.time_offset`)
+    from ``seconds`` of the job's log from ``start_s`` after its first scan (default: the
+    middle ``seconds``), with CALIB's offset as the prior; ``whole``: the log already
+    read, with its images."""
     if job.trajectory is None:
         return OffsetEstimate.not_found(
             "needs the rig's motion: CAN odometry in the log or --trajectory"
         )
-    if not job.camera:
+    if not job.cameras:
         return OffsetEstimate.not_found("the log has no camera frames")
+    cj = camera or job.cameras[0]
     first, last = int(job.scan_new[0]), int(job.scan_new[-1])
     span = round(seconds * 1e9)
     lo = first + (max(0, (last - first - span) // 2) if start_s is None else round(start_s * 1e9))
     hi = lo + span
     if whole is None:
         whole = read_log(
-            list(job.files), laser=job.laser, camera=job.camera,
+            list(job.files), laser=job.laser, camera=cj.name,
             start_ns=lo - 2 * 10**9, end_ns=hi + 2 * 10**9,
         )  # fmt: skip
+    whole = whole.with_camera(cj.name)
     scan_ns = remap(job.scan_old, job.scan_new, whole.scan_ns)
-    frame_ns = remap(job.frame_old, job.frame_new, whole.frame_ns)
+    frame_ns = remap(cj.frame_old, cj.frame_new, whole.frame_ns)
     keep = (scan_ns >= lo) & (scan_ns < hi)
     pts = place(whole, scan_ns, keep, job.trajectory, job.laser_to_vehicle)
     strength = whole.intensities[pts.scan, pts.step] if whole.intensities.size else None
@@ -337,17 +341,17 @@ def estimate_offset(
         return OffsetEstimate.not_found(
             "no laser return strengths in the log (record them: SCIP ME, CoLa RSSI1)"
         )
-    in_span = (frame_ns - job.time_offset_ns >= lo) & (frame_ns - job.time_offset_ns < hi)
+    in_span = (frame_ns - cj.time_offset_ns >= lo) & (frame_ns - cj.time_offset_ns < hi)
     sel = np.flatnonzero(in_span)
-    odd = views.odd_sized([whole.jpegs[int(i)] for i in sel], job.cam.model)
+    odd = views.odd_sized([whole.jpegs[int(i)] for i in sel], cj.cam.model)
     if odd:
         stamps = {int(whole.frame_ns[sel[k]]): size for k, size in odd.items()}
-        log.warning("time offset: %s", _odd_size_note(whole, stamps, job.cam.model, job.files))
+        log.warning("time offset: %s", _odd_size_note(whole, stamps, cj.cam.model, job.files))
         sel = np.delete(sel, list(odd))
     return estimate_time_offset(
         pts.P_world, pts.time_ns, strength.astype(np.float64), frame_ns[sel],
-        [whole.jpegs[int(i)] for i in sel], job.cam, job.laser_to_vehicle,
-        job.trajectory.pose_at, job.trajectory.covers, prior_s=job.cam.time_offset_s,
+        [whole.jpegs[int(i)] for i in sel], cj.cam, job.laser_to_vehicle,
+        job.trajectory.pose_at, job.trajectory.covers, prior_s=cj.cam.time_offset_s,
         search_s=search_s, max_frames=max_frames, threads=threads,
     )  # fmt: skip
 
@@ -357,7 +361,7 @@ def run(
     calib: Calibration,
     output: Path,
     *,
-    camera: str | None = None,
+    camera: str | Sequence[str] | None = None,
     frame: str | None = None,
     options: views.Options | None = None,
     trajectory: Path | Trajectory | None = None,
@@ -398,17 +402,30 @@ def run(
     job = replace(job, want_uv=want_uv)
     t_offset = time.perf_counter()
     if auto:
-        est = estimate_offset(job, whole=index if once else None, threads=job.threads)
-        report.time_offset.update(
-            estimated_s=est.offset_s, std_s=est.std_s, points=est.points, frames=est.frames,
-            contrast=round(est.contrast, 3), found=est.found,
-        )  # fmt: skip
-        if est.found:
-            job = replace(job, time_offset_ns=round(est.offset_s * 1e9))
-        else:
-            report.notes.append(f"--time-offset auto: {est.note}; CALIB's time_offset_s used")
+        found: dict[str, int] = {}
+        for k, cj in enumerate(job.cameras):
+            est = estimate_offset(job, camera=cj, whole=index if once else None,
+                                  threads=job.threads)  # fmt: skip
+            figures = {
+                "estimated_s": est.offset_s, "std_s": est.std_s, "points": est.points,
+                "frames": est.frames, "contrast": round(est.contrast, 3), "found": est.found,
+            }  # fmt: skip
+            report.time_offset.setdefault("cameras", {})[cj.name] = figures
+            if k == 0:
+                report.time_offset.update(figures)
+            if est.found:
+                found[cj.name] = round(est.offset_s * 1e9)
+            else:
+                report.notes.append(
+                    f"--time-offset auto ({cj.name}): {est.note}; CALIB's time_offset_s used"
+                )
+        job = job.with_offsets(found)
     world = job.frame_world
     report.time_offset["used_s"] = job.time_offset_ns * 1e-9
+    for cj in job.cameras:
+        report.time_offset.setdefault("cameras", {}).setdefault(cj.name, {})["used_s"] = (
+            cj.time_offset_ns * 1e-9
+        )
     scan_new = np.sort(job.scan_new)
     chunks = plan(scan_new, chunk_s)
     t_plan = time.perf_counter()
@@ -431,12 +448,16 @@ def run(
         out.stream.abort()
         raise
     report.points, report.coloured, report.hidden = tally.points, tally.coloured, tally.hidden
-    report.frames, report.scans = index.n_frames, index.n_scans
+    report.frames = sum(index.cameras[c.name].frame_ns.size for c in job.cameras)
+    report.scans = index.n_scans
     report.frames_used = frames_used(tally.used)
     report.frames_failed = tally.failed
-    if tally.odd_size:
-        report.frames_odd_size = len(tally.odd_size)
-        report.notes.append(_odd_size_note(index, tally.odd_size, job.cam.model, job.files))
+    for cj in job.cameras:
+        odd = tally.odd_size.get(cj.name)
+        if odd:
+            report.frames_odd_size += len(odd)
+            note = _odd_size_note(index.with_camera(cj.name), odd, cj.cam.model, job.files)
+            report.notes.append(f"{cj.name}: {note}" if len(job.cameras) > 1 else note)
     report.duration_s = float(np.ptp(scan_new)) * 1e-9 if scan_new.size else 0.0
     report.chunks = len(chunks)
     report.bytes = size
@@ -446,7 +467,7 @@ def run(
             + ("left out (no pose)" if world else "kept, not coloured")
         )
     if preview is not None:
-        pc = cloud_of(tally.preview, index, [job.camera])
+        pc = cloud_of(tally.preview, index, [c.name for c in job.cameras])
         preview_png(preview, pc, title=f"acq colorize {output.name}")
         if every > 1:
             report.notes.append(f"the preview shows one scan in {every}")
@@ -479,11 +500,13 @@ class _Tally:
     used: list[np.ndarray] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     preview: list[ChunkResult] = field(default_factory=list)
-    odd_size: dict[int, tuple[int, int]] = field(default_factory=dict)  # stamp -> (w, h)
+    # by camera: stamp -> (w, h)
+    odd_size: dict[str, dict[int, tuple[int, int]]] = field(default_factory=dict)
 
     def add(self, r: ChunkResult) -> None:
         self.points += r.time_ns.size
-        self.odd_size.update(r.odd_size)
+        for name, odd in r.odd_size.items():
+            self.odd_size.setdefault(name, {}).update(odd)
         self.coloured += int(np.count_nonzero(r.coloured))
         self.hidden += int(np.count_nonzero(r.hidden))
         self.failed += r.frames_failed
@@ -497,4 +520,4 @@ class _Tally:
         elif self.every > 1:
             k = r.scan % self.every == 0
             thin = {name: getattr(r, name)[k] for name in PER_POINT}
-            self.preview.append(replace(r, **thin, uv=None, frame_stamp_ns=None))
+            self.preview.append(replace(r, **thin, uv=None, frame_stamp_ns=None, samples=None))

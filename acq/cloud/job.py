@@ -30,32 +30,71 @@ from acq.motion import Trajectory
 from acq.time import retime
 from acq.time.utc import host_ns_from_utc
 
-__all__ = ["Job", "check_crs", "prepare", "remap", "session_files"]
+__all__ = ["CameraJob", "Job", "check_crs", "prepare", "remap", "session_files"]
+
+
+@dataclass(frozen=True)
+class CameraJob:
+    """One camera's part of a :class:`Job`: its name in the log and calibration, its
+    calibration, its frames' re-timing map (recorded stamp -> new, sorted by recorded
+    stamp) and its time offset (camera time minus laser time, ns)."""
+
+    name: str
+    cam: CameraCalib
+    frame_old: np.ndarray
+    frame_new: np.ndarray
+    time_offset_ns: int
 
 
 @dataclass(frozen=True)
 class Job:
-    """What every chunk needs (small, picklable): the files, the devices, the camera's
-    calibration, the re-timing maps (recorded stamp -> new, sorted by recorded stamp),
-    the trajectory (an :class:`acq.motion.trajectory.Trajectory`; None: laser frame) and the
-    options."""
+    """What every chunk needs (small, picklable): the files, the laser, the cameras to
+    colour from (:class:`CameraJob`, none for a log without frames), the scans'
+    re-timing map (recorded stamp -> new, sorted by recorded stamp), the trajectory (an
+    :class:`acq.motion.trajectory.Trajectory`; None: laser frame) and the options.
+    ``camera``, ``cam``, ``frame_old``, ``frame_new`` and ``time_offset_ns`` are the
+    first camera's."""
 
     files: tuple[str, ...]
     laser: str
-    camera: str
-    cam: CameraCalib
+    cameras: tuple[CameraJob, ...]
     laser_to_vehicle: Rigid
     scan_old: np.ndarray
     scan_new: np.ndarray
-    frame_old: np.ndarray
-    frame_new: np.ndarray
-    time_offset_ns: int
     trajectory: Any
     options: views.Options
     frame_world: bool
     travel_m: float  # the rig's travel between two scans (m), for the points' size
     want_uv: bool = False  # keep each point's pixel and frame (for accuracy checks)
     threads: int = 1  # JPEG decoding threads per chunk
+
+    @property
+    def camera(self) -> str:
+        return self.cameras[0].name if self.cameras else ""
+
+    @property
+    def cam(self) -> CameraCalib:
+        return self.cameras[0].cam
+
+    @property
+    def frame_old(self) -> np.ndarray:
+        return self.cameras[0].frame_old if self.cameras else np.zeros(0, np.int64)
+
+    @property
+    def frame_new(self) -> np.ndarray:
+        return self.cameras[0].frame_new if self.cameras else np.zeros(0, np.int64)
+
+    @property
+    def time_offset_ns(self) -> int:
+        return self.cameras[0].time_offset_ns if self.cameras else 0
+
+    def with_offsets(self, offsets_ns: dict[str, int]) -> Job:
+        """This job with the time offsets of the cameras named in ``offsets_ns``."""
+        cams = tuple(
+            replace(c, time_offset_ns=offsets_ns[c.name]) if c.name in offsets_ns else c
+            for c in self.cameras
+        )
+        return replace(self, cameras=cams)
 
 
 def remap(old: np.ndarray, new: np.ndarray, stamps: np.ndarray) -> np.ndarray:
@@ -66,10 +105,9 @@ def remap(old: np.ndarray, new: np.ndarray, stamps: np.ndarray) -> np.ndarray:
     return np.where(old[i] == stamps, new[i], stamps)
 
 
-def _retime(log: DriveLog, report: Report) -> tuple[np.ndarray, np.ndarray]:
-    """(scan_new, frame_new) for ``log``'s recorded stamps; notes in ``report``."""
-
-    scan_new, frame_new = log.scan_ns.copy(), log.frame_ns.copy()
+def _retime_scans(log: DriveLog, report: Report) -> np.ndarray:
+    """New stamps for ``log``'s scans (its recorded ones, sorted); notes in ``report``."""
+    scan_new = log.scan_ns.copy()
     driver = log.metadata.get(f"device.{log.laser}", {}).get("driver", "")
     try:
         cls = SCANNERS.get(driver)
@@ -82,17 +120,26 @@ def _retime(log: DriveLog, report: Report) -> tuple[np.ndarray, np.ndarray]:
             report.notes.append(f"scans not re-timed: {rs.note}")
     except (KeyError, ValueError) as e:
         report.notes.append(f"scans not re-timed: unknown scanner driver {driver!r} ({e})")
-    if log.n_frames:
-        rf = retime.retime_frames(log.frame_ns)
-        frame_new = rf.frame_ns
-        report.retiming.update(
-            frame_period_s=rf.period_s,
-            frame_residual_rms_ms=rf.residual_rms_ms,
-            frame_shift_max_ms=rf.shift_max_ms,
-        )
-        if rf.note:
-            report.notes.append(f"frames not re-timed: {rf.note}")
-    return scan_new, frame_new
+    return scan_new
+
+
+def _retime_frames(log: DriveLog, report: Report, first: bool) -> np.ndarray:
+    """New stamps for the frames of ``log``'s camera; notes in ``report`` (the first
+    camera's figures also at the top of ``report.retiming``, as for one camera)."""
+    if not log.n_frames:
+        return log.frame_ns.copy()
+    rf = retime.retime_frames(log.frame_ns)
+    figures = {
+        "frame_period_s": rf.period_s,
+        "frame_residual_rms_ms": rf.residual_rms_ms,
+        "frame_shift_max_ms": rf.shift_max_ms,
+    }
+    report.retiming.setdefault("cameras", {})[log.camera] = figures
+    if first:
+        report.retiming.update(figures)
+    if rf.note:
+        report.notes.append(f"{log.camera}: frames not re-timed: {rf.note}")
+    return rf.frame_ns
 
 
 def _trajectory(
@@ -196,7 +243,7 @@ def prepare(
     calib: Calibration,
     report: Report,
     *,
-    camera: str | None = None,
+    camera: str | Sequence[str] | None = None,
     frame: str | None = None,
     options: views.Options | None = None,
     trajectory: Path | Trajectory | None = None,
@@ -207,20 +254,27 @@ def prepare(
     crs: str | None = None,
 ) -> tuple[Job, DriveLog]:
     """The :class:`Job` for ``logs`` (steps 1-3 of the module docstring) and the log's
-    light part (with the images when ``jpegs``); notes go into ``report``. ``trajectory``:
+    light part (with the images when ``jpegs``); notes go into ``report``. ``camera``:
+    the cameras to colour from (default: every camera of ``calib`` in the log; a
+    calibration of one camera pairs with the log's only camera). ``time_offset_s``:
+    for every camera, instead of ``calib``'s. ``trajectory``:
     a file (``--trajectory``) or the poses themselves; None: from the log. ``crs``: the
     output's CRS, InputValueError (:func:`check_crs`) unless the trajectory is in it."""
     options = options or views.Options()
     files = session_files(logs)
-    first = calib.cameras.get(camera) if camera else next(iter(calib.cameras.values()), None)
+    names = [camera] if isinstance(camera, str) else list(camera or ())
+    first = calib.cameras.get(names[0]) if names else next(iter(calib.cameras.values()), None)
     if first is not None:
         threading.Thread(target=_warm_kernels, args=(first.model,), daemon=True).start()
-    index = read_log(files, camera=camera, jpegs=jpegs, vehicle=trajectory is None)
-    name, cam = camera_calib(index, calib, camera)
+    # a calibration of one camera pairs with the log's only camera, whatever its name
+    single = not names and len(calib.cameras) == 1
+    index = read_log(
+        files, cameras=None if single else (names or list(calib.cameras)), jpegs=jpegs,
+        vehicle=trajectory is None,
+    )  # fmt: skip
     report.notes += index.notes
-    scan_new, frame_new = (
-        _retime(index, report) if retime_offline else (index.scan_ns, index.frame_ns)
-    )
+    pairs = _camera_calibs(index, calib, names, single, report)
+    scan_new = _retime_scans(index, report) if retime_offline else index.scan_ns
     traj = _trajectory(files, trajectory, index, report, crs)
     world = frame == "world" if frame is not None else traj is not None
     if world and traj is None:
@@ -236,23 +290,28 @@ def prepare(
         options = replace(options, motion_compensation=False)
     report.frame = "world" if world else "laser"
     s_order = np.argsort(index.scan_ns)
-    f_order = np.argsort(index.frame_ns)
     period = float(np.median(np.diff(np.sort(scan_new)))) * 1e-9 if scan_new.size > 1 else 0.025
     speed = _median_speed(traj, scan_new)
-    offset = cam.time_offset_s if time_offset_s is None else float(time_offset_s)
+    cameras = []
+    for k, (name, cam) in enumerate(pairs):
+        frames = index.with_camera(name)
+        frame_new = (
+            _retime_frames(frames, report, first=k == 0) if retime_offline else frames.frame_ns
+        )
+        f_order = np.argsort(frames.frame_ns)
+        offset = cam.time_offset_s if time_offset_s is None else float(time_offset_s)
+        cameras.append(
+            CameraJob(name, cam, frames.frame_ns[f_order], frame_new[f_order], round(offset * 1e9))
+        )
     job = Job(
         files=tuple(str(f) for f in files),
         laser=index.laser,
-        camera=name if index.camera else "",
-        cam=cam,
+        cameras=tuple(cameras),
         laser_to_vehicle=(
             calib.laser_to_vehicle if calib.laser_to_vehicle is not None else Rigid.identity()
         ),
         scan_old=index.scan_ns[s_order],
         scan_new=scan_new[s_order],
-        frame_old=index.frame_ns[f_order],
-        frame_new=frame_new[f_order],
-        time_offset_ns=round(offset * 1e9),
         trajectory=traj,
         options=options,
         frame_world=world,
@@ -260,6 +319,32 @@ def prepare(
         threads=threads,
     )
     return job, index
+
+
+def _camera_calibs(
+    index: DriveLog, calib: Calibration, names: list[str], single: bool, report: Report
+) -> list[tuple[str, CameraCalib]]:
+    """(name in the log, calibration) of each camera to colour from: those ``names``,
+    else every camera of ``calib`` the log has frames of (``single``: the calibration's
+    only camera for the log's only one). UnknownCameraError for a camera not in
+    ``calib``; InputValueError when a named camera, or every one, has no frames."""
+    if single:
+        name, cam = camera_calib(index, calib, None)
+        return [(index.camera, cam)]
+    pairs = []
+    for name in names or list(calib.cameras):
+        cam = calib.camera(name)
+        if index.cameras.get(name) is None or not index.cameras[name].frame_ns.size:
+            if names:
+                raise InputValueError(f"--camera {name}: the log has no frames of it")
+            report.notes.append(f"camera {name}: no frames in the log; not used")
+            continue
+        pairs.append((name, cam))
+    if not pairs:
+        raise InputValueError(
+            f"the log has no frames of the calibration's cameras ({', '.join(calib.cameras)})"
+        )
+    return pairs
 
 
 def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from concurrent.futures import Executor, Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -45,6 +45,7 @@ __all__ = [
     "Coloured",
     "Colouring",
     "Options",
+    "Pairs",
     "occlusion_depths",
     "odd_sized",
     "point_size",
@@ -60,7 +61,9 @@ class Options:
     """How points pick their frame (see the module docstring). ``cell_px``: the depth
     buffer's cell; ``margin_m`` + ``margin_rel`` x depth: how much nearer a laser point
     must be to hide another; ``context_s``: laser points within this of a frame's time
-    go into its depth buffer."""
+    go into its depth buffer. ``balance``: sample some points in a few more frames of
+    each camera, for :mod:`acq.cloud.balance`; ``blend``: blend the cameras' colours
+    (:mod:`acq.cloud.multiview`)."""
 
     view: str = "nearest"
     motion_compensation: bool = True
@@ -71,6 +74,8 @@ class Options:
     margin_m: float = 0.2
     margin_rel: float = 0.05
     context_s: float = 0.4
+    balance: bool = True
+    blend: bool = False
 
     def __post_init__(self) -> None:
         if self.view not in VIEWS:
@@ -79,14 +84,36 @@ class Options:
             raise ValueError("window >= 0, max_dt_s > 0 and cell_px >= 1 expected")
 
 
+PAIR_EVERY = 6  # one point in this many is also sampled in other frames, for balancing
+PAIR_OFFSETS = (1, 8, 30)  # those frames: this many frames from the point's own
+
+
+@dataclass(frozen=True)
+class Pairs:
+    """Points sampled again in other frames of the same camera, for
+    :mod:`acq.cloud.balance`: ``point`` (K,) their indices, ``frame`` (K,) the other
+    frame, ``rgb`` (K,3) uint8 the colour there, ``ok`` (K,) bool where it was seen."""
+
+    point: np.ndarray
+    frame: np.ndarray
+    rgb: np.ndarray
+    ok: np.ndarray
+
+    @staticmethod
+    def none() -> Pairs:
+        empty = np.zeros(0, np.int64)
+        return Pairs(empty, empty, np.zeros((0, 3), np.uint8), np.zeros(0, bool))
+
+
 @dataclass(frozen=True)
 class Coloured:
     """Per point: ``rgb`` (N,3) uint8, ``coloured`` (N,) bool, ``frame`` (N,) int64 the
     frame used (-1 none), ``dt_s`` (N,) float32 point time minus that frame's (NaN),
-    ``theta`` (N,) float32 angle from that frame's optical axis, rad (``best`` only; NaN
-    otherwise); and
+    ``theta`` (N,) float32 angle from that frame's optical axis, rad, and ``depth``
+    (N,) float32 the point's distance from the camera then, m (NaN where not coloured);
     ``hidden`` (N,) bool: seen by a candidate frame but hidden in all (``best``); ``uv``
-    (N,2) float32 the pixel in that frame (NaN; only when asked for)."""
+    (N,2) float32 the pixel in that frame (NaN; only when asked for); ``pairs``: points
+    sampled again in other frames (:class:`Pairs`)."""
 
     rgb: np.ndarray
     coloured: np.ndarray
@@ -97,6 +124,8 @@ class Coloured:
     frames_used: int
     frames_failed: int
     uv: np.ndarray | None = None
+    depth: np.ndarray | None = None
+    pairs: Pairs = field(default_factory=Pairs.none)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -200,23 +229,34 @@ class Colouring:
     def __init__(
         self, P: np.ndarray, frame: np.ndarray, theta: np.ndarray, hidden: np.ndarray,
         time_ns: np.ndarray, frame_ns: np.ndarray, model: CameraModel, bilinear: bool,
-        want_uv: bool,
+        want_uv: bool, pair_point: np.ndarray | None = None,
+        pair_frame: np.ndarray | None = None,
     ) -> None:  # fmt: skip
         n = P.shape[0]
         self.P = np.ascontiguousarray(P, dtype=np.float64)
         self.bgr = np.zeros((n, 3), dtype=np.uint8)
         self.coloured = np.zeros(n, dtype=bool)
         self.uv = np.full((n, 2), np.nan, dtype=np.float32) if want_uv else None
+        self.depth = np.full(n, np.nan, dtype=np.float32)
         self.frame, self.theta, self.hidden = frame, theta, hidden
         self.time_ns, self.frame_ns = time_ns, frame_ns
         self.model, self.bilinear = model, bilinear
         self.futures: list[Future[bool]] = []
         self.frame_map: np.ndarray | None = None  # frame indices of a subset -> the caller's
+        self.pair_point = np.zeros(0, np.int64) if pair_point is None else pair_point
+        self.pair_frame = np.zeros(0, np.int64) if pair_frame is None else pair_frame
+        self.pair_P = np.ascontiguousarray(self.P[self.pair_point])
+        self.pair_bgr = np.zeros((self.pair_point.size, 3), dtype=np.uint8)
+        self.pair_ok = np.zeros(self.pair_point.size, dtype=bool)
 
-    def colour_frame(self, jpeg: bytes, idx: np.ndarray, R: np.ndarray, t: np.ndarray) -> bool:
+    def colour_frame(
+        self, jpeg: bytes, idx: np.ndarray, R: np.ndarray, t: np.ndarray,
+        pairs: np.ndarray | None = None,
+    ) -> bool:  # fmt: skip
         """Decode one frame and colour its points ``idx`` (the camera at rotation ``R``
-        and position ``t`` in the points' frame); False when it does not decode or is not
-        of the camera model's size."""
+        and position ``t`` in the points' frame) and its ``pairs`` (indices into the
+        pair arrays); False when it does not decode or is not of the camera model's
+        size."""
         image = decode_jpeg(jpeg)
         if image is None or image.shape[:2] != (self.model.height, self.model.width):
             return False
@@ -224,6 +264,14 @@ class Colouring:
             self.P, idx, self.model, (R, t), image, self.bgr, self.coloured, self.uv,
             bilinear=self.bilinear,
         )  # fmt: skip
+        P_cam = (self.P[idx] - t) @ R
+        self.depth[idx] = np.linalg.norm(P_cam, axis=1)
+        self.theta[idx] = _theta(P_cam)
+        if pairs is not None and pairs.size:
+            projection.colour_into(
+                self.pair_P, pairs, self.model, (R, t), image, self.pair_bgr, self.pair_ok,
+                bilinear=self.bilinear,
+            )  # fmt: skip
         return True
 
     def result(self) -> Coloured:
@@ -234,11 +282,15 @@ class Colouring:
         frame = np.where(coloured, self.frame, -1)
         dt = np.where(coloured, (self.time_ns - self.frame_ns[np.maximum(frame, 0)]) * 1e-9, np.nan)
         theta = np.where(coloured, self.theta, np.nan).astype(np.float32)
+        depth = np.where(coloured, self.depth, np.nan).astype(np.float32)
+        pair_frame = self.pair_frame
         if self.frame_map is not None:
             frame = np.where(frame >= 0, self.frame_map[np.maximum(frame, 0)], -1)
+            pair_frame = self.frame_map[pair_frame]
+        pairs = Pairs(self.pair_point, pair_frame, self.pair_bgr[:, ::-1], self.pair_ok)
         return Coloured(
             self.bgr[:, ::-1], coloured, frame, dt.astype(np.float32), theta, self.hidden,
-            used_n, failed, self.uv,
+            used_n, failed, self.uv, depth, pairs,
         )  # fmt: skip
 
 
@@ -296,19 +348,54 @@ def start_colouring(
     else:
         rig.prepare(frame_ns)
         frame, theta, hidden = _best(P, time_ns, size_m, frame_ns, near, rig, options, need)
-    out = Colouring(
-        P, frame, theta, hidden, time_ns, frame_ns, cam.model, options.bilinear, want_uv
+    pair_point, pair_frame = (
+        _pairs(frame, frame_ns) if options.balance and rig.pose_at is not None else (None, None)
     )
+    out = Colouring(
+        P, frame, theta, hidden, time_ns, frame_ns, cam.model, options.bilinear, want_uv,
+        pair_point, pair_frame,
+    )  # fmt: skip
+    points, again = _by_frame(frame), _by_frame(out.pair_frame)
+    frames = np.array(sorted(points.keys() | again.keys()), dtype=np.int64)
+    Rs, ts = rig.camera_poses(frame_ns[frames])
+    none = np.zeros(0, np.int64)
+    for k, j in enumerate(frames.tolist()):
+        task = pool.submit(
+            out.colour_frame, jpegs[j], points.get(j, none), Rs[k], ts[k], again.get(j)
+        )
+        out.futures.append(task)
+    return out
+
+
+def _by_frame(frame: np.ndarray) -> dict[int, np.ndarray]:
+    """The indices of ``frame`` (K,) by their value (frames >= 0 only), each ascending."""
     order = np.argsort(frame, kind="stable")
     order = order[frame[order] >= 0]
     used, first, counts = np.unique(frame[order], return_index=True, return_counts=True)
-    Rs, ts = rig.camera_poses(frame_ns[used])
-    for k, (j, lo, count) in enumerate(
-        zip(used.tolist(), first.tolist(), counts.tolist(), strict=True)
-    ):
-        task = pool.submit(out.colour_frame, jpegs[j], order[lo : lo + count], Rs[k], ts[k])
-        out.futures.append(task)
-    return out
+    return {
+        j: order[lo : lo + c]
+        for j, lo, c in zip(used.tolist(), first.tolist(), counts.tolist(), strict=True)
+    }
+
+
+def _pairs(frame: np.ndarray, frame_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(points, other frames): one point in ``PAIR_EVERY`` of those with a ``frame``,
+    each paired with the frames ``PAIR_OFFSETS`` away from its own in time order (after
+    it for every other point, before it for the rest), where there is one."""
+    sub = np.flatnonzero(frame >= 0)[::PAIR_EVERY]
+    if sub.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    order_f = np.argsort(frame_ns, kind="stable")
+    rank = np.empty_like(order_f)
+    rank[order_f] = np.arange(order_f.size)
+    sign = np.where(np.arange(sub.size) % 2 == 0, 1, -1)
+    points, frames = [], []
+    for offset in PAIR_OFFSETS:
+        r = rank[frame[sub]] + sign * offset
+        ok = (r >= 0) & (r < order_f.size)
+        points.append(sub[ok])
+        frames.append(order_f[r[ok]])
+    return np.concatenate(points), np.concatenate(frames)
 
 
 def _best(

@@ -73,7 +73,7 @@ class CloudWriter:
                     f"camera {name!r}: a cloud names its cameras in one line of printable "
                     "ASCII each"
                 )
-        cameras = list(cameras)
+        self.cameras = cameras = list(cameras)
         comments = [f"frame {report.frame}", f"view {report.view}", *(
             [f"crs {crs}"] if crs else [])]  # fmt: skip
         self.stream: PlyStream | LasStream | CopcStream | E57Stream
@@ -95,7 +95,14 @@ class CloudWriter:
         self.seconds = 0.0
 
     def write(self, r: ChunkResult) -> None:
+        """Append a chunk's points; ValueError if one names a camera the file does not."""
         t0 = time.perf_counter()
+        named = (r.camera < len(self.cameras)) | (r.camera == NO_CAMERA)
+        if not named.all():
+            raise ValueError(
+                f"a point's camera {int(r.camera[~named][0])} is not one of the "
+                f"{len(self.cameras)} the cloud names"
+            )
         utc = utc_seconds(r.time_ns, self.clock)
         with _naming(self.output):
             self.stream.write(r.xyz, r.rgb, utc, r.intensity, r.scan, r.coloured, r.camera, r.frame)

@@ -283,6 +283,16 @@ def test_the_writer_passes_every_points_camera_and_frame_and_names_the_cameras(
         _check_camera_and_frame(laspy.read(tmp_path / name), p[6], p[7])
 
 
+def test_the_writer_refuses_a_point_of_a_camera_it_does_not_name(tmp_path: Path) -> None:
+    p = list(_points(10, 5))
+    p[6][3] = 2  # two cameras named: 0 and 1
+    out = CloudWriter(tmp_path / "c.ply", None, np.zeros((1, 2), np.int64), Report("c"), ["a", "b"])
+    with pytest.raises(ValueError, match="camera 2 is not one of the 2 the cloud names"):
+        out.write(_result(tuple(p)))
+    out.stream.abort()
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     ("cameras", "message"),
     [

@@ -151,6 +151,9 @@ def _octree(
     return nodes
 
 
+_EB_DESCRIPTOR, _VLR_HEADER = 192, 54  # bytes: an extra-bytes descriptor, a VLR's header
+
+
 def _spare() -> int:
     """The bytes of VLR payload left when copclib's extra-bytes VLR (a descriptor per
     extra byte) is replaced by :func:`acq.cloud.las.extra_dims`' descriptors and the
@@ -158,9 +161,6 @@ def _spare() -> int:
     dims = extra_dims()
     size = sum(int(np.dtype(d.type).itemsize) for d in dims)
     return _EB_DESCRIPTOR * (size - len(dims)) - _VLR_HEADER
-
-
-_EB_DESCRIPTOR, _VLR_HEADER = 192, 54  # bytes
 
 
 def _name_extra_bytes(path: Path, cameras: bytes) -> None:

@@ -8,10 +8,10 @@ E57 gives it), ``rowIndex`` (the scan in the log), and in acq's extension (prefi
 URI :data:`ACQ_URI`) ``acq:camera`` (the index of the camera that coloured the point, 255
 none) and ``acq:frame`` (the index of that camera's frame in the session, -1 none); the
 cameras' names, in index order, in the scan's ``acq:cameras`` (a vector of strings) and
-its description (``camera <index> <name>``). E57 has no standard field for either:
-readers that do not know the extension (CloudCompare, pye57's ``read_scan``) skip them.
-The CRS from ``crs`` as OGC WKT 1
-in the root's ``coordinateMetadata``; acq's mark (:mod:`acq.provenance`) in the scan's
+its description (``camera <index> <name>``). E57 has no standard field for either; a
+reader that does not know the extension reads the standard fields as before (pye57's
+``read_scan`` does). The CRS from ``crs`` as OGC WKT 1 in the root's
+``coordinateMetadata``; acq's mark (:mod:`acq.provenance`) in the scan's
 ``sensorSoftwareVersion``. Written as points come, under ``path``.tmp, renamed on
 :meth:`E57Stream.close`.
 """

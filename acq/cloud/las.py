@@ -13,10 +13,10 @@ with their true minimum and maximum over the points that have a value in the ext
 VLR (laspy leaves them zero: written at :meth:`LasStream.close`); ``user_data`` also
 holds the coloured flag for readers that ignore extra bytes. The cameras' names are a
 VLR of user ID ``acq``, record ID 1 (:data:`CAMERAS_VLR`): ASCII lines ``<index> <name>``
-in index order. RGB is 16-bit (8-bit values times 257),
-intensity clipped to 0..65535. Generating Software is acq's mark (:mod:`acq.provenance`);
-System Identifier "OTHER", the specification's value for an operation that is neither a
-hardware system nor a merge, extraction, modification or transformation of LAS files.
+in index order. RGB is 16-bit (8-bit values times 257), intensity clipped to 0..65535.
+Generating Software is acq's mark (:mod:`acq.provenance`); System Identifier "OTHER", the
+specification's value for an operation that is neither a hardware system nor a merge,
+extraction, modification or transformation of LAS files.
 """
 
 from __future__ import annotations

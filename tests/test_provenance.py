@@ -39,7 +39,8 @@ def _points(n: int) -> tuple[np.ndarray, ...]:
     xyz = np.linspace(0, 1, 3 * n).reshape(n, 3)
     rgb = np.zeros((n, 3), np.uint8)
     ones = np.ones(n)
-    return xyz, rgb, ones, ones.astype(np.uint16), ones.astype(np.uint32), ones.astype(bool)
+    columns = ones.astype(np.uint16), ones.astype(np.uint32), ones.astype(bool)
+    return xyz, rgb, ones, *columns, ones.astype(np.uint8), ones.astype(np.int32)
 
 
 @pytest.mark.parametrize(("stream", "name"), [(PlyStream, "c.ply"), (LasStream, "c.las")])

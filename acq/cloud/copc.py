@@ -3,7 +3,8 @@ are stored by octree node), for streaming in QGIS, Potree and PDAL; written with
 copclib.
 
 The points and their fields are those of :mod:`acq.cloud.las` (point format 7, the
-extra bytes ``scan_index`` and ``coloured`` with their true ranges, WKT 1, acq's mark).
+extra bytes ``scan_index``, ``coloured``, ``camera`` and ``frame`` with their true
+ranges, the cameras' names VLR, WKT 1, acq's mark).
 The octree is a cube around the cloud; each node keeps at most :data:`NODE_POINTS`
 points drawn at random (a fixed seed: the same file every run) from those of its cell
 not kept by a coarser level, in time order within the node; a cell with no more than
@@ -22,7 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from acq.cloud.las import (
+    CAMERAS_VLR,
     SYSTEM_IDENTIFIER,
+    cameras_text,
     extra_dims,
     grow_ranges,
     pack_points,
@@ -39,13 +42,19 @@ _SCALE = 0.001  # m
 
 class CopcStream:
     """A COPC file (module docstring) collected part by part, written and renamed into
-    ``path`` on :meth:`close` (:meth:`abort` drops it). ``comments``: unused, as in LAS."""
+    ``path`` on :meth:`close` (:meth:`abort` drops it). ``cameras``: the names, in index
+    order, of the cameras the points' ``camera`` indexes. ``comments``: unused, as in LAS."""
 
     def __init__(
-        self, path: str | os.PathLike[str], *, crs: str | None = None, comments: Sequence[str] = ()
-    ) -> None:
+        self, path: str | os.PathLike[str], *, crs: str | None = None,
+        comments: Sequence[str] = (), cameras: Sequence[str] = (),
+    ) -> None:  # fmt: skip
         self.path = Path(path)
         self._tmp = self.path.with_name(self.path.name + ".tmp")
+        self._cameras = cameras_text(cameras).encode()
+        if len(self._cameras) > _spare():
+            raise ValueError(f"the cameras' names take {len(self._cameras)} bytes: at most "
+                             f"{_spare()} fit in a COPC file's header")  # fmt: skip
         self._wkt = ""
         if crs:
             import pyproj
@@ -55,12 +64,13 @@ class CopcStream:
 
     def write(
         self, xyz: np.ndarray, rgb: np.ndarray, utc_s: np.ndarray, intensity: np.ndarray,
-        scan: np.ndarray, coloured: np.ndarray,
+        scan: np.ndarray, coloured: np.ndarray, camera: np.ndarray, frame: np.ndarray,
     ) -> None:  # fmt: skip
         """Append points: ``xyz`` (N,3) m, ``rgb`` (N,3) uint8, ``utc_s`` (N,) UTC
-        seconds, ``intensity``, ``scan`` index, ``coloured`` flag."""
+        seconds, ``intensity``, ``scan`` index, ``coloured`` flag, source ``camera``
+        (255 none) and ``frame`` (-1 none)."""
         if xyz.shape[0]:
-            self._parts.append((xyz, rgb, utc_s, intensity, scan, coloured))
+            self._parts.append((xyz, rgb, utc_s, intensity, scan, coloured, camera, frame))
 
     def close(self) -> int:
         """Write the file; its size, bytes."""
@@ -102,7 +112,7 @@ class CopcStream:
                 writer.AddNode(copclib.VoxelKey(*key), raw)
         finally:
             writer.Close()
-        _name_extra_bytes(self._tmp)
+        _name_extra_bytes(self._tmp, self._cameras)
         write_extra_bytes_ranges(self._tmp, ranges)
         self._tmp.replace(self.path)
         return self.path.stat().st_size
@@ -141,10 +151,23 @@ def _octree(
     return nodes
 
 
-def _name_extra_bytes(path: Path) -> None:
+_EB_DESCRIPTOR, _VLR_HEADER = 192, 54  # bytes: an extra-bytes descriptor, a VLR's header
+
+
+def _spare() -> int:
+    """The bytes of VLR payload left when copclib's extra-bytes VLR (a descriptor per
+    extra byte) is replaced by :func:`acq.cloud.las.extra_dims`' descriptors and the
+    header of one more VLR."""
+    dims = extra_dims()
+    size = sum(int(np.dtype(d.type).itemsize) for d in dims)
+    return _EB_DESCRIPTOR * (size - len(dims)) - _VLR_HEADER
+
+
+def _name_extra_bytes(path: Path, cameras: bytes) -> None:
     """Give the extra-bytes VLR copclib wrote (one unnamed byte per extra byte) the
     named, typed descriptors of :func:`acq.cloud.las.extra_dims`, in place: the space
-    they leave becomes a padding VLR, so every offset stays."""
+    they leave becomes the cameras' VLR (``cameras``, its text, then NULs), or a padding
+    VLR when there are none, so every offset stays."""
     import laspy
 
     header = laspy.LasHeader(point_format=7, version="1.4")
@@ -156,10 +179,12 @@ def _name_extra_bytes(path: Path) -> None:
         data = f.read(1 << 16)
         old = _vlr_at(data, b"LASF_Spec", 4)
         at = data.index(old)
-        spare = len(old) - len(named) - 54
-        if spare < 0:
+        spare = len(old) - len(named) - _VLR_HEADER
+        if spare < len(cameras):
             raise RuntimeError("copclib's extra-bytes VLR is smaller than expected")
-        pad = struct.pack("<H16sHH32s", 0, b"acq", 0, spare, b"padding") + bytes(spare)
+        user_id, record_id, description = CAMERAS_VLR if cameras else ("acq", 0, "padding")
+        pad = struct.pack("<H16sHH32s", 0, user_id.encode(), record_id, spare, description.encode())
+        pad += cameras + bytes(spare - len(cameras))
         f.seek(at)
         f.write(named + pad)
         count = struct.unpack_from("<I", data, 100)[0]

@@ -4,8 +4,14 @@ the other tools of terrestrial and mobile scanning.
 One scan (``data3D[0]``) holding every point: ``cartesianX/Y/Z`` (m, doubles),
 ``colorRed/Green/Blue`` (0..255), ``isColorInvalid`` (1 where no frame saw the point),
 ``intensity``, ``timeStamp`` (s after the scan's ``acquisitionStart``, itself GPS time as
-E57 gives it) and ``rowIndex`` (the scan in the log). The CRS from ``crs`` as OGC WKT 1
-in the root's ``coordinateMetadata``; acq's mark (:mod:`acq.provenance`) in the scan's
+E57 gives it), ``rowIndex`` (the scan in the log), and in acq's extension (prefix ``acq``,
+URI :data:`ACQ_URI`) ``acq:camera`` (the index of the camera that coloured the point, 255
+none) and ``acq:frame`` (the index of that camera's frame in the session, -1 none); the
+cameras' names, in index order, in the scan's ``acq:cameras`` (a vector of strings) and
+its description (``camera <index> <name>``). E57 has no standard field for either; a
+reader that does not know the extension reads the standard fields as before (pye57's
+``read_scan`` does). The CRS from ``crs`` as OGC WKT 1 in the root's
+``coordinateMetadata``; acq's mark (:mod:`acq.provenance`) in the scan's
 ``sensorSoftwareVersion``. Written as points come, under ``path``.tmp, renamed on
 :meth:`E57Stream.close`.
 """
@@ -23,13 +29,15 @@ import numpy as np
 from acq.provenance import SOFTWARE
 from acq.time.gpstime import utc_to_gps
 
-__all__ = ["E57Stream"]
+__all__ = ["ACQ_URI", "E57Stream"]
+
+ACQ_URI = "urn:acq:e57:1"  # names acq's E57 extension (the fields acq:camera, acq:frame)
 
 _BUFFER = 1 << 16  # points handed to libE57 at a time
 _FIELDS = {  # field: numpy type of its buffer (the types pye57's binding takes)
     "cartesianX": "d", "cartesianY": "d", "cartesianZ": "d", "timeStamp": "d",
     "intensity": "f", "colorRed": "B", "colorGreen": "B", "colorBlue": "B",
-    "isColorInvalid": "B", "rowIndex": "q",
+    "isColorInvalid": "B", "rowIndex": "q", "acq:camera": "B", "acq:frame": "q",
 }  # fmt: skip
 _BIG = 1e12  # the bounds of a double field: metadata only, nothing is quantised to them
 
@@ -37,11 +45,13 @@ _BIG = 1e12  # the bounds of a double field: metadata only, nothing is quantised
 class E57Stream:
     """An E57 file (module docstring) written part by part (:meth:`write`), finished by
     :meth:`close` (:meth:`abort` removes it). ``comments`` become the scan's
-    description."""
+    description; ``cameras``: the names, in index order, of the cameras the points'
+    ``camera`` indexes."""
 
     def __init__(
-        self, path: str | os.PathLike[str], *, crs: str | None = None, comments: Sequence[str] = ()
-    ) -> None:
+        self, path: str | os.PathLike[str], *, crs: str | None = None,
+        comments: Sequence[str] = (), cameras: Sequence[str] = (),
+    ) -> None:  # fmt: skip
         from pye57 import libe57
 
         self.path = Path(path)
@@ -56,6 +66,7 @@ class E57Stream:
         self._imf = imf
         root = imf.root()
         imf.extensionsAdd("", libe57.E57_V1_0_URI)
+        imf.extensionsAdd("acq", ACQ_URI)
         root.set("formatName", libe57.StringNode(imf, "ASTM E57 3D Imaging Data File"))
         root.set("guid", libe57.StringNode(imf, f"{{{uuid.uuid4()}}}"))
         root.set("versionMajor", libe57.IntegerNode(imf, libe57.E57_FORMAT_MAJOR))
@@ -68,7 +79,12 @@ class E57Stream:
         scan = libe57.StructureNode(imf)
         scan.set("guid", libe57.StringNode(imf, f"{{{uuid.uuid4()}}}"))
         scan.set("name", libe57.StringNode(imf, self.path.stem))
-        scan.set("description", libe57.StringNode(imf, "; ".join(comments)))
+        named = [f"camera {k} {name}" for k, name in enumerate(cameras)]
+        scan.set("description", libe57.StringNode(imf, "; ".join([*comments, *named])))
+        names = libe57.VectorNode(imf, False)
+        for name in cameras:
+            names.append(libe57.StringNode(imf, name))
+        scan.set("acq:cameras", names)
         scan.set("sensorSoftwareVersion", libe57.StringNode(imf, SOFTWARE))
         proto = libe57.StructureNode(imf)
         for name in ("cartesianX", "cartesianY", "cartesianZ", "timeStamp"):
@@ -78,6 +94,8 @@ class E57Stream:
             proto.set(name, libe57.IntegerNode(imf, 0, 0, 255))
         proto.set("isColorInvalid", libe57.IntegerNode(imf, 0, 0, 1))
         proto.set("rowIndex", libe57.IntegerNode(imf, 0, 0, 2**32 - 1))
+        proto.set("acq:camera", libe57.IntegerNode(imf, 0, 0, 255))
+        proto.set("acq:frame", libe57.IntegerNode(imf, 0, -1, 2**31 - 1))
         points = libe57.CompressedVectorNode(imf, proto, libe57.VectorNode(imf, True))
         scan.set("points", points)
         data3d.append(scan)
@@ -95,10 +113,11 @@ class E57Stream:
 
     def write(
         self, xyz: np.ndarray, rgb: np.ndarray, utc_s: np.ndarray, intensity: np.ndarray,
-        scan: np.ndarray, coloured: np.ndarray,
+        scan: np.ndarray, coloured: np.ndarray, camera: np.ndarray, frame: np.ndarray,
     ) -> None:  # fmt: skip
         """Append points: ``xyz`` (N,3) m, ``rgb`` (N,3) uint8, ``utc_s`` (N,) UTC
-        seconds, ``intensity``, ``scan`` index, ``coloured`` flag."""
+        seconds, ``intensity``, ``scan`` index, ``coloured`` flag, source ``camera``
+        (255 none) and ``frame`` (-1 none)."""
         n = xyz.shape[0]
         if n == 0:
             return
@@ -125,6 +144,8 @@ class E57Stream:
                 a[name][:k] = rgb[part, c]
             a["isColorInvalid"][:k] = ~coloured[part].astype(bool)
             a["rowIndex"][:k] = scan[part]
+            a["acq:camera"][:k] = camera[part]
+            a["acq:frame"][:k] = frame[part]
             self._writer.write(k)
 
     def close(self) -> int:

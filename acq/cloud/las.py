@@ -6,13 +6,17 @@ seconds minus 1e9, the global-encoding bit set), scale 1 mm and an offset at the
 cloud's rounded minimum so coordinates keep millimetres, and the coordinate reference
 system from ``crs`` (anything ``pyproj.CRS.from_user_input`` takes, e.g. "EPSG:25832")
 as an OGC WKT 1 VLR (the WKT bit set: the form LAS 1.4 readers, PDAL and LAStools among
-them, parse). Extra bytes: ``scan_index`` (uint32, the scan in the log) and ``coloured``
-(uint8 0/1), with their true minimum and maximum in the extra-bytes VLR (laspy leaves
-them zero: written at :meth:`LasStream.close`); ``user_data`` also holds the coloured
-flag for readers that ignore extra bytes. RGB is 16-bit (8-bit values times 257),
-intensity clipped to 0..65535. Generating Software is acq's mark (:mod:`acq.provenance`);
-System Identifier "OTHER", the specification's value for an operation that is neither a
-hardware system nor a merge, extraction, modification or transformation of LAS files.
+them, parse). Extra bytes: ``scan_index`` (uint32, the scan in the log), ``coloured``
+(uint8 0/1), ``camera`` (uint8, the index of the camera that coloured the point; no_data
+255) and ``frame`` (int32, the index of that camera's frame in the session; no_data -1),
+with their true minimum and maximum over the points that have a value in the extra-bytes
+VLR (laspy leaves them zero: written at :meth:`LasStream.close`); ``user_data`` also
+holds the coloured flag for readers that ignore extra bytes. The cameras' names are a
+VLR of user ID ``acq``, record ID 1 (:data:`CAMERAS_VLR`): ASCII lines ``<index> <name>``
+in index order. RGB is 16-bit (8-bit values times 257), intensity clipped to 0..65535.
+Generating Software is acq's mark (:mod:`acq.provenance`); System Identifier "OTHER", the
+specification's value for an operation that is neither a hardware system nor a merge,
+extraction, modification or transformation of LAS files.
 """
 
 from __future__ import annotations
@@ -32,23 +36,33 @@ if TYPE_CHECKING:
     import laspy
 
 __all__ = [
-    "SYSTEM_IDENTIFIER", "LasStream", "extra_dims", "grow_ranges", "pack_points",
-    "write_extra_bytes_ranges",
+    "CAMERAS_VLR", "SYSTEM_IDENTIFIER", "LasStream", "cameras_text", "extra_dims",
+    "grow_ranges", "pack_points", "write_extra_bytes_ranges",
 ]  # fmt: skip
 
 SYSTEM_IDENTIFIER = "OTHER"
-_EXTRA = ("scan_index", "coloured")  # the extra-bytes dimensions, in the record's order
+# the cameras' names: the VLR's user ID, record ID and description
+CAMERAS_VLR = ("acq", 1, "cameras: index name")
+# the extra-bytes dimensions in the record's order: name -> (type, no_data, description)
+_EXTRA: dict[str, tuple[type[np.integer], int | None, str]] = {
+    "scan_index": (np.uint32, None, "scan in the log"),
+    "coloured": (np.uint8, None, "1 coloured, 0 not"),
+    "camera": (np.uint8, 255, "source camera (VLR acq 1)"),
+    "frame": (np.int32, -1, "frame of its camera"),
+}
 
 
 class LasStream:
     """A LAS 1.4 file (module docstring) written part by part to ``path``.tmp, renamed
     on :meth:`close` (:meth:`abort` removes it); LAZ (compressed) when ``path`` ends in
     .laz. The offset is the first part's rounded minimum; the header's extent, counts
-    and GPS time span grow with every part. ``comments`` have no place in LAS: unused."""
+    and GPS time span grow with every part. ``cameras``: the names, in index order, of
+    the cameras the points' ``camera`` indexes. ``comments`` have no place in LAS: unused."""
 
     def __init__(
-        self, path: str | os.PathLike[str], *, crs: str | None = None, comments: Sequence[str] = ()
-    ) -> None:
+        self, path: str | os.PathLike[str], *, crs: str | None = None,
+        comments: Sequence[str] = (), cameras: Sequence[str] = (),
+    ) -> None:  # fmt: skip
         import laspy
         import pyproj
         from laspy.vlrs.known import WktCoordinateSystemVlr
@@ -66,6 +80,8 @@ class LasStream:
             header.vlrs.append(WktCoordinateSystemVlr(wkt))
             header.global_encoding.wkt = True
         header.add_extra_dims(extra_dims())
+        if cameras:
+            header.vlrs.append(laspy.VLR(*CAMERAS_VLR, cameras_text(cameras).encode()))
         self._header = header
         self._writer: laspy.LasWriter | None = None
         # each extra dimension's (min, max) over the points written; None before any
@@ -73,10 +89,11 @@ class LasStream:
 
     def write(
         self, xyz: np.ndarray, rgb: np.ndarray, utc_s: np.ndarray, intensity: np.ndarray,
-        scan: np.ndarray, coloured: np.ndarray,
+        scan: np.ndarray, coloured: np.ndarray, camera: np.ndarray, frame: np.ndarray,
     ) -> None:  # fmt: skip
         """Append points: ``xyz`` (N,3) m, ``rgb`` (N,3) uint8, ``utc_s`` (N,) UTC
-        seconds, ``intensity``, ``scan`` index, ``coloured`` flag."""
+        seconds, ``intensity``, ``scan`` index, ``coloured`` flag, source ``camera``
+        (255 none) and ``frame`` (-1 none)."""
         n = xyz.shape[0]
         if n == 0:
             return
@@ -87,7 +104,7 @@ class LasStream:
         header = self._writer.header
         record = pack_points(
             header.point_format, header.offsets, header.scales,
-            xyz, rgb, utc_s, intensity, scan, coloured,
+            xyz, rgb, utc_s, intensity, scan, coloured, camera, frame,
         )  # fmt: skip
         grow_ranges(self._ranges, record.array)
         self._writer.write_points(record)
@@ -123,15 +140,27 @@ def extra_dims() -> list[laspy.ExtraBytesParams]:
     import laspy
 
     return [
-        laspy.ExtraBytesParams(name="scan_index", type=np.uint32),
-        laspy.ExtraBytesParams(name="coloured", type=np.uint8),
-    ]
+        laspy.ExtraBytesParams(
+            name=name, type=kind, description=text,
+            no_data=None if no_data is None else [no_data],
+        )
+        for name, (kind, no_data, text) in _EXTRA.items()
+    ]  # fmt: skip
+
+
+def cameras_text(cameras: Sequence[str]) -> str:
+    """The cameras VLR's text: a line ``<index> <name>`` per camera, in index order;
+    ValueError for a name that is not one line of printable ASCII."""
+    for name in cameras:
+        if not (name.isascii() and name.isprintable()):
+            raise ValueError(f"a camera name is one line of printable ASCII, not {name!r}")
+    return "".join(f"{k} {name}\n" for k, name in enumerate(cameras))
 
 
 def pack_points(
     point_format: laspy.PointFormat, offsets: np.ndarray, scales: np.ndarray,
     xyz: np.ndarray, rgb: np.ndarray, utc_s: np.ndarray, intensity: np.ndarray,
-    scan: np.ndarray, coloured: np.ndarray,
+    scan: np.ndarray, coloured: np.ndarray, camera: np.ndarray, frame: np.ndarray,
 ) -> laspy.PackedPointRecord:  # fmt: skip
     """The raw records of points (as :meth:`LasStream.write` takes them) in
     ``point_format`` (7 with :func:`extra_dims`), integer coordinates of ``offsets`` and
@@ -154,25 +183,32 @@ def pack_points(
     a["user_data"] = coloured.astype(np.uint8)
     a["scan_index"] = scan.astype(np.uint32)
     a["coloured"] = coloured.astype(np.uint8)
+    a["camera"] = camera
+    a["frame"] = frame
     return record
 
 
 def grow_ranges(ranges: dict[str, tuple[int, int]], a: np.ndarray) -> None:
-    """Widen ``ranges`` (extra dimension -> (min, max)) to the records ``a`` (non-empty)."""
-    for name in _EXTRA:
-        lo, hi = int(a[name].min()), int(a[name].max())
+    """Widen ``ranges`` (extra dimension -> (min, max)) to the records ``a``, over the
+    values that are not the dimension's no_data."""
+    for name, (_, no_data, _) in _EXTRA.items():
+        values = a[name] if no_data is None else a[name][a[name] != no_data]
+        if values.size == 0:
+            continue
+        lo, hi = int(values.min()), int(values.max())
         was = ranges.get(name, (lo, hi))
         ranges[name] = (min(was[0], lo), max(was[1], hi))
 
 
-# the LAS 1.4 extra-bytes descriptor (192 bytes): its options byte, and where its
-# no_data/min/max triples of 8-byte "anytype" values start
-_EB_SIZE, _EB_OPTIONS, _EB_NAME, _EB_MIN, _EB_MAX = 192, 3, 4, 64, 88
+# the LAS 1.4 extra-bytes descriptor (192 bytes): its data type and options bytes, and
+# where its no_data/min/max triples of 8-byte "anytype" values start
+_EB_SIZE, _EB_TYPE, _EB_OPTIONS, _EB_NAME, _EB_MIN, _EB_MAX = 192, 2, 3, 4, 64, 88
 _OPT_MIN, _OPT_MAX = 0b0010, 0b0100
+_SIGNED_TYPES = (2, 4, 6, 8)  # char, short, long, long long: an anytype int64
 
 
 def write_extra_bytes_ranges(path: Path, ranges: dict[str, tuple[int, int]]) -> None:
-    """Put each unsigned extra dimension's (min, max) of ``ranges`` into the extra-bytes
+    """Put each integer extra dimension's (min, max) of ``ranges`` into the extra-bytes
     VLR of the LAS/LAZ file ``path``, in place, with the options bits saying they hold;
     a dimension not in ``ranges`` (no points) gets those bits cleared."""
     with open(path, "r+b") as f:
@@ -196,8 +232,9 @@ def write_extra_bytes_ranges(path: Path, ranges: dict[str, tuple[int, int]]) -> 
                         eb[_EB_OPTIONS] &= ~(_OPT_MIN | _OPT_MAX) & 0xFF
                     else:
                         eb[_EB_OPTIONS] |= _OPT_MIN | _OPT_MAX
-                        struct.pack_into("<Q", eb, _EB_MIN, span[0])
-                        struct.pack_into("<Q", eb, _EB_MAX, span[1])
+                        anytype = "<q" if eb[_EB_TYPE] in _SIGNED_TYPES else "<Q"
+                        struct.pack_into(anytype, eb, _EB_MIN, span[0])
+                        struct.pack_into(anytype, eb, _EB_MAX, span[1])
                     f.seek(base)
                     f.write(eb)
                 return

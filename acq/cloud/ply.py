@@ -1,10 +1,12 @@
-"""Coloured clouds as binary PLY: x y z, colour, UTC time, scan index, intensity, coloured.
+"""Coloured clouds as binary PLY: x y z, colour, UTC time, scan index, intensity, coloured,
+source camera and frame.
 
 The property names and types are those every common reader keeps: CloudCompare imports a
 vertex property as a scalar field only when its name holds ``scalar`` (or is ``intensity``)
 and drops the ``scalar_`` prefix, the name it writes itself; Open3D's tensor reader skips
 ``char``, ``short`` and ``uint`` properties. Integers are therefore ``uchar``, ``ushort``
-or ``int``; PCL, plyfile and trimesh read all of these."""
+or ``int``; PCL, plyfile and trimesh read all of these. The cameras are named by a header
+comment each, ``camera <index> <name>``, in index order."""
 
 from __future__ import annotations
 
@@ -26,6 +28,8 @@ PLY_DTYPE = np.dtype(
         ("scalar_scan", "<i4"),
         ("intensity", "<f4"),
         ("scalar_coloured", "u1"),
+        ("scalar_camera", "u1"),
+        ("scalar_frame", "<i4"),
     ]
 )
 
@@ -37,15 +41,22 @@ _PLY_TYPES = {"|u1": "uchar", "<u2": "ushort", "<i4": "int", "<f4": "float", "<f
 class PlyStream:
     """A binary little-endian PLY, one ``vertex`` per point: x y z (double, m, world),
     red green blue (uchar), scalar_time (double, UTC s), scalar_scan (int), intensity
-    (float), scalar_coloured (uchar 0/1); written part by part to
+    (float), scalar_coloured (uchar 0/1), scalar_camera (uchar, the index in ``cameras``
+    of the camera that coloured the point, 255 none), scalar_frame (int, the index of
+    that camera's frame, -1 none); written part by part to
     ``path``.tmp, renamed on :meth:`close` (:meth:`abort` removes it). Its header, with
     the counts known only at the end, is written last into the room kept for it (the
     rest of the room a comment of spaces)."""
 
-    def __init__(self, path: str | os.PathLike[str], comments: Sequence[str] = ()) -> None:
+    def __init__(
+        self, path: str | os.PathLike[str], comments: Sequence[str] = (),
+        cameras: Sequence[str] = (),
+    ) -> None:  # fmt: skip
         self.path = Path(path)
         self._tmp = self.path.with_name(self.path.name + ".tmp")
-        self._comments = list(comments)
+        self._comments = [*comments, *(f"camera {k} {name}" for k, name in enumerate(cameras))]
+        if not all(c.isprintable() for c in self._comments):  # a line break ends the header
+            raise ValueError(f"a PLY comment is one line of printable text: {self._comments}")
         self.points = self.coloured = 0
         self._room = len(self._header(10**15, 10**15))
         self._file = open(self._tmp, "wb")
@@ -67,10 +78,11 @@ class PlyStream:
 
     def write(
         self, xyz: np.ndarray, rgb: np.ndarray, utc_s: np.ndarray, intensity: np.ndarray,
-        scan: np.ndarray, coloured: np.ndarray,
+        scan: np.ndarray, coloured: np.ndarray, camera: np.ndarray, frame: np.ndarray,
     ) -> None:  # fmt: skip
         """Append points: ``xyz`` (N,3) m, ``rgb`` (N,3) uint8, ``utc_s`` (N,) UTC
-        seconds, ``intensity``, ``scan`` index, ``coloured`` flag."""
+        seconds, ``intensity``, ``scan`` index, ``coloured`` flag, source ``camera``
+        (255 none) and ``frame`` (-1 none)."""
         v = np.empty(utc_s.size, dtype=PLY_DTYPE)
         v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         v["red"], v["green"], v["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
@@ -78,6 +90,8 @@ class PlyStream:
         v["scalar_scan"] = scan
         v["intensity"] = intensity
         v["scalar_coloured"] = coloured
+        v["scalar_camera"] = camera
+        v["scalar_frame"] = frame
         v.tofile(self._file)
         self.points += int(v.size)
         self.coloured += int(np.count_nonzero(coloured))

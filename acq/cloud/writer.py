@@ -1,17 +1,18 @@
 """The coloured cloud's file, written chunk by chunk (step 5 of :mod:`acq.cloud.colorize`):
 PLY, LAS, LAZ, COPC or E57 by the output's suffix (:func:`format_of`), under a temporary name
-renamed at the end."""
+renamed at the end. Every point keeps the camera and frame it was coloured from, and the
+file names the cameras (each format's way: see its module)."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-from acq.cloud.chunks import ChunkResult
+from acq.cloud.chunks import NO_CAMERA, ChunkResult
 from acq.cloud.copc import CopcStream
 from acq.cloud.e57 import E57Stream
 from acq.cloud.las import LasStream
@@ -50,36 +51,61 @@ def _naming(output: Path) -> Iterator[None]:
 
 class CloudWriter:
     """The output file, written chunk by chunk in chunk order: PLY, LAS, LAZ, COPC or E57 by
-    ``output``'s suffix; ``seconds`` spent writing. Its OSErrors name ``output``."""
+    ``output``'s suffix; ``seconds`` spent writing. Its OSErrors name ``output``.
+    ``cameras``: the job's camera names, in the order the points' ``camera`` indexes;
+    InputValueError for more than 255 (255 is :data:`NO_CAMERA`) or a name that is not one
+    line of printable ASCII (the formats' headers hold them as text lines)."""
 
-    def __init__(self, output: Path, crs: str | None, clock: np.ndarray, report: Report) -> None:
+    def __init__(
+        self, output: Path, crs: str | None, clock: np.ndarray, report: Report,
+        cameras: Sequence[str] = (),
+    ) -> None:  # fmt: skip
         self.output = output
         kind = format_of(output)
+        if len(cameras) > NO_CAMERA:
+            raise InputValueError(
+                f"{len(cameras)} cameras: a cloud names at most {NO_CAMERA} (index "
+                f"{NO_CAMERA} means none)"
+            )
+        for name in cameras:
+            if not (name and name.isascii() and name.isprintable()):
+                raise InputValueError(
+                    f"camera {name!r}: a cloud names its cameras in one line of printable "
+                    "ASCII each"
+                )
+        self.cameras = cameras = list(cameras)
         comments = [f"frame {report.frame}", f"view {report.view}", *(
             [f"crs {crs}"] if crs else [])]  # fmt: skip
         self.stream: PlyStream | LasStream | CopcStream | E57Stream
         if kind == "ply":
             with _naming(output):
-                self.stream = PlyStream(output, comments)
+                self.stream = PlyStream(output, comments, cameras)
             if crs:
                 report.notes.append("PLY has no CRS field: --crs written as a comment")
         elif kind == "copc":
             with _naming(output):
-                self.stream = CopcStream(output, crs=crs, comments=comments)
+                self.stream = CopcStream(output, crs=crs, comments=comments, cameras=cameras)
         elif kind == "e57":
             with _naming(output):
-                self.stream = E57Stream(output, crs=crs, comments=comments)
+                self.stream = E57Stream(output, crs=crs, comments=comments, cameras=cameras)
         else:
             with _naming(output):
-                self.stream = LasStream(output, crs=crs, comments=comments)
+                self.stream = LasStream(output, crs=crs, comments=comments, cameras=cameras)
         self.clock = clock
         self.seconds = 0.0
 
     def write(self, r: ChunkResult) -> None:
+        """Append a chunk's points; ValueError if one names a camera the file does not."""
         t0 = time.perf_counter()
+        named = (r.camera < len(self.cameras)) | (r.camera == NO_CAMERA)
+        if not named.all():
+            raise ValueError(
+                f"a point's camera {int(r.camera[~named][0])} is not one of the "
+                f"{len(self.cameras)} the cloud names"
+            )
         utc = utc_seconds(r.time_ns, self.clock)
         with _naming(self.output):
-            self.stream.write(r.xyz, r.rgb, utc, r.intensity, r.scan, r.coloured)
+            self.stream.write(r.xyz, r.rgb, utc, r.intensity, r.scan, r.coloured, r.camera, r.frame)
         self.seconds += time.perf_counter() - t0
 
     def close(self) -> int:

@@ -17,7 +17,7 @@ from acq.cloud.copc import CopcStream
 from acq.provenance import made_by_acq
 from acq.sim.drive_log import write_drive_log
 from acq.time.gpstime import gps_adjusted_standard_time
-from tests.cloud.test_cloud_files import _extra_ranges, _points
+from tests.cloud.test_cloud_files import _check_camera_and_frame, _extra_ranges, _points
 
 
 def _sorted(t: np.ndarray, *cols: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -29,11 +29,13 @@ def _sorted(t: np.ndarray, *cols: np.ndarray) -> tuple[np.ndarray, ...]:
 def test_copc_by_level_and_by_bounds(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(copc, "NODE_POINTS", 500)  # a few levels from a few points
     parts = [_points(n, seed) for seed, n in enumerate((3000, 0, 5000))]
-    out = CopcStream(tmp_path / "c.copc.laz", crs="EPSG:25831")
+    out = CopcStream(tmp_path / "c.copc.laz", crs="EPSG:25831", cameras=["left", "right"])
     for p in parts:
         out.write(*p)
     out.close()
-    xyz, rgb, utc, _, scan, coloured = (np.concatenate(c) for c in zip(*parts, strict=True))
+    xyz, rgb, utc, _, scan, coloured, camera, frame = (
+        np.concatenate(c) for c in zip(*parts, strict=True)
+    )
     path = tmp_path / "c.copc.laz"
     with laspy.CopcReader.open(path) as r:
         assert r.header.point_count == 8000
@@ -59,6 +61,19 @@ def test_copc_by_level_and_by_bounds(tmp_path: Path, monkeypatch: pytest.MonkeyP
     ranges = _extra_ranges(las)
     assert ranges["scan_index"][1:] == (int(scan.min()), int(scan.max()))
     assert ranges["coloured"][1:] == (0, 1)
+    # the file's points are in octree order: compared in time order
+    order = np.argsort(np.asarray(las.gps_time))
+    want = np.argsort(utc)
+    _check_camera_and_frame(las, camera[want], frame[want], order)
+
+
+def test_copc_without_cameras_keeps_its_padding(tmp_path: Path) -> None:
+    out = CopcStream(tmp_path / "c.copc.laz")
+    out.write(*_points(100, 1))
+    out.close()
+    las = laspy.read(tmp_path / "c.copc.laz")
+    acq = [(v.record_id, v.description) for v in las.header.vlrs if v.user_id == "acq"]
+    assert acq == [(0, "padding")]
 
 
 def test_colorize_writes_copc_from_the_suffix(tmp_path: Path) -> None:

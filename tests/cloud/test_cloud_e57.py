@@ -14,12 +14,12 @@ from acq.cloud.e57 import E57Stream
 from acq.provenance import SOFTWARE
 from acq.sim.drive_log import write_drive_log
 from acq.time.gpstime import utc_to_gps
-from tests.cloud.test_cloud_files import _points
+from tests.cloud.test_cloud_files import _camera_names, _points
 
 _TYPES = {
     "cartesianX": "d", "cartesianY": "d", "cartesianZ": "d", "timeStamp": "d",
     "intensity": "f", "colorRed": "B", "colorGreen": "B", "colorBlue": "B",
-    "isColorInvalid": "B", "rowIndex": "q",
+    "isColorInvalid": "B", "rowIndex": "q", "acq:camera": "B", "acq:frame": "q",
 }  # fmt: skip
 
 
@@ -44,13 +44,15 @@ def _read(path: Path) -> tuple[dict[str, np.ndarray], object, str]:
 
 def test_e57_in_parts_keeps_every_field(tmp_path: Path) -> None:
     parts = [_points(n, seed) for seed, n in enumerate((800, 0, 1700))]
-    out = E57Stream(tmp_path / "c.e57", crs="EPSG:25831", comments=["frame world"])
+    out = E57Stream(
+        tmp_path / "c.e57", crs="EPSG:25831", comments=["frame world"], cameras=["left", "right"]
+    )
     for p in parts:
         out.write(*p)
     size = out.close()
     assert size == (tmp_path / "c.e57").stat().st_size and not (tmp_path / "c.e57.tmp").exists()
     got, (imf, scan), wkt = _read(tmp_path / "c.e57")
-    xyz, rgb, utc, intensity, scan_i, coloured = (
+    xyz, rgb, utc, intensity, scan_i, coloured, camera, frame = (
         np.concatenate(c) for c in zip(*parts, strict=True)
     )
     np.testing.assert_array_equal(np.stack([got[f"cartesian{a}"] for a in "XYZ"], axis=1), xyz)
@@ -60,8 +62,13 @@ def test_e57_in_parts_keeps_every_field(tmp_path: Path) -> None:
     np.testing.assert_array_equal(got["intensity"], intensity)
     np.testing.assert_array_equal(got["rowIndex"], scan_i)
     np.testing.assert_array_equal(got["isColorInvalid"], ~coloured)
+    np.testing.assert_array_equal(got["acq:camera"], camera)
+    np.testing.assert_array_equal(got["acq:frame"], frame)
     from pye57 import libe57
 
+    assert _camera_names_e57(scan) == ["left", "right"]
+    description = libe57.StringNode(scan.get("description")).value()  # type: ignore[attr-defined]
+    assert description == "frame world; camera 0 left; camera 1 right"
     start = libe57.StructureNode(scan.get("acquisitionStart"))  # type: ignore[attr-defined]
     t0 = libe57.FloatNode(start.get("dateTimeValue")).value()
     np.testing.assert_allclose(got["timeStamp"] + t0, utc_to_gps(utc), atol=1e-6)
@@ -69,6 +76,29 @@ def test_e57_in_parts_keeps_every_field(tmp_path: Path) -> None:
     software = libe57.StringNode(scan.get("sensorSoftwareVersion")).value()  # type: ignore[attr-defined]
     assert software == SOFTWARE
     imf.close()  # type: ignore[attr-defined]
+
+
+def _camera_names_e57(scan: object) -> list[str]:
+    """The scan's acq:cameras, as a reader of the file finds them."""
+    from pye57 import libe57
+
+    names = libe57.VectorNode(scan.get("acq:cameras"))  # type: ignore[attr-defined]
+    return [libe57.StringNode(names.get(k)).value() for k in range(names.childCount())]
+
+
+def test_pye57_still_reads_the_points_and_skips_the_extension(tmp_path: Path) -> None:
+    import pye57
+
+    p = _points(300, 2)
+    out = E57Stream(tmp_path / "c.e57", cameras=["left", "right"])
+    out.write(*p)
+    out.close()
+    # ignore_missing_fields: the file has no cartesianInvalidState (every point is valid)
+    data = pye57.E57(str(tmp_path / "c.e57")).read_scan(
+        0, colors=True, intensity=True, ignore_missing_fields=True
+    )
+    np.testing.assert_array_equal(data["cartesianX"], p[0][:, 0])
+    np.testing.assert_array_equal(data["colorRed"], p[1][:, 0])
 
 
 def test_an_aborted_e57_leaves_nothing(tmp_path: Path) -> None:
@@ -86,9 +116,18 @@ def test_colorize_writes_e57_from_the_suffix(tmp_path: Path) -> None:
     for out in (las, e57):
         argv = ["colorize", *map(str, truth.files), "--calib", str(calib), "-o", str(out)]
         assert acq_main([*argv, "--no-preview"]) == 0
-    got, (imf, _), _ = _read(e57)
+    got, (imf, scan), _ = _read(e57)
+    names = _camera_names_e57(scan)
     imf.close()  # type: ignore[attr-defined]
     ref = laspy.read(las)
     assert got["cartesianX"].size == len(ref.points) > 0
     np.testing.assert_allclose(got["cartesianX"], ref.x, atol=6e-4)
     np.testing.assert_array_equal(got["isColorInvalid"], 1 - np.asarray(ref.coloured))
+    # the one camera of the calibration names index 0, the camera of every coloured point
+    assert names == _camera_names(ref) == list(truth.calibration.cameras)
+    camera, frame = np.asarray(ref.camera), np.asarray(ref.frame)
+    np.testing.assert_array_equal(camera, np.where(ref.coloured, 0, 255))
+    assert (frame[camera == 0] >= 0).all() and (frame[camera == 255] == -1).all()
+    assert np.unique(frame[camera == 0]).size > 1
+    np.testing.assert_array_equal(got["acq:camera"], camera)
+    np.testing.assert_array_equal(got["acq:frame"], frame)

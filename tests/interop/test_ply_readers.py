@@ -29,8 +29,12 @@ class Written:
         self.intensity = rng.uniform(0, 4000, N).astype(np.float32)
         self.scan = np.sort(rng.integers(0, 100_000, N)).astype(np.uint32)
         self.coloured = rng.random(N) < 0.6
-        out = PlyStream(path, ["frame world"])
-        out.write(self.xyz, self.rgb, self.time, self.intensity, self.scan, self.coloured)
+        # two cameras (0 left, 1 right), 255 and -1 where none
+        self.camera = np.where(self.coloured, rng.integers(0, 2, N), 255).astype(np.uint8)
+        self.frame = np.where(self.coloured, rng.integers(0, 90_000, N), -1).astype(np.int32)
+        out = PlyStream(path, ["frame world"], ["left", "right"])
+        out.write(self.xyz, self.rgb, self.time, self.intensity, self.scan, self.coloured,
+                  self.camera, self.frame)  # fmt: skip
         out.close()
 
 
@@ -39,14 +43,18 @@ def cloud(tmp_path: Path) -> Written:
     return Written(tmp_path / "c.ply")
 
 
-def test_plyfile_reads_every_field(cloud: Written) -> None:
-    v = PlyData.read(str(cloud.path))["vertex"].data
+def test_plyfile_reads_every_field_and_the_cameras_names(cloud: Written) -> None:
+    ply = PlyData.read(str(cloud.path))
+    assert {"camera 0 left", "camera 1 right"} <= set(ply.comments)
+    v = ply["vertex"].data
     np.testing.assert_array_equal(np.stack([v["x"], v["y"], v["z"]], 1), cloud.xyz)
     np.testing.assert_array_equal(np.stack([v["red"], v["green"], v["blue"]], 1), cloud.rgb)
     np.testing.assert_array_equal(v["scalar_time"], cloud.time)
     np.testing.assert_array_equal(v["scalar_scan"], cloud.scan)
     np.testing.assert_array_equal(v["intensity"], cloud.intensity)
     np.testing.assert_array_equal(v["scalar_coloured"], cloud.coloured)
+    np.testing.assert_array_equal(v["scalar_camera"], cloud.camera)
+    np.testing.assert_array_equal(v["scalar_frame"], cloud.frame)
 
 
 def test_open3d_tensor_api_keeps_every_field(cloud: Written) -> None:
@@ -55,6 +63,7 @@ def test_open3d_tensor_api_keeps_every_field(cloud: Written) -> None:
     attr = {k: pc.point[k].numpy() for k in pc.point}
     assert set(attr) == {
         "positions", "colors", "scalar_time", "scalar_scan", "intensity", "scalar_coloured",
+        "scalar_camera", "scalar_frame",
     }  # fmt: skip
     np.testing.assert_array_equal(attr["positions"], cloud.xyz)
     np.testing.assert_array_equal(attr["colors"], cloud.rgb)
@@ -62,6 +71,8 @@ def test_open3d_tensor_api_keeps_every_field(cloud: Written) -> None:
     np.testing.assert_array_equal(attr["scalar_scan"][:, 0], cloud.scan)
     np.testing.assert_array_equal(attr["intensity"][:, 0], cloud.intensity)
     np.testing.assert_array_equal(attr["scalar_coloured"][:, 0], cloud.coloured)
+    np.testing.assert_array_equal(attr["scalar_camera"][:, 0], cloud.camera)
+    np.testing.assert_array_equal(attr["scalar_frame"][:, 0], cloud.frame)
 
 
 def test_open3d_legacy_api_keeps_points_and_colours(cloud: Written) -> None:
@@ -82,6 +93,8 @@ def test_trimesh_keeps_every_field(cloud: Written) -> None:
     np.testing.assert_array_equal(v["scalar_scan"], cloud.scan)
     np.testing.assert_array_equal(v["intensity"], cloud.intensity)
     np.testing.assert_array_equal(v["scalar_coloured"], cloud.coloured)
+    np.testing.assert_array_equal(v["scalar_camera"], cloud.camera)
+    np.testing.assert_array_equal(v["scalar_frame"], cloud.frame)
 
 
 def _pcd(path: Path) -> np.ndarray:
@@ -114,6 +127,8 @@ def test_pcl_keeps_every_field(cloud: Written, tmp_path: Path) -> None:
     np.testing.assert_array_equal(v["scalar_scan"], cloud.scan)
     np.testing.assert_array_equal(v["intensity"], cloud.intensity)
     np.testing.assert_array_equal(v["scalar_coloured"], cloud.coloured)
+    np.testing.assert_array_equal(v["scalar_camera"], cloud.camera)
+    np.testing.assert_array_equal(v["scalar_frame"], cloud.frame)
 
 
 def test_cloudcompare_keeps_every_field_as_a_scalar_field(cloud: Written, tmp_path: Path) -> None:
@@ -128,7 +143,8 @@ def test_cloudcompare_keeps_every_field_as_a_scalar_field(cloud: Written, tmp_pa
     lines = asc.read_text().splitlines()
     names = lines[0].lstrip("/").split()
     # CloudCompare drops the scalar_ prefix, as it adds it when it writes PLY
-    assert names == ["X", "Y", "Z", "R", "G", "B", "time", "scan", "intensity", "coloured"]
+    assert names == ["X", "Y", "Z", "R", "G", "B", "time", "scan", "intensity", "coloured",
+                     "camera", "frame"]  # fmt: skip
     v = dict(zip(names, np.loadtxt(lines[1:], ndmin=2).T, strict=True))
     # shifted by CloudCompare's global shift, then kept as float32 near the origin
     np.testing.assert_allclose(np.stack([v["X"], v["Y"], v["Z"]], 1), cloud.xyz, atol=1e-4)
@@ -136,6 +152,8 @@ def test_cloudcompare_keeps_every_field_as_a_scalar_field(cloud: Written, tmp_pa
     np.testing.assert_array_equal(v["scan"], cloud.scan)
     np.testing.assert_allclose(v["intensity"], cloud.intensity, rtol=1e-7)
     np.testing.assert_array_equal(v["coloured"], cloud.coloured)
+    np.testing.assert_array_equal(v["camera"], cloud.camera)
+    np.testing.assert_array_equal(v["frame"], cloud.frame)  # exact in float32 below 2**24
     # scalar fields are float32 in CloudCompare 2.11 (2.13 adds an offset): 128 s steps
     # at today's UTC seconds, so time is kept to the float32 nearest
     np.testing.assert_array_equal(v["time"], cloud.time.astype(np.float32))

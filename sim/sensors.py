@@ -27,8 +27,14 @@ __all__ = [
     "render_frame",
     "render_frame_truth",
     "render_scan",
+    "seen_in_frame",
     "true_pixels",
 ]
+
+# A point counts as seen by a frame when nothing in the rendered depth at its pixel lies
+# nearer than its own distance by more than this (m, plus a share of the distance).
+SEEN_TOLERANCE_M = 0.05
+SEEN_TOLERANCE_REL = 0.02
 
 
 @lru_cache(maxsize=8)
@@ -198,3 +204,38 @@ def true_pixels(
     (N,2) px and (N,) valid (inside the lens's fov and the image; occlusion not checked)."""
     P_cam = camera_to_world(trajectory, rig, t, camera).inverse().apply(world_points)
     return rig.camera(camera).lens.project(P_cam)
+
+
+def seen_in_frame(
+    world_points: np.ndarray,
+    frame: FrameTruth,
+    trajectory: Trajectory,
+    rig: Rig,
+    camera: str | None = None,
+) -> np.ndarray:
+    """Whether camera ``camera`` (None: the rig's first) really sees world points (N,3)
+    m in ``frame`` (rendered through it at ``frame.t``): (N,) bool.
+
+    Seen: a finite point inside the lens's fov and the image, and not hidden: its
+    distance from the camera is at most the frame's depth at its true pixel plus
+    ``SEEN_TOLERANCE_M`` + ``SEEN_TOLERANCE_REL`` times the distance, the depth being the
+    farthest of the 3x3 pixels around (so a point beside a depth edge does not flicker
+    between seen and hidden with sub-pixel motion)."""
+    P = np.asarray(world_points, dtype=np.float64).reshape(-1, 3)
+    P_cam = camera_to_world(trajectory, rig, frame.t, camera).inverse().apply(P)
+    uv, seen = rig.camera(camera).lens.project(P_cam)
+    seen &= np.isfinite(P_cam).all(axis=1)
+    idx = np.flatnonzero(seen)
+    if idx.size == 0:
+        return seen
+    height, width = frame.depth.shape
+    u = np.rint(uv[idx, 0]).astype(np.int64)
+    v = np.rint(uv[idx, 1]).astype(np.int64)
+    d = np.arange(-1, 2)
+    uu = np.clip(u[:, None, None] + d[None, None, :], 0, width - 1)
+    vv = np.clip(v[:, None, None] + d[None, :, None], 0, height - 1)
+    around = frame.depth[vv, uu].reshape(idx.size, -1)
+    farthest = np.where(np.isnan(around), -np.inf, around).max(axis=1)  # NaN: off the circle
+    dist = np.linalg.norm(P_cam[idx], axis=1)
+    seen[idx] = dist <= farthest + SEEN_TOLERANCE_M + SEEN_TOLERANCE_REL * dist
+    return seen

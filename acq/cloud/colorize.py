@@ -429,7 +429,7 @@ def run(
     scan_new = np.sort(job.scan_new)
     chunks = plan(scan_new, chunk_s)
     t_plan = time.perf_counter()
-    out = CloudWriter(output, crs, index.clock, report, [job.camera])
+    out = CloudWriter(output, crs, index.clock, report, [c.name for c in job.cameras])
     # a long log's cloud is not held: counts, and every k-th scan for the preview
     every = max(1, math.ceil(index.ranges.size / PREVIEW_POINTS))
     tally = _Tally(every if preview is not None else 0)

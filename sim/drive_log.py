@@ -472,7 +472,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m acq.sim.drive_log", description=main.__doc__)
     parser.add_argument("out_dir", type=Path)
     parser.add_argument("seconds", nargs="?", type=float, default=10.0)
-    parser.add_argument("--cameras", type=int, choices=(1, 2), default=1)
+    parser.add_argument("--cameras", type=int, choices=(1, 2, 3), default=1)
     args = parser.parse_args(argv)
     if not 0 < args.seconds < math.inf:
         parser.error(f"expected seconds > 0, got {args.seconds}")

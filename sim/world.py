@@ -32,6 +32,7 @@ __all__ = [
     "PATTERN_BACK_Y",
     "PATTERN_CLEAR_M",
     "PATTERN_FRONT_Y",
+    "REAR_PHOTOMETRY",
     "RIGHT_PHOTOMETRY",
     "Box",
     "Cylinder",
@@ -685,22 +686,44 @@ def _right_lens() -> KannalaBrandt:
 
 
 # Each camera's auto-exposure and white balance over the drive (s from its start): its
-# own white balance drifting slowly, exposure steps, and a cloud that dims both.
+# own white balance drifting slowly, and exposure that hunts around the right one (steps
+# away and back, as an auto-exposure loop does); a cloud dims every camera at once. The
+# cameras' white balances straddle neutral and each camera's exposure is the right one
+# most of the time: the truth is the reference acq.cloud.balance balances to.
 LEFT_PHOTOMETRY = Photometry(
     white_balance=(0.95, 1.0, 1.05),
-    wb_drift=(0.03, 0.0, -0.02),
+    wb_drift=(0.01, 0.0, -0.01),
     wb_period_s=47.0,
-    steps=((9.0, 1.12), (23.0, 0.93), (41.0, 1.05)),
+    steps=((9.0, 1.1), (15.0, 1.0), (27.0, 0.92), (33.0, 1.0), (44.0, 1.07), (49.0, 1.0)),
     clouds=((31.0, 4.0, 0.2),),
 )
 RIGHT_PHOTOMETRY = Photometry(
-    white_balance=(1.06, 1.0, 0.93),
-    wb_drift=(-0.02, 0.0, 0.03),
+    white_balance=(1 / 0.95, 1.0, 1 / 1.05),
+    wb_drift=(-0.01, 0.0, 0.01),
     wb_period_s=53.0,
     wb_phase=1.3,
-    steps=((5.0, 0.9), (17.0, 1.08), (36.0, 0.96), (52.0, 1.1)),
+    steps=(
+        (13.0, 0.9),
+        (19.0, 1.0),
+        (24.0, 1.08),
+        (29.0, 1.0),
+        (38.0, 0.94),
+        (45.0, 1.0),
+        (52.0, 1.1),
+        (57.0, 1.0),
+    ),
     clouds=((31.5, 4.0, 0.2),),
 )
+REAR_PHOTOMETRY = Photometry(
+    wb_drift=(0.01, 0.0, 0.01),
+    wb_period_s=41.0,
+    steps=((21.0, 1.09), (26.0, 1.0), (47.0, 0.93), (53.0, 1.0)),
+    clouds=((31.2, 4.0, 0.2),),
+)
+# rear camera: x = vehicle left, y = down (and a little forward), z (optical axis) =
+# backward and 15 degrees down
+_S, _C = math.sin(math.radians(15.0)), math.cos(math.radians(15.0))
+_REAR_AXES = np.array([[0.0, _S, -_C], [1.0, 0.0, 0.0], [0.0, -_C, -_S]])
 
 
 def default_rig(exact_equidistant: bool = False, cameras: int = 1) -> Rig:
@@ -710,9 +733,12 @@ def default_rig(exact_equidistant: bool = False, cameras: int = 1) -> Rig:
     ``cameras=1``: that camera alone, named ``camera``, with constant photometry (the
     rig of the single-camera tests). ``cameras=2``: ``left`` (the same camera) and
     ``right`` (its mirror image: looking right, its own mounting error, lens, latency),
-    each with its own exposure and white balance changing over the drive."""
-    if cameras not in (1, 2):
-        raise ValueError(f"the simulated rig has 1 or 2 cameras, not {cameras}")
+    each with its own exposure and white balance changing over the drive. The two see
+    no laser point together (the scanner is blind below the car, where they overlap);
+    ``cameras=3`` adds ``rear``, on the roof 0.9 m ahead of the scan plane looking back
+    at it and 15 degrees down, which sees both sides of the street near its rim."""
+    if cameras not in (1, 2, 3):
+        raise ValueError(f"the simulated rig has 1, 2 or 3 cameras, not {cameras}")
     laser_to_vehicle = Rigid(_LASER_AXES, np.array([-0.6, 0.0, 2.2]))
     tilt = rotation_from_euler(math.radians(1.2), math.radians(-1.5), math.radians(0.8))
     left_to_vehicle = Rigid(tilt @ _CAMERA_AXES, np.array([-0.2, 0.12, 1.95]))
@@ -734,4 +760,15 @@ def default_rig(exact_equidistant: bool = False, cameras: int = 1) -> Rig:
         latency_s=0.026,
         photometry=RIGHT_PHOTOMETRY,
     )
-    return Rig(laser_to_vehicle=laser_to_vehicle, cameras=(left, right))
+    if cameras == 2:
+        return Rig(laser_to_vehicle=laser_to_vehicle, cameras=(left, right))
+    tilt_b = rotation_from_euler(math.radians(0.6), math.radians(0.8), math.radians(-1.1))
+    rear_to_vehicle = Rigid(tilt_b @ _REAR_AXES, np.array([0.3, 0.02, 2.1]))
+    rear = RigCamera(
+        name="rear",
+        camera_to_laser=vehicle_to_laser @ rear_to_vehicle,
+        lens=default_lens(exact_equidistant),
+        latency_s=0.023,
+        photometry=REAR_PHOTOMETRY,
+    )
+    return Rig(laser_to_vehicle=laser_to_vehicle, cameras=(left, right, rear))

@@ -25,7 +25,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "colorize",
         help=HELP,
         description="Place every laser point of LOG (the split files of one session, or "
-        "their folder) at its own time and colour it from the camera frames: the frame "
+        "their folder) at its own time and colour it from the frames of every camera of "
+        "CALIB, each point from the camera that sees it best, the cameras' exposure and "
+        "white balance evened out: in each camera, the frame "
         "nearest in time with the rig's motion between the two instants compensated "
         "(--view nearest), or the one among its neighbours that sees it nearest its optical "
         "axis without nearer laser points in the way (--view best). Stamps are re-timed "
@@ -45,7 +47,24 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "OUT.laz (the same, LASzip-compressed), OUT.copc.laz (Cloud-Optimized Point Cloud, "
         "for streaming; the cloud is held in memory) or OUT.e57 (ASTM E57)",
     )  # fmt: skip
-    col.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    col.add_argument(
+        "--camera", metavar="NAME", action="append",
+        help="colour from this camera (repeat for several; default: every camera of CALIB "
+        "that the log has frames of). Each point takes the camera whose view of it is best: "
+        "the smallest footprint on the surface, away from the image circle's rim, nearest in "
+        "time; the PLY's scalar_camera and scalar_frame (LAS: camera, frame) say which",
+    )  # fmt: skip
+    col.add_argument(
+        "--blend", action="store_true",
+        help="blend the colours of every camera that sees a point, weighted by how good "
+        "each view is, instead of taking the best one's",
+    )  # fmt: skip
+    col.add_argument(
+        "--no-balance", action="store_true",
+        help="keep each frame's colours as the camera took them; by default the cameras' "
+        "exposure and white balance are evened out, per camera and frame, from points seen "
+        "in several frames and by several cameras",
+    )  # fmt: skip
     col.add_argument(
         "--frame", choices=("world", "laser"),
         help="world: placed with the trajectory (default when there is one); laser: each "
@@ -140,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
         motion_compensation=not args.no_motion_compensation,
         max_dt_s=args.max_dt,
         window=args.window,
+        balance=not args.no_balance,
+        blend=args.blend,
     )
     preview = args.preview or args.output.with_name(args.output.stem + "_preview.png")
     if not args.no_preview and preview.suffix.lower() != ".png":

@@ -52,10 +52,12 @@ class Gains:
         """``rgb`` (N,3) uint8 of points coloured from ``frame`` (N,) (-1: left as
         they are) of ``camera``, with its gains divided out."""
         g = self.log_gain[camera]
-        if g.size == 0:
-            return rgb
-        scale = np.where(frame[:, None] >= 0, np.exp(-g[np.maximum(frame, 0)]), 1.0)
-        out: np.ndarray = np.clip(rgb * scale + 0.5, 0, 255).astype(np.uint8)
+        out = rgb.copy()
+        sel = np.flatnonzero(frame >= 0)
+        if g.size == 0 or sel.size == 0:
+            return out
+        scale = np.exp(-g).astype(np.float32)[frame[sel]]
+        out[sel] = np.clip(rgb[sel] * scale + 0.5, 0, 255).astype(np.uint8)
         return out
 
 
@@ -103,24 +105,26 @@ def estimate_gains(cameras: Sequence[Coloured], n_frames: Sequence[int]) -> Gain
     swap = a > b
     a, b = np.where(swap, b, a), np.where(swap, a, b)
     d = np.where(swap[:, None], -d, d)
-    M = np.zeros((n, n))
+    rows, cols, vals = [], [], []
     rhs = np.zeros((n, 3))
     if a.size:
         ga, gb, weight, median = _medians(a, b, d, n)
-        np.add.at(M, (ga, ga), weight)
-        np.add.at(M, (gb, gb), weight)
-        np.add.at(M, (ga, gb), -weight)
-        np.add.at(M, (gb, ga), -weight)
+        rows += [ga, gb, ga, gb]
+        cols += [ga, gb, gb, ga]
+        vals += [weight, weight, -weight, -weight]
         np.add.at(rhs, gb, weight[:, None] * median)
         np.add.at(rhs, ga, -weight[:, None] * median)
     for c in range(len(cameras)):
         i = np.arange(offsets[c], offsets[c + 1] - 1)
-        M[i, i] += _SMOOTH
-        M[i + 1, i + 1] += _SMOOTH
-        M[i, i + 1] -= _SMOOTH
-        M[i + 1, i] -= _SMOOTH
-    M[np.diag_indices(n)] += _RIDGE
-    g = np.linalg.solve(M, rhs)
+        w = np.full(i.size, _SMOOTH)
+        rows += [i, i + 1, i, i + 1]
+        cols += [i, i + 1, i + 1, i]
+        vals += [w, w, -w, -w]
+    diag = np.arange(n)
+    rows.append(diag)
+    cols.append(diag)
+    vals.append(np.full(n, _RIDGE))
+    g = _solve(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), rhs)
     seen = np.zeros(n, dtype=bool)
     seen[a] = seen[b] = True
     refs = [
@@ -133,6 +137,38 @@ def estimate_gains(cameras: Sequence[Coloured], n_frames: Sequence[int]) -> Gain
     return Gains([g[lo:hi] for lo, hi in itertools.pairwise(offsets)], int(a.size), cross)
 
 
+def _solve(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """x (n,3) with M @ x = ``rhs`` for the symmetric positive definite M given by its
+    entries (``rows``, ``cols``, ``vals``; repeated entries add up): conjugate gradients
+    with a diagonal preconditioner, to 1e-10 of the right-hand side."""
+    n = rhs.shape[0]
+    diag = np.bincount(rows[rows == cols], weights=vals[rows == cols], minlength=n)
+
+    def times(x: np.ndarray) -> np.ndarray:
+        return np.stack(
+            [np.bincount(rows, weights=vals * x[cols, k], minlength=n) for k in range(3)], axis=1
+        )
+
+    x = np.zeros_like(rhs)
+    r = rhs.copy()
+    z = r / diag[:, None]
+    p = z.copy()
+    rz = np.sum(r * z, axis=0)
+    stop = 1e-20 * np.maximum(np.sum(rhs * rhs, axis=0), 1e-30)
+    for _ in range(4 * n):
+        if np.all(np.sum(r * r, axis=0) <= stop):
+            break
+        q = times(p)
+        alpha = rz / np.maximum(np.sum(p * q, axis=0), 1e-300)
+        x += alpha * p
+        r -= alpha * q
+        z = r / diag[:, None]
+        rz_new = np.sum(r * z, axis=0)
+        p = z + (rz_new / np.maximum(rz, 1e-300)) * p
+        rz = rz_new
+    return x
+
+
 def _medians(
     a: np.ndarray, b: np.ndarray, d: np.ndarray, n: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -143,11 +179,13 @@ def _medians(
     starts = np.flatnonzero(np.r_[True, key_s[1:] != key_s[:-1]])
     counts = np.diff(np.r_[starts, key_s.size])
     median = np.empty((starts.size, 3))
+    # sorted by pair, then by value: one sort of (pair, value quantised to 1e-5) integers
+    q = np.clip(np.rint(d[order] * 1e5), -(2**22), 2**22 - 1).astype(np.int64) + 2**22
+    lo = starts + (counts - 1) // 2
+    hi = starts + counts // 2
     for ch in range(3):
-        within = np.lexsort((d[order, ch], key_s))  # by pair, then by value
-        vals = d[order, ch][within]
-        lo = starts + (counts - 1) // 2
-        hi = starts + counts // 2
+        both = np.sort((key_s << 23) | q[:, ch])
+        vals = ((both & (2**23 - 1)) - 2**22) * 1e-5
         median[:, ch] = 0.5 * (vals[lo] + vals[hi])
     first = key_s[starts]
     return first // n, first % n, np.minimum(counts, _MAX_WEIGHT).astype(np.float64), median

@@ -362,7 +362,14 @@ class ChunkColouring:
         first_scan = int(np.searchsorted(job.scan_new, chunk.start_ns)) if job.scan_new.size else 0
         local = np.cumsum(self.core_scan) - 1
         scan_idx, step = pts.scan[core], pts.step[core]
-        used_pairs = np.unique(np.stack([cam_idx, stamp], axis=1)[coloured], axis=0)
+        used_pairs = np.concatenate(
+            [
+                np.stack([np.full(u.size, c), f.frame_ns[u]], axis=1)
+                for c, f in enumerate(frames)
+                for u in [np.flatnonzero(np.bincount(frame[cam_idx == c], minlength=1))]
+            ]
+            or [np.zeros((0, 2), np.int64)]
+        )
         return ChunkResult(
             index=chunk.index,
             xyz=xyz[core],

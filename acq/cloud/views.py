@@ -84,7 +84,7 @@ class Options:
             raise ValueError("window >= 0, max_dt_s > 0 and cell_px >= 1 expected")
 
 
-PAIR_EVERY = 6  # one point in this many is also sampled in other frames, for balancing
+PAIR_EVERY = 16  # one point in this many is also sampled in other frames, for balancing
 PAIR_OFFSETS = (1, 8, 30)  # those frames: this many frames from the point's own
 
 

@@ -75,7 +75,7 @@ COLOUR_CAMERA: str | None = "left"
 # The cameras render the frames of the recording before it starts (see SimRig): the
 # drive from its start to the recorder's start, the recording and its stop take about
 # --seconds + PRERENDER_MARGIN_S; at most PRERENDER_MAX_S (memory: 1.8 MB per second).
-PRERENDER_MARGIN_S = 3.0
+PRERENDER_MARGIN_S = 2.0
 PRERENDER_MAX_S = 60.0
 STOP_AHEAD_S = 0.005  # the recorder is stopped this long before a scan is due (see _record)
 MAX_SECONDS = 170.0  # the simulated drive loops over its 1 km street every 180 s
@@ -93,6 +93,8 @@ class DemoResult:
     lines: list[str] = field(default_factory=list)  # the printed summary
     frames_used: int = 0  # frames the cloud was coloured from
     frames: dict[str, int] = field(default_factory=dict)  # frames recorded, per camera
+    # CPU s: this process while recording (recorder, scanner, car), each camera's process
+    cpu_s: dict[str, float] = field(default_factory=dict)
     colour_agreement: tuple[float, float] = (math.nan, math.nan)  # strict, within a pixel
 
 
@@ -281,6 +283,10 @@ def _summary(
     lines.append("  time      " + ", ".join(
         f"{k} {v:.1f} s" for k, v in result.steps_s.items()
     ))  # fmt: skip
+    lines.append("  CPU       " + ", ".join(
+        f"{k} {v:.1f} s" for k, v in result.cpu_s.items()
+    ) + " (the recorder, scanner and car while recording; each camera's process, its "
+        "frames rendered first)")  # fmt: skip
     if notes:
         lines.append("  notes     " + "; ".join(notes))
     return lines
@@ -361,8 +367,12 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
         config = configfile.load(config_path)
         recorder = Recorder(config, out_dir=rec_dir, notifier=Notifier({}))  # stopped by _record
         clock.say(f"recording {seconds:g} s through the recorder")
+        cpu0 = time.process_time()
         code = _record(recorder, rig, seconds, clock)
+        result.cpu_s["recording"] = time.process_time() - cpu0
         truth_frames = {name: camera.truth() for name, camera in rig.cameras.items()}
+        for name, camera in rig.cameras.items():
+            result.cpu_s[name] = camera.cpu_seconds()
     finally:
         rig.close()
     result.steps_s["record"] = clock.lap()

@@ -231,8 +231,10 @@ def test_every_camera_recorded_on_time(demo: Demo) -> None:
         assert drops == 0 and late == 0
         assert steady > 0.5  # the latency's random part alone leaves about 0.65 on cadence
         assert matched >= 0.95 * frames  # the frames the camera sent, found by their bytes
-        # measured +1.0 to +1.5 ms mean, 2.7 to 3.3 ms sd (the jitter's: 3 ms)
-        assert abs(mean_ms) < 3.0 and sd_ms < 5.0
+        # measured +1.0 to +1.7 ms mean, 2.7 to 3.8 ms sd (the jitter's: 3 ms) on a quiet
+        # machine; +3.2 ms, 6.7 ms sd with a load of 11 on its 2 cores (receipts late). The
+        # other camera's latency would put them 6 ms off.
+        assert abs(mean_ms) < 5.0 and sd_ms < 10.0
     # the two cameras' clocks: their own phase, half a frame apart
     a, b = frame_utc["left"], frame_utc["right"]
     i = np.clip(np.searchsorted(a, b), 1, a.size - 1)

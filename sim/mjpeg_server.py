@@ -508,8 +508,9 @@ class MjpegServerProcess:
             options["prerender_s"] = prerender_s
         self._proc.stdin.write(json.dumps({"listen": listen, "options": options}) + "\n")
         self._proc.stdin.flush()
-        # rendering a frame takes 20-40 ms: up to a second per second of frames
-        ready, _, _ = select.select([self._proc.stdout], [], [], 60 + 1.5 * prerender_s)
+        # a frame takes 20-40 ms of a core to render: 0.5-1 s per second of frames, and
+        # up to 3 s on a machine busy with other work
+        ready, _, _ = select.select([self._proc.stdout], [], [], 60 + 5 * prerender_s)
         reply = json.loads(self._proc.stdout.readline() or "{}") if ready else {}
         if "url" not in reply:
             self._proc.kill()

@@ -223,12 +223,16 @@ def _camera_lines(info: LogInfo, truth_frames: dict[str, list[FrameTruth]]) -> l
         sim = camera_sim(name)
         truth = truth_frames.get(name, [])
         late = sum(t.status == "late" for t in truth)
+        delay = max(
+            (t.t_sent - t.t_available for t in truth if t.status == "sent" and t.t_sent),
+            default=math.nan,
+        )
         recorded = f"{frames.count} frames ({frames.rate_hz:.1f} Hz)" if frames else "no frames"
         lines.append(
-            f"{name}: {recorded}, drops {info.drops.get(name, 0)}, late {late} (sent late by "
-            f"the camera); latency {camera_latency_s(name) * 1e3:.1f} ms configured (sim "
-            f"{sim['latency_s'] * 1e3:.0f} ms + half the {sim['exposure_s'] * 1e3:.0f} ms "
-            "exposure + mean jitter)"
+            f"{name}: {recorded}, drops {info.drops.get(name, 0)}, late {late} (not sent: over "
+            f"0.5 s late), the others sent at most {delay * 1e3:.1f} ms after due; latency "
+            f"{camera_latency_s(name) * 1e3:.1f} ms configured (sim {sim['latency_s'] * 1e3:.0f} "
+            f"ms + half the {sim['exposure_s'] * 1e3:.0f} ms exposure + mean jitter)"
         )
     return lines
 

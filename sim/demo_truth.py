@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from acq import cloud, motion
@@ -62,23 +63,33 @@ def check_odometry(rig: SimRig, mcap_path: Path) -> list[str]:
 
 
 def _frame_lines(
-    name: str, log: drive_log.DriveLog, truth: list[FrameTruth], expected: float
+    rig: SimRig, name: str, log: drive_log.DriveLog, truth: list[FrameTruth], expected: float
 ) -> list[str]:
     """Camera ``name``'s recorded frame stamps against the true middles of exposure of
-    the frames it sent (matched by the bytes' hash), and a warning when it fell behind."""
+    the frames it sent (matched by the bytes' hash), its middle recorded frame against
+    the simulator's view through that camera at that time, and a warning when it fell
+    behind."""
     by_digest = {t.digest: t.t_mid for t in truth if t.digest}
-    ferr = np.array(
-        [
-            log.frame_ns[i] * 1e-9 - by_digest[d]
-            for i, d in enumerate(jpeg_digest(j) for j in log.jpegs)
-            if d in by_digest
-        ]
-    )
+    matched = [
+        (i, by_digest[d]) for i, d in enumerate(jpeg_digest(j) for j in log.jpegs) if d in by_digest
+    ]
+    ferr = np.array([log.frame_ns[i] * 1e-9 - t_mid for i, t_mid in matched])
     lines = []
     if ferr.size:
         lines.append(
             f"{name} frame stamps {1e3 * ferr.mean():+.2f} ms mean, {1e3 * ferr.std():.2f} ms sd "
             f"off the true middle of exposure ({ferr.size} frames; the camera sends no time)"
+        )
+        i, t_mid = matched[len(matched) // 2]
+        seen = cv2.imdecode(np.frombuffer(log.jpegs[i], np.uint8), cv2.IMREAD_COLOR)
+        src = rig.source
+        view = sensors.render_frame(
+            src.street, src.trajectory, demo_rig(), (t_mid - rig.t_origin) % rig.loop_s, name
+        )
+        off = float(np.abs(seen.astype(np.int16) - view).mean())
+        lines.append(
+            f"  its frame {i}: {off:.1f} levels mean off the simulator's view through the "
+            f"{name} camera at its true time (JPEG)"
         )
     late = float(np.median(ferr)) if ferr.size else math.inf
     if late > 0.01 or len(log.jpegs) < 0.8 * expected:
@@ -119,7 +130,7 @@ def check_log(
         )
     expected = CAMERA_SIM["fps"] * log.n_scans / rig.scanner.model.scan_hz
     for name, camera_log in logs.items():
-        lines += _frame_lines(name, camera_log, truth_frames.get(name, []), expected)
+        lines += _frame_lines(rig, name, camera_log, truth_frames.get(name, []), expected)
     # colours: every checked point's laser ray cast again, noise-free, at its true time
     src = rig.source
     sent_of = dict(matched)

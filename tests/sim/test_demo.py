@@ -226,6 +226,11 @@ def test_every_camera_recorded_on_time(demo: Demo) -> None:
         )
         assert stamp is not None, name
         mean_ms, sd_ms, matched = (float(g) for g in stamp.groups())
+        view = re.search(
+            rf"([\d.]+) levels mean off the simulator's view through the {name} ", printed
+        )
+        assert view is not None, name
+        assert float(view.group(1)) < 3.0  # its own camera's view (JPEG: about 1 level)
         print(
             f"{name}: {frames:.0f} frames, {rate} Hz, drops {drops:.0f}, late {late:.0f}, "
             f"{steady:.1%} on cadence; stamps {mean_ms:+.2f} ms mean, {sd_ms:.2f} ms sd; sent at "
@@ -233,7 +238,7 @@ def test_every_camera_recorded_on_time(demo: Demo) -> None:
         )
         assert frames == stamps.size and rate == pytest.approx(25.0, abs=0.5)
         assert drops == 0 and late == 0
-        assert delay_ms < 40.0  # measured 10-11 ms with a load of 7 on the 2 cores
+        assert delay_ms < 40.0  # measured 6-15 ms with a load of 4-7 on the 2 cores
         assert steady > 0.5  # the latency's random part alone leaves about 0.65 on cadence
         assert matched >= 0.95 * frames  # the frames the camera sent, found by their bytes
         # measured +1.0 to +1.7 ms mean, 2.7 to 3.8 ms sd (the jitter's: 3 ms) on a quiet

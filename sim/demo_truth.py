@@ -86,11 +86,12 @@ def _frame_lines(
         view = sensors.render_frame(
             src.street, src.trajectory, demo_rig(), (t_mid - rig.t_origin) % rig.loop_s, name
         )
-        off = float(np.abs(seen.astype(np.int16) - view).mean())
-        lines.append(
-            f"  its frame {i}: {off:.1f} levels mean off the simulator's view through the "
-            f"{name} camera at its true time (JPEG)"
-        )
+        if seen is not None:
+            off = float(np.abs(seen.astype(np.int16) - view).mean())
+            lines.append(
+                f"  its frame {i}: {off:.1f} levels mean off the simulator's view through the "
+                f"{name} camera at its true time (JPEG)"
+            )
     late = float(np.median(ferr)) if ferr.size else math.inf
     if late > 0.01 or len(log.jpegs) < 0.8 * expected:
         lines.append(

@@ -53,7 +53,8 @@ CAMERA_SIM: dict[str, Any] = {
     "street_seed": 0,  # the street the scanner scans
 }
 # Each camera's own frame clock: frame 0's exposure starts this long after the drive
-# starts (s). Half a frame apart, the two cameras render in turn, not at once.
+# starts (s). Half a frame apart: two free-running cameras, their frames at other
+# instants (and the recorder receiving one camera's frame at a time).
 CLOCK_PHASE_S = {"left": 0.0, "right": 0.02}
 SCANNER_MODEL = "utm-30lx"
 SCANNER_DRIFT_PPM = 30.0  # the simulated scanner's clock runs fast by this much
@@ -113,7 +114,8 @@ class SimRig:
         self.can_channel = f"acq-demo-{os.getpid()}-{time.monotonic_ns()}"
         self._tmp: str | None = None  # holds the pty's link
         model = MODELS[SCANNER_MODEL]
-        # the camera processes start (and load their renderer) while the scanner is built
+        # the camera processes start (load their renderer, render their first frames)
+        # while the scanner is built
         started: dict[str, Any] = {}
 
         def start_camera(name: str) -> None:

@@ -236,10 +236,14 @@ def test_every_camera_recorded_on_time(demo: Demo) -> None:
             f"{steady:.1%} on cadence; stamps {mean_ms:+.2f} ms mean, {sd_ms:.2f} ms sd; sent at "
             f"most {delay_ms:.1f} ms after due"
         )
-        assert frames == stamps.size and rate == pytest.approx(25.0, abs=0.5)
+        # (count - 1) / span of receipts: 24.6-25.1 Hz measured over 3 s
+        assert frames == stamps.size and rate == pytest.approx(25.0, abs=1.0)
+        assert np.median(np.diff(stamps)) == pytest.approx(0.04, abs=0.001)
         assert drops == 0 and late == 0
         assert delay_ms < 40.0  # measured 6-15 ms with a load of 4-7 on the 2 cores
-        assert steady > 0.5  # the latency's random part alone leaves about 0.65 on cadence
+        # the latency's random part alone leaves about 0.65 on cadence; 0.52 measured with
+        # a load of 11 on the 2 cores
+        assert steady > 0.4
         assert matched >= 0.95 * frames  # the frames the camera sent, found by their bytes
         # measured +1.0 to +1.7 ms mean, 2.7 to 3.8 ms sd (the jitter's: 3 ms) on a quiet
         # machine; +3.2 ms, 6.7 ms sd with a load of 11 on its 2 cores (receipts late). The

@@ -15,6 +15,7 @@ Times are the host's ``time.monotonic()`` seconds.
 from __future__ import annotations
 
 import hashlib
+import math
 import threading
 import time
 from collections.abc import Iterator
@@ -73,6 +74,8 @@ class SimCamera:
     is the constant delay from the end of the exposure to availability, plus a random
     part per frame of mean about ``jitter_s`` (``jitter``: ``exponential``, clipped at
     4·jitter_s, or ``uniform`` on [0, 2·jitter_s]). The drive loops over the street.
+    ``seed`` seeds the jitter and, unless ``street_seed`` is given, the street; the rig's
+    first camera is the one filming (:meth:`acq.sim.world.Rig.only` picks another).
     """
 
     def __init__(
@@ -90,6 +93,7 @@ class SimCamera:
         jitter: str = "exponential",
         jpeg_quality: int = 90,
         seed: int = 0,
+        street_seed: int | None = None,
         t_origin: float | None = None,
         truth_limit: int = 1_000_000,
     ) -> None:
@@ -97,7 +101,11 @@ class SimCamera:
             raise ValueError(f"need fps > 0 and 0 <= exposure_s <= 1/fps, got {fps}, {exposure_s}")
         if jitter not in ("exponential", "uniform"):
             raise ValueError(f"jitter must be exponential or uniform, not {jitter!r}")
-        self.street = street if street is not None else Street.generate(seed=seed, length_m=1000.0)
+        if street is None:
+            street = Street.generate(
+                seed=seed if street_seed is None else street_seed, length_m=1000.0
+            )
+        self.street = street
         self.trajectory = trajectory if trajectory is not None else Trajectory()
         self.rig = rig if rig is not None else default_rig()
         self.fps = fps
@@ -112,6 +120,7 @@ class SimCamera:
         self.truth_limit = truth_limit
         self._rng = np.random.default_rng(seed)
         self._next = 0
+        self._prerendered: dict[int, bytes] = {}  # frame -> JPEG, see prerender
         self._truth: dict[int, FrameTruth] = {}
         self._lock = threading.Lock()
         # Power-up: compile or load the ray caster now, not in the middle of a stream.
@@ -138,10 +147,24 @@ class SimCamera:
 
     def render(self, t: float) -> np.ndarray:
         """(H,W,3) uint8 BGR view at true time t (s); the drive loops over the street."""
+        return self._render_drive(t - self.t_origin)
+
+    def _render_drive(self, t_drive: float) -> np.ndarray:
+        """(H,W,3) uint8 BGR view ``t_drive`` s after the drive's start."""
         loop = max(self.street.length_m, 1.0) / self.trajectory.speed
-        return sensors.render_frame(
-            self.street, self.trajectory, self.rig, (t - self.t_origin) % loop
-        )
+        return sensors.render_frame(self.street, self.trajectory, self.rig, t_drive % loop)
+
+    def prerender(self, seconds: float) -> int:
+        """Render and encode now the frames exposed in the first ``seconds`` of the drive
+        (by the camera's clock, whatever ``t_origin`` is set to later), so that
+        :meth:`next_frame` serves them without rendering: a camera that cannot render
+        in real time on a busy machine still sends every frame on time. Frames after
+        those are rendered when due. Returns how many were rendered."""
+        n = max(0, math.ceil(seconds * self.fps * (1.0 + self.drift_ppm * 1e-6)))
+        for k in range(self._next, n):
+            t_drive = self.exposure_start(k) - self.t_origin + self.exposure_s / 2
+            self._prerendered[k] = self.encode(self._render_drive(t_drive))
+        return len(self._prerendered)
 
     def encode(self, image: np.ndarray) -> bytes:
         ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
@@ -156,7 +179,11 @@ class SimCamera:
         self._next += 1
         t_mid = self.exposure_start(k) + self.exposure_s / 2
         t_available = t_mid + self.exposure_s / 2 + self.latency_s + self._jitter()
-        jpeg = self.encode(self.render(t_mid)) if render else b""
+        jpeg = self._prerendered.pop(k, b"")
+        if not render:
+            jpeg = b""
+        elif not jpeg:
+            jpeg = self.encode(self.render(t_mid))
         truth = FrameTruth(k, t_mid, t_available, self.exposure_s)
         if jpeg:
             truth.digest, truth.size = jpeg_digest(jpeg), len(jpeg)

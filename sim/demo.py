@@ -1,24 +1,28 @@
 """`acq demo`: the simulated rig, recorded through the real recorder, coloured into a cloud.
 
 The rig (:mod:`acq.sim.demo_rig`): a simulated Hokuyo UTM-30LX (SCIP 2.0 on a
-pseudo-terminal, its own drifting millisecond clock), the simulated 185-degree fisheye
-(MJPEG over HTTP, in its own process so its JPEG encoding does not take the recorder's
-GIL) and the simulated car (:mod:`acq.sim.can_vehicle`: wheel speeds and yaw rate as CAN
-frames of ``sim/vehicle.dbc`` on a python-can ``virtual`` bus, which reaches the recorder
-because both run in this process), all driving down the synthetic street from one shared
-instant ``t_origin``. The real recorder (drivers, clock sync, CAN odometry, MCAP writer)
-records them for ``seconds`` into ``DIR/demo.mcap``, with ``/vehicle/odometry`` and
-``/vehicle/can``; the log is then coloured with the rig's true calibration
-(``DIR/calib.yaml``) into ``DIR/cloud.ply`` and pictured in ``DIR/preview.png``.
+pseudo-terminal, its own drifting millisecond clock), two simulated 185-degree fisheyes,
+``left`` and ``right`` (MJPEG over HTTP, each in its own process so its rendering and
+JPEG encoding take no other's GIL; each its own lens, mounting, latency, frame clock,
+exposure and white balance) and the simulated car (:mod:`acq.sim.can_vehicle`: wheel
+speeds and yaw rate as CAN frames of ``sim/vehicle.dbc`` on a python-can ``virtual``
+bus, which reaches the recorder because both run in this process), all driving down the
+synthetic street from one shared instant ``t_origin``. The real recorder (drivers, clock
+sync, CAN odometry, MCAP writer) records them for ``seconds`` into ``DIR/demo.mcap``
+(``/laser/scan``, ``/left/image/compressed``, ``/right/image/compressed``,
+``/vehicle/odometry``, ``/vehicle/can``...); the log is then coloured with the rig's
+true calibration (``DIR/calib.yaml``) into ``DIR/cloud.ply`` and pictured in
+``DIR/preview.png``.
 
-The demo colours through the pipeline of ``acq colorize`` (:func:`acq.cloud.colorize.run`:
-offline re-timing, chunks, views, the PLY writer) with the simulator's trajectory in
-place of the log's odometry, so the cloud lies in the street's world frame: because the
-demo owns the simulator, the summary checks the chain against the truth
-(:mod:`acq.sim.demo_truth`: the scan and frame stamps, the recorded odometry, and each
-coloured point's colour against the true colour of the surface the laser hit). ``acq
-colorize DIR/demo.mcap --calib DIR/calib.yaml`` colours the same log from the recorded
-CAN odometry instead (dead reckoning), as on a real drive.
+The demo colours through the pipeline of ``acq colorize``
+(:func:`acq.cloud.colorize.run`: offline re-timing, chunks, views, the PLY writer) with
+the simulator's trajectory in place of the log's odometry, so the cloud lies in the
+street's world frame: because the demo owns the simulator, the summary checks the chain
+against the truth (:mod:`acq.sim.demo_truth`: the scan stamps and every camera's frame
+stamps, the recorded odometry, and each coloured point's colour against the true colour
+of the surface the laser hit). ``acq colorize DIR/demo.mcap --calib DIR/calib.yaml``
+colours the same log from the recorded CAN odometry instead (dead reckoning), as on a
+real drive.
 """
 
 from __future__ import annotations
@@ -45,14 +49,17 @@ from acq.log import info as log_info
 from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
 from acq.record.sdnotify import Notifier
+from acq.sim.camera_device import FrameTruth
 from acq.sim.can_vehicle import DBC_PATH
 from acq.sim.demo_rig import (
     CAMERA_SIM,
+    CAMERAS,
     CAN_INTERFACE,
     SCANNER_DRIFT_PPM,
     SCANNER_MODEL,
     SimRig,
     camera_latency_s,
+    camera_sim,
     true_calibration,
 )
 from acq.sim.demo_truth import check_log, check_odometry
@@ -61,6 +68,15 @@ __all__ = ["MAX_SECONDS", "OUT_MARK", "DemoResult", "run"]
 
 EXIT_OK, EXIT_FAILURE = 0, 1
 
+# The cameras the demo colours from. `acq.cloud.colorize.run` colours from one camera;
+# once it colours from every camera of calib.yaml (its ``cameras`` keyword), this is None.
+COLOUR_CAMERA: str | None = "left"
+
+# The cameras render the frames of the recording before it starts (see SimRig): the
+# drive from its start to the recorder's start, the recording and its stop take about
+# --seconds + PRERENDER_MARGIN_S; at most PRERENDER_MAX_S (memory: 1.8 MB per second).
+PRERENDER_MARGIN_S = 2.0
+PRERENDER_MAX_S = 60.0
 STOP_AHEAD_S = 0.005  # the recorder is stopped this long before a scan is due (see _record)
 MAX_SECONDS = 170.0  # the simulated drive loops over its 1 km street every 180 s
 OUT_MARK = ".acq-demo"  # in a folder the demo wrote: it may write there again
@@ -76,6 +92,9 @@ class DemoResult:
     steps_s: dict[str, float] = field(default_factory=dict)
     lines: list[str] = field(default_factory=list)  # the printed summary
     frames_used: int = 0  # frames the cloud was coloured from
+    frames: dict[str, int] = field(default_factory=dict)  # frames recorded, per camera
+    # CPU s: this process while recording (recorder, scanner, car), each camera's process
+    cpu_s: dict[str, float] = field(default_factory=dict)
     colour_agreement: tuple[float, float] = (math.nan, math.nan)  # strict, within a pixel
 
 
@@ -97,8 +116,10 @@ class _Clock:
 
 
 def _config(
-    scanner_url: str, camera_url: str, can_channel: str, calib: Path, seconds: float
+    scanner_url: str, camera_urls: dict[str, str], can_channel: str, calib: Path, seconds: float
 ) -> dict[str, Any]:
+    """The recorder's configuration: every camera through the OpenCV driver on its own
+    URL, its latency what the driver subtracts from receipt (:func:`camera_latency_s`)."""
 
     return {
         "version": 1,
@@ -113,12 +134,13 @@ def _config(
         ],
         "cameras": [
             {
-                "name": "camera",
+                "name": name,
                 "driver": "opencv",
-                "source": camera_url,
+                "source": url,
                 "fps": CAMERA_SIM["fps"],
-                "latency_s": round(camera_latency_s(), 6),
+                "latency_s": round(camera_latency_s(name), 6),
             }
+            for name, url in camera_urls.items()
         ],
         "can": {  # the signals are the config's defaults, those of sim/vehicle.dbc
             "interface": CAN_INTERFACE,
@@ -162,9 +184,10 @@ def _record(recorder: Recorder, rig: SimRig, seconds: float, clock: _Clock) -> i
                 next_say += 2.0
                 d = recorder.devices
                 elapsed = (time.monotonic_ns() - recorder.started_ns) * 1e-9
+                frames = ", ".join(f"{d[name].received} {name}" for name in CAMERAS if name in d)
                 clock.say(
                     f"recording {min(elapsed, seconds):4.1f} s of {seconds:g}: "
-                    f"{d['laser'].received} scans, {d['camera'].received} frames"
+                    f"{d['laser'].received} scans, frames {frames}"
                     + (f", {d['vehicle'].received} odometry" if "vehicle" in d else "")
                 )
     finally:
@@ -190,26 +213,53 @@ def _size(path: Path) -> str:
     return f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.0f} kB" if n >= 1e3 else f"{n} B"
 
 
+def _camera_lines(info: LogInfo, truth_frames: dict[str, list[FrameTruth]]) -> list[str]:
+    """Per camera: frames recorded (rate), the recorder's drops, frames the camera sent
+    late or not at all while recorded, and the latency the driver subtracts."""
+    chan = {c.topic: c for c in info.channels}
+    lines = []
+    for name in CAMERAS:
+        frames = chan.get(f"/{name}/image/compressed")
+        sim = camera_sim(name)
+        truth = truth_frames.get(name, [])
+        late = sum(t.status == "late" for t in truth)
+        delay = max(
+            (t.t_sent - t.t_available for t in truth if t.status == "sent" and t.t_sent),
+            default=math.nan,
+        )
+        recorded = f"{frames.count} frames ({frames.rate_hz:.1f} Hz)" if frames else "no frames"
+        lines.append(
+            f"{name}: {recorded}, drops {info.drops.get(name, 0)}, late {late} (not sent: over "
+            f"0.5 s late), the others sent at most {delay * 1e3:.1f} ms after due; latency "
+            f"{camera_latency_s(name) * 1e3:.1f} ms configured (sim {sim['latency_s'] * 1e3:.0f} "
+            f"ms + half the {sim['exposure_s'] * 1e3:.0f} ms exposure + mean jitter)"
+        )
+    return lines
+
+
 def _summary(
     result: DemoResult,
     recorder: Recorder,
     info: LogInfo,
-    log: drive_log.DriveLog,
     pc: cloud.Cloud,
+    truth_frames: dict[str, list[FrameTruth]],
     truth_lines: list[str],
+    notes: list[str],
 ) -> list[str]:
     chan = {c.topic: c for c in info.channels}
-    scans, frames = chan.get("/laser/scan"), chan.get("/camera/image/compressed")
+    scans = chan.get("/laser/scan")
     laser = recorder.devices["laser"]
     sync = {d.name: d for d in info.devices}
     lines = ["summary"]
     rec = f"  recorded  {info.duration_s:.1f} s"
     if scans is not None:
         rec += f": {scans.count} scans ({scans.rate_hz:.1f} Hz)"
-    if frames is not None:
-        rec += f", {frames.count} frames ({frames.rate_hz:.1f} Hz)"
-    drops = ", ".join(f"{name} {n}" for name, n in sorted(info.drops.items())) or "none"
-    lines.append(rec + f"; drops: {drops}")
+    drops = ", ".join(
+        f"{name} {n}" for name, n in sorted(info.drops.items()) if name not in CAMERAS
+    )
+    lines.append(rec + f"; drops: {drops or 'none'}")
+    lines.extend(f"  cameras   {t}" if i == 0 else f"            {t}"
+                 for i, t in enumerate(_camera_lines(info, truth_frames)))  # fmt: skip
     clock = "  clock     laser: "
     if laser.latency_bounds_s is not None:
         lo, hi = laser.latency_bounds_s
@@ -223,17 +273,12 @@ def _summary(
     if ls is not None and ls.residual_ms_p50 is not None:
         clock += f", receipt - stamp {ls.residual_ms_p50:.2f}/{ls.residual_ms_p95:.2f} ms p50/p95"
     lines.append(clock)
-    lines.append(
-        f"            camera: latency {camera_latency_s() * 1e3:.1f} ms configured (sim: "
-        f"{CAMERA_SIM['latency_s'] * 1e3:.0f} ms + half the {CAMERA_SIM['exposure_s'] * 1e3:.0f}"
-        f" ms exposure + mean jitter)"
-    )
     lines.extend(f"  truth     {t}" if i == 0 else f"            {t}"
                  for i, t in enumerate(truth_lines))  # fmt: skip
+    source = f"the {COLOUR_CAMERA} camera's" if COLOUR_CAMERA else "every camera's"
     lines.append(
         f"  cloud     {pc.size:,} points, {int(pc.coloured.sum()):,} coloured "
-        f"({100 * pc.coloured_share:.1f} %; the camera looks left, the scanner sees both "
-        f"sides) from {pc.frames_used} of {pc.frames} frames"
+        f"({100 * pc.coloured_share:.1f} %) from {pc.frames_used} of {source} {pc.frames} frames"
     )
     lines.append("  files     " + ", ".join(
         f"{p} ({_size(p)})" if i == 0 else f"{p.name} ({_size(p)})"
@@ -242,8 +287,12 @@ def _summary(
     lines.append("  time      " + ", ".join(
         f"{k} {v:.1f} s" for k, v in result.steps_s.items()
     ))  # fmt: skip
-    if log.notes:
-        lines.append("  notes     " + "; ".join(log.notes))
+    lines.append("  CPU       " + ", ".join(
+        f"{k} {v:.1f} s" for k, v in result.cpu_s.items()
+    ) + " (the recorder, scanner and car while recording; each camera's process, its "
+        "frames rendered first)")  # fmt: skip
+    if notes:
+        lines.append("  notes     " + "; ".join(notes))
     return lines
 
 
@@ -289,25 +338,31 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
     _claim(out)
     clock = _Clock(progress)
     progress(
-        f"acq demo: a simulated UTM-30LX and 185-degree fisheye driving down a synthetic street,"
-        f"\nrecorded for {seconds:g} s by the real recorder, coloured into a cloud; into {out}/"
+        f"acq demo: a simulated UTM-30LX and two 185-degree fisheyes ({', '.join(CAMERAS)}) "
+        f"driving down a synthetic street,\nrecorded for {seconds:g} s by the real recorder, "
+        f"coloured into a cloud; into {out}/"
     )
     rec_dir = Path(tempfile.mkdtemp(prefix=".recording-", dir=out))
     calib = true_calibration()
     calib_path = out / "calib.yaml"
     calibfile.save(calib, calib_path)
-    t_origin = time.monotonic()  # the drive starts here, for the scanner and the camera
-    rig = SimRig(t_origin)
+    clock.say(
+        f"the cameras render their first {min(seconds + PRERENDER_MARGIN_S, PRERENDER_MAX_S):g} s "
+        "of frames"
+    )
+    rig = SimRig(prerender_s=min(seconds + PRERENDER_MARGIN_S, PRERENDER_MAX_S))
     try:
         result.steps_s["start"] = clock.lap()
         clock.say(f"simulated {SCANNER_MODEL.upper()} on {rig.server.url} (SCIP over a pty)")
-        clock.say(f"simulated fisheye at {rig.camera.url} (MJPEG over HTTP, own process)")
+        for name, camera in rig.cameras.items():
+            clock.say(f"simulated {name} fisheye at {camera.url} (MJPEG over HTTP, own process)")
         clock.say(
             f"simulated car on CAN bus {CAN_INTERFACE}:{rig.can_channel} (wheel speeds and "
             "yaw rate, sim/vehicle.dbc)"
         )
         config_path = out / "config.yaml"
-        data = _config(rig.server.url, rig.camera.url, rig.can_channel, calib_path, seconds)
+        urls = {name: camera.url for name, camera in rig.cameras.items()}
+        data = _config(rig.server.url, urls, rig.can_channel, calib_path, seconds)
         config_path.write_text(
             "# the demo's configuration (the devices lived only while it ran)\n"
             + yaml.safe_dump(data, sort_keys=False),
@@ -316,8 +371,12 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
         config = configfile.load(config_path)
         recorder = Recorder(config, out_dir=rec_dir, notifier=Notifier({}))  # stopped by _record
         clock.say(f"recording {seconds:g} s through the recorder")
+        cpu0 = time.process_time()
         code = _record(recorder, rig, seconds, clock)
-        truth_frames = rig.camera.truth()
+        result.cpu_s["recording"] = time.process_time() - cpu0
+        truth_frames = {name: camera.truth() for name, camera in rig.cameras.items()}
+        for name, camera in rig.cameras.items():
+            result.cpu_s[name] = camera.cpu_seconds()
     finally:
         rig.close()
     result.steps_s["record"] = clock.lap()
@@ -329,14 +388,20 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
     shutil.rmtree(rec_dir, ignore_errors=True)
     clock.say(f"wrote {mcap_path} ({_size(mcap_path)})")
 
-    log = drive_log.read_log(mcap_path)
+    logs = {name: drive_log.read_log(mcap_path, camera=name) for name in CAMERAS}
+    log = logs[COLOUR_CAMERA or CAMERAS[0]]
     # `acq colorize DIR/demo.mcap --calib DIR/calib.yaml`, placing with the true trajectory
     ply_path, png_path = out / "cloud.ply", out / "preview.png"
-    stamps = np.concatenate([log.scan_ns, log.frame_ns])
+    stamps = np.concatenate([log.scan_ns, *(g.frame_ns for g in logs.values())])
     truth = rig.trajectory(int(stamps.min()) - 10**9, int(stamps.max()) + 10**9)
     results: list[colorize.ChunkResult] = []
     colorize.run(
-        [mcap_path], calibfile.load(calib_path), ply_path, trajectory=truth, results=results
+        [mcap_path],
+        calibfile.load(calib_path),
+        ply_path,
+        camera=COLOUR_CAMERA,
+        trajectory=truth,
+        results=results,
     )
     pc = colorize.cloud_of(results, log)
     result.steps_s["colour"] = clock.lap()
@@ -345,16 +410,19 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
         f"into {ply_path}"
     )
     length = float(np.linalg.norm(pc.scan_origin[-1] - pc.scan_origin[0]))
+    n_frames = sum(g.n_frames for g in logs.values())
     title = (
         f"acq demo: {pc.size:,} points, {100 * pc.coloured_share:.0f} % coloured, "
-        f"{log.n_scans} scans, {log.n_frames} frames, {length:.0f} m of street"
+        f"{log.n_scans} scans, {n_frames} frames of {len(logs)} cameras, {length:.0f} m of street"
     )
     cloud.preview_png(png_path, pc, title=title)
     result.steps_s["write"] = clock.lap()
     clock.say(f"wrote {png_path}")
 
     info = log_info(mcap_path)
-    truth_lines, result.colour_agreement = check_log(rig, log, pc, truth_frames)
+    truth_lines, result.colour_agreement = check_log(
+        rig, logs, pc, truth_frames, colour_camera=COLOUR_CAMERA
+    )
     truth_lines += check_odometry(rig, mcap_path)
     result.steps_s["check"] = clock.lap()
     result.steps_s["total"] = time.monotonic() - clock.t0
@@ -365,5 +433,7 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
         "calib": calib_path,
         "config": config_path,
     }
-    result.lines = _summary(result, recorder, info, log, pc, truth_lines)
+    notes = list(dict.fromkeys(n for g in logs.values() for n in g.notes))
+    result.lines = _summary(result, recorder, info, pc, truth_frames, truth_lines, notes)
     result.frames_used = pc.frames_used
+    result.frames = {name: g.n_frames for name, g in logs.items()}

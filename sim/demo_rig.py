@@ -1,8 +1,9 @@
 """The simulated rig of `acq demo`: a Hokuyo UTM-30LX (SCIP 2.0 on a pseudo-terminal, its
-own drifting millisecond clock), the 185-degree fisheye (MJPEG over HTTP, in its own
-process so its JPEG encoding does not take the recorder's GIL) and the car (CAN frames
-on a python-can ``virtual`` bus), all driving down the synthetic street from one shared
-instant; the rig's true calibration and poses.
+own drifting millisecond clock), two 185-degree fisheyes looking left and right (the
+cameras of ``default_rig(cameras=2)``, each serving MJPEG over HTTP from its own process
+so its rendering and JPEG encoding take neither the recorder's GIL nor the other's) and
+the car (CAN frames on a python-can ``virtual`` bus), all driving down the synthetic
+street from one shared instant; the rig's true calibration and poses.
 
 Times host monotonic (s unless ``_ns``).
 """
@@ -29,68 +30,109 @@ from acq.sim.scan_source import StreetSource
 from acq.sim.scanner_models import MODELS
 from acq.sim.scip_device import ScipDevice
 from acq.sim.transport import PtyDeviceServer
-from acq.sim.world import default_rig
+from acq.sim.world import Rig, default_rig
 
 __all__ = [
+    "CAMERAS",
     "CAMERA_SIM",
     "CAN_INTERFACE",
     "SCANNER_DRIFT_PPM",
     "SCANNER_MODEL",
     "SimRig",
     "camera_latency_s",
+    "camera_sim",
+    "demo_rig",
     "true_calibration",
 ]
 
-# The simulated camera's options (JSON for its process): s, frames/s.
+# The simulated cameras' options in common (JSON for their processes): s, frames/s.
 CAMERA_SIM: dict[str, Any] = {
     "fps": 25.0,
-    "exposure_s": 0.004,
-    "latency_s": 0.020,  # end of exposure -> frame available
-    "jitter_s": 0.003,  # mean of the random part (exponential, clipped at 4x)
+    "jitter_s": 0.003,  # mean of the random part of the latency (exponential, clipped at 4x)
     "jpeg_quality": 90,
-    "seed": 0,
+    "street_seed": 0,  # the street the scanner scans
 }
+# Each camera's own frame clock: frame 0's exposure starts this long after the drive
+# starts (s). Half a frame apart: two free-running cameras, their frames at other
+# instants (and the recorder receiving one camera's frame at a time).
+CLOCK_PHASE_S = {"left": 0.0, "right": 0.02}
 SCANNER_MODEL = "utm-30lx"
 SCANNER_DRIFT_PPM = 30.0  # the simulated scanner's clock runs fast by this much
 CAN_INTERFACE = "virtual"  # python-can's in-process bus: the car and the recorder share it
 
 
-def camera_latency_s(sim: dict[str, Any] = CAMERA_SIM) -> float:
-    """What the camera driver subtracts from receipt to get the middle of the exposure:
-    the sim's latency, half its exposure and the mean of its clipped exponential jitter."""
+def demo_rig() -> Rig:
+    """The demo's rig (the truth): the laser and two fisheyes, ``left`` and ``right``."""
+    return default_rig(cameras=2)
+
+
+CAMERAS: tuple[str, ...] = demo_rig().camera_names
+
+
+def camera_sim(name: str) -> dict[str, Any]:
+    """The options of the demo's camera ``name`` for :class:`MjpegServerProcess`: the
+    common ones, the rig camera's latency (end of exposure -> frame available) and
+    exposure, its own jitter seed and clock phase."""
+    cam = demo_rig().camera(name)
+    return {
+        **CAMERA_SIM,
+        "camera": name,
+        "latency_s": cam.latency_s,
+        "exposure_s": cam.exposure,
+        "seed": CAMERAS.index(name),
+        "clock_offset_s": CLOCK_PHASE_S.get(name, 0.0),
+    }
+
+
+def camera_latency_s(name: str) -> float:
+    """What the driver of camera ``name`` subtracts from receipt to get the middle of the
+    exposure: the sim's latency, half its exposure and the mean of its clipped
+    exponential jitter."""
+    sim = camera_sim(name)
     jitter = float(sim["jitter_s"]) * (1.0 - math.exp(-4.0))
     return float(sim["latency_s"]) + float(sim["exposure_s"]) / 2 + jitter
 
 
 class SimRig:
-    """The simulated scanner (in process, on a pty), camera (own process) and car (in
-    process, on a python-can ``virtual`` bus named ``can_channel``) sharing ``t_origin``
-    (host monotonic s): the same place on the street at the same time."""
+    """The simulated scanner (in process, on a pty), cameras (``cameras``, by name, each
+    in its own process) and car (in process, on a python-can ``virtual`` bus named
+    ``can_channel``) sharing ``t_origin`` (host monotonic s): the same place on the
+    street at the same time.
 
-    def __init__(self, t_origin: float) -> None:
+    Each camera first renders the frames of the drive's first ``prerender_s`` seconds
+    (the two cameras at once, a core each; later frames are rendered when due); the
+    drive starts, ``t_origin``, when all have, so that the cameras send every frame on
+    time however busy the machine is while recording."""
 
-        self.t_origin = t_origin
-        self.camera: Any = None
+    def __init__(self, prerender_s: float = 0.0) -> None:
+
+        self.t_origin = math.nan
+        self.cameras: dict[str, MjpegServerProcess] = {}
         self.server: Any = None
         self.car: Any = None
         # a virtual bus is one process's: a name of its own (two demos, the test suite)
         self.can_channel = f"acq-demo-{os.getpid()}-{time.monotonic_ns()}"
         self._tmp: str | None = None  # holds the pty's link
         model = MODELS[SCANNER_MODEL]
-        # the camera process starts (and loads its renderer) while the scanner is built
+        # the camera processes start (load their renderer, render their first frames)
+        # while the scanner is built
         started: dict[str, Any] = {}
 
-        def start_camera() -> None:
+        def start_camera(name: str) -> None:
             try:
-                started["camera"] = MjpegServerProcess(**CAMERA_SIM, t_origin=t_origin)
+                started[name] = MjpegServerProcess(**camera_sim(name), prerender_s=prerender_s)
             except Exception as e:  # raised in the caller below
-                started["error"] = e
+                started.setdefault("error", e)
 
-        thread = threading.Thread(target=start_camera, name="sim-camera-start", daemon=True)
-        thread.start()
+        threads = [
+            threading.Thread(target=start_camera, args=(name,), name=f"sim-{name}-start")
+            for name in CAMERAS
+        ]
+        for thread in threads:
+            thread.start()
         try:
             try:
-                self.source = StreetSource(model, seed=0, t_origin=t_origin)
+                self.source = StreetSource(model, rig=demo_rig(), seed=0)
                 clock = SimClock(
                     tick_hz=model.clock_hz,
                     wrap_bits=model.clock_bits,
@@ -101,19 +143,23 @@ class SimRig:
                 self._tmp = tempfile.mkdtemp(prefix="acq-demo-")
                 link = Path(self._tmp) / "ttyACM-sim"
                 self.server = PtyDeviceServer(self.scanner, link=link).start()
-                # the car: the scanner's trajectory, looping with the street
-                self.car = SimVehicle(
-                    CAN_INTERFACE,
-                    self.can_channel,
-                    trajectory=self.source.trajectory,
-                    t_origin=t_origin,
-                    loop_s=self.loop_s,
-                ).start()
             finally:
-                thread.join()
-                self.camera = started.get("camera")
+                for thread in threads:
+                    thread.join()
+                self.cameras = {name: started[name] for name in CAMERAS if name in started}
             if "error" in started:
-                raise RuntimeError(f"the simulated camera did not start: {started['error']}")
+                raise RuntimeError(f"a simulated camera did not start: {started['error']}")
+            self.t_origin = self.source.t_origin = time.monotonic()
+            for camera in self.cameras.values():
+                camera.start(self.t_origin)
+            # the car: the scanner's trajectory, looping with the street
+            self.car = SimVehicle(
+                CAN_INTERFACE,
+                self.can_channel,
+                trajectory=self.source.trajectory,
+                t_origin=self.t_origin,
+                loop_s=self.loop_s,
+            ).start()
         except BaseException:
             self.close()
             raise
@@ -139,20 +185,24 @@ class SimRig:
         if self.server is not None:
             self.server.close()
             self.server = None
-        if self.camera is not None:
-            self.camera.close()
-            self.camera = None
+        for camera in self.cameras.values():
+            camera.close()
+        self.cameras = {}
         if self._tmp is not None:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
 
 
-def true_calibration() -> Calibration:
-    """The simulated rig's true calibration (the lens as kannala_brandt)."""
+def true_calibration(rig: Rig | None = None) -> Calibration:
+    """The true calibration of ``rig`` (default the demo's): every camera's lens
+    (kannala_brandt) and ``camera_to_laser``, and the laser on the vehicle."""
 
-    rig = default_rig()
+    rig = rig if rig is not None else demo_rig()
     return Calibration(
         laser="laser",
-        cameras={"camera": CameraCalib(rig.lens, rig.camera_to_laser, method="simulator truth")},
+        cameras={
+            c.name: CameraCalib(c.lens, c.camera_to_laser, method="simulator truth")
+            for c in rig.cameras
+        },
         laser_to_vehicle=rig.laser_to_vehicle,
     )

@@ -1,6 +1,7 @@
-"""`acq demo`'s checks against the simulator's truth: the recorded scan and frame stamps,
-the CAN odometry and its dead reckoning, and each coloured point's colour against the
-true colour of the surface the laser hit (the demo owns the simulator, so it can).
+"""`acq demo`'s checks against the simulator's truth: the recorded scan stamps and every
+camera's frame stamps, the CAN odometry and its dead reckoning, and each coloured
+point's colour against the true colour of the surface the laser hit (the demo owns the
+simulator, so it can).
 
 Times host monotonic (s unless ``_ns``); metres; colours RGB.
 """
@@ -11,15 +12,16 @@ import math
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from acq import cloud, motion
 from acq.log import drive_log
 from acq.log.vehicle_log import read_vehicle
 from acq.sim import sensors
-from acq.sim.camera_device import jpeg_digest
+from acq.sim.camera_device import FrameTruth, jpeg_digest
 from acq.sim.can_vehicle import true_motion
-from acq.sim.demo_rig import CAMERA_SIM, SimRig
+from acq.sim.demo_rig import CAMERA_SIM, SimRig, demo_rig
 from acq.sim.raycast import cast
 
 __all__ = ["COLOUR_TOLERANCE", "check_log", "check_odometry", "colour_check"]
@@ -60,13 +62,62 @@ def check_odometry(rig: SimRig, mcap_path: Path) -> list[str]:
     return lines
 
 
+def _frame_lines(
+    rig: SimRig, name: str, log: drive_log.DriveLog, truth: list[FrameTruth], expected: float
+) -> list[str]:
+    """Camera ``name``'s recorded frame stamps against the true middles of exposure of
+    the frames it sent (matched by the bytes' hash), its middle recorded frame against
+    the simulator's view through that camera at that time, and a warning when it fell
+    behind."""
+    by_digest = {t.digest: t.t_mid for t in truth if t.digest}
+    matched = [
+        (i, by_digest[d]) for i, d in enumerate(jpeg_digest(j) for j in log.jpegs) if d in by_digest
+    ]
+    ferr = np.array([log.frame_ns[i] * 1e-9 - t_mid for i, t_mid in matched])
+    lines = []
+    if ferr.size:
+        lines.append(
+            f"{name} frame stamps {1e3 * ferr.mean():+.2f} ms mean, {1e3 * ferr.std():.2f} ms sd "
+            f"off the true middle of exposure ({ferr.size} frames; the camera sends no time)"
+        )
+        i, t_mid = matched[len(matched) // 2]
+        seen = cv2.imdecode(np.frombuffer(log.jpegs[i], np.uint8), cv2.IMREAD_COLOR)
+        src = rig.source
+        view = sensors.render_frame(
+            src.street, src.trajectory, demo_rig(), (t_mid - rig.t_origin) % rig.loop_s, name
+        )
+        if seen is not None:
+            off = float(np.abs(seen.astype(np.int16) - view).mean())
+            lines.append(
+                f"  its frame {i}: {off:.1f} levels mean off the simulator's view through the "
+                f"{name} camera at its true time (JPEG)"
+            )
+    late = float(np.median(ferr)) if ferr.size else math.inf
+    if late > 0.01 or len(log.jpegs) < 0.8 * expected:
+        lines.append(
+            f"WARNING: the simulated {name} camera did not keep real time ({len(log.jpegs)} "
+            f"frames, median {1e3 * late:.0f} ms late): a busy machine? its colours are misplaced"
+        )
+    return lines
+
+
 def check_log(
-    rig: SimRig, log: drive_log.DriveLog, pc: cloud.Cloud, truth_frames: list[Any]
+    rig: SimRig,
+    logs: dict[str, drive_log.DriveLog],
+    pc: cloud.Cloud,
+    truth_frames: dict[str, list[FrameTruth]],
+    colour_camera: str | None = None,
 ) -> tuple[list[str], tuple[float, float]]:
-    """Summary lines comparing the log with the simulator's truth, and the shares of
-    checked coloured points whose colour is the true surface colour (see colour_check)."""
+    """Summary lines comparing the log (read once per camera: ``logs`` by camera name)
+    with the simulator's truth (``truth_frames``: each camera's), and the shares of checked
+    coloured points whose colour is the true surface colour (see colour_check). With
+    ``colour_camera``, the camera every point was coloured from: also the shares within
+    the tolerance of the surface colour as that camera saw it (times its exposure and
+    white balance at the point's time), which balancing the cameras would bring back
+    to the surface colour."""
 
     lines = []
+    log = next(iter(logs.values()))
     # scans: the device's record of what it sent, matched by its clock tick
     sent = {s.timestamp: s for s in list(rig.scanner.sent)}
     step_dt = rig.scanner.step_dt
@@ -78,26 +129,9 @@ def check_log(
             f"scan stamps {1e3 * err.mean():+.3f} ms mean, {1e3 * np.abs(err).max():.3f} ms "
             f"max off the true time of point 0 ({len(matched)} scans)"
         )
-    by_digest = {t.digest: t.t_mid for t in truth_frames if t.digest}
-    ferr = np.array(
-        [
-            log.frame_ns[i] * 1e-9 - by_digest[d]
-            for i, d in enumerate(jpeg_digest(j) for j in log.jpegs)
-            if d in by_digest
-        ]
-    )
-    if ferr.size:
-        lines.append(
-            f"frame stamps {1e3 * ferr.mean():+.2f} ms mean, {1e3 * ferr.std():.2f} ms sd off "
-            f"the true middle of exposure ({ferr.size} frames; the camera sends no time)"
-        )
-    late = float(np.median(ferr)) if ferr.size else math.inf
     expected = CAMERA_SIM["fps"] * log.n_scans / rig.scanner.model.scan_hz
-    if late > 0.01 or len(log.jpegs) < 0.8 * expected:
-        lines.append(
-            f"WARNING: the simulated camera did not keep real time ({len(log.jpegs)} frames, "
-            f"median {1e3 * late:.0f} ms late): a busy machine? its colours are misplaced"
-        )
+    for name, camera_log in logs.items():
+        lines += _frame_lines(rig, name, camera_log, truth_frames.get(name, []), expected)
     # colours: every checked point's laser ray cast again, noise-free, at its true time
     src = rig.source
     sent_of = dict(matched)
@@ -112,9 +146,9 @@ def check_log(
     R, origins = sensors.laser_to_world(src.trajectory, src.rig, t_drive)
     a = src.rig.angles[step - amin]
     dirs = np.einsum("nij,nj->ni", R, np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1))
-    strict, near = colour_check(
-        src.street, origins, dirs, pc.rgb[checked], src.rig.lens.fx, COLOUR_TOLERANCE
-    )
+    rgb = pc.rgb[checked]
+    f_px = src.rig.lens.fx
+    strict, near = colour_check(src.street, origins, dirs, rgb, f_px, COLOUR_TOLERANCE)
     shares = (float(strict.mean()), float(near.mean()))
     tol = f"{COLOUR_TOLERANCE}/255"
     lines.append(
@@ -125,6 +159,16 @@ def check_log(
         f"  of {100 * shares[1]:.1f} % within {tol} of the surface's one camera pixel around it "
         "(a pixel on an edge blends both sides)"
     )
+    if colour_camera is not None:
+        gains = demo_rig().camera(colour_camera).photometry.gains(t_drive)
+        seen_strict, seen_near = colour_check(
+            src.street, origins, dirs, rgb, f_px, COLOUR_TOLERANCE, gains=gains
+        )
+        lines.append(
+            f"  as the {colour_camera} camera saw it (its exposure and white balance, not "
+            f"balanced): {100 * seen_strict.mean():.1f} %, {100 * seen_near.mean():.1f} % within "
+            "a pixel"
+        )
     return lines, shares
 
 
@@ -135,6 +179,7 @@ def colour_check(
     rgb: np.ndarray,
     f_px: float,
     tolerance: int = COLOUR_TOLERANCE,
+    gains: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Coloured points against the simulator's surface colours: (strict, within a pixel),
     (N,) bool each.
@@ -146,6 +191,8 @@ def colour_check(
     ``tolerance`` of the range (per channel) of the true colours at that spot and at four
     rays around it, one camera pixel away as seen from the ray's origin: the camera sees
     a surface through pixels of that size, and a pixel on an edge mixes both sides.
+    ``gains`` (N,3) BGR: the true colours as a camera of those gains sees them
+    (:func:`acq.sim.sensors.apply_gains`), for colours not balanced.
     """
 
     rgb = np.asarray(rgb, dtype=np.int16)
@@ -157,6 +204,8 @@ def colour_check(
     for e in (e1, -e1, e2, -e2):
         d = dirs + e / f_px
         colours.append(cast(street, origins, d / np.linalg.norm(d, axis=1, keepdims=True)).colour)
+    if gains is not None:
+        colours = [sensors.apply_gains(c, gains) for c in colours]
     true_rgb = np.stack(colours)[:, :, ::-1].astype(np.int16)  # (5, N, 3)
     strict = np.abs(rgb - true_rgb[0]).max(axis=1) <= tolerance
     lo, hi = true_rgb.min(axis=0) - tolerance, true_rgb.max(axis=0) + tolerance

@@ -26,8 +26,9 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from acq.sim.camera_device import FrameTruth, SimCamera, SimFrame, jpeg_digest
+from acq.sim.world import Rig, default_rig
 
-__all__ = ["MjpegServer", "MjpegServerProcess", "serve_camera"]
+__all__ = ["MjpegServer", "MjpegServerProcess", "rig_camera", "serve_camera", "sim_camera"]
 
 DEFAULT_LISTEN = "http://127.0.0.1:8080/stream.mjpg"
 
@@ -384,12 +385,36 @@ def _split_options(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, A
     return camera, server
 
 
-def serve_camera(listen: str | None = None, **options: Any) -> MjpegServer:
+def rig_camera(name: str) -> Rig:
+    """The simulated rig holding only the camera ``name``: ``camera`` (the one-camera
+    rig's), or ``left`` or ``right`` of the two-camera rig; ValueError for another."""
+    try:
+        return default_rig().only(name) if name == "camera" else default_rig(cameras=2).only(name)
+    except KeyError as e:
+        raise ValueError(f"camera {name!r}: {e.args[0]}") from None
+
+
+def sim_camera(camera: str | None = None, **options: Any) -> SimCamera:
+    """A :class:`SimCamera` of ``options`` (its keywords); with ``camera``, one of the
+    simulated rig's cameras (:func:`rig_camera`), its latency and exposure by default
+    those of the rig's camera."""
+    if camera is not None:
+        rig = rig_camera(camera)
+        options.setdefault("latency_s", rig.cameras[0].latency_s)
+        options.setdefault("exposure_s", rig.cameras[0].exposure)
+        options["rig"] = rig
+    return SimCamera(**options)
+
+
+def serve_camera(listen: str | None = None, *, start: bool = True, **options: Any) -> MjpegServer:
     """Start a simulated camera serving MJPEG at ``listen`` (``http://HOST:PORT/PATH``,
     default ``http://127.0.0.1:8080/stream.mjpg``; port 0 picks a free one).
 
-    ``options``: :class:`SimCamera` keywords, and the server's ``boundary``,
-    ``content_length``, ``max_clients``, ``late_s``. Raises ValueError on a bad URL.
+    ``options``: :func:`sim_camera`'s (``camera``, a rig camera's name, and
+    :class:`SimCamera` keywords), and the server's ``boundary``, ``content_length``,
+    ``max_clients``, ``late_s``. ``start`` False: the server listens but serves
+    nothing until :meth:`MjpegServer.start`. Raises ValueError on a bad URL or camera
+    name.
     """
     parts = urlsplit(listen or DEFAULT_LISTEN)
     if parts.scheme != "http" or not parts.hostname:
@@ -399,9 +424,9 @@ def serve_camera(listen: str | None = None, **options: Any) -> MjpegServer:
     except ValueError as e:
         raise ValueError(f"--listen {listen!r}: {e}") from None
     camera_options, server_options = _split_options(options)
-    camera = SimCamera(**camera_options)
+    camera = sim_camera(**camera_options)
     server = MjpegServer(camera, parts.hostname, port, parts.path or "/", **server_options)
-    return server.start()
+    return server.start() if start else server
 
 
 # --- in a child process -------------------------------------------------------------------
@@ -413,19 +438,27 @@ def _child_main() -> None:
     import sys
 
     spec = json.loads(sys.stdin.readline())
+    options = dict(spec["options"])
+    prerender_s = float(options.pop("prerender_s", 0.0))
     try:
-        server = serve_camera(spec["listen"], **spec["options"])
+        server = serve_camera(spec["listen"], start=not prerender_s, **options)
+        server.camera.prerender(prerender_s)
     except Exception as e:  # reported to the parent, which raises it
         print(json.dumps({"error": repr(e)}), flush=True)
         return
     print(json.dumps({"url": server.url}), flush=True)
-    with server:
+    try:
         for line in sys.stdin:
             command, *args = json.loads(line)
+            value: Any
             if command == "close":
                 break
-            if command == "truth":
-                value: Any = [asdict(t) for t in server.camera.truth()]
+            if command == "start":
+                server.camera.t_origin = float(args[0])
+                server.start()
+                value = None
+            elif command == "truth":
+                value = [asdict(t) for t in server.camera.truth()]
             elif command == "cpu":
                 value = time.process_time()
             elif command in ("stall", "drop_connection", "corrupt_next", "skip_next"):
@@ -438,14 +471,27 @@ def _child_main() -> None:
             else:
                 value = None
             print(json.dumps({"value": value}), flush=True)
+    finally:
+        server.close()
 
 
 class MjpegServerProcess:
     """:func:`serve_camera` in a child process: the same faults, ``truth()`` fetched over
-    a pipe. ``options`` must be JSON values (no Street or Rig objects). The default
-    ``listen`` picks a free port on 127.0.0.1."""
+    a pipe. ``options`` must be JSON values (no Street or Rig objects: ``camera`` names
+    the rig's camera, ``street_seed`` the street). The default ``listen`` picks a free
+    port on 127.0.0.1.
 
-    def __init__(self, listen: str | None = "http://127.0.0.1:0/stream.mjpg", **options: Any):
+    ``prerender_s``: the child renders the frames of the drive's first ``prerender_s``
+    seconds before it answers (:meth:`SimCamera.prerender`) and serves nothing until
+    :meth:`start` gives the drive's start, ``t_origin``."""
+
+    def __init__(
+        self,
+        listen: str | None = "http://127.0.0.1:0/stream.mjpg",
+        *,
+        prerender_s: float = 0.0,
+        **options: Any,
+    ):
         import json
         import subprocess
         import sys
@@ -458,9 +504,13 @@ class MjpegServerProcess:
         )
         self._json = json
         assert self._proc.stdin is not None and self._proc.stdout is not None
+        if prerender_s:
+            options["prerender_s"] = prerender_s
         self._proc.stdin.write(json.dumps({"listen": listen, "options": options}) + "\n")
         self._proc.stdin.flush()
-        ready, _, _ = select.select([self._proc.stdout], [], [], 60)
+        # a frame takes 20-40 ms of a core to render: 0.5-1 s per second of frames, and
+        # up to 3 s on a machine busy with other work
+        ready, _, _ = select.select([self._proc.stdout], [], [], 60 + 5 * prerender_s)
         reply = json.loads(self._proc.stdout.readline() or "{}") if ready else {}
         if "url" not in reply:
             self._proc.kill()
@@ -473,6 +523,11 @@ class MjpegServerProcess:
         self._proc.stdin.write(self._json.dumps(command) + "\n")
         self._proc.stdin.flush()
         return self._json.loads(self._proc.stdout.readline())["value"]
+
+    def start(self, t_origin: float) -> None:
+        """Serve, the drive starting at ``t_origin`` (host monotonic s): with
+        ``prerender_s``, the server waits for this."""
+        self._call("start", t_origin)
 
     def stall(self, seconds: float) -> None:
         self._call("stall", seconds)

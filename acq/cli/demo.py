@@ -12,20 +12,28 @@ HELP = "record the simulated rig and colour its cloud, end to end"
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    from acq.sim.demo import MAX_SECONDS, OUT_MARK
+    from acq.sim.demo import COLOUR_CAMERA, MAX_SECONDS, OUT_MARK
+
+    source = f"the {COLOUR_CAMERA} camera" if COLOUR_CAMERA else "every camera"
+    pick = f" --camera {COLOUR_CAMERA}" if COLOUR_CAMERA else ""
 
     demo = sub.add_parser(
         "demo",
         help=HELP,
         description="Start the simulated rig (a UTM-30LX speaking SCIP on a pseudo-terminal, "
-        "a 185-degree fisheye serving MJPEG over HTTP and the car's CAN odometry, all on the "
-        "synthetic street), record it through the real drivers and recorder for --seconds, "
-        "then colour every laser point with the fisheye frame nearest in time, using the "
-        "rig's calibration and the simulator's path. Writes DIR/demo.mcap, DIR/cloud.ply "
+        "two 185-degree fisheyes, left and right, each serving MJPEG over HTTP from its own "
+        "process with its own lens, mounting, latency, exposure and white balance, and the car's "
+        "CAN odometry, all on the synthetic street), record it through the real drivers and "
+        "recorder for --seconds (the cameras first render their frames of the drive, so that "
+        "both keep 25 Hz on a busy machine), then colour every laser point with the frame "
+        "nearest in time, using the rig's calibration and the simulator's path. Writes "
+        "DIR/demo.mcap (topics /laser/..., /left/..., /right/..., /vehicle/...), DIR/cloud.ply "
         "(x y z, colour, UTC time, scan, intensity), DIR/preview.png (the coloured facade "
-        "and a top view), calib.yaml and config.yaml, and prints a summary checked against "
-        "the simulator's truth. `acq colorize DIR/demo.mcap --calib DIR/calib.yaml -o "
-        "OUT.ply` colours the same log from its recorded odometry. DIR must be new, empty, "
+        "and a top view), calib.yaml (both cameras) and config.yaml, and prints a summary "
+        "(each camera's frames, drops and late frames) checked against the simulator's truth. "
+        f"The cloud is coloured from {source}. `acq colorize DIR/demo.mcap --calib "
+        f"DIR/calib.yaml{pick} -o OUT.ply` colours the same log from its recorded odometry. "
+        "DIR must be new, empty, "
         f"or an earlier demo's (it holds {OUT_MARK}): the demo replaces its own files "
         "there and nothing else.",
     )

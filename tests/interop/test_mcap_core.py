@@ -52,11 +52,12 @@ def test_mcap_core_sees_the_sessions_date_and_time(demo: tuple[Path, int, int]) 
     start = int(seen["message_start_time"])
     assert before - 10**9 <= start <= after  # today, while the demo recorded
     topics = seen["topics"]
-    for topic in ("/laser/scan", "/camera/image/compressed", "/tf_static", "/acq/timing/laser"):
+    cameras = ("/left/image/compressed", "/right/image/compressed")
+    for topic in ("/laser/scan", *cameras, "/tf_static", "/acq/timing/laser"):
         t = topics[topic]
         assert before - 10**9 <= int(t["first_log_time"]) <= int(t["last_log_time"]) <= after
     # Foxglove messages: stamped on the same clock, a few ms before their receipt
-    for topic in ("/laser/scan", "/camera/image/compressed", "/tf_static"):
+    for topic in ("/laser/scan", *cameras, "/tf_static"):
         (stamp,) = {int(s) for s in topics[topic]["stamps"]}
         assert int(topics[topic]["first_log_time"]) - stamp < 10**9
         assert stamp == int(topics[topic]["first_publish_time"])

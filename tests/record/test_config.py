@@ -77,10 +77,11 @@ def test_shipped_configs_load(name: str) -> None:
 def test_the_default_records_the_simulated_rigs_true_calibration() -> None:
     from acq.camera import calibfile
     from acq.sim.demo_rig import true_calibration
+    from acq.sim.world import default_rig
 
     cfg = config.load(config.shipped())
     assert cfg.calibration is not None
-    shipped, truth = calibfile.load(cfg.calibration), true_calibration()
+    shipped, truth = calibfile.load(cfg.calibration), true_calibration(default_rig())
     assert shipped.cameras.keys() == truth.cameras.keys()
     for name, cam in truth.cameras.items():
         assert shipped.cameras[name].model == cam.model

@@ -280,3 +280,44 @@ def test_serve_camera_parses_listen() -> None:
         srv.close()
     with pytest.raises(ValueError):
         serve_camera("tcp://127.0.0.1:80")
+
+
+def test_a_rig_camera_by_name_renders_through_it() -> None:
+    """The ``camera`` option (JSON, for a camera's process): that camera of the rig, its
+    lens, mounting, photometry and latency; the right camera sees another view than the
+    left at the same instant; an unknown name is a ValueError."""
+    from acq.sim import sensors
+    from acq.sim.mjpeg_server import sim_camera
+    from acq.sim.world import default_rig
+
+    street = Street.generate(seed=3, length_m=200.0)
+    left = sim_camera(camera="left", street=street, t_origin=0.0)
+    right = sim_camera(camera="right", street=street, t_origin=0.0, latency_s=0.05)
+    rig = default_rig(cameras=2)
+    assert left.rig.camera_names == ("left",) and right.rig.camera_names == ("right",)
+    assert left.latency_s == rig.camera("left").latency_s == 0.020
+    assert right.latency_s == 0.05  # an option given wins over the rig's
+    assert sim_camera(camera="right", street=street).latency_s == rig.camera("right").latency_s
+    image = right.render(2.0)
+    expected = sensors.render_frame(street, right.trajectory, rig, 2.0, camera="right")
+    assert np.array_equal(image, expected)
+    assert np.abs(image.astype(int) - left.render(2.0)).mean() > 10
+    with pytest.raises(ValueError, match="front"):
+        sim_camera(camera="front", street=street)
+
+
+def test_prerendered_frames_are_the_live_ones(camera_args: dict[str, object]) -> None:
+    """Frames rendered before the drive's start (set later) are those a camera renders
+    when due: the same bytes, at the same times; frames after them are rendered live."""
+    live = SimCamera(**camera_args, clock_offset_s=0.02, t_origin=50.0)  # type: ignore[arg-type]
+    early = SimCamera(**camera_args, clock_offset_s=0.02, t_origin=7.0)  # type: ignore[arg-type]
+    assert early.prerender(0.1) == 3  # frames 0-2 of the drive's first 0.1 s at 25 Hz
+    early.t_origin = 50.0
+    assert early.next_frame(render=False).jpeg == b""  # skipped: its bytes are let go
+    live.next_frame(render=False)
+    # prerendered frames 1, 2; frames 3, 4 rendered when due
+    frames = [(early.next_frame(), live.next_frame()) for _ in range(4)]
+    for e, v in frames:
+        assert e.sequence == v.sequence and e.t_mid == v.t_mid
+        assert jpeg_digest(e.jpeg) == jpeg_digest(v.jpeg)
+    assert not early._prerendered

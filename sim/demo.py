@@ -68,9 +68,9 @@ __all__ = ["MAX_SECONDS", "OUT_MARK", "DemoResult", "run"]
 
 EXIT_OK, EXIT_FAILURE = 0, 1
 
-# The cameras the demo colours from. `acq.cloud.colorize.run` colours from one camera;
-# once it colours from every camera of calib.yaml (its ``cameras`` keyword), this is None.
-COLOUR_CAMERA: str | None = "left"
+# The camera the demo colours from: None, every camera of calib.yaml (as `acq colorize`
+# does by default); a name colours from that camera alone.
+COLOUR_CAMERA: str | None = None
 
 # The cameras render the frames of the recording before it starts (see SimRig): the
 # drive from its start to the recorder's start, the recording and its stop take about
@@ -403,7 +403,7 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
         trajectory=truth,
         results=results,
     )
-    pc = colorize.cloud_of(results, log)
+    pc = colorize.cloud_of(results, log, [COLOUR_CAMERA] if COLOUR_CAMERA else CAMERAS)
     result.steps_s["colour"] = clock.lap()
     clock.say(
         f"coloured {pc.size:,} points from {log.n_scans} scans with {pc.frames_used} frames "

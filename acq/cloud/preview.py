@@ -188,12 +188,13 @@ def _paint_points(
     for r in range(h):
         for c in range(w):
             i = idx[r, c]
-            if i < 0:
-                img[r, c] = bg
-            elif coloured[i]:
-                img[r, c, 0], img[r, c, 1], img[r, c, 2] = rgb[i, 2], rgb[i, 1], rgb[i, 0]
-            else:
-                img[r, c] = grey
+            for k in range(3):
+                if i < 0:
+                    img[r, c, k] = bg[k]
+                elif coloured[i]:
+                    img[r, c, k] = rgb[i, 2 - k]
+                else:
+                    img[r, c, k] = grey[k]
     return img
 
 

@@ -251,7 +251,8 @@ def preview_panels(
     res = max(metres_per_px, span / max_width)
     w = math.ceil(span / res)
     u_lo = u0 - 0.5
-    step_m = float(np.median(np.linalg.norm(np.diff(cloud.scan_origin, axis=0), axis=1)))
+    steps = np.linalg.norm(np.diff(cloud.scan_origin, axis=0), axis=1)
+    step_m = float(np.median(steps)) if steps.size else math.nan
     block = int(np.clip(math.ceil(step_m / res) + 1, 1, 12)) if math.isfinite(step_m) else 1
     scan, step = cloud.scan, cloud.step
     hz = _block_heights(z, scan, step, res, 20)

@@ -4,6 +4,8 @@ camera coloured what."""
 from __future__ import annotations
 
 import math
+import warnings
+from dataclasses import replace
 
 import numpy as np
 
@@ -137,3 +139,16 @@ def test_with_one_camera_both_sides_are_drawn_the_far_one_grey() -> None:
     assert one.shape == (4 * bands + panels, p.left.shape[1], 3)
     # two cameras: a strip under each side, a legend and the view from above by camera
     assert two.shape[0] == one.shape[0] + 2 * 6 + bands + math.ceil(p.top.shape[0] / 4)
+
+
+def test_a_single_point_and_unplaced_points_are_drawn_without_warnings() -> None:
+    cloud = _street(cameras=2)
+    per_point = ("xyz", "rgb", "coloured", "time_ns", "scan", "step", "intensity", "dt_s")
+    one = replace(cloud, **{k: getattr(cloud, k)[:1] for k in (*per_point, "camera")},
+                  scan_origin=cloud.scan_origin[:1])  # fmt: skip
+    nan = np.where(np.arange(cloud.size)[:, None] % 3 == 0, np.nan, cloud.xyz)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _colours(preview_image(one)) > {_bgr(RED)}
+        img = preview_panels(replace(cloud, xyz=nan), metres_per_px=0.1)
+    assert _colours(img.left) == {_bgr(RED), _bgr(GREEN)}

@@ -10,7 +10,18 @@ __all__ = ["Report"]
 
 @dataclass
 class Report:
-    """What `acq colorize` did, for the text or JSON report."""
+    """What `acq colorize` did, for the text or JSON report (plain Python values only:
+    the JSON report is ``asdict`` of it).
+
+    ``cameras``: per camera name, ``points`` (int) coloured from it, ``frames_used``
+    (int) its frames that coloured at least one point, optionally ``frames`` (int) its
+    frames in the log. ``balance``: the colour balance between cameras and frames,
+    empty when none was computed: ``applied`` (bool, False with ``--no-balance``),
+    ``pairs`` (int) point pairs (one point seen by two cameras or frames) the gains
+    were fitted on, ``cameras``: per camera name ``pairs`` (int) of them involving it and
+    the gains applied to its frames, per channel ``r``, ``g``, ``b`` a [min, median,
+    max] list (1.0: unchanged); optionally ``note`` (str).
+    """
 
     output: str
     points: int = 0
@@ -30,6 +41,8 @@ class Report:
     chunks: int = 0
     bytes: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
+    cameras: dict[str, dict[str, Any]] = field(default_factory=dict)
+    balance: dict[str, Any] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
     def lines(self) -> list[str]:
@@ -46,6 +59,7 @@ class Report:
                 f"re-timed offline: scans moved {rt.get('scan_shift_rms_ms', 0):.3f} ms RMS, "
                 f"frames {rt.get('frame_residual_rms_ms', 0):.2f} ms RMS receipt jitter removed"
             )
+        out += self._camera_lines() + self._balance_lines()
         total = sum(self.seconds.values())
         if total:
             parts = ", ".join(f"{k} {v:.1f} s" for k, v in self.seconds.items())
@@ -53,4 +67,34 @@ class Report:
             out.append(f"time: {parts} ({speed:.1f}x real time)")
         out += [f"note: {n}" for n in self.notes]
         out.append(f"wrote {self.output}")
+        return out
+
+    def _camera_lines(self) -> list[str]:
+        """One line per camera: the points coloured from it and the frames it gave."""
+        out = []
+        for name, c in self.cameras.items():
+            n = int(c.get("points", 0))
+            share = 100 * n / self.points if self.points else 0.0
+            frames = f"{c.get('frames_used', 0):,}"
+            if "frames" in c:
+                frames += f" of {c['frames']:,}"
+            out.append(f"camera {name}: {n:,} points ({share:.1f} %) from {frames} frames")
+        return out
+
+    def _balance_lines(self) -> list[str]:
+        """The colour balance: off, or its point pairs and each camera's gains."""
+        b = self.balance
+        if not b:
+            return []
+        if not b.get("applied", True):
+            head = "colour balance: off (--no-balance)"
+            return [head + (f"; {b['note']}" if b.get("note") else "")]
+        out = [f"colour balance from {b.get('pairs', 0):,} point pairs (gains min/median/max)"]
+        for name, c in b.get("cameras", {}).items():
+            gains = "  ".join(
+                f"{ch.upper()} " + "/".join(f"{g:.2f}" for g in c[ch]) for ch in "rgb" if ch in c
+            )
+            out.append(f"  {name}: {gains} ({c.get('pairs', 0):,} pairs)")
+        if b.get("note"):
+            out.append(f"  {b['note']}")
         return out

@@ -42,11 +42,12 @@ _MAX_WEIGHT = 100  # a pair of frames counts as at most this many points
 class Gains:
     """Per camera, ``log_gain`` (F,3) float64: the natural log of each frame's RGB gain
     against the rig's reference; ``pairs`` the point pairs they were estimated from,
-    ``cross`` of them between two cameras."""
+    ``cross`` of them between two cameras, ``by_camera`` those involving each camera."""
 
     log_gain: list[np.ndarray]
     pairs: int
     cross: int
+    by_camera: tuple[int, ...] = ()
 
     def apply(self, camera: int, rgb: np.ndarray, frame: np.ndarray) -> np.ndarray:
         """``rgb`` (N,3) uint8 of points coloured from ``frame`` (N,) (-1: left as
@@ -96,7 +97,7 @@ def estimate_gains(cameras: Sequence[Coloured], n_frames: Sequence[int]) -> Gain
             b_parts.append(offsets[c2] + other.frame[both])
             d_parts.append(np.log(vb[use].astype(np.float64)) - np.log(va[use].astype(np.float64)))
     if n == 0:
-        return Gains([np.zeros((0, 3)) for _ in cameras], 0, 0)
+        return Gains([np.zeros((0, 3)) for _ in cameras], 0, 0, (0,) * len(cameras))
     a = np.concatenate(a_parts) if a_parts else np.zeros(0, np.int64)
     b = np.concatenate(b_parts) if b_parts else np.zeros(0, np.int64)
     d = np.concatenate(d_parts) if d_parts else np.zeros((0, 3))
@@ -134,7 +135,14 @@ def estimate_gains(cameras: Sequence[Coloured], n_frames: Sequence[int]) -> Gain
     ]
     if refs:
         g -= np.mean(refs, axis=0)
-    return Gains([g[lo:hi] for lo, hi in itertools.pairwise(offsets)], int(a.size), cross)
+    cam_a = np.searchsorted(offsets, a, side="right") - 1
+    cam_b = np.searchsorted(offsets, b, side="right") - 1
+    by_camera = tuple(
+        int(np.count_nonzero((cam_a == c) | (cam_b == c))) for c in range(len(cameras))
+    )
+    return Gains(
+        [g[lo:hi] for lo, hi in itertools.pairwise(offsets)], int(a.size), cross, by_camera
+    )
 
 
 def _solve(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, rhs: np.ndarray) -> np.ndarray:

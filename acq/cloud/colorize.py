@@ -451,6 +451,14 @@ def run(
     report.frames = sum(index.cameras[c.name].frame_ns.size for c in job.cameras)
     report.scans = index.n_scans
     report.frames_used = frames_used(tally.used)
+    used = np.concatenate(tally.used) if tally.used else np.zeros((0, 2), np.int64)
+    for c, cj in enumerate(job.cameras):
+        report.cameras[cj.name] = {
+            "points": int(tally.by_camera[c]) if c < tally.by_camera.size else 0,
+            "frames_used": int(np.unique(used[used[:, 0] == c, 1]).size),
+            "frames": int(cj.frame_old.size),
+        }
+    report.balance = tally.balance_summary([c.name for c in job.cameras], job.options.balance)
     report.frames_failed = tally.failed
     for cj in job.cameras:
         odd = tally.odd_size.get(cj.name)
@@ -498,6 +506,10 @@ class _Tally:
     failed: int = 0
     outside: int = 0
     used: list[np.ndarray] = field(default_factory=list)
+    by_camera: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    gains: list[list[np.ndarray]] = field(default_factory=list)  # per chunk, per camera
+    pairs: list[tuple[int, ...]] = field(default_factory=list)  # per chunk, per camera
+    pair_total: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
     preview: list[ChunkResult] = field(default_factory=list)
     # by camera: stamp -> (w, h)
@@ -508,6 +520,16 @@ class _Tally:
         for name, odd in r.odd_size.items():
             self.odd_size.setdefault(name, {}).update(odd)
         self.coloured += int(np.count_nonzero(r.coloured))
+        counts = np.bincount(r.camera[r.coloured], minlength=self.by_camera.size)
+        if counts.size > self.by_camera.size:
+            counts[: self.by_camera.size] += self.by_camera
+            self.by_camera = counts
+        else:
+            self.by_camera = self.by_camera + counts
+        if r.gains is not None:
+            self.gains.append([np.exp(g) for g in r.gains.log_gain])
+            self.pairs.append(r.gains.by_camera)
+            self.pair_total += r.gains.pairs
         self.hidden += int(np.count_nonzero(r.hidden))
         self.failed += r.frames_failed
         self.outside += r.outside
@@ -521,3 +543,19 @@ class _Tally:
             k = r.scan % self.every == 0
             thin = {name: getattr(r, name)[k] for name in PER_POINT}
             self.preview.append(replace(r, **thin, uv=None, frame_stamp_ns=None, samples=None))
+
+    def balance_summary(self, names: Sequence[str], applied: bool) -> dict[str, Any]:
+        """What the report says of the colour balance (:class:`Report`'s ``balance``)."""
+        if not applied:
+            return {"applied": False}
+        cams: dict[str, Any] = {}
+        for c, name in enumerate(names):
+            g = [chunk[c] for chunk in self.gains if c < len(chunk) and chunk[c].size]
+            entry: dict[str, Any] = {"pairs": sum(p[c] for p in self.pairs if c < len(p))}
+            if g:
+                all_g = np.concatenate(g)
+                for k, ch in enumerate("rgb"):
+                    q = np.percentile(all_g[:, k], [0, 50, 100])
+                    entry[ch] = [round(float(v), 3) for v in q]
+            cams[name] = entry
+        return {"applied": True, "pairs": self.pair_total, "cameras": cams}

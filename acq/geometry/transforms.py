@@ -11,6 +11,9 @@ import numpy.typing as npt
 __all__ = ["PoseFn", "Rigid"]
 
 
+_KERNEL_POINTS = 50_000  # from this many points on, Rigid.apply runs a compiled loop
+
+
 @dataclass(frozen=True)
 class Rigid:
     """A proper rigid transform: ``apply(P) = P @ R.T + t`` for (N,3) points."""
@@ -43,6 +46,10 @@ class Rigid:
     def apply(self, P: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """(N,3) or (3,) points in the source frame -> the target frame."""
         P = np.asarray(P, dtype=np.float64)
+        if P.ndim == 2 and P.shape[0] >= _KERNEL_POINTS and P.shape[1] == 3:
+            from acq.geometry.rigid_kernels import apply_rigid  # numba: only when it pays
+
+            return apply_rigid(P, self.rotation, self.translation)
         return P @ self.rotation.T + self.translation
 
     def inverse(self) -> Rigid:

@@ -32,7 +32,8 @@ plane (0.25 degree steps, 10 mm range noise). One JSON line per result:
   relative pose left -> right's error against the rig's, beside the spread the two
   calibrations' std predict for it; wall time of the call.
 
-Run as a script: ``python bench/extrinsic.py [--seeds N]`` or ``--rig [--rig-poses N]``.
+Run as a script: ``python bench/extrinsic.py [--seeds N]`` or
+``--rig [--rig-poses N] [--rig-seed S]``.
 """
 
 from __future__ import annotations
@@ -173,7 +174,7 @@ def rig_two_cameras(poses: int, seed: int = 0) -> None:
             assert acq_main(argv) == 0
         wall = time.perf_counter() - t
         cal = calibfile.load(out)
-    fields: dict[str, object] = {"poses_per_camera": poses, "hold_s": 1.5}
+    fields: dict[str, object] = {"poses_per_camera": poses, "hold_s": 1.5, "seed": seed}
     for name, truth in log.truths.items():
         rot, trans = relative_pose.difference(cal.camera(name).camera_to_laser, truth)
         fields[name] = {"rot_deg": round(rot, 4), "t_mm": round(trans * 1e3, 2)}
@@ -193,9 +194,10 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=50)
     ap.add_argument("--rig", action="store_true", help="only the two-camera rig's line")
     ap.add_argument("--rig-poses", type=int, default=15, help="board poses a camera")
+    ap.add_argument("--rig-seed", type=int, default=0, help="the board poses' seed")
     args = ap.parse_args()
     if args.rig:
-        rig_two_cameras(args.rig_poses)
+        rig_two_cameras(args.rig_poses, args.rig_seed)
         return
     seeds = range(args.seeds)
 

@@ -80,8 +80,12 @@ def test_both_cameras_in_one_calib_and_their_relative_pose(
     rig_log: tuple[BoardLog, Path], both: tuple[Path, dict[str, object]]
 ) -> None:
     """Each camera's camera_to_laser near its truth, and camera left -> right near the
-    rig's: within twice what the two calibrations' std add up to (8 poses a camera, 1 s
-    each: about 0.3 deg and 7 mm; measured 0.25 deg, 4.2 mm), and within 0.6 deg, 15 mm."""
+    rig's: within 3 times the spread the two calibrations' std predict (8 poses a camera,
+    1 s each: about 0.3 deg and 7 mm; here 0.25 deg and 4.2 mm off, 0.8 and 0.6 of it)
+    and within 0.6 deg and 15 mm. Why 3: the std is the fit's, which does not see the
+    image chain's small systematic errors (JPEG, blur, corner bias); on 15-pose
+    recordings of seeds 0-2 (bench/extrinsic.py --rig) the relative pose was up to 1.3
+    times its spread off in rotation and 2.1 times in translation."""
     log, _ = rig_log
     out, report = both
     cal = calibfile.load(out)
@@ -100,8 +104,8 @@ def test_both_cameras_in_one_calib_and_their_relative_pose(
     rot, trans = difference(got, truth)
     print(f"left -> right: {rot:.3f} deg, {trans * 1e3:.1f} mm from the truth "
           f"(std {rel['std_deg']:.3f} deg, {rel['std_m'] * 1e3:.1f} mm)")  # fmt: skip
-    assert rot < min(2 * rel["std_deg"], 0.6)
-    assert trans < min(2 * rel["std_m"], 0.015)
+    assert rot < min(3 * rel["std_deg"], 0.6)
+    assert trans < min(3 * rel["std_m"], 0.015)
 
 
 def test_a_bad_camera_name_is_one_line_and_exit_2(

@@ -25,28 +25,43 @@ plane (0.25 degree steps, 10 mm range noise). One JSON line per result:
   ``frames`` frames and ranges the per-beam median of ``scans`` scans (what
   ``acq calibrate extrinsic`` does with a log), as the image and range noise average out.
 - ``targets``: median rotation <= 0.1 deg and translation <= 5 mm with 20 poses.
+- ``rig_two_cameras`` (``--rig``, alone): the two-camera rig (``default_rig(cameras=2)``),
+  one simulated board recording (``acq.sim.board_log``, ``--rig-poses`` poses a camera
+  held 1.5 s) calibrated by ``acq calibrate extrinsic`` for both cameras in one call:
+  each camera's rotation (deg) and translation (mm) error against its truth, and the
+  relative pose left -> right's error against the rig's, beside the spread the two
+  calibrations' std predict for it; wall time of the call.
 
-Run as a script: ``python bench/extrinsic.py [--seeds N]``.
+Run as a script: ``python bench/extrinsic.py [--seeds N]`` or
+``--rig [--rig-poses N] [--rig-seed S]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import io
 import json
 import math
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import numpy as np
 
 from acq.calib import extrinsic as ex
+from acq.calib import relative_pose
 from acq.calib.board_pose import BoardPose
 from acq.calib.extrinsic_linear import linear_solution
+from acq.camera import calibfile
 from acq.camera.camera_models import Pinhole
+from acq.cli import main as acq_main
 from acq.geometry.rotations import matrix_from_rotvec, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
+from acq.sim.board_log import write_board_log
 from acq.sim.board_poses import BoardData, simulate
 from acq.sim.world import default_rig
 
@@ -143,10 +158,47 @@ def _std_ratio(errors: list[np.ndarray], stds: list[np.ndarray]) -> list[float]:
     return [round(float(x), 2) for x in np.mean(stds, axis=0) / rms]
 
 
+def rig_two_cameras(poses: int, seed: int = 0) -> None:
+    """The ``rig_two_cameras`` line (module docstring)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        log = write_board_log(work, n_poses=poses, seed=seed, hold_s=1.5,
+                              rig=default_rig(cameras=2))  # fmt: skip
+        intr, out = work / "intrinsics.yaml", work / "calib.yaml"
+        calibfile.save(log.calibration, intr)
+        report = io.StringIO()
+        t = time.perf_counter()
+        with contextlib.redirect_stdout(report):
+            argv = ["calibrate", "extrinsic", *map(str, log.files), "--intrinsics", str(intr),
+                    "--board", log.spec, "-o", str(out), "--json"]  # fmt: skip
+            assert acq_main(argv) == 0
+        wall = time.perf_counter() - t
+        cal = calibfile.load(out)
+    fields: dict[str, object] = {"poses_per_camera": poses, "hold_s": 1.5, "seed": seed}
+    for name, truth in log.truths.items():
+        rot, trans = relative_pose.difference(cal.camera(name).camera_to_laser, truth)
+        fields[name] = {"rot_deg": round(rot, 4), "t_mm": round(trans * 1e3, 2)}
+    [rel] = json.loads(report.getvalue())["relative"]
+    got = cal.camera("right").camera_to_laser.inverse() @ cal.camera("left").camera_to_laser
+    truth = log.truths["right"].inverse() @ log.truths["left"]
+    rot, trans = relative_pose.difference(got, truth)
+    fields["left_to_right"] = {
+        "rot_deg": round(rot, 4), "t_mm": round(trans * 1e3, 2),
+        "std_rot_deg": rel["std_deg"], "std_t_mm": round(rel["std_m"] * 1e3, 2),
+    }  # fmt: skip
+    _line("rig_two_cameras", **fields, wall_s=round(wall, 1))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=50)
+    ap.add_argument("--rig", action="store_true", help="only the two-camera rig's line")
+    ap.add_argument("--rig-poses", type=int, default=15, help="board poses a camera")
+    ap.add_argument("--rig-seed", type=int, default=0, help="the board poses' seed")
     args = ap.parse_args()
+    if args.rig:
+        rig_two_cameras(args.rig_poses, args.rig_seed)
+        return
     seeds = range(args.seeds)
 
     t0 = time.perf_counter()

@@ -63,6 +63,9 @@ __all__ = [
 ]
 
 METHOD = "zhang_pless"
+# still frames of one pose in a row without the board before the pose is given up: a
+# board in another camera's view (a rig of several) costs that many searches, not ten
+MISSES_BEFORE_GIVING_UP = 3
 
 logger = logging.getLogger(__name__)
 
@@ -190,7 +193,8 @@ class CornerFinder:
     ``model`` in several directions, corners found there mapped back through the model.
 
     Remembers where it last succeeded (the image or which view), so the frames of one
-    still pose cost one detection each."""
+    still pose cost one detection each; elsewhere OpenCV's quick check goes first, so a
+    frame without the board (another camera's pose) costs milliseconds, not seconds."""
 
     def __init__(
         self,
@@ -207,8 +211,9 @@ class CornerFinder:
         self.last: int | None = None  # -1: the image itself, else a view index
 
     def _in(self, gray: np.ndarray, where: int) -> np.ndarray | None:
+        fast = where != self.last
         if where < 0:
-            return detect_corners(gray, self.spec)
+            return detect_corners(gray, self.spec, fast=fast)
         if where not in self._maps:
             R = _look_at(self._views[where])
             self._maps[where] = _view_maps(self.model, R, self.view_px, self.view_fov_deg)
@@ -217,7 +222,7 @@ class CornerFinder:
             return None
         mx, my, f, c = maps
         view = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderValue=0)
-        found = detect_corners(view, self.spec)
+        found = detect_corners(view, self.spec, fast=fast)
         if found is None:
             return None
         rays = (
@@ -406,7 +411,7 @@ def _pose_in(
     # the middle frames first, spread over the interval
     order = f[np.argsort(np.abs(f - f[len(f) // 2]))]
     step = max(1, len(order) // frames_per_pose)
-    detections, used = [], -1
+    detections, used, misses = [], -1, 0
     for k in order[::step][:frames_per_pose]:
         gray = cv2.imdecode(np.frombuffer(log.jpegs[k], np.uint8), cv2.IMREAD_GRAYSCALE)
         if gray is not None and gray.shape != size:
@@ -416,6 +421,10 @@ def _pose_in(
         if found is not None:
             detections.append(found)
             used = int(log.frame_ns[k]) if used < 0 else used
+        elif not detections:
+            misses += 1
+            if misses == MISSES_BEFORE_GIVING_UP:  # the board is not in this camera's view
+                break
     if not detections:
         why = (
             "no frame of the camera model's size"

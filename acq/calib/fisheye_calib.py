@@ -163,10 +163,16 @@ def parse_board(text: str) -> BoardSpec:
     return BoardSpec(cols, rows, square)
 
 
-def detect_corners(gray: np.ndarray, board: BoardSpec) -> npt.NDArray[np.float64] | None:
-    """(cols*rows, 2) sub-pixel inner corners (OpenCV's order), or None if not found."""
+def detect_corners(
+    gray: np.ndarray, board: BoardSpec, *, fast: bool = False
+) -> npt.NDArray[np.float64] | None:
+    """(cols*rows, 2) sub-pixel inner corners (OpenCV's order), or None if not found.
+    ``fast``: OpenCV's quick check for a board first (an image without one costs
+    milliseconds, not a second; it may miss a board a full search would find)."""
     img = np.clip(gray, 0, 255).astype(np.uint8)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    if fast:
+        flags |= cv2.CALIB_CB_FAST_CHECK
     found, corners = cv2.findChessboardCorners(img, (board.cols, board.rows), flags=flags)
     if not found:
         return None

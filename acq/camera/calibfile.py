@@ -58,6 +58,7 @@ __all__ = [
     "UnknownCameraError",
     "dump",
     "load",
+    "merged",
     "parse",
     "save",
 ]
@@ -474,6 +475,24 @@ def load(path: str | Path, *, intrinsics_only: bool = False) -> Calibration:
 def dump(calib: Calibration) -> str:
     """The YAML text of a calibration."""
     return yaml.safe_dump(calib.to_dict(), sort_keys=False, default_flow_style=None)
+
+
+def merged(old: Calibration, new: Calibration, names: Sequence[str], source: str) -> Calibration:
+    """``new``'s cameras ``names`` written into ``old`` (the calibration of the file
+    ``source`` being updated): ``old``'s other cameras kept as they are, ``new``'s other
+    cameras added where ``old`` lacks them; ``old``'s laser_to_vehicle, else ``new``'s.
+    CalibFileError when the two are relative to different lasers."""
+    if old.laser != new.laser:
+        raise CalibFileError(
+            f"{source}: its cameras are calibrated against laser {old.laser!r}, these against "
+            f"{new.laser!r}; give another file"
+        )
+    cameras = dict(old.cameras)
+    for name, cam in new.cameras.items():
+        if name in names or name not in cameras:
+            cameras[name] = cam
+    ltv = old.laser_to_vehicle if old.laser_to_vehicle is not None else new.laser_to_vehicle
+    return Calibration(old.laser, cameras, ltv)
 
 
 def save(calib: Calibration, path: str | Path) -> None:

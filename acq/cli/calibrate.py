@@ -8,20 +8,23 @@ import json
 import math
 import os
 import sys
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from acq.cli import output_files
 from acq.cli.option_types import LONGEST_S, integer, real
 from acq.cli.output_files import IMAGE_SUFFIXES, Output
-from acq.errors import AcqError, InputError
+from acq.errors import AcqError, InputError, InputValueError
 
 if TYPE_CHECKING:
+    from acq.calib.board_pose import BoardPose
     from acq.calib.extrinsic import ExtrinsicResult
     from acq.calib.extrinsic_log import PoseData
+    from acq.calib.fisheye_calib import BoardSpec
     from acq.calib.image_circle import CircleResult
     from acq.calib.validate import ValidationResult
+    from acq.camera.calibfile import Calibration, CameraCalib
     from acq.camera.camera_models import KannalaBrandt
 
 HELP = "calibrate the rig's sensors"
@@ -86,14 +89,25 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "frame of each (in the fisheye image itself: a lens swap, as the paper does, moves the "
         "projection centre along the optical axis) and its laser line, and fit camera_to_laser "
         "(Zhang & Pless: linear solution, then robust Levenberg-Marquardt on point-to-plane "
-        "distances). Writes CALIB: a copy of --intrinsics with the camera's camera_to_laser "
-        "set, and a residual plot PNG. " + output_files.RULE + " `--intrinsics C -o C --force` "
-        "updates C in place.",
+        "distances). Several cameras of one rig, each seeing the board in its own poses of one "
+        "recording, are calibrated in one call (each one's frames, the same laser), and "
+        "their relative poses (camera A -> camera B) are printed as the rig's consistency "
+        "check. Writes CALIB: a copy of --intrinsics with each camera's camera_to_laser "
+        "set, and a residual plot PNG per camera (NAME_extrinsic_CAMERA.png with several). "
+        "An existing CALIB is updated: the cameras calibrated now replaced, every other "
+        "camera's entry kept, the old file kept as CALIB.bak. An output that is one of the "
+        "inputs, or an existing file of another kind, is refused; `--intrinsics C -o C "
+        "--force` updates C in place; an existing image replaced only when acq wrote it, or "
+        "with --force. Nothing is written when any camera fails.",
     )
     ext.add_argument(
         "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s)"
     )
-    ext.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    ext.add_argument(
+        "--camera", metavar="NAME", action="append",
+        help="a camera to calibrate; repeat for several (default: every camera of "
+        "--intrinsics that the log has frames of)",
+    )  # fmt: skip
     ext.add_argument(
         "--intrinsics", type=Path, required=True, metavar="CALIB",
         help="calib.yaml with the camera's intrinsics (a non-identity camera_to_laser is used "
@@ -104,8 +118,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="inner corners and square side in metres, e.g. 9x7x0.1",
     )  # fmt: skip
     ext.add_argument(
-        "-o", "--output", type=Path, required=True, metavar="CALIB", help="calib.yaml to write"
-    )
+        "-o", "--output", type=Path, required=True, metavar="CALIB",
+        help="calib.yaml to write, or to update (its other cameras kept, the old one as "
+        "CALIB.bak)",
+    )  # fmt: skip
     ext.add_argument(
         "--poses", metavar="START:END,...",
         help="still intervals in seconds from the log's first scan (default: detected)",
@@ -144,7 +160,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "the rig moving (CAN odometry in the log or --trajectory), textured surfaces "
         "(facades, road markings) and return strengths in the log (SCIP ME / CoLa RSSI1). "
         "Writes OUT: a copy of CALIB with the camera's time_offset_s and its standard "
-        "deviation set. " + output_files.RULE + " `--calib C -o C --force` updates C in place. "
+        "deviation set; an existing OUT is updated (that camera's entry replaced, the others "
+        "kept, the old file kept as OUT.bak). An output that is one of the inputs, or an "
+        "existing file of another kind, is refused; `--calib C -o C --force` updates C in "
+        "place. One camera a call (--camera): run it for each camera into the same OUT. "
         "Exit status: 0 written, 1 no clear estimate (why is printed), 2 bad input.",
     )
     tof.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files or a folder")
@@ -152,8 +171,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--calib", type=Path, required=True, help="calib.yaml (intrinsics, extrinsics)"
     )
     tof.add_argument(
-        "-o", "--output", type=Path, required=True, metavar="OUT", help="calib.yaml to write"
-    )
+        "-o", "--output", type=Path, required=True, metavar="OUT",
+        help="calib.yaml to write, or to update (its other cameras kept, the old one as OUT.bak)",
+    )  # fmt: skip
     tof.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
     tof.add_argument(
         "--trajectory", type=Path, metavar="CSV",
@@ -358,62 +378,66 @@ def _extrinsic_lines(
     return lines
 
 
-def run_extrinsic(args: argparse.Namespace) -> int:
-    """Write the camera's camera_to_laser, calibrated from the board poses in the logs,
-    into CALIB (a copy of --intrinsics with it set).
+def _plots(plot: Path | None, output: Path, names: list[str]) -> dict[str, Path]:
+    """Each camera's residual plot: --plot (default beside CALIB, NAME_extrinsic.png);
+    with several cameras the camera's name added to the file's."""
+    base = plot if plot is not None else output.with_name(output.stem + "_extrinsic.png")
+    if len(names) <= 1:
+        return {n: base for n in names}
+    return {n: base.with_name(f"{base.stem}_{n}{base.suffix}") for n in names}
 
-    --lens-swap (the paper's way): the logs were recorded with a regular lens that
-    --intrinsics describes, and the fisheye was mounted afterwards; CALIB is then a copy
-    of FISHEYE_CALIB with the camera's camera_to_laser set, its origin moved
-    --pupil-shift along the optical axis (the fisheye's projection centre minus the
-    regular lens's, m, + towards the scene; 0 is the paper's tacit assumption, and its
-    error goes into the translation).
 
-    Prints the result (or JSON), writes the residual plot PNG (default: beside CALIB).
-    0; 2 bad input (board, log, calibration file, --poses); 1 when the calibration
-    cannot be made (too few usable or degenerate poses)."""
+def _same_file(a: Path, b: Path | None) -> bool:
+    return b is not None and a.exists() and b.exists() and os.path.samefile(a, b)
+
+
+@dataclass
+class _Calibrated:
+    """One camera's extrinsic calibration: its log (frames of that camera), poses,
+    result, entry for the file and plot."""
+
+    name: str
+    t0: int
+    data: list[PoseData]
+    good: list[BoardPose]
+    result: ExtrinsicResult
+    entry: CameraCalib
+    plot: Path
+
+
+def _calibrate_one(
+    args: argparse.Namespace,
+    camera: str | None,
+    calib: Calibration,
+    target: Calibration,
+    spec: BoardSpec,
+    plots: dict[str, Path],
+    several: bool,
+) -> _Calibrated | None:
+    """Camera ``camera``'s calibration from the logs (None: the log has no frames of
+    it and it was not asked for by name)."""
     import numpy as np
 
     from acq.calib.extrinsic import calibrate
-    from acq.calib.extrinsic_log import (
-        METHOD,
-        parse_poses,
-        poses_from_log,
-        still_intervals,
-    )
-    from acq.calib.fisheye_calib import parse_board
-    from acq.calib.plots import residual_plot
+    from acq.calib.extrinsic_log import METHOD, parse_poses, poses_from_log, still_intervals
     from acq.camera import calibfile
-    from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
+    from acq.camera.calibfile import CalibStd, CameraCalib
     from acq.geometry.transforms import Rigid
     from acq.log import drive_log
 
-    logs, camera, intrinsics, board, output = (
-        args.logs, args.camera, args.intrinsics, args.board, args.output
-    )  # fmt: skip
-    lens_swap, pupil_shift_m = args.lens_swap, args.pupil_shift
-    plot = args.plot if args.plot is not None else output.with_name(output.stem + "_extrinsic.png")
-    inputs = [("--intrinsics", intrinsics), *(("LOG", p) for p in logs)]
-    if lens_swap is not None:
-        inputs.append(("--lens-swap", lens_swap))
-    outputs = [
-        Output("-o", output, "yaml", in_place_of=("--intrinsics", "--lens-swap")),
-        Output("--plot", plot, "image"),
-    ]
-    if plot.suffix.lower() not in IMAGE_SUFFIXES:
-        raise InputError(f"--plot {plot}: expected a .png or .jpg file")
-    backups = output_files.check(inputs, outputs, force=args.force)
-    spec = parse_board(board)
-    calib = calibfile.load(intrinsics, intrinsics_only=True)
-    log = drive_log.read_log(list(logs), camera=camera)
+    try:
+        log = drive_log.read_log(list(args.logs), camera=camera)
+    except InputValueError as e:
+        if args.camera is None and camera is not None and str(e).startswith("no camera "):
+            return None  # a camera of --intrinsics that this recording did not film
+        raise
     name, cam = drive_log.camera_calib(log, calib, camera)
-    target, target_cam = calib, cam
-    if lens_swap is not None:
-        target = calibfile.load(lens_swap, intrinsics_only=True)
+    target_cam = cam
+    if args.lens_swap is not None:
         try:
             target_cam = target.camera(name)
         except calibfile.UnknownCameraError as e:
-            raise InputError(f"--lens-swap {lens_swap}: {e}") from None
+            raise InputError(f"--lens-swap {args.lens_swap}: {e}") from None
     t0 = int(log.scan_ns[0])
     intervals = parse_poses(args.poses, t0) if args.poses else still_intervals(log)
     coarse = cam.extrinsics
@@ -424,47 +448,150 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     try:
         result = calibrate(good)
     except ValueError as e:  # too few or degenerate poses
-        raise AcqError(f"{e} ({len(good)} usable of {len(intervals)} still poses found)") from e
+        who = f"camera {name!r}: " if several else ""
+        raise AcqError(
+            f"{who}{e} ({len(good)} usable of {len(intervals)} still poses found)"
+        ) from e
     std = CalibStd(  # about the laser axes (rad -> deg), m; the intrinsics' std kept
         rotation_deg=tuple(np.degrees(result.std[:3])), translation_m=tuple(result.std[3:])
     ).rounded()
     std = target_cam.std.merged(std, CalibStd.EXTRINSICS)
     T, method = result.camera_to_laser, METHOD
-    if lens_swap is not None:
-        T = Rigid(T.rotation, T.translation + T.rotation @ np.array([0.0, 0.0, pupil_shift_m]))
+    if args.lens_swap is not None:
+        T = Rigid(T.rotation, T.translation + T.rotation @ np.array([0.0, 0.0, args.pupil_shift]))
         method = f"{METHOD}+lens_swap"
     entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std)
-    out = Calibration(target.laser, {**target.cameras, name: entry}, target.laser_to_vehicle)
+    plot = plots.get(name) or next(iter(plots.values()))
+    return _Calibrated(name, t0, data, good, result, entry, plot)
+
+
+def run_extrinsic(args: argparse.Namespace) -> int:
+    """Write each camera's camera_to_laser, calibrated from the board poses in the logs,
+    into CALIB (a copy of --intrinsics with them set, merged into an existing CALIB).
+
+    Cameras: each --camera given (repeatable); none given: --intrinsics' only camera,
+    or with several every one of them the logs have frames of.
+
+    --lens-swap (the paper's way): the logs were recorded with a regular lens that
+    --intrinsics describes, and the fisheye was mounted afterwards; CALIB is then a copy
+    of FISHEYE_CALIB with the camera's camera_to_laser set, its origin moved
+    --pupil-shift along the optical axis (the fisheye's projection centre minus the
+    regular lens's, m, + towards the scene; 0 is the paper's tacit assumption, and its
+    error goes into the translation).
+
+    Prints the result (or JSON) and, with two cameras or more in CALIB, their relative
+    poses; writes the residual plot PNG of each camera (default: beside CALIB). 0; 2 bad
+    input (board, log, camera, calibration file, --poses); 1 when a camera's calibration
+    cannot be made (too few usable or degenerate poses): then nothing is written."""
+    from acq.calib.extrinsic_log import METHOD
+    from acq.calib.fisheye_calib import parse_board
+    from acq.calib.plots import residual_plot
+    from acq.calib.relative_pose import relative_poses
+    from acq.camera import calibfile
+    from acq.camera.calibfile import Calibration
+
+    logs, intrinsics, board, output = args.logs, args.intrinsics, args.board, args.output
+    lens_swap = args.lens_swap
+    inputs = [("--intrinsics", intrinsics), *(("LOG", p) for p in logs)]
+    if lens_swap is not None:
+        inputs.append(("--lens-swap", lens_swap))
+    # an existing CALIB other than the input is updated (merged by camera, NAME.bak kept)
+    in_place = _same_file(output, intrinsics) or _same_file(output, lens_swap)
+    yaml_out = Output(
+        "-o", output, "yaml", update=not in_place, in_place_of=("--intrinsics", "--lens-swap")
+    )
+    asked: list[str] | None = list(dict.fromkeys(args.camera)) if args.camera else None
+    first_plots = _plots(args.plot, output, asked or ["camera"])
+    for p in first_plots.values():
+        if p.suffix.lower() not in IMAGE_SUFFIXES:
+            raise InputError(f"--plot {p}: expected a .png or .jpg file")
+    outputs = [yaml_out, *(Output("--plot", p, "image") for p in first_plots.values())]
+    backups = output_files.check(inputs, outputs, force=args.force)
+    spec = parse_board(board)
+    calib = calibfile.load(intrinsics, intrinsics_only=True)
+    names: list[str | None]
+    if asked is not None:
+        names = list(asked)
+    elif len(calib.cameras) > 1:
+        names = list(calib.cameras)
+    else:
+        names = [None]  # the only camera of --intrinsics, and of the log
+    if len(names) > 1 and asked is None:
+        plots = _plots(args.plot, output, [str(n) for n in names])
+        outputs = [yaml_out, *(Output("--plot", p, "image") for p in plots.values())]
+        backups = output_files.check(inputs, outputs, force=args.force)
+    else:
+        plots = first_plots
+    target = calib if lens_swap is None else calibfile.load(lens_swap, intrinsics_only=True)
+    old = None if in_place or not output.exists() else calibfile.load(output, intrinsics_only=True)
+    if old is not None:
+        calibfile.merged(old, target, (), str(output))  # another laser's: refused before the work
+    done: list[_Calibrated] = []
+    for camera in names:
+        one = _calibrate_one(args, camera, calib, target, spec, plots, len(names) > 1)
+        if one is not None:
+            done.append(one)
+    if not done:
+        raise InputValueError(
+            f"none of --intrinsics' cameras ({', '.join(calib.cameras)}) has frames in the log"
+        )
+    entries = {c.name: c.entry for c in done}
+    out = Calibration(target.laser, {**target.cameras, **entries}, target.laser_to_vehicle)
+    if old is not None:
+        out = calibfile.merged(old, out, list(entries), str(output))
+    placed = {n: c.extrinsics for n, c in out.cameras.items() if c.extrinsics is not None}
+    relative = relative_poses(placed, {n: out.cameras[n].std for n in placed})
     output_files.keep_backups("acq calibrate extrinsic", backups)
     calibfile.save(out, output)
-    residual_plot(result, good, plot)  # whole or not at all (acq.provenance.write_image)
+    for c in done:  # whole or not at all (acq.provenance.write_image)
+        residual_plot(c.result, c.good, c.plot)
     if args.json:
-        report = {
-            "camera": name,
-            "logs": [str(p) for p in logs],
-            "board": board,
+        reports = [_extrinsic_report(args, c) for c in done]
+        report: dict[str, Any] = reports[0] if len(reports) == 1 else {
+            "cameras": reports, "logs": [str(p) for p in logs], "board": board,
             "output": str(output),
-            "plot": str(plot),
-            "poses": [p.to_dict(t0) for p in data],
-            **result.to_dict(),
-        }
-        if lens_swap is not None:
-            report["lens_swap"] = {
-                "fisheye": str(lens_swap),
-                "pupil_shift_m": pupil_shift_m,
-                "camera_to_laser": T.to_dict(),
-            }
+        }  # fmt: skip
+        if relative:
+            report["relative"] = [r.to_dict() for r in relative]
         print(json.dumps(report, indent=2))
     else:
-        print("\n".join(_extrinsic_lines(result, data, t0, METHOD)))
-        if lens_swap is not None:
-            print(
-                f"lens swap: found with the regular lens of {intrinsics}, written with the "
-                f"fisheye model of {lens_swap}, origin moved {pupil_shift_m * 1e3:.1f} mm along "
-                "the optical axis (--pupil-shift; the swap's unknown shift is in t)"
-            )
-        print(f"wrote {output} (camera {name!r}) and {plot}")
+        for c in done:
+            if len(done) > 1:
+                print(f"camera {c.name!r}:")
+            print("\n".join(_extrinsic_lines(c.result, c.data, c.t0, METHOD)))
+            if lens_swap is not None:
+                print(
+                    f"lens swap: found with the regular lens of {intrinsics}, written with the "
+                    f"fisheye model of {lens_swap}, origin moved {args.pupil_shift * 1e3:.1f} "
+                    "mm along the optical axis (--pupil-shift; the swap's unknown shift is in t)"
+                )
+        if relative:
+            print(f"relative poses of the cameras in {output} (camera A -> camera B):")
+            print("\n".join(r.line() for r in relative))
+        cams = ", ".join(repr(c.name) for c in done)
+        plots_written = ", ".join(str(c.plot) for c in done)
+        print(f"wrote {output} (camera{'s' if len(done) > 1 else ''} {cams}) and {plots_written}")
     return 0
+
+
+def _extrinsic_report(args: argparse.Namespace, c: _Calibrated) -> dict[str, Any]:
+    """One camera's JSON report."""
+    report = {
+        "camera": c.name,
+        "logs": [str(p) for p in args.logs],
+        "board": args.board,
+        "output": str(args.output),
+        "plot": str(c.plot),
+        "poses": [p.to_dict(c.t0) for p in c.data],
+        **c.result.to_dict(),
+    }
+    if args.lens_swap is not None:
+        report["lens_swap"] = {
+            "fisheye": str(args.lens_swap),
+            "pupil_shift_m": args.pupil_shift,
+            "camera_to_laser": c.entry.camera_to_laser.to_dict(),
+        }
+    return report
 
 
 # --- time offset --------------------------------------------------------------------------
@@ -481,9 +608,15 @@ def run_time_offset(args: argparse.Namespace) -> int:
     inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
     if args.trajectory is not None:
         inputs.append(("--trajectory", args.trajectory))
-    target = Output("-o", args.output, "yaml", in_place_of=("--calib",))
+    # an existing OUT other than --calib is updated (merged by camera, NAME.bak kept)
+    in_place = _same_file(args.output, args.calib)
+    target = Output("-o", args.output, "yaml", update=not in_place, in_place_of=("--calib",))
     backups = output_files.check(inputs, [target], force=args.force)
     calib = calibfile.load(args.calib)
+    old = None
+    if not in_place and args.output.exists():
+        old = calibfile.load(args.output, intrinsics_only=True)
+        calibfile.merged(old, calib, (), str(args.output))  # another laser's: refused now
     report = colorize.Report(output=str(args.output))
     job, _ = colorize.prepare(
         args.logs, calib, report, camera=args.camera, trajectory=args.trajectory
@@ -506,8 +639,11 @@ def run_time_offset(args: argparse.Namespace) -> int:
         std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
     cams = dict(calib.cameras)
     cams[name] = replace(cam, time_offset_s=round(est.offset_s, 6), std=std)
+    result = replace(calib, cameras=cams)
+    if old is not None:
+        result = calibfile.merged(old, result, [name], str(args.output))
     output_files.keep_backups("acq calibrate time-offset", backups)
-    calibfile.save(replace(calib, cameras=cams), args.output)
+    calibfile.save(result, args.output)
     if not args.json:
         print(
             f"camera {name}: time offset {1e3 * est.offset_s:+.2f} ms +- {1e3 * est.std_s:.2f} ms "

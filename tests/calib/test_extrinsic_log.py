@@ -193,3 +193,33 @@ def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std(
     np.testing.assert_allclose(std.rotation_deg, report["std_rot_deg"], rtol=5e-3)
     np.testing.assert_allclose(std.translation_m, report["std"][3:], rtol=5e-3)
     assert std.merged(CalibStd(), CalibStd.EXTRINSICS) == intr_std
+
+
+def test_an_existing_calib_is_updated_and_keeps_the_other_cameras(
+    rec: tuple[BoardLog, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """-o names a calib.yaml holding another camera (and this one's old entry): this
+    camera's entry replaced, the other kept as it was, the old file kept as .bak; the two
+    cameras' relative pose printed. No --force needed (the file is updated, not replaced)."""
+    log, intr = rec
+    model = log.calibration.camera("camera").model
+    other = Rigid(np.eye(3), np.array([0.1, 0.2, 0.3]))
+    stale = Rigid(np.eye(3), np.array([9.0, 9.0, 9.0]))
+    out = tmp_path / "calib.yaml"
+    calibfile.save(
+        Calibration(cameras={"right": CameraCalib(model, other, 0.004),
+                             "camera": CameraCalib(model, stale)}),
+        out,
+    )  # fmt: skip
+    before = out.read_text()
+    assert calibrate_extrinsic(log.files, "camera", intr, log.spec, out) == 0
+    text = capsys.readouterr().out
+    assert "relative poses of the cameras" in text and "right -> camera: rotation" in text
+    cal = calibfile.load(out)
+    assert list(cal.cameras) == ["right", "camera"]
+    assert calibfile.dump(Calibration(cameras={"right": cal.camera("right")})) == calibfile.dump(
+        Calibration(cameras={"right": CameraCalib(model, other, 0.004)})
+    )
+    rot, trans = _errors(cal.camera("camera").camera_to_laser, log.truth)
+    assert rot < 0.15 and trans < 0.003
+    assert (tmp_path / "calib.yaml.bak").read_text() == before

@@ -534,3 +534,23 @@ def test_fuzz_numbers_load_and_project_quietly_or_name_the_key(
             assert uv32.shape == (4, 2)
             assert abs(round(cam.time_offset_s * 1e9)) <= 3600 * 10**9
         assert calibfile.parse(yaml.safe_load(calibfile.dump(calib))).to_dict() == calib.to_dict()
+
+
+def test_merged_replaces_the_cameras_named_and_keeps_the_rest() -> None:
+    model = KannalaBrandt(width=780, height=582, fx=169.0, fy=169.0, cx=390.0, cy=291.0)
+    a, b = Rigid(np.eye(3), np.ones(3)), Rigid(np.eye(3), np.zeros(3))
+    ltv = Rigid(np.eye(3), np.array([0.0, 0.0, 2.0]))
+    old = Calibration(
+        cameras={"left": CameraCalib(model, a, 0.01), "rear": CameraCalib(model, a)},
+        laser_to_vehicle=ltv,
+    )
+    new = Calibration(cameras={"left": CameraCalib(model), "right": CameraCalib(model, b),
+                               "rear": CameraCalib(model, b)})  # fmt: skip
+    out = calibfile.merged(old, new, ["right"], "calib.yaml")
+    assert list(out.cameras) == ["left", "rear", "right"]
+    assert out.cameras["left"] is old.cameras["left"]  # not named: kept as it was
+    assert out.cameras["rear"] is old.cameras["rear"]
+    assert out.cameras["right"] is new.cameras["right"]
+    assert out.laser_to_vehicle is ltv
+    with pytest.raises(CalibFileError, match=r"^calib.yaml: .* laser 'laser', .* 'scanner2'"):
+        calibfile.merged(old, Calibration(laser="scanner2"), [], "calib.yaml")

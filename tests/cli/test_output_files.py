@@ -271,3 +271,39 @@ def test_a_product_acq_did_not_write_is_replaced_only_with_force(
     out.write_bytes(mine.get(out.suffix, marked_image(b"\xff\xd8\xff\xe0\x00\x10" + bytes(64))))
     main(args)
     assert "not written by acq" not in capsys.readouterr().err
+
+
+def test_an_existing_calibration_is_updated_not_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """time-offset and extrinsic update an existing -o that is not their input without
+    --force (its other cameras are kept; the run here stops at the log, which is none);
+    one of another laser is refused before any work, naming it; nothing is written."""
+    from acq.camera import calibfile
+    from acq.camera.calibfile import Calibration, CameraCalib
+    from acq.geometry.transforms import Rigid
+    from acq.sim.world import default_lens
+
+    files = _files(tmp_path)
+    log, cal, out = files["log"], files["cal"], tmp_path / "out.yaml"
+    entry = CameraCalib(default_lens(), Rigid.identity())
+    calibfile.save(Calibration(cameras={"camera": entry}), cal)
+    calibfile.save(Calibration(cameras={"right": entry}), out)
+    runs = [
+        ["calibrate", "time-offset", str(log), "--calib", str(cal), "-o", str(out)],
+        ["calibrate", "extrinsic", str(log), "--intrinsics", str(cal), "--board", "9x7x0.1",
+         "-o", str(out)],
+    ]  # fmt: skip
+    for argv in runs:
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "--force" not in err and str(out) not in err and "log" in err, err
+    calibfile.save(Calibration(laser="other", cameras={"right": entry}), out)
+    for argv in runs:
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.endswith(
+            f": {out}: its cameras are calibrated against laser 'other', these against "
+            "'laser'; give another file\n"
+        ), err
+    assert not (tmp_path / "out.yaml.bak").exists()

@@ -107,15 +107,16 @@ def calibrate(work: Path, rig: Rig, seed: int = 0) -> Path:
                     "--camera", name, "--board", "9x7x0.1"])  # fmt: skip
     board = write_board_log(work / "board", n_poses=15 * len(rig.cameras), seed=seed + 1,
                             hold_s=1.0, rig=rig)  # fmt: skip
-    out = work / "calib.yaml"
+    timed = work / "extrinsic.yaml"
     _quiet_cli(["calibrate", "extrinsic", *map(str, board.files), "--intrinsics", str(intr),
-                "--board", board.spec, "-o", str(out)])  # fmt: skip
+                "--board", board.spec, "-o", str(timed), "--force"])  # fmt: skip
     drive = write_drive_log(work / "time_drive", 30.0, seed=1, pattern_at=None, rig=rig,
                             configured_camera_latency_s=CONFIGURED_LATENCY_S)  # fmt: skip
-    for name in rig.camera_names:
-        _quiet_cli(["calibrate", "time-offset", *map(str, drive.files), "--calib", str(out),
-                    "--camera", name, "-o", str(out)])  # fmt: skip
-    calib = calibfile.load(out)
+    for name in rig.camera_names:  # each camera's offset into the same file, in place
+        _quiet_cli(["calibrate", "time-offset", *map(str, drive.files), "--calib", str(timed),
+                    "--camera", name, "-o", str(timed), "--force"])  # fmt: skip
+    out = work / "calib.yaml"
+    calib = calibfile.load(timed)
     calibfile.save(Calibration(cameras=dict(calib.cameras),
                                laser_to_vehicle=rig.laser_to_vehicle), out)  # fmt: skip
     errors: dict[str, Any] = {}

@@ -12,7 +12,10 @@
    the report).
 4. Chunks of ``chunk_s`` seconds of scans, each read from the files on its own with the
    frames around it (and, for ``--view best``, the laser points just outside it, for
-   the depth buffers), coloured by :func:`acq.cloud.views.start_colouring`; in this process,
+   the depth buffers), coloured by :func:`acq.cloud.views.start_colouring` from each
+   camera of the job (every camera of calib.yaml the log has, or ``--camera``), the
+   cameras' exposure and white balance evened out (:mod:`acq.cloud.balance`), each point
+   taking the camera whose view of it is best (:mod:`acq.cloud.multiview`); in this process,
    on ``workers`` processes, or on a Dask cluster. The chunking does not depend on how
    the chunks run, so the output bytes do not either. In this process a chunk's frames
    decode on a pool of threads (one per core) while the next chunk is placed and the

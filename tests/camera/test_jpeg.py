@@ -1,0 +1,39 @@
+"""Decoding frames for colouring (acq.camera.jpeg): the same pixels as OpenCV, and any
+bytes give an image or None."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from acq.camera.jpeg import decode_jpeg, decoded_frames
+
+
+def _jpeg(image: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert ok
+    return buf.tobytes()
+
+
+def test_colour_and_grey_frames_decode_as_opencv_does() -> None:
+    rng = np.random.default_rng(0)
+    colour = rng.integers(0, 256, (58, 78, 3), dtype=np.uint8)
+    for jpeg in (_jpeg(colour), _jpeg(colour[..., 0])):  # a grey JPEG too
+        got = decode_jpeg(jpeg)
+        want = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+        assert got is not None and got.shape == (58, 78, 3)
+        np.testing.assert_array_equal(got, want)
+    frames = [_jpeg(colour), b"", b"not a jpeg", _jpeg(colour)[:40]]
+    out = list(decoded_frames(frames, np.arange(4), threads=2))
+    assert out[0] is not None and out[1] is None and out[2] is None and out[3] is None
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=600))
+def test_any_bytes_give_an_image_or_none(data: bytes) -> None:
+    head = _jpeg(np.full((16, 16, 3), 90, np.uint8))[:200]
+    for jpeg in (data, head + data):
+        image = decode_jpeg(jpeg)
+        assert image is None or (image.ndim == 3 and image.shape[2] == 3)

@@ -46,11 +46,13 @@ import json
 import math
 import os
 import pickle
+import shutil
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -86,10 +88,15 @@ def _quiet_cli(argv: list[str]) -> None:
 def calibrate(work: Path, rig: Rig, seed: int = 0) -> Path:
     """calib.yaml of every camera of ``rig`` from `acq calibrate`: fisheye per camera,
     extrinsic for all on one board recording, time offset per camera on another drive."""
-    work.mkdir(parents=True, exist_ok=True)
+    if work.exists():  # nothing of an unfinished run: a folder of logs is one session
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
     intr = work / "intrinsics.yaml"
+    first = rig.cameras[0].camera_to_laser
     for k, name in enumerate(rig.camera_names):
-        one = rig.only(name)
+        # the lens's board images: the board held before the camera as before the first
+        # camera (only the images count here; the rear camera's mount sees no laser)
+        one = rig.only(name).with_camera(camera_to_laser=first)
         images = work / f"intrinsics_{name}"
         images.mkdir(exist_ok=True)
         rng = np.random.default_rng(seed + k)
@@ -305,11 +312,20 @@ def main() -> None:
         calib = calibfile.load(calib_path)
         names = list(truth.camera_names)
         summary: dict[str, Any] = {}
+        # the truth: each camera's pose and lens, and its latency error as the time offset
+        known = Calibration(
+            cameras={
+                n: replace(c, time_offset_s=truth.cameras[n].latency_true_s
+                           - truth.cameras[n].latency_configured_s)
+                for n, c in truth.calibration.cameras.items()
+            },
+            laser_to_vehicle=truth.rig.laser_to_vehicle,
+        )  # fmt: skip
         variants = [
             ("nearest", calib, Options()),
             ("best", calib, Options(view="best")),
             ("nearest_no_balance", calib, Options(balance=False)),
-            ("nearest_true_calib", truth.calibration, Options()),
+            ("nearest_true_calib", known, Options()),
         ]
         for name, cal, options in variants:
             results: list[ChunkResult] = []

@@ -27,7 +27,6 @@ from collections.abc import Sequence
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -35,6 +34,7 @@ from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
 from acq.camera.camera_models import CameraModel
 from acq.camera.jpeg import decode_jpeg
+from acq.camera.occlusion import occlusion_depths, visible
 from acq.drivers.errors import ProtocolError
 from acq.drivers.mjpeg import jpeg_size
 from acq.geometry.transforms import PoseFn, Rigid
@@ -46,7 +46,6 @@ __all__ = [
     "Colouring",
     "Options",
     "Pairs",
-    "occlusion_depths",
     "odd_sized",
     "point_size",
     "start_colouring",
@@ -126,34 +125,6 @@ class Coloured:
     uv: np.ndarray | None = None
     depth: np.ndarray | None = None
     pairs: Pairs = field(default_factory=Pairs.none)
-
-
-@numba.njit(cache=True, nogil=True)
-def _splat(cu, cv, depth, radius, width, height):  # type: ignore[no-untyped-def]
-    z = np.full((height, width), np.inf, dtype=np.float32)
-    for i in range(cu.size):
-        r = radius[i]
-        d = depth[i]
-        for v in range(max(cv[i] - r, 0), min(cv[i] + r + 1, height)):
-            for u in range(max(cu[i] - r, 0), min(cu[i] + r + 1, width)):
-                if d < z[v, u]:
-                    z[v, u] = d
-    return z
-
-
-def occlusion_depths(
-    uv: np.ndarray, depth: np.ndarray, size_m: np.ndarray, f_px: float, shape: tuple[int, int],
-    cell_px: int,
-) -> np.ndarray:  # fmt: skip
-    """(H/cell, W/cell) float32 depth buffer (m, +inf empty) of points at pixels ``uv``
-    (N,2) and ``depth`` (N,) m, each covering a square of ``size_m`` (N,) m of surface
-    (its share of the scan: the larger of its spacing along the scan and the rig's
-    travel between scans), i.e. about ``f_px * size_m / depth`` px each side."""
-    h, w = -(-shape[0] // cell_px), -(-shape[1] // cell_px)
-    cu = (uv[:, 0] / cell_px).astype(np.int64)
-    cv_ = (uv[:, 1] / cell_px).astype(np.int64)
-    r = np.minimum(np.floor(0.5 * f_px * size_m / np.maximum(depth, 1e-3) / cell_px), 8)
-    return np.asarray(_splat(cu, cv_, depth.astype(np.float32), r.astype(np.int64), w, h))
 
 
 def odd_sized(jpegs: Sequence[bytes], model: CameraModel) -> dict[int, tuple[int, int]]:
@@ -444,11 +415,9 @@ def _best(
         uv, ok = projection.project(P_p, model, Rigid.identity())
         candidate[idx[ok]] = True
         depth = np.linalg.norm(P_p, axis=1)
-        cu = np.clip((uv[:, 0] / options.cell_px).astype(np.int64), 0, zbuf.shape[1] - 1)
-        cv_ = np.clip((uv[:, 1] / options.cell_px).astype(np.int64), 0, zbuf.shape[0] - 1)
-        visible = ok & (depth <= zbuf[cv_, cu] + options.margin_m + options.margin_rel * depth)
+        seen = ok & visible(zbuf, uv, depth, options.cell_px, options.margin_m, options.margin_rel)
         th = _theta(P_p).astype(np.float32)
-        better = visible & (th < best_theta[idx])
+        better = seen & (th < best_theta[idx])
         best[idx[better]] = j
         best_theta[idx[better]] = th[better]
     hidden = candidate & (best < 0)

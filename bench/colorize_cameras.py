@@ -359,7 +359,7 @@ def main() -> None:
             "targets",
             coverage_of_visible=n["coverage"]["coloured_of_visible"],
             coverage_ok=n["coverage"]["coloured_of_visible"] >= 0.99,
-            rms_px={v: {c: s[v]["accuracy"][c]["rms_px"] for c in names}
+            rms_px={v: {c: s["accuracy"][c]["rms_px"] for c in names}
                     for v, s in (("nearest", n), ("best", b))},
             accuracy_ok=all(s["accuracy"][c]["rms_px"] <= 0.3
                             and s["accuracy"][c]["within_1px"] >= 0.99

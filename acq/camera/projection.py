@@ -27,6 +27,7 @@ from acq.geometry.transforms import Rigid
 __all__ = [
     "colorize",
     "colour_into",
+    "depth_and_angle",
     "laser_to_camera",
     "project",
 ]
@@ -217,6 +218,36 @@ def _colour_into(P, idx, R, t, intr, pinhole, image, bilinear, out, valid, uv): 
                 if uv.shape[0]:
                     uv[k, 0] = uvf[2 * i]
                     uv[k, 1] = uvf[2 * i + 1]
+
+
+@numba.njit(nogil=True, cache=True)
+def _depth_theta(P, idx, R, t, depth, theta):  # type: ignore[no-untyped-def]
+    for k in idx:
+        dx, dy, dz = P[k, 0] - t[0], P[k, 1] - t[1], P[k, 2] - t[2]
+        x = R[0, 0] * dx + R[1, 0] * dy + R[2, 0] * dz
+        y = R[0, 1] * dx + R[1, 1] * dy + R[2, 1] * dz
+        z = R[0, 2] * dx + R[1, 2] * dy + R[2, 2] * dz
+        r = math.sqrt(x * x + y * y)
+        depth[k] = math.sqrt(r * r + z * z)
+        theta[k] = math.atan2(r, z)
+
+
+def depth_and_angle(
+    P: np.ndarray,
+    idx: np.ndarray,
+    camera_to_points: tuple[np.ndarray, np.ndarray],
+    depth: np.ndarray,
+    theta: np.ndarray,
+) -> None:
+    """For the points ``P[idx]`` (``P`` (N,3) float64 m, ``idx`` (K,) int64), in place:
+    ``depth[idx]`` their distance from the camera (m) and ``theta[idx]`` their angle from
+    its optical axis (rad); ``camera_to_points`` the camera's rotation and position in
+    P's frame. One pass, no GIL."""
+    R, t = camera_to_points
+    _depth_theta(
+        P, np.asarray(idx, dtype=np.int64), np.asarray(R, dtype=np.float64),
+        np.asarray(t, dtype=np.float64), depth, theta,
+    )  # fmt: skip
 
 
 _MIN_SPLIT = 65536  # below this many points one thread is faster than two

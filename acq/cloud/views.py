@@ -33,7 +33,7 @@ import numpy.typing as npt
 from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
 from acq.camera.camera_models import CameraModel
-from acq.camera.jpeg import decode_jpeg
+from acq.camera.jpeg import decode_jpeg_transient
 from acq.camera.occlusion import occlusion_depths, visible
 from acq.drivers.errors import ProtocolError
 from acq.drivers.mjpeg import jpeg_size
@@ -228,16 +228,14 @@ class Colouring:
         and position ``t`` in the points' frame) and its ``pairs`` (indices into the
         pair arrays); False when it does not decode or is not of the camera model's
         size."""
-        image = decode_jpeg(jpeg)
+        image = decode_jpeg_transient(jpeg)
         if image is None or image.shape[:2] != (self.model.height, self.model.width):
             return False
         projection.colour_into(
             self.P, idx, self.model, (R, t), image, self.bgr, self.coloured, self.uv,
             bilinear=self.bilinear,
         )  # fmt: skip
-        P_cam = (self.P[idx] - t) @ R
-        self.depth[idx] = np.linalg.norm(P_cam, axis=1)
-        self.theta[idx] = _theta(P_cam)
+        projection.depth_and_angle(self.P, idx, (R, t), self.depth, self.theta)
         if pairs is not None and pairs.size:
             projection.colour_into(
                 self.pair_P, pairs, self.model, (R, t), image, self.pair_bgr, self.pair_ok,

@@ -37,3 +37,22 @@ def test_any_bytes_give_an_image_or_none(data: bytes) -> None:
     for jpeg in (data, head + data):
         image = decode_jpeg(jpeg)
         assert image is None or (image.ndim == 3 and image.shape[2] == 3)
+
+
+def test_a_transient_frame_is_the_same_image_in_this_threads_buffer() -> None:
+    from acq.camera.jpeg import decode_jpeg_transient
+
+    rng = np.random.default_rng(1)
+    a = _jpeg(rng.integers(0, 256, (58, 78, 3), dtype=np.uint8))
+    b = _jpeg(rng.integers(0, 256, (40, 30, 3), dtype=np.uint8))
+    first = decode_jpeg_transient(a)
+    assert first is not None
+    np.testing.assert_array_equal(first, decode_jpeg(a))
+    second = decode_jpeg_transient(b)  # a smaller frame: the same buffer
+    assert second is not None and second.shape == (40, 30, 3)
+    np.testing.assert_array_equal(second, decode_jpeg(b))
+    assert np.shares_memory(first, second)
+    grey = _jpeg(np.full((16, 16), 7, np.uint8))
+    assert decode_jpeg_transient(b"") is None and decode_jpeg_transient(b"junk") is None
+    third = decode_jpeg_transient(grey)
+    assert third is not None and third.shape == (16, 16, 3)

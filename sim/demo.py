@@ -33,7 +33,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -275,7 +275,7 @@ def _summary(
     lines.append(clock)
     lines.extend(f"  truth     {t}" if i == 0 else f"            {t}"
                  for i, t in enumerate(truth_lines))  # fmt: skip
-    source = f"the {COLOUR_CAMERA} camera's" if COLOUR_CAMERA else "every camera's"
+    source = f"the {COLOUR_CAMERA} camera's" if COLOUR_CAMERA else "the cameras'"
     lines.append(
         f"  cloud     {pc.size:,} points, {int(pc.coloured.sum()):,} coloured "
         f"({100 * pc.coloured_share:.1f} %) from {pc.frames_used} of {source} {pc.frames} frames"
@@ -403,7 +403,9 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
         trajectory=truth,
         results=results,
     )
-    pc = colorize.cloud_of(results, log, [COLOUR_CAMERA] if COLOUR_CAMERA else CAMERAS)
+    colour_cameras = [COLOUR_CAMERA] if COLOUR_CAMERA else list(CAMERAS)
+    pc = colorize.cloud_of(results, log, colour_cameras)
+    pc = replace(pc, frames=sum(logs[name].n_frames for name in colour_cameras))
     result.steps_s["colour"] = clock.lap()
     clock.say(
         f"coloured {pc.size:,} points from {log.n_scans} scans with {pc.frames_used} frames "

@@ -117,15 +117,18 @@ def calibrate(work: Path, rig: Rig, seed: int = 0) -> Path:
     timed = work / "extrinsic.yaml"
     _quiet_cli(["calibrate", "extrinsic", *map(str, board.files), "--intrinsics", str(intr),
                 "--board", board.spec, "-o", str(timed), "--force"])  # fmt: skip
+    # laser_to_vehicle as mounted: the time offset needs the rig's motion at the laser
+    placed = calibfile.load(timed)
+    calibfile.save(Calibration(cameras=dict(placed.cameras),
+                               laser_to_vehicle=rig.laser_to_vehicle), timed)  # fmt: skip
     drive = write_drive_log(work / "time_drive", 30.0, seed=1, pattern_at=None, rig=rig,
                             configured_camera_latency_s=CONFIGURED_LATENCY_S)  # fmt: skip
     for name in rig.camera_names:  # each camera's offset into the same file, in place
         _quiet_cli(["calibrate", "time-offset", *map(str, drive.files), "--calib", str(timed),
                     "--camera", name, "-o", str(timed), "--force"])  # fmt: skip
     out = work / "calib.yaml"
-    calib = calibfile.load(timed)
-    calibfile.save(Calibration(cameras=dict(calib.cameras),
-                               laser_to_vehicle=rig.laser_to_vehicle), out)  # fmt: skip
+    timed.replace(out)
+    calib = calibfile.load(out)
     errors: dict[str, Any] = {}
     for name in rig.camera_names:
         cam, true = calib.camera(name), rig.camera(name)

@@ -621,6 +621,9 @@ def run_time_offset(args: argparse.Namespace) -> int:
     job, _ = colorize.prepare(
         args.logs, calib, report, camera=args.camera, trajectory=args.trajectory
     )
+    for note in report.notes:
+        if "laser_to_vehicle" in note:  # the estimate depends on it: said, not buried
+            print(f"warning: {note}", file=sys.stderr)
     est = colorize.estimate_offset(
         job, start_s=args.start, seconds=args.seconds, search_s=args.search,
         max_frames=args.frames, threads=os.cpu_count() or 1,

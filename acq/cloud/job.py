@@ -289,6 +289,12 @@ def prepare(
         )
         options = replace(options, motion_compensation=False)
     report.frame = "world" if world else "laser"
+    if traj is not None and calib.laser_to_vehicle is None:
+        report.notes.append(
+            "calib.yaml has no laser_to_vehicle: the laser taken at the vehicle's origin, "
+            "its axes the vehicle's; the points' places and the rig's motion at the laser "
+            "are wrong unless it is so mounted (add laser_to_vehicle to calib.yaml)"
+        )
     s_order = np.argsort(index.scan_ns)
     period = float(np.median(np.diff(np.sort(scan_new)))) * 1e-9 if scan_new.size > 1 else 0.025
     speed = _median_speed(traj, scan_new)

@@ -114,3 +114,18 @@ def test_camera_picks_some_and_blend_mixes(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "front" in err[0], err
     assert not bad.exists()
+
+
+def test_a_calibration_without_laser_to_vehicle_is_said(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from acq.camera.calibfile import Calibration
+
+    truth, _ = drive
+    bare = tmp_path / "bare.yaml"
+    calibfile.save(Calibration(cameras=dict(truth.calibration.cameras)), bare)
+    out = tmp_path / "c.ply"
+    assert acq_main(["colorize", *map(str, truth.files), "--calib", str(bare), "-o", str(out),
+                     "--no-preview", "--json"]) == 0  # fmt: skip
+    notes = json.loads(capsys.readouterr().out)["notes"]
+    assert any("no laser_to_vehicle" in n for n in notes), notes

@@ -163,7 +163,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "deviation set; an existing OUT is updated (that camera's entry replaced, the others "
         "kept, the old file kept as OUT.bak). An output that is one of the inputs, or an "
         "existing file of another kind, is refused; `--calib C -o C --force` updates C in "
-        "place. One camera a call (--camera): run it for each camera into the same OUT. "
+        "place. Every camera of CALIB the log has frames of, or those --camera names; "
+        "nothing is written unless every one has its estimate. "
         "Exit status: 0 written, 1 no clear estimate (why is printed), 2 bad input.",
     )
     tof.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files or a folder")
@@ -174,7 +175,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "-o", "--output", type=Path, required=True, metavar="OUT",
         help="calib.yaml to write, or to update (its other cameras kept, the old one as OUT.bak)",
     )  # fmt: skip
-    tof.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    tof.add_argument(
+        "--camera", metavar="NAME", action="append",
+        help="the camera to estimate (repeat for several; default: every camera of CALIB "
+        "that the log has frames of)",
+    )  # fmt: skip
     tof.add_argument(
         "--trajectory", type=Path, metavar="CSV",
         help="post-processed GNSS/INS trajectory (default: the log's CAN odometry)",
@@ -624,36 +629,47 @@ def run_time_offset(args: argparse.Namespace) -> int:
     for note in report.notes:
         if "laser_to_vehicle" in note:  # the estimate depends on it: said, not buried
             print(f"warning: {note}", file=sys.stderr)
-    est = colorize.estimate_offset(
-        job, start_s=args.start, seconds=args.seconds, search_s=args.search,
-        max_frames=args.frames, threads=os.cpu_count() or 1,
-    )  # fmt: skip
-    prior = job.cam.time_offset_s
+    # a calibration of one camera names it as it likes; several are named as in the log
+    keys = [next(iter(calib.cameras))] if len(calib.cameras) == 1 else [c.name for c in job.cameras]
+    found = []
+    for cj in job.cameras:
+        est = colorize.estimate_offset(
+            job, camera=cj, start_s=args.start, seconds=args.seconds, search_s=args.search,
+            max_frames=args.frames, threads=os.cpu_count() or 1,
+        )  # fmt: skip
+        found.append(est)
     if args.json:
-        out = {k: v for k, v in asdict(est).items() if k not in ("candidates_s", "scores")}
-        out["curve"] = {"offset_s": est.candidates_s.tolist(), "mi_nats": est.scores.tolist()}
-        out["prior_s"] = prior
-        print(json.dumps(out, indent=2, default=float))
-    if not est.found:
-        raise AcqError(f"no estimate: {est.note}")
-    name, cam = job.camera, job.cam
-    std = cam.std
-    if np.isfinite(est.std_s):
-        std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
+        reports = []
+        for key, cj, est in zip(keys, job.cameras, found, strict=True):
+            out = {k: v for k, v in asdict(est).items() if k not in ("candidates_s", "scores")}
+            out["curve"] = {"offset_s": est.candidates_s.tolist(), "mi_nats": est.scores.tolist()}
+            out["prior_s"] = cj.cam.time_offset_s
+            reports.append(out if len(found) == 1 else {"camera": key, **out})
+        whole = reports[0] if len(reports) == 1 else {"cameras": reports}
+        print(json.dumps(whole, indent=2, default=float))
+    failed = [f"{k}: {e.note}" for k, e in zip(keys, found, strict=True) if not e.found]
+    if failed:  # nothing written unless every camera has its estimate
+        notes = [e.note for e in found if not e.found]
+        raise AcqError(f"no estimate: {notes[0] if len(found) == 1 else '; '.join(failed)}")
     cams = dict(calib.cameras)
-    cams[name] = replace(cam, time_offset_s=round(est.offset_s, 6), std=std)
+    for key, cj, est in zip(keys, job.cameras, found, strict=True):
+        std = cj.cam.std
+        if np.isfinite(est.std_s):
+            std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
+        cams[key] = replace(cj.cam, time_offset_s=round(est.offset_s, 6), std=std)
     result = replace(calib, cameras=cams)
     if old is not None:
-        result = calibfile.merged(old, result, [name], str(args.output))
+        result = calibfile.merged(old, result, keys, str(args.output))
     output_files.keep_backups("acq calibrate time-offset", backups)
     calibfile.save(result, args.output)
     if not args.json:
-        print(
-            f"camera {name}: time offset {1e3 * est.offset_s:+.2f} ms +- {1e3 * est.std_s:.2f} ms "
-            f"(CALIB had {1e3 * prior:+.2f} ms), from {est.points:,} laser points in "
-            f"{est.frames:,} frames; the peak stands {100 * est.contrast:.0f} % over the "
-            "curve's median"
-        )
+        for key, cj, est in zip(keys, job.cameras, found, strict=True):
+            print(
+                f"camera {key}: time offset {1e3 * est.offset_s:+.2f} ms +- "
+                f"{1e3 * est.std_s:.2f} ms (CALIB had {1e3 * cj.cam.time_offset_s:+.2f} ms), "
+                f"from {est.points:,} laser points in {est.frames:,} frames; the peak stands "
+                f"{100 * est.contrast:.0f} % over the curve's median"
+            )
         print(f"wrote {args.output}")
     return 0
 

@@ -175,3 +175,29 @@ def test_frames_of_another_size_and_a_corrupt_chunk_are_skipped_and_said(
     bars = [x for x in capsys.readouterr().err.replace("\r", "\n").splitlines() if x]
     assert any(x.startswith("reading: 100%") for x in bars)
     assert any(x.startswith("time offset (") and "100%" in x for x in bars), bars
+
+
+def test_every_camera_of_a_rig_in_one_call(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Left and right cameras, the same latency configured for both (right for the left
+    camera, 6 ms short for the right one): one call estimates each into one OUT."""
+    from acq.sim.world import default_rig
+
+    rig = default_rig(cameras=2)
+    truth = write_drive_log(tmp_path / "d", 4.0, pattern_at=None, seed=2, rig=rig,
+                            configured_camera_latency_s=0.025)  # fmt: skip
+    calib = tmp_path / "calib.yaml"
+    calibfile.save(truth.calibration, calib)
+    out = tmp_path / "out.yaml"
+    argv = ["calibrate", "time-offset", *map(str, truth.files), "--calib", str(calib),
+            "-o", str(out)]  # fmt: skip
+    assert acq_main(argv) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln.split(":")[0] for ln in lines[:2]] == ["camera left", "camera right"]
+    got = calibfile.load(out)
+    for name in ("left", "right"):
+        c = truth.cameras[name]
+        err = c.latency_true_s - c.latency_configured_s
+        assert got.camera(name).time_offset_s == pytest.approx(err, abs=0.0025), name
+    assert acq_main([*argv[:-2], "-o", str(tmp_path / "x.yaml"), "--camera", "front"]) == 2

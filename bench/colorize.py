@@ -67,7 +67,7 @@ from acq.geometry.rotations import rotation_angle
 from acq.sim.board_log import BOARD, render_frame, write_board_log
 from acq.sim.board_poses import simulate
 from acq.sim.drive_log import DriveTruth, write_drive_log
-from acq.sim.world import Material, default_rig
+from acq.sim.world import Material, Rig, default_rig
 
 FRONT = ("red", "green")
 BACK = ("blue", "yellow")
@@ -77,11 +77,9 @@ def _line(bench: str, **fields: Any) -> None:
     print(json.dumps({"bench": bench, **fields}), flush=True)
 
 
-def calibrate(work: Path, seed: int = 0) -> Path:
-    """calib.yaml from `acq calibrate fisheye --board` and `acq calibrate extrinsic`."""
-    rig = default_rig()
-    out = work / "calib.yaml"
-    images = work / "intrinsics"
+def board_images(rig: Rig, images: Path, seed: int) -> list[Path]:
+    """14 PNG images of the board held 0.7-1.4 m before the rig's (first) camera, a
+    little blurred and noisy, in ``images``: what `acq calibrate fisheye --board` takes."""
     images.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     data = simulate(14, seed, rig=rig, board=BOARD, true_planes=True, range_noise=0.0,
@@ -94,6 +92,14 @@ def calibrate(work: Path, seed: int = 0) -> Path:
         path = images / f"board{i:02d}.png"
         cv2.imwrite(str(path), np.clip(np.rint(img), 0, 255).astype(np.uint8))
         paths.append(path)
+    return paths
+
+
+def calibrate(work: Path, seed: int = 0) -> Path:
+    """calib.yaml from `acq calibrate fisheye --board` and `acq calibrate extrinsic`."""
+    rig = default_rig()
+    out = work / "calib.yaml"
+    paths = board_images(rig, work / "intrinsics", seed)
     intr = work / "intrinsics.yaml"
     quiet = io.StringIO()
     with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):

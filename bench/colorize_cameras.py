@@ -56,8 +56,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
+from colorize import board_images  # bench/colorize.py, beside this script
 
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
@@ -65,8 +65,7 @@ from acq.cli import main as acq_main
 from acq.cloud.colorize import ChunkResult, run
 from acq.cloud.views import Options
 from acq.geometry.rotations import rotation_angle
-from acq.sim.board_log import BOARD, render_frame, write_board_log
-from acq.sim.board_poses import simulate
+from acq.sim.board_log import write_board_log
 from acq.sim.drive_log import DriveTruth, write_drive_log
 from acq.sim.world import Rig, default_rig
 
@@ -97,19 +96,7 @@ def calibrate(work: Path, rig: Rig, seed: int = 0) -> Path:
         # the lens's board images: the board held before the camera as before the first
         # camera (only the images count here; the rear camera's mount sees no laser)
         one = rig.only(name).with_camera(camera_to_laser=first)
-        images = work / f"intrinsics_{name}"
-        images.mkdir(exist_ok=True)
-        rng = np.random.default_rng(seed + k)
-        data = simulate(14, seed + k, rig=one, board=BOARD, true_planes=True, range_noise=0.0,
-                        distance=(0.7, 1.4), bearing_spread_deg=60.0, max_tilt_deg=35.0,
-                        min_laser_points=0)  # fmt: skip
-        paths = []
-        for i, board in enumerate(data.boards):
-            img = render_frame(one.lens, one.camera_to_laser, BOARD, board)
-            img = cv2.GaussianBlur(img, (0, 0), 0.6) + rng.normal(0.0, 1.5, img.shape)
-            path = images / f"board{i:02d}.png"
-            cv2.imwrite(str(path), np.clip(np.rint(img), 0, 255).astype(np.uint8))
-            paths.append(path)
+        paths = board_images(one, work / f"intrinsics_{name}", seed + k)
         _quiet_cli(["calibrate", "fisheye", *map(str, paths), "--fov", "185", "-o", str(intr),
                     "--camera", name, "--board", "9x7x0.1"])  # fmt: skip
     board = write_board_log(work / "board", n_poses=15 * len(rig.cameras), seed=seed + 1,

@@ -388,7 +388,8 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
     shutil.rmtree(rec_dir, ignore_errors=True)
     clock.say(f"wrote {mcap_path} ({_size(mcap_path)})")
 
-    logs = {name: drive_log.read_log(mcap_path, camera=name) for name in CAMERAS}
+    whole = drive_log.read_log(mcap_path, cameras=list(CAMERAS))  # once, every camera
+    logs = {name: whole.with_camera(name) for name in CAMERAS}
     log = logs[COLOUR_CAMERA or CAMERAS[0]]
     # `acq colorize DIR/demo.mcap --calib DIR/calib.yaml`, placing with the true trajectory
     ply_path, png_path = out / "cloud.ply", out / "preview.png"

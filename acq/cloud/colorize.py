@@ -424,7 +424,8 @@ def run(
                 )
         job = job.with_offsets(found)
     world = job.frame_world
-    report.time_offset["used_s"] = job.time_offset_ns * 1e-9
+    if job.cameras:  # the first camera's figures at the top, as for one camera
+        report.time_offset["used_s"] = job.cameras[0].time_offset_ns * 1e-9
     for cj in job.cameras:
         report.time_offset.setdefault("cameras", {}).setdefault(cj.name, {})["used_s"] = (
             cj.time_offset_ns * 1e-9

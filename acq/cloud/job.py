@@ -51,9 +51,7 @@ class Job:
     """What every chunk needs (small, picklable): the files, the laser, the cameras to
     colour from (:class:`CameraJob`, none for a log without frames), the scans'
     re-timing map (recorded stamp -> new, sorted by recorded stamp), the trajectory (an
-    :class:`acq.motion.trajectory.Trajectory`; None: laser frame) and the options.
-    ``camera``, ``cam``, ``frame_old``, ``frame_new`` and ``time_offset_ns`` are the
-    first camera's."""
+    :class:`acq.motion.trajectory.Trajectory`; None: laser frame) and the options."""
 
     files: tuple[str, ...]
     laser: str
@@ -67,26 +65,6 @@ class Job:
     travel_m: float  # the rig's travel between two scans (m), for the points' size
     want_uv: bool = False  # keep each point's pixel and frame (for accuracy checks)
     threads: int = 1  # JPEG decoding threads per chunk
-
-    @property
-    def camera(self) -> str:
-        return self.cameras[0].name if self.cameras else ""
-
-    @property
-    def cam(self) -> CameraCalib:
-        return self.cameras[0].cam
-
-    @property
-    def frame_old(self) -> np.ndarray:
-        return self.cameras[0].frame_old if self.cameras else np.zeros(0, np.int64)
-
-    @property
-    def frame_new(self) -> np.ndarray:
-        return self.cameras[0].frame_new if self.cameras else np.zeros(0, np.int64)
-
-    @property
-    def time_offset_ns(self) -> int:
-        return self.cameras[0].time_offset_ns if self.cameras else 0
 
     def with_offsets(self, offsets_ns: dict[str, int]) -> Job:
         """This job with the time offsets of the cameras named in ``offsets_ns``."""

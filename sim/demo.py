@@ -78,6 +78,7 @@ COLOUR_CAMERA: str | None = None
 PRERENDER_MARGIN_S = 2.0
 PRERENDER_MAX_S = 60.0
 STOP_AHEAD_S = 0.005  # the recorder is stopped this long before a scan is due (see _record)
+DRIFT_RESOLVED_PPM = 20.0  # a drift interval this wide or narrower is shown as a figure
 MAX_SECONDS = 170.0  # the simulated drive loops over its 1 km street every 180 s
 OUT_MARK = ".acq-demo"  # in a folder the demo wrote: it may write there again
 FILES = ("demo.mcap", "cloud.ply", "preview.png", "calib.yaml", "config.yaml")
@@ -267,9 +268,15 @@ def _summary(
     else:
         clock += f"latency {laser.latency_s * 1e3:.2f} ms (no TM bounds)"
     ls = sync.get("laser")
-    if ls is not None and ls.drift_ppm is not None:
+    if ls is not None and ls.drift_fit_ppm is not None and ls.drift_ci_ppm is not None:
         true_ppm = (1.0 / (1.0 + SCANNER_DRIFT_PPM * 1e-6) - 1.0) * 1e6  # host s per device s
-        clock += f", drift {ls.drift_ppm:+.1f} ppm (true {true_ppm:+.1f})"
+        lo, hi = ls.drift_ci_ppm
+        if hi - lo <= DRIFT_RESOLVED_PPM:
+            clock += f", drift {ls.drift_fit_ppm:+.1f} ppm (95 % {lo:+.1f}..{hi:+.1f}; "
+        else:  # the device's ticks cannot pin it: no figure that reads as the drift
+            clock += (f", drift unresolved in {info.duration_s:.0f} s of device ticks: "
+                      f"within {lo:+.0f}..{hi:+.0f} ppm at 95 % (")  # fmt: skip
+        clock += f"true {true_ppm:+.1f})"
     if ls is not None and ls.residual_ms_p50 is not None:
         clock += f", receipt - stamp {ls.residual_ms_p50:.2f}/{ls.residual_ms_p95:.2f} ms p50/p95"
     lines.append(clock)

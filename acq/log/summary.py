@@ -12,6 +12,7 @@ import dataclasses
 import json as _json
 import math
 import os
+from array import array
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -23,6 +24,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 
 from acq.log.reader import LogReader, quiet
 from acq.log.timebase import MONOTONIC, TimeBase
+from acq.time.clocksync import fit_log_drift
 from acq.time.utc import utc_ns
 
 __all__ = ["ChannelInfo", "DeviceSync", "LogInfo", "format_info", "info", "info_many"]
@@ -62,7 +64,10 @@ class DeviceSync:
     ``drift_ppm`` is the last estimate; ``offset_spread_ms`` is max - min of the
     device-to-host offset over the log; ``uncertainty_s_*`` the estimator's own
     uncertainty, seconds; ``residual_ms_*`` receive time minus mapped stamp
-    (``recv_ns - stamp_ns``), milliseconds. ``None`` where the log has no such values.
+    (``recv_ns - stamp_ns``), milliseconds. ``drift_fit_ppm`` and its 95 % interval
+    ``drift_ci_ppm`` come from the whole log's last clock epoch
+    (:func:`acq.time.clocksync.fit_log_drift`; the interval counts the device clock's
+    resolution). ``None`` where the log has no such values.
     """
 
     name: str
@@ -75,6 +80,8 @@ class DeviceSync:
     residual_ms_p50: float | None
     residual_ms_p95: float | None
     residual_ms_max: float | None
+    drift_fit_ppm: float | None = None
+    drift_ci_ppm: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -157,6 +164,10 @@ class _Timing:
     uncertainties: list[float] = field(default_factory=list)
     residuals: list[int] = field(default_factory=list)
     dropped: int | None = None
+    # the last epoch's (unwrapped tick, receipt ns)
+    epoch: int | None = None
+    ticks: array[int] = field(default_factory=lambda: array("q"))
+    recv: array[int] = field(default_factory=lambda: array("q"))
 
 
 @dataclass
@@ -206,6 +217,12 @@ class _Acc:
         recv, stamp = _field(msg, "recv_ns"), _field(msg, "stamp_ns")
         if recv and stamp:
             t.residuals.append(int(recv) - int(stamp))
+        tick = _field(msg, "unwrapped_tick")
+        if recv and tick is not None and epoch is not None:
+            if epoch != t.epoch:
+                t.epoch, t.ticks, t.recv = int(epoch), array("q"), array("q")
+            t.ticks.append(int(tick))
+            t.recv.append(int(recv))
         dropped = _field(msg, "dropped")
         if dropped is not None:
             t.dropped = int(dropped)
@@ -262,14 +279,21 @@ class _Acc:
         for name, t in self.timing.items():
             if name not in drops and t.dropped is not None:
                 drops[name] = t.dropped
-        devices = [_device_sync(name, self.timing.get(name, _Timing())) for name in listed]
-        devices += [_device_sync(n, t) for n, t in sorted(self.timing.items()) if n not in listed]
+        clock = self.metadata.get("clock", {})
+        names = listed + [n for n in sorted(self.timing) if n not in listed]
+        devices = [
+            _device_sync(n, self.timing.get(n, _Timing()), clock.get(f"{n}.tick_hz")) for n in names
+        ]
         return devices, drops, disconnects
 
 
-def _device_sync(name: str, t: _Timing) -> DeviceSync:
+def _device_sync(name: str, t: _Timing, tick_hz: str | None) -> DeviceSync:
     res = np.asarray(t.residuals, dtype=np.float64) / 1e6
     unc = np.asarray(t.uncertainties, dtype=np.float64)
+    fit = None
+    hz = _float(tick_hz)
+    if hz is not None and hz > 0 and len(t.ticks) >= 3 and np.ptp(t.ticks) > 0:
+        fit = fit_log_drift(t.ticks, t.recv, hz)
     return DeviceSync(
         name=name,
         records=t.records,
@@ -281,7 +305,18 @@ def _device_sync(name: str, t: _Timing) -> DeviceSync:
         residual_ms_p50=float(np.percentile(res, 50)) if res.size else None,
         residual_ms_p95=float(np.percentile(res, 95)) if res.size else None,
         residual_ms_max=float(res.max()) if res.size else None,
+        drift_fit_ppm=fit.drift_ppm if fit is not None else None,
+        drift_ci_ppm=fit.drift_ci_ppm if fit is not None else None,
     )
+
+
+def _float(text: str | None) -> float | None:
+    """``text`` as a finite float, None if it is none."""
+    try:
+        value = float(text) if text is not None else math.nan
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
 
 
 def _decode_topic(topic: str) -> bool:
@@ -467,7 +502,7 @@ def _format_one(i: LogInfo) -> list[str]:
         by_name = {d.name: d for d in i.devices}
         lines.append(
             f"  {'device':<12}  {'drops':>6}  {'disconn':>7}  {'timing':>7}  {'epochs':>6}"
-            f"  {'drift ppm':>9}  {'offset spread ms':>16}  {'uncert. s med/max':>19}"
+            f"  {'drift ppm (95 %)':>20}  {'offset spread ms':>16}  {'uncert. s med/max':>19}"
             f"  {'recv-stamp ms p50/p95/max':>25}"
         )
         for name in names:
@@ -484,13 +519,21 @@ def _format_one(i: LogInfo) -> list[str]:
             )
             lines.append(
                 f"  {name:<12}  {drops:>6}  {disc:>7}  {d.records:>7}  {d.epochs:>6}"
-                f"  {_opt(d.drift_ppm, '.2f'):>9}  {_opt(d.offset_spread_ms, '.3f'):>16}"
+                f"  {_drift(d):>20}  {_opt(d.offset_spread_ms, '.3f'):>16}"
                 f"  {unc:>19}  {res:>25}"
             )
     if i.odd_size:
         counts = ", ".join(f"{name} {n}" for name, n in i.odd_size.items())
         lines.append(f"  warning: frames of an unexpected size (recorded, flagged): {counts}")
     return lines
+
+
+def _drift(d: DeviceSync) -> str:
+    """The whole log's drift fit with its interval, else the recorder's last estimate."""
+    if d.drift_fit_ppm is None or d.drift_ci_ppm is None:
+        return _opt(d.drift_ppm, ".2f")
+    lo, hi = d.drift_ci_ppm
+    return f"{d.drift_fit_ppm:.1f} ({lo:.0f}..{hi:.0f})"
 
 
 def _jsonable(i: LogInfo) -> dict[str, Any]:

@@ -273,8 +273,8 @@ class Recorder:
         return free, minutes
 
     def _clock_metadata(self) -> dict[str, str]:
-        """Per device: clock offset (host minus device ns), drift, epoch, latency; and a
-        realtime/monotonic pair."""
+        """Per device: clock offset (host minus device ns), drift, epoch, latency, tick
+        rate (Hz); and a realtime/monotonic pair."""
         out = {"realtime_ns": str(time.time_ns()), "monotonic_ns": str(time.monotonic_ns())}
         for d in self.devices.values():
             if d.clock is None:
@@ -282,6 +282,7 @@ class Recorder:
             out[f"{d.name}.offset_ns"] = str(d.clock_offset_ns())
             out[f"{d.name}.drift_ppm"] = f"{d.clock.drift_ppm:.3f}"
             out[f"{d.name}.epoch"] = str(d.clock.epoch)
+            out[f"{d.name}.tick_hz"] = f"{d.clock.tick_hz:g}"
             out[f"{d.name}.latency_s"] = f"{d.latency_s:.6f}"
             if d.latency_bounds_s is not None:
                 out[f"{d.name}.latency_bounds_s"] = "{:.6f} {:.6f}".format(*d.latency_bounds_s)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -31,6 +31,7 @@ __all__ = [
     "TurnFit",
     "Unwrapper",
     "fit_drift",
+    "fit_log_drift",
     "latency_bounds",
     "retime_offline",
 ]
@@ -455,6 +456,7 @@ def fit_drift(
     confidence: float = 0.95,
     reps: int = 400,
     seed: int = 0,
+    tick_s: float = 0.0,
 ) -> DriftFit:
     """Drift and offset of a device clock from (device s, host receive s) pairs.
 
@@ -463,6 +465,8 @@ def fit_drift(
     least-delayed samples), so the interval comes from subsampling rather than from a
     Gaussian formula: the slope is recomputed on ``reps`` random halves of the samples
     and their spread is scaled to the full set at the rate 1/n of such estimates.
+    ``tick_s``, the device clock's resolution, widens the interval by what the device
+    times cannot show: one tick over their span (a 1 ms clock: 100 ppm over 10 s).
     """
     x = np.asarray(device_s, dtype=np.float64)
     y = np.asarray(host_s, dtype=np.float64)
@@ -484,15 +488,38 @@ def fit_drift(
         dev[r] = _envelope_slope(x[idx], y[idx])[1] - b
     tail = (1.0 - confidence) / 2
     q_lo, q_hi = np.quantile(dev, [tail, 1.0 - tail]) * (m / n)
+    if tick_s > 0:
+        unseen = tick_s / max(float(x[-1]), tick_s)  # the span's first and last ticks
+        q_lo, q_hi = q_lo - unseen, q_hi + unseen
     return DriftFit(
         drift_ppm=(b - 1.0) * 1e6,
-        drift_ci_ppm=((b - q_hi - 1.0) * 1e6, (b - q_lo - 1.0) * 1e6),
+        drift_ci_ppm=(float(b - q_hi - 1.0) * 1e6, float(b - q_lo - 1.0) * 1e6),
         offset_s=float(y0 - x0 + a),
         residual_median_s=float(np.median(resid)),
         residual_p95_s=float(np.quantile(resid, 0.95)),
         residual_max_s=float(resid.max()),
         n=int(n),
     )
+
+
+def fit_log_drift(
+    ticks: npt.ArrayLike, recv_ns: npt.ArrayLike, tick_hz: float, *, buckets: int = 1000
+) -> DriftFit:
+    """:func:`fit_drift` over one device-clock epoch of a log: unwrapped ``ticks`` and
+    their host receive ns (arrays of one length), periodic stamps placed by their turn;
+    first the earliest arrival in each of at most ``buckets`` stretches of device time
+    (at least 0.5 s each), so that a log of hours costs what one of minutes does."""
+    u = np.asarray(ticks, dtype=np.float64)
+    x = _turn_times(u) / tick_hz
+    y = np.asarray(recv_ns, dtype=np.int64)
+    x0, y0 = float(x.min()), int(y.min())
+    xs, ys = x - x0, (y - y0) * 1e-9
+    bucket_s = max(0.5, float(xs.max()) / buckets)
+    bx, by = _earliest_per_bucket(xs, ys, bucket_s)
+    if bx.size < 3:  # under a second and a half: every sample
+        bx, by = xs, ys
+    fit = fit_drift(bx, by, reps=200, tick_s=1.0 / tick_hz)
+    return replace(fit, offset_s=fit.offset_s + y0 * 1e-9 - x0)
 
 
 def latency_bounds(

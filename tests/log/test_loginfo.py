@@ -161,6 +161,7 @@ def _timing(i: int, t: int) -> Any:
     return ACQ["Timing"](
         recv_ns=t,
         stamp_ns=t - residual,
+        unwrapped_tick=7_000 + 25 * i,  # a 1 kHz device clock, at the host's rate
         offset_ns=5_000 + 1_000 * i,
         drift_ppm=12.5 if i else -3.0,
         uncertainty_s={1: math.nan, 7: 5e-4}.get(i, 1e-4),  # NaN: no estimate yet
@@ -229,6 +230,7 @@ def build(
         "acq": {"version": "0.1.0"},
         "config": {"yaml": "version: 1\n"},
         "calibration": {"yaml": "version: 1\nlaser: laser\n"},
+        "clock": {"laser.tick_hz": "1000"},
     }
     with path.open("wb") as f:
         if indexed:
@@ -378,6 +380,11 @@ def test_devices_drops_and_clock_quality(rig: Built) -> None:
     assert laser.residual_ms_p50 == pytest.approx(2.0)
     assert laser.residual_ms_p95 == pytest.approx(10.0)
     assert laser.residual_ms_max == pytest.approx(10.0)
+    # the last epoch's 5 s, fitted: no drift, but a 1 ms clock pins it to 1 tick in 5 s
+    assert laser.drift_fit_ppm is not None and laser.drift_ci_ppm is not None
+    lo, hi = laser.drift_ci_ppm
+    assert lo < laser.drift_fit_ppm < hi and lo < 0.0 < hi and hi - lo > 2 * 1e6 / 5e3
+    assert dev["camera"].drift_ci_ppm is None
     assert dev["camera"].records == 0 and dev["camera"].residual_ms_p50 is None
 
 

@@ -83,6 +83,19 @@ def test_exit_code_files_and_time(demo: Demo) -> None:
     assert took < 60.0  # the cameras render their frames first: 10-30 s on a busy machine
 
 
+def test_clock_summary_shows_no_drift_it_cannot_know(demo: Demo) -> None:
+    # 3 s of a 1 ms clock cannot pin a 30 ppm drift: an interval holding the truth, no figure
+    clock = next(line for line in demo.printed.splitlines() if line.lstrip().startswith("clock"))
+    found = re.search(
+        r"drift unresolved in \d+ s of device ticks: "
+        r"within ([-+]\d+)\.\.([-+]\d+) ppm at 95 % \(true ([-+][\d.]+)\)",
+        clock,
+    )
+    assert found, clock
+    lo, hi, true = map(float, found.groups())
+    assert lo <= true <= hi
+
+
 class Log(NamedTuple):
     scans: int
     valid: int  # finite ranges

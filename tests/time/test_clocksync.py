@@ -6,7 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from acq.time.clocksync import DeviceClock, TurnFit, Unwrapper, fit_drift, retime_offline
+from acq.time.clocksync import (
+    DeviceClock,
+    TurnFit,
+    Unwrapper,
+    fit_drift,
+    fit_log_drift,
+    retime_offline,
+)
 
 
 def stream(
@@ -164,6 +171,26 @@ def test_drift_fit_interval_covers_the_truth() -> None:
         assert 0.0 <= fit.residual_median_s <= fit.residual_p95_s <= fit.residual_max_s
     assert hits >= 32  # >= 80 % of 40
     assert np.median(widths) < 200.0
+
+
+@pytest.mark.parametrize("seconds", [10.0, 600.0])
+def test_log_drift_interval_counts_the_clock_resolution(seconds: float) -> None:
+    # a 1 ms clock 30 ppm slow against the host's, stamped at 40 Hz: over 10 s it moves
+    # under one tick from a perfect clock's, so no fit can pin the drift closer than
+    # about 100 ppm, and the interval must say so; over 10 minutes it must be a figure
+    hits, widths = 0, []
+    for seed in range(10):
+        n = round(seconds / 0.025)
+        ticks, recv, _ = stream(n, tick_hz=1000.0, bits=24, drift=30e-6, seed=seed)
+        fit = fit_log_drift(ticks, recv, 1000.0)
+        lo, hi = fit.drift_ci_ppm
+        hits += lo <= 30.0 <= hi
+        widths.append(hi - lo)
+    assert hits >= 9
+    if seconds < 60:
+        assert min(widths) > 150.0  # at least one tick over the span, either way
+    else:
+        assert max(widths) < 10.0
 
 
 def test_drift_fit_rejects_bad_input() -> None:

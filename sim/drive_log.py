@@ -156,6 +156,23 @@ class DriveTruth:
         valid &= np.isfinite(P).all(axis=1)
         return uv, valid
 
+    def distances(
+        self,
+        scan: np.ndarray,
+        step: np.ndarray,
+        xyz: np.ndarray,
+        enu_origin: tuple[float, float, float] | None = None,
+    ) -> np.ndarray:
+        """Distance (m) of placed points ``xyz`` (N,3) to the noise-free hits of their
+        (``scan``, ``step``), NaN where there is none; ``xyz`` in the ENU frame at
+        ``enu_origin`` (lat °, lon °, h m; a cloud placed by GNSS: its first fix), or
+        None: the street's own frame."""
+        P = self.points[np.asarray(scan, np.int64), np.asarray(step, np.int64)]
+        P = P.astype(np.float64)
+        if enu_origin is not None:
+            P = P - WorldFrame("enu", DEFAULT_ORIGIN).from_geodetic(*map(np.array, enu_origin))
+        return np.linalg.norm(np.asarray(xyz, np.float64) - P, axis=1)
+
 
 def _geometry(rig: Rig) -> dict[str, float]:
     return {

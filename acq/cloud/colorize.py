@@ -7,7 +7,8 @@
    whole log, frames put back on the camera's frame grid.
 3. The trajectory (:mod:`acq.motion`): ``--trajectory CSV`` (a post-processed
    GNSS/INS file), else the log's CAN odometry (fused with its GNSS fixes when there are
-   any), else none: then the points stay in the laser frame at their own time and are
+   any), else its GNSS fixes alone (heading from the track), else none: then the points
+   stay in the laser frame at their own time and are
    coloured without motion compensation (right only for a rig standing still; said in
    the report).
 4. Chunks of ``chunk_s`` seconds of scans, each read from the files on its own with the

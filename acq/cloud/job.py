@@ -143,16 +143,23 @@ def _trajectory(
     if vehicle is None:
         vehicle = read_vehicle(list(files))
     report.notes += vehicle.notes
-    odo = vehicle.odometry
-    if len(odo) < 2:
-        return None
-    fixes = vehicle.fixes
+    odo, fixes = vehicle.odometry, vehicle.fixes
     usable = np.isfinite(fixes.lat) & (fixes.quality > 0) if len(fixes) else np.zeros(0, bool)
+    if len(odo) < 2 and usable.sum() < 5:
+        return None
     if usable.sum() >= 5:
         track = motion.gnss_track(
             fixes.t_ns, fixes.lat, fixes.lon, fixes.alt, hdop=fixes.hdop, quality=fixes.quality,
             frame=crs or "enu",
         )  # fmt: skip
+    if len(odo) < 2:
+        course = fixes.course[np.searchsorted(fixes.t_ns, track.t_ns)]  # NaN where not sent
+        traj = motion.from_gnss(track, course_rad=course)
+        report.trajectory = (
+            f"GNSS alone ({len(track)} fixes; heading from the track, no CAN odometry)"
+        )
+        return traj
+    if usable.sum() >= 5:
         fusion = motion.fuse(odo.t_ns, odo.speed, odo.yaw_rate, track, on_gap="flag")
         report.trajectory = (
             f"CAN odometry ({len(odo)} samples) fused with {int(usable.sum())} GNSS fixes "
@@ -256,8 +263,8 @@ def prepare(
     traj = _trajectory(files, trajectory, index, report, crs)
     world = frame == "world" if frame is not None else traj is not None
     if world and traj is None:
-        raise InputValueError("--frame world needs a trajectory (CAN odometry in the log or "
-                         "--trajectory CSV); use --frame laser")  # fmt: skip
+        raise InputValueError("--frame world needs a trajectory (CAN odometry or GNSS fixes "
+                         "in the log, or --trajectory CSV); use --frame laser")  # fmt: skip
     if crs:
         check_crs(crs, traj, world, report.trajectory or "none")
     if traj is None:

@@ -130,42 +130,63 @@ def from_gnss(
     smooth_s: float = 2.0,
     min_speed_mps: float = 1.0,
     max_gap_s: float = 2.0,
+    course_rad: npt.ArrayLike | None = None,
 ) -> Trajectory:
-    """GNSS alone: positions at the fixes (the antenna taken as the vehicle origin),
-    heading along the velocity of a line fitted to the fixes within ``smooth_s``/2 of
-    each (weighted by 1/sigma²), held where slower than ``min_speed_mps``; roll and
-    pitch zero; intervals between fixes longer than ``max_gap_s`` are gaps. The heading
-    is noisy (1.4 m fixes at 5 Hz, 6 m/s, 2 s: ~0.1 rad) and lags in turns by nothing
-    but bends by the curvature within the window: prefer :func:`fuse` with odometry."""
+    """GNSS alone: at each fix, a quadratic in time fitted to the fixes within
+    ``smooth_s``/2 of it (weighted by 1/sigma²) gives the position (the antenna taken
+    as the vehicle origin) and the velocity; the heading is along the velocity, held
+    where slower than ``min_speed_mps``, or the receiver's ``course_rad`` (K,) (rad
+    clockwise from north, NaN where not sent) where too few fixes lie in the window for
+    a fit; roll and pitch zero; intervals between fixes longer than ``max_gap_s`` are
+    gaps. The quadratic follows a curve without the bias a line has (10 cm lateral
+    acceleration over 2 s: 2 cm); the heading is noisy with fixes of metres (1.4 m at
+    5 Hz, 6 m/s, 2 s: ~0.1 rad): prefer :func:`fuse` with odometry there."""
     if len(track) < 3:
         raise ValueError("from_gnss needs at least 3 fixes")
     t, P = track.t_ns, track.xyz
     ts = (t - t[0]) * 1e-9
-    w = 1.0 / track.sigma_m**2
-    lo = np.searchsorted(ts, ts - smooth_s / 2, side="left")
-    hi = np.searchsorted(ts, ts + smooth_s / 2, side="right")
-
-    def window_sum(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        c = np.concatenate([[0.0], np.cumsum(x)])
-        s: npt.NDArray[np.float64] = c[hi] - c[lo]
-        return s
-
-    sw, st, stt = window_sum(w), window_sum(w * ts), window_sum(w * ts * ts)
-    # centred about each fix's own time for conditioning: sum w (t - t_k)^2 etc.
-    st_c = st - sw * ts
-    stt_c = stt - 2 * ts * st + sw * ts**2
-    den = sw * stt_c - st_c**2
-    vel = np.zeros((ts.size, 2))
-    for k in range(2):
-        sx, stx = window_sum(w * P[:, k]), window_sum(w * ts * P[:, k])
-        stx_c = stx - ts * sx
-        with np.errstate(invalid="ignore", divide="ignore"):
-            vel[:, k] = (sw * stx_c - st_c * sx) / den
-    moving = np.isfinite(vel).all(axis=1) & (np.hypot(vel[:, 0], vel[:, 1]) >= min_speed_mps)
+    pos, vel = _local_quadratic(ts, P, 1.0 / track.sigma_m**2, smooth_s / 2)
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    yaw = np.full(ts.size, np.nan)
+    moving = np.isfinite(speed) & (speed >= min_speed_mps)
+    yaw[moving] = np.arctan2(vel[moving, 1], vel[moving, 0])
+    if course_rad is not None:
+        course = np.asarray(course_rad, dtype=np.float64).reshape(-1)
+        if course.shape != ts.shape:
+            raise ValueError(f"course_rad needs one value per fix ({ts.size}), got {course.shape}")
+        take = ~np.isfinite(speed) & np.isfinite(course)
+        yaw[take] = np.pi / 2 - course[take]  # clockwise from north -> from east, ENU
+        moving |= take
     if not moving.any():
         raise ValueError(f"the vehicle never moves faster than {min_speed_mps} m/s: no heading")
-    yaw = np.unwrap(np.arctan2(vel[moving, 1], vel[moving, 0]))
-    yaw = np.interp(ts, ts[moving], yaw)
+    yaw = np.interp(ts, ts[moving], np.unwrap(yaw[moving]))
     return Trajectory(
-        t, matrices_from_euler(0.0, 0.0, yaw), P, track.frame, track.origin, max_gap_s=max_gap_s
+        t, matrices_from_euler(0.0, 0.0, yaw), pos, track.frame, track.origin, max_gap_s=max_gap_s
     )
+
+
+def _local_quadratic(
+    ts: np.ndarray, P: np.ndarray, w: np.ndarray, half_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample k, the weighted least-squares quadratic in (t - t_k) through the samples
+    within ``half_s`` of t_k: its value (K,3) and its first derivative (K,3) at t_k.
+    Where the window holds fewer than 3 samples: the sample itself and a NaN velocity."""
+    # near the ends the window is shifted inside the data, keeping its width
+    first, last = float(ts[0]), float(ts[-1])
+    start = np.clip(ts - half_s, first, max(first, last - 2 * half_s))
+    lo = np.searchsorted(ts, start, side="left")
+    hi = np.searchsorted(ts, start + 2 * half_s, side="right")
+    n = hi - lo
+    idx = lo[:, None] + np.arange(int(n.max()))[None, :]
+    inside = idx < hi[:, None]
+    idx = np.minimum(idx, ts.size - 1)
+    tau = np.where(inside, ts[idx] - ts[:, None], 0.0)
+    ww = np.where(inside, w[idx], 0.0)
+    powers = tau[..., None] ** np.arange(3)  # (K, W, 3): 1, tau, tau^2
+    A = np.einsum("kw,kwi,kwj->kij", ww, powers, powers)
+    b = np.einsum("kw,kwi,kwc->kic", ww, powers, P[idx])
+    pos, vel = P.astype(np.float64).copy(), np.full(P.shape, np.nan)
+    ok = (n >= 3) & (np.linalg.cond(A) < 1e12)
+    coef = np.linalg.solve(A[ok], b[ok])  # (k, 3 powers, 3 axes)
+    pos[ok], vel[ok] = coef[:, 0], coef[:, 1]
+    return pos, vel

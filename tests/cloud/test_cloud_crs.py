@@ -34,8 +34,9 @@ def _colorize(log_dir: Path, calib: object, out: Path, *argv: str) -> int:
     )
 
 
-def test_gnss_fixes_put_the_cloud_in_the_crs(tmp_path: Path) -> None:
-    truth = write_drive_log(tmp_path, 1.0, gnss_hz=10.0)
+@pytest.mark.parametrize("odometry_hz", [50.0, 0.0], ids=["with CAN", "GNSS alone"])
+def test_gnss_fixes_put_the_cloud_in_the_crs(tmp_path: Path, odometry_hz: float) -> None:
+    truth = write_drive_log(tmp_path, 1.0, gnss_hz=10.0, odometry_hz=odometry_hz)
     crs = _utm(DEFAULT_ORIGIN[0], DEFAULT_ORIGIN[1])
     out = tmp_path / "c.laz"
     assert _colorize(tmp_path, truth.calibration, out, "--crs", crs) == 0

@@ -171,7 +171,8 @@ class DriveTruth:
         P = P.astype(np.float64)
         if enu_origin is not None:
             P = P - WorldFrame("enu", DEFAULT_ORIGIN).from_geodetic(*map(np.array, enu_origin))
-        return np.linalg.norm(np.asarray(xyz, np.float64) - P, axis=1)
+        d: np.ndarray = np.linalg.norm(np.asarray(xyz, np.float64) - P, axis=1)
+        return d
 
 
 def _geometry(rig: Rig) -> dict[str, float]:

@@ -87,6 +87,9 @@ class ColaScanner(Scanner):
     wire = "CoLa"
     url_kind = "tcp"
     protocols = ("cola-b", "cola-a")
+    # LMDscandata carries both the scan's time since start-up and its time of
+    # transmission, µs (SICK telegram listing, "TimeSinceStartUp"/"TimeOfTransmission")
+    latency_probe = "each scan's time of transmission"
 
     def __init__(
         self,
@@ -396,6 +399,13 @@ class ColaScanner(Scanner):
             raw=tg.raw,
             extra_echoes=extra,
         )
+
+    def telegram_latency_s(self, scan: Scan) -> float | None:
+        """Time of transmission minus time since start-up (the scan's stamp), s."""
+        if len(scan.device_ticks) < 2:
+            return None
+        start, sent = scan.device_ticks[0], scan.device_ticks[1]
+        return ((sent - start) % (1 << self.tick_bits)) / self.tick_hz
 
     def stop(self) -> None:
         if self._sock is None:

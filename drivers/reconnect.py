@@ -130,8 +130,10 @@ def url_reachable(url: str, timeout: float = 0.2) -> bool:
 class Relink(Generic[R]):
     """Yields the records ``read()`` returns for as long as asked, reconnecting as needed.
 
-    ``on_event`` receives every :class:`LinkEvent`; counters (``disconnects``,
-    ``protocol_errors``, ``faults``) are kept for status reports.
+    ``on_event`` receives every :class:`LinkEvent`; ``on_connect`` runs at each
+    connection, the device identified and not yet streaming (time queries go there);
+    counters (``disconnects``, ``protocol_errors``, ``faults``) are kept for status
+    reports.
     """
 
     def __init__(
@@ -143,9 +145,11 @@ class Relink(Generic[R]):
         stall_periods: float = 3.0,
         max_protocol_errors: int = 10,
         on_event: Callable[[LinkEvent], None] | None = None,
+        on_connect: Callable[[], None] | None = None,
         reachable: Callable[[str], bool] = url_reachable,
     ) -> None:
         self.device = device
+        self.on_connect = on_connect
         self.read = read
         self.backoff = backoff if backoff is not None else Backoff()
         self.stall_periods = stall_periods
@@ -174,6 +178,8 @@ class Relink(Generic[R]):
     def _connect(self) -> None:
         self.device.timeout = self._command_timeout
         info = self.device.connect()
+        if self.on_connect is not None:
+            self.on_connect()
         self.device.start()
         period = self.period()
         if period is not None:

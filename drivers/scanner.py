@@ -71,7 +71,9 @@ class Scanner(ABC):
     wire: ClassVar[str] = ""  # the wire protocol family (SCIP, CoLa); "" for none we know
     url_kind: ClassVar[str] = ""  # "serial": a pyserial URL; "tcp": tcp://host:port
     protocols: ClassVar[tuple[str, ...]] = ()  # encodings ``protocol:`` picks; default first
-    latency_probe: ClassVar[str] = ""  # how ``latency_s: auto`` is measured ("": it is not)
+    # how ``latency_s: auto`` is measured ("": it is not): by time queries before
+    # streaming (``measure_latency``) or from each telegram (``telegram_latency_s``)
+    latency_probe: ClassVar[str] = ""
 
     def __init__(self, url: str, *, name: str = "laser", timeout: float = 1.0) -> None:
         self.url = url
@@ -99,6 +101,11 @@ class Scanner(ABC):
     @abstractmethod
     def close(self) -> None:
         """Close the transport; safe to call twice and after a failure."""
+
+    def telegram_latency_s(self, scan: Scan) -> float | None:
+        """Seconds from the instant ``scan``'s stamp (``device_ticks[0]``) refers to until
+        the device sent it, where its telegram says (None: it does not)."""
+        return None
 
     def __enter__(self) -> Scanner:
         return self

@@ -67,7 +67,9 @@ class DeviceSync:
     (``recv_ns - stamp_ns``), milliseconds. ``drift_fit_ppm`` and its 95 % interval
     ``drift_ci_ppm`` come from the whole log's last clock epoch
     (:func:`acq.time.clocksync.fit_log_drift`; the interval counts the device clock's
-    resolution). ``None`` where the log has no such values.
+    resolution). ``latency_*``: what the recorder took off the stamps at the end, how
+    it got it, and its bounds where measured (the ``clock`` metadata). ``None`` where
+    the log has no such values.
     """
 
     name: str
@@ -82,6 +84,9 @@ class DeviceSync:
     residual_ms_max: float | None
     drift_fit_ppm: float | None = None
     drift_ci_ppm: tuple[float, float] | None = None
+    latency_s: float | None = None  # subtracted from the device's stamps, s
+    latency_source: str | None = None  # how it was obtained (configured, auto: ...)
+    latency_bounds_s: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -228,7 +233,7 @@ class _Acc:
             t.dropped = int(dropped)
 
     def add_metadata(self, record: Metadata) -> None:
-        self.metadata.setdefault(record.name, dict(record.metadata))
+        self.metadata[record.name] = dict(record.metadata)  # the last of a name wins
 
     def channels(self) -> list[ChannelInfo]:
         out = []
@@ -281,17 +286,17 @@ class _Acc:
                 drops[name] = t.dropped
         clock = self.metadata.get("clock", {})
         names = listed + [n for n in sorted(self.timing) if n not in listed]
-        devices = [
-            _device_sync(n, self.timing.get(n, _Timing()), clock.get(f"{n}.tick_hz")) for n in names
-        ]
+        devices = [_device_sync(n, self.timing.get(n, _Timing()), clock) for n in names]
         return devices, drops, disconnects
 
 
-def _device_sync(name: str, t: _Timing, tick_hz: str | None) -> DeviceSync:
+def _device_sync(name: str, t: _Timing, clock: dict[str, str]) -> DeviceSync:
+    """``t``'s summary; ``clock`` the recorder's ``clock`` metadata."""
     res = np.asarray(t.residuals, dtype=np.float64) / 1e6
     unc = np.asarray(t.uncertainties, dtype=np.float64)
     fit = None
-    hz = _float(tick_hz)
+    hz = _float(clock.get(f"{name}.tick_hz"))
+    lo, hi, *_ = [_float(b) for b in clock.get(f"{name}.latency_bounds_s", "").split()] + [None] * 2
     if hz is not None and hz > 0 and len(t.ticks) >= 3 and np.ptp(t.ticks) > 0:
         fit = fit_log_drift(t.ticks, t.recv, hz)
     return DeviceSync(
@@ -307,6 +312,9 @@ def _device_sync(name: str, t: _Timing, tick_hz: str | None) -> DeviceSync:
         residual_ms_max=float(res.max()) if res.size else None,
         drift_fit_ppm=fit.drift_ppm if fit is not None else None,
         drift_ci_ppm=fit.drift_ci_ppm if fit is not None else None,
+        latency_s=_float(clock.get(f"{name}.latency_s")),
+        latency_source=clock.get(f"{name}.latency_source"),
+        latency_bounds_s=(lo, hi) if lo is not None and hi is not None else None,
     )
 
 
@@ -522,10 +530,21 @@ def _format_one(i: LogInfo) -> list[str]:
                 f"  {_drift(d):>20}  {_opt(d.offset_spread_ms, '.3f'):>16}"
                 f"  {unc:>19}  {res:>25}"
             )
+        lines.extend(_latency_line(d) for d in i.devices if d.latency_s is not None)
     if i.odd_size:
         counts = ", ".join(f"{name} {n}" for name, n in i.odd_size.items())
         lines.append(f"  warning: frames of an unexpected size (recorded, flagged): {counts}")
     return lines
+
+
+def _latency_line(d: DeviceSync) -> str:
+    """``d``'s latency, as the recorder took it off the stamps, and where it came from."""
+    assert d.latency_s is not None
+    how = d.latency_source or "how obtained not recorded"
+    if d.latency_bounds_s is not None:
+        lo, hi = d.latency_bounds_s
+        how += f", bounds {lo * 1e3:.2f}-{hi * 1e3:.2f} ms"
+    return f"  latency   {d.name}: {d.latency_s * 1e3:.2f} ms ({how})"
 
 
 def _drift(d: DeviceSync) -> str:

@@ -14,6 +14,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from acq.camera.calibfile import Calibration
 from acq.drivers.errors import DriverError, ProtocolError
 from acq.drivers.reconnect import CameraLink, LinkEvent, Reconnecting, Relink
@@ -64,10 +66,15 @@ class _ScanItem:
     counts: _Counts
 
 
+TELEGRAM_LATENCY_SCANS = 40  # scans whose own stamp-to-sending times set latency_s
+
+
 class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
     """A laser scanner: ``/<name>/scan``, ``/<name>/raw``, ``/acq/timing/<name>``; scans
-    stamped through the device clock, ``latency_s: auto`` measured with the driver's
-    time queries before streaming."""
+    stamped through the device clock less ``latency_s``. ``latency_s: auto`` is measured
+    with the driver's time queries at each connection, bounded once the clock has
+    scans to map them with (again after 40 and 400), or from the scans' own telegrams
+    (the median of the first ``TELEGRAM_LATENCY_SCANS``)."""
 
     kind = "scanner"
 
@@ -75,6 +82,8 @@ class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
         super().__init__(cfg.name, cfg.driver)
         self.cfg = cfg
         self._tm_samples: tuple[tuple[int, int, int], ...] = ()
+        self._tm_at = 0  # the clock's update count when they were taken
+        self._telegram_latencies: list[float] = []
 
     def channels(self) -> list[tuple[str, str]]:
         name = self.name
@@ -93,11 +102,16 @@ class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
         self.device = scanner
         cls = type(scanner)
         state.clock = DeviceClock(cls.tick_hz, cls.tick_bits)
+        on_connect = None
         if cfg.latency_s == "auto":
-            self._tm_samples = self._measure_latency(scanner)
+            state.latency_source = f"auto: {cls.latency_probe}, not yet measured (0 until then)"
+            if hasattr(scanner, "measure_latency"):
+                on_connect = self._measure_latency
         else:
             state.latency_s = float(cfg.latency_s)
-        return Reconnecting(scanner, on_event=on_event)
+        log.info("%s: latency_s %s", self.name, cfg.latency_s if cfg.latency_s == "auto"
+                 else f"{state.latency_s * 1e3:.2f} ms, configured")  # fmt: skip
+        return Reconnecting(scanner, on_event=on_event, on_connect=on_connect)
 
     def identity(self) -> object:
         return self.device.geometry
@@ -111,8 +125,10 @@ class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
             return (_ScanItem(scan, scan.recv_ns - round(state.latency_s * 1e9), 0, 0, counts),)
         clock.update(scan.device_ticks[0], scan.recv_ns)
         state.stamped(scan.device_ticks[0])
-        if self._tm_samples and clock.updates in (1, 40, 400):  # at once, then refined
+        if self._tm_samples and clock.updates - self._tm_at in (1, 40, 400):  # then refined
             self._apply_latency_bounds(clock)
+        if self.cfg.latency_s == "auto" and len(self._telegram_latencies) < TELEGRAM_LATENCY_SCANS:
+            self._telegram_latency(scan)
         geometry = self.device.geometry
         offset = geometry.stamp_offset_s if geometry is not None else 0.0
         stamp = scan_start_ns(clock.to_host_ns(scan.device_ticks[0]), offset, state.latency_s)
@@ -146,24 +162,37 @@ class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
             (f"/acq/timing/{name}", timing, scan.recv_ns, stamp),
         ])  # fmt: skip
 
-    def _measure_latency(self, scanner: Any) -> tuple[tuple[int, int, int], ...]:
-        """The driver's time queries before streaming; () if the device cannot be reached
-        yet."""
-        name = self.name
+    def _measure_latency(self) -> None:
+        """The driver's time queries, at a connection before streaming (a failure is
+        logged: the latency keeps its last value)."""
+        name, clock = self.name, self.state.clock
         try:
-            scanner.connect()
-            est = scanner.measure_latency(20)
+            est = self.device.measure_latency(20)
         except (DriverError, OSError) as e:
-            log.warning("%s: latency_s auto: no time queries (%s); using 0 until then", name, e)
-            return ()
-        finally:
-            try:
-                scanner.close()
-            except (DriverError, OSError):
-                pass
+            log.warning("%s: latency_s auto: no time queries (%s); keeping %.2f ms", name, e,
+                        self.state.latency_s * 1e3)  # fmt: skip
+            return
         log.info("%s: 20 time queries, round trip %.2f-%.2f ms", name,
                  est.rtt_min * 1e3, est.rtt_max * 1e3)  # fmt: skip
-        return tuple(est.samples)
+        self._tm_samples = tuple(est.samples)
+        self._tm_at = clock.updates if clock is not None else 0
+
+    def _telegram_latency(self, scan: Scan) -> None:
+        """One more scan's own stamp-to-sending time; the median once there are enough."""
+        latency = self.device.telegram_latency_s(scan)
+        if latency is None:
+            return
+        seen = self._telegram_latencies
+        seen.append(latency)
+        if len(seen) == TELEGRAM_LATENCY_SCANS:
+            state = self.state
+            state.latency_s = float(np.median(seen))
+            state.latency_bounds_s = (min(seen), max(seen))
+            state.latency_source = f"auto: {type(self.device).latency_probe}"
+            log.info(
+                "%s: latency from the stamp to sending %.2f ms (scans %.2f-%.2f ms)",
+                state.name, state.latency_s * 1e3, min(seen) * 1e3, max(seen) * 1e3,
+            )  # fmt: skip
 
     def _apply_latency_bounds(self, clock: DeviceClock) -> None:
         state = self.state
@@ -174,6 +203,7 @@ class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
             return
         state.latency_bounds_s = (lo, hi)
         state.latency_s = (lo + hi) / 2
+        state.latency_source = f"auto: {type(self.device).latency_probe}"
         log.info("%s: latency from the stamp to receipt %.2f ms (bounds %.2f-%.2f ms)",
                  state.name, state.latency_s * 1e3, lo * 1e3, hi * 1e3)  # fmt: skip
 

@@ -137,7 +137,9 @@ class ScannerConfig(_Model):
     driver: str  # a scanner driver of the registry: hokuyo, sick, ...
     url: str  # hokuyo: a pyserial URL (tcp:// becomes socket://); sick: tcp://host:port
     protocol: str | None = Field(default=None, validate_default=True)  # sick: cola-b | cola-a
-    latency_s: float | Literal["auto"] = 0.0  # constant transport latency, s; auto: hokuyo
+    # from the stamp to receipt, s; auto (the default where the driver can measure it):
+    # its latency_probe; else 0
+    latency_s: float | Literal["auto"] = Field(default=None, validate_default=True)
     options: dict[str, Any] = {}  # keyword arguments of the driver class
     required: bool = False  # no record from it soon after the start stops the recorder
 
@@ -181,6 +183,9 @@ class ScannerConfig(_Model):
     @field_validator("latency_s", mode="plain")
     @classmethod
     def _latency(cls, v: Any, info: ValidationInfo) -> float | str:
+        if v is None:  # not given: auto where the driver measures it
+            scanner = _scanner(info)
+            return "auto" if scanner is None or scanner.latency_probe else 0.0
         if v == "auto" and isinstance(v, str):
             scanner = _scanner(info)
             if scanner is not None and not scanner.latency_probe:

@@ -87,6 +87,7 @@ class DeviceState:
     clock: DeviceClock | None = None
     latency_s: float = 0.0
     latency_bounds_s: tuple[float, float] | None = None
+    latency_source: str = "configured"  # how latency_s was obtained
     times: deque[int] = field(default_factory=lambda: deque(maxlen=256))  # recent recv ns
     odd_size: int = 0  # frames of another size than expected (recorded, flagged)
     faults: int = 0

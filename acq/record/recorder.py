@@ -273,8 +273,8 @@ class Recorder:
         return free, minutes
 
     def _clock_metadata(self) -> dict[str, str]:
-        """Per device: clock offset (host minus device ns), drift, epoch, latency, tick
-        rate (Hz); and a realtime/monotonic pair."""
+        """Per device: clock offset (host minus device ns), drift, epoch, latency (and how
+        it was obtained), tick rate (Hz); and a realtime/monotonic pair."""
         out = {"realtime_ns": str(time.time_ns()), "monotonic_ns": str(time.monotonic_ns())}
         for d in self.devices.values():
             if d.clock is None:
@@ -284,6 +284,7 @@ class Recorder:
             out[f"{d.name}.epoch"] = str(d.clock.epoch)
             out[f"{d.name}.tick_hz"] = f"{d.clock.tick_hz:g}"
             out[f"{d.name}.latency_s"] = f"{d.latency_s:.6f}"
+            out[f"{d.name}.latency_source"] = d.latency_source
             if d.latency_bounds_s is not None:
                 out[f"{d.name}.latency_bounds_s"] = "{:.6f} {:.6f}".format(*d.latency_bounds_s)
         return out
@@ -445,6 +446,10 @@ class Recorder:
 
     def _close(self, writer: LogWriter) -> None:
         path = writer.path
+        try:
+            writer.update_metadata("clock", self._clock_metadata())  # the final estimates
+        except (OSError, ValueError):
+            pass  # a writer an error stopped: close() below keeps what it has
         try:
             report = writer.close()
         except OSError as e:

@@ -57,6 +57,12 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     assert len(recorded) == len(between)
     assert all(m.data == s.telegram for (_, _, m), s in zip(raws, recorded, strict=True))
     assert len(scans) == len(raws) == len(log["/acq/timing/laser"])
+    # the stamps: point 0's true time, the latency measured with TM round trips (the
+    # default), within 1 ms once the clock has a few seconds of scans
+    step_dt = rig.scanner.step_dt
+    err = np.array([p * 1e-9 - (s.t0 + s.start * step_dt)
+                    for (_, p, _), s in zip(scans, recorded, strict=True)])  # fmt: skip
+    assert abs(float(np.median(err[len(err) // 2 :]))) < 1e-3, np.percentile(err, [5, 50, 95])
     # rates: scans at 40 Hz, frames at 25 Hz, nothing lost between the first and the last
     span = (scans[-1][1] - scans[0][1]) * 1e-9
     assert len(scans) == pytest.approx(span * 40 + 1, rel=0.01)

@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from acq.calib.circle_fit import ImageCircle, fit_conic, refine_fit, robust_fit
+from acq.calib.circle_fit import ImageCircle, fit_conic, ransac_fit, refine_fit, robust_fit
 from acq.calib.rim_rays import RayEdges, ray_edges
 from acq.errors import InputError
 
@@ -66,6 +66,7 @@ ESTIMATORS = ("barycentre", "canny_fit", "hough", "subpixel")
 MIN_SIDE_PX = 32
 """The smallest image width and height that can hold an image circle, px."""
 _DARK_DN = 48.0  # a border darker than this is black: the image shows nothing
+_MIN_SUPPORT = 0.35  # the share of the rays crossing a circle that must find its rim
 
 
 class ImageCircleError(InputError):
@@ -173,14 +174,17 @@ def to_gray(image: np.ndarray) -> np.ndarray:
 def black_level(gray: np.ndarray, frame_px: int = 3) -> tuple[float, float]:
     """Black level and noise sigma (DN) of the dark surround, from the image's outer frame.
 
-    The level is the mode of the frame's histogram (the dark class is most of the frame
-    unless the circle fills the sensor), sigma the RMS spread below the mode.
+    The level is the mode of the darkest part of the frame's histogram (within 40 DN of
+    its 1st percentile: a circle larger than the sensor leaves only the frame's corners
+    dark, and a veiling-glare halo brightens them towards the rim), sigma the RMS spread
+    below the mode.
     """
     f = frame_px
     frame = np.concatenate(
         [gray[:f].ravel(), gray[-f:].ravel(), gray[f:-f, :f].ravel(), gray[f:-f, -f:].ravel()]
     ).astype(np.float64)
-    lo, hi = float(frame.min()), float(np.percentile(frame, 60))
+    lo = float(frame.min())
+    hi = min(float(np.percentile(frame, 60)), float(np.percentile(frame, 1)) + 40.0)
     bins = max(8, min(256, math.ceil(hi - lo) + 1))
     hist, edges = np.histogram(frame, bins=bins, range=(lo, hi + 1.0))
     k = int(np.argmax(hist))
@@ -240,14 +244,21 @@ def _off_border(
     return (x >= margin) & (x <= width - 1 - margin) & (y >= margin) & (y <= height - 1 - margin)
 
 
-def _canny_points(gray: np.ndarray, mask: np.ndarray, band_px: int = 10) -> npt.NDArray[np.float64]:
-    """(N,2) Canny edge pixels of the image within ``band_px`` of the disc's rim, without
-    those near the image border (where the disc is cut by the sensor, not by the lens)."""
+def _canny_points(
+    gray: np.ndarray, masks: Sequence[np.ndarray], band_px: int = 10
+) -> npt.NDArray[np.float64]:
+    """(N,2) Canny edge pixels of the image within ``band_px`` of the rim of one of the
+    ``masks`` (the disc at a low and at a mid threshold: a glare halo outside the rim
+    moves the first outwards, a dark scene inside it the second inwards), without those
+    near the image border (where the disc is cut by the sensor, not by the lens)."""
     smooth = cv2.GaussianBlur(gray, (0, 0), 1.5)
     img8 = np.clip(smooth, 0, 255).astype(np.uint8)
-    m8 = mask.astype(np.uint8)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
-    rim = cv2.morphologyEx(m8, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8))
+    mask = masks[0]
+    rim = np.zeros(mask.shape, np.uint8)
+    for m in masks:
+        m8 = m.astype(np.uint8)
+        rim = np.maximum(rim, cv2.morphologyEx(m8, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)))
     # the image border is not the rim
     h, w = mask.shape
     rim[:2], rim[-2:], rim[:, :2], rim[:, -2:] = 0, 0, 0, 0
@@ -268,13 +279,14 @@ def canny_fit(
     gray: np.ndarray, mask: np.ndarray, ellipse: bool = False, points: np.ndarray | None = None
 ) -> tuple[Estimate, np.ndarray]:
     """Least-squares circle (ellipse) through the rim's Canny edge pixels (paper: "best
-    fitting circle by mean squared estimation"), with 3-sigma clipping of stray scene edges.
+    fitting circle by mean squared estimation"), with 3-sigma clipping of stray scene edges
+    from the RANSAC inliers on (scene and overlay edges can outnumber a short rim's).
     Returns the estimate and its edge points (N,2)."""
-    pts = _canny_points(gray, mask) if points is None else points
+    pts = _canny_points(gray, [mask]) if points is None else points
     if len(pts) < 10:
         raise ValueError("too few rim edge pixels for a circle fit")
-    keep = np.ones(len(pts), bool)
-    circle = fit_conic(pts, ellipse)
+    keep = ransac_fit(pts, 2.0, ellipse)
+    circle = fit_conic(pts[keep], ellipse)
     for _ in range(3):
         circle, res, sigma = refine_fit(pts[keep], circle, ellipse)
         res = circle.residuals(pts)
@@ -354,10 +366,29 @@ def subpixel(
                 f"only {len(rays.points)} of {rays.cast} rays from the centre of its edges "
                 "found a rim (a sharp fall to a dark surround)"
             )
-        circle, inl, res, sigma = robust_fit(rays.points, ellipse, 1.5, rng)
+        circle, inl, res, sigma = rim_fit(rays.points, rays.haloed, ellipse, rng)
     rms = float(np.sqrt(np.mean(res[inl] ** 2)))
     est = Estimate("subpixel", circle, int(inl.sum()), rms, sigma)
     return est, rays.points, inl, rays
+
+
+def rim_fit(
+    points: np.ndarray, haloed: np.ndarray, ellipse: bool, rng: np.random.Generator
+) -> tuple[ImageCircle, np.ndarray, np.ndarray, tuple[float, ...]]:
+    """The circle (ellipse) of sub-pixel rim points (:func:`robust_fit`), from the points
+    with a dark outside when they are enough (at least 30 and a quarter of all), then
+    with every point within 1.5 px of it: a soft vignetted rim may show a scene edge
+    inside it with a halo-like fall beyond, a real halo only shows where the rim is.
+    Returns circle, inliers, residuals of all points, standard errors."""
+    dark = ~haloed
+    n_dark = int(dark.sum())
+    if n_dark < max(30, len(points) // 4) or n_dark == len(points):
+        return robust_fit(points, ellipse, 1.5, rng)
+    circle, inl_dark, _, sigma = robust_fit(points[dark], ellipse, 1.5, rng)
+    inl = np.abs(circle.residuals(points)) < 1.5
+    inl[dark] = inl_dark
+    circle, _, sigma = refine_fit(points[inl], circle, ellipse)
+    return circle, inl, circle.residuals(points), sigma
 
 
 # --- several images ---------------------------------------------------------------------
@@ -400,6 +431,50 @@ def _no_disc(gray: np.ndarray, black: float, threshold: float) -> str:
     return "no bright disc stands out from its dark border"
 
 
+def _centre_gap(a: ImageCircle, b: ImageCircle) -> float:
+    """Distance between two circles' centres, px."""
+    return math.hypot(a.cx - b.cx, a.cy - b.cy)
+
+
+def _band_rim(
+    g: np.ndarray,
+    pts: np.ndarray,
+    black: float,
+    noise: float,
+    ellipse: bool,
+    n_rays: int,
+    rng: np.random.Generator,
+) -> tuple[Estimate, np.ndarray, np.ndarray, RayEdges]:
+    """The sub-pixel estimate from the circle the Canny rim pixels ``pts`` agree on.
+    ValueError saying why when there is no circle."""
+    h, w = g.shape
+    if len(pts) < 10:
+        raise ValueError("too few rim edge pixels for a circle fit")
+    guess, *_ = robust_fit(pts, ellipse, 2.0, rng)
+    if not _plausible(guess, w, h):
+        raise ValueError(
+            f"the edges of its bright part do not outline a circle on the sensor (their best "
+            f"circle: centre ({guess.cx:.0f}, {guess.cy:.0f}), radius {guess.radius:.0f} px)"
+        )
+    sub = subpixel(g, guess, black, noise, ellipse, n_rays, rng=rng)
+    c = sub[0].circle
+    if not _plausible(c, w, h):
+        raise ValueError(
+            f"its rim points do not outline a circle on the sensor (their best circle: "
+            f"centre ({c.cx:.0f}, {c.cy:.0f}), radius {c.radius:.0f} px)"
+        )
+    # a lens's rim shows along most rays that cross it on the sensor, a scene's edges
+    # agree on a circle along few
+    crossing = sub[3].cast - sub[3].off_sensor
+    if sub[0].n_points < _MIN_SUPPORT * crossing:
+        raise ValueError(
+            f"its rim points do not outline a circle on the sensor (their best circle, centre "
+            f"({c.cx:.0f}, {c.cy:.0f}), radius {c.radius:.0f} px, is found along only "
+            f"{sub[0].n_points} of the {crossing} rays that cross it)"
+        )
+    return sub
+
+
 def _estimate(
     g: np.ndarray,
     black: float,
@@ -421,25 +496,45 @@ def _estimate(
     if np.count_nonzero(mask) < 10:
         raise ValueError(_no_disc(g, black, thr))
     est = {"barycentre": barycentre(mask, ellipse)}
-    est["canny_fit"], pts = canny_fit(g, mask, ellipse)
-    # the first guess: the rim's Canny pixels that agree on one circle (RANSAC), robust
-    # to a rim that fades into a dark scene where the mask strays inwards
-    guess, *_ = robust_fit(pts, ellipse, 2.0, rng)
-    if not _plausible(guess, w, h):
-        raise ValueError(
-            f"the edges of its bright part do not outline a circle on the sensor (their best "
-            f"circle: centre ({guess.cx:.0f}, {guess.cy:.0f}), radius {guess.radius:.0f} px)"
-        )
-    r_bar = est["barycentre"].circle.radius
+    # the rim's Canny pixels near the disc's edge at a low threshold, then also at a mid
+    # one (a glare halo moves the first outwards); the first guess is the circle they
+    # agree on (RANSAC), and the band whose rim points agree best wins
+    level = float(np.median(g[mask]))
+    bands = ([mask], [mask, disc_mask(g, 0.5 * (thr + level))])
+    found: list[tuple[Estimate, np.ndarray, np.ndarray, RayEdges]] = []
+    failure: ValueError | None = None
+    band_pts = []
+    for band in bands:
+        band_pts.append(_canny_points(g, band))
+        try:
+            found.append(_band_rim(g, band_pts[-1], black, noise, ellipse, n_rays, rng))
+        except ValueError as e:  # numpy's LinAlgError too
+            failure = failure or e
+    if not found:
+        raise failure or ValueError("no rim found")
+    # the rim found along most rays, unless one found along nearly as many lies a pixel or
+    # more outside it: a soft rim can show a scene edge or a shading ring inside it,
+    # nothing bright outside it
+    best = max(found, key=lambda f: f[0].n_points)
+    for f in found:
+        if f[0].n_points >= 0.8 * best[0].n_points:
+            if f[0].circle.radius > best[0].circle.radius + 1.0:
+                best = f
+    est["subpixel"], spts, sinl, rays = best
+    far = max(_centre_gap(f[0].circle, best[0].circle) for f in found)
+    if far > 1.5:
+        # from the two first guesses the rim points settle on rims that far apart
+        sub = est["subpixel"]
+        note = f"uncertain by {far:.1f} px: a soft or double rim (two rims fit)"
+        est["subpixel"] = replace(sub, notes=(*sub.notes, note))
+    # the Canny pixels of the band that lie on that rim
+    on_rim = [np.sum(np.abs(best[0].circle.residuals(p)) < 2.0) for p in band_pts]
+    pts = band_pts[int(np.argmax(on_rim))]
+    est["canny_fit"], _ = canny_fit(g, mask, ellipse, pts)
+    guess = est["subpixel"].circle
+    r0, r1 = sorted((est["barycentre"].circle.radius, guess.radius))
     aspect = guess.ry / guess.rx if ellipse else 1.0
-    est["hough"] = hough(g, pts, (0.7 * r_bar, 1.3 * r_bar), aspect)
-    est["subpixel"], spts, sinl, rays = subpixel(g, guess, black, noise, ellipse, n_rays, rng=rng)
-    if not _plausible(est["subpixel"].circle, w, h):
-        c = est["subpixel"].circle
-        raise ValueError(
-            f"its rim points do not outline a circle on the sensor (their best circle: "
-            f"centre ({c.cx:.0f}, {c.cy:.0f}), radius {c.radius:.0f} px)"
-        )
+    est["hough"] = hough(g, pts, (0.7 * r0, 1.3 * r1), aspect)
     return est, pts, spts, sinl, rays
 
 
@@ -475,6 +570,8 @@ def detect(
     sub_pts: list[np.ndarray] = []
     sub_inl: list[np.ndarray] = []
     sub_img: list[np.ndarray] = []
+    sub_clip: list[np.ndarray] = []
+    sub_halo: list[np.ndarray] = []
     levels = [black_level(g) for g in grays]
     counts = {"cast": 0, "kept": 0, "off_sensor": 0, "saturated": 0, "no_edge": 0}
     for i, (g, (black, noise)) in enumerate(zip(grays, levels, strict=True)):
@@ -486,6 +583,8 @@ def detect(
         sub_pts.append(spts)
         sub_inl.append(sinl)
         sub_img.append(np.full(len(spts), i))
+        sub_clip.append(rays.clipped)
+        sub_halo.append(rays.haloed)
         counts["cast"] += rays.cast
         counts["kept"] += len(rays.points)
         counts["off_sensor"] += rays.off_sensor
@@ -515,7 +614,9 @@ def detect(
             combined["canny_fit"], _ = canny_fit(
                 grays[0], np.ones((h, w), bool), ellipse, points=np.concatenate(canny_pts)
             )
-            circle, inl, res, sigma = robust_fit(all_sub, ellipse, 1.5, np.random.default_rng(1))
+            circle, inl, res, sigma = rim_fit(
+                all_sub, np.concatenate(sub_halo), ellipse, np.random.default_rng(1)
+            )
         except ValueError as e:
             raise ImageCircleError(
                 f"{name(0)} .. {name(len(grays) - 1)}: no image circle common to the images: {e}"
@@ -539,11 +640,21 @@ def detect(
     if gap > 200.0:
         warnings.append(f"rim points span only {360 - gap:.0f} degrees: radius poorly fixed")
     if counts["saturated"]:
-        warnings.append(f"{counts['saturated']} rays crossing saturated pixels at the rim dropped")
+        warnings.append(
+            f"{counts['saturated']} rays with saturated pixels just outside the rim (bloom, "
+            "an overlay) dropped"
+        )
+    clip = np.concatenate(sub_clip)
+    counts["clipped"] = int(clip.sum())
+    counts["clipped_inliers"] = int(np.sum(clip & inl))
     kept = int(inl.sum())
     if kept < 0.5 * len(all_sub):
         warnings.append(f"only {kept} of {len(all_sub)} rim points agree on one circle")
     counts["inliers"] = kept
+    for i, est in enumerate(per_image):
+        warnings += [
+            f"{name(i)}: {k} {n}" for k, e in est.items() if k != "barycentre" for n in e.notes
+        ]
     result = CircleResult(
         circle=circle,
         estimates=combined,

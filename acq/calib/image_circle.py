@@ -424,7 +424,8 @@ def _no_disc(gray: np.ndarray, black: float, threshold: float) -> str:
     if black > _DARK_DN:
         return (
             f"no dark surround: its border is at {black:.0f} DN and nothing inside is "
-            "brighter (a fisheye's image circle lies in a black surround)"
+            "brighter (a fisheye's image circle lies in a black surround; no rim shows if "
+            "the circle covers the whole sensor)"
         )
     if float(gray.max()) <= threshold:
         return f"the image is black (nothing above {threshold:.0f} DN)"
@@ -454,7 +455,8 @@ def _band_rim(
     if not _plausible(guess, w, h):
         raise ValueError(
             f"the edges of its bright part do not outline a circle on the sensor (their best "
-            f"circle: centre ({guess.cx:.0f}, {guess.cy:.0f}), radius {guess.radius:.0f} px)"
+            f"circle: centre ({guess.cx:.0f}, {guess.cy:.0f}), radius {guess.radius:.0f} px; "
+            "no rim shows if the image circle covers the whole sensor)"
         )
     sub = subpixel(g, guess, black, noise, ellipse, n_rays, rng=rng)
     c = sub[0].circle
@@ -470,7 +472,8 @@ def _band_rim(
         raise ValueError(
             f"its rim points do not outline a circle on the sensor (their best circle, centre "
             f"({c.cx:.0f}, {c.cy:.0f}), radius {c.radius:.0f} px, is found along only "
-            f"{sub[0].n_points} of the {crossing} rays that cross it)"
+            f"{sub[0].n_points} of the {crossing} rays that cross it; no rim shows if the "
+            "image circle covers the whole sensor)"
         )
     return sub
 

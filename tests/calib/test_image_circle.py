@@ -14,7 +14,7 @@ from acq.calib import circle_fit, image_circle
 from acq.calib.circle_fit import ImageCircle
 from acq.calib.image_circle import CircleResult, ImageCircleError
 from acq.errors import InputError
-from acq.sim.fisheye_images import CircleTruth, fisheye_image
+from acq.sim.fisheye_images import CircleTruth, corner_arc_images, fisheye_image
 
 REFERENCE_PP = (384.8, 240.0)  # ../shared/data/README.md, fisheye/
 
@@ -246,3 +246,30 @@ def test_real_truncated_images_centre_near_reference_principal_point(shared_dir:
         if e["subpixel"].notes:
             assert any(w.startswith(f"image {i + 1}: subpixel uncertain") for w in res.warnings)
     assert any("barycentre is biased" in w for w in res.warnings)
+
+
+@pytest.mark.parametrize(("width", "height", "seed"), [(780, 582, 0), (1032, 778, 1)])
+def test_corner_arcs_beside_clipped_pixels_under_a_glare_halo(
+    width: int, height: int, seed: int
+) -> None:
+    """A circle larger than the sensor, its rim only four corner arcs (under 25 % of it),
+    clipped at 255 beside the rim, a wide halo outside, JPEG, a time stamp in a corner:
+    two images of one camera together, centre within 2 px and radius within 3 px."""
+    images, truth = corner_arc_images(np.random.default_rng(seed), 2, width, height)
+    arcs, span = truth.visible_arcs()
+    assert arcs >= 4 and span < 0.25
+    res = image_circle.detect(images)
+    assert res.truncated == ("left", "right", "top", "bottom")
+    assert res.rays["clipped_inliers"] > 0.5 * res.rays["inliers"]  # clipped rims used
+    for name in ("subpixel", "canny_fit", "hough"):
+        c = res.estimates[name].circle
+        assert centre_error(c, truth) < 2.0, name
+        assert abs(c.radius - truth.radius) < 3.0, name
+
+
+def test_a_circle_covering_the_whole_sensor_says_so() -> None:
+    bright, _ = fisheye_image(radius=700.0, rim=0.8, flare=600.0, gain=3.0)
+    dim, _ = fisheye_image(radius=700.0, rim=0.8)
+    for img in (bright, dim):
+        with pytest.raises(ImageCircleError, match="covers the whole sensor"):
+            image_circle.detect([img])

@@ -66,6 +66,9 @@ ESTIMATORS = ("barycentre", "canny_fit", "hough", "subpixel")
 MIN_SIDE_PX = 32
 """The smallest image width and height that can hold an image circle, px."""
 _DARK_DN = 48.0  # a border darker than this is black: the image shows nothing
+_AGREE_PX = 1.5  # estimators farther apart than this on one image need a reason
+_HOUGH_SPREAD_PX = 1.5  # a Hough vote peak wider than this does not fix the centre
+_CANNY_RMS_PX = 1.0  # Canny pixels scattering more than this do not fix the rim
 _MIN_SUPPORT = 0.35  # the share of the rays crossing a circle that must find its rim
 
 
@@ -294,7 +297,10 @@ def canny_fit(
         keep = np.abs(res) < max(3.0 * s, 1.0)
     circle, res, sigma = refine_fit(pts[keep], circle, ellipse)
     rms = float(np.sqrt(np.mean(res**2)))
-    return Estimate("canny_fit", circle, int(keep.sum()), rms, sigma), pts
+    notes: tuple[str, ...] = ()
+    if rms > _CANNY_RMS_PX:
+        notes = (f"its edge pixels scatter by {rms:.1f} px RMS about the circle (a soft rim)",)
+    return Estimate("canny_fit", circle, int(keep.sum()), rms, sigma, notes), pts
 
 
 def hough(
@@ -338,7 +344,15 @@ def hough(
     r = float(lo + int(np.argmax(hist[lo:hi])))
     cx = (u + 0.5) / aspect - 0.5
     support = int(hist[int(r)])
-    return Estimate("hough", ImageCircle(float(cx), float(v), r / aspect, r), support)
+    # how far the votes within 10 % of the peak's spread: the centre's uncertainty
+    _, peak = cv2.connectedComponents((acc >= 0.9 * acc[v, u]).astype(np.uint8))
+    pv, pu = np.nonzero(peak == peak[v, u])
+    eu, ev = float(np.abs(pu - u).max()) / aspect, float(np.abs(pv - v).max())
+    notes: tuple[str, ...] = ()
+    if max(eu, ev) > _HOUGH_SPREAD_PX:
+        notes = (f"its vote peak spreads over +-{eu:.0f} px along u, +-{ev:.0f} px along v",)
+    circle = ImageCircle(float(cx), float(v), r / aspect, r)
+    return Estimate("hough", circle, support, sigma_px=(eu, ev), notes=notes)
 
 
 # --- the sub-pixel estimator ------------------------------------------------------------
@@ -409,12 +423,12 @@ def _largest_gap_deg(points: np.ndarray, centre: ImageCircle) -> float:
 
 
 def _plausible(circle: ImageCircle, width: int, height: int) -> bool:
-    """A lens's image circle: centre on the sensor, radius between a few pixels and the
-    sensor's diagonal."""
+    """A lens's image circle: centre on the sensor, radius between a tenth of the sensor's
+    shorter side (smaller is a letter of an overlay, a lamp) and its diagonal."""
     return (
         0.0 <= circle.cx <= width
         and 0.0 <= circle.cy <= height
-        and 4.0 <= min(circle.rx, circle.ry)
+        and max(4.0, 0.1 * min(width, height)) <= min(circle.rx, circle.ry)
         and max(circle.rx, circle.ry) <= math.hypot(width, height)
     )
 
@@ -541,6 +555,33 @@ def _estimate(
     return est, pts, spts, sinl, rays
 
 
+def _median_hough(estimates: Sequence[Estimate]) -> Estimate:
+    """The median of several images' Hough circles, noting the widest vote peak among
+    them when one does not fix its centre."""
+    circle = _mean_circle([e.circle for e in estimates], median=True)
+    eu = max(e.sigma_px[0] for e in estimates)
+    ev = max(e.sigma_px[1] for e in estimates)
+    notes: tuple[str, ...] = ()
+    if any(e.notes for e in estimates):
+        notes = (f"vote peaks spread over up to +-{eu:.0f} px along u, +-{ev:.0f} px along v",)
+    n = int(sum(e.n_points for e in estimates))
+    return Estimate("hough", circle, n, sigma_px=(eu, ev), notes=notes)
+
+
+def _disagreement(image: str, est: dict[str, Estimate]) -> list[str]:
+    """Warnings for one image: the sub-pixel circle's own doubts, and each other fit (the
+    barycentre aside) more than 1.5 px from it, with why it is not to be trusted there."""
+    sub = est["subpixel"]
+    out = [f"{image}: subpixel {n}" for n in sub.notes]
+    for k in ("canny_fit", "hough"):
+        e = est[k]
+        off = max(_centre_gap(e.circle, sub.circle), abs(e.circle.radius - sub.circle.radius))
+        if off > _AGREE_PX:
+            why = "; ".join(e.notes) or "no reason found"
+            out.append(f"{image}: {k} is {off:.1f} px off the sub-pixel circle: {why}")
+    return out
+
+
 def detect(
     images: Sequence[np.ndarray],
     ellipse: bool = False,
@@ -606,11 +647,7 @@ def detect(
                 _mean_circle([e["barycentre"].circle for e in per_image]),
                 int(sum(e["barycentre"].n_points for e in per_image)),
             ),
-            "hough": Estimate(
-                "hough",
-                _mean_circle([e["hough"].circle for e in per_image], median=True),
-                int(sum(e["hough"].n_points for e in per_image)),
-            ),
+            "hough": _median_hough([e["hough"] for e in per_image]),
         }
         all_sub = np.concatenate(sub_pts)
         try:
@@ -655,9 +692,7 @@ def detect(
         warnings.append(f"only {kept} of {len(all_sub)} rim points agree on one circle")
     counts["inliers"] = kept
     for i, est in enumerate(per_image):
-        warnings += [
-            f"{name(i)}: {k} {n}" for k, e in est.items() if k != "barycentre" for n in e.notes
-        ]
+        warnings += _disagreement(name(i), est)
     result = CircleResult(
         circle=circle,
         estimates=combined,
@@ -675,8 +710,9 @@ def detect(
     # disagreement among the estimators not known to be biased here
     fair = {k: e for k, e in combined.items() if not e.notes}
     spread = replace(result, estimates=fair)
-    spread_c, spread_r = spread.spread_centre_px, spread.spread_radius_px
-    if spread_c > 3.0 or spread_r > 3.0:
+    spread_c = spread.spread_centre_px if len(fair) > 1 else 0.0
+    spread_r = spread.spread_radius_px if len(fair) > 1 else 0.0
+    if spread_c > _AGREE_PX or spread_r > _AGREE_PX:
         warnings.append(
             f"the estimators ({', '.join(fair)}) disagree by {spread_c:.1f} px in centre and "
             f"{spread_r:.1f} px in radius (see the per-estimator results)"

@@ -65,8 +65,10 @@ def ray_edges(
     so that they are at most 1 px apart on the rim.
 
     On each ray, within ``window_px`` of the guessed rim, the rim is the outermost strong
-    minimum of the radial derivative of the image blurred by ``blur_px`` (parabolic
-    interpolation between samples ``step_px`` apart) whose surroundings lie on the sensor,
+    minimum (a fifth of the ray's steepest fall or more: a soft rim falls less steeply
+    than a scene edge inside it) of the radial derivative of the image blurred by
+    ``blur_px`` (parabolic interpolation between samples ``step_px`` apart) whose
+    surroundings lie on the sensor,
     accepted only when the image beyond it is darker than halfway to the inside's level
     and does not brighten again further out, and the inside is brighter than the noise.
     Rays with no such stretch on the sensor, or saturated pixels beyond the edge, are
@@ -101,7 +103,7 @@ def ray_edges(
     # noise of the derivative of the blurred, interpolated image (about)
     d_noise = noise / (blur_px**2 * math.sqrt(8.0 * math.pi))
     strongest = np.where(room, d, np.inf).min(axis=1)
-    strong = d <= np.minimum(0.35 * strongest, -4.0 * d_noise)[:, None]
+    strong = d <= np.minimum(0.2 * strongest, -4.0 * d_noise)[:, None]
     local_min = np.zeros_like(strong)
     local_min[:, 1:-1] = (d[:, 1:-1] <= d[:, :-2]) & (d[:, 1:-1] < d[:, 2:])
     cand = strong & local_min & room

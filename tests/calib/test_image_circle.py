@@ -234,18 +234,24 @@ def test_real_truncated_images_centre_near_reference_principal_point(shared_dir:
     c = res.circle
     assert math.hypot(c.cx - REFERENCE_PP[0], c.cy - REFERENCE_PP[1]) < 2.0
     assert 286.0 < c.radius < 294.0
-    # every image alone lands within 2 px too, and the images agree within 3 px (their
-    # rims are soft and vignetted), but for an image whose soft rim lets two rims fit
-    # 1.5 px or more apart, which says so
-    sure = [e["subpixel"] for e in res.per_image if not e["subpixel"].notes]
-    assert len(sure) >= 3
-    centres = np.array([(e.circle.cx, e.circle.cy) for e in sure])
-    assert np.all(np.hypot(*(centres - REFERENCE_PP).T) < 2.0)
-    assert np.ptp(centres, axis=0).max() < 3.0
-    for i, e in enumerate(res.per_image):
-        if e["subpixel"].notes:
-            assert any(w.startswith(f"image {i + 1}: subpixel uncertain") for w in res.warnings)
+    # every image alone lands within 2.5 px too (the rims are soft and vignetted); on each
+    # the fits agree within 1.5 px, or the result says why the one off is not trusted
+    centres = np.array([(e["subpixel"].circle.cx, e["subpixel"].circle.cy) for e in res.per_image])
+    assert np.all(np.hypot(*(centres - REFERENCE_PP).T) < 2.5)
+    for i, est in enumerate(res.per_image):
+        sub = est["subpixel"].circle
+        for k in ("canny_fit", "hough"):
+            c = est[k].circle
+            if max(centre_error_px(c, sub), abs(c.radius - sub.radius)) > 1.5:
+                assert est[k].notes
+                (why,) = [w for w in res.warnings if w.startswith(f"image {i + 1}: {k} is ")]
+                assert est[k].notes[0] in why
     assert any("barycentre is biased" in w for w in res.warnings)
+    assert not any("no reason found" in w for w in res.warnings)
+
+
+def centre_error_px(a: ImageCircle, b: ImageCircle) -> float:
+    return math.hypot(a.cx - b.cx, a.cy - b.cy)
 
 
 @pytest.mark.parametrize(("width", "height", "seed"), [(780, 582, 0), (1032, 778, 1)])

@@ -126,15 +126,20 @@ class CircleResult:
     rays: dict[str, int] = field(default_factory=dict)  # ray counts: cast, kept, dropped by cause
 
     @property
+    def unbiased(self) -> list[Estimate]:
+        """The estimates not known to be biased here (the barycentre of a cut circle)."""
+        return [e for e in self.estimates.values() if not any("biased" in n for n in e.notes)]
+
+    @property
     def spread_centre_px(self) -> float:
-        """Largest distance between two estimators' centres, px."""
-        c = np.array([(e.circle.cx, e.circle.cy) for e in self.estimates.values()])
+        """Largest distance between two unbiased estimators' centres, px."""
+        c = np.array([(e.circle.cx, e.circle.cy) for e in self.unbiased])
         return float(np.max(np.hypot(*(c[:, None, :] - c[None, :, :]).transpose(2, 0, 1))))
 
     @property
     def spread_radius_px(self) -> float:
-        """Largest minus smallest radius over the estimators, px."""
-        r = [e.circle.radius for e in self.estimates.values()]
+        """Largest minus smallest radius over the unbiased estimators, px."""
+        r = [e.circle.radius for e in self.unbiased]
         return float(max(r) - min(r))
 
     def to_dict(self) -> dict[str, Any]:

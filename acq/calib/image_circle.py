@@ -442,9 +442,9 @@ def _no_disc(gray: np.ndarray, black: float, threshold: float) -> str:
     """Why an image has no bright disc on a dark surround."""
     if black > _DARK_DN:
         return (
-            f"no dark surround: its border is at {black:.0f} DN and nothing inside is "
-            "brighter (a fisheye's image circle lies in a black surround; no rim shows if "
-            "the circle covers the whole sensor)"
+            f"no dark surround: even the darkest part of its border is at {black:.0f} DN "
+            "(a fisheye's image circle lies in a black surround: this image's circle "
+            "covers the whole sensor, no rim shows, or it is no fisheye image)"
         )
     if float(gray.max()) <= threshold:
         return f"the image is black (nothing above {threshold:.0f} DN)"
@@ -515,7 +515,7 @@ def _estimate(
         )
     thr = _threshold(black, noise)
     mask = disc_mask(g, thr)
-    if np.count_nonzero(mask) < 10:
+    if black > _DARK_DN or np.count_nonzero(mask) < 10:
         raise ValueError(_no_disc(g, black, thr))
     est = {"barycentre": barycentre(mask, ellipse)}
     # the rim's Canny pixels near the disc's edge at a low threshold, then also at a mid

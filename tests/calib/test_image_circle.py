@@ -197,7 +197,7 @@ def _photo(kind: str) -> np.ndarray:
 @pytest.mark.parametrize(
     ("kind", "why"),
     [
-        ("uniform", "no dark surround: its border is at 128 DN"),
+        ("uniform", "no dark surround: even the darkest part of its border is at 128 DN"),
         ("gradient", "too few rim edge pixels"),
         ("checkerboard", "do not outline a circle on the sensor"),
         ("rectangle", "do not outline a circle on the sensor"),
@@ -274,8 +274,9 @@ def test_corner_arcs_beside_clipped_pixels_under_a_glare_halo(
 
 
 def test_a_circle_covering_the_whole_sensor_says_so() -> None:
+    """Bright (clipped) and ordinary scenes reaching every edge: not "the image is black"."""
     bright, _ = fisheye_image(radius=700.0, rim=0.8, flare=600.0, gain=3.0)
     dim, _ = fisheye_image(radius=700.0, rim=0.8)
     for img in (bright, dim):
-        with pytest.raises(ImageCircleError, match="covers the whole sensor"):
+        with pytest.raises(ImageCircleError, match=r"no dark surround.*covers the whole sensor"):
             image_circle.detect([img])

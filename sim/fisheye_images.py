@@ -249,43 +249,45 @@ def corner_arc_images(
     sensor in a bright room adds: the scene clipped at 255 beside the rim along most of
     each arc, a dark surround of 15-22 DN brightened by a 40-90 DN veiling-glare halo that
     fades over 10-25 px, JPEG at quality 70-90 and a time stamp burnt into one corner.
-    The scene changes from image to image, the camera (and so the truth) does not."""
+    The scene changes from image to image, the camera (and so the truth) does not. A
+    landscape sensor (width >= height)."""
+    if width < height:
+        raise ValueError(f"{width}x{height}: expected a landscape sensor (width >= height)")
     half_diag = math.hypot(width, height) / 2.0
     cx = width / 2.0 + rng.uniform(-6.0, 6.0)
     cy = height / 2.0 + rng.uniform(-6.0, 6.0)
     # between the radius whose corner arcs span 24 % of the rim and the one spanning 10 %
     lo, hi = _radius_for_span(width, height, 0.24), _radius_for_span(width, height, 0.10)
     radius = rng.uniform(lo, min(hi, half_diag - 12.0))
-    cam = {
-        "edge_width": rng.uniform(1.5, 3.5),
-        "rim": rng.uniform(0.75, 0.95),
-        "black": rng.uniform(15.0, 22.0),
-        "noise": rng.uniform(1.0, 2.5),
-        "halo": rng.uniform(40.0, 90.0),
-        "halo_px": rng.uniform(10.0, 25.0),
-        "overlay_corner": int(rng.integers(0, 4)),
-    }
-    images, truth = [], None
-    for i in range(n):
-        stamp = f"CAM1 2026-12-02 06:{10 + i:02d}:{int(rng.integers(0, 60)):02d}"
-        img, truth = fisheye_image(
+    edge_width, rim = rng.uniform(1.5, 3.5), rng.uniform(0.75, 0.95)
+    black, noise = rng.uniform(15.0, 22.0), rng.uniform(1.0, 2.5)
+    halo, halo_px = rng.uniform(40.0, 90.0), rng.uniform(10.0, 25.0)
+    corner = int(rng.integers(0, 4))
+    shots = [
+        fisheye_image(
             width,
             height,
             cx,
             cy,
             radius,
+            edge_width=edge_width,
+            rim=rim,
+            black=black,
+            noise=noise,
             gain=rng.uniform(1.0, 1.4),
             flare=rng.uniform(200.0, 300.0),
+            halo=halo,
+            halo_px=halo_px,
             seed=int(rng.integers(0, 4)),
             t=rng.uniform(0.5, 20.0),
             rng=rng,
-            overlay=stamp,
+            overlay=f"CAM1 2026-12-02 06:{10 + i:02d}:{int(rng.integers(0, 60)):02d}",
+            overlay_corner=corner,
             jpeg_quality=int(rng.integers(70, 91)),
-            **cam,  # type: ignore[arg-type]
         )
-        images.append(img)
-    assert truth is not None
-    return images, truth
+        for i in range(max(n, 1))
+    ]
+    return [img for img, _ in shots], shots[0][1]
 
 
 def _radius_for_span(width: int, height: int, fraction: float) -> float:
@@ -294,9 +296,9 @@ def _radius_for_span(width: int, height: int, fraction: float) -> float:
     lo, hi = max(width, height) / 2.0, math.hypot(width, height) / 2.0
     for _ in range(50):
         r = 0.5 * (lo + hi)
-        span = 4.0 * (math.acos(width / (2.0 * r)) - math.asin(min(1.0, height / (2.0 * r))))
-        span = -span if width < height else span
-        if abs(span) / (2.0 * math.pi) > fraction:
+        # each corner's arc runs from where it leaves the sides to where it meets top/bottom
+        span = 4.0 * (math.asin(min(1.0, height / (2.0 * r))) - math.acos(width / (2.0 * r)))
+        if span / (2.0 * math.pi) > fraction:
             lo = r
         else:
             hi = r

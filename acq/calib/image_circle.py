@@ -5,15 +5,20 @@ Four estimators, each on a grey image (pixel centres at integers, as in OpenCV):
 - ``barycentre``: centroid and area of the non-black (filled) disc; the paper's first. It
   assumes a whole disc: biased when the circle is cut by the sensor edges.
 - ``canny_fit``: least-squares circle through the Canny edge pixels of the rim, minus those
-  on the sensor edges.
+  on the sensor edges, from their RANSAC inliers on.
 - ``hough``: a Hough circle transform of those edge pixels, each voting along its
   gradient (whole pixels; OpenCV's ``HoughCircles`` strays by 10 px on the real images).
 - ``subpixel``: along rays from a first centre (:mod:`acq.calib.rim_rays`), the rim is
   where the intensity falls fastest (the extremum of the radial derivative of the lightly
-  blurred image, to a fraction of a pixel); rays that leave the sensor, cross saturated
-  glare or find no dark outside are dropped, RANSAC rejects the rest of the outliers, and
-  a geometric least squares fit (radial distances) gives the circle. Twice, the second
-  time from the refined centre.
+  blurred image, to a fraction of a pixel); rays with no such fall on the sensor, a
+  saturated bloom past it or no darker outside are dropped, a rim beside clipped pixels
+  is kept, RANSAC rejects the rest of the outliers, and a geometric least squares fit
+  (radial distances) gives the circle. Twice, the second time from the refined centre.
+
+The first centre comes from the Canny pixels near the disc's edge at a low threshold and,
+separately, at a mid one (a veiling-glare halo moves the first outwards); the sub-pixel
+rim from each, the one found along most rays (or one a pixel outside it) wins. A circle
+whose rim shows only as arcs in the sensor's corners is found like any other.
 
 With ``ellipse=True`` every estimator fits an axis-aligned ellipse instead (non-square
 pixels: semi-axes ``rx`` along u and ``ry`` along v). Several images of the same camera
@@ -21,13 +26,18 @@ are combined: their edge points are pooled for the fits, the other estimators av
 The curves (:class:`~acq.calib.circle_fit.ImageCircle`) and their fits to edge points
 are in :mod:`acq.calib.circle_fit`.
 
-The black level and noise are measured on the image border, not assumed zero, and the
-disc threshold sits a few noise sigmas above it, so the paper's threshold estimators move
-little with noise; they still move with vignetting and soft edges (a threshold meets a
-faded rim further in or out), which the gradient-based sub-pixel estimator does not.
+The black level and noise are measured on the darkest part of the image border, not
+assumed zero, and the disc threshold sits a few noise sigmas above it, so the paper's
+threshold estimators move little with noise; they still move with vignetting and soft
+edges (a threshold meets a faded rim further in or out), which the gradient-based
+sub-pixel estimator does not. Each estimate carries notes when it is not to be trusted on
+an image (a truncated circle's barycentre, a Hough vote peak spread over pixels, Canny
+pixels scattered by a soft rim, two sub-pixel rims), and the result warns, per image,
+when a fit is more than 1.5 px off the sub-pixel circle, with that note.
 
 An image with no image circle (an ordinary photograph, a uniform or black frame, one too
-small) raises :class:`ImageCircleError` naming the image and saying what is missing.
+small, one whose circle covers the whole sensor) raises :class:`ImageCircleError` naming
+the image and saying what is missing.
 """
 
 from __future__ import annotations

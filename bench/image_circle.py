@@ -7,7 +7,10 @@ saturated glare blob on the rim; then a few with non-square pixels (``--ellipse`
 JSON line per estimator and set: centre error (px, distance) and radius error (px,
 signed), over all images and over the truncated ones. Then, if ../shared/data is there,
 one line for the real 748x480 images against their checkerboard reference, with our own
-Kannala-Brandt board fit (initialised from the circle) beside it.
+Kannala-Brandt board fit (initialised from the circle) beside it. Also: cameras whose circle
+shows only as four corner arcs under a glare halo, clipped inside, JPEG-compressed, with a
+burnt-in time stamp (one line per sensor size), and each real image alone (one line each,
+with its estimators' disagreement).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from acq.calib import image_circle
-from acq.sim.fisheye_images import random_image
+from acq.sim.fisheye_images import corner_arc_images, random_image
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "fisheye"
 REFERENCE_PP = (384.8, 240.0)  # px, data README (Kannala-Brandt checkerboard fit)
@@ -78,6 +81,82 @@ def run_set(n: int, seed: int, aspect: float, label: str) -> None:
         print(json.dumps(line), flush=True)
 
 
+def run_corner_arcs(cameras: int, n_images: int, seed: int) -> None:
+    """Cameras whose circle shows only as corner arcs (sim.fisheye_images.corner_arc_images:
+    clipped inside the rim, glare halo, JPEG, overlay), ``n_images`` each, detected
+    together: one line per size with every estimator's worst errors over the cameras."""
+    for width, height in ((780, 582), (1032, 778)):
+        rng = np.random.default_rng(seed)
+        errs: dict[str, list[tuple[float, float]]] = {k: [] for k in image_circle.ESTIMATORS}
+        spans, failures, seconds = [], [], 0.0
+        for _ in range(cameras):
+            images, truth = corner_arc_images(rng, n_images, width, height)
+            spans.append(truth.visible_arcs()[1])
+            t0 = time.perf_counter()
+            try:
+                res = image_circle.detect(images)
+            except image_circle.ImageCircleError as e:
+                failures.append(str(e))
+                continue
+            seconds += time.perf_counter() - t0
+            for name, est in res.estimates.items():
+                c = est.circle
+                errs[name].append((math.hypot(c.cx - truth.cx, c.cy - truth.cy), c.rx - truth.a))
+        line = {
+            "bench": "image_circle",
+            "set": "corner arcs",
+            "size": [width, height],
+            "cameras": cameras,
+            "images_per_camera": n_images,
+            "rim_span_on_sensor": [round(min(spans), 3), round(max(spans), 3)],
+            "failures": failures,
+            "detect_s_per_camera": round(seconds / max(cameras - len(failures), 1), 2),
+        }
+        for name, rows in errs.items():
+            if rows:
+                a = np.array(rows)
+                line[name] = {
+                    "centre_err_max_px": round(float(a[:, 0].max()), 3),
+                    "centre_err_median_px": round(float(np.median(a[:, 0])), 3),
+                    "radius_err_px": [
+                        round(float(a[:, 1].min()), 3),
+                        round(float(a[:, 1].max()), 3),
+                    ],
+                }
+        print(json.dumps(line), flush=True)
+
+
+def run_real_per_image() -> None:
+    """Each real image alone: every estimator's circle, their disagreement (the barycentre
+    left out: the circle is truncated) and the command's warnings."""
+    from acq.calib import fisheye_calib
+
+    for path in sorted(REAL.glob("*.jpg")):
+        res = image_circle.detect(fisheye_calib.read_images([path]))
+        fair = {k: e.circle for k, e in res.estimates.items() if k != "barycentre"}
+        c = np.array([(e.cx, e.cy) for e in fair.values()])
+        spread_c = float(np.max(np.hypot(*(c[:, None, :] - c[None, :, :]).transpose(2, 0, 1))))
+        r = [e.radius for e in fair.values()]
+        line = {
+            "bench": "image_circle",
+            "set": "real, per image",
+            "image": path.name,
+            "estimators": {
+                k: [round(e.cx, 2), round(e.cy, 2), round(e.radius, 2)] for k, e in fair.items()
+            },
+            "spread_centre_px": round(spread_c, 2),
+            "spread_radius_px": round(max(r) - min(r), 2),
+            "subpixel_to_reference_px": round(
+                math.hypot(
+                    fair["subpixel"].cx - REFERENCE_PP[0], fair["subpixel"].cy - REFERENCE_PP[1]
+                ),
+                2,
+            ),
+            "warnings": [w for w in res.warnings if "barycentre is biased" not in w],
+        }
+        print(json.dumps(line), flush=True)
+
+
 def run_real(fov_deg: float) -> None:
     from acq.calib import fisheye_calib
 
@@ -128,9 +207,15 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--images", type=int, default=20, help="random images per set (default 20)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--cameras", type=int, default=10, help="corner-arc cameras per size (default 10)"
+    )
     args = p.parse_args()
     run_set(args.images, args.seed, 1.0, "square pixels")
     run_set(max(args.images // 2, 2), args.seed + 1, 1.06, "pixel aspect 1.06, --ellipse")
+    run_corner_arcs(args.cameras, 4, args.seed)
+    if REAL.is_dir():
+        run_real_per_image()
     run_real(185.0)
 
 

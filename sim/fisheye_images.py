@@ -3,7 +3,12 @@
 The scene is the synthetic street seen through an equidistant lens centred on the true
 circle and wider than the circle (so texture reaches the rim and beyond); the circle itself
 is a separate mask with an anti-aliased soft edge, then come vignetting, a black level with
-noise and, optionally, a saturated glare blob at the rim that blooms past it.
+noise and, optionally, a saturated glare blob at the rim that blooms past it. What a real
+sensor in a bright room adds is optional too: a flare ring inside the rim that clips the
+scene at 255 beside it, a veiling-glare halo that brightens the dark surround gradually towards the
+rim, a text overlay burnt into a corner and JPEG compression. :func:`corner_arc_images`
+makes several images of one such camera whose circle is larger than the sensor, its rim
+visible only as arcs in the four corners.
 
 Truth (px, pixel centres at integers as in OpenCV): the centre ``(cx, cy)`` and the
 semi-axes ``a`` (along u) and ``b = a * aspect`` (along v) of the curve where the edge
@@ -22,7 +27,7 @@ import numpy.typing as npt
 from acq.camera.camera_models import KannalaBrandt
 from acq.sim import sensors, world
 
-__all__ = ["CircleTruth", "fisheye_image", "random_image"]
+__all__ = ["CircleTruth", "corner_arc_images", "fisheye_image", "random_image"]
 
 # sigma of a Gaussian-blurred edge whose 10-90 % rise is 1 px
 _SIGMA_PER_WIDTH = 1.0 / (2.0 * 1.2815515655446004)
@@ -43,6 +48,21 @@ class CircleTruth:
     black: float  # black level, DN
     noise: float  # Gaussian noise sigma, DN
     glare_deg: float | None  # angle of the glare blob on the rim (u axis, towards +v)
+    halo: float = 0.0  # veiling glare just outside the rim, DN
+    halo_px: float = 0.0  # its decay length outwards, px
+    jpeg_quality: int | None = None
+    overlay: str | None = None  # the text burnt into a corner
+
+    def visible_arcs(self, step_deg: float = 0.05) -> tuple[int, float]:
+        """The rim's arcs on the sensor: their count and the fraction of the
+        circumference they span together."""
+        phi = np.radians(np.arange(0.0, 360.0, step_deg))
+        u, v = self.cx + self.a * np.cos(phi), self.cy + self.b * np.sin(phi)
+        on = (u >= -0.5) & (u <= self.width - 0.5) & (v >= -0.5) & (v <= self.height - 0.5)
+        if on.all():
+            return 1, 1.0
+        starts = int(np.sum(on & ~np.roll(on, 1)))
+        return starts, float(on.mean())
 
     @property
     def radius(self) -> float:
@@ -102,6 +122,13 @@ def fisheye_image(
     seed: int = 0,
     t: float = 2.0,
     rng: np.random.Generator | None = None,
+    flare: float = 0.0,
+    flare_px: float = 60.0,
+    halo: float = 0.0,
+    halo_px: float = 20.0,
+    overlay: str | None = None,
+    overlay_corner: int = 0,
+    jpeg_quality: int | None = None,
 ) -> tuple[np.ndarray, CircleTruth]:
     """A (H,W) uint8 grey fisheye image and its truth.
 
@@ -111,6 +138,12 @@ def fisheye_image(
     offset and read noise; ``glare_deg`` puts a saturated blob of ``glare_radius`` px on the
     rim at that angle; ``gain`` scales the scene. ``seed`` and ``t`` pick the street view,
     ``rng`` the noise (default: seeded from ``seed``).
+
+    A real sensor's defects: ``flare`` (DN) brightens the scene at the rim, fading inwards
+    as exp(-d / ``flare_px``) (past 255 it clips); ``halo`` (DN) is the veiling glare at
+    the rim, falling off outwards as exp(-d / ``halo_px``) and flat inside; ``overlay``
+    is white text burnt into a corner (``overlay_corner`` 0-3: top-left, top-right, bottom-right,
+    bottom-left); ``jpeg_quality`` compresses the result.
     """
     if not 0.0 < rim <= 1.0:
         raise ValueError(f"rim {rim}: expected in (0, 1]")
@@ -130,7 +163,9 @@ def fisheye_image(
     edge = 0.5 * _erfc(dist / (math.sqrt(2.0) * sigma))
     alpha = math.acos(rim**0.25)
     vignette = np.cos(alpha * np.minimum(rho, 1.5)) ** 4
-    img = scene * vignette * edge
+    img = (scene + flare * np.exp(np.minimum(dist, 0.0) / flare_px)) * vignette * edge
+    if halo > 0.0:
+        img = img + halo * np.exp(-np.maximum(dist, 0.0) / halo_px)
     if glare_deg is not None:
         ang = math.radians(glare_deg)
         gx, gy = cx + radius * math.cos(ang), cy + b * math.sin(ang)
@@ -139,8 +174,27 @@ def fisheye_image(
         img = img + 600.0 * np.exp(-d2 / (2.0 * glare_radius**2))
     img = img + black + rng.normal(0.0, noise, img.shape)
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-    truth = CircleTruth(width, height, cx, cy, radius, b, edge_width, rim, black, noise, glare_deg)
+    if overlay:
+        _burn_text(out, overlay, overlay_corner)
+    if jpeg_quality is not None:
+        _, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+        out = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
+    truth = CircleTruth(
+        width, height, cx, cy, radius, b, edge_width, rim, black, noise, glare_deg,
+        halo, halo_px if halo > 0.0 else 0.0, jpeg_quality, overlay,
+    )  # fmt: skip
     return out, truth
+
+
+def _burn_text(img: np.ndarray, text: str, corner: int) -> None:
+    """White text (a camera's time stamp) drawn into ``corner`` of ``img`` in place."""
+    h, w = img.shape
+    scale = h / 900.0
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+    margin = 8
+    x = margin if corner in (0, 3) else w - margin - tw
+    y = margin + th if corner in (0, 1) else h - margin
+    cv2.putText(img, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, 255, 1, cv2.LINE_AA)
 
 
 def random_image(
@@ -185,3 +239,67 @@ def random_image(
         t=rng.uniform(0.5, 20.0),
         rng=rng,
     )
+
+
+def corner_arc_images(
+    rng: np.random.Generator, n: int = 4, width: int = 780, height: int = 582
+) -> tuple[list[np.ndarray], CircleTruth]:
+    """``n`` images of one camera whose circle is larger than the sensor: its rim shows
+    only as four corner arcs spanning 10-24 % of the circumference together. What a real
+    sensor in a bright room adds: the scene clipped at 255 beside the rim along most of
+    each arc, a dark surround of 15-22 DN brightened by a 40-90 DN veiling-glare halo that
+    fades over 10-25 px, JPEG at quality 70-90 and a time stamp burnt into one corner.
+    The scene changes from image to image, the camera (and so the truth) does not. A
+    landscape sensor (width >= height)."""
+    if width < height:
+        raise ValueError(f"{width}x{height}: expected a landscape sensor (width >= height)")
+    half_diag = math.hypot(width, height) / 2.0
+    cx = width / 2.0 + rng.uniform(-6.0, 6.0)
+    cy = height / 2.0 + rng.uniform(-6.0, 6.0)
+    # between the radius whose corner arcs span 24 % of the rim and the one spanning 10 %
+    lo, hi = _radius_for_span(width, height, 0.24), _radius_for_span(width, height, 0.10)
+    radius = rng.uniform(lo, min(hi, half_diag - 12.0))
+    edge_width, rim = rng.uniform(1.5, 3.5), rng.uniform(0.75, 0.95)
+    black, noise = rng.uniform(15.0, 22.0), rng.uniform(1.0, 2.5)
+    halo, halo_px = rng.uniform(40.0, 90.0), rng.uniform(10.0, 25.0)
+    corner = int(rng.integers(0, 4))
+    shots = [
+        fisheye_image(
+            width,
+            height,
+            cx,
+            cy,
+            radius,
+            edge_width=edge_width,
+            rim=rim,
+            black=black,
+            noise=noise,
+            gain=rng.uniform(1.0, 1.4),
+            flare=rng.uniform(200.0, 300.0),
+            halo=halo,
+            halo_px=halo_px,
+            seed=int(rng.integers(0, 4)),
+            t=rng.uniform(0.5, 20.0),
+            rng=rng,
+            overlay=f"CAM1 2026-12-02 06:{10 + i:02d}:{int(rng.integers(0, 60)):02d}",
+            overlay_corner=corner,
+            jpeg_quality=int(rng.integers(70, 91)),
+        )
+        for i in range(max(n, 1))
+    ]
+    return [img for img, _ in shots], shots[0][1]
+
+
+def _radius_for_span(width: int, height: int, fraction: float) -> float:
+    """The radius of a circle centred on the sensor whose four corner arcs span
+    ``fraction`` of its circumference (bisection: the span falls as the radius grows)."""
+    lo, hi = max(width, height) / 2.0, math.hypot(width, height) / 2.0
+    for _ in range(50):
+        r = 0.5 * (lo + hi)
+        # each corner's arc runs from where it leaves the sides to where it meets top/bottom
+        span = 4.0 * (math.asin(min(1.0, height / (2.0 * r))) - math.acos(width / (2.0 * r)))
+        if span / (2.0 * math.pi) > fraction:
+            lo = r
+        else:
+            hi = r
+    return 0.5 * (lo + hi)

@@ -250,9 +250,11 @@ def _circle_lines(
             f"  {name:<11} centre ({e.circle.cx:8.2f}, {e.circle.cy:8.2f})  "
             f"radius {e.circle.radius:7.2f}{note}"
         )
+    off = max(result.spread_centre_px, result.spread_radius_px) > 1.5
     lines.append(
         f"  spread      centre {result.spread_centre_px:.2f} px, "
-        f"radius {result.spread_radius_px:.2f} px"
+        f"radius {result.spread_radius_px:.2f} px over {', '.join(e.name for e in result.unbiased)}"
+        + ("; the notes and warnings say why a fit is off" if off else "")
     )
     if model.fx == model.fy:
         lines.append(

@@ -190,13 +190,13 @@ def test_a_different_scan_command_is_refused(recorded: list[Path]) -> None:
     with Replay(recorded) as replay:
         host, port = replay.urls["laser"].removeprefix("socket://").split(":")
         with socket.create_connection((host, int(port)), timeout=2) as sock:
-            sock.sendall(b"MD0000108001000\n")  # the log holds ME (intensity) scans
+            sock.sendall(b"ND0000108001000\n")  # the log holds ME (single echo) scans
             reply = b""
             while not reply.endswith(b"\n\n"):
                 reply += sock.recv(4096)
         assert reply.split(b"\n")[1][:2] == b"0E"
         assert len(replay.errors) == 1
-        assert "MD0000108001000" in replay.errors[0] and "ME0000108001000" in replay.errors[0]
+        assert "ND0000108001000" in replay.errors[0] and "ME0000108001000" in replay.errors[0]
 
 
 def test_a_bad_log_exits_2_with_one_line(

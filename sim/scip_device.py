@@ -9,7 +9,20 @@ synthetic street (``StreetSource``) at the model's rate, time-stamped by the dev
 Differences between the models follow the real ones: ME/GE only where the model has
 intensities, ND/NE/HD/HE only on multi-echo models (others answer status 0E), SS only
 on serial models; SCIP 2.2 (UST) reports ``PROT:SCIP 2.2``, a 4-character II TIME and a
-different II wording, and adds ``RB`` (reboot, sent twice) and ``%SL`` (sleep).
+different II wording, and adds the UST's state commands (Hokuyo, "Communication Protocol
+Specification for UST Series 10LX/20LX", C-42-04076, and the SCIP 2.2 detail it refers
+to, C-42-03886; read as hokuyolx, written against a real UST-10LX, reads them):
+
+- ``%ST`` sensor state, one data line: ``000`` standby, ``002`` time adjustment (TM),
+  ``003`` single scan (laser on), ``004`` multi scan (streaming), ``005`` sleep;
+  answered in any state, like ``VV`` and ``II``;
+- ``%SL`` sleep (laser and measurement off until ``BM`` or a scan command);
+- ``RT`` partial reset: ``RS`` but for the bit rate;
+- ``RB`` reboot, sent twice within a second (``01``, then ``00``).
+
+The SCIP 2.0 models answer these ``0E``, the status for an undefined command (Hokuyo,
+"Communication Protocol Specification for SCIP2.0", C-42-03320B, section 9), as a
+URG-04LX or UTM-30LX does.
 """
 
 from __future__ import annotations

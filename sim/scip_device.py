@@ -197,15 +197,17 @@ class ScipDevice:
         self._finite = False
         self._rb_at = -math.inf
 
-    def _reset(self, *, keep_bitrate: bool) -> None:
+    def _reset(self, now: float, *, keep_bitrate: bool) -> None:
         """RS (everything back to power-on) or RT (the same but the bit rate): standby,
-        laser off, normal sensitivity. The device clock runs on, as it does across a
-        link's reconnection; commands already received stay queued."""
+        laser off, normal sensitivity, the internal timer back to 0 (SCIP 2.0 spec 8.5;
+        the UST spec likewise). Commands already received stay queued."""
         inbuf, bitrate = self._inbuf, self.bitrate
         self._power_on()
         self._inbuf = inbuf
         if keep_bitrate:
             self.bitrate = bitrate
+        if isinstance(self.clock, SimClock):  # not a replay's: that runs as recorded
+            self.clock.epoch, self.clock.offset_ticks = now, 0.0
 
     def _scan_index_after(self, t: float) -> int:
         return math.ceil((t - self.clock.epoch) / self.period)
@@ -303,7 +305,7 @@ class ScipDevice:
             self.laser = False
             return self._simple(line, "00")
         if op == "RS" and not params:
-            self._reset(keep_bitrate=False)
+            self._reset(now, keep_bitrate=False)
             return self._simple(line, "00")
         if op == "TM":
             return self._tm(line, params, now)
@@ -335,7 +337,7 @@ class ScipDevice:
                 line + b"\n" + _status("00") + state + bytes([checksum(state)]) + b"\n\n"
             )
         if self.scip22 and op == "RT" and not params:
-            self._reset(keep_bitrate=True)
+            self._reset(now, keep_bitrate=True)
             return self._simple(line, "00")
         return self._simple(line, "0E")
 

@@ -41,8 +41,10 @@ def test_ust_reports_its_state_through_a_session() -> None:
     assert state(dev, t) == "005"  # sleep
     assert ask(dev, "BM", t).status == "00"  # wakes it
     assert state(dev, t) == "003"
-    assert ask(dev, "RT", t).status == "00"  # partial reset: standby, laser off
+    assert dev.clock.ticks(t + 0.2) > 1000
+    assert ask(dev, "RT", t).status == "00"  # partial reset: standby, laser off, timer 0
     assert state(dev, t) == "000"
+    assert dev.clock.ticks(t + 0.2) == 200
     assert ask(dev, "RB", t).status == "01"  # reboot: asked twice within a second
     assert ask(dev, "RB", t + 0.5).status == "00"
     assert dev.clock.reboots == 1
@@ -67,3 +69,11 @@ def test_a_streamed_scan_echoes_the_request_as_sent(command: str) -> None:
     count = int(command[-2:])
     assert first[0] == (command[:-2] + f"{max(count - 1, 0):02d}").encode()
     assert first[1] == b"99b"
+
+
+@pytest.mark.parametrize("name", ["urg-04lx", "utm-30lx", "ust-10lx"])
+def test_rs_sets_the_internal_timer_back_to_zero(name: str) -> None:
+    dev = ScipDevice(MODELS[name])
+    assert dev.clock.ticks(100.0) == 100_000
+    assert ask(dev, "RS", 100.0).status == "00"
+    assert dev.clock.ticks(100.5) == 500

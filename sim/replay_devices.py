@@ -36,11 +36,20 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 from acq.drivers.cola_codec import STX4, Telegram, unframe
 from acq.drivers.scanner import ProtocolError
-from acq.drivers.scip_codec import SCAN_COMMANDS, decode_int
+from acq.drivers.scip_codec import (
+    SCAN_COMMANDS,
+    checksum,
+    decode_int,
+    encode_lines,
+    parse_scan_echo,
+)
 from acq.sim.camera_device import SimFrame
 from acq.sim.cola_device import ColaDevice
 from acq.sim.device_clock import SimClock
@@ -258,8 +267,10 @@ class ScipReplayDevice(ScipDevice):
 
     ``info``/``params``: the recorded ``device.<name>`` metadata (DeviceInfo, ScipParams
     as dicts). VV/PP/II answer what the device answered then (II's TIME from the recorded
-    clock, LASR from the current state); the scan command must be the recorded one, echo
-    for echo (``MD``/``ME``/``ND``/``NE``, steps, cluster, interval, endless).
+    clock, LASR from the current state). The recorded scan command gets the recorded
+    telegrams byte for byte; another request for the same data (see ``_served_form``:
+    e.g. a client's ``GD`` single scans or ``MD`` with cluster 00 from a recorded ``MD``
+    with cluster 01) gets the recorded telegrams under its own echo; any other is refused.
     """
 
     def __init__(
@@ -277,13 +288,28 @@ class ScipReplayDevice(ScipDevice):
         ticks = _RecordedTicks(stream, model.clock_hz, model.clock_bits)
         super().__init__(model, source=_NoSource(), clock=ticks)  # type: ignore[arg-type]
         self._reported: set[bytes] = set()
+        self.recorded = parse_scan_echo(self.echo)
+        self._form: _Form | None = None  # how a streamed request differs from the recording
 
     # --- SimDevice ------------------------------------------------------------------------
 
     def poll(self, now: float) -> bytes:
         if self._stream is None:
             return b""
-        return b"".join(self.stream.take(now))
+        form = self._form
+        if form is None:
+            return b"".join(self.stream.take(now))
+        out = bytearray()
+        for telegram in self.stream.take(now):
+            if form.finite:
+                form.remaining -= 1
+            out += _retold(telegram, form.echo(), None, form.cut)
+            if form.finite and form.remaining == 0:
+                self._stream = None
+                self.laser = False
+                self.stream.stop()
+                break
+        return bytes(out)
 
     def next_due(self, now: float) -> float | None:
         return None if self._stream is None else self.stream.due()
@@ -298,7 +324,8 @@ class ScipReplayDevice(ScipDevice):
         op = line[:2].decode("ascii", "replace")
         if op in ("II", "TM") or op in SCAN_COMMANDS:
             self.stream.start_clock(now)  # a time or data request starts the replay
-        items = None if self.tm_mode else self._recorded_items(line, now)
+        in_any_state = self.scip22 and line in (b"VV", b"II")
+        items = None if self.tm_mode and not in_any_state else self._recorded_items(line, now)
         if items is not None:
             self.commands.append(line.decode("ascii", "replace"))
             return self._info(line, items)
@@ -323,7 +350,8 @@ class ScipReplayDevice(ScipDevice):
         return items
 
     def _scan_command(self, line: bytes, op: str, params: str, now: float) -> bytes:
-        if line != self.echo:
+        form = None if line == self.echo else self._served_form(line)
+        if line != self.echo and form is None:
             if line not in self._reported:
                 self._reported.add(line)
                 self.report(
@@ -333,10 +361,91 @@ class ScipReplayDevice(ScipDevice):
                     " as in the recorded configuration"
                 )
             return self._simple(line, "0E")
+        if form is not None and not form.continuous:
+            if not self.laser:
+                return self._simple(line, "10")
+            if self.stream.clock.log_ns_at(now) > self.stream.last_ns:
+                return b""  # the log has ended: silent, like the streams
+            return _retold(self.stream.latest(now), line, b"00", form.cut)
         reply = super()._scan_command(line, op, params, now)
+        self._form = form
         if self._stream is not None:
             self.stream.begin(now)
         return reply
+
+    def _served_form(self, line: bytes) -> _Form | None:
+        """How to serve a scan request other than the recorded one from the recorded
+        telegrams, or None when they do not hold its data. Served: a single scan (GD from
+        a recorded MD, GE from ME, HD/HE from ND/NE); another scan count; cluster 00 for
+        01; distances without the recorded intensities (MD from ME); fewer steps when each
+        step was recorded on its own. Every value sent is a recorded one."""
+        try:
+            req = parse_scan_echo(line)
+        except ProtocolError:
+            return None
+        rec = self.recorded
+        width, intensity, multi, continuous = SCAN_COMMANDS[req.command]
+        rec_width, rec_intensity, rec_multi, _ = SCAN_COMMANDS[rec.command]
+        cluster = max(rec.cluster, 1)
+        same_steps = (req.start, req.end) == (rec.start, rec.end)
+        if (
+            (width, multi) != (rec_width, rec_multi)
+            or (intensity and not rec_intensity)
+            or max(req.cluster, 1) != cluster
+            or (continuous and req.interval != rec.interval)
+            or not rec.start <= req.start <= req.end <= rec.end
+            or (not same_steps and cluster != 1)
+            or (multi and (intensity != rec_intensity or not same_steps))
+        ):
+            return None
+        cut = None
+        if not same_steps or intensity != rec_intensity:
+            chars = width * (2 if rec_intensity else 1)
+            steps = slice(req.start - rec.start, req.end - rec.start + 1)
+            cut = _Cut(steps, chars, width * (2 if intensity else 1))
+        text = b";" + req.text.encode() if req.text else b""
+        return _Form(req.prefix(), text, cut, continuous, req.remaining, req.remaining > 0)
+
+
+@dataclass(frozen=True)
+class _Cut:
+    """Part of each recorded step's characters: the steps asked for, and of each step's
+    ``chars`` characters the first ``keep`` (the distance without the intensity)."""
+
+    steps: slice
+    chars: int
+    keep: int
+
+    def __call__(self, data: bytes) -> bytes:
+        per_step = np.frombuffer(data, dtype=np.uint8).reshape(-1, self.chars)
+        return per_step[self.steps, : self.keep].tobytes()
+
+
+@dataclass
+class _Form:
+    """A streamed or polled request served from recorded telegrams of another echo."""
+
+    prefix: bytes  # the client's echo up to its remaining-scans field
+    text: bytes  # its ";string", if any
+    cut: _Cut | None  # the part of the recorded scan data it asked for
+    continuous: bool
+    remaining: int  # scans left of a finite request
+    finite: bool
+
+    def echo(self) -> bytes:
+        return self.prefix + f"{self.remaining:02d}".encode() + self.text
+
+
+def _retold(telegram: bytes, echo: bytes, status: bytes | None, cut: _Cut | None) -> bytes:
+    """A recorded scan telegram under another echo (and status, for a single scan), its
+    data cut by ``cut``; the time stamp and the values are the recorded ones."""
+    _echo, status_line, stamp, body = telegram.split(b"\n", 3)
+    if status is not None:
+        status_line = status + bytes([checksum(status)])
+    if cut is not None:
+        data = b"".join(line[:-1] for line in body.split(b"\n") if line)
+        body = encode_lines(cut(data)) + b"\n"
+    return echo + b"\n" + status_line + b"\n" + stamp + b"\n" + body
 
 
 # --- CoLa -----------------------------------------------------------------------------------

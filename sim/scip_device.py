@@ -9,7 +9,20 @@ synthetic street (``StreetSource``) at the model's rate, time-stamped by the dev
 Differences between the models follow the real ones: ME/GE only where the model has
 intensities, ND/NE/HD/HE only on multi-echo models (others answer status 0E), SS only
 on serial models; SCIP 2.2 (UST) reports ``PROT:SCIP 2.2``, a 4-character II TIME and a
-different II wording, and adds ``RB`` (reboot, sent twice) and ``%SL`` (sleep).
+different II wording, and adds the UST's state commands (Hokuyo, "Communication Protocol
+Specification for UST Series 10LX/20LX", C-42-04076, and the SCIP 2.2 detail it refers
+to, C-42-03886; read as hokuyolx, written against a real UST-10LX, reads them):
+
+- ``%ST`` sensor state, one data line: ``000`` standby, ``002`` time adjustment (TM),
+  ``003`` single scan (laser on), ``004`` multi scan (streaming), ``005`` sleep;
+  answered in any state, like ``VV`` and ``II``;
+- ``%SL`` sleep (laser and measurement off until ``BM`` or a scan command);
+- ``RT`` partial reset: ``RS`` but for the bit rate;
+- ``RB`` reboot, sent twice within a second (``01``, then ``00``).
+
+The SCIP 2.0 models answer these ``0E``, the status for an undefined command (Hokuyo,
+"Communication Protocol Specification for SCIP2.0", C-42-03320B, section 9), as a
+URG-04LX or UTM-30LX does.
 """
 
 from __future__ import annotations
@@ -59,6 +72,11 @@ class _Stream:
     remaining: int  # 0: endless
     text: str
     k: int  # index of the next scan to send
+    echo_cluster: int  # the cluster field as requested (00 and 01 both mean no grouping)
+
+
+# SCIP 2.2 commands a UST answers in any state, the time adjustment state included
+_ANY_STATE = {"%ST", "VV", "II"}
 
 
 def _status(code: str) -> bytes:
@@ -138,7 +156,9 @@ class ScipDevice:
         while self._stream is not None and self._due(s.k, s) <= now:
             if s.remaining:
                 s.remaining -= 1
-            echo = self._scan_echo(s.command, s.start, s.end, s.cluster, s.interval, s.remaining)
+            echo = self._scan_echo(
+                s.command, s.start, s.end, s.echo_cluster, s.interval, s.remaining
+            )
             out += self._scan_telegram(echo, s.command, s.start, s.end, s.cluster, s.k, b"99")
             s.k += s.interval + 1
             if s.remaining == 0 and self._finite:
@@ -155,6 +175,7 @@ class ScipDevice:
         self._inbuf.clear()
         self.laser = False
         self.tm_mode = False
+        self.sleeping = False
 
     def reboot(self, now: float) -> None:
         self.clock.reboot(now)
@@ -169,11 +190,24 @@ class ScipDevice:
         self._inbuf = bytearray()
         self.laser = False
         self.tm_mode = False
+        self.sleeping = False
         self.high_sensitivity = False
         self.bitrate = 19200
         self._stream = None
         self._finite = False
         self._rb_at = -math.inf
+
+    def _reset(self, now: float, *, keep_bitrate: bool) -> None:
+        """RS (everything back to power-on) or RT (the same but the bit rate): standby,
+        laser off, normal sensitivity, the internal timer back to 0 (SCIP 2.0 spec 8.5;
+        the UST spec likewise). Commands already received stay queued."""
+        inbuf, bitrate = self._inbuf, self.bitrate
+        self._power_on()
+        self._inbuf = inbuf
+        if keep_bitrate:
+            self.bitrate = bitrate
+        if isinstance(self.clock, SimClock):  # not a replay's: that runs as recorded
+            self.clock.epoch, self.clock.offset_ticks = now, 0.0
 
     def _scan_index_after(self, t: float) -> int:
         return math.ceil((t - self.clock.epoch) / self.period)
@@ -229,7 +263,7 @@ class ScipDevice:
         op, params = cmd[:2], cmd[2:]
         if cmd == "SCIP2.0":
             return self._simple(line, "0E")
-        if self.tm_mode and op not in ("TM", "RS"):
+        if self.tm_mode and op not in ("TM", "RS") and not (self.scip22 and cmd in _ANY_STATE):
             return self._simple(line, "0E")
         m = self.model
         if op == "VV" and not params:
@@ -264,15 +298,14 @@ class ScipDevice:
             if self.laser:
                 return self._simple(line, "02")
             self.laser = True
+            self.sleeping = False
             return self._simple(line, "00")
         if op == "QT" and not params:
             self._stream = None
             self.laser = False
             return self._simple(line, "00")
         if op == "RS" and not params:
-            clock = self.clock
-            self._power_on()
-            self.clock = clock
+            self._reset(now, keep_bitrate=False)
             return self._simple(line, "00")
         if op == "TM":
             return self._tm(line, params, now)
@@ -296,8 +329,28 @@ class ScipDevice:
         if self.scip22 and cmd == "%SL":
             self._stream = None
             self.laser = False
+            self.sleeping = True
+            return self._simple(line, "00")
+        if self.scip22 and cmd == "%ST":
+            state = self._state_code().encode()
+            return self._finish(
+                line + b"\n" + _status("00") + state + bytes([checksum(state)]) + b"\n\n"
+            )
+        if self.scip22 and op == "RT" and not params:
+            self._reset(now, keep_bitrate=True)
             return self._simple(line, "00")
         return self._simple(line, "0E")
+
+    def _state_code(self) -> str:
+        """The ``%ST`` sensor state: 000 standby, 002 time adjustment, 003 single scan (laser
+        on), 004 multi scan (streaming), 005 sleep."""
+        if self.tm_mode:
+            return "002"
+        if self.sleeping:
+            return "005"
+        if self._stream is not None:
+            return "004"
+        return "003" if self.laser else "000"
 
     def _ii_items(self, now: float) -> list[tuple[str, str]]:
         m = self.model
@@ -367,12 +420,12 @@ class ScipDevice:
         for i, f in enumerate(fields):
             if not f.isdigit():
                 return self._simple(line, ("01", "02", "03", "06", "07")[i])
-        start, end, cluster = int(fields[0]), int(fields[1]), int(fields[2])
+        start, end, echo_cluster = int(fields[0]), int(fields[1]), int(fields[2])
         if end > m.amax or start < m.amin:
             return self._simple(line, "04")
         if end < start:
             return self._simple(line, "05")
-        cluster = max(cluster, 1)
+        cluster = max(echo_cluster, 1)
         if not continuous:
             if not self.laser:
                 return self._simple(line, "10")
@@ -383,10 +436,19 @@ class ScipDevice:
         interval, count = int(fields[3]), int(fields[4])
         text = line.partition(b";")[2].decode("ascii", "replace")
         self._stream = _Stream(
-            op, start, end, cluster, interval, count, text, self._scan_index_after(now)
+            op,
+            start,
+            end,
+            cluster,
+            interval,
+            count,
+            text,
+            self._scan_index_after(now),
+            echo_cluster,
         )
         self._finite = count > 0
         self.laser = True
+        self.sleeping = False
         return self._simple(line, "00")
 
     # --- scans ---------------------------------------------------------------------

@@ -190,13 +190,34 @@ def test_a_different_scan_command_is_refused(recorded: list[Path]) -> None:
     with Replay(recorded) as replay:
         host, port = replay.urls["laser"].removeprefix("socket://").split(":")
         with socket.create_connection((host, int(port)), timeout=2) as sock:
-            sock.sendall(b"MD0000108001000\n")  # the log holds ME (intensity) scans
+            sock.sendall(b"ND0000108001000\n")  # the log holds ME (single echo) scans
             reply = b""
             while not reply.endswith(b"\n\n"):
                 reply += sock.recv(4096)
         assert reply.split(b"\n")[1][:2] == b"0E"
         assert len(replay.errors) == 1
-        assert "MD0000108001000" in replay.errors[0] and "ME0000108001000" in replay.errors[0]
+        assert "ND0000108001000" in replay.errors[0] and "ME0000108001000" in replay.errors[0]
+
+
+def test_urg_library_reads_the_replay_on_a_pty(recorded: list[Path]) -> None:
+    """Hokuyo's own samples on the replayed UTM-30LX's pty: its recorded identity, a
+    recorded scan as a single scan (GD), and the recorded ME scans in order."""
+    from acq.drivers.scip_codec import parse_scan_reply
+    from tests.hokuyo_client import run_sample, samples, serial
+
+    samples()
+    stamps = [parse_scan_reply(m.data).timestamp for _, m in read(recorded).raws]
+    with Replay(recorded, pty=True) as replay:
+        target = serial(replay.urls["laser"])
+        run = run_sample("sensor_parameter", target)
+        assert "Sensor product type: SOKUIKI Sensor TOP-URG UTM-30LX" in run.lines, run.lines
+        run = run_sample("calculate_xy", target)
+        assert run.returncode == 0 and len(run.lines) > 500
+        run = run_sample("get_distance_intensity", target, lines=3)  # streams on: last
+        got = [int(line.rsplit("(", 1)[1].split()[0]) for line in run.lines]
+        k = stamps.index(got[0])
+        assert got == stamps[k : k + 3], run.lines
+        assert not replay.errors
 
 
 def test_a_bad_log_exits_2_with_one_line(

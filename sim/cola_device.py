@@ -501,15 +501,25 @@ class ColaDevice:
 
     def _set_scan_config(self, r: ArgReader, now: float) -> bytes:
         """``sMN mLMPsetscancfg``: frequency u32, sectors u16, then per sector resolution
-        u32, start i32, stop i32 (1/100 Hz, 1/10000 degree); one sector on these models."""
+        u32, start i32, stop i32 (1/100 Hz, 1/10000 degree); one sector on these models.
+
+        The answer (LMS500 operating instructions 8013796, 10.2.8) is a status code (0 no
+        error, 1 invalid frequency, 2 invalid resolution, 3 invalid frequency and
+        resolution, 4 invalid scan area) and the configuration then in use."""
         frequency, sectors = r.u32(), r.u16()
         res, start, stop = r.u32(), r.i32(), r.i32()
-        frequencies = {f for f, _ in self.scan_configs}
+        frequency_ok = frequency in {f for f, _ in self.scan_configs}
+        if frequency_ok:
+            resolution_ok = (frequency, res) in self.scan_configs
+        else:
+            resolution_ok = res in {r for _, r in self.scan_configs}
         area_ok = sectors == 1 and self.model_start <= start < stop <= self.model_stop + res
-        if frequency not in frequencies:
+        if not (frequency_ok or resolution_ok):
+            status = 3
+        elif not frequency_ok:
             status = 1
-        elif (frequency, res) not in self.scan_configs:
-            status = 2 if area_ok else 3
+        elif not resolution_ok:
+            status = 2
         elif not area_ok:
             status = 4
         else:

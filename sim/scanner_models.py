@@ -172,7 +172,8 @@ MODELS: dict[str, ScannerModel] = {
             rssi_bits=8,  # the LMS5xx sends 8-bit RSSI unless told otherwise (LMDscandatacfg)
             echoes=5,
             eval_fields=30,
-            # LMS5xx telegram listing, mLMPsetscancfg: resolutions per scan frequency
+            # LMS500 operating instructions 8013796, 10.2.8: 25..100 Hz, 0.1667..1 degree;
+            # the finer resolutions only at the lower frequencies (LMS5xx product data)
             scan_configs=(
                 *((2500, r) for r in (1667, 2500, 3333, 5000, 6667, 10000)),
                 *((3500, r) for r in (2500, 3333, 5000, 6667, 10000)),

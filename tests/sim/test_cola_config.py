@@ -141,7 +141,7 @@ def test_setscancfg_sets_frequency_and_resolution_the_model_allows() -> None:
     now = (5000, 1, 5000, -450000, 2250000)
     assert set_scancfg(dev, 3000, 5000, -450000, 2250000) == (1, *now)  # frequency
     assert set_scancfg(dev, 5000, 2500, -450000, 2250000) == (2, *now)  # resolution
-    assert set_scancfg(dev, 5000, 2500, -600000, 2250000) == (3, *now)  # and area
+    assert set_scancfg(dev, 3000, 1234, -450000, 2250000) == (3, *now)  # both
     assert set_scancfg(dev, 5000, 5000, -600000, 2250000) == (4, *now)  # area
     assert set_scancfg(dev, 2500, 2500, -450000, 2250000) == (0, 2500, 1, 2500, -450000, 2250000)
     r = ask(dev, "sRN", "LMPscancfg").reader()

@@ -162,6 +162,7 @@ class ColaDevice:
         self.default_data = DataConfig(
             remission=model.intensity, remission_16bit=model.rssi_bits == 16
         )
+        self.default_echo_filter = 0  # FREchoFilter: 0 first, 1 all, 2 last echo
         self._reset()
 
     # --- state ------------------------------------------------------------------------
@@ -181,7 +182,7 @@ class ColaDevice:
         self.sector = (self.model_start, self.model_stop)
         self.output_range = self.sector
         self.data = self.default_data
-        self.echo_filter = 0  # FREchoFilter: 0 first, 1 all, 2 last echo
+        self.echo_filter = self.default_echo_filter
 
     @property
     def protocol(self) -> str:

@@ -374,7 +374,7 @@ def cola_model(
         n_points=int(geometry["n_points"]),
         rssi_bits=8 if rssi is not None and rssi.data.dtype == np.uint8 else 16,
         echoes=max(echoes, known.echoes if known else 1),
-        eval_fields=known.eval_fields if known else 30,
+        eval_fields=known.eval_fields if known else 48 if product.upper()[:4] == "TIM7" else 30,
         scan_configs=known.scan_configs if known else (),
         ethernet=True,
         clock_bits=32,
@@ -440,8 +440,8 @@ class ColaReplayDevice(ColaDevice):
                 remission_16bit=model.rssi_bits == 16,
                 time=first.timestamp is not None,
             )
-            self.data = self.default_data
-            self.echo_filter = 1 if len(first.distance_channels()) > 1 else 0
+            self.default_echo_filter = 1 if len(first.distance_channels()) > 1 else 0
+            self._reset()
         self._reported: set[str] = set()
 
     def poll(self, now: float) -> bytes:

@@ -17,7 +17,7 @@ JPEG bytes; only the receive times are new.
   with :class:`acq.sim.transport.TcpDeviceServer` or ``PtyDeviceServer``): they answer the
   start-up like the simulated devices (identity as recorded), and once the client starts
   the recorded measurement they stream the recorded telegrams. A client asking for a
-  different measurement (another scan command or steps, the other CoLa encoding) is
+  different measurement (another scan command or steps, other CoLa angles or channels) is
   refused (SCIP status ``0E``, CoLa ``sFA``) and ``report`` is called with why: a replay
   serves only what was recorded.
 - :class:`ReplayMjpegServer` serves a camera's recorded JPEGs as MJPEG over HTTP.
@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from acq.drivers.cola_codec import STX4, Telegram, unframe
-from acq.drivers.cola_scandata import ScanData, parse_scandata
+from acq.drivers.cola_scandata import ScanData, encode_scandata, parse_scandata
 from acq.drivers.scanner import ProtocolError
 from acq.drivers.scip_codec import SCAN_COMMANDS, decode_int
 from acq.sim.camera_device import SimFrame
@@ -399,7 +399,8 @@ def _recorded_shape(sd: ScanData) -> ScanShape:
 
 class ColaReplayDevice(ColaDevice):
     """A SICK scanner that streams recorded ``sSN LMDscandata`` telegrams (CoLa-A or -B,
-    as recorded: it powers up in the recorded encoding).
+    as recorded: it powers up in the recorded encoding; a client that switches it to the
+    other one gets the recorded scans in that one).
 
     The start-up (login, identity, scan and data configuration, fields) is answered as
     :class:`acq.sim.cola_device.ColaDevice` does, from the recorded identity, geometry
@@ -447,12 +448,25 @@ class ColaReplayDevice(ColaDevice):
     def poll(self, now: float) -> bytes:
         if not (self.streaming and self.measuring):
             return b""
-        return b"".join(self.stream.take(now))
+        return b"".join(self._served(raw) for raw in self.stream.take(now))
 
     def next_due(self, now: float) -> float | None:
         if not (self.streaming and self.measuring):
             return None
         return self.stream.due()
+
+    def _served(self, raw: bytes, kind: str = "sSN") -> bytes:
+        """A recorded telegram as the device sends it now: the recorded bytes, or, once a
+        client switched the encoding (``sWN EIHstCola``), the same scan (counters, ticks,
+        values) in the new encoding, as the real device would send it."""
+        if self.binary == self.recorded_binary and kind == "sSN":
+            return raw
+        tg = unframe(raw)
+        if self.binary == self.recorded_binary:
+            return self._frame(kind.encode() + tg.payload[3:])
+        return self._frame(
+            encode_scandata(parse_scandata(tg.payload, tg.binary), self.binary, kind)
+        )
 
     def on_disconnect(self) -> None:
         super().on_disconnect()
@@ -466,13 +480,6 @@ class ColaReplayDevice(ColaDevice):
     def _answer(self, tg: Telegram, now: float) -> bytes:
         if tg.name == "LMDscandata" and tg.kind in ("sEN", "sRN"):
             self.stream.start_clock(now)
-            if self.binary != self.recorded_binary:
-                rec = "CoLa-B" if self.recorded_binary else "CoLa-A"
-                self._report_once(
-                    f"the client switched the device to {self.protocol.upper()} but the log"
-                    f" holds {rec} telegrams"
-                )
-                return self._error(4)
             shape = self.shape()
             if self.recorded_shape is not None and replace(shape, output_rate=1) != (
                 self.recorded_shape
@@ -485,8 +492,7 @@ class ColaReplayDevice(ColaDevice):
             if tg.kind == "sRN":
                 if not self.measuring:
                     return self._error(4)
-                payload = unframe(self.stream.latest(now)).payload
-                return self._frame(b"sRA" + payload[3:])
+                return self._served(self.stream.latest(now), "sRA")
         reply = super()._answer(tg, now)
         if tg.kind == "sEN" and tg.name == "LMDscandata":
             if self.streaming:

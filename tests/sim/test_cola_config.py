@@ -213,12 +213,9 @@ def test_start_up_reads_as_the_real_lms111_answers() -> None:
     assert r.u16() == 3 and r.u16() == 0 and r.u8() == 1  # three fields, indexed from 1
 
 
-def test_a_replay_refuses_a_configuration_it_did_not_record() -> None:
-    model = MODELS["lms111"]
-    sim = device("lms111")
-    data = [frame(encode_scandata(sim.scan_data(k)[0], True), True) for k in range(5)]
-    times = [int(k * 0.02e9) for k in range(5)]
-    reports: list[str] = []
+def replay_of(name: str, data: list[bytes], reports: list[str]) -> ColaReplayDevice:
+    """A replayed ``name`` serving ``data`` (framed LMDscandata telegrams, 20 ms apart)."""
+    model = MODELS[name]
     info = {"model": model.product, "firmware": model.firmware, "serial": model.serial}
     geometry = {
         "angle_min": model.angle_min(),
@@ -228,8 +225,16 @@ def test_a_replay_refuses_a_configuration_it_did_not_record() -> None:
         "range_min": model.range_min,
         "range_max": model.range_max,
     }
-    stream_ = ReplayStream("lms", times, data, ReplayClock())
-    dev = ColaReplayDevice(stream_, info, geometry, report=reports.append)
+    times = [int(k * 0.02e9) for k in range(len(data))]
+    stream_ = ReplayStream(name, times, data, ReplayClock())
+    return ColaReplayDevice(stream_, info, geometry, report=reports.append)
+
+
+def test_a_replay_refuses_a_configuration_it_did_not_record() -> None:
+    sim = device("lms111")
+    data = [frame(encode_scandata(sim.scan_data(k)[0], True), True) for k in range(5)]
+    reports: list[str] = []
+    dev = replay_of("lms111", data, reports)
     login(dev)
     half = [("u16", 1), ("u32", 5000), ("i32", 0), ("i32", 900000)]
     assert ask(dev, "sWN", "LMPoutputRange", half).kind == "sWA"
@@ -238,3 +243,30 @@ def test_a_replay_refuses_a_configuration_it_did_not_record() -> None:
     full = [("u16", 1), ("u32", 5000), ("i32", -450000), ("i32", 2250000)]
     assert ask(dev, "sWN", "LMPoutputRange", full).kind == "sWA"
     assert ask(dev, "sEN", "LMDscandata", [("u8", 1)]).kind == "sEA"
+
+
+def test_a_replay_switched_to_cola_b_sends_the_recorded_cola_a_scans_in_it() -> None:
+    sim = device("tim781", "cola-a")
+    recorded = [sim.scan_data(k)[0] for k in range(5)]
+    data = [frame(encode_scandata(sd, False), False) for sd in recorded]
+    reports: list[str] = []
+    dev = replay_of("tim781", data, reports)
+    assert dev.protocol == "cola-a"
+    login(dev)
+    assert ask(dev, "sWN", "EIHstCola", [("u8", 1)]).kind == "sWA"
+    assert dev.protocol == "cola-b"
+    assert ask(dev, "sEN", "LMDscandata", [("u8", 1)]).kind == "sEA"
+    framer = ColaFramer()
+    framer.feed(dev.poll(T0 + 10.0))
+    served = []
+    while (tg := framer.pop()) is not None:
+        assert tg.binary
+        served.append(parse_scandata(tg.payload, True))
+    assert len(served) == len(recorded) and not reports
+    for got, sent in zip(served, recorded, strict=True):
+        assert (got.scan_counter, got.time_since_startup) == (
+            sent.scan_counter,
+            sent.time_since_startup,
+        )
+        assert np.array_equal(got.ranges(), sent.ranges())
+        assert np.array_equal(got.intensities(), sent.intensities())

@@ -58,7 +58,7 @@ CASES = {
     ]
 }
 COLA_A = "tim781"  # this one also runs powered up in CoLa-A
-CLOUDS_S = 1.2  # s of point clouds to collect from each run
+CLOUDS_S = 1.0  # s of point clouds to collect from each run
 TIMEOUT_S = 20.0  # the CoLa-A run waits 5 s for a CoLa-B answer first, as on a real device
 
 

@@ -3,9 +3,10 @@
 :func:`run_sick_scan` starts this module as a child process: it loads sick_scan_xd's
 shared library through SICK's Python API (``api/sick_scan_api.py`` in
 ``../shared/tools/vendor-clients/sick/``), initialises it with a model's launch file and
-only ``hostname:=`` / ``port:=`` overrides, and prints one line per polar point cloud
-the driver delivers. The parent collects those lines for a bounded time, then kills the
-child with SIGKILL (the library's threads do not always end on ``SickScanApiClose``).
+only ``hostname:=`` / ``port:=`` overrides, and writes one line per polar point cloud
+the driver delivers to a pipe of its own. The parent collects those lines for a bounded
+time, then kills the child with SIGKILL (the library's threads do not always end on
+``SickScanApiClose``).
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 VENDOR = Path(__file__).resolve().parents[2] / "shared" / "tools" / "vendor-clients" / "sick"
-MARK = "SICKSCAN-CLOUD "
 
 
 @dataclass(frozen=True)
@@ -63,42 +63,53 @@ def available() -> bool:
 def run_sick_scan(launch: str, port: int, clouds: int, timeout_s: float) -> Run:
     """Run sick_scan_xd with ``launch`` (a file in the vendor's ``launch/``) against
     127.0.0.1:``port`` until it delivered ``clouds`` point clouds or ``timeout_s`` passed;
-    the child is killed either way."""
+    the child is killed either way. The clouds come on a pipe of their own, the
+    library's log on the child's stdout."""
+    read_fd, write_fd = os.pipe()
     cmd = [sys.executable, "-u", __file__, str(VENDOR / "launch" / launch), str(port)]
-    proc = subprocess.Popen(
-        cmd,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        errors="replace",
-        start_new_session=True,
-    )
+    try:
+        proc = subprocess.Popen(
+            [*cmd, str(write_fd)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            errors="replace",
+            start_new_session=True,
+            pass_fds=(write_fd,),
+        )
+    finally:
+        os.close(write_fd)
     run = Run()
     done = threading.Event()
 
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            if line.startswith(MARK):
-                run.clouds.append(Cloud(**json.loads(line[len(MARK) :])))
+    def read_clouds() -> None:
+        with os.fdopen(read_fd, encoding="utf-8", errors="replace") as lines:
+            for line in lines:
+                run.clouds.append(Cloud(**json.loads(line)))
                 if len(run.clouds) >= clouds:
                     done.set()
-            else:
-                run.log.append(line.rstrip())
-                del run.log[:-200]
         done.set()
 
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
+    def read_log() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            run.log.append(line.rstrip())
+            del run.log[:-200]
+
+    readers = [threading.Thread(target=f, daemon=True) for f in (read_clouds, read_log)]
+    for reader in readers:
+        reader.start()
     done.wait(timeout_s)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait(5.0)
-    reader.join(5.0)
+    for reader in readers:
+        reader.join(5.0)
     return run
 
 
-def _child(launch: str, port: int) -> None:
-    """Runs in the child: initialise sick_scan_xd and print each polar cloud."""
+def _child(launch: str, port: int, out_fd: int) -> None:
+    """Runs in the child: initialise sick_scan_xd and write each polar cloud to
+    ``out_fd``, one JSON line each."""
     import ctypes
 
     import numpy as np
@@ -106,6 +117,7 @@ def _child(launch: str, port: int) -> None:
     sys.path.insert(0, str(VENDOR / "api"))
     import sick_scan_api as api  # type: ignore[import-not-found]
 
+    out = os.fdopen(out_fd, "w", buffering=1)
     lib = api.SickScanApiLoadLibrary([str(VENDOR) + "/"], "libsick_scan_xd_shared_lib.so")
     handle = api.SickScanApiCreate(lib)
 
@@ -134,7 +146,7 @@ def _child(launch: str, port: int) -> None:
             "valid": int(np.count_nonzero(ranges > 0)),
             "intensity_max": float(intensity.max()) if n else 0.0,
         }
-        print(MARK + json.dumps(line), flush=True)
+        out.write(json.dumps(line) + "\n")
 
     callback = api.SickScanPointCloudMsgCallback(on_cloud)
     api.SickScanApiRegisterPolarPointCloudMsg(lib, handle, callback)
@@ -145,4 +157,4 @@ def _child(launch: str, port: int) -> None:
 
 
 if __name__ == "__main__":
-    _child(sys.argv[1], int(sys.argv[2]))
+    _child(sys.argv[1], int(sys.argv[2]), int(sys.argv[3]))

@@ -17,7 +17,7 @@ JPEG bytes; only the receive times are new.
   with :class:`acq.sim.transport.TcpDeviceServer` or ``PtyDeviceServer``): they answer the
   start-up like the simulated devices (identity as recorded), and once the client starts
   the recorded measurement they stream the recorded telegrams. A client asking for a
-  different measurement (another scan command or steps, the other CoLa encoding) is
+  different measurement (another scan command or steps, other CoLa angles or channels) is
   refused (SCIP status ``0E``, CoLa ``sFA``) and ``report`` is called with why: a replay
   serves only what was recorded.
 - :class:`ReplayMjpegServer` serves a camera's recorded JPEGs as MJPEG over HTTP.
@@ -36,12 +36,13 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from acq.drivers.cola_codec import STX4, Telegram, unframe
+from acq.drivers.cola_scandata import ScanData, encode_scandata, parse_scandata
 from acq.drivers.scanner import ProtocolError
 from acq.drivers.scip_codec import (
     SCAN_COMMANDS,
@@ -51,10 +52,10 @@ from acq.drivers.scip_codec import (
     parse_scan_echo,
 )
 from acq.sim.camera_device import SimFrame
-from acq.sim.cola_device import ColaDevice
+from acq.sim.cola_device import ColaDevice, ScanShape
 from acq.sim.device_clock import SimClock
 from acq.sim.mjpeg_server import MjpegServer
-from acq.sim.scanner_models import ScannerModel
+from acq.sim.scanner_models import MODELS, ScannerModel
 from acq.sim.scip_device import ScipDevice
 
 __all__ = [
@@ -451,10 +452,18 @@ def _retold(telegram: bytes, echo: bytes, status: bytes | None, cut: _Cut | None
 # --- CoLa -----------------------------------------------------------------------------------
 
 
-def cola_model(info: dict[str, Any], geometry: dict[str, Any]) -> ScannerModel:
-    """The model a recorded SICK describes: ``info`` (DeviceInfo as a dict) and
-    ``geometry`` (acq.drivers.scanner.ScanGeometry as a dict: rad, s, m)."""
+def cola_model(
+    info: dict[str, Any], geometry: dict[str, Any], recorded: ScanData | None = None
+) -> ScannerModel:
+    """The model a recorded SICK describes: ``info`` (DeviceInfo as a dict),
+    ``geometry`` (acq.drivers.scanner.ScanGeometry as a dict: rad, s, m) and the first
+    recorded scan (its channels: echoes, RSSI and its width). What the recording cannot
+    tell (evaluation fields, the scan configurations a client may ask for) comes from the
+    simulated model with the same product name, if any."""
     product = str(info.get("model", "")) or "LMS1xx"
+    known = next((m for m in MODELS.values() if m.product == product), None)
+    rssi = recorded.channel("RSSI1") if recorded is not None else None
+    echoes = len(recorded.distance_channels()) if recorded is not None else 1
     return ScannerModel(
         name=product.lower(),
         vendor="sick",
@@ -465,24 +474,47 @@ def cola_model(info: dict[str, Any], geometry: dict[str, Any]) -> ScannerModel:
         range_min=float(geometry.get("range_min", 0.0)),
         range_max=max(float(geometry.get("range_max", 0.0)), 1.0),
         scan_hz=1.0 / float(geometry["scan_period"]),
-        intensity=True,
+        intensity=recorded is None or rssi is not None,
         start_deg=math.degrees(float(geometry["angle_min"])) + 90.0,
         step_deg=math.degrees(float(geometry["angle_increment"])),
         n_points=int(geometry["n_points"]),
+        rssi_bits=8 if rssi is not None and rssi.data.dtype == np.uint8 else 16,
+        echoes=max(echoes, known.echoes if known else 1),
+        eval_fields=known.eval_fields if known else 48 if product.upper()[:4] == "TIM7" else 30,
+        scan_configs=known.scan_configs if known else (),
         ethernet=True,
         clock_bits=32,
         clock_hz=1e6,
     )
 
 
+def _recorded_shape(sd: ScanData) -> ScanShape:
+    dist = sd.distance_channels()[0]
+    rssi = [c for c in sd.channels if c.name.startswith("RSSI")]
+    return ScanShape(
+        sd.scan_frequency,
+        dist.start_angle,
+        dist.step,
+        int(dist.data.size),
+        len(sd.distance_channels()),
+        len(rssi),
+        (8 if rssi[0].data.dtype == np.uint8 else 16) if rssi else 0,
+        1,
+    )
+
+
 class ColaReplayDevice(ColaDevice):
     """A SICK scanner that streams recorded ``sSN LMDscandata`` telegrams (CoLa-A or -B,
-    as recorded: it powers up in the recorded encoding).
+    as recorded: it powers up in the recorded encoding; a client that switches it to the
+    other one gets the recorded scans in that one).
 
-    The start-up (login, identity, scan configuration) is answered as
-    :class:`acq.sim.cola_device.ColaDevice` does, from the recorded identity and geometry;
-    ``sEN LMDscandata 1`` starts the recorded stream, ``sRN LMDscandata`` answers the
-    latest recorded scan as ``sRA``.
+    The start-up (login, identity, scan and data configuration, fields) is answered as
+    :class:`acq.sim.cola_device.ColaDevice` does, from the recorded identity, geometry
+    and channels; what a client writes is kept as the device would. ``sEN LMDscandata 1``
+    starts the recorded stream, ``sRN LMDscandata`` answers the latest recorded scan as
+    ``sRA``, provided the configuration then asks for scans of the recorded shape
+    (frequency, angles, points, channels); otherwise the client gets ``sFA`` and
+    ``report`` says why: a replay serves only what was recorded.
     """
 
     def __init__(
@@ -495,47 +527,78 @@ class ColaReplayDevice(ColaDevice):
         self.stream = stream
         self.report = report
         self.recorded_binary = stream.data[0][:4] == STX4
-        model = cola_model(info, geometry)
+        try:
+            first: ScanData | None = parse_scandata(stream.data[0])
+        except ProtocolError:
+            first = None
+        model = cola_model(info, geometry, first)
         super().__init__(
             model,
-            source=_NoSource(),  # type: ignore[arg-type]
+            source=_NoSource(),
             clock=SimClock(tick_hz=model.clock_hz, wrap_bits=model.clock_bits),
             protocol="cola-b" if self.recorded_binary else "cola-a",
         )
-        self._reported = False
+        self.recorded_shape = None if first is None else _recorded_shape(first)
+        if first is not None:
+            self.default_data = replace(
+                self.default_data,
+                channels=(1 << len(first.distance_channels())) - 1,
+                remission=model.intensity,
+                remission_16bit=model.rssi_bits == 16,
+                time=first.timestamp is not None,
+            )
+            self.default_echo_filter = 1 if len(first.distance_channels()) > 1 else 0
+            self._reset()
+        self._reported: set[str] = set()
 
     def poll(self, now: float) -> bytes:
         if not (self.streaming and self.measuring):
             return b""
-        return b"".join(self.stream.take(now))
+        return b"".join(self._served(raw) for raw in self.stream.take(now))
 
     def next_due(self, now: float) -> float | None:
         if not (self.streaming and self.measuring):
             return None
         return self.stream.due()
 
+    def _served(self, raw: bytes, kind: str = "sSN") -> bytes:
+        """A recorded telegram as the device sends it now: the recorded bytes, or, once a
+        client switched the encoding (``sWN EIHstCola``), the same scan (counters, ticks,
+        values) in the new encoding, as the real device would send it."""
+        if self.binary == self.recorded_binary and kind == "sSN":
+            return raw
+        tg = unframe(raw)
+        if self.binary == self.recorded_binary:
+            return self._frame(kind.encode() + tg.payload[3:])
+        return self._frame(
+            encode_scandata(parse_scandata(tg.payload, tg.binary), self.binary, kind)
+        )
+
     def on_disconnect(self) -> None:
         super().on_disconnect()
         self.stream.stop()
 
+    def _report_once(self, why: str) -> None:
+        if why not in self._reported:
+            self._reported.add(why)
+            self.report(f"{self.stream.name}: {why}; a replay serves only what was recorded")
+
     def _answer(self, tg: Telegram, now: float) -> bytes:
         if tg.name == "LMDscandata" and tg.kind in ("sEN", "sRN"):
             self.stream.start_clock(now)
-            if self.binary != self.recorded_binary:
-                if not self._reported:
-                    self._reported = True
-                    rec = "CoLa-B" if self.recorded_binary else "CoLa-A"
-                    self.report(
-                        f"{self.stream.name}: the client switched the device to "
-                        f"{self.protocol.upper()} but the log holds {rec} telegrams; a replay "
-                        "serves only what was recorded"
-                    )
+            shape = self.shape()
+            if self.recorded_shape is not None and replace(shape, output_rate=1) != (
+                self.recorded_shape
+            ):
+                self._report_once(
+                    f"the client configured scans of {_describe(shape)} but the log holds"
+                    f" {_describe(self.recorded_shape)}"
+                )
                 return self._error(4)
             if tg.kind == "sRN":
                 if not self.measuring:
                     return self._error(4)
-                payload = unframe(self.stream.latest(now)).payload
-                return self._frame(b"sRA" + payload[3:])
+                return self._served(self.stream.latest(now), "sRA")
         reply = super()._answer(tg, now)
         if tg.kind == "sEN" and tg.name == "LMDscandata":
             if self.streaming:
@@ -543,6 +606,14 @@ class ColaReplayDevice(ColaDevice):
             else:
                 self.stream.stop()
         return reply
+
+
+def _describe(s: ScanShape) -> str:
+    rssi = f", {s.n_rssi} x {s.rssi_bits}-bit RSSI" if s.n_rssi else ", no RSSI"
+    return (
+        f"{s.n_points} points from {s.start / 10000:g} deg every {s.step / 10000:g} deg at"
+        f" {s.frequency / 100:g} Hz, {s.n_dist} echo(es){rssi}"
+    )
 
 
 # --- MJPEG ----------------------------------------------------------------------------------

@@ -37,6 +37,12 @@ class ScannerModel:
     step_deg: float = 0.0
     n_points: int = 0
     dist_scale: float = 1.0  # SICK DIST1 scale factor (units of mm)
+    rssi_bits: int = 16  # SICK: RSSI channel width the device sends by default (8 | 16)
+    echoes: int = 1  # SICK: echoes per beam the device can output (DIST1..DISTn)
+    eval_fields: int = 0  # SICK: evaluation fields readable as fieldNNN (0 = none)
+    # SICK: (scan frequency 1/100 Hz, angular resolution 1/10000 degree) pairs that
+    # mLMPsetscancfg accepts; empty = only the model's own
+    scan_configs: tuple[tuple[int, int], ...] = ()
     ethernet: bool = False  # reachable over TCP (all SICK; UST and UTM-EW Hokuyos)
     serial_port: bool = False  # reachable over a (USB) serial port
     clock_bits: int = 24  # device tick counter width
@@ -142,6 +148,9 @@ MODELS: dict[str, ScannerModel] = {
             start_deg=-45.0,
             step_deg=0.5,
             n_points=541,
+            eval_fields=30,
+            # LMS1xx telegram listing, mLMPsetscancfg: 25 Hz at 0.25 deg or 50 Hz at 0.5 deg
+            scan_configs=((2500, 2500), (5000, 5000)),
             ethernet=True,
             clock_bits=32,
             clock_hz=1e6,
@@ -160,6 +169,18 @@ MODELS: dict[str, ScannerModel] = {
             start_deg=-5.0,
             step_deg=0.1667,  # as the device reports it: 1/10000 degree units
             n_points=1141,
+            rssi_bits=8,  # the LMS5xx sends 8-bit RSSI unless told otherwise (LMDscandatacfg)
+            echoes=5,
+            eval_fields=30,
+            # LMS500 operating instructions 8013796, 10.2.8: 25..100 Hz, 0.1667..1 degree;
+            # the finer resolutions only at the lower frequencies (LMS5xx product data)
+            scan_configs=(
+                *((2500, r) for r in (1667, 2500, 3333, 5000, 6667, 10000)),
+                *((3500, r) for r in (2500, 3333, 5000, 6667, 10000)),
+                *((5000, r) for r in (3333, 5000, 6667, 10000)),
+                *((7500, r) for r in (5000, 10000)),
+                *((10000, r) for r in (6667, 10000)),
+            ),
             ethernet=True,
             clock_bits=32,
             clock_hz=1e6,
@@ -178,6 +199,7 @@ MODELS: dict[str, ScannerModel] = {
             start_deg=-45.0,
             step_deg=0.3333,
             n_points=811,
+            eval_fields=48,  # 16 field sets of 3 fields
             ethernet=True,
             clock_bits=32,
             clock_hz=1e6,

@@ -109,8 +109,9 @@ class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
                 on_connect = self._measure_latency
         else:
             state.latency_s = float(cfg.latency_s)
-        log.info("%s: latency_s %s", self.name, cfg.latency_s if cfg.latency_s == "auto"
-                 else f"{state.latency_s * 1e3:.2f} ms, configured")  # fmt: skip
+        how = (f"auto, from {cls.latency_probe}" if cfg.latency_s == "auto"
+               else f"{state.latency_s * 1e3:.2f} ms, configured")  # fmt: skip
+        log.info("%s: latency_s %s", self.name, how)
         return Reconnecting(scanner, on_event=on_event, on_connect=on_connect)
 
     def identity(self) -> object:

@@ -4,6 +4,7 @@ real MCAP files read back with the `mcap` readers and the Foxglove protobuf sche
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import subprocess
@@ -199,7 +200,10 @@ def test_below_the_reserve_at_start_exits_3(rig: Rig, tmp_path: Path) -> None:
     read_log(files[-1])
 
 
-def test_a_scanner_outage_is_a_gap_and_recording_goes_on(rig: Rig, tmp_path: Path) -> None:
+def test_a_scanner_outage_is_a_gap_and_recording_goes_on(
+    rig: Rig, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="acq.record")
     cfg = rig.config(tmp_path)
     import threading
 
@@ -222,6 +226,15 @@ def test_a_scanner_outage_is_a_gap_and_recording_goes_on(rig: Rig, tmp_path: Pat
     assert any(not d.connected or d.gap_s > 0.5 for d in laser)
     assert laser[-1].connected and laser[-1].disconnects >= 1
     assert laser[-1].epoch >= 1  # the device clock restarted: a new epoch
+    # the latency measured again at the reconnection, with the new clock: stamps on time
+    assert caplog.text.count("20 time queries") >= 2, caplog.text
+    by_tick = {s.timestamp: s for s in list(rig.scanner.sent)}
+    step_dt = rig.scanner.step_dt
+    after = [(p, by_tick[m.device_ticks[0]]) for (_, p, _), (_, _, m)
+             in zip(log["/laser/scan"], log["/laser/raw"], strict=True)
+             if p * 1e-9 > t[-1] - 1.5 and m.device_ticks[0] in by_tick]  # fmt: skip
+    err = [p * 1e-9 - (s.t0 + s.start * step_dt) for p, s in after]
+    assert len(err) > 40 and abs(float(np.median(err))) < 1e-3, np.percentile(err, [5, 50, 95])
 
 
 def _kill_once(rig: Rig, cfg_path: Path, out: Path, delay_s: float) -> tuple[int, Path]:

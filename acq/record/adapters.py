@@ -502,7 +502,7 @@ class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
         """The fix's UTC time as host monotonic ns, through the host's UTC clock now; None
         (logged once) when its receipt is not within :data:`GNSS_RECEIPT_BOUNDS_S` after
         it: a host clock or a receiver's UTC that cannot be right."""
-        pair = (time.monotonic_ns(), time.clock_gettime_ns(time.CLOCK_REALTIME))
+        pair = (time.monotonic_ns(), time.time_ns())  # as /acq/clock pairs
         stamp = int(host_ns_from_utc(fix.utc_s, pair))
         delay_s = (fix.recv_ns - stamp) * 1e-9
         lo, hi = GNSS_RECEIPT_BOUNDS_S

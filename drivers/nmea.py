@@ -30,8 +30,11 @@ Three parts, the first two sans-I/O (any bytes give sentences, fixes, None or a 
   read_fix` flushes when the receiver falls silent for its ``timeout``.
 - :class:`NmeaReceiver` reads the port (one thread) and hands out sentences and fixes.
 
-The fix time is the receiver's measurement instant in UTC, not the host's clock: the
-recorder maps it to host monotonic time like a device clock (see :mod:`acq.record.recorder`).
+The fix time (:attr:`acq.records.Fix.utc_s`) is the receiver's measurement instant in
+UTC, not the host's clock; :attr:`acq.records.Fix.recv_ns` is the receipt of the sentence
+that completed the fix. The recorder stamps a fix from its fix time through the host's
+UTC clock when that clock is disciplined, else maps the fix time to host monotonic time
+like a device clock through the receipt times (see :class:`acq.record.adapters.GnssAdapter`).
 """
 
 from __future__ import annotations

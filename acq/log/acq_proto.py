@@ -55,6 +55,9 @@ _ACQ_MESSAGES: dict[str, list[_FieldSpec]] = {
         ("sequence", 9, _F.TYPE_UINT64, _ONE, ""),
         ("received", 10, _F.TYPE_UINT64, _ONE, ""),  # records received so far
         ("dropped", 11, _F.TYPE_UINT64, _ONE, ""),  # records lost so far
+        # what set stamp_ns: "fix" (the record's own UTC time through the host's UTC
+        # clock) or "receipt" (the device clock mapped through receipt times); "": the latter
+        ("stamp_source", 12, _F.TYPE_STRING, _ONE, ""),
     ],
     "Clock": [
         ("realtime_ns", 1, _F.TYPE_INT64, _ONE, ""),  # CLOCK_REALTIME, ns since the epoch

@@ -388,10 +388,12 @@ def timing(
     sequence: int = 0,
     received: int = 0,
     dropped: int = 0,
+    stamp_source: str = "",
 ) -> bytes:
     """``acq.Timing``, one per record on ``/acq/timing/<device>``: receipt time, raw and
     unwrapped ticks, the clock's estimate (``stamp_ns``, ``offset_ns`` host minus device,
-    drift in ppm, uncertainty in s) and the device's received/dropped counters."""
+    drift in ppm, uncertainty in s), the device's received/dropped counters and what set
+    the stamp (``stamp_source``: ``fix`` or ``receipt``, empty for the device clock)."""
     msg = TimingMsg(
         recv_ns=recv_ns,
         device_ticks=device_ticks,
@@ -404,6 +406,7 @@ def timing(
         sequence=sequence,
         received=received,
         dropped=dropped,
+        stamp_source=stamp_source,
     )
     return _serialized(msg)
 

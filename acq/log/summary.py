@@ -25,9 +25,17 @@ from mcap.records import Channel, Message, Metadata, Schema
 from acq.log.reader import LogReader, quiet
 from acq.log.timebase import MONOTONIC, TimeBase
 from acq.time.clocksync import fit_log_drift
-from acq.time.utc import utc_ns
+from acq.time.utc import host_ns_from_utc, utc_ns
 
-__all__ = ["ChannelInfo", "DeviceSync", "LogInfo", "format_info", "info", "info_many"]
+__all__ = [
+    "ChannelInfo",
+    "DeviceSync",
+    "GnssTime",
+    "LogInfo",
+    "format_info",
+    "info",
+    "info_many",
+]
 
 _SLOW_PERIOD_S = 0.5  # topics at 2 Hz or slower (status, clock): gap = period + 0.5 s
 
@@ -90,6 +98,23 @@ class DeviceSync:
 
 
 @dataclass(frozen=True)
+class GnssTime:
+    """How a log's GNSS fixes were stamped, from ``/acq/timing/gnss``: ``stamped`` counts
+    the fixes per source (``fix``: their own UTC fix time through the host's UTC clock;
+    ``receipt``: their receipt times, as logs before the choice existed);
+    ``receipt_minus_fix_ms_*``: each fix's receipt minus its UTC fix time on the host
+    clock (through the log's ``/acq/clock`` pairs), ms, median and 5th/95th percentiles
+    (the spread is their difference); it holds the receiver's delay and the host
+    clock's error to UTC. None where the log has no clock pairs."""
+
+    fixes: int
+    stamped: dict[str, int]
+    receipt_minus_fix_ms_median: float | None
+    receipt_minus_fix_ms_p5: float | None
+    receipt_minus_fix_ms_p95: float | None
+
+
+@dataclass(frozen=True)
 class LogInfo:
     """Summary of one log file, or (``len(files) > 1``) of a session of split files.
 
@@ -126,6 +151,7 @@ class LogInfo:
     problem: str | None
     odd_size: dict[str, int] = field(default_factory=dict)
     time_base: TimeBase = MONOTONIC
+    gnss_time: GnssTime | None = None  # None: no GNSS fixes
 
 
 # --- summarising --------------------------------------------------------------------
@@ -187,6 +213,7 @@ class _Acc:
     clock: list[tuple[int, int]] = field(default_factory=list)  # (monotonic, realtime) ns
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: int = 0
+    gnss: list[tuple[int, int, str]] = field(default_factory=list)  # recv ns, UTC µs, source
 
     def add(self, schema: Schema | None, channel: Channel, message: Message, decoded: Any) -> None:
         topic = channel.topic
@@ -197,6 +224,8 @@ class _Acc:
             return
         if topic.startswith("/acq/timing/"):
             self._add_timing(topic.removeprefix("/acq/timing/"), decoded)
+            if topic == _GNSS_TIMING:
+                self.gnss.append(_gnss_fix_timing(decoded))
         elif topic == "/acq/status":
             self.status = decoded
         elif topic == "/acq/clock":
@@ -318,6 +347,39 @@ def _device_sync(name: str, t: _Timing, clock: dict[str, str]) -> DeviceSync:
     )
 
 
+_GNSS_TIMING = "/acq/timing/gnss"  # the GNSS section's fixes (unwrapped_tick: UTC µs)
+
+
+def _gnss_fix_timing(msg: Any) -> tuple[int, int, str]:
+    """(receipt ns, UTC µs, stamp source) of one GNSS fix's timing record."""
+    source = _field(msg, "stamp_source") or "receipt"
+    return int(msg.recv_ns), int(msg.unwrapped_tick), str(source)
+
+
+def _gnss_time(
+    fixes: list[tuple[int, int, str]], clock: list[tuple[int, int]], time_base: TimeBase
+) -> GnssTime | None:
+    """The summary of a log's GNSS fix timing records; None without any."""
+    if not fixes:
+        return None
+    stamped: dict[str, int] = {}
+    for _, _, source in fixes:
+        stamped[source] = stamped.get(source, 0) + 1
+    pairs = clock or ([(0, time_base.utc_offset_ns)] if time_base.utc else [])
+    if not pairs:
+        return GnssTime(len(fixes), stamped, None, None, None)
+    recv = np.array([f[0] for f in fixes], dtype=np.int64)
+    utc_us = np.array([f[1] for f in fixes], dtype=np.int64)
+    # whole seconds apart so float64 keeps the microseconds
+    utc_s = (utc_us // 10**6).astype(np.float64) + (utc_us % 10**6).astype(np.float64) * 1e-6
+    try:
+        delay_ms = (recv - host_ns_from_utc(utc_s, pairs)) / 1e6
+    except ValueError:  # the wall clock went back: UTC names two host times
+        return GnssTime(len(fixes), stamped, None, None, None)
+    p5, p50, p95 = (float(v) for v in np.percentile(delay_ms, [5, 50, 95]))
+    return GnssTime(len(fixes), stamped, p50, p5, p95)
+
+
 def _float(text: str | None) -> float | None:
     """``text`` as a finite float, None if it is none."""
     try:
@@ -374,6 +436,7 @@ def _result(
         problem=problem,
         odd_size=acc.odd_size(),
         time_base=time_base,
+        gnss_time=_gnss_time(acc.gnss, acc.clock, time_base),
     )
 
 
@@ -531,6 +594,8 @@ def _format_one(i: LogInfo) -> list[str]:
                 f"  {unc:>19}  {res:>25}"
             )
         lines.extend(_latency_line(d) for d in i.devices if d.latency_s is not None)
+    if i.gnss_time is not None:
+        lines.extend(_gnss_time_lines(i.gnss_time))
     if i.odd_size:
         counts = ", ".join(f"{name} {n}" for name, n in i.odd_size.items())
         lines.append(f"  warning: frames of an unexpected size (recorded, flagged): {counts}")
@@ -545,6 +610,22 @@ def _latency_line(d: DeviceSync) -> str:
         lo, hi = d.latency_bounds_s
         how += f", bounds {lo * 1e3:.2f}-{hi * 1e3:.2f} ms"
     return f"  latency   {d.name}: {d.latency_s * 1e3:.2f} ms ({how})"
+
+
+def _gnss_time_lines(g: GnssTime) -> list[str]:
+    """How the fixes were stamped, and their receipt minus their fix time."""
+    names = {"fix": "their UTC fix time", "receipt": "their receipt"}
+    how = ", ".join(f"{n} from {names.get(k, k)}" for k, n in sorted(g.stamped.items()))
+    lines = [f"  gnss time {g.fixes} fixes: {how}"]
+    if g.receipt_minus_fix_ms_median is not None:
+        lo, hi = g.receipt_minus_fix_ms_p5, g.receipt_minus_fix_ms_p95
+        assert lo is not None and hi is not None
+        lines.append(
+            f"  gnss time receipt - fix time (host UTC clock): median"
+            f" {g.receipt_minus_fix_ms_median:.2f} ms, spread {hi - lo:.2f} ms"
+            f" (p5 {lo:.2f}, p95 {hi:.2f})"
+        )
+    return lines
 
 
 def _drift(d: DeviceSync) -> str:

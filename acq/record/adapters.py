@@ -10,6 +10,7 @@ encode them into the device's topics. :func:`adapters_for` gives a configuration
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -25,8 +26,10 @@ from acq.log.writer import LogWriter
 from acq.record.config import CameraConfig, CanConfig, Config, GnssConfig, ScannerConfig
 from acq.record.device_loop import DeviceAdapter, finite
 from acq.records import CanFrame, Fix, Frame, Odometry, Scan, Sentence
+from acq.time import kernel_clock
 from acq.time.clocksync import DeviceClock, latency_bounds
 from acq.time.sync import scan_start_ns
+from acq.time.utc import host_ns_from_utc
 
 __all__ = [
     "GNSS",
@@ -381,18 +384,41 @@ class _FixItem:
     tick: int  # the fix time as UTC µs (GNSS_TICK_HZ)
     epoch: int  # the clock's epoch when the fix came (the writer's turn may be later)
     counts: _Counts
+    source: str  # what set stamp_ns: "fix" or "receipt" (GnssConfig.time)
+
+
+GNSS_CLOCK_CHECK_S = 10.0  # how often gnss.time auto asks the kernel about the host clock
+# receipt minus the fix time through the host's UTC clock beyond which that clock (or the
+# receiver's UTC) cannot be right: the fix is stamped from its receipt instead
+GNSS_RECEIPT_BOUNDS_S = (-0.05, 2.0)
+
+
+def _host_clock_disciplined() -> tuple[bool, str]:
+    """Whether the kernel says the host clock is synchronised to UTC, and in words."""
+    k = kernel_clock.read_kernel_clock()
+    if k is None:
+        return False, "the kernel's clock status is unknown on this system"
+    if not k.synchronised:
+        return False, f"the host clock is not synchronised (kernel: {k.state})"
+    return True, f"the host clock is synchronised (kernel maxerror {k.maxerror_s * 1e3:.1f} ms)"
 
 
 class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
     """The GNSS receiver: every sentence to ``/gnss/raw``, each fix to ``/gnss/fix`` and
-    ``/acq/timing/gnss``, stamped with its fix time (the receiver's UTC, a device clock)
-    mapped to the host clock less ``latency_s``."""
+    ``/acq/timing/gnss``. A fix is stamped (``gnss.time``, :class:`GnssConfig`) from its
+    own UTC fix time through the host's UTC clock (``fix``), or from its fix time mapped
+    through the receipt times like a device clock, less ``latency_s`` (``receipt``);
+    ``auto`` takes ``fix`` while the kernel says the host clock is synchronised, asked at
+    the start and every :data:`GNSS_CLOCK_CHECK_S`."""
 
     kind = "gnss"
 
     def __init__(self, cfg: GnssConfig) -> None:
         super().__init__(GNSS, cfg.driver)
         self.cfg = cfg
+        self.source = "receipt"  # how fixes are stamped now: "fix" or "receipt"
+        self._checked_ns = 0  # host monotonic ns of the last look at the host clock
+        self._implausible = False  # the last fix's UTC time was off its receipt
 
     def channels(self) -> list[tuple[str, str]]:
         return [
@@ -407,7 +433,34 @@ class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
         self.device = receiver
         state.clock = DeviceClock(GNSS_TICK_HZ, 62, periodic=False)
         state.latency_s = cfg.latency_s
+        why = self._choose(time.monotonic_ns())
+        log.info("%s: %s", GNSS, self._stamping(why))
         return Relink(receiver, receiver.read_sentence, on_event=on_event)
+
+    def _choose(self, now_ns: int) -> str:
+        """Set :attr:`source` as ``gnss.time`` says; why, in words."""
+        self._checked_ns = now_ns
+        if self.cfg.time != "auto":
+            self.source = self.cfg.time
+            why = f"gnss.time {self.cfg.time}"
+        else:
+            disciplined, why = _host_clock_disciplined()
+            self.source = "fix" if disciplined else "receipt"
+            why = f"gnss.time auto: {why}"
+        state = self.state
+        state.latency_source = (
+            f"configured; not subtracted: fixes stamped from their UTC fix time ({why})"
+            if self.source == "fix"
+            else f"configured; fixes stamped from their receipt ({why})"
+        )
+        return why
+
+    def _stamping(self, why: str) -> str:
+        """How fixes are stamped now, for the log."""
+        if self.source == "fix":
+            return f"fixes stamped from their UTC fix time through the host clock ({why})"
+        return (f"fixes stamped from their receipt, less latency_s "
+                f"{self.cfg.latency_s * 1e3:.2f} ms ({why})")  # fmt: skip
 
     def identity(self) -> object:
         return self.device.info
@@ -431,10 +484,39 @@ class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
                 state.event("clock_reset", "the receiver's UTC jumped: "
                             "its mapping to host time starts afresh")  # fmt: skip
         state.count(fix.recv_ns)
-        mapped = clock.to_host_ns(tick) if clock.updates else fix.recv_ns
+        if self.cfg.time == "auto" and fix.recv_ns - self._checked_ns >= GNSS_CLOCK_CHECK_S * 1e9:
+            before = self.source
+            why = self._choose(fix.recv_ns)
+            if self.source != before:
+                state.event("time_source", self._stamping(why))
+                log.warning("%s: from now on %s", GNSS, self._stamping(why))
         counts = _Counts(state.received, state.dropped)
+        stamp = self._fix_stamp(fix) if self.source == "fix" and fix.quality > 0 else None
+        if stamp is not None:
+            return (record, _FixItem(fix, stamp, tick, clock.epoch, counts, "fix"))
+        mapped = clock.to_host_ns(tick) if clock.updates else fix.recv_ns
         stamp = mapped - round(state.latency_s * 1e9)
-        return (record, _FixItem(fix, stamp, tick, clock.epoch, counts))
+        return (record, _FixItem(fix, stamp, tick, clock.epoch, counts, "receipt"))
+
+    def _fix_stamp(self, fix: Fix) -> int | None:
+        """The fix's UTC time as host monotonic ns, through the host's UTC clock now; None
+        (logged once) when its receipt is not within :data:`GNSS_RECEIPT_BOUNDS_S` after
+        it: a host clock or a receiver's UTC that cannot be right."""
+        pair = (time.monotonic_ns(), time.time_ns())  # as /acq/clock pairs
+        stamp = int(host_ns_from_utc(fix.utc_s, pair))
+        delay_s = (fix.recv_ns - stamp) * 1e-9
+        lo, hi = GNSS_RECEIPT_BOUNDS_S
+        plausible = lo <= delay_s <= hi
+        if plausible == self._implausible:
+            self._implausible = not plausible
+            if plausible:
+                log.info("%s: fix times and receipts agree again: fixes stamped from their "
+                         "UTC fix time", GNSS)  # fmt: skip
+            else:
+                log.warning("%s: a fix received %.3f s after its UTC fix time by the host "
+                            "clock (expected %g to %g s): stamped from its receipt until "
+                            "they agree", GNSS, delay_s, lo, hi)  # fmt: skip
+        return stamp if plausible else None
 
     def write(self, writer: LogWriter, payload: Sentence | _FixItem) -> None:
         if isinstance(payload, Sentence):
@@ -453,6 +535,7 @@ class GnssAdapter(DeviceAdapter[Sentence, Sentence | _FixItem]):
             uncertainty_s=finite(clock.uncertainty_s) if clock else 0.0,
             received=payload.counts.received,
             dropped=payload.counts.dropped,
+            stamp_source=payload.source,
         )
         writer.write_group([
             (f"/{GNSS}/fix", schemas.location_fix(fix, writer.time_base.to_log(stamp), GNSS),

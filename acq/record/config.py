@@ -339,13 +339,22 @@ class CanConfig(_Model):
 
 class GnssConfig(_Model):
     """A GNSS receiver sending NMEA 0183 over a pyserial URL: topics ``/gnss/fix`` and
-    ``/gnss/raw``. ``latency_s`` is the constant delay from the fix instant to the
-    receipt of its first sentence that one-way timing cannot see (the receiver's
-    computation), subtracted from the fix times mapped to the host clock."""
+    ``/gnss/raw``.
+
+    ``time`` says what stamps a fix: ``fix``, its own UTC fix time mapped to host time
+    through the host's UTC clock (right when that clock is disciplined to UTC: chrony,
+    PTP, a PPS); ``receipt``, the fix time mapped like a device clock through the
+    sentences' receipt times, less ``latency_s``; ``auto`` (default), ``fix`` while the
+    kernel says the host clock is synchronised, else ``receipt``. ``latency_s`` is the
+    constant delay, s, from the fix instant to the receipt of the epoch's last sentence
+    at its shortest (the receiver's computation and the line), which receipt times
+    cannot see; fixes stamped from their UTC time do not need it and it is not
+    subtracted from them."""
 
     driver: str = "nmea"  # a GNSS driver of the registry
     url: str
     baudrate: int = Field(default=9600, gt=0, le=MAX_BAUD)
+    time: Literal["auto", "fix", "receipt"] = "auto"
     latency_s: float = Field(default=0.0, ge=0, le=MAX_LATENCY_S)
     required: bool = False  # no fix soon after the start stops the recorder
 

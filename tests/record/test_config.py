@@ -132,6 +132,7 @@ def test_vehicle_example() -> None:
     assert cfg.can.dbc == ROOT / "sim" / "vehicle.dbc" and cfg.can.dbc.is_file()
     assert cfg.can.wheel_speeds[3] == "WHEEL_SPEEDS.WHEEL_SPEED_RR" and cfg.can.speed is None
     assert cfg.gnss.url.startswith("/dev/serial/by-id/") and cfg.gnss.baudrate == 115200
+    assert (cfg.gnss.time, cfg.gnss.latency_s) == ("auto", 0.0)
     assert config.parse(yaml.safe_load(config.dump(cfg)), "dumped") == cfg.model_copy(
         update={"source": None}
     )
@@ -170,8 +171,12 @@ def test_gnss_section_and_reserved_names() -> None:
     gnss = {"url": "tcp://192.168.1.5:2947", "latency_s": 0.05}
     cfg = config.parse(changed(lambda d: d.update(gnss=gnss)))
     assert cfg.gnss is not None and cfg.gnss.url == "socket://192.168.1.5:2947"
+    assert cfg.gnss.time == "auto"  # the fix time when the host clock is disciplined
     assert error_of(changed(lambda d: d.update(gnss={"url": "/dev/ttyUSB0", "latency_s": -1}))) == (
         "rig.yaml: gnss.latency_s: must be >= 0, got -1"
+    )
+    assert error_of(changed(lambda d: d.update(gnss={"url": "/dev/ttyUSB0", "time": "utc"}))) == (
+        "rig.yaml: gnss.time: expected one of: auto, fix, receipt, got 'utc'"
     )
     clash = changed(lambda d: d.update(gnss={"url": "/dev/ttyUSB0"}))
     clash["cameras"][0]["name"] = "gnss"

@@ -51,7 +51,8 @@ class VehicleRig:
             "scanners": [{"name": "laser", "driver": "hokuyo", "url": self.scanner.url}],
             "can": {"interface": "virtual", "channel": self.channel, "dbc": str(DBC_PATH),
                     **can},
-            "gnss": {"url": self.gnss_server.url, "baudrate": 115200,
+            # stamped from receipt: the receiver's UTC is 2.5 s off the host's wall clock
+            "gnss": {"url": self.gnss_server.url, "baudrate": 115200, "time": "receipt",
                      "latency_s": GNSS_LATENCY_S},
             "output": {"dir": str(tmp_path / "logs")},
         }  # fmt: skip

@@ -38,7 +38,7 @@ def parse_time_status(text: str) -> PtpTime:
             values[parts[0]] = parts[1]
     try:
         return PtpTime(
-            master_offset_s=int(values["master_offset"]) * 1e-9,
+            master_offset_s=int(values["master_offset"]) / 1e9,
             gm_present=values["gmPresent"] == "true",
             gm_identity=values["gmIdentity"],
         )

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from array import array
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,6 +22,7 @@ from acq.time.ptp import PtpTime
 
 __all__ = [
     "OFFSET_LIMIT_S", "STEP_S", "HostClockSummary", "HostClockTally", "summarise_host_clock",
+    "utc_doubt",
 ]  # fmt: skip
 
 OFFSET_LIMIT_S = 1e-3  # a host clock further than this from its reference or GNSS: warned
@@ -196,3 +197,14 @@ def summarise_host_clock(readings: Iterable[HostClock]) -> HostClockSummary:
     for r in sorted(readings, key=lambda r: r.monotonic_ns):
         tally.add(r)
     return tally.summary()
+
+
+def utc_doubt(metadata: Mapping[str, Mapping[str, str]]) -> str | None:
+    """Why a log's UTC cannot be trusted, from its ``time_base`` metadata
+    (:meth:`HostClockTally.metadata`); None when it can."""
+    time_base = metadata.get("time_base")
+    if time_base is None:
+        return "the log has no time base: whether the host clock was synchronised is unknown"
+    if time_base.get("utc_trusted") == "yes":
+        return None
+    return time_base.get("warnings") or "the log's time base does not vouch for it"

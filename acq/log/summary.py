@@ -569,7 +569,7 @@ def host_clock_lines(h: HostClockSummary | None) -> list[str]:
     if h.leap_statuses:
         parts.append(f"chrony leap {' -> '.join(h.leap_statuses)}")
     if h.kernel_states:
-        parts.append(f"kernel {' -> '.join(h.kernel_states)}")
+        parts.append(f"kernel clock {' -> '.join(h.kernel_states)}")
     parts.append(f"{len(h.steps)} steps")
     lines.append(f"  time base {'; '.join(parts)}")
     lines.extend(f"  warning: time base: {w}" for w in h.warnings)

@@ -81,6 +81,7 @@ from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
 from acq.log.locate import locate
 from acq.motion import Trajectory
+from acq.time.host_clock_summary import utc_doubt
 
 # the pipeline's parts, as callers of `acq colorize` and its bench know them
 __all__ = [
@@ -404,6 +405,9 @@ def run(
         threads=(os.cpu_count() or 1) if local else 1, crs=crs,
     )  # fmt: skip
     job = replace(job, want_uv=want_uv)
+    doubt = utc_doubt(index.metadata)
+    if doubt is not None:
+        report.notes.append(f"UTC not trusted (the points' times): {doubt}")
     t_offset = time.perf_counter()
     if auto:
         found: dict[str, int] = {}
@@ -434,7 +438,8 @@ def run(
     scan_new = np.sort(job.scan_new)
     chunks = plan(scan_new, chunk_s)
     t_plan = time.perf_counter()
-    out = CloudWriter(output, crs, index.clock, report, [c.name for c in job.cameras])
+    out = CloudWriter(output, crs, index.clock, report, [c.name for c in job.cameras],
+                      utc_doubt=doubt)  # fmt: skip
     # a long log's cloud is not held: counts, and every k-th scan for the preview
     every = max(1, math.ceil(index.ranges.size / PREVIEW_POINTS))
     tally = _Tally(every if preview is not None else 0)

@@ -13,7 +13,10 @@ with their true minimum and maximum over the points that have a value in the ext
 VLR (laspy leaves them zero: written at :meth:`LasStream.close`); ``user_data`` also
 holds the coloured flag for readers that ignore extra bytes. The cameras' names are a
 VLR of user ID ``acq``, record ID 1 (:data:`CAMERAS_VLR`): ASCII lines ``<index> <name>``
-in index order. RGB is 16-bit (8-bit values times 257), intensity clipped to 0..65535.
+in index order. When the log's UTC cannot be trusted (its time base says the host clock
+was unsynchronised, stepped or off, or it has none), a VLR of user ID ``acq``, record
+ID 2 (:data:`TIME_BASE_VLR`) says why, in ASCII: the GPS times are the host clock's.
+RGB is 16-bit (8-bit values times 257), intensity clipped to 0..65535.
 Generating Software is acq's mark (:mod:`acq.provenance`); System Identifier "OTHER", the
 specification's value for an operation that is neither a hardware system nor a merge,
 extraction, modification or transformation of LAS files.
@@ -36,13 +39,15 @@ if TYPE_CHECKING:
     import laspy
 
 __all__ = [
-    "CAMERAS_VLR", "SYSTEM_IDENTIFIER", "LasStream", "cameras_text", "extra_dims",
+    "CAMERAS_VLR", "SYSTEM_IDENTIFIER", "TIME_BASE_VLR", "LasStream", "cameras_text", "extra_dims",
     "grow_ranges", "pack_points", "write_extra_bytes_ranges",
 ]  # fmt: skip
 
 SYSTEM_IDENTIFIER = "OTHER"
 # the cameras' names: the VLR's user ID, record ID and description
 CAMERAS_VLR = ("acq", 1, "cameras: index name")
+# why the points' GPS times (from the host clock's UTC) cannot be trusted
+TIME_BASE_VLR = ("acq", 2, "time base: UTC not trusted")
 # the extra-bytes dimensions in the record's order: name -> (type, no_data, description)
 _EXTRA: dict[str, tuple[type[np.integer], int | None, str]] = {
     "scan_index": (np.uint32, None, "scan in the log"),
@@ -57,11 +62,12 @@ class LasStream:
     on :meth:`close` (:meth:`abort` removes it); LAZ (compressed) when ``path`` ends in
     .laz. The offset is the first part's rounded minimum; the header's extent, counts
     and GPS time span grow with every part. ``cameras``: the names, in index order, of
-    the cameras the points' ``camera`` indexes. ``comments`` have no place in LAS: unused."""
+    the cameras the points' ``camera`` indexes. ``comments`` have no place in LAS: unused.
+    ``utc_doubt``: why the points' UTC cannot be trusted, as the :data:`TIME_BASE_VLR`."""
 
     def __init__(
         self, path: str | os.PathLike[str], *, crs: str | None = None,
-        comments: Sequence[str] = (), cameras: Sequence[str] = (),
+        comments: Sequence[str] = (), cameras: Sequence[str] = (), utc_doubt: str | None = None,
     ) -> None:  # fmt: skip
         import laspy
         import pyproj
@@ -82,6 +88,9 @@ class LasStream:
         header.add_extra_dims(extra_dims())
         if cameras:
             header.vlrs.append(laspy.VLR(*CAMERAS_VLR, cameras_text(cameras).encode()))
+        if utc_doubt is not None:
+            text = utc_doubt.encode("ascii", "replace")[:60000]  # a VLR holds < 64 KiB
+            header.vlrs.append(laspy.VLR(*TIME_BASE_VLR, text))
         self._header = header
         self._writer: laspy.LasWriter | None = None
         # each extra dimension's (min, max) over the points written; None before any

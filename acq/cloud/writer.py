@@ -54,11 +54,13 @@ class CloudWriter:
     ``output``'s suffix; ``seconds`` spent writing. Its OSErrors name ``output``.
     ``cameras``: the job's camera names, in the order the points' ``camera`` indexes;
     InputValueError for more than 255 (255 is :data:`NO_CAMERA`) or a name that is not one
-    line of printable ASCII (the formats' headers hold them as text lines)."""
+    line of printable ASCII (the formats' headers hold them as text lines). ``utc_doubt``:
+    why the points' UTC cannot be trusted (:func:`acq.time.host_clock_summary.utc_doubt`),
+    written as a comment (in LAS, whose files have no comments, as a VLR)."""
 
     def __init__(
         self, output: Path, crs: str | None, clock: np.ndarray, report: Report,
-        cameras: Sequence[str] = (),
+        cameras: Sequence[str] = (), utc_doubt: str | None = None,
     ) -> None:  # fmt: skip
         self.output = output
         kind = format_of(output)
@@ -76,6 +78,8 @@ class CloudWriter:
         self.cameras = cameras = list(cameras)
         comments = [f"frame {report.frame}", f"view {report.view}", *(
             [f"crs {crs}"] if crs else [])]  # fmt: skip
+        if utc_doubt is not None:
+            comments.append(f"UTC not trusted: {utc_doubt}")
         self.stream: PlyStream | LasStream | CopcStream | E57Stream
         if kind == "ply":
             with _naming(output):
@@ -90,7 +94,8 @@ class CloudWriter:
                 self.stream = E57Stream(output, crs=crs, comments=comments, cameras=cameras)
         else:
             with _naming(output):
-                self.stream = LasStream(output, crs=crs, comments=comments, cameras=cameras)
+                self.stream = LasStream(output, crs=crs, comments=comments, cameras=cameras,
+                                        utc_doubt=utc_doubt)  # fmt: skip
         self.clock = clock
         self.seconds = 0.0
 

@@ -1,7 +1,9 @@
 """Our own versioned ``acq.*`` protobuf messages (file ``acq/v1.proto``, package ``acq``),
 built at import time from a ``FileDescriptorProto`` (no protoc), and their message
 classes: ``acq.RawTelegram``, ``acq.Timing``, ``acq.Clock``, ``acq.Status``,
-``acq.DeviceStatus``, ``acq.Odometry`` and ``acq.CanFrame``. A change that is not
+``acq.DeviceStatus``, ``acq.Odometry``, ``acq.CanFrame`` and ``acq.TimeBase`` (with
+its parts ``acq.KernelClock``, ``acq.ChronyTracking``, ``acq.PtpTime``, ``acq.PpsSource``
+and ``acq.GnssTime``). A change that is not
 backwards compatible gets a new file (``acq/v2.proto``); v1 field numbers stay, new
 messages and fields may be added. Their encoders are in :mod:`acq.log.schemas`.
 """
@@ -22,6 +24,7 @@ __all__ = [
     "OdometryMsg",
     "RawTelegramMsg",
     "StatusMsg",
+    "TimeBaseMsg",
     "TimingMsg",
 ]
 
@@ -110,6 +113,62 @@ _ACQ_MESSAGES: dict[str, list[_FieldSpec]] = {
         ("data", 9, _F.TYPE_BYTES, _ONE, ""),
         ("channel", 10, _F.TYPE_STRING, _ONE, ""),
     ],
+    "KernelClock": [  # adjtimex(2) read only: acq.time.kernel_clock
+        ("synchronised", 1, _F.TYPE_BOOL, _ONE, ""),
+        ("state", 2, _F.TYPE_STRING, _ONE, ""),
+        ("maxerror_s", 3, _F.TYPE_DOUBLE, _ONE, ""),
+        ("esterror_s", 4, _F.TYPE_DOUBLE, _ONE, ""),
+        ("offset_s", 5, _F.TYPE_DOUBLE, _ONE, ""),
+        ("freq_ppm", 6, _F.TYPE_DOUBLE, _ONE, ""),
+        ("pll", 7, _F.TYPE_BOOL, _ONE, ""),
+        ("pps", 8, _F.TYPE_BOOL, _ONE, ""),
+        ("tai_s", 9, _F.TYPE_INT32, _ONE, ""),
+    ],
+    "ChronyTracking": [  # `chronyc -c tracking`: acq.time.chrony
+        ("reference_id", 1, _F.TYPE_UINT32, _ONE, ""),
+        ("reference_name", 2, _F.TYPE_STRING, _ONE, ""),
+        ("stratum", 3, _F.TYPE_UINT32, _ONE, ""),
+        ("ref_time_s", 4, _F.TYPE_DOUBLE, _ONE, ""),  # UTC s of the last update
+        ("system_offset_s", 5, _F.TYPE_DOUBLE, _ONE, ""),  # positive: host clock behind
+        ("last_offset_s", 6, _F.TYPE_DOUBLE, _ONE, ""),  # host clock minus the reference
+        ("rms_offset_s", 7, _F.TYPE_DOUBLE, _ONE, ""),
+        ("frequency_ppm", 8, _F.TYPE_DOUBLE, _ONE, ""),
+        ("residual_frequency_ppm", 9, _F.TYPE_DOUBLE, _ONE, ""),
+        ("skew_ppm", 10, _F.TYPE_DOUBLE, _ONE, ""),
+        ("root_delay_s", 11, _F.TYPE_DOUBLE, _ONE, ""),
+        ("root_dispersion_s", 12, _F.TYPE_DOUBLE, _ONE, ""),
+        ("update_interval_s", 13, _F.TYPE_DOUBLE, _ONE, ""),
+        ("leap_status", 14, _F.TYPE_STRING, _ONE, ""),
+    ],
+    "PtpTime": [  # ptp4l's TIME_STATUS_NP: acq.time.ptp
+        ("master_offset_s", 1, _F.TYPE_DOUBLE, _ONE, ""),
+        ("gm_present", 2, _F.TYPE_BOOL, _ONE, ""),
+        ("gm_identity", 3, _F.TYPE_STRING, _ONE, ""),
+    ],
+    "PpsSource": [  # /sys/class/pps/ppsN: acq.time.pps
+        ("name", 1, _F.TYPE_STRING, _ONE, ""),
+        ("assert_sequence", 2, _F.TYPE_UINT64, _ONE, ""),
+        ("assert_s", 3, _F.TYPE_DOUBLE, _ONE, ""),  # host UTC s
+        ("clear_sequence", 4, _F.TYPE_UINT64, _ONE, ""),
+        ("clear_s", 5, _F.TYPE_DOUBLE, _ONE, ""),
+    ],
+    "GnssTime": [  # the GNSS receiver's time against the host clock
+        ("host_minus_gnss_s", 1, _F.TYPE_DOUBLE, _ONE, ""),
+        ("latency_s", 2, _F.TYPE_DOUBLE, _ONE, ""),
+        ("fix_age_s", 3, _F.TYPE_DOUBLE, _ONE, ""),
+    ],
+    "TimeBase": [  # /acq/timebase, 1 Hz: what the host knows about its clock
+        ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # host monotonic
+        ("realtime_ns", 2, _F.TYPE_INT64, _ONE, ""),  # read with monotonic_ns
+        ("monotonic_ns", 3, _F.TYPE_INT64, _ONE, ""),
+        ("kernel", 4, _F.TYPE_MESSAGE, _ONE, ".acq.KernelClock"),  # each: unset when absent
+        ("chrony", 5, _F.TYPE_MESSAGE, _ONE, ".acq.ChronyTracking"),
+        ("ptp", 6, _F.TYPE_MESSAGE, _ONE, ".acq.PtpTime"),
+        ("pps", 7, _F.TYPE_MESSAGE, _ONE, ".acq.PpsSource"),
+        ("gnss", 8, _F.TYPE_MESSAGE, _ONE, ".acq.GnssTime"),
+        ("absent", 9, _F.TYPE_STRING, _MANY, ""),  # "<source>: why", one per absent source
+        ("synchronised", 10, _F.TYPE_BOOL, _ONE, ""),  # something disciplines the clock
+    ],
 }
 
 
@@ -147,3 +206,4 @@ DeviceStatusMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["DeviceSt
 StatusMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["Status"])
 OdometryMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["Odometry"])
 CanFrameMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["CanFrame"])
+TimeBaseMsg: Any = GetMessageClass(_ACQ_FILE.message_types_by_name["TimeBase"])

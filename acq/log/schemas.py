@@ -7,8 +7,8 @@ Two families of schemas:
   ``foxglove.LocationFix``), so a log opens in Foxglove as it is.
 - Our own versioned ``acq.*`` schemas (file ``acq/v1.proto``, package ``acq``), built at
   import time (:mod:`acq.log.acq_proto`): ``acq.RawTelegram``, ``acq.Timing``,
-  ``acq.Clock``, ``acq.Status``, ``acq.DeviceStatus``, ``acq.Odometry`` and
-  ``acq.CanFrame``.
+  ``acq.Clock``, ``acq.Status``, ``acq.DeviceStatus``, ``acq.Odometry``,
+  ``acq.CanFrame`` and ``acq.TimeBase`` (what the host knows about its clock).
 
 Times: a Foxglove message's ``timestamp`` is on the log's clock, the same as MCAP
 ``log_time`` (UTC: host monotonic plus the session's offset, :mod:`acq.log.timebase`);
@@ -52,9 +52,16 @@ from acq.log.acq_proto import (
     OdometryMsg,
     RawTelegramMsg,
     StatusMsg,
+    TimeBaseMsg,
     TimingMsg,
 )
 from acq.records import CanFrame, Fix, Frame, Odometry, Scan
+from acq.time.absent import Absent
+from acq.time.chrony import ChronyTracking
+from acq.time.host_clock import GnssTime, HostClock
+from acq.time.kernel_clock import KernelClock
+from acq.time.pps import PpsSource
+from acq.time.ptp import PtpTime
 
 __all__ = [
     "ACQ_PROTO",
@@ -67,6 +74,7 @@ __all__ = [
     "compressed_image",
     "decode",
     "frame_transforms",
+    "host_clock_of",
     "laser_scan",
     "location_fix",
     "message_class",
@@ -74,6 +82,7 @@ __all__ = [
     "point_cloud",
     "raw_telegram",
     "status",
+    "time_base_record",
     "timing",
 ]
 
@@ -127,6 +136,7 @@ _CLASSES: dict[str, Any] = {
         DeviceStatusMsg,
         OdometryMsg,
         CanFrameMsg,
+        TimeBaseMsg,
     )
 }
 
@@ -508,3 +518,46 @@ def can_frame(frame: CanFrame) -> bytes:
     )
     _set_stamp(msg.timestamp, frame.stamp_ns)
     return _serialized(msg)
+
+
+_HOST_CLOCK_PARTS: dict[str, type[Any]] = {
+    "kernel": KernelClock,
+    "chrony": ChronyTracking,
+    "ptp": PtpTime,
+    "pps": PpsSource,
+    "gnss": GnssTime,
+}
+
+
+def time_base_record(reading: HostClock) -> bytes:
+    """``acq.TimeBase`` for ``/acq/timebase``: one reading of the host clock's sources,
+    stamped with its monotonic time; a source that is absent is left unset and its
+    reason listed in ``absent`` ("chrony: chronyc not installed")."""
+    msg = TimeBaseMsg(
+        realtime_ns=reading.realtime_ns,
+        monotonic_ns=reading.monotonic_ns,
+        synchronised=reading.synchronised,
+    )
+    _set_stamp(msg.timestamp, reading.monotonic_ns)
+    for name in _HOST_CLOCK_PARTS:
+        part = getattr(reading, name)
+        if isinstance(part, Absent):
+            msg.absent.append(f"{name}: {part.why}")
+        else:
+            sub = getattr(msg, name)
+            for f in fields(part):
+                setattr(sub, f.name, getattr(part, f.name))
+    return _serialized(msg)
+
+
+def host_clock_of(msg: Any) -> HostClock:
+    """The :class:`acq.time.host_clock.HostClock` an ``acq.TimeBase`` message holds."""
+    why = dict(a.split(": ", 1) for a in msg.absent if ": " in a)
+    parts: dict[str, Any] = {}
+    for name, cls in _HOST_CLOCK_PARTS.items():
+        if msg.HasField(name):
+            sub = getattr(msg, name)
+            parts[name] = cls(**{f.name: getattr(sub, f.name) for f in fields(cls)})
+        else:
+            parts[name] = Absent(why.get(name, "not recorded"))
+    return HostClock(realtime_ns=int(msg.realtime_ns), monotonic_ns=int(msg.monotonic_ns), **parts)

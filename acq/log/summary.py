@@ -1,6 +1,6 @@
 """What ``acq info`` tells about logs: per channel counts, rates and gaps, per device
 drops, disconnects and clock-sync quality, frames of an unexpected size, whether the file
-was closed, as tables or JSON.
+was closed, the host clock's time base (``/acq/timebase``), as tables or JSON.
 
 All times are integer nanoseconds of the host clock (MCAP ``log_time``) unless a name
 says otherwise (``_s`` seconds, ``_ms`` milliseconds, ``_hz`` hertz).
@@ -22,9 +22,12 @@ from typing import Any
 import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 
+from acq.log import schemas
 from acq.log.reader import LogReader, quiet
 from acq.log.timebase import MONOTONIC, TimeBase
 from acq.time.clocksync import fit_log_drift
+from acq.time.host_clock import HostClock
+from acq.time.host_clock_summary import HostClockSummary, summarise_host_clock
 from acq.time.utc import host_ns_from_utc, utc_ns
 
 __all__ = [
@@ -129,6 +132,7 @@ class LogInfo:
     wrong with the file (not closed, corrupt chunks), or is None. ``odd_size``: per
     camera, the frames of another size than expected, recorded and flagged (from the last
     ``/acq/status``; an older log's status has no such count: none listed).
+    ``host_clock``: the ``/acq/timebase`` readings summarised, None in a log without.
     """
 
     path: Path
@@ -152,6 +156,7 @@ class LogInfo:
     odd_size: dict[str, int] = field(default_factory=dict)
     time_base: TimeBase = MONOTONIC
     gnss_time: GnssTime | None = None  # None: no GNSS fixes
+    host_clock: HostClockSummary | None = None
 
 
 # --- summarising --------------------------------------------------------------------
@@ -211,6 +216,7 @@ class _Acc:
     timing: dict[str, _Timing] = field(default_factory=dict)
     status: Any = None
     clock: list[tuple[int, int]] = field(default_factory=list)  # (monotonic, realtime) ns
+    host_clock: list[HostClock] = field(default_factory=list)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: int = 0
     gnss: list[tuple[int, int, str]] = field(default_factory=list)  # recv ns, UTC µs, source
@@ -232,6 +238,8 @@ class _Acc:
             realtime, monotonic = _field(decoded, "realtime_ns"), _field(decoded, "monotonic_ns")
             if realtime and monotonic:
                 self.clock.append((int(monotonic), int(realtime)))
+        elif topic == "/acq/timebase" and _field(decoded, "absent") is not None:
+            self.host_clock.append(schemas.host_clock_of(decoded))
 
     def _add_timing(self, device: str, msg: Any) -> None:
         t = self.timing.setdefault(device, _Timing())
@@ -390,7 +398,9 @@ def _float(text: str | None) -> float | None:
 
 
 def _decode_topic(topic: str) -> bool:
-    return topic in ("/acq/status", "/acq/clock") or topic.startswith("/acq/timing/")
+    return topic in ("/acq/status", "/acq/clock", "/acq/timebase") or topic.startswith(
+        "/acq/timing/"
+    )
 
 
 def _result(
@@ -437,6 +447,7 @@ def _result(
         odd_size=acc.odd_size(),
         time_base=time_base,
         gnss_time=_gnss_time(acc.gnss, acc.clock, time_base),
+        host_clock=summarise_host_clock(acc.host_clock) if acc.host_clock else None,
     )
 
 
@@ -539,6 +550,7 @@ def _format_one(i: LogInfo) -> list[str]:
     else:
         clock = "host monotonic (a log from before acq's UTC logs); UTC from /acq/clock"
     lines.append(f"  clock     {clock}")
+    lines.extend(host_clock_lines(i.host_clock))
     lines.append(
         f"  messages  {i.messages} in {len(i.channels)} channels, attachments {i.attachments};"
         f" read {_bytes(i.bytes_read)} of {_bytes(i.bytes_total)}"
@@ -599,6 +611,33 @@ def _format_one(i: LogInfo) -> list[str]:
     if i.odd_size:
         counts = ", ".join(f"{name} {n}" for name, n in i.odd_size.items())
         lines.append(f"  warning: frames of an unexpected size (recorded, flagged): {counts}")
+    return lines
+
+
+def host_clock_lines(h: HostClockSummary | None) -> list[str]:
+    """The time base's lines: what disciplined the host clock, its offsets and steps,
+    and a warning line for each reason to doubt the log's UTC."""
+    if h is None:
+        return ["  time base not recorded (no /acq/timebase): the host clock's UTC is unverified"]
+    synced = h.records - h.unsynchronised
+    sources = ", ".join(h.sources) or "none"
+    lines = [f"  time base {h.records} readings, {synced} synchronised; sources: {sources}"]
+    parts = []
+    if h.chrony_offset_ms_median is not None and h.chrony_offset_ms_max is not None:
+        parts.append(f"host minus chrony's reference {h.chrony_offset_ms_median:+.3f} ms "
+                     f"(median; largest {h.chrony_offset_ms_max:.3f} ms)")  # fmt: skip
+    if h.ptp_offset_ms_max is not None:
+        parts.append(f"PTP offset up to {h.ptp_offset_ms_max:.3f} ms")
+    if h.gnss_ms_median is not None and h.gnss_ms_spread is not None:
+        parts.append(f"host minus GNSS {h.gnss_ms_median:+.3f} ms (median of "
+                     f"{h.gnss_records}; p5-p95 {h.gnss_ms_spread:.3f} ms)")  # fmt: skip
+    if h.leap_statuses:
+        parts.append(f"chrony leap {' -> '.join(h.leap_statuses)}")
+    if h.kernel_states:
+        parts.append(f"kernel clock {' -> '.join(h.kernel_states)}")
+    parts.append(f"{len(h.steps)} steps")
+    lines.append(f"  time base {'; '.join(parts)}")
+    lines.extend(f"  warning: time base: {w}" for w in h.warnings)
     return lines
 
 

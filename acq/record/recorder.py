@@ -6,9 +6,13 @@ adapter (:mod:`acq.record.adapters`), reads records through its driver (reconnec
 with backoff), applies the device clock, and hands them to one writer thread through a
 bounded queue: a slow disk drops records (counted per device), it never blocks a reader.
 The writer encodes (Foxglove protobuf schemas, the raw telegrams, the timing), writes,
-ends and fsyncs the chunk every second, publishes ``/acq/status`` and ``/acq/clock`` at
-1 Hz, pings the systemd watchdog, and watches the disk: below the configured reserve it
-closes the file and the recorder exits with :data:`EXIT_DISK_FULL`.
+ends and fsyncs the chunk every second, publishes ``/acq/status``, ``/acq/clock`` and
+``/acq/timebase`` (``acq.TimeBase``: what the host knows about its clock, read off the
+writer's thread by :class:`acq.time.host_clock.HostClockPoller`) at 1 Hz, pings the
+systemd watchdog, and watches the disk: below the configured reserve it closes the file
+and the recorder exits with :data:`EXIT_DISK_FULL`. The ``time_base`` metadata sums the
+time base up (:class:`acq.time.host_clock_summary.HostClockTally`): whether the log's
+UTC can be trusted, and why not.
 
 Vehicle topics (with ``can:`` / ``gnss:`` in the configuration): ``/vehicle/odometry``
 (``acq.Odometry``, stamped with the CAN receive stamp mapped to the monotonic clock, see
@@ -62,6 +66,9 @@ from acq.record.adapters import GNSS, VEHICLE, adapters_for
 from acq.record.config import CanConfig, Config, dump
 from acq.record.device_loop import DeviceState, Outbox, Queued, finite, run_device
 from acq.record.sdnotify import JournalFormatter, Notifier, use_journal_format
+from acq.time.absent import Absent
+from acq.time.host_clock import NO_GNSS, GnssTime, HostClockPoller, gnss_time
+from acq.time.host_clock_summary import HostClockTally
 
 __all__ = [
     "EXIT_DISK_FULL",
@@ -150,6 +157,8 @@ class Recorder:
         self.exit_code = EXIT_OK
         self.started_ns = 0
         self._bytes_hist: deque[tuple[int, int]] = deque(maxlen=30)  # (mono ns, bytes)
+        self.host_clock = HostClockPoller()
+        self.host_clock_tally = HostClockTally()
 
     # --- set-up ------------------------------------------------------------------------
 
@@ -197,6 +206,7 @@ class Recorder:
                 writer.add_channel(topic, schemas.SCHEMAS[schema])
         writer.add_channel("/acq/status", schemas.SCHEMAS["acq.Status"])
         writer.add_channel("/acq/clock", schemas.SCHEMAS["acq.Clock"])
+        writer.add_channel("/acq/timebase", schemas.SCHEMAS["acq.TimeBase"])
         now = time.monotonic_ns()
         calib = self.calibration
         if calib is not None:
@@ -333,6 +343,7 @@ class Recorder:
             now_ns,
             now_ns,
         )
+        self._time_base(writer, now_ns)
         summary = ", ".join(
             f"{d.name} {d.rate_hz(now_ns):.1f} Hz" + ("" if d.connected else " (down)")
             for d in self.devices.values()
@@ -340,6 +351,24 @@ class Recorder:
         drops = sum(d.dropped + d.source_drops for d in self.devices.values())
         disk = "" if math.isinf(minutes) else f", disk {minutes:.0f} min"
         self.notifier.status(f"{summary}; drops {drops}{disk}")
+
+    def _gnss_time(self, now_ns: int) -> GnssTime | Absent:
+        """The GNSS receiver's time against the host clock at its last fix."""
+        state = self.devices.get(GNSS)
+        if state is None:
+            return NO_GNSS
+        if state.clock is None or not state.clock.updates or not state.offset_ns:
+            return Absent("no fix yet")
+        wall_minus_mono = time.time_ns() - time.monotonic_ns()
+        age = max(now_ns - state.last_recv_ns, 0) * 1e-9
+        return gnss_time(state.offset_ns, state.latency_s, age, wall_minus_mono)
+
+    def _time_base(self, writer: LogWriter, now_ns: int) -> None:
+        """The host clock's newest reading, when there is one, to ``/acq/timebase``."""
+        reading = self.host_clock.take(self._gnss_time(now_ns))
+        if reading is not None:
+            self.host_clock_tally.add(reading)
+            writer.write("/acq/timebase", schemas.time_base_record(reading), now_ns, now_ns)
 
     def _writer_loop(self, writer: LogWriter) -> None:
         reserve = self.config.output.reserve_megabytes * 1e6
@@ -389,6 +418,7 @@ class Recorder:
                 if now >= next_clock_meta:
                     next_clock_meta = now + 60_000_000_000
                     writer.update_metadata("clock", self._clock_metadata())
+                    writer.update_metadata("time_base", self.host_clock_tally.metadata())
                 self.notifier.watchdog()
                 # stop while the next seconds of data still fit above the reserve
                 if free - 2 * self._write_rate() < reserve:
@@ -414,6 +444,7 @@ class Recorder:
         writer = self._open_writer()
         self.writer = writer
         self.started_ns = time.monotonic_ns()
+        self.host_clock.start()
         for adapter in self.adapters:
             t = threading.Thread(target=run_device, args=(adapter, self.outbox, self._stop),
                                  name=adapter.name, daemon=True)  # fmt: skip
@@ -438,6 +469,7 @@ class Recorder:
             self.exit_code = EXIT_FAILURE
         finally:
             self._stop.set()
+            self.host_clock.stop()
             self.notifier.stopping()
             self._close(writer)
             for t in self._threads:
@@ -448,6 +480,7 @@ class Recorder:
         path = writer.path
         try:
             writer.update_metadata("clock", self._clock_metadata())  # the final estimates
+            writer.update_metadata("time_base", self.host_clock_tally.metadata())
         except (OSError, ValueError):
             pass  # a writer an error stopped: close() below keeps what it has
         try:

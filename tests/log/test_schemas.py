@@ -18,6 +18,12 @@ from acq.geometry.rotations import matrix_from_quat, rotation_from_euler
 from acq.geometry.transforms import Rigid
 from acq.log import schemas
 from acq.records import CanFrame, CovarianceType, Fix, Frame, Odometry, Scan
+from acq.time.absent import Absent
+from acq.time.chrony import parse_tracking
+from acq.time.host_clock import GnssTime, HostClock
+from acq.time.kernel_clock import KernelClock
+from acq.time.pps import PpsSource
+from acq.time.ptp import PtpTime
 
 FOXGLOVE = [
     "foxglove.LaserScan",
@@ -28,6 +34,7 @@ FOXGLOVE = [
     "foxglove.LocationFix",
 ]
 ACQ = [
+    "acq.TimeBase",
     "acq.RawTelegram",
     "acq.Timing",
     "acq.Clock",
@@ -419,3 +426,31 @@ def test_location_fix_carries_the_position_covariance(kind: CovarianceType) -> N
     assert {kv.key: kv.value for kv in msg.metadata}["vdop"] == "1.1"
     unknown = schemas.decode("foxglove.LocationFix", schemas.location_fix(Fix(1, 0.0, 1, 2, 3), 1))
     assert unknown.position_covariance_type == 0 and list(unknown.position_covariance) == [0] * 9
+
+
+def test_a_time_base_record_keeps_every_source_and_why_one_is_absent() -> None:
+    kernel = KernelClock(True, "ok", 0.012, 0.001, 2e-6, -3.5, True, False, 37)
+    chrony = parse_tracking(
+        "C0A80001,ntp.example,2,1796194607.25,0.0000012,-0.0000034,0.0000021,"
+        "-12.345,0.001,0.002,0.004,0.0012,64.0,Normal"
+    )
+    reading = HostClock(
+        realtime_ns=1_796_194_607_250_000_123,
+        monotonic_ns=STAMP,
+        kernel=kernel,
+        chrony=chrony,
+        ptp=PtpTime(-1.5e-7, True, "001122.fffe.334455"),
+        pps=Absent("no PPS source"),
+        gnss=GnssTime(0.0004, 0.05, 0.08),
+    )
+    data = schemas.time_base_record(reading)
+    msg = decode_with_mcap("acq.TimeBase", data)  # a reader with only the schema's data
+    assert ts_ns(msg.timestamp) == STAMP and msg.synchronised
+    assert list(msg.absent) == ["pps: no PPS source"] and not msg.HasField("pps")
+    assert schemas.host_clock_of(schemas.decode("acq.TimeBase", data)) == reading
+    with_pps = HostClock(
+        1, 2, Absent("adjtimex not available"), Absent("chronyc not installed"),
+        Absent("ptp4l not running"), PpsSource("pps0", 7, 12.000001, 7, 12.1),
+    )  # fmt: skip
+    back = schemas.host_clock_of(schemas.decode("acq.TimeBase", schemas.time_base_record(with_pps)))
+    assert back == with_pps and not back.synchronised

@@ -1,0 +1,69 @@
+"""The recorder's time base: one ``/acq/timebase`` reading a second, the GNSS
+receiver's time against the host clock in it, and the ``time_base`` metadata; with the
+simulated receiver's UTC 20 ms ahead of the host's, ``acq info`` warns. Nothing mocked:
+the simulated receiver on a pty (and a scanner, which a configuration needs), the
+host's own clock sources (absent ones recorded as absent)."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from acq.log import info, read_metadata
+from acq.log.summary import format_info
+from acq.record import config as configfile
+from acq.record.recorder import Recorder
+from acq.sim.nmea_device import NmeaDevice, NmeaPtyServer
+from acq.sim.scanner_models import MODELS
+from acq.sim.scip_device import ScipDevice
+from acq.sim.transport import TcpDeviceServer
+from tests.sim_rig import read_log
+
+pytestmark = pytest.mark.realtime  # drives a simulated device in real time
+
+SECONDS = 3.5
+GNSS_LATENCY_S = 0.040  # the simulated receiver's constant delay (3 ms jitter on top)
+GNSS_AHEAD_S = 0.020  # the receiver's UTC ahead of the host's
+
+
+def test_one_time_base_reading_a_second_with_gnss_against_the_host(tmp_path: Path) -> None:
+    utc_offset = time.time() - time.monotonic() + GNSS_AHEAD_S
+    server = NmeaPtyServer(NmeaDevice(utc_offset_s=utc_offset, latency_s=GNSS_LATENCY_S)).start()
+    scanner = TcpDeviceServer(ScipDevice(MODELS["utm-30lx"])).start()
+    try:
+        data = {
+            "version": 1,
+            "scanners": [{"name": "laser", "driver": "hokuyo", "url": scanner.url}],
+            "gnss": {"url": server.url, "baudrate": 115200, "latency_s": GNSS_LATENCY_S},
+            "output": {"dir": str(tmp_path / "logs")},
+        }
+        (tmp_path / "rig.yaml").write_text(yaml.safe_dump(data))
+        cfg = configfile.load(tmp_path / "rig.yaml")
+        assert Recorder(cfg, duration_s=SECONDS).run() == 0
+    finally:
+        server.close()
+        scanner.close()
+    (path,) = sorted((tmp_path / "logs").glob("*.mcap"))
+    readings = read_log(path)["/acq/timebase"]
+    assert SECONDS - 1.5 <= len(readings) <= SECONDS + 1, len(readings)
+    times = [t for t, _, _ in readings]
+    assert all(0.8e9 < b - a < 1.3e9 for a, b in itertools.pairwise(times)), times
+    last = readings[-1][2]
+    absent = "; ".join(last.absent)  # type: ignore[attr-defined]
+    assert last.HasField("kernel") or "kernel" in absent  # type: ignore[attr-defined]
+    assert last.HasField("chrony") or "chrony: " in absent  # type: ignore[attr-defined]
+    gnss = last.gnss  # type: ignore[attr-defined]
+    assert gnss.latency_s == GNSS_LATENCY_S and 0 <= gnss.fix_age_s < 0.5
+    # host minus GNSS: -20 ms, and the receipt jitter's floor above the latency
+    assert -GNSS_AHEAD_S - 0.001 < gnss.host_minus_gnss_s < -GNSS_AHEAD_S + 0.004
+    meta = read_metadata(path)["time_base"]
+    assert meta["utc_trusted"] == "no" and int(meta["records"]) == len(readings)
+    assert "off GNSS time" in meta["warnings"]
+    summary = info(path).host_clock
+    assert summary is not None and summary.gnss_ms_median is not None
+    assert summary.gnss_ms_median == pytest.approx(-20, abs=2)
+    assert "off GNSS time (median; limit 1 ms)" in format_info(info(path))

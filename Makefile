@@ -50,8 +50,9 @@ smoke: $(STAMP)
 # installed when missing and we are root; without it those tests skip, saying why
 chrony:
 	@command -v chronyd >/dev/null || test -x /usr/sbin/chronyd || \
-	( test "$$(id -u)" -eq 0 && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chrony \
-	  >/dev/null ) || echo "chrony not installed: the tests that run chronyd skip"
+	( test "$$(id -u)" -eq 0 && export DEBIAN_FRONTEND=noninteractive && \
+	  { apt-get install -y -qq chrony || { apt-get update -qq && apt-get install -y -qq chrony; }; } \
+	  >/dev/null 2>&1 ) || echo "chrony not installed: the tests that run chronyd skip"
 
 # ruff first; then the real-time tests, with mypy and the wheel's smoke beside them at
 # nice 19 (the real-time tests mostly wait on their devices, and must hold on a busy

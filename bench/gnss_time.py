@@ -80,7 +80,7 @@ def measure(work: Path, seconds: float, stamping: str | None, latency: float) ->
     out: dict[str, Any] = {"fixes": len(stamp_err)}
     out["stamp_minus_truth"] = _stats(np.array(stamp_err))
     out["receipt_minus_truth"] = _stats(np.array(recv_delay))
-    gnss_info = getattr(summary, "gnss_time", None)
+    gnss_info = summary.gnss_stamping
     if gnss_info is not None:
         out["acq_info"] = {k: v for k, v in vars(gnss_info).items()}
     return out

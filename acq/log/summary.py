@@ -33,7 +33,7 @@ from acq.time.utc import host_ns_from_utc, utc_ns
 __all__ = [
     "ChannelInfo",
     "DeviceSync",
-    "GnssTime",
+    "GnssStamping",
     "LogInfo",
     "format_info",
     "info",
@@ -101,7 +101,7 @@ class DeviceSync:
 
 
 @dataclass(frozen=True)
-class GnssTime:
+class GnssStamping:
     """How a log's GNSS fixes were stamped, from ``/acq/timing/gnss``: ``stamped`` counts
     the fixes per source (``fix``: their own UTC fix time through the host's UTC clock;
     ``receipt``: their receipt times, as logs before the choice existed);
@@ -155,7 +155,7 @@ class LogInfo:
     problem: str | None
     odd_size: dict[str, int] = field(default_factory=dict)
     time_base: TimeBase = MONOTONIC
-    gnss_time: GnssTime | None = None  # None: no GNSS fixes
+    gnss_stamping: GnssStamping | None = None  # None: no GNSS fixes
     host_clock: HostClockSummary | None = None
 
 
@@ -364,9 +364,9 @@ def _gnss_fix_timing(msg: Any) -> tuple[int, int, str]:
     return int(msg.recv_ns), int(msg.unwrapped_tick), str(source)
 
 
-def _gnss_time(
+def _gnss_stamping(
     fixes: list[tuple[int, int, str]], clock: list[tuple[int, int]], time_base: TimeBase
-) -> GnssTime | None:
+) -> GnssStamping | None:
     """The summary of a log's GNSS fix timing records; None without any."""
     if not fixes:
         return None
@@ -375,7 +375,7 @@ def _gnss_time(
         stamped[source] = stamped.get(source, 0) + 1
     pairs = clock or ([(0, time_base.utc_offset_ns)] if time_base.utc else [])
     if not pairs:
-        return GnssTime(len(fixes), stamped, None, None, None)
+        return GnssStamping(len(fixes), stamped, None, None, None)
     recv = np.array([f[0] for f in fixes], dtype=np.int64)
     utc_us = np.array([f[1] for f in fixes], dtype=np.int64)
     # whole seconds apart so float64 keeps the microseconds
@@ -383,9 +383,9 @@ def _gnss_time(
     try:
         delay_ms = (recv - host_ns_from_utc(utc_s, pairs)) / 1e6
     except ValueError:  # the wall clock went back: UTC names two host times
-        return GnssTime(len(fixes), stamped, None, None, None)
+        return GnssStamping(len(fixes), stamped, None, None, None)
     p5, p50, p95 = (float(v) for v in np.percentile(delay_ms, [5, 50, 95]))
-    return GnssTime(len(fixes), stamped, p50, p5, p95)
+    return GnssStamping(len(fixes), stamped, p50, p5, p95)
 
 
 def _float(text: str | None) -> float | None:
@@ -446,7 +446,7 @@ def _result(
         problem=problem,
         odd_size=acc.odd_size(),
         time_base=time_base,
-        gnss_time=_gnss_time(acc.gnss, acc.clock, time_base),
+        gnss_stamping=_gnss_stamping(acc.gnss, acc.clock, time_base),
         host_clock=summarise_host_clock(acc.host_clock) if acc.host_clock else None,
     )
 
@@ -606,8 +606,8 @@ def _format_one(i: LogInfo) -> list[str]:
                 f"  {unc:>19}  {res:>25}"
             )
         lines.extend(_latency_line(d) for d in i.devices if d.latency_s is not None)
-    if i.gnss_time is not None:
-        lines.extend(_gnss_time_lines(i.gnss_time))
+    if i.gnss_stamping is not None:
+        lines.extend(_gnss_stamping_lines(i.gnss_stamping))
     if i.odd_size:
         counts = ", ".join(f"{name} {n}" for name, n in i.odd_size.items())
         lines.append(f"  warning: frames of an unexpected size (recorded, flagged): {counts}")
@@ -651,7 +651,7 @@ def _latency_line(d: DeviceSync) -> str:
     return f"  latency   {d.name}: {d.latency_s * 1e3:.2f} ms ({how})"
 
 
-def _gnss_time_lines(g: GnssTime) -> list[str]:
+def _gnss_stamping_lines(g: GnssStamping) -> list[str]:
     """How the fixes were stamped, and their receipt minus their fix time."""
     names = {"fix": "their UTC fix time", "receipt": "their receipt"}
     how = ", ".join(f"{n} from {names.get(k, k)}" for k, n in sorted(g.stamped.items()))

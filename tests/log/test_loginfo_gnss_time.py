@@ -49,7 +49,7 @@ def test_receipt_minus_fix_time_and_the_stamping_per_log(tmp_path: Path) -> None
     delays = [40.0 + (k * 7) % 13 for k in range(20)]
     sources = [""] * 8 + ["fix"] * 12  # an older recorder's records say nothing: receipt
     i = info(write(tmp_path, delays, sources, clock=True))
-    g = i.gnss_time
+    g = i.gnss_stamping
     assert g is not None and g.fixes == 20 and g.stamped == {"receipt": 8, "fix": 12}
     assert g.receipt_minus_fix_ms_median == pytest.approx(np.median(delays), abs=1e-3)
     assert g.receipt_minus_fix_ms_p5 == pytest.approx(np.percentile(delays, 5), abs=1e-3)
@@ -66,10 +66,10 @@ def test_receipt_minus_fix_time_and_the_stamping_per_log(tmp_path: Path) -> None
 def test_without_clock_pairs_only_the_stamping_is_told(tmp_path: Path) -> None:
     path = write(tmp_path, [45.0] * 5, ["receipt"] * 5, clock=False)
     i = info(path)
-    assert i.gnss_time is not None and i.gnss_time.receipt_minus_fix_ms_median is None
+    assert i.gnss_stamping is not None and i.gnss_stamping.receipt_minus_fix_ms_median is None
     text = format_info(i)
     assert "gnss time 5 fixes: 5 from their receipt" in text and "fix time (host" not in text
-    assert json.loads(format_info(i, json=True))[0]["gnss_time"]["stamped"] == {"receipt": 5}
+    assert json.loads(format_info(i, json=True))[0]["gnss_stamping"]["stamped"] == {"receipt": 5}
 
 
 def test_a_log_without_fixes_says_nothing_of_gnss_time(tmp_path: Path) -> None:
@@ -78,4 +78,4 @@ def test_a_log_without_fixes_says_nothing_of_gnss_time(tmp_path: Path) -> None:
     writer.write("/acq/clock", schemas.clock(realtime_ns=UTC0_S * S, monotonic_ns=T0), T0, T0)
     writer.close()
     i = info(writer.files[0])
-    assert i.gnss_time is None and "gnss time" not in format_info(i)
+    assert i.gnss_stamping is None and "gnss time" not in format_info(i)

@@ -101,7 +101,7 @@ def test_a_disciplined_host_stamps_fixes_at_their_utc_fix_time(
     assert len(errors_ms) >= 15 and set(sources) == {"fix"}
     # on the truth (receipt stamping leaves them ~41 ms late, see below)
     assert np.max(np.abs(errors_ms)) < 2.0, errors_ms
-    g = info(path).gnss_time
+    g = info(path).gnss_stamping
     assert g is not None and g.stamped == {"fix": len(errors_ms)}
     assert g.receipt_minus_fix_ms_median is not None
     assert LATENCY_S * 1e3 < g.receipt_minus_fix_ms_median < LATENCY_S * 1e3 + 40
@@ -125,7 +125,7 @@ def test_an_undisciplined_host_stamps_fixes_from_receipt(
     assert len(errors_ms) >= 15 and set(sources) == {"receipt"}
     # as late as the earliest receipts: the receiver's delay, which receipt cannot see
     assert np.median(errors_ms) > LATENCY_S * 1e3 - 1.0, errors_ms
-    g = info(path).gnss_time
+    g = info(path).gnss_stamping
     assert g is not None and g.stamped == {"receipt": len(errors_ms)}
     assert g.receipt_minus_fix_ms_median is not None and g.receipt_minus_fix_ms_p5 is not None
     # the simulator's 40 ms and its jitter (3 ms on average); a loaded host adds some

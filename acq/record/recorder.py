@@ -19,7 +19,8 @@ Vehicle topics (with ``can:`` / ``gnss:`` in the configuration): ``/vehicle/odom
 :mod:`acq.drivers.can_odometry`), ``/vehicle/can`` (``acq.CanFrame``: every frame of the bus,
 to re-decode with another DBC), ``/gnss/fix`` (``foxglove.LocationFix``), ``/gnss/raw``
 (``acq.RawTelegram``: each NMEA sentence) and ``/acq/timing/gnss``. A fix is stamped
-with its fix instant: the receiver's UTC fix time is a device clock like a scanner's,
+with its fix instant (``gnss.time``): from its UTC fix time through the host's UTC clock
+while the kernel calls that clock synchronised, else as a device clock like a scanner's,
 mapped to host time by the one-way estimator (:class:`acq.time.clocksync.DeviceClock`) less
 the configured ``latency_s``, so neither the host's wall clock nor its NTP steps enter.
 

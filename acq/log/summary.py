@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json as _json
-import math
 import os
-from array import array
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -23,12 +21,26 @@ import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 
 from acq.log import schemas
+from acq.log.device_timing import (
+    GNSS_TIMING,
+    DeviceSync,
+    DeviceTiming,
+    GnssStamping,
+    device_sync,
+    drift_text,
+    field_of,
+    formatted,
+    gnss_fix_timing,
+    gnss_stamping,
+    gnss_stamping_lines,
+    host_clock_lines,
+    latency_line,
+)
 from acq.log.reader import LogReader, quiet
 from acq.log.timebase import MONOTONIC, TimeBase
-from acq.time.clocksync import fit_log_drift
 from acq.time.host_clock import HostClock
 from acq.time.host_clock_summary import HostClockSummary, summarise_host_clock
-from acq.time.utc import host_ns_from_utc, utc_ns
+from acq.time.utc import utc_ns
 
 __all__ = [
     "ChannelInfo",
@@ -65,56 +77,6 @@ class ChannelInfo:
     max_gap_s: float
     gaps: list[tuple[int, int]]
     bytes: int
-
-
-@dataclass(frozen=True)
-class DeviceSync:
-    """Clock-sync quality of one device, from its ``/acq/timing/<device>`` records.
-
-    ``epochs`` counts distinct estimator epochs (a reset or re-sync starts a new one);
-    ``drift_ppm`` is the last estimate; ``offset_spread_ms`` is max - min of the
-    device-to-host offset over the log; ``uncertainty_s_*`` the estimator's own
-    uncertainty, seconds; ``residual_ms_*`` receive time minus mapped stamp
-    (``recv_ns - stamp_ns``), milliseconds. ``drift_fit_ppm`` and its 95 % interval
-    ``drift_ci_ppm`` come from the whole log's last clock epoch
-    (:func:`acq.time.clocksync.fit_log_drift`; the interval counts the device clock's
-    resolution). ``latency_*``: what the recorder took off the stamps at the end, how
-    it got it, and its bounds where measured (the ``clock`` metadata). ``None`` where
-    the log has no such values.
-    """
-
-    name: str
-    records: int
-    epochs: int
-    drift_ppm: float | None
-    offset_spread_ms: float | None
-    uncertainty_s_median: float | None
-    uncertainty_s_max: float | None
-    residual_ms_p50: float | None
-    residual_ms_p95: float | None
-    residual_ms_max: float | None
-    drift_fit_ppm: float | None = None
-    drift_ci_ppm: tuple[float, float] | None = None
-    latency_s: float | None = None  # subtracted from the device's stamps, s
-    latency_source: str | None = None  # how it was obtained (configured, auto: ...)
-    latency_bounds_s: tuple[float, float] | None = None
-
-
-@dataclass(frozen=True)
-class GnssStamping:
-    """How a log's GNSS fixes were stamped, from ``/acq/timing/gnss``: ``stamped`` counts
-    the fixes per source (``fix``: their own UTC fix time through the host's UTC clock;
-    ``receipt``: their receipt times, as logs before the choice existed);
-    ``receipt_minus_fix_ms_*``: each fix's receipt minus its UTC fix time on the host
-    clock (through the log's ``/acq/clock`` pairs), ms, median and 5th/95th percentiles
-    (the spread is their difference); it holds the receiver's delay and the host
-    clock's error to UTC. None where the log has no clock pairs."""
-
-    fixes: int
-    stamped: dict[str, int]
-    receipt_minus_fix_ms_median: float | None
-    receipt_minus_fix_ms_p5: float | None
-    receipt_minus_fix_ms_p95: float | None
 
 
 @dataclass(frozen=True)
@@ -162,14 +124,6 @@ class LogInfo:
 # --- summarising --------------------------------------------------------------------
 
 
-def _field(message: Any, name: str) -> Any:
-    """``message.name``, or None when this version of the schema has no such field."""
-    descriptor = getattr(message, "DESCRIPTOR", None)
-    if descriptor is None or name not in descriptor.fields_by_name:
-        return None
-    return getattr(message, name)
-
-
 def _gaps(times: list[int]) -> tuple[float, list[tuple[int, int]]]:
     """(max interval s, gaps) of sorted times, ns; gaps as in :class:`ChannelInfo`."""
     if len(times) < 2:
@@ -192,28 +146,13 @@ def _gaps(times: list[int]) -> tuple[float, list[tuple[int, int]]]:
 
 
 @dataclass
-class _Timing:
-    records: int = 0
-    epochs: set[int] = field(default_factory=set)
-    drift_ppm: float | None = None
-    offsets: list[int] = field(default_factory=list)
-    uncertainties: list[float] = field(default_factory=list)
-    residuals: list[int] = field(default_factory=list)
-    dropped: int | None = None
-    # the last epoch's (unwrapped tick, receipt ns)
-    epoch: int | None = None
-    ticks: array[int] = field(default_factory=lambda: array("q"))
-    recv: array[int] = field(default_factory=lambda: array("q"))
-
-
-@dataclass
 class _Acc:
     """Running totals over the messages of one file or of a session."""
 
     times: dict[str, list[int]] = field(default_factory=dict)
     schemas: dict[str, str] = field(default_factory=dict)
     sizes: dict[str, int] = field(default_factory=dict)
-    timing: dict[str, _Timing] = field(default_factory=dict)
+    timing: dict[str, DeviceTiming] = field(default_factory=dict)
     status: Any = None
     clock: list[tuple[int, int]] = field(default_factory=list)  # (monotonic, realtime) ns
     host_clock: list[HostClock] = field(default_factory=list)
@@ -229,45 +168,20 @@ class _Acc:
         if decoded is None:
             return
         if topic.startswith("/acq/timing/"):
-            self._add_timing(topic.removeprefix("/acq/timing/"), decoded)
-            if topic == _GNSS_TIMING:
-                self.gnss.append(_gnss_fix_timing(decoded))
+            self.timing.setdefault(topic.removeprefix("/acq/timing/"), DeviceTiming()).add(decoded)
+            if topic == GNSS_TIMING:
+                self.gnss.append(gnss_fix_timing(decoded))
         elif topic == "/acq/status":
             self.status = decoded
         elif topic == "/acq/clock":
-            realtime, monotonic = _field(decoded, "realtime_ns"), _field(decoded, "monotonic_ns")
+            realtime, monotonic = (
+                field_of(decoded, "realtime_ns"),
+                field_of(decoded, "monotonic_ns"),
+            )
             if realtime and monotonic:
                 self.clock.append((int(monotonic), int(realtime)))
-        elif topic == "/acq/timebase" and _field(decoded, "absent") is not None:
+        elif topic == "/acq/timebase" and field_of(decoded, "absent") is not None:
             self.host_clock.append(schemas.host_clock_of(decoded))
-
-    def _add_timing(self, device: str, msg: Any) -> None:
-        t = self.timing.setdefault(device, _Timing())
-        t.records += 1
-        epoch = _field(msg, "epoch")
-        if epoch is not None:
-            t.epochs.add(int(epoch))
-        drift = _field(msg, "drift_ppm")
-        if drift is not None and math.isfinite(drift):
-            t.drift_ppm = float(drift)
-        offset = _field(msg, "offset_ns")
-        if offset is not None:
-            t.offsets.append(int(offset))
-        uncertainty = _field(msg, "uncertainty_s")
-        if uncertainty is not None and math.isfinite(uncertainty):  # NaN: no estimate yet
-            t.uncertainties.append(float(uncertainty))
-        recv, stamp = _field(msg, "recv_ns"), _field(msg, "stamp_ns")
-        if recv and stamp:
-            t.residuals.append(int(recv) - int(stamp))
-        tick = _field(msg, "unwrapped_tick")
-        if recv and tick is not None and epoch is not None:
-            if epoch != t.epoch:
-                t.epoch, t.ticks, t.recv = int(epoch), array("q"), array("q")
-            t.ticks.append(int(tick))
-            t.recv.append(int(recv))
-        dropped = _field(msg, "dropped")
-        if dropped is not None:
-            t.dropped = int(dropped)
 
     def add_metadata(self, record: Metadata) -> None:
         self.metadata[record.name] = dict(record.metadata)  # the last of a name wins
@@ -296,9 +210,9 @@ class _Acc:
     def odd_size(self) -> dict[str, int]:
         """Per device of the last status: its frames of an unexpected size, when any."""
         out: dict[str, int] = {}
-        status_devices = _field(self.status, "devices") if self.status is not None else None
+        status_devices = field_of(self.status, "devices") if self.status is not None else None
         for dev in status_devices or []:
-            name, n = _field(dev, "name"), _field(dev, "odd_size")
+            name, n = field_of(dev, "name"), field_of(dev, "odd_size")
             if name and n:
                 out[str(name)] = int(n)
         return out
@@ -307,13 +221,13 @@ class _Acc:
         drops: dict[str, int] = {}
         disconnects: dict[str, int] = {}
         listed: list[str] = []
-        status_devices = _field(self.status, "devices") if self.status is not None else None
+        status_devices = field_of(self.status, "devices") if self.status is not None else None
         for dev in status_devices or []:
-            name = str(_field(dev, "name") or "")
+            name = str(field_of(dev, "name") or "")
             if not name:
                 continue
             listed.append(name)
-            dropped, disc = _field(dev, "dropped"), _field(dev, "disconnects")
+            dropped, disc = field_of(dev, "dropped"), field_of(dev, "disconnects")
             if dropped is not None:
                 drops[name] = int(dropped)
             if disc is not None:
@@ -323,78 +237,8 @@ class _Acc:
                 drops[name] = t.dropped
         clock = self.metadata.get("clock", {})
         names = listed + [n for n in sorted(self.timing) if n not in listed]
-        devices = [_device_sync(n, self.timing.get(n, _Timing()), clock) for n in names]
+        devices = [device_sync(n, self.timing.get(n, DeviceTiming()), clock) for n in names]
         return devices, drops, disconnects
-
-
-def _device_sync(name: str, t: _Timing, clock: dict[str, str]) -> DeviceSync:
-    """``t``'s summary; ``clock`` the recorder's ``clock`` metadata."""
-    res = np.asarray(t.residuals, dtype=np.float64) / 1e6
-    unc = np.asarray(t.uncertainties, dtype=np.float64)
-    fit = None
-    hz = _float(clock.get(f"{name}.tick_hz"))
-    lo, hi, *_ = [_float(b) for b in clock.get(f"{name}.latency_bounds_s", "").split()] + [None] * 2
-    if hz is not None and hz > 0 and len(t.ticks) >= 3 and np.ptp(t.ticks) > 0:
-        fit = fit_log_drift(t.ticks, t.recv, hz)
-    return DeviceSync(
-        name=name,
-        records=t.records,
-        epochs=len(t.epochs),
-        drift_ppm=t.drift_ppm,
-        offset_spread_ms=(max(t.offsets) - min(t.offsets)) / 1e6 if t.offsets else None,
-        uncertainty_s_median=float(np.median(unc)) if unc.size else None,
-        uncertainty_s_max=float(unc.max()) if unc.size else None,
-        residual_ms_p50=float(np.percentile(res, 50)) if res.size else None,
-        residual_ms_p95=float(np.percentile(res, 95)) if res.size else None,
-        residual_ms_max=float(res.max()) if res.size else None,
-        drift_fit_ppm=fit.drift_ppm if fit is not None else None,
-        drift_ci_ppm=fit.drift_ci_ppm if fit is not None else None,
-        latency_s=_float(clock.get(f"{name}.latency_s")),
-        latency_source=clock.get(f"{name}.latency_source"),
-        latency_bounds_s=(lo, hi) if lo is not None and hi is not None else None,
-    )
-
-
-_GNSS_TIMING = "/acq/timing/gnss"  # the GNSS section's fixes (unwrapped_tick: UTC µs)
-
-
-def _gnss_fix_timing(msg: Any) -> tuple[int, int, str]:
-    """(receipt ns, UTC µs, stamp source) of one GNSS fix's timing record."""
-    source = _field(msg, "stamp_source") or "receipt"
-    return int(msg.recv_ns), int(msg.unwrapped_tick), str(source)
-
-
-def _gnss_stamping(
-    fixes: list[tuple[int, int, str]], clock: list[tuple[int, int]], time_base: TimeBase
-) -> GnssStamping | None:
-    """The summary of a log's GNSS fix timing records; None without any."""
-    if not fixes:
-        return None
-    stamped: dict[str, int] = {}
-    for _, _, source in fixes:
-        stamped[source] = stamped.get(source, 0) + 1
-    pairs = clock or ([(0, time_base.utc_offset_ns)] if time_base.utc else [])
-    if not pairs:
-        return GnssStamping(len(fixes), stamped, None, None, None)
-    recv = np.array([f[0] for f in fixes], dtype=np.int64)
-    utc_us = np.array([f[1] for f in fixes], dtype=np.int64)
-    # whole seconds apart so float64 keeps the microseconds
-    utc_s = (utc_us // 10**6).astype(np.float64) + (utc_us % 10**6).astype(np.float64) * 1e-6
-    try:
-        delay_ms = (recv - host_ns_from_utc(utc_s, pairs)) / 1e6
-    except ValueError:  # the wall clock went back: UTC names two host times
-        return GnssStamping(len(fixes), stamped, None, None, None)
-    p5, p50, p95 = (float(v) for v in np.percentile(delay_ms, [5, 50, 95]))
-    return GnssStamping(len(fixes), stamped, p50, p5, p95)
-
-
-def _float(text: str | None) -> float | None:
-    """``text`` as a finite float, None if it is none."""
-    try:
-        value = float(text) if text is not None else math.nan
-    except ValueError:
-        return None
-    return value if math.isfinite(value) else None
 
 
 def _decode_topic(topic: str) -> bool:
@@ -446,7 +290,7 @@ def _result(
         problem=problem,
         odd_size=acc.odd_size(),
         time_base=time_base,
-        gnss_stamping=_gnss_stamping(acc.gnss, acc.clock, time_base),
+        gnss_stamping=gnss_stamping(acc.gnss, acc.clock, time_base),
         host_clock=summarise_host_clock(acc.host_clock) if acc.host_clock else None,
     )
 
@@ -514,10 +358,6 @@ def _bytes(n: float) -> str:
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1024
     return f"{n:.1f} GiB"
-
-
-def _opt(value: float | None, fmt: str) -> str:
-    return "-" if value is None or math.isnan(value) else format(value, fmt)
 
 
 def _utc(ns: int) -> str:
@@ -595,84 +435,26 @@ def _format_one(i: LogInfo) -> list[str]:
             if d is None:
                 lines.append(f"  {name:<12}  {drops:>6}  {disc:>7}")
                 continue
-            unc = f"{_opt(d.uncertainty_s_median, '.2e')}/{_opt(d.uncertainty_s_max, '.2e')}"
+            unc = (
+                f"{formatted(d.uncertainty_s_median, '.2e')}"
+                f"/{formatted(d.uncertainty_s_max, '.2e')}"
+            )
             res = (
-                f"{_opt(d.residual_ms_p50, '.2f')}/{_opt(d.residual_ms_p95, '.2f')}"
-                f"/{_opt(d.residual_ms_max, '.2f')}"
+                f"{formatted(d.residual_ms_p50, '.2f')}/{formatted(d.residual_ms_p95, '.2f')}"
+                f"/{formatted(d.residual_ms_max, '.2f')}"
             )
             lines.append(
                 f"  {name:<12}  {drops:>6}  {disc:>7}  {d.records:>7}  {d.epochs:>6}"
-                f"  {_drift(d):>20}  {_opt(d.offset_spread_ms, '.3f'):>16}"
+                f"  {drift_text(d):>20}  {formatted(d.offset_spread_ms, '.3f'):>16}"
                 f"  {unc:>19}  {res:>25}"
             )
-        lines.extend(_latency_line(d) for d in i.devices if d.latency_s is not None)
+        lines.extend(latency_line(d) for d in i.devices if d.latency_s is not None)
     if i.gnss_stamping is not None:
-        lines.extend(_gnss_stamping_lines(i.gnss_stamping))
+        lines.extend(gnss_stamping_lines(i.gnss_stamping))
     if i.odd_size:
         counts = ", ".join(f"{name} {n}" for name, n in i.odd_size.items())
         lines.append(f"  warning: frames of an unexpected size (recorded, flagged): {counts}")
     return lines
-
-
-def host_clock_lines(h: HostClockSummary | None) -> list[str]:
-    """The time base's lines: what disciplined the host clock, its offsets and steps,
-    and a warning line for each reason to doubt the log's UTC."""
-    if h is None:
-        return ["  time base not recorded (no /acq/timebase): the host clock's UTC is unverified"]
-    synced = h.records - h.unsynchronised
-    sources = ", ".join(h.sources) or "none"
-    lines = [f"  time base {h.records} readings, {synced} synchronised; sources: {sources}"]
-    parts = []
-    if h.chrony_offset_ms_median is not None and h.chrony_offset_ms_max is not None:
-        parts.append(f"host minus chrony's reference {h.chrony_offset_ms_median:+.3f} ms "
-                     f"(median; largest {h.chrony_offset_ms_max:.3f} ms)")  # fmt: skip
-    if h.ptp_offset_ms_max is not None:
-        parts.append(f"PTP offset up to {h.ptp_offset_ms_max:.3f} ms")
-    if h.gnss_ms_median is not None and h.gnss_ms_spread is not None:
-        parts.append(f"host minus GNSS {h.gnss_ms_median:+.3f} ms (median of "
-                     f"{h.gnss_records}; p5-p95 {h.gnss_ms_spread:.3f} ms)")  # fmt: skip
-    if h.leap_statuses:
-        parts.append(f"chrony leap {' -> '.join(h.leap_statuses)}")
-    if h.kernel_states:
-        parts.append(f"kernel clock {' -> '.join(h.kernel_states)}")
-    parts.append(f"{len(h.steps)} steps")
-    lines.append(f"  time base {'; '.join(parts)}")
-    lines.extend(f"  warning: time base: {w}" for w in h.warnings)
-    return lines
-
-
-def _latency_line(d: DeviceSync) -> str:
-    """``d``'s latency, as the recorder took it off the stamps, and where it came from."""
-    assert d.latency_s is not None
-    how = d.latency_source or "how obtained not recorded"
-    if d.latency_bounds_s is not None:
-        lo, hi = d.latency_bounds_s
-        how += f", bounds {lo * 1e3:.2f}-{hi * 1e3:.2f} ms"
-    return f"  latency   {d.name}: {d.latency_s * 1e3:.2f} ms ({how})"
-
-
-def _gnss_stamping_lines(g: GnssStamping) -> list[str]:
-    """How the fixes were stamped, and their receipt minus their fix time."""
-    names = {"fix": "their UTC fix time", "receipt": "their receipt"}
-    how = ", ".join(f"{n} from {names.get(k, k)}" for k, n in sorted(g.stamped.items()))
-    lines = [f"  gnss time {g.fixes} fixes: {how}"]
-    if g.receipt_minus_fix_ms_median is not None:
-        lo, hi = g.receipt_minus_fix_ms_p5, g.receipt_minus_fix_ms_p95
-        assert lo is not None and hi is not None
-        lines.append(
-            f"  gnss time receipt - fix time (host UTC clock): median"
-            f" {g.receipt_minus_fix_ms_median:.2f} ms, spread {hi - lo:.2f} ms"
-            f" (p5 {lo:.2f}, p95 {hi:.2f})"
-        )
-    return lines
-
-
-def _drift(d: DeviceSync) -> str:
-    """The whole log's drift fit with its interval, else the recorder's last estimate."""
-    if d.drift_fit_ppm is None or d.drift_ci_ppm is None:
-        return _opt(d.drift_ppm, ".2f")
-    lo, hi = d.drift_ci_ppm
-    return f"{d.drift_fit_ppm:.1f} ({lo:.0f}..{hi:.0f})"
 
 
 def _jsonable(i: LogInfo) -> dict[str, Any]:

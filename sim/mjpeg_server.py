@@ -170,14 +170,20 @@ class MjpegServer:
         cam = self.camera
         cam.skip_until(time.monotonic())
         frame: SimFrame | None = None
+        render_s = 0.0  # how long the last frame took to make, s
         while not self._stop.is_set():
             if frame is None:
                 with self._lock:
                     watched = bool(self._clients or self._requests)
-                # frames too late to be sent (the server was held up: its process stopped,
-                # say) are not rendered, as a camera would not expose them
-                cam.skip_until(time.monotonic() - self.late_s - 4 * cam.jitter_s, "late")
+                # frames that would be too late to be sent once made (the server was held
+                # up, or renders slower than real time on a busy machine) are not
+                # rendered, as a camera would not expose them: rendering each just
+                # before its limit would leave every frame late, none sent
+                t0 = time.monotonic()
+                cam.skip_until(t0 + render_s - self.late_s - 4 * cam.jitter_s, "late")
                 frame = cam.next_frame(render=watched)
+                if watched:
+                    render_s = time.monotonic() - t0
             self._service(frame.t_available)
             if self._stop.is_set():
                 return
@@ -552,6 +558,12 @@ class MjpegServerProcess:
     def thaw(self) -> None:
         """Resume the process :meth:`freeze` stopped (SIGCONT)."""
         self._proc.send_signal(signal.SIGCONT)
+
+    def kill(self) -> None:
+        """The camera's process dies (SIGKILL): the kernel closes its connections and
+        its port; :meth:`close` still cleans up."""
+        self._proc.kill()
+        self._proc.wait(5)
 
     def flooded_bytes(self) -> int:
         return int(self._call("flooded_bytes"))

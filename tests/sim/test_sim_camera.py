@@ -321,3 +321,35 @@ def test_prerendered_frames_are_the_live_ones(camera_args: dict[str, object]) ->
         assert e.sequence == v.sequence and e.t_mid == v.t_mid
         assert jpeg_digest(e.jpeg) == jpeg_digest(v.jpeg)
     assert not early._prerendered
+
+
+class SlowCamera(SimCamera):
+    """A camera whose frames take 60 ms to make, longer than its 40 ms period: the
+    renderer on a busy machine, emulated by a sleep (the load cannot be had on demand)."""
+
+    def render(self, t: float) -> np.ndarray:
+        time.sleep(0.06)
+        return super().render(t)
+
+
+def test_a_camera_rendering_slower_than_real_time_still_sends_in_time(
+    camera_args: dict[str, object],
+) -> None:
+    """It falls behind, but never sends a frame more than ``late_s`` late, nor renders
+    one that would be: frames keep coming (fewer than 25 a second), none late."""
+    cam = SlowCamera(**camera_args, latency_s=0.02, seed=2)  # type: ignore[arg-type]
+    with MjpegServer(cam, late_s=0.3) as srv:
+        reader = PlainReader(srv.port)
+        reader.head()
+        t_end = time.monotonic() + 3.0
+        arrived = []
+        while time.monotonic() < t_end:
+            arrived.append(reader.part()[2])
+        reader.close()
+        truth = cam.truth()
+    # behind by up to late_s after 0.3 / 0.02 = 15 frames; the second half still flows
+    last = [t for t in arrived if t > arrived[-1] - 1.5]
+    assert len(last) >= 8, np.diff(arrived)
+    assert max(np.diff(arrived)) < 0.5
+    sent = [t for t in truth if t.status == "sent"]
+    assert all(t.t_sent is not None and t.t_sent - t.t_available < 0.3 + 0.05 for t in sent)

@@ -13,10 +13,13 @@ loops (``python -c 'while 1: pass'``) beside it on this machine's cores.
 (b) ``camera_outage``: the connection really goes: ``drop`` (the camera closes every
     connection and keeps running) and ``restart`` (the camera's process killed, a new one
     started on the same port ``down_s`` later); ``back_s`` is the time from the source
-    being back (the drop; the new process listening) to the first frame recorded
-    (target: under 0.5 s).
+    being back (the drop; the new process serving) to the first frame recorded
+    (target: under 0.5 s); ``freeze``: the camera's process stopped (SIGSTOP) for
+    ``down_s``, its connection open, then resumed: from the resumption.
+``--live``: the camera renders each frame when due instead of first (a frame costs it
+20-40 ms of a core, more beside the busy loops: it falls behind).
 
-Run as a script: ``python bench/camera_hiccup.py [--trials N] [--no-load]``.
+Run as a script: ``python bench/camera_hiccup.py [--trials N] [--no-load] [--live]``.
 """
 
 from __future__ import annotations
@@ -44,8 +47,9 @@ FPS = 25.0
 # the camera renders its frames first (a frame costs 20-40 ms of a core, and more beside
 # the busy loops), then sends them in real time as a real camera would: the figures are
 # the recorder's, not the renderer's falling behind
-PRERENDER_S = 45.0
+PRERENDER_S = 60.0
 RESTART_PRERENDER_S = 3.0
+FREEZE_S = 2.0  # the camera's process stopped this long (longer than CAMERA_STALL_S)
 
 
 def _free_port() -> int:
@@ -138,17 +142,38 @@ def drops(path: CameraPath, server: MjpegServerProcess, trials: int, load: int) 
     _summary("drop", backs, load, down_s=0.0)
 
 
+def freezes(path: CameraPath, server: MjpegServerProcess, trials: int, load: int) -> None:
+    backs = []
+    for _ in range(trials):
+        path.wait_frames(10)
+        server.freeze()  # SIGSTOP: the connection stays open, nothing is sent
+        time.sleep(FREEZE_S)
+        t0 = time.monotonic_ns()
+        server.thaw()
+        first = path.first_after(t0)
+        backs.append(math.inf if first is None else (first - t0) * 1e-9)
+    _summary("freeze", backs, load, down_s=FREEZE_S)
+
+
 def _summary(kind: str, backs: list[float], load: int, **extra: Any) -> None:
     _line("camera_outage", kind=kind, busy_loops=load, trials=len(backs), **extra,
           back_s=[round(b, 3) for b in backs], back_s_max=round(max(backs), 3),
           under_0_5_s=sum(b < 0.5 for b in backs))  # fmt: skip
 
 
-def restarts(trials: int, load: int, down_s: float) -> None:
+def _serve(url: str, prerender_s: float) -> MjpegServerProcess:
+    """A camera serving at ``url``: pre-rendered, it listens at once and serves from
+    ``start()``; live, it serves when it answers."""
+    server = MjpegServerProcess(url, prerender_s=prerender_s)
+    if prerender_s:
+        server.start(time.monotonic())
+    return server
+
+
+def restarts(trials: int, load: int, down_s: float, prerender_s: float) -> None:
     port = _free_port()
     url = f"http://127.0.0.1:{port}/stream.mjpg"
-    server = MjpegServerProcess(url, prerender_s=RESTART_PRERENDER_S)
-    server.start(time.monotonic())
+    server = _serve(url, prerender_s)
     path = CameraPath(url)
     backs = []
     try:
@@ -157,10 +182,8 @@ def restarts(trials: int, load: int, down_s: float) -> None:
             server.kill()  # its connections are closed by the kernel
             server.close()
             time.sleep(down_s)
-            # listening at once; serving (the source back) from start()
-            server = MjpegServerProcess(url, prerender_s=RESTART_PRERENDER_S)
-            t0 = time.monotonic_ns()
-            server.start(t0 * 1e-9)
+            server = _serve(url, prerender_s)
+            t0 = time.monotonic_ns()  # the source is back (a little earlier when live)
             first = path.first_after(t0)
             backs.append(math.inf if first is None else (first - t0) * 1e-9)
     finally:
@@ -173,14 +196,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--trials", type=int, default=5)
     parser.add_argument("--no-load", action="store_true", help="without the two busy loops")
+    parser.add_argument(
+        "--live", action="store_true", help="the camera renders each frame when due (no pre-render)"
+    )
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(relativeCreated)d %(message)s")
     load = 0 if args.no_load else 2
-    server = MjpegServerProcess(prerender_s=PRERENDER_S)
+    prerender = (0.0, 0.0) if args.live else (PRERENDER_S, RESTART_PRERENDER_S)
+    server = MjpegServerProcess(prerender_s=prerender[0])
     busy = [subprocess.Popen([sys.executable, "-c", "while 1: pass"]) for _ in range(load)]
     try:
         with server:
-            server.start(time.monotonic())
+            if prerender[0]:
+                server.start(time.monotonic())
             path = CameraPath(server.url)
             try:
                 path.wait_frames(25)
@@ -190,10 +218,11 @@ def main() -> None:
                       closed=path.disconnects - before)  # fmt: skip
                 stalls(path, server, args.trials, load)
                 drops(path, server, args.trials, load)
+                freezes(path, server, args.trials, load)
             finally:
                 path.close()
         for down_s in (0.3, 3.0):
-            restarts(args.trials, load, down_s)
+            restarts(args.trials, load, down_s, prerender[1])
     finally:
         for p in busy:
             p.kill()

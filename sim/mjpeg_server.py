@@ -178,9 +178,11 @@ class MjpegServer:
                 # frames that would be too late to be sent once made (the server was held
                 # up, or renders slower than real time on a busy machine) are not
                 # rendered, as a camera would not expose them: rendering each just
-                # before its limit would leave every frame late, none sent
+                # before its limit would leave every frame late, none sent. Never one
+                # not yet due: a render the process was stopped in seems long
                 t0 = time.monotonic()
-                cam.skip_until(t0 + render_s - self.late_s - 4 * cam.jitter_s, "late")
+                late = min(t0 + render_s - self.late_s, t0)
+                cam.skip_until(late - 4 * cam.jitter_s, "late")
                 frame = cam.next_frame(render=watched)
                 if watched:
                     render_s = time.monotonic() - t0

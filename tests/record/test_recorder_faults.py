@@ -284,14 +284,13 @@ def test_a_scanner_that_never_connected_fails_the_recording_and_is_named(
         ],
         "output": {"dir": str(tmp_path / "logs")},
     }
-    recorder = Recorder(configfile.parse(data), duration_s=5.5)
+    recorder = Recorder(configfile.parse(data), duration_s=6.0)
     laser2 = recorder.devices["laser2"]
 
     def pull_laser2() -> None:  # once it has recorded
         deadline = time.monotonic() + 3.0
         while not laser2.received and time.monotonic() < deadline:
             time.sleep(0.02)
-        time.sleep(0.3)
         gone.close()
 
     threading.Thread(target=pull_laser2, daemon=True).start()

@@ -279,8 +279,9 @@ def run_fisheye(args: argparse.Namespace) -> int:
         METHOD_BOARD,
         METHOD_CIRCLE,
         calibrate_board,
+        circle_assumptions,
+        circle_check,
         circle_model,
-        model_gap_px,
         parse_board,
         read_images,
         update_calibration,
@@ -311,24 +312,30 @@ def run_fisheye(args: argparse.Namespace) -> int:
     lines = _circle_lines(result, model, fov_deg, len(imgs))
     method = METHOD_CIRCLE
     std = None  # the circle's fit sigma is not the principal point's: no std from it
-    if spec is not None:
+    assumed = circle_assumptions(model)
+    note = assumed.note()  # unless a board checks the circle
+    if spec is None:
+        report["circle_model_assumes"] = assumed.to_dict()
+        lines.append(note)
+    else:
         grays = [image_circle.to_gray(i) for i in imgs]
         try:
             fit, _ = calibrate_board(grays, spec, model)
         except ValueError as e:  # too few boards found
             raise AcqError(str(e)) from e
         m = fit.model
-        gap = model_gap_px(model, m, math.radians(fit.max_theta_deg))
-        report["board"] = fit.to_dict() | {"circle_model_gap_px": round(gap, 3)}
+        check = circle_check(model, result.circle.radius, fit)
+        report["board"] = fit.to_dict() | {"circle_model_gap_px": round(check.gap_px, 3)}
+        report["circle_check"] = check.to_dict()
         lines.append(
             f"checkerboard ({len(fit.views)} of {len(imgs)} images, corners up to "
             f"{fit.max_theta_deg:.1f} deg off axis): Kannala-Brandt fx {m.fx:.2f} fy "
             f"{m.fy:.2f} cx {m.cx:.2f} cy {m.cy:.2f} k {', '.join(f'{k:.5f}' for k in m.k)}; "
-            f"RMS {fit.rms_px:.3f} px; the circle's model is up to {gap:.1f} px away from it "
-            "over those angles"
+            f"RMS {fit.rms_px:.3f} px"
         )
-        model, method, std = m, METHOD_BOARD, fit.std()
-    calib, name, notes = update_calibration(output, args.camera, model, method, std)
+        lines.append(check.line())
+        model, method, std, note = m, METHOD_BOARD, fit.std(), ""
+    calib, name, notes = update_calibration(output, args.camera, model, method, std, note)
     output_files.keep_backups("acq calibrate fisheye", backups)
     calibfile.save(calib, output)
     title = f"{Path(images[0]).name}: {len(imgs)} image(s)"
@@ -467,7 +474,7 @@ def _calibrate_one(
     if args.lens_swap is not None:
         T = Rigid(T.rotation, T.translation + T.rotation @ np.array([0.0, 0.0, args.pupil_shift]))
         method = f"{METHOD}+lens_swap"
-    entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std)
+    entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std, target_cam.note)
     plot = plots.get(name) or next(iter(plots.values()))
     return _Calibrated(name, t0, data, good, result, entry, plot)
 

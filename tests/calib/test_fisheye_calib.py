@@ -83,6 +83,36 @@ def test_json_has_centre_radius_estimators_and_spread(
     assert d["model"]["fov_deg"] == 190.0
 
 
+def test_the_circle_alone_says_what_f_rests_on(
+    sim_png: tuple[Path, CircleTruth], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """f = r / theta_max holds only for the stated aperture and an equidistant lens: the
+    result and calib.yaml say so, with f for an aperture 5 degrees off (px/rad); a board
+    fit, which checks both, drops the note."""
+    path, _ = sim_png
+    out = tmp_path / "calib.yaml"
+    assert calibrate_fisheye([path], 185.0, out, json_out=True) == 0
+    d = json.loads(capsys.readouterr().out)
+    r = d["circle"]["radius"]
+    assumed = d["circle_model_assumes"]
+    assert assumed["fov_deg"] == 185.0 and assumed["tolerance_deg"] == 5.0
+    lo, hi = assumed["f_range_px"]
+    assert lo == pytest.approx(r / math.radians(95.0), abs=0.01)
+    assert hi == pytest.approx(r / math.radians(90.0), abs=0.01)
+    assert calibrate_fisheye([path], 185.0, out) == 0
+    text = capsys.readouterr().out
+    note = calibfile.load(out, intrinsics_only=True).camera().note
+    assert note == assumed["note"] and note in text.splitlines()
+    assert f"f {lo:.1f}..{hi:.1f} px/rad" in note and "equidistant" in note
+    assert "aperture of 185 deg" in note and "--board" in note
+    # the intrinsics replaced by a board's fit: the note goes with them
+    kb = KannalaBrandt(780, 582, 170.0, 170.2, 390.0, 291.0, (0.01, 0.0, 0.0, 0.0))
+    calib, _, _ = fisheye_calib.update_calibration(out, None, kb, "board")
+    calibfile.save(calib, out)
+    assert calibfile.load(out, intrinsics_only=True).camera().note == ""
+    assert "note" not in out.read_text()
+
+
 def test_keeps_other_cameras_and_the_extrinsics(
     sim_png: tuple[Path, CircleTruth], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -334,6 +364,18 @@ def test_real_images_circle_then_board(
     # the paper's 3-parameter model does not describe this lens: over the board's angles
     # it is tens of pixels away from the board's model (see Table 3 for the paper's lens)
     assert b["circle_model_gap_px"] > 10.0
+    # how far the circle's f is off, and why: the aperture is about right (the rim at
+    # ~92 deg), the lens is not equidistant
+    check = d["circle_check"]
+    assert check["f_circle_px"] == pytest.approx(f_circle, abs=1e-3)
+    assert check["f_board_px"] == pytest.approx(REFERENCE_F, rel=0.01)
+    assert -16.0 < check["off_percent"] < -12.0
+    assert abs(check["aperture_percent"]) < 2.0 and check["equidistance_percent"] < -10.0
+    whole = (1 + check["aperture_percent"] / 100) * (1 + check["equidistance_percent"] / 100)
+    assert whole == pytest.approx(1 + check["off_percent"] / 100, abs=1e-4)
+    assert 2 * check["rim_deg"] == pytest.approx(185.0, abs=4.0)
+    assert check["gap_px"] == b["circle_model_gap_px"]
+    assert calibfile.load(out, intrinsics_only=True).camera().note == ""  # checked
     cam = camera_models.load(out)
     assert type(cam) is KannalaBrandt and cam.k[0] < 0
     # the fit's standard deviations are in calib.yaml (3 significant digits)

@@ -64,6 +64,7 @@ __all__ = [
     "dump",
     "load",
     "merged",
+    "method_with",
     "parse",
     "save",
 ]
@@ -503,6 +504,14 @@ def merged(old: Calibration, new: Calibration, names: Sequence[str], source: str
             cameras[name] = cam
     ltv = old.laser_to_vehicle if old.laser_to_vehicle is not None else new.laser_to_vehicle
     return Calibration(old.laser, cameras, ltv)
+
+
+def method_with(method: str, key: str, how: str) -> str:
+    """A camera's ``method`` with the part on ``key`` (``"KEY: HOW"``, parts joined by
+    ``"; "``) set to ``how``: what one calibration step changed said beside the others'
+    (e.g. ``"simulator truth; time_offset_s: estimated from drive.mcap ..."``)."""
+    parts = [p for p in method.split("; ") if p and not p.startswith(f"{key}: ")]
+    return "; ".join([*parts, f"{key}: {how}"])
 
 
 def save(calib: Calibration, path: str | Path) -> None:

@@ -665,7 +665,12 @@ def run_time_offset(args: argparse.Namespace) -> int:
         std = cj.cam.std
         if np.isfinite(est.std_s):
             std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
-        cams[key] = replace(cj.cam, time_offset_s=round(est.offset_s, 6), std=std)
+        how = (
+            f"estimated from {', '.join(Path(p).name for p in args.logs)} ({est.frames} frames, "
+            f"{est.points} laser points; mutual information of grey levels and return strengths)"
+        )
+        method = calibfile.method_with(cj.cam.method, "time_offset_s", how)
+        cams[key] = replace(cj.cam, time_offset_s=round(est.offset_s, 6), std=std, method=method)
     result = replace(calib, cameras=cams)
     if old is not None:
         result = calibfile.merged(old, result, keys, str(args.output))

@@ -164,6 +164,14 @@ class CircleCheck:
     max_theta_deg: float
 
     def line(self) -> str:
+        if not math.isfinite(self.rim_deg):
+            return (
+                f"the circle's model against the board's: f {self.f_circle_px:.2f} px/rad is "
+                f"{abs(self.off_percent):.1f} % {'below' if self.off_percent < 0 else 'above'} "
+                f"the board's {self.f_board_px:.2f}; the board's lens model does not reach the "
+                f"rim (r {self.radius_px:.1f} px); up to {self.gap_px:.1f} px apart over the "
+                f"board's angles (to {self.max_theta_deg:.1f} deg)"
+            )
         return (
             f"the circle's model against the board's: f {self.f_circle_px:.2f} px/rad is "
             f"{abs(self.off_percent):.1f} % {'below' if self.off_percent < 0 else 'above'} "
@@ -185,7 +193,10 @@ def circle_check(circle: KannalaBrandt, radius_px: float, fit: BoardFit) -> Circ
     board = fit.model
     f_c, f_b = (circle.fx + circle.fy) / 2, (board.fx + board.fy) / 2
     stated = math.radians(circle.fov_deg) / 2
-    rim = float(board.undistort_theta(np.array([radius_px / f_b]))[0])
+    with np.errstate(all="ignore"):  # a lens polynomial that cannot reach the rim: NaN
+        rim = float(board.undistort_theta(np.array([radius_px / f_b]))[0])
+    if not (math.isfinite(rim) and 0 < rim <= math.pi):
+        rim = math.nan
     aperture = stated / rim  # f_c = r / stated = (r / rim) (rim / stated)
     equidistance = radius_px / rim / f_b
     return CircleCheck(

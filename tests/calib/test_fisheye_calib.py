@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import cv2
@@ -111,6 +112,26 @@ def test_the_circle_alone_says_what_f_rests_on(
     calibfile.save(calib, out)
     assert calibfile.load(out, intrinsics_only=True).camera().note == ""
     assert "note" not in out.read_text()
+
+
+def test_circle_check_splits_the_gap_and_says_when_the_rim_is_out_of_reach() -> None:
+    """An equidistant lens whose true aperture is 180 deg, stated as 185: the circle's f
+    is off by the aperture alone; a board model that puts the rim past 180 deg off the
+    axis cannot say where the rim is, and says so (no warning, no made-up angle)."""
+    truth = KannalaBrandt(780, 582, 180.0, 180.0, 390.0, 291.0, (0.0, 0.0, 0.0, 0.0), 180.0)
+    radius = 180.0 * math.pi / 2
+    circle = Equidistant.from_f(radius / math.radians(92.5), 390.0, 291.0, 780, 582, 185.0)
+    fit = fisheye_calib.BoardFit(truth, 0.1, [0.1], [0], {}, 60.0, [])
+    check = fisheye_calib.circle_check(circle, radius, fit)
+    assert check.rim_deg == pytest.approx(90.0)
+    assert check.off_percent == pytest.approx(100 * (90 / 92.5 - 1))
+    assert check.aperture_percent == pytest.approx(check.off_percent)
+    assert check.equidistance_percent == pytest.approx(0.0, abs=1e-9)
+    assert "at 90.0 deg off the axis (aperture 180.0 deg against --fov 185)" in check.line()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        far = fisheye_calib.circle_check(circle, 4 * 180.0, fit)
+    assert math.isnan(far.rim_deg) and "does not reach the rim" in far.line()
 
 
 def test_keeps_other_cameras_and_the_extrinsics(

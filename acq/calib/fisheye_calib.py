@@ -229,7 +229,8 @@ def update_calibration(
     other cameras and the laser entries are kept; a new camera has no ``camera_to_laser``
     (``acq calibrate extrinsic`` adds it). ``camera`` None: the file's only camera, or
     ``camera`` for a new file. Returns the calibration, the camera's name and notes for
-    the user. Raises CalibFileError.
+    the user (among them how far the new f is from the one it replaces). Raises
+    CalibFileError.
     """
     intr = (std or CalibStd()).merged(CalibStd(), CalibStd.EXTRINSICS)
     notes: list[str] = []
@@ -253,6 +254,14 @@ def update_calibration(
                     f"camera {camera!r}: image size {size[0]}x{size[1]} replaced by "
                     f"{model.width}x{model.height}; check its extrinsics"
                 )
+            elif isinstance(prev.model, KannalaBrandt):  # a second estimate of f: compared
+                f_old, f_new = (prev.model.fx + prev.model.fy) / 2, (model.fx + model.fy) / 2
+                if abs(f_new / f_old - 1) > 0.005:
+                    notes.append(
+                        f"camera {camera!r}: f {f_new:.2f} px/rad ({method}) replaces "
+                        f"{f_old:.2f} ({prev.method or 'no method'}) in {path}, "
+                        f"{100 * (f_new / f_old - 1):+.1f} %"
+                    )
             kept = prev.std.merged(intr, CalibStd.INTRINSICS)
             entry = CameraCalib(model, prev.extrinsics, prev.time_offset_s, method, kept, note)
         cameras[camera] = entry

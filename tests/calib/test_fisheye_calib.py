@@ -107,11 +107,18 @@ def test_the_circle_alone_says_what_f_rests_on(
     assert f"f {lo:.1f}..{hi:.1f} px/rad" in note and "equidistant" in note
     assert "aperture of 185 deg" in note and "--board" in note
     # the intrinsics replaced by a board's fit: the note goes with them
-    kb = KannalaBrandt(780, 582, 170.0, 170.2, 390.0, 291.0, (0.01, 0.0, 0.0, 0.0))
+    kb = KannalaBrandt(780, 582, 200.0, 200.2, 390.0, 291.0, (0.01, 0.0, 0.0, 0.0))
     calib, _, _ = fisheye_calib.update_calibration(out, None, kb, "board")
     calibfile.save(calib, out)
     assert calibfile.load(out, intrinsics_only=True).camera().note == ""
     assert "note" not in out.read_text()
+    # the circle again over the board's fit: how far the two f are apart is said
+    assert calibrate_fisheye([path], 185.0, out) == 0
+    f = d["model"]["fx"]
+    assert (
+        f"warning: camera 'camera': f {f:.2f} px/rad (image_circle) replaces 200.10 (board) "
+        f"in {out}, {100 * (f / 200.1 - 1):+.1f} %"
+    ) in capsys.readouterr().err.splitlines()
 
 
 def test_circle_check_splits_the_gap_and_says_when_the_rim_is_out_of_reach() -> None:

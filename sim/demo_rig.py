@@ -18,9 +18,7 @@ from __future__ import annotations
 
 import math
 import os
-import random
 import shutil
-import socket
 import tempfile
 import threading
 import time
@@ -31,7 +29,7 @@ import numpy as np
 
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.motion.trajectory import Trajectory
-from acq.sim.can_vehicle import DBC_PATH, SimVehicle
+from acq.sim.can_vehicle import DBC_PATH, SimVehicle, multicast_can
 from acq.sim.device_clock import SimClock
 from acq.sim.mjpeg_server import MjpegServerProcess
 from acq.sim.nmea_device import NmeaDevice, NmeaPtyServer
@@ -52,7 +50,6 @@ __all__ = [
     "camera_latency_s",
     "camera_sim",
     "demo_rig",
-    "multicast_can",
     "rig_config",
     "true_calibration",
 ]
@@ -104,17 +101,6 @@ def camera_latency_s(name: str) -> float:
     sim = camera_sim(name)
     jitter = float(sim["jitter_s"]) * (1.0 - math.exp(-4.0))
     return float(sim["latency_s"]) + float(sim["exposure_s"]) / 2 + jitter
-
-
-def multicast_can() -> tuple[str, dict[str, Any]]:
-    """A python-can ``udp_multicast`` channel (an IPv4 group) and its bus options for one
-    simulated car: a port free now and a TTL of 0, so that its frames stay on this host
-    and two rigs on one machine do not hear each other."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = int(probe.getsockname()[1])
-    group = f"239.74.163.{random.randrange(1, 255)}"
-    return group, {"port": port, "hop_limit": 0}
 
 
 class SimRig:

@@ -212,6 +212,10 @@ def run_camera(args: argparse.Namespace) -> int:
     return 0
 
 
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
+
+
 def run_rig(args: argparse.Namespace) -> int:
     import time
 
@@ -231,6 +235,7 @@ def run_rig(args: argparse.Namespace) -> int:
         f"loopback; the cameras first render {args.prerender:g} s of frames",
         flush=True,
     )
+    signal.signal(signal.SIGTERM, _interrupt)  # while the cameras render: stop them too
     rig = SimRig(prerender_s=args.prerender, loopback=True, gnss=True)
     try:
         for name, url in rig.urls.items():

@@ -5,15 +5,18 @@ TCP (in this process), with a recorder configuration pointing at them."""
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import yaml
 
 from acq.log.reader import LogReader
 from acq.record import config as configfile
+from acq.record.recorder import Recorder
 from acq.sim.can_vehicle import DBC_PATH, SimVehicle
 from acq.sim.mjpeg_server import MjpegServerProcess
 from acq.sim.nmea_device import NmeaDevice
+from acq.sim.replay import Replay
 from acq.sim.scanner_models import MODELS
 from acq.sim.scip_device import ScipDevice
 from acq.sim.transport import TcpDeviceServer
@@ -105,3 +108,20 @@ def read_log(path: Path) -> dict[str, list[tuple[int, int, object]]]:
         decoded = reader.decode(schema, channel, message)
         out.setdefault(channel.topic, []).append((message.log_time, message.publish_time, decoded))
     return out
+
+
+def record_replay(replay: Replay, cfg: configfile.Config, timeout_s: float) -> None:
+    """Record ``replay`` with a recorder of ``cfg`` (in a thread) until it has been served
+    to its end, within ``timeout_s``; asserts the recorder exits 0 and the replay saw no
+    error."""
+    recorder = Recorder(cfg)
+    codes: list[int] = []
+    thread = threading.Thread(target=lambda: codes.append(recorder.run()))
+    thread.start()
+    try:
+        assert replay.wait(timeout=timeout_s), "the replay did not play to its end"
+    finally:
+        recorder.stop()
+        thread.join(10)
+    assert codes == [0]
+    assert not replay.errors

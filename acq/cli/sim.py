@@ -118,12 +118,13 @@ def _add_rig_parser(sim_sub: argparse._SubParsersAction[argparse.ArgumentParser]
     )
     rig.add_argument(
         "--duration", type=real(0, 1e6, lo_open=True, what="seconds"), metavar="S",
-        help="stop after S seconds of the drive (default: run until Ctrl-C)",
+        help="stop S seconds after it is ready (default: run until Ctrl-C)",
     )  # fmt: skip
     rig.add_argument(
-        "--prerender", type=real(0, 170, what="seconds"), default=40.0, metavar="S",
+        "--prerender", type=real(0, 170, what="seconds"), default=30.0, metavar="S",
         help="seconds of the drive the cameras render before it starts, at most 170 "
-        "(default 40: about 20-40 s to start on 2 cores, 1.8 MB of memory a second per camera)",
+        "(default 30, enough to record 20 s; 93 s to start with a load of 10 on 2 cores; "
+        "1.8 MB of memory a second per camera)",
     )  # fmt: skip
     rig.set_defaults(handler=run_rig)
 

@@ -5,7 +5,6 @@ odometry decoded from them and the fixes, at the recorded pace."""
 
 from __future__ import annotations
 
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +13,7 @@ import pytest
 from acq.log.vehicle_log import read_vehicle
 from acq.record.recorder import Recorder
 from acq.sim.replay import Replay
-from tests.sim_rig import Rig, read_log
+from tests.sim_rig import Rig, read_log, record_replay
 
 # drives simulated devices in real time: run alone (`make test`)
 pytestmark = pytest.mark.realtime
@@ -46,16 +45,7 @@ def test_a_replay_serves_can_and_gnss_and_its_recording_keeps_odometry_and_fixes
         assert cfg.can is not None and cfg.can.interface == "udp_multicast"
         assert cfg.gnss is not None and cfg.gnss.url == replay.urls["gnss"]
         assert cfg.gnss.time == "receipt"  # the sentences' UTC is the recording's
-        recorder = Recorder(cfg)
-        codes: list[int] = []
-        thread = threading.Thread(target=lambda: codes.append(recorder.run()))
-        thread.start()
-        try:
-            assert replay.wait(timeout=RECORD_S + 8.0), "the replay did not play to its end"
-        finally:
-            recorder.stop()
-            thread.join(10)
-        assert codes == [0] and not replay.errors
+        record_replay(replay, cfg, RECORD_S + 8.0)
         sent = replay.sent()
     (second,) = sorted((tmp_path / "again").glob("*.mcap"))
 

@@ -94,3 +94,14 @@ def test_sim_rig_record_colorize_gives_a_moving_two_camera_cloud(tmp_path: Path)
     assert len(t) and driven > 5.0
     assert moved == pytest.approx(driven, rel=0.15)
     assert os.path.exists(tmp_path / "cloud_preview.png")
+
+
+def test_sim_rig_writes_into_no_folder_of_anyone_else(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "rig.yaml").write_text("mine")
+    assert acq_main(["sim", "rig", "--out", str(tmp_path), "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.yaml"]
+    assert (tmp_path / "rig.yaml").read_text() == "mine"

@@ -81,8 +81,11 @@ LEAD_S = 0.05  # from the request that starts the clock to that device's first r
 END_MARGIN_S = 0.1  # after the last record is due, s: it is on its way to the client
 _RAW_SUFFIX = "/raw"
 _IMAGE_SUFFIX = "/image/compressed"
-# the vehicle's buses: topic -> (device, kind), as the recorder names them
-_VEHICLE_TOPICS = {"/vehicle/can": ("vehicle", "can"), "/gnss/raw": ("gnss", "gnss")}
+# the vehicle's buses: topic -> (schema, device, kind), as the recorder writes them
+_VEHICLE_TOPICS = {
+    "/vehicle/can": ("acq.CanFrame", "vehicle", "can"),
+    "/gnss/raw": ("acq.RawTelegram", "gnss", "gnss"),
+}
 
 
 class ReplayError(InputValueError):
@@ -192,7 +195,8 @@ def _device_of(schema: Schema | None, channel: Channel) -> tuple[str, str] | Non
     """(device, kind) whose records the channel holds, or None: not replayed."""
     topic, name = channel.topic, schema.name if schema is not None else ""
     if topic in _VEHICLE_TOPICS:
-        return _VEHICLE_TOPICS[topic]
+        schema_name, device, kind = _VEHICLE_TOPICS[topic]
+        return (device, kind) if name == schema_name else None
     if name == "acq.RawTelegram" and topic.endswith(_RAW_SUFFIX):
         return topic[1 : -len(_RAW_SUFFIX)], "scanner"
     if name == "foxglove.CompressedImage" and topic.endswith(_IMAGE_SUFFIX):

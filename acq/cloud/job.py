@@ -23,6 +23,7 @@ from acq.cloud import views
 from acq.cloud.report import Report
 from acq.drivers.scanner import SCANNERS
 from acq.errors import InputValueError
+from acq.geometry.rotations import matrix_from_quat
 from acq.geometry.transforms import Rigid
 from acq.log.drive_log import DriveLog, camera_calib, read_log
 from acq.log.rosbag_source import bag_files
@@ -32,6 +33,8 @@ from acq.time import retime
 from acq.time.utc import host_ns_from_utc
 
 __all__ = ["CameraJob", "Job", "check_crs", "prepare", "remap", "session_files"]
+
+POSE_GAP_S = 0.5  # s: no pose inside a longer interval between two poses, as for odometry
 
 
 @dataclass(frozen=True)
@@ -147,7 +150,13 @@ def _trajectory(
     if vehicle is None:
         vehicle = read_vehicle(list(files))
     report.notes += vehicle.notes
-    odo, fixes = vehicle.odometry, vehicle.fixes
+    odo, fixes, poses = vehicle.odometry, vehicle.fixes, vehicle.poses
+    if len(odo) < 2 and len(poses) >= 2:  # a ROS 2 bag's /tf, when it has no odometry
+        report.trajectory = f"the log's odom -> base_link poses ({len(poses)}, /tf)"
+        return Trajectory(
+            poses.t_ns, matrix_from_quat(poses.quaternion), poses.translation,
+            max_gap_s=POSE_GAP_S,
+        )  # fmt: skip
     usable = np.isfinite(fixes.lat) & (fixes.quality > 0) if len(fixes) else np.zeros(0, bool)
     if len(odo) < 2 and usable.sum() < 5:
         return None

@@ -14,6 +14,9 @@ from the definitions the bag holds, then written as acq's own (:mod:`acq.log.sch
 - ``nav_msgs/Odometry`` -> ``/vehicle/odometry`` (acq.Odometry: the twist's forward
   speed and yaw rate, which acq dead-reckons);
 - ``sensor_msgs/NavSatFix`` -> ``/gnss/fix`` (foxglove.LocationFix);
+- ``/tf``'s ``odom`` -> ``base_link`` (or ``base_footprint``) transforms, also on
+  ``/vehicle/pose`` (foxglove.FrameTransforms): the vehicle's poses, which give the
+  trajectory when the bag has no odometry;
 - every other topic as it is (counted by ``acq info``, not decoded).
 
 Devices are named by their topic's namespace (``/left/image/compressed`` and
@@ -39,7 +42,7 @@ from acq.errors import InputValueError
 from acq.log import schemas
 from acq.records import Fix, Frame, Odometry, Scan
 
-__all__ = ["PROFILE", "acq_records", "bag_files", "is_bag", "laser_channels"]
+__all__ = ["POSE_TOPIC", "PROFILE", "acq_records", "bag_files", "is_bag", "laser_channels"]
 
 PROFILE: Final = "ros2"  # the MCAP profile rosbag2's storage plugin writes
 _FIRST_ID: Final = 1 << 20  # ids of the channels and schemas made here, above the bag's
@@ -50,6 +53,9 @@ _LASER, _IMAGE, _ODOMETRY, _FIX = (
     "nav_msgs/msg/Odometry",
     "sensor_msgs/msg/NavSatFix",
 )
+_TF = "tf2_msgs/msg/TFMessage"
+POSE_TOPIC: Final = "/vehicle/pose"
+_ODOM_FRAME, _VEHICLE_FRAMES = "odom", ("base_link", "base_footprint")
 _SCHEMA_OF = {
     _LASER: "foxglove.LaserScan",
     _IMAGE: "foxglove.CompressedImage",
@@ -182,6 +188,8 @@ class _Translator:
         self.schema_ids: dict[str, int] = {}  # acq schema name -> id given
         self.names: dict[str, set[str]] = {}  # msgtype -> device names given
         self.odometry_channel: int | None = None
+        self.tf_channels: dict[int, int] = {}  # /tf channel id -> its schema id
+        self.pose_channel: Channel | None = None
         self.clock_sent = False
         self.next_id = _FIRST_ID
         self.bad = 0
@@ -216,24 +224,66 @@ class _Translator:
                     self.odometry_channel = record.id
                 self.devices[record.id] = _Device(msgtype, record.topic, record.schema_id)
             else:
+                if msgtype == _TF and record.topic == "/tf" and record.message_encoding == "cdr":
+                    self.tf_channels[record.id] = record.schema_id
                 yield record
         elif isinstance(record, Message) and record.channel_id in self.devices:
             yield from self._message(self.devices[record.channel_id], record)
+        elif isinstance(record, Message) and record.channel_id in self.tf_channels:
+            yield record
+            yield from self._poses(self.tf_channels[record.channel_id], record)
         elif not isinstance(record, Header | Metadata):  # the bag's own metadata left out
             yield record
 
-    def _deserialise(self, device: _Device, data: bytes) -> Any:
-        if device.msgtype not in self.registered:
+    def _deserialise(self, msgtype: str, schema_id: int, data: bytes) -> Any:
+        """A CDR message by the definition of its type the bag holds."""
+        if msgtype not in self.registered:
             from rosbags.typesys import get_types_from_msg
 
-            name, text = self.msgtypes[device.schema_id]
+            name, text = self.msgtypes[schema_id]
             self.typestore.register(get_types_from_msg(text, name))
-            self.registered.add(device.msgtype)
-        return self.typestore.deserialize_cdr(data, device.msgtype)
+            self.registered.add(msgtype)
+        return self.typestore.deserialize_cdr(data, msgtype)
+
+    def _poses(self, schema_id: int, record: Message) -> Iterator[McapRecord]:
+        """A /tf message's odom -> vehicle transforms on /vehicle/pose, if it has any."""
+        try:
+            tfs = self._deserialise(_TF, schema_id, bytes(record.data)).transforms
+            ours = [
+                tf for tf in tfs
+                if tf.header.frame_id.lstrip("/") == _ODOM_FRAME
+                and tf.child_frame_id.lstrip("/") in _VEHICLE_FRAMES
+            ]  # fmt: skip
+        except Exception:  # a garbled payload: that message is lost
+            self.bad += 1
+            return
+        if not ours:
+            return
+        msg = schemas.message_class("foxglove.FrameTransforms")()
+        for tf in ours:
+            out = msg.transforms.add(parent_frame_id=_ODOM_FRAME, child_frame_id="vehicle")
+            out.timestamp.FromNanoseconds(_ns(tf.header.stamp))
+            tr, rot = tf.transform.translation, tf.transform.rotation
+            out.translation.x, out.translation.y, out.translation.z = tr.x, tr.y, tr.z
+            out.rotation.x, out.rotation.y, out.rotation.z, out.rotation.w = (
+                rot.x, rot.y, rot.z, rot.w,
+            )  # fmt: skip
+        if self.pose_channel is None:
+            yield from self._schema("foxglove.FrameTransforms")
+            self.pose_channel = Channel(
+                id=self._id(), schema_id=self.schema_ids["foxglove.FrameTransforms"],
+                topic=POSE_TOPIC, message_encoding="protobuf", metadata={"ros_topic": "/tf"},
+            )  # fmt: skip
+            yield self.pose_channel
+        yield Message(
+            channel_id=self.pose_channel.id, sequence=record.sequence,
+            log_time=record.log_time, publish_time=_ns(ours[0].header.stamp),
+            data=msg.SerializeToString(),
+        )  # fmt: skip
 
     def _message(self, device: _Device, record: Message) -> Iterator[McapRecord]:
         try:
-            msg = self._deserialise(device, bytes(record.data))
+            msg = self._deserialise(device.msgtype, device.schema_id, bytes(record.data))
             stamp = _ns(msg.header.stamp)
         except Exception:  # a garbled payload or definition: that message is lost
             self.bad += 1

@@ -89,6 +89,37 @@ def test_colorize_gives_the_logs_cloud(drive: tuple[Path, Path, Path], tmp_path:
     assert np.nanmax(np.abs(a["scalar_time"] - b["scalar_time"])) < 1e-5  # UTC s
 
 
+def _without(bag: Path, topic: str, out: Path) -> None:
+    """A copy of ``bag`` without ``topic`` (rosbags' reader and writer)."""
+    from rosbags.rosbag2 import Reader
+
+    with Reader(bag) as reader, Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {
+            c.id: w.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data, rihs01=c.digest)
+            for c in reader.connections
+            if c.topic != topic
+        }
+        for c, t, data in reader.messages():
+            if c.id in conns:
+                w.write(conns[c.id], t, data)
+
+
+def test_without_odometry_tf_gives_the_trajectory(
+    drive: tuple[Path, Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A bag with /tf (odom -> base_link) and no /odom: placed with its poses, the same
+    cloud as with the odometry they were dead-reckoned from."""
+    _, calib, bag = drive
+    tf_only = tmp_path / "tf_only"
+    _without(bag, "/odom", tf_only)
+    a = _cloud(bag, calib, tmp_path / "odom.ply", "--no-retime")
+    b = _cloud(tf_only, calib, tmp_path / "tf.ply", "--no-retime")
+    assert "trajectory: the log's odom -> base_link poses" in capsys.readouterr().out
+    assert a.size == b.size
+    assert np.nanmax(np.abs(_xyz(a) - _xyz(b))) < 1e-6  # m
+    assert np.mean(np.abs(_rgb(a) - _rgb(b)).max(axis=1) == 0) > 0.999
+
+
 def test_calib_camera_names_that_the_bag_lacks_are_named(
     drive: tuple[Path, Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

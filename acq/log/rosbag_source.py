@@ -150,7 +150,7 @@ class _Device:
     geometry_sent: bool = False  # a laser's device.<laser> record
 
 
-def device_name(topic: str, suffixes: tuple[str, ...]) -> str:
+def _device_name(topic: str, suffixes: tuple[str, ...]) -> str:
     """The namespace of ``topic`` without one of ``suffixes`` and an ``image*`` level
     (``/left/image_raw/compressed`` -> ``left``); "" for a topic at the root."""
     path = topic.strip("/")
@@ -195,7 +195,7 @@ class _Translator:
         self.bad = 0
 
     def start(self) -> Iterator[McapRecord]:
-        yield Header(profile="", library="acq rosbag2 source")
+        """The records an acq log starts with: its time base."""
         yield Metadata(
             name="acq", metadata={"clock": _CLOCK_LINE, "utc_offset_ns": "0", "source": "rosbag2"}
         )
@@ -313,10 +313,10 @@ class _Translator:
         acq_schema = _SCHEMA_OF[device.msgtype]
         yield from self._schema(acq_schema)
         if device.msgtype == _LASER:
-            name = device_name(device.topic, ("scan",))
+            name = _device_name(device.topic, ("scan",))
             topic = "/{}/scan"
         elif device.msgtype == _IMAGE:
-            name = device_name(device.topic, ("compressed",))
+            name = _device_name(device.topic, ("compressed",))
             topic = "/{}/image/compressed"
         else:
             name, topic = "", "/vehicle/odometry" if device.msgtype == _ODOMETRY else "/gnss/fix"

@@ -37,6 +37,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 def run(args: argparse.Namespace) -> int:
+    from acq.cloud.job import session_files
     from acq.log import summary
     from acq.log.repair import repair
 
@@ -53,5 +54,5 @@ def run(args: argparse.Namespace) -> int:
                 n = repair(src, tmp)
             print(f"{src} -> {dst}: {n} messages, indexed")
         return 0
-    print(summary.format_info(summary.info_many(args.logs), json=args.json))
+    print(summary.format_info(summary.info_many(session_files(args.logs)), json=args.json))
     return 0

@@ -23,14 +23,18 @@ from acq.cloud import views
 from acq.cloud.report import Report
 from acq.drivers.scanner import SCANNERS
 from acq.errors import InputValueError
+from acq.geometry.rotations import matrix_from_quat
 from acq.geometry.transforms import Rigid
 from acq.log.drive_log import DriveLog, camera_calib, read_log
+from acq.log.rosbag_source import bag_files
 from acq.log.vehicle_log import read_vehicle
 from acq.motion import Trajectory
 from acq.time import retime
 from acq.time.utc import host_ns_from_utc
 
 __all__ = ["CameraJob", "Job", "check_crs", "prepare", "remap", "session_files"]
+
+POSE_GAP_S = 0.5  # s: no pose inside a longer interval between two poses, as for odometry
 
 
 @dataclass(frozen=True)
@@ -86,6 +90,9 @@ def remap(old: np.ndarray, new: np.ndarray, stamps: np.ndarray) -> np.ndarray:
 def _retime_scans(log: DriveLog, report: Report) -> np.ndarray:
     """New stamps for ``log``'s scans (its recorded ones, sorted); notes in ``report``."""
     scan_new = log.scan_ns.copy()
+    if not np.any(log.scan_ticks >= 0):  # a ROS 2 bag, or no timing records
+        report.notes.append("scans not re-timed: the log has no device ticks (stamps kept)")
+        return scan_new
     driver = log.metadata.get(f"device.{log.laser}", {}).get("driver", "")
     try:
         cls = SCANNERS.get(driver)
@@ -143,7 +150,13 @@ def _trajectory(
     if vehicle is None:
         vehicle = read_vehicle(list(files))
     report.notes += vehicle.notes
-    odo, fixes = vehicle.odometry, vehicle.fixes
+    odo, fixes, poses = vehicle.odometry, vehicle.fixes, vehicle.poses
+    if len(odo) < 2 and len(poses) >= 2:  # a ROS 2 bag's /tf, when it has no odometry
+        report.trajectory = f"the log's odom -> base_link poses ({len(poses)}, /tf)"
+        return Trajectory(
+            poses.t_ns, matrix_from_quat(poses.quaternion), poses.translation,
+            max_gap_s=POSE_GAP_S,
+        )  # fmt: skip
     usable = np.isfinite(fixes.lat) & (fixes.quality > 0) if len(fixes) else np.zeros(0, bool)
     if len(odo) < 2 and usable.sum() < 5:
         return None
@@ -333,7 +346,8 @@ def _camera_calibs(
         pairs.append((name, cam))
     if not pairs:
         raise InputValueError(
-            f"the log has no frames of the calibration's cameras ({', '.join(calib.cameras)})"
+            f"the log has no frames of the calibration's cameras ({', '.join(calib.cameras)}); "
+            f"its cameras: {', '.join(index.camera_names) or 'none'} (name them so in calib.yaml)"
         )
     return pairs
 
@@ -352,11 +366,12 @@ def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
 
 
 def session_files(logs: Sequence[Path]) -> list[Path]:
-    """The MCAP files of ``logs`` (a folder stands for its *.mcap files, sorted)."""
+    """The MCAP files of ``logs`` (a folder stands for its *.mcap files, sorted; a
+    rosbag2 folder for its storage files, in the bag's order)."""
     out: list[Path] = []
     for p in logs:
         if p.is_dir():
-            found = sorted(p.glob("*.mcap"))
+            found = bag_files(p) or sorted(p.glob("*.mcap"))
             if not found:
                 raise InputValueError(f"{p}: no .mcap files in this folder")
             out += found

@@ -92,6 +92,7 @@ class DriveLog:
     notes: list[str] = field(default_factory=list)  # what was missing and assumed
     scan_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     vehicle: VehicleLog | None = None
+    camera_names: tuple[str, ...] = ()  # every camera with frames in the log, read or not
 
     @property
     def frames(self) -> CameraFrames:
@@ -298,6 +299,7 @@ def read_log(
         metadata,
         notes,
     )
+    log = replace(log, camera_names=tuple(sorted(frames)))
     if vehicle_reader is not None:
         log = replace(log, vehicle=vehicle_reader.result(files))
     return log

@@ -74,6 +74,7 @@ from acq.log.mcap_records import (
     index_messages,
     record_name,
 )
+from acq.log.rosbag_source import acq_records, is_bag, laser_channels
 from acq.log.timebase import MONOTONIC, TimeBase
 
 __all__ = [
@@ -310,7 +311,7 @@ class LogReader:
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
         orphans = 0
-        for record in self.records():
+        for record in acq_records(self.records(), self.notes):  # a rosbag2 as a log
             if isinstance(record, Message):
                 channel = channels.get(record.channel_id)
                 if channel is None:
@@ -638,13 +639,23 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
     writes a newer record when a device reconnects): from the summary's index when the
     file is closed, else from everything before the cut."""
     out: dict[str, dict[str, str]] = {}
+    lasers = None  # a rosbag2's: its scanners' records come with their first scans
     try:
         with open(path, "rb") as f:
-            for m in SeekingReader(f).iter_metadata():
-                out[m.name] = dict(m.metadata)
-        return out
+            seeking = SeekingReader(f)
+            if is_bag(seeking.get_header()):
+                lasers = laser_channels(seeking.get_summary())
+            else:
+                for m in seeking.iter_metadata():
+                    out[m.name] = dict(m.metadata)
+                return out
     except Exception:  # no usable summary (a killed writer): read linearly
-        reader = LogReader(path)
-        for _ in reader.messages():
-            pass
-        return {m.name: dict(m.metadata) for m in reader.metadata}
+        pass
+    reader = LogReader(path)
+    scans = set()
+    for _schema, channel, _message in reader.messages():
+        if lasers is not None and channel.topic.endswith("/scan"):
+            scans.add(channel.id)
+            if len(scans) >= lasers:
+                break
+    return {m.name: dict(m.metadata) for m in reader.metadata}

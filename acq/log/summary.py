@@ -382,7 +382,9 @@ def _format_one(i: LogInfo) -> list[str]:
         if i.start_realtime_ns is not None:
             where += f", from {_utc(i.start_realtime_ns)}"
         lines.append(f"  span      {i.duration_s:.3f} s ({where})")
-    if i.time_base.utc:
+    if i.metadata.get("acq", {}).get("source") == "rosbag2":  # acq.log.rosbag_source
+        clock = "a ROS 2 bag (rosbag2): its stamps taken as UTC; ROS topics read as acq's"
+    elif i.time_base.utc:
         clock = (
             f"UTC (host monotonic + {i.time_base.utc_offset_ns / 1e9:.6f} s, fixed at the"
             " session start); acq.* messages host monotonic"

@@ -26,7 +26,7 @@ from acq.log.vehicle_log import read_vehicle
 pytestmark = pytest.mark.realtime
 
 RECORD_S = 3.0
-PRERENDER_S = 10.0  # the rig's start, the recorder's and RECORD_S, with some to spare
+PRERENDER_S = 7.0  # the rig's start, the recorder's and RECORD_S, with a little to spare
 START_TIMEOUT_S = 180.0  # the cameras render their frames first: long on a loaded machine
 
 

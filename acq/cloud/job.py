@@ -356,7 +356,8 @@ def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
     """The rig's median speed over the log (m/s), 0 without a trajectory."""
     if traj is None or scan_ns.size < 2:
         return 0.0
-    t = np.sort(scan_ns)[:: max(1, scan_ns.size // 200)]
+    t = np.unique(scan_ns)  # sorted; scans may share a stamp
+    t = t[:: max(1, t.size // 200)]
     t = t[traj.covers(t)]
     if t.size < 2:
         return 0.0

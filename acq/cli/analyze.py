@@ -98,7 +98,7 @@ def run_sensitivity(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise InputError(f"-o {out}: is a file; give a folder")
     inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
-    outputs = [Output("-o", out / name, kind) for name, kind in WRITES]
+    outputs = [Output("-o", out / name, kind, makes_folder=True) for name, kind in WRITES]
     output_files.check(inputs, outputs, force=args.force)
     report = sensitivity_log.analyze_logs(
         args.calib, args.logs, out, args.camera_height, args.building_distance,

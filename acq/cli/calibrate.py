@@ -709,7 +709,9 @@ def run_validate(args: argparse.Namespace) -> int:
         if args.out.exists() and not args.out.is_dir():
             raise InputError(f"-o {args.out}: is a file; give a folder")
         inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
-        output_files.check(inputs, [Output("-o", overlay, "image")], force=args.force)
+        output_files.check(
+            inputs, [Output("-o", overlay, "image", makes_folder=True)], force=args.force
+        )
     cal = calibfile.load(args.calib)
     log = drive_log.read_log(list(args.logs), camera=args.camera)
     name, cam = drive_log.camera_calib(log, cal, args.camera)

@@ -145,6 +145,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     gc.freeze()
     logs: list[os.PathLike[str]] = getattr(args, "logs", None) or []
     try:
+        if logs and not getattr(args, "sessions_apart", False):
+            args.logs = logs = _one_session(logs)
         progress.enable(progress.wanted(getattr(args, "progress", False)))
         with progress.reading(logs):
             code = handler(args)
@@ -164,6 +166,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             traceback.print_exc()
         _say(prog, _describe(e, args.debug))
         return EXIT_FAILURE
+
+
+def _one_session(logs: Sequence[os.PathLike[str]]) -> list[os.PathLike[str]]:
+    """The files a command's LOG arguments name (files or folders), one session's
+    (:func:`acq.log.inputs.session_files`; InputError naming each session otherwise)."""
+    from acq.log.inputs import session_files
+
+    return list(session_files(logs))
 
 
 def _log_lines(prog: str) -> None:

@@ -24,6 +24,7 @@ import os
 import sys
 import traceback
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, NoReturn
 
@@ -143,10 +144,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     # what the imports made lives as long as the process: out of the collector's scans
     # (its full collections otherwise walk it again while a log's messages are read)
     gc.freeze()
-    logs: list[os.PathLike[str]] = getattr(args, "logs", None) or []
+    logs: Sequence[os.PathLike[str]] = getattr(args, "logs", None) or []
     try:
-        if logs and not getattr(args, "sessions_apart", False):
-            args.logs = logs = _one_session(logs)
+        if logs:
+            logs = _log_inputs(args, logs)
         progress.enable(progress.wanted(getattr(args, "progress", False)))
         with progress.reading(logs):
             code = handler(args)
@@ -168,12 +169,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_FAILURE
 
 
-def _one_session(logs: Sequence[os.PathLike[str]]) -> list[os.PathLike[str]]:
-    """The files a command's LOG arguments name (files or folders), one session's
-    (:func:`acq.log.inputs.session_files`; InputError naming each session otherwise)."""
-    from acq.log.inputs import session_files
+def _log_inputs(args: argparse.Namespace, logs: Sequence[os.PathLike[str]]) -> list[Path]:
+    """The files a command's LOG arguments (files or folders) name, for its progress bar;
+    ``args.logs`` becomes them, one session's (:func:`acq.log.inputs.session_files`:
+    InputError naming each session otherwise), unless the command takes several
+    sessions (``sessions_apart``: it resolves them itself)."""
+    from acq.log.inputs import log_files, session_files
 
-    return list(session_files(logs))
+    if getattr(args, "sessions_apart", False):
+        return log_files(logs)
+    args.logs = session_files(logs)
+    return list(args.logs)
 
 
 def _log_lines(prog: str) -> None:

@@ -10,11 +10,11 @@ Every command that reads logs resolves its LOG arguments here (:func:`sessions`,
 - files are grouped by the session their writer names in the ``acq`` metadata record
   (``session``, :mod:`acq.log.writer`; for older logs their UTC offset, measured once
   per session, or the ``<prefix>_<UTC start>_<NNN>.mcap`` name), in the order given;
-- files of one session that start with the same message hold the same recording: one
-  is read. A repaired copy (``acq info --repair``: :data:`acq.log.repair.REPAIR_RECORD`,
-  or an older one by its name ``NAME.repaired.mcap``) given with its source is read in
-  its source's place, the source instead when it has grown since it was copied (its
-  writer went on); of other copies the first given.
+- files of one session (a known one) that start with the same message hold the same
+  recording: one is read. A repaired copy (``acq info --repair``, marked
+  :data:`acq.log.repair.REPAIR_RECORD`; an older one by its name ``NAME.repaired.mcap``)
+  given with its source is read in its source's place, the source instead when it has
+  grown since it was copied (its writer went on); of other copies the first given.
 """
 
 from __future__ import annotations
@@ -165,6 +165,8 @@ def _read_once(session: Session, logs: dict[Path, _Log]) -> None:
     """Files of ``session`` that start with the same message hold the same recording (a
     repaired copy and its source, or a copy): one of them is read, in the place of the
     first given, and a note says which."""
+    if session.id is None:  # not acq's logs: nothing says they are one recording
+        return
     groups: dict[int, list[Path]] = {}
     for p in session.files:
         first = logs[p].first_ns

@@ -12,12 +12,13 @@ import pytest
 
 from acq import __version__
 from acq.cli import main
-from acq.log import summary
+from acq.log import inputs, summary
 
 # `acq info` whose summary is long text, without a log: for the stdout tests
 _LONG_INFO = (
-    "import sys; from acq.log import summary; "
-    "summary.info_many = lambda logs: None; "
+    "import sys; from acq.log import inputs, summary; "
+    "inputs.sessions = lambda logs: [inputs.Session(None, '', logs)]; "
+    "summary.info_many = lambda logs: []; "
     "summary.format_info = lambda info, json: 'a line of the summary\\n' * 200_000; "
     "from acq.cli import main; sys.exit(main(['info', 'x.mcap']))"
 )
@@ -27,10 +28,16 @@ def _bug(*args: object, **kwargs: object) -> None:
     raise KeyError("channel")
 
 
+def _no_log(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`acq info x.mcap` without a log: its one session as given, its summary a bug."""
+    monkeypatch.setattr(inputs, "sessions", lambda logs: [inputs.Session(None, "", logs)])
+    monkeypatch.setattr(summary, "info_many", _bug)
+
+
 def test_a_bug_exits_1_with_one_line(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setattr(summary, "info_many", _bug)
+    _no_log(monkeypatch)
     assert main(["info", "x.mcap"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("acq info: KeyError: channel") and err.count("\n") == 1, err
@@ -41,7 +48,7 @@ def test_a_bug_exits_1_with_one_line(
 def test_debug_shows_the_traceback(
     argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setattr(summary, "info_many", _bug)
+    _no_log(monkeypatch)
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert "Traceback (most recent call last)" in err and "in _bug" in err

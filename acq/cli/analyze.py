@@ -49,7 +49,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "dropping k2 theta^3 reaches 0.5..4 px); DIR/sensitivity.json. Files of their kind "
         "in DIR are replaced, any other is refused.",
     )
-    sens.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP logs of one session")
+    sens.add_argument(
+        "logs", nargs="+", type=Path, metavar="LOG", help="MCAP logs of one session, or its folder"
+    )
     sens.add_argument("--calib", type=Path, required=True, metavar="CALIB", help="calib.yaml")
     sens.add_argument(
         "-o", "--output", type=Path, default=Path("sensitivity"), metavar="DIR",

@@ -101,7 +101,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "with --force. Nothing is written when any camera fails.",
     )
     ext.add_argument(
-        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s)"
+        "logs",
+        nargs="+",
+        type=Path,
+        metavar="LOG",
+        help="the recording's MCAP file(s), or its folder",
     )
     ext.add_argument(
         "--camera", metavar="NAME", action="append",
@@ -214,7 +218,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "on their set's colours, the pixel-error histogram (0, 1, 2, 3, >3 px, as the "
         "paper's Table 4) and sigma of a normal fit to the errors at the front set's edges.",
     )
-    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s)")
+    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s) or a folder")
     val.add_argument(
         "--calib", required=True, type=Path, help="calibration (intrinsics + camera_to_laser)"
     )

@@ -23,6 +23,7 @@ import logging
 import os
 import sys
 import traceback
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import ModuleType
@@ -194,6 +195,22 @@ def _log_lines(prog: str) -> None:
     handler.addFilter(RedactingFilter())
     root.addHandler(handler)
     root.setLevel(logging.WARNING)
+    warnings.showwarning = _warning_line
+
+
+def _warning_line(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object = None,
+    line: str | None = None,
+) -> None:
+    """A library's warning (numpy's RuntimeWarning...) as one of the command's lines,
+    not Python's two lines of source."""
+    logging.getLogger("py.warnings").warning(
+        "warning: %s: %s (%s, line %d)", category.__name__, message, Path(filename).name, lineno
+    )
 
 
 def _flushed(prog: str, code: int, failed: OSError | None = None) -> int:

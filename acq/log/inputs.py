@@ -8,8 +8,8 @@ Every command that reads logs resolves its LOG arguments here (:func:`sessions`,
   folder with a ``metadata.yaml`` is a ROS 2 bag, not a folder of acq logs;
 - a file given twice (itself and in its folder) is read once;
 - files are grouped by the session their writer names in the ``acq`` metadata record
-  (``session``, :mod:`acq.log.writer`; for older logs their UTC offset, measured once
-  per session, or the ``<prefix>_<UTC start>_<NNN>.mcap`` name), in the order given;
+  (``session``, :mod:`acq.log.writer`; for older logs the recorder's start, to the
+  second, and host, or the ``<prefix>_<UTC start>_<NNN>.mcap`` name), in the order given;
 - files of one session (a known one) that start with the same message hold the same
   recording: one is read. A repaired copy (``acq info --repair``, marked
   :data:`acq.log.repair.REPAIR_RECORD`; an older one by its name ``NAME.repaired.mcap``)
@@ -145,9 +145,9 @@ def _glance(path: Path) -> _Log:
         records.close()
     acq = metadata.get("acq", {})
     session = label = acq.get("session")
-    if session is None and "utc_offset_ns" in acq:  # measured once per session
-        session = f"utc_offset_ns={acq['utc_offset_ns']}"
-        label = f"started {acq.get('started_utc', '?')}"
+    if session is None and "started_utc" in acq:  # the recorder's, the same in every part
+        label = f"started {acq['started_utc']}"
+        session = f"{label} on {acq.get('host', '?')}"
     stem = path.name.removesuffix(".mcap").removesuffix(_REPAIRED_SUFFIX)
     if session is None and (m := _PART.match(stem)):
         session = label = m.group(1)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from mcap.writer import Writer
 from plyfile import PlyData
 
 from acq.camera import calibfile
@@ -101,6 +102,35 @@ def test_the_parts_of_a_session_read_together_whatever_their_names(tmp_path: Pat
     found = inputs.sessions([parts[0], tmp_path])  # one given twice
     assert [s.files for s in found] == [parts]
     assert found[0].id == w.session
+
+
+def _old_log(path: Path, acq: dict[str, str], first_ns: int) -> Path:
+    """A log as acq wrote them before sessions had an id: its ``acq`` record, a message."""
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        w.add_metadata("acq", acq)
+        channel = w.register_channel("/x", "", w.register_schema("raw", "", b""))
+        w.add_message(channel, log_time=first_ns, data=b"x", publish_time=first_ns)
+        w.finish()
+    return path
+
+
+def test_older_logs_are_grouped_by_the_recorders_start_or_their_names(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from acq.log import inputs
+
+    one = {"host": "car", "started_utc": "2026-12-01T10:00:00Z"}
+    other = {"host": "car", "started_utc": "2026-12-01T11:30:00Z"}
+    a0 = _old_log(tmp_path / "a0.mcap", one, 10**9)
+    a1 = _old_log(tmp_path / "a1.mcap", one, 2 * 10**9)
+    b0 = _old_log(tmp_path / "b0.mcap", other, 10**9)
+    assert [s.files for s in inputs.sessions([a0, a1, b0])] == [[a0, a1], [b0]]
+    named = [_old_log(tmp_path / f"acq_20261201T100000Z_00{k}.mcap", {}, k * 10**9) for k in (0, 1)]
+    assert inputs.session_files(named) == named
+    assert acq_main(["info", str(a0), str(b0)]) == 0
+    assert "2 recording sessions" in capsys.readouterr().out
 
 
 # --- repaired copies and copies ---------------------------------------------------------

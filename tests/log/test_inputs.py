@@ -216,6 +216,8 @@ def test_every_log_command_takes_a_folder(
     folder = str(a.files[0].parent)
     assert acq_main(["info", folder]) == 0
     assert acq_main(["export", "ros2", folder, "-o", str(tmp_path / "bag")]) == 0
+    sens = ["analyze", "sensitivity", folder, "--calib", str(calib), "-o", str(tmp_path / "s")]
+    assert acq_main(sens) == 0
     capsys.readouterr()
     # these read the folder's log, and then find no board, pattern or device parameters
     # in this simulated drive: what they say is about those, not about a folder
@@ -308,6 +310,26 @@ def test_a_calibration_of_another_image_size_is_refused_naming_both(
         assert err.count("\n") == 1, err
         assert f"{wrong}: cameras.{name}.image_size is {w - 32}x{h - 102} px" in err
         assert f"the log's frames of camera {name} are {w}x{h} ({a.files[0].name})" in err
+
+
+def test_one_camera_of_several_calibrated_at_another_size_is_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from acq.sim.world import default_rig
+
+    two = write_drive_log(tmp_path, 0.3, rig=default_rig(cameras=2), pattern_at=None)
+    right = tmp_path / "right.yaml"
+    calibfile.save(two.calibration, right)
+    data = yaml.safe_load(right.read_text())
+    name = list(data["cameras"])[1]
+    w, h = data["cameras"][name]["image_size"]
+    data["cameras"][name].update(image_size=[640, 480], cx=320.0, cy=240.0)
+    wrong = tmp_path / "wrong.yaml"
+    wrong.write_text(yaml.safe_dump(data))
+    argv = ["colorize", str(two.files[0]), "--calib", str(wrong), "-o", str(tmp_path / "c.ply")]
+    assert acq_main(argv) == 2
+    err = _err(capsys)
+    assert f"cameras.{name}.image_size is 640x480 px" in err and f"are {w}x{h}" in err
 
 
 # --- a file being written -----------------------------------------------------------------

@@ -19,6 +19,7 @@ Every command that reads logs resolves its LOG arguments here (:func:`sessions`,
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import re
@@ -29,7 +30,7 @@ from pathlib import Path
 from mcap.records import Message, Metadata
 
 from acq.errors import InputValueError
-from acq.log.reader import LogReader
+from acq.log.reader import LogError, LogReader
 from acq.log.repair import REPAIR_RECORD
 
 __all__ = ["Session", "log_files", "session_files", "sessions"]
@@ -100,12 +101,24 @@ def log_files(paths: Sequence[str | os.PathLike[str]], option: str = "LOG") -> l
 
 def sessions(paths: Sequence[str | os.PathLike[str]], option: str = "LOG") -> list[Session]:
     """The sessions of ``paths`` (files or folders, see the module docstring), in the
-    order their first file was given. Raises :class:`acq.log.reader.LogError` for a
-    file that is missing or not MCAP, InputValueError as :func:`log_files`."""
-    logs = {p: _glance(p) for p in log_files(paths, option)}
+    order their first file was given. A file that is missing or not MCAP is not a
+    session: it goes first in the first one, for the command's reader to name it
+    (:class:`acq.log.reader.LogError`) when it reads it, after the command's own checks.
+    InputValueError as :func:`log_files`."""
+    files = log_files(paths, option)
+    logs: dict[Path, _Log] = {}
+    for p in files:
+        with contextlib.suppress(LogError):
+            logs[p] = _glance(p)
     by_id: dict[str | None, Session] = {}
     for one in logs.values():
         by_id.setdefault(one.session, Session(one.session, one.label)).files.append(one.path)
+    unreadable = [p for p in files if p not in logs]
+    if unreadable:  # first, so that the reader names them before any long read
+        first = next(iter(by_id.values()), None) or by_id.setdefault(
+            None, Session(None, "without an id")
+        )
+        first.files[:0] = unreadable
     for s in by_id.values():
         _read_once(s, logs)
         for note in s.notes:
@@ -169,7 +182,7 @@ def _read_once(session: Session, logs: dict[Path, _Log]) -> None:
         return
     groups: dict[int, list[Path]] = {}
     for p in session.files:
-        first = logs[p].first_ns
+        first = logs[p].first_ns if p in logs else None
         if first is not None:
             groups.setdefault(first, []).append(p)
     for same in groups.values():

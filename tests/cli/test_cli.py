@@ -12,12 +12,11 @@ import pytest
 
 from acq import __version__
 from acq.cli import main
-from acq.log import inputs, summary
+from acq.log import summary
 
 # `acq info` whose summary is long text, without a log: for the stdout tests
 _LONG_INFO = (
-    "import sys; from acq.log import inputs, summary; "
-    "inputs.sessions = lambda logs: [inputs.Session(None, '', logs)]; "
+    "import sys; from acq.log import summary; "
     "summary.info_many = lambda logs: []; "
     "summary.format_info = lambda info, json: 'a line of the summary\\n' * 200_000; "
     "from acq.cli import main; sys.exit(main(['info', 'x.mcap']))"
@@ -28,16 +27,10 @@ def _bug(*args: object, **kwargs: object) -> None:
     raise KeyError("channel")
 
 
-def _no_log(monkeypatch: pytest.MonkeyPatch) -> None:
-    """`acq info x.mcap` without a log: its one session as given, its summary a bug."""
-    monkeypatch.setattr(inputs, "sessions", lambda logs: [inputs.Session(None, "", logs)])
-    monkeypatch.setattr(summary, "info_many", _bug)
-
-
 def test_a_bug_exits_1_with_one_line(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    _no_log(monkeypatch)
+    monkeypatch.setattr(summary, "info_many", _bug)
     assert main(["info", "x.mcap"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("acq info: KeyError: channel") and err.count("\n") == 1, err
@@ -48,7 +41,7 @@ def test_a_bug_exits_1_with_one_line(
 def test_debug_shows_the_traceback(
     argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    _no_log(monkeypatch)
+    monkeypatch.setattr(summary, "info_many", _bug)
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert "Traceback (most recent call last)" in err and "in _bug" in err
@@ -96,8 +89,7 @@ def test_a_full_stdout_exits_1_with_one_line() -> None:
 
 def test_a_library_warning_is_one_line_of_the_command() -> None:
     script = (
-        "import sys, numpy as np; from acq.log import inputs, summary; "
-        "inputs.sessions = lambda logs: [inputs.Session(None, '', logs)]; "
+        "import sys, numpy as np; from acq.log import summary; "
         "summary.info_many = lambda logs: [np.float64(1.0) / 0.0][:0]; "
         "summary.format_info = lambda info, json: 'done'; "
         "from acq.cli import main; sys.exit(main(['info', 'x.mcap']))"

@@ -101,11 +101,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "with --force. Nothing is written when any camera fails.",
     )
     ext.add_argument(
-        "logs",
-        nargs="+",
-        type=Path,
-        metavar="LOG",
-        help="the recording's MCAP file(s), or its folder",
+        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s) or folder"
     )
     ext.add_argument(
         "--camera", metavar="NAME", action="append",

@@ -38,11 +38,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "address.",
     )
     replay.add_argument(
-        "logs",
-        nargs="+",
-        type=Path,
-        metavar="LOG",
-        help="MCAP files of one session, in order, or its folder",
+        "logs", nargs="+", type=Path, metavar="LOG", help="MCAP files in order, or a folder"
     )
     replay.add_argument(
         "--speed", type=real(0.01, 1000, what="a speed"), default=1.0, metavar="X",

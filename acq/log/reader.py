@@ -280,9 +280,11 @@ class LogReader:
                 " read linearly, every record before it"
             )
         elif not self.closed and self.writing:
+            rest = self.size - self.bytes_read
+            tail = f" (the {rest} after them are still being written)" if rest > 0 else ""
             parts.append(
                 f"being written: its recorder is running (it holds the file's lock); read"
-                f" the {self.bytes_read} bytes written out so far, of {self.size}"
+                f" the {self.bytes_read} bytes written so far{tail}"
             )
         elif not self.closed:
             parts.append(

@@ -30,7 +30,7 @@ from pathlib import Path
 from mcap.records import Message, Metadata
 
 from acq.errors import InputValueError
-from acq.log.reader import LogError, LogReader
+from acq.log.reader import LogError, LogReader, quiet
 from acq.log.repair import REPAIR_RECORD
 
 __all__ = ["Session", "log_files", "session_files", "sessions"]
@@ -147,15 +147,16 @@ def _glance(path: Path) -> _Log:
     metadata: dict[str, dict[str, str]] = {}
     first_ns = None
     records = reader.records()
-    try:
-        for record in records:
-            if isinstance(record, Metadata):
-                metadata.setdefault(record.name, dict(record.metadata))
-            elif isinstance(record, Message):
-                first_ns = record.log_time
-                break
-    finally:
-        records.close()
+    with quiet():  # its damage is for the command's reader to say
+        try:
+            for record in records:
+                if isinstance(record, Metadata):
+                    metadata.setdefault(record.name, dict(record.metadata))
+                elif isinstance(record, Message):
+                    first_ns = record.log_time
+                    break
+        finally:
+            records.close()
     acq = metadata.get("acq", {})
     session = label = acq.get("session")
     if session is None and "started_utc" in acq:  # the recorder's, the same in every part

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import fcntl
 import io
 import logging
 import os
@@ -67,6 +66,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from acq import progress
 from acq.errors import InputValueError
+from acq.log import writer_lock
 from acq.log.mcap_records import (
     HEADER_BYTES,
     KNOWN_OPCODES,
@@ -80,7 +80,6 @@ from acq.log.timebase import MONOTONIC, TimeBase
 __all__ = [
     "LogError",
     "LogReader",
-    "being_written",
     "quiet",
     "read_messages",
     "read_metadata",
@@ -155,29 +154,6 @@ def _check_magic(path: Path) -> int:
     return size
 
 
-def _locked(f: IO[bytes]) -> bool:
-    """Whether another open file holds ``f``'s file under an exclusive ``flock``: the
-    writer of :mod:`acq.log.writer` while it lives."""
-    try:
-        fcntl.flock(f.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return True
-    except OSError:  # no flock on this file system: nothing known
-        return False
-    fcntl.flock(f.fileno(), fcntl.LOCK_UN)
-    return False
-
-
-def being_written(path: str | os.PathLike[str]) -> bool:
-    """Whether a live writer (``acq record``) has the log at ``path`` open: it holds the
-    file's lock until it finishes the file or dies."""
-    try:
-        with open(path, "rb") as f:
-            return _locked(f)
-    except OSError:
-        return False
-
-
 Decoder = Callable[[bytes], Any]
 T = TypeVar("T")
 
@@ -235,7 +211,7 @@ class LogReader:
     lie outside it are not read (others may still yield messages outside it: the caller
     filters). ``time_base``: the log's clock, from its ``acq`` metadata record once
     reading has passed it (the writer puts it first). ``writing``: its writer was alive
-    when the pass began (:func:`being_written`). ``progress``: the bytes read move a
+    when the pass began (:mod:`acq.log.writer_lock`). ``progress``: the bytes read move a
     progress bar (:mod:`acq.progress`); False for a glance at a file's start.
     """
 
@@ -300,7 +276,7 @@ class LogReader:
         summary and index)."""
         try:
             with self.path.open("rb") as f:
-                self.writing = _locked(f)
+                self.writing = writer_lock.locked(f)
                 summary = self._closed_summary(f)
                 if summary is not None and summary.chunk_indexes:
                     self.closed = True

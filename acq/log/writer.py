@@ -8,7 +8,7 @@ part names the session (``session``: that UTC start and a random suffix), so a r
 tells the parts of one session from another's (:mod:`acq.log.inputs`), whatever the
 files are renamed to. The open file holds an exclusive ``flock`` as long as its writer
 lives (a killed one's goes with it): a reader tells a file being written from one whose
-writer stopped (:func:`acq.log.reader.being_written`).
+writer stopped (:mod:`acq.log.writer_lock`).
 
 Each file stands alone: header and profile, then the metadata records, every channel
 with its schema, and the latched messages (calibration, ``/tf_static``), then the data.
@@ -29,7 +29,6 @@ One LogWriter is used from one thread.
 from __future__ import annotations
 
 import errno
-import fcntl
 import os
 import secrets
 import time
@@ -43,6 +42,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, MCAP0_MAGIC, CompressionType, IndexT
 from mcap.writer import Writer as McapWriter
 
 from acq import __version__
+from acq.log import writer_lock
 from acq.log.schemas import Schema
 from acq.log.timebase import TimeBase
 
@@ -409,9 +409,7 @@ class LogWriter:
                 break
             except FileExistsError:
                 continue
-        # readers see the file is being written while this lock lasts (advisory: a file
-        # system without flock records all the same)
-        _quietly(lambda: fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB))
+        writer_lock.hold(fd)
         self._path = path
         self._files.append(path)
         self._out = _File(fd)

@@ -43,7 +43,7 @@ def _session_files(paths: list[Path]) -> list[Path]:
 
 
 def _being_written(path: Path) -> bool:
-    from acq.log.reader import being_written
+    from acq.log.writer_lock import being_written
 
     return being_written(path)
 

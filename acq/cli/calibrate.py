@@ -101,7 +101,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "with --force. Nothing is written when any camera fails.",
     )
     ext.add_argument(
-        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s)"
+        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s) or folder"
     )
     ext.add_argument(
         "--camera", metavar="NAME", action="append",
@@ -214,7 +214,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "on their set's colours, the pixel-error histogram (0, 1, 2, 3, >3 px, as the "
         "paper's Table 4) and sigma of a normal fit to the errors at the front set's edges.",
     )
-    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s)")
+    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s) or a folder")
     val.add_argument(
         "--calib", required=True, type=Path, help="calibration (intrinsics + camera_to_laser)"
     )
@@ -709,7 +709,9 @@ def run_validate(args: argparse.Namespace) -> int:
         if args.out.exists() and not args.out.is_dir():
             raise InputError(f"-o {args.out}: is a file; give a folder")
         inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
-        output_files.check(inputs, [Output("-o", overlay, "image")], force=args.force)
+        output_files.check(
+            inputs, [Output("-o", overlay, "image", makes_folder=True)], force=args.force
+        )
     cal = calibfile.load(args.calib)
     log = drive_log.read_log(list(args.logs), camera=args.camera)
     name, cam = drive_log.camera_calib(log, cal, args.camera)

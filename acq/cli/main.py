@@ -23,7 +23,9 @@ import logging
 import os
 import sys
 import traceback
+import warnings
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, NoReturn
 
@@ -143,8 +145,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     # what the imports made lives as long as the process: out of the collector's scans
     # (its full collections otherwise walk it again while a log's messages are read)
     gc.freeze()
-    logs: list[os.PathLike[str]] = getattr(args, "logs", None) or []
+    logs: Sequence[os.PathLike[str]] = getattr(args, "logs", None) or []
     try:
+        if logs:
+            logs = _log_inputs(args, logs)
         progress.enable(progress.wanted(getattr(args, "progress", False)))
         with progress.reading(logs):
             code = handler(args)
@@ -166,6 +170,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_FAILURE
 
 
+def _log_inputs(args: argparse.Namespace, logs: Sequence[os.PathLike[str]]) -> list[Path]:
+    """The files a command's LOG arguments (files or folders) name, for its progress bar;
+    ``args.logs`` becomes them, one session's (:func:`acq.log.inputs.session_files`:
+    InputError naming each session otherwise), unless the command takes several
+    sessions (``sessions_apart``: it resolves them itself)."""
+    from acq.log.inputs import log_files, session_files
+
+    if getattr(args, "sessions_apart", False):
+        return log_files(logs)
+    args.logs = session_files(logs)
+    return list(args.logs)
+
+
 def _log_lines(prog: str) -> None:
     """Library warnings as the command's own lines on stderr (``acq colorize: X.mcap: 1
     corrupt chunk skipped ...``), unless something already takes them (``acq record``
@@ -178,6 +195,22 @@ def _log_lines(prog: str) -> None:
     handler.addFilter(RedactingFilter())
     root.addHandler(handler)
     root.setLevel(logging.WARNING)
+    warnings.showwarning = _warning_line
+
+
+def _warning_line(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object = None,
+    line: str | None = None,
+) -> None:
+    """A library's warning (numpy's RuntimeWarning...) as one of the command's lines,
+    not Python's two lines of source."""
+    logging.getLogger("py.warnings").warning(
+        "warning: %s: %s (%s, line %d)", category.__name__, message, Path(filename).name, lineno
+    )
 
 
 def _flushed(prog: str, code: int, failed: OSError | None = None) -> int:

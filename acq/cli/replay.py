@@ -39,7 +39,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         + " Exit status: 0 served, 1 runtime failure, 2 bad log or "
         "address.",
     )
-    replay.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files, in order")
+    replay.add_argument(
+        "logs", nargs="+", type=Path, metavar="LOG", help="MCAP files in order, or a folder"
+    )
     replay.add_argument(
         "--speed", type=real(0.01, 1000, what="a speed"), default=1.0, metavar="X",
         help="playback speed (default 1, the recorded pace; 2 plays twice as fast)",

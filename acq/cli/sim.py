@@ -135,7 +135,7 @@ def run_render(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; give a folder")
-    outputs = [Output("--out", out / name, kind) for name, kind in RENDERED]
+    outputs = [Output("--out", out / name, kind, makes_folder=True) for name, kind in RENDERED]
     output_files.keep_backups("acq sim render", output_files.check([], outputs, force=args.force))
     s = render.write(args.out, args.time, args.seed, args.equidistant)
     print(

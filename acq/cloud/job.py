@@ -25,14 +25,14 @@ from acq.drivers.scanner import SCANNERS
 from acq.errors import InputValueError
 from acq.geometry.rotations import matrix_from_quat
 from acq.geometry.transforms import Rigid
-from acq.log.drive_log import DriveLog, camera_calib, read_log
-from acq.log.rosbag_source import bag_files
+from acq.log.drive_log import DriveLog, camera_calib, check_frame_size, read_log
+from acq.log.inputs import session_files
 from acq.log.vehicle_log import read_vehicle
 from acq.motion import Trajectory
 from acq.time import retime
 from acq.time.utc import host_ns_from_utc
 
-__all__ = ["CameraJob", "Job", "check_crs", "prepare", "remap", "session_files"]
+__all__ = ["CameraJob", "Job", "check_crs", "prepare", "remap"]
 
 POSE_GAP_S = 0.5  # s: no pose inside a longer interval between two poses, as for odometry
 
@@ -343,6 +343,7 @@ def _camera_calibs(
                 raise InputValueError(f"--camera {name}: the log has no frames of it")
             report.notes.append(f"camera {name}: no frames in the log; not used")
             continue
+        check_frame_size(index, name, cam)
         pairs.append((name, cam))
     if not pairs:
         raise InputValueError(
@@ -354,9 +355,9 @@ def _camera_calibs(
 
 def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
     """The rig's median speed over the log (m/s), 0 without a trajectory."""
-    if traj is None or scan_ns.size < 2:
+    t = np.unique(scan_ns)  # sorted; a stamp twice has no speed
+    if traj is None or t.size < 2:
         return 0.0
-    t = np.unique(scan_ns)  # sorted; scans may share a stamp
     t = t[:: max(1, t.size // 200)]
     t = t[traj.covers(t)]
     if t.size < 2:
@@ -364,18 +365,3 @@ def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
     _, pos = traj.pose_at(t)
     v = np.linalg.norm(np.diff(pos, axis=0), axis=1) / (np.diff(t) * 1e-9)
     return float(np.median(v)) if v.size else 0.0
-
-
-def session_files(logs: Sequence[Path]) -> list[Path]:
-    """The MCAP files of ``logs`` (a folder stands for its *.mcap files, sorted; a
-    rosbag2 folder for its storage files, in the bag's order)."""
-    out: list[Path] = []
-    for p in logs:
-        if p.is_dir():
-            found = bag_files(p) or sorted(p.glob("*.mcap"))
-            if not found:
-                raise InputValueError(f"{p}: no .mcap files in this folder")
-            out += found
-        else:
-            out.append(p)
-    return out

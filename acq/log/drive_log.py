@@ -23,6 +23,8 @@ import numpy as np
 
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
+from acq.drivers.errors import ProtocolError
+from acq.drivers.mjpeg import jpeg_size
 from acq.errors import InputValueError
 from acq.log.reader import LogReader, read_metadata
 from acq.log.vehicle_log import VehicleLog, VehicleReader
@@ -33,12 +35,15 @@ class CameraFrames:
     """One camera's frames in a log: ``frame_ns`` (F,) host ns of the middle of
     exposure, sorted; ``frame_seq`` (F,) the driver's sequence numbers (-1 where unknown;
     they restart on a reconnect); ``frame_recv_ns`` (F,) receipt (-1 where unknown);
-    ``jpegs`` the bytes as the camera sent them (empty when read without them)."""
+    ``jpegs`` the bytes as the camera sent them (empty when read without them);
+    ``size`` (width, height) px of the first frame read whose JPEG header parses (None:
+    none did)."""
 
     frame_ns: np.ndarray
     frame_seq: np.ndarray
     frame_recv_ns: np.ndarray
     jpegs: list[bytes]
+    size: tuple[int, int] | None = None
 
     @staticmethod
     def empty() -> CameraFrames:
@@ -57,6 +62,7 @@ class CameraFrames:
             frame_seq=part(self.frame_seq),
             frame_recv_ns=part(self.frame_recv_ns),
             jpegs=[self.jpegs[int(i)] for i in f] if self.jpegs else [],
+            size=self.size,
         )
 
 
@@ -224,6 +230,7 @@ def read_log(
     metadata: dict[str, dict[str, str]] = {}
     scans: dict[str, list[_ScanMsg]] = {}
     frames: dict[str, list[tuple[int, bytes]]] = {}
+    sizes: dict[str, tuple[int, int] | None] = {}  # by camera: its first frame's
     timing: dict[str, dict[int, tuple[int, int, int]]] = {}  # stamp -> (tick, seq, recv)
     lo = -(2**63) if start_ns is None else start_ns
     hi = 2**63 - 1 if end_ns is None else end_ns
@@ -250,6 +257,8 @@ def read_log(
             if not jpegs and topic.endswith("/image/compressed"):
                 name = topic[1:].removesuffix("/image/compressed")
                 frames.setdefault(name, []).append((_stamp_of(message), b""))
+                if sizes.get(name) is None:
+                    sizes[name] = _jpeg_size(reader.decode(schema, channel, message))
                 continue
             msg = reader.decode(schema, channel, message)
             if msg is None:
@@ -269,6 +278,8 @@ def read_log(
                 elif topic.endswith("/image/compressed"):
                     name = topic[1:].removesuffix("/image/compressed")
                     frames.setdefault(name, []).append((_stamp(msg), bytes(msg.data)))
+                    if sizes.get(name) is None:
+                        sizes[name] = _jpeg_size(msg)
                 elif topic == "/acq/clock":
                     clock.append((int(msg.monotonic_ns), int(msg.realtime_ns)))
                 elif topic.startswith("/acq/timing/"):
@@ -294,6 +305,7 @@ def read_log(
         camera,
         scans[laser],
         {name: frames.get(name, []) for name in names},
+        sizes,
         timing,
         clock,
         metadata,
@@ -311,6 +323,7 @@ def _assemble(
     camera: str,
     scans: list[_ScanMsg],
     frames: dict[str, list[tuple[int, bytes]]],
+    sizes: dict[str, tuple[int, int] | None],
     timing: dict[str, dict[int, tuple[int, int, int]]],
     clock: list[tuple[int, int]],
     metadata: dict[str, dict[str, str]],
@@ -356,7 +369,10 @@ def _assemble(
         angle_increment=inc,
         time_increment=time_increment,
         scan_ticks=scan_ticks,
-        cameras={name: _camera_frames(f, timing.get(name, {})) for name, f in frames.items()},
+        cameras={
+            name: _camera_frames(f, timing.get(name, {}), sizes.get(name))
+            for name, f in frames.items()
+        },
         clock=np.array(clock, dtype=np.int64).reshape(-1, 2),
         metadata=metadata,
         notes=notes,
@@ -364,15 +380,26 @@ def _assemble(
     )
 
 
+def _jpeg_size(msg: Any) -> tuple[int, int] | None:
+    """(width, height) px of a decoded image message's JPEG; None when it has none that
+    parses (the decoder reports those)."""
+    try:
+        return jpeg_size(bytes(msg.data))
+    except (ProtocolError, AttributeError):
+        return None
+
+
 def _camera_frames(
-    frames: list[tuple[int, bytes]], timing: dict[int, tuple[int, int, int]]
+    frames: list[tuple[int, bytes]],
+    timing: dict[int, tuple[int, int, int]],
+    size: tuple[int, int] | None = None,
 ) -> CameraFrames:
     """One camera's (stamp, JPEG) messages and its timing records, in stamp order."""
     frames.sort(key=lambda f: f[0])
     frame_ns = np.array([t for t, _ in frames], dtype=np.int64)
     seq = np.array([timing.get(int(t), (0, -1, -1))[1] for t in frame_ns], dtype=np.int64)
     recv = np.array([timing.get(int(t), (0, -1, -1))[2] for t in frame_ns], dtype=np.int64)
-    return CameraFrames(frame_ns, seq, recv, [j for _, j in frames])
+    return CameraFrames(frame_ns, seq, recv, [j for _, j in frames], size)
 
 
 # --- colouring -------------------------------------------------------------------------
@@ -391,4 +418,21 @@ def camera_calib(
     cam = calib.camera(name)
     if not log.n_frames:
         raise InputValueError("the log has no camera frames")
+    check_frame_size(log, name, cam)
     return name, cam
+
+
+def check_frame_size(log: DriveLog, name: str, cam: calibfile.CameraCalib) -> None:
+    """InputValueError naming the calibration file, the camera and both sizes when the
+    log's frames of camera ``name`` (its first frame's size) are not the size ``cam`` was
+    calibrated at: a calibration of another camera or resolution."""
+    size = log.cameras.get(name, log.frames).size  # a lone camera pairs whatever its name
+    want = (cam.model.width, cam.model.height)
+    if size is None or size == want:
+        return
+    files = ", ".join(p.name for p in log.files[:2]) + (" ..." if len(log.files) > 2 else "")
+    raise InputValueError(
+        f"{cam.source or 'calib.yaml'}: cameras.{cam.name or name}.image_size is "
+        f"{want[0]}x{want[1]} px but the log's frames of camera {name} are {size[0]}x{size[1]}"
+        f" ({files}): a calibration of another camera or resolution"
+    )

@@ -9,6 +9,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from acq.cli import output_files
+from acq.cli.camera_option import add_camera_option
 from acq.cli.option_types import integer, real
 from acq.cli.output_files import Output
 from acq.errors import InputError
@@ -48,12 +49,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "OUT.laz (the same, LASzip-compressed), OUT.copc.laz (Cloud-Optimized Point Cloud, "
         "for streaming; the cloud is held in memory) or OUT.e57 (ASTM E57)",
     )  # fmt: skip
-    col.add_argument(
-        "--camera", metavar="NAME", action="append",
-        help="colour from this camera (repeat for several; default: every camera of CALIB "
-        "that the log has frames of). Each point takes the camera whose view of it is best: "
+    add_camera_option(
+        col, "colour from this camera (each point takes the camera whose view of it is best: "
         "the smallest footprint on the surface, away from the image circle's rim, nearest in "
-        "time; the PLY's scalar_camera and scalar_frame (LAS: camera, frame) say which",
+        "time; the PLY's scalar_camera and scalar_frame, LAS: camera, frame, say which)",
+        several=True,
     )  # fmt: skip
     col.add_argument(
         "--blend", action="store_true",

@@ -19,12 +19,13 @@ from acq import motion
 from acq.camera import projection
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import CameraModel
+from acq.camera.selection import choose_cameras
 from acq.cloud import views
 from acq.cloud.report import Report
 from acq.drivers.scanner import SCANNERS
 from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
-from acq.log.drive_log import DriveLog, camera_calib, read_log
+from acq.log.drive_log import DriveLog, read_log
 from acq.log.vehicle_log import read_vehicle
 from acq.motion import Trajectory
 from acq.time import retime
@@ -251,14 +252,9 @@ def prepare(
     first = calib.cameras.get(names[0]) if names else next(iter(calib.cameras.values()), None)
     if first is not None:
         threading.Thread(target=_warm_kernels, args=(first.model,), daemon=True).start()
-    # a calibration of one camera pairs with the log's only camera, whatever its name
-    single = not names and len(calib.cameras) == 1
-    index = read_log(
-        files, cameras=None if single else (names or list(calib.cameras)), jpegs=jpegs,
-        vehicle=trajectory is None,
-    )  # fmt: skip
+    index = read_log(files, cameras=names, jpegs=jpegs, vehicle=trajectory is None, calib=calib)
     report.notes += index.notes
-    pairs = _camera_calibs(index, calib, names, single, report)
+    pairs = _camera_calibs(index, calib, names, report)
     scan_new = _retime_scans(index, report) if retime_offline else index.scan_ns
     traj = _trajectory(files, trajectory, index, report, crs)
     world = frame == "world" if frame is not None else traj is not None
@@ -313,29 +309,18 @@ def prepare(
 
 
 def _camera_calibs(
-    index: DriveLog, calib: Calibration, names: list[str], single: bool, report: Report
+    index: DriveLog, calib: Calibration, names: list[str], report: Report
 ) -> list[tuple[str, CameraCalib]]:
     """(name in the log, calibration) of each camera to colour from: those ``names``,
-    else every camera of ``calib`` the log has frames of (``single``: the calibration's
-    only camera for the log's only one). UnknownCameraError for a camera not in
-    ``calib``; InputValueError when a named camera, or every one, has no frames."""
-    if single:
-        name, cam = camera_calib(index, calib, None)
-        return [(index.camera, cam)]
-    pairs = []
-    for name in names or list(calib.cameras):
-        cam = calib.camera(name)
-        if index.cameras.get(name) is None or not index.cameras[name].frame_ns.size:
-            if names:
-                raise InputValueError(f"--camera {name}: the log has no frames of it")
-            report.notes.append(f"camera {name}: no frames in the log; not used")
-            continue
-        pairs.append((name, cam))
-    if not pairs:
-        raise InputValueError(
-            f"the log has no frames of the calibration's cameras ({', '.join(calib.cameras)})"
-        )
-    return pairs
+    else every camera of both the log and ``calib``
+    (:func:`acq.camera.selection.choose_cameras`); a camera of ``calib`` left out for
+    want of frames is noted in ``report``."""
+    picked = choose_cameras(names, index.camera_names, list(calib.cameras), one=False,
+                            calib=calib.label)  # fmt: skip
+    used = {key for _, key in picked}
+    report.notes += [f"camera {n}: no frames in the log; not used" for n in calib.cameras
+                     if n not in used]  # fmt: skip
+    return [(name, calib.cameras[key]) for name, key in picked]
 
 
 def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:

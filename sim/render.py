@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from acq.calib.plots import draw_legend
 from acq.camera import calibfile, projection
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.transforms import Rigid
@@ -156,8 +157,13 @@ def draw_overlay(
     for (u, v), c in zip(zuv[inside], colours[inside], strict=True):
         big[max(v - r, 0) : v + r + 1, max(u - r, 0) : u + r + 1] = c
     cv2.rectangle(out, (x0, y0), (x0 + side, y0 + side), _MAGENTA, 1)
+    draw_legend(out, [
+        (None, "laser points of one scan, each in the colour the projection gave it"),
+        (_MAGENTA, "guides 4 px either side of the profile; the box zoomed at right"),
+    ])  # fmt: skip
     panel = np.zeros((h, side * zoom, 3), np.uint8)
     panel[: side * zoom] = big
+    draw_legend(panel, [(None, f"x{zoom}: each point a square of its colour, black rim")])
     return np.hstack([out, panel])
 
 

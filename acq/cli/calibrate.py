@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from acq.cli import output_files
 from acq.cli.camera_option import add_camera_option
+from acq.cli.colorize import TRAJECTORY_HELP
 from acq.cli.option_types import LONGEST_S, integer, real
 from acq.cli.output_files import IMAGE_SUFFIXES, Output
 from acq.errors import AcqError, InputError
@@ -177,7 +178,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     add_camera_option(tof, "a camera to estimate", several=True)
     tof.add_argument(
         "--trajectory", type=Path, metavar="CSV",
-        help="post-processed GNSS/INS trajectory (default: the log's CAN odometry)",
+        help=f"{TRAJECTORY_HELP} (default: the log's CAN odometry)",
     )  # fmt: skip
     tof.add_argument(
         "--start", type=real(0, LONGEST_S, what="seconds"), metavar="S",

@@ -14,6 +14,12 @@ from acq.cli.option_types import integer, real
 from acq.cli.output_files import Output
 from acq.errors import InputError
 
+# the columns acq.motion.ins.from_csv reads
+TRAJECTORY_HELP = (
+    "post-processed GNSS/INS trajectory, a CSV file with a header line: time (UTC seconds "
+    "or ISO-8601) or gps_week,gps_sow; x,y,z (m) or lat,lon,h (WGS-84 deg, m); "
+    "roll,pitch,yaw or roll,pitch,heading (deg); other columns ignored"
+)
 HELP = "coloured 3D cloud of a drive (PLY, LAS, LAZ, COPC or E57)"
 # a chunk's scans and their points are in memory at once: a few seconds at the least
 CHUNK_S = real(1, 600, what="seconds")
@@ -78,8 +84,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )  # fmt: skip
     col.add_argument(
         "--trajectory", type=Path, metavar="CSV",
-        help="post-processed GNSS/INS trajectory (see acq/trajectory.py for the columns); "
-        "laser_to_vehicle from CALIB is the lever arm and boresight",
+        help=f"{TRAJECTORY_HELP}; laser_to_vehicle from CALIB is the lever arm and boresight "
+        "(default: the log's CAN odometry, fused with its GNSS fixes)",
     )  # fmt: skip
     col.add_argument(
         "--crs", metavar="EPSG:CODE",

@@ -8,7 +8,7 @@ import sys
 import threading
 from pathlib import Path
 
-from acq.cli import output_files
+from acq.cli import output_files, sim_logs
 from acq.cli.exposure import warn_if_exposed
 from acq.cli.option_types import SEED, real
 from acq.cli.output_files import Output
@@ -50,6 +50,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     render.set_defaults(handler=run_render)
 
+    sim_logs.add_parser(sim_sub)
     simscan = sim_sub.add_parser(
         "scanner",
         help="serve one simulated scanner for any client",

@@ -263,6 +263,14 @@ def prepare(
                          "in the log, or --trajectory CSV); use --frame laser")  # fmt: skip
     if crs:
         check_crs(crs, traj, world, report.trajectory or "none")
+    if options.view == "best" and (traj is None or not options.motion_compensation):
+        raise InputValueError(
+            "--view best needs a trajectory (CAN odometry or GNSS fixes in the log, or "
+            "--trajectory CSV) and motion compensation; use --view nearest"
+            if traj is None
+            else "--view best needs motion compensation: drop --no-motion-compensation, "
+            "or use --view nearest"
+        )
     if traj is None:
         report.notes.append(
             "no trajectory: points in the laser frame at their own time, coloured without "

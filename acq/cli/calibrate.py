@@ -507,6 +507,10 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     backups = output_files.check(inputs, outputs, force=args.force)
     spec = parse_board(board)
     calib = calibfile.load(intrinsics, intrinsics_only=True)
+    target = calib if lens_swap is None else calibfile.load(lens_swap, intrinsics_only=True)
+    old = None if in_place or not output.exists() else calibfile.load(output, intrinsics_only=True)
+    if old is not None:
+        calibfile.merged(old, target, (), str(output))  # another laser's: refused before the work
     log = drive_log.read_log(list(logs), cameras=asked or [], calib=calib)
     picked = choose_cameras(asked, log.camera_names, list(calib.cameras), one=False,
                             calib=calib.label)  # fmt: skip
@@ -516,10 +520,6 @@ def run_extrinsic(args: argparse.Namespace) -> int:
         backups = output_files.check(inputs, outputs, force=args.force)
     else:
         plots = first_plots
-    target = calib if lens_swap is None else calibfile.load(lens_swap, intrinsics_only=True)
-    old = None if in_place or not output.exists() else calibfile.load(output, intrinsics_only=True)
-    if old is not None:
-        calibfile.merged(old, target, (), str(output))  # another laser's: refused before the work
     done = [
         _calibrate_one(
             args, log.with_camera(name), key, calib, target, spec, plots, len(picked) > 1

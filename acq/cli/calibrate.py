@@ -17,7 +17,7 @@ from acq.cli.camera_option import add_camera_option
 from acq.cli.colorize import TRAJECTORY_HELP
 from acq.cli.option_types import LONGEST_S, integer, real
 from acq.cli.output_files import IMAGE_SUFFIXES, Output
-from acq.errors import AcqError, InputError
+from acq.errors import AcqError, InputError, InputValueError
 
 if TYPE_CHECKING:
     from acq.calib.board_pose import BoardPose
@@ -311,6 +311,8 @@ def run_fisheye(args: argparse.Namespace) -> int:
         grays = [image_circle.to_gray(i) for i in imgs]
         try:
             fit, _ = calibrate_board(grays, spec, model)
+        except InputValueError:  # a board of another size found: --board is wrong
+            raise
         except ValueError as e:  # too few boards found
             raise AcqError(str(e)) from e
         m = fit.model
@@ -422,7 +424,14 @@ def _calibrate_one(
     import numpy as np
 
     from acq.calib.extrinsic import calibrate
-    from acq.calib.extrinsic_log import METHOD, parse_poses, poses_from_log, still_intervals
+    from acq.calib.extrinsic_log import (
+        METHOD,
+        NOT_IN_IMAGE,
+        board_size_hint,
+        parse_poses,
+        poses_from_log,
+        still_intervals,
+    )
     from acq.camera import calibfile
     from acq.camera.calibfile import CalibStd, CameraCalib
     from acq.geometry.transforms import Rigid
@@ -445,9 +454,12 @@ def _calibrate_one(
         result = calibrate(good)
     except ValueError as e:  # too few or degenerate poses
         who = f"camera {name!r}: " if several else ""
-        raise AcqError(
-            f"{who}{e} ({len(good)} usable of {len(intervals)} still poses found)"
-        ) from e
+        unseen = [(p.start_ns, p.end_ns) for p in data if p.problem == NOT_IN_IMAGE]
+        hint = board_size_hint(log, cam.model, unseen, spec) if unseen else ""
+        found = f"{e} ({len(good)} usable of {len(intervals)} still poses found)"
+        if hint:  # a board of another size found: --board is wrong
+            raise InputError(f"{who}--board {args.board}: {found}{hint}") from e
+        raise AcqError(f"{who}{found}") from e
     std = CalibStd(  # about the laser axes (rad -> deg), m; the intrinsics' std kept
         rotation_deg=tuple(np.degrees(result.std[:3])), translation_m=tuple(result.std[3:])
     ).rounded()

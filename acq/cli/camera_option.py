@@ -18,11 +18,12 @@ def add_camera_option(
     *,
     several: bool = False,
     default: str | None = None,
+    named: str = "by its name in the log and the calibration",
 ) -> None:
     """Add ``--camera NAME`` to ``parser``: ``use`` says what the command does with it
     ("the camera to validate"); ``several``: repeatable, a list of names; ``default``
     replaces the help's default (unset: every camera, or the only one, that both the log
-    and the calibration have)."""
+    and the calibration have); ``named`` says where the names come from."""
     if default is None:
         default = (
             "every camera that both the log and the calibration have"
@@ -34,6 +35,6 @@ def add_camera_option(
         "--camera",
         metavar="NAME",
         action="append" if several else "store",
-        help=f"{use}, by its name in the log and the calibration{repeat} (default: "
+        help=f"{use}, {named}{repeat} (default: "
         f"{default}); a name that is missing or wrong is refused with the names found",
     )

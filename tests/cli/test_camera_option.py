@@ -141,3 +141,18 @@ def test_choose_cameras_pairs_a_lone_camera_whatever_its_name() -> None:
         choose_cameras(["rear"], ["left", "right"], ["left", "right", "rear"], one=False)
     with pytest.raises(CameraChoiceError, match="the log has no camera frames"):
         choose_cameras(None, [], ["left"], one=True)
+
+
+def test_sim_render_takes_camera_and_lists_the_rigs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "r"
+    assert acq_main(["sim", "render", "--out", str(out), "--camera", "front"]) == 2
+    assert capsys.readouterr().err == (
+        "acq sim render: --camera front: the simulated rig has no such camera (has camera, "
+        "left, right, rear)\n"
+    )
+    assert not out.exists()
+    assert acq_main(["sim", "render", "--out", str(out), "--camera", "right"]) == 0
+    assert list(calibfile.load(out / "calib.yaml").cameras) == ["right"]
+    assert "pixel error against the truth: RMS 0.0" in capsys.readouterr().out

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from acq.cli.option_types import SEED, real
+from acq.cli.option_types import SEED, integer, real
 from acq.errors import InputError
 
 __all__ = ["add_parser"]
@@ -29,7 +29,7 @@ def add_parser(sim_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     log.add_argument("kind", choices=KINDS, help="which recording")
     log.add_argument("--out", type=Path, required=True, metavar="OUT", help="a new or empty folder")
     log.add_argument(
-        "--cameras", type=int, choices=(1, 2), default=1,
+        "--cameras", type=integer(1, 2, what="cameras"), default=1, metavar="N",
         help="board: the rig's cameras, 1 (camera) or 2 (left, right; default 1)",
     )  # fmt: skip
     log.add_argument(

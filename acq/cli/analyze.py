@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from acq.cli import output_files
+from acq.cli.camera_option import add_camera_option
 from acq.cli.option_types import real
 from acq.cli.output_files import Output
 from acq.errors import InputError
@@ -57,6 +58,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "-o", "--output", type=Path, default=Path("sensitivity"), metavar="DIR",
         help="where to write the PNGs and sensitivity.json (default: ./sensitivity)",
     )  # fmt: skip
+    add_camera_option(sens, "the camera to analyse")
     sens.add_argument(
         "--camera-height", type=real(0, 100, lo_open=True, what="metres"), default=2.0,
         metavar="M",
@@ -104,7 +106,7 @@ def run_sensitivity(args: argparse.Namespace) -> int:
     output_files.check(inputs, outputs, force=args.force)
     report = sensitivity_log.analyze_logs(
         args.calib, args.logs, out, args.camera_height, args.building_distance,
-        sigma=dict(args.sigma or ()),
+        camera=args.camera, sigma=dict(args.sigma or ()),
     )  # fmt: skip
     if args.json:
         print(json.dumps(report, indent=2))

@@ -27,7 +27,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from acq import __version__, progress
 from acq.cli import (
@@ -71,7 +71,13 @@ EXIT_FAILURE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
 
 class _Parser(argparse.ArgumentParser):
     """argparse's parser, its usage errors one line (``acq colorize: argument --chunk:
-    expected seconds in [1, 600], got 'nan'``) and exit status 2; its sub-parsers too."""
+    expected seconds in [1, 600], got 'nan'``) and exit status 2; its sub-parsers too.
+    Options are taken by their whole names only: a prefix (``--camera`` for
+    ``--camera-height``) is no option."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         _say(self.prog, message)

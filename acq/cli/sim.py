@@ -8,7 +8,8 @@ import sys
 import threading
 from pathlib import Path
 
-from acq.cli import output_files
+from acq.cli import output_files, sim_logs
+from acq.cli.camera_option import add_camera_option
 from acq.cli.exposure import warn_if_exposed
 from acq.cli.option_types import SEED, real
 from acq.cli.output_files import Output
@@ -48,8 +49,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="an exactly equidistant lens instead of the default with small k1..k4",
     )
+    add_camera_option(
+        render, "the simulated camera to render", named="camera (the one-camera rig's) or "
+        "left, right, rear (the three-camera rig's)", default="camera",
+    )  # fmt: skip
     render.set_defaults(handler=run_render)
 
+    sim_logs.add_parser(sim_sub)
     simscan = sim_sub.add_parser(
         "scanner",
         help="serve one simulated scanner for any client",
@@ -132,12 +138,13 @@ def _add_rig_parser(sim_sub: argparse._SubParsersAction[argparse.ArgumentParser]
 def run_render(args: argparse.Namespace) -> int:
     from acq.sim import render
 
+    render.check_camera(args.camera or "camera")  # before any output is touched
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; give a folder")
     outputs = [Output("--out", out / name, kind, makes_folder=True) for name, kind in RENDERED]
     output_files.keep_backups("acq sim render", output_files.check([], outputs, force=args.force))
-    s = render.write(args.out, args.time, args.seed, args.equidistant)
+    s = render.write(args.out, args.time, args.seed, args.equidistant, args.camera or "camera")
     print(
         f"t = {s.time_s:.3f} s: {s.laser_points} laser points with an echo, {s.in_image} on "
         f"the fisheye image ({s.occluded} hidden behind nearer objects)\n"

@@ -19,13 +19,14 @@ from acq import motion
 from acq.camera import projection
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import CameraModel
+from acq.camera.selection import choose_cameras
 from acq.cloud import views
 from acq.cloud.report import Report
 from acq.drivers.scanner import SCANNERS
 from acq.errors import InputValueError
 from acq.geometry.rotations import matrix_from_quat
 from acq.geometry.transforms import Rigid
-from acq.log.drive_log import DriveLog, camera_calib, check_frame_size, read_log
+from acq.log.drive_log import DriveLog, check_frame_size, read_log
 from acq.log.inputs import session_files
 from acq.log.vehicle_log import read_vehicle
 from acq.motion import Trajectory
@@ -264,14 +265,9 @@ def prepare(
     first = calib.cameras.get(names[0]) if names else next(iter(calib.cameras.values()), None)
     if first is not None:
         threading.Thread(target=_warm_kernels, args=(first.model,), daemon=True).start()
-    # a calibration of one camera pairs with the log's only camera, whatever its name
-    single = not names and len(calib.cameras) == 1
-    index = read_log(
-        files, cameras=None if single else (names or list(calib.cameras)), jpegs=jpegs,
-        vehicle=trajectory is None,
-    )  # fmt: skip
+    index = read_log(files, cameras=names, jpegs=jpegs, vehicle=trajectory is None, calib=calib)
     report.notes += index.notes
-    pairs = _camera_calibs(index, calib, names, single, report)
+    pairs = _camera_calibs(index, calib, names, report)
     scan_new = _retime_scans(index, report) if retime_offline else index.scan_ns
     traj = _trajectory(files, trajectory, index, report, crs)
     world = frame == "world" if frame is not None else traj is not None
@@ -280,6 +276,14 @@ def prepare(
                          "in the log, or --trajectory CSV); use --frame laser")  # fmt: skip
     if crs:
         check_crs(crs, traj, world, report.trajectory or "none")
+    if options.view == "best" and (traj is None or not options.motion_compensation):
+        raise InputValueError(
+            "--view best needs a trajectory (CAN odometry or GNSS fixes in the log, or "
+            "--trajectory CSV) and motion compensation; use --view nearest"
+            if traj is None
+            else "--view best needs motion compensation: drop --no-motion-compensation, "
+            "or use --view nearest"
+        )
     if traj is None:
         report.notes.append(
             "no trajectory: points in the laser frame at their own time, coloured without "
@@ -326,31 +330,20 @@ def prepare(
 
 
 def _camera_calibs(
-    index: DriveLog, calib: Calibration, names: list[str], single: bool, report: Report
+    index: DriveLog, calib: Calibration, names: list[str], report: Report
 ) -> list[tuple[str, CameraCalib]]:
     """(name in the log, calibration) of each camera to colour from: those ``names``,
-    else every camera of ``calib`` the log has frames of (``single``: the calibration's
-    only camera for the log's only one). UnknownCameraError for a camera not in
-    ``calib``; InputValueError when a named camera, or every one, has no frames."""
-    if single:
-        name, cam = camera_calib(index, calib, None)
-        return [(index.camera, cam)]
-    pairs = []
-    for name in names or list(calib.cameras):
-        cam = calib.camera(name)
-        if index.cameras.get(name) is None or not index.cameras[name].frame_ns.size:
-            if names:
-                raise InputValueError(f"--camera {name}: the log has no frames of it")
-            report.notes.append(f"camera {name}: no frames in the log; not used")
-            continue
-        check_frame_size(index, name, cam)
-        pairs.append((name, cam))
-    if not pairs:
-        raise InputValueError(
-            f"the log has no frames of the calibration's cameras ({', '.join(calib.cameras)}); "
-            f"its cameras: {', '.join(index.camera_names) or 'none'} (name them so in calib.yaml)"
-        )
-    return pairs
+    else every camera of both the log and ``calib``
+    (:func:`acq.camera.selection.choose_cameras`); a camera of ``calib`` left out for
+    want of frames is noted in ``report``."""
+    picked = choose_cameras(names, index.camera_names, list(calib.cameras), one=False,
+                            calib=calib.label)  # fmt: skip
+    used = {key for _, key in picked}
+    report.notes += [f"camera {n}: no frames in the log; not used" for n in calib.cameras
+                     if n not in used]  # fmt: skip
+    for name, key in picked:
+        check_frame_size(index, name, calib.cameras[key])
+    return [(name, calib.cameras[key]) for name, key in picked]
 
 
 def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:

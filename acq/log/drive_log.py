@@ -23,6 +23,7 @@ import numpy as np
 
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
+from acq.camera.selection import choose_cameras
 from acq.drivers.errors import ProtocolError
 from acq.drivers.mjpeg import jpeg_size
 from acq.errors import InputValueError
@@ -79,7 +80,8 @@ class DriveLog:
     log without frames; :meth:`with_camera` picks another). ``clock`` (K,2) int64 pairs
     (monotonic ns, realtime ns). ``metadata`` by name (the last record of each name).
     ``vehicle``: the odometry and GNSS fixes (:class:`acq.log.vehicle_log.VehicleLog`)
-    when read with them.
+    when read with them. ``camera_names``: every camera the log has frames of, read or
+    not.
     """
 
     files: tuple[Path, ...]
@@ -204,6 +206,7 @@ def read_log(
     end_ns: int | None = None,
     jpegs: bool = True,
     vehicle: bool = False,
+    calib: Calibration | None = None,
 ) -> DriveLog:
     """Scans, frames, clock pairs and metadata of a log (or of a session's files, in the
     order given). ``laser``/``camera`` name the devices where the log has several;
@@ -215,7 +218,10 @@ def read_log(
     fixes, whatever their time in those chunks; metadata whatever their time.
     ``jpegs=False`` leaves the images' bytes out (their stamps stay); ``vehicle``: also
     the odometry and GNSS fixes, in the same pass, as
-    :func:`acq.log.vehicle_log.read_vehicle`.
+    :func:`acq.log.vehicle_log.read_vehicle`. ``calib``: the cameras read are then
+    those :func:`acq.camera.selection.choose_cameras` picks from the log's and
+    ``calib``'s, ``camera`` or ``cameras`` being what ``--camera`` asked (with
+    ``cameras``, every camera of both when it is empty).
 
     Files whose writer was killed are read up to their last good record
     (:class:`acq.log.LogReader`); undecodable messages are skipped (noted).
@@ -292,7 +298,16 @@ def read_log(
             except AttributeError:  # a message of another schema on a topic of that name
                 bad += 1
     laser = _pick(scans, laser, "laser scanner", "/scan")
-    if cameras:
+    found = tuple(sorted(n for n, f in frames.items() if f))
+    if calib is not None:
+        several = cameras is not None
+        asked = list(cameras or ()) if several else [camera] if camera else None
+        picked = choose_cameras(
+            asked, found, list(calib.cameras), one=not several, calib=calib.label
+        )
+        names = [n for n, _ in picked]
+        camera = names[0]
+    elif cameras:
         camera = camera or cameras[0]
         names = list(dict.fromkeys([camera, *cameras]))
     else:
@@ -311,7 +326,7 @@ def read_log(
         metadata,
         notes,
     )
-    log = replace(log, camera_names=tuple(sorted(frames)))
+    log = replace(log, camera_names=found)
     if vehicle_reader is not None:
         log = replace(log, vehicle=vehicle_reader.result(files))
     return log
@@ -408,17 +423,18 @@ def _camera_frames(
 def camera_calib(
     log: DriveLog, calib: Calibration, camera: str | None
 ) -> tuple[str, calibfile.CameraCalib]:
-    """(name, calibration) of the camera to use: ``camera``, else the calibration's only
-    one, else the log's camera. UnknownCameraError for an unknown camera; InputValueError
-    when the log has no frames."""
-    if camera is None and len(calib.cameras) != 1 and log.camera:
-        name = log.camera
-    else:
-        name = camera if camera is not None else next(iter(calib.cameras), "")
-    cam = calib.camera(name)
+    """(name in the calibration, calibration) of ``log``'s camera: ``camera``, else the
+    one :func:`acq.camera.selection.choose_cameras` picks from the log's and the
+    calibration's names. CameraChoiceError (InputValueError) listing them when none
+    fits, or the log has no frames."""
+    in_log = [log.camera] if log.camera else []
+    [(_, name)] = choose_cameras(
+        [camera] if camera else None, in_log, list(calib.cameras), one=True, calib=calib.label
+    )
     if not log.n_frames:
         raise InputValueError("the log has no camera frames")
-    check_frame_size(log, name, cam)
+    cam = calib.cameras[name]
+    check_frame_size(log, log.camera or name, cam)
     return name, cam
 
 

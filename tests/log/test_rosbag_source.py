@@ -131,7 +131,7 @@ def test_calib_camera_names_that_the_bag_lacks_are_named(
     args = ["colorize", str(bag), "--calib", str(renamed), "-o", str(out), "--no-preview"]
     assert acq_main(args) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "its cameras: left, right" in err
+    assert len(err.splitlines()) == 1 and "the log has left, right" in err
     assert not out.exists()
 
 

@@ -284,6 +284,10 @@ class BoardSpec:
     rows: int
     square: float
 
+    def text(self) -> str:
+        """As --board takes it: ``9x7x0.1``."""
+        return f"{self.cols}x{self.rows}x{self.square:g}"
+
     def object_points(self) -> np.ndarray:
         """(cols*rows, 3) corner positions on the board, m, in OpenCV's detection order."""
         j, i = np.mgrid[0 : self.rows, 0 : self.cols]
@@ -323,6 +327,46 @@ def detect_corners(
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
     refined = cv2.cornerSubPix(img, corners, (5, 5), (-1, -1), crit)
     return np.asarray(refined, dtype=np.float64).reshape(-1, 2)
+
+
+def board_size(grays: Sequence[np.ndarray]) -> tuple[int, int] | None:
+    """The size (cols, rows; cols >= rows, inner corners) the checkerboard in ``grays``
+    seems to have, or None: OpenCV's sector-based detector, let find a board larger
+    than the 3x3 it is asked for, sees part of it in each image (where the lens cuts or
+    bends it); the largest along each side over the images (~0.1-0.8 s an image)."""
+    sizes: list[tuple[int, int]] = []
+    for g in grays:
+        img = np.clip(g, 0, 255).astype(np.uint8)
+        found, _, meta = cv2.findChessboardCornersSBWithMeta(img, (3, 3), flags=cv2.CALIB_CB_LARGER)
+        if found and meta is not None:
+            rows, cols = meta.shape[:2]
+            sizes.append((max(rows, cols), min(rows, cols)))
+    if not sizes:
+        return None
+    return max(c for c, _ in sizes), max(r for _, r in sizes)
+
+
+def board_hint(
+    grays: Sequence[np.ndarray],
+    board: BoardSpec,
+    find: Callable[[np.ndarray, BoardSpec], object] | None = None,
+) -> str:
+    """ "; the images show a board of 9x7 inner corners (not squares): try --board 9x7x0.1"
+    when :func:`board_size` is not ``board``'s (either way round) and ``find`` (default
+    :func:`detect_corners`; None: not found) finds a board of that size in one of
+    ``grays``, else "". The square's side stays ``board``'s."""
+    size = board_size(grays)
+    if size is None or size == (max(board.cols, board.rows), min(board.cols, board.rows)):
+        return ""
+    c, r = size if board.cols >= board.rows else size[::-1]
+    spec = BoardSpec(c, r, board.square)
+    look = find or (lambda g, b: detect_corners(g, b, fast=True))
+    if not any(look(g, spec) is not None for g in grays):
+        return ""
+    return (
+        f"; the images show a board of {c}x{r} inner corners (not squares): try --board "
+        f"{spec.text()}"
+    )
 
 
 def project_kb(intr: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -526,7 +570,9 @@ def calibrate_board(
     grays: Sequence[np.ndarray], board: BoardSpec, init: KannalaBrandt
 ) -> tuple[BoardFit, np.ndarray]:
     """Find the board in each image and fit Kannala–Brandt; returns the fit and which
-    images had the board (bool per image)."""
+    images had the board (bool per image). InputValueError when none shows ``board``
+    but a board of another size is found (:func:`board_hint`), ValueError when none
+    shows a board."""
     found: list[np.ndarray] = []
     used = np.zeros(len(grays), bool)
     for i, g in enumerate(grays):
@@ -535,7 +581,11 @@ def calibrate_board(
             found.append(c)
             used[i] = True
     if not found:
-        raise ValueError(f"no image shows the {board.cols}x{board.rows} board")
+        hint = board_hint(grays, board)
+        what = f"no image shows the {board.cols}x{board.rows} board"
+        if hint:  # the board is there, of another size: --board is wrong
+            raise InputValueError(f"--board {board.text()}: {what}{hint}")
+        raise ValueError(what)
     fit = fit_kannala_brandt(board.object_points(), found, init)
     fit = replace(fit, views=[int(i) for i in np.flatnonzero(used)])
     return fit, used

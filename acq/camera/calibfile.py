@@ -220,6 +220,12 @@ class Calibration:
     laser: str = "laser"
     cameras: dict[str, CameraCalib] = field(default_factory=dict)
     laser_to_vehicle: Rigid | None = None
+    source: str = field(default="", compare=False)  # the file it was read from, or ""
+
+    @property
+    def label(self) -> str:
+        """How messages name it: its file, or "the calibration"."""
+        return self.source or "the calibration"
 
     def camera(self, name: str | None = None) -> CameraCalib:
         """The named camera, or the only one when ``name`` is None."""
@@ -473,6 +479,7 @@ def parse(data: Any, source: str = "calib.yaml", *, intrinsics_only: bool = Fals
         laser=f.laser,
         cameras={name: cam.calib(source, name) for name, cam in f.cameras.items()},
         laser_to_vehicle=None if f.laser_to_vehicle is None else f.laser_to_vehicle.rigid(),
+        source=source,
     )
 
 

@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from acq.cli import output_files
+from acq.cli.camera_option import add_camera_option
+from acq.cli.colorize import TRAJECTORY_HELP
 from acq.cli.option_types import LONGEST_S, integer, real
 from acq.cli.output_files import IMAGE_SUFFIXES, Output
 from acq.errors import AcqError, InputError, InputValueError
@@ -26,6 +28,7 @@ if TYPE_CHECKING:
     from acq.calib.validate import ValidationResult
     from acq.camera.calibfile import Calibration, CameraCalib
     from acq.camera.camera_models import KannalaBrandt
+    from acq.log.drive_log import DriveLog
 
 HELP = "calibrate the rig's sensors"
 FORCE_HELP = (
@@ -59,10 +62,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         required=True, metavar="DEG",
         help="the lens's full aperture in degrees, from its data sheet (e.g. 185)",
     )  # fmt: skip
-    fish.add_argument(
-        "--camera", metavar="NAME",
-        help="the entry under cameras: (default: CALIB's only camera, or 'camera' in a new file)",
-    )  # fmt: skip
+    add_camera_option(
+        fish,
+        "the entry of CALIB to write",
+        default="CALIB's only camera, or 'camera' in a new file",
+    )
     fish.add_argument(
         "-o", "--output", type=Path, required=True, metavar="CALIB",
         help="calib.yaml to create or update (the old one kept as CALIB.bak)",
@@ -104,13 +108,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "with --force. Nothing is written when any camera fails.",
     )
     ext.add_argument(
-        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s)"
+        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s) or folder"
     )
-    ext.add_argument(
-        "--camera", metavar="NAME", action="append",
-        help="a camera to calibrate; repeat for several (default: every camera of "
-        "--intrinsics that the log has frames of)",
-    )  # fmt: skip
+    add_camera_option(ext, "a camera to calibrate", several=True)
     ext.add_argument(
         "--intrinsics", type=Path, required=True, metavar="CALIB",
         help="calib.yaml with the camera's intrinsics (a non-identity camera_to_laser is used "
@@ -179,14 +179,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "-o", "--output", type=Path, required=True, metavar="OUT",
         help="calib.yaml to write, or to update (its other cameras kept, the old one as OUT.bak)",
     )  # fmt: skip
-    tof.add_argument(
-        "--camera", metavar="NAME", action="append",
-        help="the camera to estimate (repeat for several; default: every camera of CALIB "
-        "that the log has frames of)",
-    )  # fmt: skip
+    add_camera_option(tof, "a camera to estimate", several=True)
     tof.add_argument(
         "--trajectory", type=Path, metavar="CSV",
-        help="post-processed GNSS/INS trajectory (default: the log's CAN odometry)",
+        help=f"{TRAJECTORY_HELP} (default: the log's CAN odometry)",
     )  # fmt: skip
     tof.add_argument(
         "--start", type=real(0, LONGEST_S, what="seconds"), metavar="S",
@@ -218,11 +214,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "on their set's colours, the pixel-error histogram (0, 1, 2, 3, >3 px, as the "
         "paper's Table 4) and sigma of a normal fit to the errors at the front set's edges.",
     )
-    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s)")
+    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s) or a folder")
     val.add_argument(
         "--calib", required=True, type=Path, help="calibration (intrinsics + camera_to_laser)"
     )
-    val.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    add_camera_option(val, "the camera to validate")
     val.add_argument("--json", action="store_true", help="JSON instead of text")
     val.add_argument(
         "-o",
@@ -325,6 +321,8 @@ def run_fisheye(args: argparse.Namespace) -> int:
         grays = [image_circle.to_gray(i) for i in imgs]
         try:
             fit, _ = calibrate_board(grays, spec, model)
+        except InputValueError:  # a board of another size found: --board is wrong
+            raise
         except ValueError as e:  # too few boards found
             raise AcqError(str(e)) from e
         m = fit.model
@@ -425,31 +423,31 @@ class _Calibrated:
 
 def _calibrate_one(
     args: argparse.Namespace,
-    camera: str | None,
+    log: DriveLog,
+    name: str,
     calib: Calibration,
     target: Calibration,
     spec: BoardSpec,
     plots: dict[str, Path],
     several: bool,
-) -> _Calibrated | None:
-    """Camera ``camera``'s calibration from the logs (None: the log has no frames of
-    it and it was not asked for by name)."""
+) -> _Calibrated:
+    """The calibration of ``log``'s camera, ``name`` in ``calib``, from the logs."""
     import numpy as np
 
     from acq.calib.extrinsic import calibrate
-    from acq.calib.extrinsic_log import METHOD, parse_poses, poses_from_log, still_intervals
+    from acq.calib.extrinsic_log import (
+        METHOD,
+        NOT_IN_IMAGE,
+        board_size_hint,
+        parse_poses,
+        poses_from_log,
+        still_intervals,
+    )
     from acq.camera import calibfile
     from acq.camera.calibfile import CalibStd, CameraCalib
     from acq.geometry.transforms import Rigid
-    from acq.log import drive_log
 
-    try:
-        log = drive_log.read_log(list(args.logs), camera=camera)
-    except InputValueError as e:
-        if args.camera is None and camera is not None and str(e).startswith("no camera "):
-            return None  # a camera of --intrinsics that this recording did not film
-        raise
-    name, cam = drive_log.camera_calib(log, calib, camera)
+    cam = calib.cameras[name]
     target_cam = cam
     if args.lens_swap is not None:
         try:
@@ -467,9 +465,12 @@ def _calibrate_one(
         result = calibrate(good)
     except ValueError as e:  # too few or degenerate poses
         who = f"camera {name!r}: " if several else ""
-        raise AcqError(
-            f"{who}{e} ({len(good)} usable of {len(intervals)} still poses found)"
-        ) from e
+        unseen = [(p.start_ns, p.end_ns) for p in data if p.problem == NOT_IN_IMAGE]
+        hint = board_size_hint(log, cam.model, unseen, spec) if unseen else ""
+        found = f"{e} ({len(good)} usable of {len(intervals)} still poses found)"
+        if hint:  # a board of another size found: --board is wrong
+            raise InputError(f"{who}--board {args.board}: {found}{hint}") from e
+        raise AcqError(f"{who}{found}") from e
     std = CalibStd(  # about the laser axes (rad -> deg), m; the intrinsics' std kept
         rotation_deg=tuple(np.degrees(result.std[:3])), translation_m=tuple(result.std[3:])
     ).rounded()
@@ -487,8 +488,8 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     """Write each camera's camera_to_laser, calibrated from the board poses in the logs,
     into CALIB (a copy of --intrinsics with them set, merged into an existing CALIB).
 
-    Cameras: each --camera given (repeatable); none given: --intrinsics' only camera,
-    or with several every one of them the logs have frames of.
+    Cameras: each --camera given (repeatable); none given: every camera of both the
+    logs and --intrinsics (:func:`acq.camera.selection.choose_cameras`).
 
     --lens-swap (the paper's way): the logs were recorded with a regular lens that
     --intrinsics describes, and the fisheye was mounted afterwards; CALIB is then a copy
@@ -507,6 +508,8 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     from acq.calib.relative_pose import relative_poses
     from acq.camera import calibfile
     from acq.camera.calibfile import Calibration
+    from acq.camera.selection import choose_cameras
+    from acq.log import drive_log
 
     logs, intrinsics, board, output = args.logs, args.intrinsics, args.board, args.output
     lens_swap = args.lens_swap
@@ -527,32 +530,25 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     backups = output_files.check(inputs, outputs, force=args.force)
     spec = parse_board(board)
     calib = calibfile.load(intrinsics, intrinsics_only=True)
-    names: list[str | None]
-    if asked is not None:
-        names = list(asked)
-    elif len(calib.cameras) > 1:
-        names = list(calib.cameras)
-    else:
-        names = [None]  # the only camera of --intrinsics, and of the log
-    if len(names) > 1 and asked is None:
-        plots = _plots(args.plot, output, [str(n) for n in names])
-        outputs = [yaml_out, *(Output("--plot", p, "image") for p in plots.values())]
-        backups = output_files.check(inputs, outputs, force=args.force)
-    else:
-        plots = first_plots
     target = calib if lens_swap is None else calibfile.load(lens_swap, intrinsics_only=True)
     old = None if in_place or not output.exists() else calibfile.load(output, intrinsics_only=True)
     if old is not None:
         calibfile.merged(old, target, (), str(output))  # another laser's: refused before the work
-    done: list[_Calibrated] = []
-    for camera in names:
-        one = _calibrate_one(args, camera, calib, target, spec, plots, len(names) > 1)
-        if one is not None:
-            done.append(one)
-    if not done:
-        raise InputValueError(
-            f"none of --intrinsics' cameras ({', '.join(calib.cameras)}) has frames in the log"
+    log = drive_log.read_log(list(logs), cameras=asked or [], calib=calib)
+    picked = choose_cameras(asked, log.camera_names, list(calib.cameras), one=False,
+                            calib=calib.label)  # fmt: skip
+    if len(picked) > 1 and asked is None:
+        plots = _plots(args.plot, output, [key for _, key in picked])
+        outputs = [yaml_out, *(Output("--plot", p, "image") for p in plots.values())]
+        backups = output_files.check(inputs, outputs, force=args.force)
+    else:
+        plots = first_plots
+    done = [
+        _calibrate_one(
+            args, log.with_camera(name), key, calib, target, spec, plots, len(picked) > 1
         )
+        for name, key in picked
+    ]
     entries = {c.name: c.entry for c in done}
     out = Calibration(target.laser, {**target.cameras, **entries}, target.laser_to_vehicle)
     if old is not None:
@@ -725,9 +721,11 @@ def run_validate(args: argparse.Namespace) -> int:
         if args.out.exists() and not args.out.is_dir():
             raise InputError(f"-o {args.out}: is a file; give a folder")
         inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
-        output_files.check(inputs, [Output("-o", overlay, "image")], force=args.force)
+        output_files.check(
+            inputs, [Output("-o", overlay, "image", makes_folder=True)], force=args.force
+        )
     cal = calibfile.load(args.calib)
-    log = drive_log.read_log(list(args.logs), camera=args.camera)
+    log = drive_log.read_log(list(args.logs), camera=args.camera, calib=cal)
     name, cam = drive_log.camera_calib(log, cal, args.camera)
     res = validate(log, cam, overlay=overlay)
     if args.json:

@@ -225,3 +225,21 @@ def test_an_existing_calib_is_updated_and_keeps_the_other_cameras(
     rot, trans = _errors(cal.camera("camera").camera_to_laser, log.truth)
     assert rot < 0.15 and trans < 0.003
     assert (tmp_path / "calib.yaml.bak").read_text() == before
+
+
+def test_a_wrong_board_size_is_answered_with_the_boards(rec: tuple[BoardLog, Path]) -> None:
+    """Corners counted as squares, or one short: the size the frames show is suggested
+    (in the order given); the right size, either way round, gets no hint."""
+    from acq.calib.extrinsic_log import board_size_hint
+
+    log, _ = rec
+    dl = drive_log.read_log(log.files)
+    intervals = still_intervals(dl)
+    model = log.calibration.camera().model
+    assert board_size_hint(dl, model, intervals, parse_board("8x6x0.1")) == (
+        "; the images show a board of 9x7 inner corners (not squares): try --board 9x7x0.1"
+    )
+    assert board_size_hint(dl, model, intervals, parse_board("8x10x0.1")).endswith(
+        "try --board 7x9x0.1"
+    )
+    assert board_size_hint(dl, model, intervals, parse_board("7x9x0.1")) == ""

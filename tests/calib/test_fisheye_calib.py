@@ -416,3 +416,18 @@ def test_real_images_circle_then_board(
     # the board's lens puts the circle's rim at about half the 185-degree aperture
     theta_rim = float(cam.undistort_theta(np.array([c["radius"] / cam.fx]))[0])
     assert math.degrees(2 * theta_rim) == pytest.approx(185.0, abs=4.0)
+
+
+def test_a_wrong_board_size_on_the_real_images_names_the_boards(
+    shared_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The real images show an 8x6 board, which the lens cuts and bends: a 9x7 --board is
+    bad input, answered with the size they show; nothing is written."""
+    paths = real_paths(shared_dir)
+    out = tmp_path / "calib.yaml"
+    assert calibrate_fisheye(paths, 185.0, out, board="9x7x0.117") == 2
+    assert capsys.readouterr().err == (
+        "acq calibrate fisheye: --board 9x7x0.117: no image shows the 9x7 board; the images "
+        "show a board of 8x6 inner corners (not squares): try --board 8x6x0.117\n"
+    )
+    assert not out.exists()

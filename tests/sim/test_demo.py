@@ -456,16 +456,17 @@ def test_bad_seconds_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
 def test_out_is_new_empty_or_an_earlier_demos(tmp_path: Path) -> None:
     from acq.errors import InputError
     from acq.sim import demo
+    from acq.sim.out_folder import claim_folder
 
     earlier = tmp_path / "earlier"
     earlier.mkdir()
     (earlier / demo.OUT_MARK).write_text("")
     (earlier / "notes.txt").write_text("mine")
     for out in (tmp_path / "new" / "sub", earlier):
-        demo._claim(out)
+        claim_folder(out, demo.OUT_MARK, "acq demo's", demo.FILES)
         assert (out / demo.OUT_MARK).is_file()
     assert (earlier / "notes.txt").read_text() == "mine"
     (tmp_path / "a_file").write_text("")
     for foreign in (tmp_path, tmp_path / "a_file"):
         with pytest.raises(InputError, match="--out"):
-            demo._claim(foreign)
+            claim_folder(foreign, demo.OUT_MARK, "acq demo's", demo.FILES)

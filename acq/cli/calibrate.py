@@ -48,8 +48,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "Hough circle, and a sub-pixel fit of the rim along rays (the one used). Works on "
         "circles cut by the sensor edges. Writes u0, v0 = the centre and f = r / theta_max "
         "(theta_max = fov / 2) into the camera's entry of CALIB (equidistant model; the rest "
-        "of an existing file is kept), and an overlay PNG. With --board, also fits the "
-        "Kannala-Brandt model (k1..k4) to a checkerboard in the images and writes that instead. "
+        "of an existing file is kept), and an overlay PNG. That f rests on --fov and on an "
+        "equidistant lens, which the circle cannot check: the result and the camera's note in "
+        "CALIB say so, with f for an aperture 5 degrees off. With --board, also fits the "
+        "Kannala-Brandt model (k1..k4) to a checkerboard in the images and writes that instead, "
+        "saying how far the circle's f is from it and how much of that the aperture explains. "
         "An existing CALIB is updated, its old content kept as CALIB.bak; an IMAGE or any file "
         "that is not YAML is refused as CALIB.",
     )
@@ -159,8 +162,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "most informative of the laser's return strengths (mutual information) wins. Needs "
         "the rig moving (CAN odometry in the log or --trajectory), textured surfaces "
         "(facades, road markings) and return strengths in the log (SCIP ME / CoLa RSSI1). "
-        "Writes OUT: a copy of CALIB with the camera's time_offset_s and its standard "
-        "deviation set; an existing OUT is updated (that camera's entry replaced, the others "
+        "Writes OUT: a copy of CALIB with the camera's time_offset_s, its standard "
+        "error (a jackknife over blocks of consecutive frames) and in its method how it "
+        "was estimated; an existing OUT is updated (that camera's entry replaced, the others "
         "kept, the old file kept as OUT.bak). An output that is one of the inputs, or an "
         "existing file of another kind, is refused; `--calib C -o C --force` updates C in "
         "place. Every camera of CALIB the log has frames of, or those --camera names; "
@@ -275,8 +279,9 @@ def run_fisheye(args: argparse.Namespace) -> int:
         METHOD_BOARD,
         METHOD_CIRCLE,
         calibrate_board,
+        circle_assumptions,
+        circle_check,
         circle_model,
-        model_gap_px,
         parse_board,
         read_images,
         update_calibration,
@@ -307,7 +312,12 @@ def run_fisheye(args: argparse.Namespace) -> int:
     lines = _circle_lines(result, model, fov_deg, len(imgs))
     method = METHOD_CIRCLE
     std = None  # the circle's fit sigma is not the principal point's: no std from it
-    if spec is not None:
+    assumed = circle_assumptions(model)
+    note = assumed.note()  # unless a board checks the circle
+    if spec is None:
+        report["circle_model_assumes"] = assumed.to_dict()
+        lines.append(note)
+    else:
         grays = [image_circle.to_gray(i) for i in imgs]
         try:
             fit, _ = calibrate_board(grays, spec, model)
@@ -316,17 +326,18 @@ def run_fisheye(args: argparse.Namespace) -> int:
         except ValueError as e:  # too few boards found
             raise AcqError(str(e)) from e
         m = fit.model
-        gap = model_gap_px(model, m, math.radians(fit.max_theta_deg))
-        report["board"] = fit.to_dict() | {"circle_model_gap_px": round(gap, 3)}
+        check = circle_check(model, result.circle.radius, fit)
+        report["board"] = fit.to_dict() | {"circle_model_gap_px": round(check.gap_px, 3)}
+        report["circle_check"] = check.to_dict()
         lines.append(
             f"checkerboard ({len(fit.views)} of {len(imgs)} images, corners up to "
             f"{fit.max_theta_deg:.1f} deg off axis): Kannala-Brandt fx {m.fx:.2f} fy "
             f"{m.fy:.2f} cx {m.cx:.2f} cy {m.cy:.2f} k {', '.join(f'{k:.5f}' for k in m.k)}; "
-            f"RMS {fit.rms_px:.3f} px; the circle's model is up to {gap:.1f} px away from it "
-            "over those angles"
+            f"RMS {fit.rms_px:.3f} px"
         )
-        model, method, std = m, METHOD_BOARD, fit.std()
-    calib, name, notes = update_calibration(output, args.camera, model, method, std)
+        lines.append(check.line())
+        model, method, std, note = m, METHOD_BOARD, fit.std(), ""
+    calib, name, notes = update_calibration(output, args.camera, model, method, std, note)
     output_files.keep_backups("acq calibrate fisheye", backups)
     calibfile.save(calib, output)
     title = f"{Path(images[0]).name}: {len(imgs)} image(s)"
@@ -468,7 +479,7 @@ def _calibrate_one(
     if args.lens_swap is not None:
         T = Rigid(T.rotation, T.translation + T.rotation @ np.array([0.0, 0.0, args.pupil_shift]))
         method = f"{METHOD}+lens_swap"
-    entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std)
+    entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std, target_cam.note)
     plot = plots.get(name) or next(iter(plots.values()))
     return _Calibrated(name, t0, data, good, result, entry, plot)
 
@@ -654,7 +665,12 @@ def run_time_offset(args: argparse.Namespace) -> int:
         std = cj.cam.std
         if np.isfinite(est.std_s):
             std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
-        cams[key] = replace(cj.cam, time_offset_s=round(est.offset_s, 6), std=std)
+        how = (
+            f"estimated from {', '.join(Path(p).name for p in args.logs)} ({est.frames} frames, "
+            f"{est.points} laser points; mutual information of grey levels and return strengths)"
+        )
+        method = calibfile.method_with(cj.cam.method, "time_offset_s", how)
+        cams[key] = replace(cj.cam, time_offset_s=round(est.offset_s, 6), std=std, method=method)
     result = replace(calib, cameras=cams)
     if old is not None:
         result = calibfile.merged(old, result, keys, str(args.output))

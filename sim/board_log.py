@@ -459,10 +459,3 @@ def write_board_log(
     truths = {c.name: c.camera_to_laser for c in rig.cameras}
     return BoardLog(writer.files, rig.camera_to_laser, boards, holds, board, spec, calib,
                     start_ns, truths, tuple(placed_for))  # fmt: skip
-
-
-if __name__ == "__main__":  # a quick look: python -m acq.sim.board_log OUT_DIR
-    import sys
-
-    log = write_board_log(Path(sys.argv[1]))
-    print(log.files, log.spec, log.truth)

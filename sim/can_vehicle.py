@@ -25,6 +25,8 @@ from __future__ import annotations
 import dataclasses
 import heapq
 import math
+import random
+import socket
 import threading
 import time
 from collections import deque
@@ -37,13 +39,24 @@ import numpy as np
 
 from acq.sim.world import Trajectory
 
-__all__ = ["DBC_PATH", "SentFrame", "SimVehicle", "true_motion"]
+__all__ = ["DBC_PATH", "SentFrame", "SimVehicle", "multicast_can", "true_motion"]
 
 DBC_PATH = Path(str(resources.files("acq.sim").joinpath("vehicle.dbc")))
 WHEEL_SPEEDS_ID = 0x1A0
 YAW_RATE_ID = 0x1B0
 STEERING_ID = 0x025
 _H = 1e-3  # s, step of the central differences
+
+
+def multicast_can() -> tuple[str, dict[str, Any]]:
+    """A python-can ``udp_multicast`` channel (an IPv4 group) and its bus options for one
+    simulated or replayed car: a port free now and a TTL of 0, so that its frames stay on this host
+    and two rigs on one machine do not hear each other."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = int(probe.getsockname()[1])
+    group = f"239.74.163.{random.randrange(1, 255)}"
+    return group, {"port": port, "hop_limit": 0}
 
 
 def true_motion(trajectory: Trajectory, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

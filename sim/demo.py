@@ -50,19 +50,18 @@ from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
 from acq.record.sdnotify import Notifier
 from acq.sim.camera_device import FrameTruth
-from acq.sim.can_vehicle import DBC_PATH
 from acq.sim.demo_rig import (
-    CAMERA_SIM,
     CAMERAS,
-    CAN_INTERFACE,
     SCANNER_DRIFT_PPM,
     SCANNER_MODEL,
     SimRig,
     camera_latency_s,
     camera_sim,
+    rig_config,
     true_calibration,
 )
 from acq.sim.demo_truth import check_log, check_odometry
+from acq.sim.out_folder import claim_folder
 
 __all__ = ["MAX_SECONDS", "OUT_MARK", "DemoResult", "run"]
 
@@ -116,46 +115,14 @@ class _Clock:
         return took
 
 
-def _config(
-    scanner_url: str, camera_urls: dict[str, str], can_channel: str, calib: Path, seconds: float
-) -> dict[str, Any]:
-    """The recorder's configuration: every camera through the OpenCV driver on its own
-    URL, its latency what the driver subtracts from receipt (:func:`camera_latency_s`)."""
-
+def _output(seconds: float) -> dict[str, Any]:
+    """The recorder's output section: one file for the whole recording."""
     return {
-        "version": 1,
-        "scanners": [
-            {
-                "name": "laser",
-                "driver": "hokuyo",
-                "url": scanner_url,
-                "latency_s": "auto",
-                "options": {"intensity": True},
-            }
-        ],
-        "cameras": [
-            {
-                "name": name,
-                "driver": "opencv",
-                "source": url,
-                "fps": CAMERA_SIM["fps"],
-                "latency_s": round(camera_latency_s(name), 6),
-            }
-            for name, url in camera_urls.items()
-        ],
-        "can": {  # the signals are the config's defaults, those of sim/vehicle.dbc
-            "interface": CAN_INTERFACE,
-            "channel": can_channel,
-            "dbc": str(DBC_PATH.resolve()),
-        },
-        "calibration": str(calib),
-        "output": {
-            "dir": ".recording",
-            "prefix": "demo",
-            "split_minutes": max(10.0, math.ceil(seconds / 60.0) + 1.0),
-            "split_megabytes": 1e6,
-            "reserve_megabytes": 50,
-        },
+        "dir": ".recording",
+        "prefix": "demo",
+        "split_minutes": max(10.0, math.ceil(seconds / 60.0) + 1.0),
+        "split_megabytes": 1e6,
+        "reserve_megabytes": 50,
     }
 
 
@@ -317,24 +284,6 @@ def run(
     return result
 
 
-def _claim(out: Path) -> None:
-    """Make folder ``out`` the demo's, marked with :data:`OUT_MARK`: new, empty, or an
-    earlier demo's (whose files the demo replaces, leaving anything else there alone);
-    InputError for any other."""
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: is a file; give a folder")
-    if out.is_dir() and not (out / OUT_MARK).is_file() and any(out.iterdir()):
-        raise InputError(
-            f"--out {out}: holds files and is not an earlier demo's folder (no {OUT_MARK}); "
-            "give a new or empty folder"
-        )
-    out.mkdir(parents=True, exist_ok=True)
-    (out / OUT_MARK).write_text(
-        f"acq demo writes {', '.join(FILES)} here, replacing its own files on a new run\n",
-        encoding="utf-8",
-    )
-
-
 def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) -> None:
     out = result.out
     if not (math.isfinite(seconds) and 0 < seconds <= MAX_SECONDS):
@@ -342,7 +291,7 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
             f"--seconds {seconds:g}: expected 0 < seconds <= {MAX_SECONDS:g} "
             "(one drive down the simulated 1 km street)"
         )
-    _claim(out)
+    claim_folder(out, OUT_MARK, "acq demo's", FILES)
     clock = _Clock(progress)
     progress(
         f"acq demo: a simulated UTM-30LX and two 185-degree fisheyes ({', '.join(CAMERAS)}) "
@@ -364,12 +313,11 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
         for name, camera in rig.cameras.items():
             clock.say(f"simulated {name} fisheye at {camera.url} (MJPEG over HTTP, own process)")
         clock.say(
-            f"simulated car on CAN bus {CAN_INTERFACE}:{rig.can_channel} (wheel speeds and "
+            f"simulated car on CAN bus {rig.urls['vehicle']} (wheel speeds and "
             "yaw rate, sim/vehicle.dbc)"
         )
         config_path = out / "config.yaml"
-        urls = {name: camera.url for name, camera in rig.cameras.items()}
-        data = _config(rig.server.url, urls, rig.can_channel, calib_path, seconds)
+        data = rig_config(rig, calib_path, _output(seconds))
         config_path.write_text(
             "# the demo's configuration (the devices lived only while it ran)\n"
             + yaml.safe_dump(data, sort_keys=False),

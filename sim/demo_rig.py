@@ -1,9 +1,15 @@
-"""The simulated rig of `acq demo`: a Hokuyo UTM-30LX (SCIP 2.0 on a pseudo-terminal, its
+"""The simulated rig of `acq demo` and `acq sim rig`: a Hokuyo UTM-30LX (SCIP 2.0, its
 own drifting millisecond clock), two 185-degree fisheyes looking left and right (the
 cameras of ``default_rig(cameras=2)``, each serving MJPEG over HTTP from its own process
-so its rendering and JPEG encoding take neither the recorder's GIL nor the other's) and
-the car (CAN frames on a python-can ``virtual`` bus), all driving down the synthetic
-street from one shared instant; the rig's true calibration and poses.
+so its rendering and JPEG encoding take neither the recorder's GIL nor the other's), the
+car (CAN frames on a python-can bus) and optionally a GNSS receiver (NMEA), all driving
+down the synthetic street from one shared instant; the recorder's configuration for it
+(:func:`rig_config`), the rig's true calibration and poses.
+
+Two ways to link the devices: in process (the demo: the scanner and the receiver on
+pseudo-terminals, the car on a ``virtual`` bus, which only this process sees), or on
+loopback for a recorder in another process (``acq sim rig``: the scanner and the
+receiver on TCP, the car on ``udp_multicast`` with a TTL of 0, which stays on this host).
 
 Times host monotonic (s unless ``_ns``).
 """
@@ -23,25 +29,28 @@ import numpy as np
 
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.motion.trajectory import Trajectory
-from acq.sim.can_vehicle import SimVehicle
+from acq.sim.can_vehicle import DBC_PATH, SimVehicle, multicast_can
 from acq.sim.device_clock import SimClock
 from acq.sim.mjpeg_server import MjpegServerProcess
+from acq.sim.nmea_device import NmeaDevice, NmeaPtyServer
 from acq.sim.scan_source import StreetSource
 from acq.sim.scanner_models import MODELS
 from acq.sim.scip_device import ScipDevice
-from acq.sim.transport import PtyDeviceServer
+from acq.sim.transport import DeviceServer, PtyDeviceServer, TcpDeviceServer
 from acq.sim.world import Rig, default_rig
 
 __all__ = [
     "CAMERAS",
     "CAMERA_SIM",
     "CAN_INTERFACE",
+    "GNSS_LATENCY_S",
     "SCANNER_DRIFT_PPM",
     "SCANNER_MODEL",
     "SimRig",
     "camera_latency_s",
     "camera_sim",
     "demo_rig",
+    "rig_config",
     "true_calibration",
 ]
 
@@ -59,6 +68,7 @@ CLOCK_PHASE_S = {"left": 0.0, "right": 0.02}
 SCANNER_MODEL = "utm-30lx"
 SCANNER_DRIFT_PPM = 30.0  # the simulated scanner's clock runs fast by this much
 CAN_INTERFACE = "virtual"  # python-can's in-process bus: the car and the recorder share it
+GNSS_LATENCY_S = 0.040  # the simulated receiver's sentences: this long after the fix, s
 
 
 def demo_rig() -> Rig:
@@ -94,25 +104,40 @@ def camera_latency_s(name: str) -> float:
 
 
 class SimRig:
-    """The simulated scanner (in process, on a pty), cameras (``cameras``, by name, each
-    in its own process) and car (in process, on a python-can ``virtual`` bus named
-    ``can_channel``) sharing ``t_origin`` (host monotonic s): the same place on the
-    street at the same time.
+    """The simulated scanner (in process), cameras (``cameras``, by name, each in its own
+    process), car (in process, on python-can ``can_interface`` ``can_channel``) and, with
+    ``gnss``, GNSS receiver (in process, :attr:`receiver`) sharing ``t_origin`` (host
+    monotonic s): the same place on the street at the same time.
+
+    ``loopback`` False: the scanner and the receiver on pseudo-terminals and the car on a
+    ``virtual`` bus, for a recorder in this process; True: the scanner and the receiver on
+    TCP on 127.0.0.1 and the car on ``udp_multicast`` (:func:`multicast_can`), for a
+    recorder in any process of this host. :attr:`urls` says where each device is.
 
     Each camera first renders the frames of the drive's first ``prerender_s`` seconds
     (the two cameras at once, a core each; later frames are rendered when due); the
     drive starts, ``t_origin``, when all have, so that the cameras send every frame on
     time however busy the machine is while recording."""
 
-    def __init__(self, prerender_s: float = 0.0) -> None:
+    def __init__(
+        self, prerender_s: float = 0.0, *, loopback: bool = False, gnss: bool = False
+    ) -> None:
 
         self.t_origin = math.nan
         self.cameras: dict[str, MjpegServerProcess] = {}
         self.server: Any = None
+        self.gnss_server: DeviceServer | None = None
+        self.receiver: NmeaDevice | None = None
         self.car: Any = None
-        # a virtual bus is one process's: a name of its own (two demos, the test suite)
-        self.can_channel = f"acq-demo-{os.getpid()}-{time.monotonic_ns()}"
-        self._tmp: str | None = None  # holds the pty's link
+        self.can_options: dict[str, Any] = {}
+        if loopback:
+            self.can_interface = "udp_multicast"
+            self.can_channel, self.can_options = multicast_can()
+        else:
+            # a virtual bus is one process's: a name of its own (two demos, the test suite)
+            self.can_interface = CAN_INTERFACE
+            self.can_channel = f"acq-demo-{os.getpid()}-{time.monotonic_ns()}"
+        self._tmp: str | None = None  # holds the ptys' links
         model = MODELS[SCANNER_MODEL]
         # the camera processes start (load their renderer, render their first frames)
         # while the scanner is built
@@ -141,8 +166,11 @@ class SimRig:
                 )
                 self.scanner = ScipDevice(model, source=self.source, clock=clock)
                 self._tmp = tempfile.mkdtemp(prefix="acq-demo-")
-                link = Path(self._tmp) / "ttyACM-sim"
-                self.server = PtyDeviceServer(self.scanner, link=link).start()
+                if loopback:
+                    self.server = TcpDeviceServer(self.scanner).start()
+                else:
+                    link = Path(self._tmp) / "ttyACM-sim"
+                    self.server = PtyDeviceServer(self.scanner, link=link).start()
             finally:
                 for thread in threads:
                     thread.join()
@@ -152,17 +180,42 @@ class SimRig:
             self.t_origin = self.source.t_origin = time.monotonic()
             for camera in self.cameras.values():
                 camera.start(self.t_origin)
-            # the car: the scanner's trajectory, looping with the street
+            # the car and the receiver: the scanner's trajectory, looping with the street
             self.car = SimVehicle(
-                CAN_INTERFACE,
+                self.can_interface,
                 self.can_channel,
                 trajectory=self.source.trajectory,
                 t_origin=self.t_origin,
                 loop_s=self.loop_s,
+                bus_options=self.can_options,
             ).start()
+            if gnss:
+                self.receiver = NmeaDevice(
+                    self.source.trajectory,
+                    latency_s=GNSS_LATENCY_S,
+                    sentences=("RMC", "VTG", "GGA", "GST", "GSA"),
+                    t_origin=self.t_origin,
+                    loop_s=self.loop_s,
+                )
+                if loopback:
+                    self.gnss_server = TcpDeviceServer(self.receiver).start()
+                else:
+                    link = Path(self._tmp) / "ttyUSB-gnss"
+                    self.gnss_server = NmeaPtyServer(self.receiver, link=link).start()
         except BaseException:
             self.close()
             raise
+
+    @property
+    def urls(self) -> dict[str, str]:
+        """Where each device is: ``laser``, every camera, ``vehicle`` (the CAN bus as
+        ``interface:channel``) and ``gnss`` (when there is a receiver)."""
+        urls = {"laser": str(self.server.url)}
+        urls.update({name: camera.url for name, camera in self.cameras.items()})
+        urls["vehicle"] = f"{self.can_interface}:{self.can_channel}"
+        if self.gnss_server is not None:
+            urls["gnss"] = self.gnss_server.url
+        return urls
 
     @property
     def loop_s(self) -> float:
@@ -182,6 +235,9 @@ class SimRig:
         if self.car is not None:
             self.car.close()
             self.car = None
+        if self.gnss_server is not None:
+            self.gnss_server.close()
+            self.gnss_server = None
         if self.server is not None:
             self.server.close()
             self.server = None
@@ -191,6 +247,47 @@ class SimRig:
         if self._tmp is not None:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
+
+
+def rig_config(rig: SimRig, calibration: Path, output: dict[str, Any]) -> dict[str, Any]:
+    """The recorder's configuration (as YAML data) for ``rig``: the scanner, every camera
+    through the OpenCV driver on its own URL (its latency what the driver subtracts from
+    receipt, :func:`camera_latency_s`), the car's CAN bus, the receiver (stamped from
+    receipt less its latency: a simulated fix's UTC is the host's own clock, which need
+    not be disciplined), the ``calibration`` file and the ``output`` section."""
+    data: dict[str, Any] = {
+        "version": 1,
+        "scanners": [
+            {
+                "name": "laser",
+                "driver": "hokuyo",
+                "url": rig.server.url,
+                "latency_s": "auto",
+                "options": {"intensity": True},
+            }
+        ],
+        "cameras": [
+            {
+                "name": name,
+                "driver": "opencv",
+                "source": camera.url,
+                "fps": CAMERA_SIM["fps"],
+                "latency_s": round(camera_latency_s(name), 6),
+            }
+            for name, camera in rig.cameras.items()
+        ],
+        "can": {  # the signals are the config's defaults, those of sim/vehicle.dbc
+            "interface": rig.can_interface,
+            "channel": rig.can_channel,
+            "dbc": str(DBC_PATH.resolve()),
+            **({"options": dict(rig.can_options)} if rig.can_options else {}),
+        },
+    }
+    if rig.gnss_server is not None:
+        data["gnss"] = {"url": rig.gnss_server.url, "time": "receipt", "latency_s": GNSS_LATENCY_S}
+    data["calibration"] = str(calibration)
+    data["output"] = dict(output)
+    return data
 
 
 def true_calibration(rig: Rig | None = None) -> Calibration:

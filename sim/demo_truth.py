@@ -3,6 +3,12 @@ camera's frame stamps, the CAN odometry and its dead reckoning, and each coloure
 point's colour against the true colour of the surface the laser hit (the demo owns the
 simulator, so it can).
 
+A camera's frame stamps are measured against true time, but its ``time_offset_s`` is
+camera time minus LASER time, and the laser's stamps are off too (by tenths of a
+millisecond, another amount each run): the true ``time_offset_s``, what ``acq calibrate
+time-offset`` estimates, is the frames' mean error minus the scans', both re-timed as
+``acq colorize`` does (:mod:`acq.time.retime`).
+
 Times host monotonic (s unless ``_ns``); metres; colours RGB.
 """
 
@@ -23,6 +29,7 @@ from acq.sim.camera_device import FrameTruth, jpeg_digest
 from acq.sim.can_vehicle import true_motion
 from acq.sim.demo_rig import CAMERA_SIM, SimRig, demo_rig
 from acq.sim.raycast import cast
+from acq.time import retime
 
 __all__ = ["COLOUR_TOLERANCE", "check_log", "check_odometry", "colour_check"]
 
@@ -63,12 +70,18 @@ def check_odometry(rig: SimRig, mcap_path: Path) -> list[str]:
 
 
 def _frame_lines(
-    rig: SimRig, name: str, log: drive_log.DriveLog, truth: list[FrameTruth], expected: float
+    rig: SimRig,
+    name: str,
+    log: drive_log.DriveLog,
+    truth: list[FrameTruth],
+    expected: float,
+    scan_err_s: float | None,
 ) -> list[str]:
     """Camera ``name``'s recorded frame stamps against the true middles of exposure of
-    the frames it sent (matched by the bytes' hash), its middle recorded frame against
-    the simulator's view through that camera at that time, and a warning when it fell
-    behind."""
+    the frames it sent (matched by the bytes' hash), the true ``time_offset_s`` (module
+    docstring; ``scan_err_s`` the re-timed scans' mean error, s), its middle recorded
+    frame against the simulator's view through that camera at that time, and a warning
+    when it fell behind."""
     by_digest = {t.digest: t.t_mid for t in truth if t.digest}
     matched = [
         (i, by_digest[d]) for i, d in enumerate(jpeg_digest(j) for j in log.jpegs) if d in by_digest
@@ -80,6 +93,15 @@ def _frame_lines(
             f"{name} frame stamps {1e3 * ferr.mean():+.2f} ms mean, {1e3 * ferr.std():.2f} ms sd "
             f"off the true middle of exposure ({ferr.size} frames; the camera sends no time)"
         )
+        if scan_err_s is not None:
+            new_ns = retime.retime_frames(log.frame_ns).frame_ns
+            fnew = float(np.mean([new_ns[i] * 1e-9 - t_mid for i, t_mid in matched]))
+            lines.append(
+                f"  time_offset_s {1e3 * (fnew - scan_err_s):+.2f} ms (camera minus laser "
+                f"time, what acq calibrate time-offset estimates): the frames "
+                f"{1e3 * fnew:+.2f} ms minus the scans {1e3 * scan_err_s:+.2f} ms, both "
+                "re-timed as acq colorize does"
+            )
         i, t_mid = matched[len(matched) // 2]
         seen = cv2.imdecode(np.frombuffer(log.jpegs[i], np.uint8), cv2.IMREAD_COLOR)
         src = rig.source
@@ -122,6 +144,7 @@ def check_log(
     sent = {s.timestamp: s for s in list(rig.scanner.sent)}
     step_dt = rig.scanner.step_dt
     matched = [(k, sent[int(t)]) for k, t in enumerate(log.scan_ticks) if int(t) in sent]
+    scan_err_s = None
     if matched:
         true0 = np.array([s.t0 + s.start * step_dt for _, s in matched])
         err = np.array([log.scan_ns[k] * 1e-9 for k, _ in matched]) - true0
@@ -129,9 +152,15 @@ def check_log(
             f"scan stamps {1e3 * err.mean():+.3f} ms mean, {1e3 * np.abs(err).max():.3f} ms "
             f"max off the true time of point 0 ({len(matched)} scans)"
         )
+        model = rig.scanner.model
+        new_ns = retime.retime_scans(
+            log.scan_ns, log.scan_ticks, log.scan_recv_ns, model.clock_hz, model.clock_bits
+        ).scan_ns
+        scan_err_s = float(np.mean(np.array([new_ns[k] * 1e-9 for k, _ in matched]) - true0))
     expected = CAMERA_SIM["fps"] * log.n_scans / rig.scanner.model.scan_hz
     for name, camera_log in logs.items():
-        lines += _frame_lines(rig, name, camera_log, truth_frames.get(name, []), expected)
+        truth = truth_frames.get(name, [])
+        lines += _frame_lines(rig, name, camera_log, truth, expected, scan_err_s)
     # colours: every checked point's laser ray cast again, noise-free, at its true time
     src = rig.source
     sent_of = dict(matched)

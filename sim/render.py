@@ -16,13 +16,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from acq.calib.plots import draw_legend
 from acq.camera import calibfile, projection
 from acq.camera.calibfile import Calibration, CameraCalib
+from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
 from acq.provenance import SOFTWARE, write_image
 from acq.sim import sensors, world
 
-__all__ = ["OverlayResult", "render_overlay", "write"]
+__all__ = ["CAMERAS", "OverlayResult", "check_camera", "render_overlay", "write"]
+
+CAMERAS = ("camera", "left", "right", "rear")  # the one-camera rig's, the three-camera rig's
 
 _MAGENTA = (255, 0, 255)
 
@@ -51,25 +55,38 @@ class OverlayResult:
     stats: OverlayStats
 
 
+def check_camera(name: str) -> None:
+    """InputValueError naming the simulated cameras unless ``name`` is one."""
+    if name not in CAMERAS:
+        raise InputValueError(
+            f"--camera {name}: the simulated rig has no such camera (has {', '.join(CAMERAS)})"
+        )
+
+
 def render_overlay(
     time_s: float = 2.0,
     seed: int = 0,
     exact_equidistant: bool = False,
     range_noise: float | None = None,
+    camera: str = "camera",
 ) -> OverlayResult:
     """The frame at ``time_s`` and the scan that contains that instant, compared with truth.
 
     ``range_noise`` (m) overrides the simulated scanner's noise (0 for exact ranges).
+    ``camera``: one of :data:`CAMERAS` (``camera``, the one-camera rig's; ``left``,
+    ``right``, ``rear``: that camera of the three-camera rig, its exposure and white
+    balance held constant); InputValueError listing them for another name.
     """
-
+    check_camera(camera)
     street = world.Street.generate(seed=seed)
     traj = world.Trajectory()
-    rig = world.default_rig(exact_equidistant=exact_equidistant)
+    rig = world.default_rig(exact_equidistant, cameras=1 if camera == "camera" else 3)
+    rig = rig.only(camera).with_camera(camera, photometry=world.Photometry())
     if range_noise is not None:
         rig = replace(rig, range_noise=range_noise)
     calib = Calibration(
         laser="laser",
-        cameras={"camera": CameraCalib(rig.lens, rig.camera_to_laser, method="simulator truth")},
+        cameras={camera: CameraCalib(rig.lens, rig.camera_to_laser, method="simulator truth")},
         laser_to_vehicle=rig.laser_to_vehicle,
     )
     frame = sensors.render_frame_truth(street, traj, rig, time_s)
@@ -86,7 +103,7 @@ def render_overlay(
     R_now, o_now = sensors.laser_to_world(traj, rig, np.array([time_s]))
     P_laser = Rigid(R_now[0], o_now[0]).inverse().apply(world_pts)
 
-    cam = calib.camera("camera")
+    cam = calib.camera(camera)
     colours, valid = projection.colorize(P_laser, cam.model, cam.camera_to_laser, frame.image)
     uv, _ = projection.project(P_laser, cam.model, cam.camera_to_laser)
 
@@ -156,16 +173,23 @@ def draw_overlay(
     for (u, v), c in zip(zuv[inside], colours[inside], strict=True):
         big[max(v - r, 0) : v + r + 1, max(u - r, 0) : u + r + 1] = c
     cv2.rectangle(out, (x0, y0), (x0 + side, y0 + side), _MAGENTA, 1)
+    draw_legend(out, [
+        (None, "laser points of one scan, each in the colour the projection gave it"),
+        (_MAGENTA, "guides 4 px either side of the profile; the box zoomed at right"),
+    ])  # fmt: skip
     panel = np.zeros((h, side * zoom, 3), np.uint8)
     panel[: side * zoom] = big
+    draw_legend(panel, [(None, f"x{zoom}: each point a square of its colour, black rim")])
     return np.hstack([out, panel])
 
 
-def write(out: str | Path, time_s: float, seed: int, exact_equidistant: bool) -> OverlayStats:
+def write(
+    out: str | Path, time_s: float, seed: int, exact_equidistant: bool, camera: str = "camera"
+) -> OverlayStats:
     """Write frame.png, overlay.png, calib.yaml and summary.json to ``out``; the stats."""
+    result = render_overlay(time_s, seed, exact_equidistant, camera=camera)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    result = render_overlay(time_s, seed, exact_equidistant)
     for name, image in (("frame.png", result.image), ("overlay.png", result.overlay)):
         write_image(out / name, image)
     calibfile.save(result.calibration, out / "calib.yaml")

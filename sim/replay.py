@@ -2,8 +2,10 @@
 
 Scanners are served from their raw telegrams (``/<scanner>/raw``: the bytes exactly as
 received) by a SCIP or CoLa device on TCP (Hokuyo also on a pseudo-terminal), cameras from
-their JPEG bytes (``/<camera>/image/compressed``) as MJPEG over HTTP, each record at its
-recorded receive time (MCAP ``log_time``) shifted to now and divided by ``speed``. A
+their JPEG bytes (``/<camera>/image/compressed``) as MJPEG over HTTP, the vehicle's CAN
+frames (``/vehicle/can``) on a python-can ``udp_multicast`` bus on this host and the GNSS
+receiver's sentences (``/gnss/raw``) on TCP (:mod:`acq.sim.replay_vehicle`), each record
+at its recorded receive time (MCAP ``log_time``) shifted to now and divided by ``speed``. A
 recorder pointed at the replay (:meth:`Replay.config`) therefore records the same device
 ticks, ranges and JPEG bytes; only the receive times are new (at speed 1 they keep the
 recorded pace, within the host's scheduling jitter).
@@ -58,6 +60,7 @@ from acq.sim.replay_devices import (
     ReplayStream,
     ScipReplayDevice,
 )
+from acq.sim.replay_vehicle import NmeaReplayDevice, ReplayCanBus, pack_can, vehicle_entries
 from acq.sim.transport import PtyDeviceServer, TcpDeviceServer
 
 __all__ = [
@@ -77,8 +80,12 @@ DEFAULT_CAMERA_LISTEN = "http://127.0.0.1:0/stream.mjpg"
 LEAD_S = 0.05  # from the request that starts the clock to that device's first record, s
 END_MARGIN_S = 0.1  # after the last record is due, s: it is on its way to the client
 _RAW_SUFFIX = "/raw"
-_NOT_REPLAYED = frozenset({"/gnss/raw"})  # raw telegrams that are not a scanner's
 _IMAGE_SUFFIX = "/image/compressed"
+# the vehicle's buses: topic -> (schema, device, kind), as the recorder writes them
+_VEHICLE_TOPICS = {
+    "/vehicle/can": ("acq.CanFrame", "vehicle", "can"),
+    "/gnss/raw": ("acq.RawTelegram", "gnss", "gnss"),
+}
 
 
 class ReplayError(InputValueError):
@@ -90,11 +97,12 @@ class DeviceLog:
     """What a session recorded of one device, in receive order."""
 
     name: str
-    kind: str  # scanner | camera
+    kind: str  # scanner | camera | can | gnss
     driver: str  # the recorded driver (hokuyo, sick, opencv, v4l2)
     file: Path  # the first file holding its records
     times_ns: list[int] = field(default_factory=list)  # receive times, host monotonic ns
-    data: list[bytes] = field(default_factory=list)  # telegrams as received, JPEGs as sent
+    # telegrams and sentences as received, JPEGs as sent, CAN frames packed (pack_can)
+    data: list[bytes] = field(default_factory=list)
     metadata: dict[str, Any] = field(default_factory=dict)  # device.<name>, JSON decoded
 
     @property
@@ -173,7 +181,10 @@ def load_session(paths: Sequence[str | Path]) -> Session:
             raise ReplayError(str(e)) from None
     if not devices:
         where = ", ".join(str(p) for p in files)
-        raise ReplayError(f"{where}: no raw scanner telegrams or camera images to replay")
+        raise ReplayError(
+            f"{where}: no raw scanner telegrams, camera images, CAN frames or NMEA sentences "
+            "to replay"
+        )
     for dev in devices.values():
         _describe(dev, described.get(dev.name, {}), config)
     ordered = sorted(devices.values(), key=lambda d: (d.kind != "scanner", _order(d, config)))
@@ -183,8 +194,9 @@ def load_session(paths: Sequence[str | Path]) -> Session:
 def _device_of(schema: Schema | None, channel: Channel) -> tuple[str, str] | None:
     """(device, kind) whose records the channel holds, or None: not replayed."""
     topic, name = channel.topic, schema.name if schema is not None else ""
-    if topic in _NOT_REPLAYED:
-        return None  # the vehicle's CAN bus and GNSS receiver have no simulated device
+    if topic in _VEHICLE_TOPICS:
+        schema_name, device, kind = _VEHICLE_TOPICS[topic]
+        return (device, kind) if name == schema_name else None
     if name == "acq.RawTelegram" and topic.endswith(_RAW_SUFFIX):
         return topic[1 : -len(_RAW_SUFFIX)], "scanner"
     if name == "foxglove.CompressedImage" and topic.endswith(_IMAGE_SUFFIX):
@@ -202,9 +214,9 @@ def _read_records(reader: LogReader, devices: dict[str, DeviceLog]) -> None:
         if dev is None:
             dev = devices[device] = DeviceLog(device, kind, "", path)
         elif dev.kind != kind:
-            raise ReplayError(f"{path}: {device!r} has both scanner and camera records")
+            raise ReplayError(f"{path}: {device!r} has both {dev.kind} and {kind} records")
         dev.times_ns.append(message.log_time)
-        dev.data.append(bytes(decoded.data))
+        dev.data.append(pack_can(decoded) if kind == "can" else bytes(decoded.data))
 
 
 def _order(dev: DeviceLog, config: Config | None) -> int:
@@ -228,7 +240,7 @@ def _describe(dev: DeviceLog, values: dict[str, str], config: Config | None) -> 
                 ) from None
     cfg = _device_config(config, dev.name)
     dev.driver = values.get("driver") or (str(cfg.driver) if cfg is not None else "")
-    if dev.kind == "camera":
+    if dev.kind != "scanner":
         return
     wire = _wire(dev.driver)
     if wire not in _CHECKS:
@@ -360,6 +372,7 @@ class Replay:
         self._servers: list[Any] = []
         self._streams: dict[str, Any] = {}
         self._clock: ReplayClock | None = None
+        self._can: ReplayCanBus | None = None
         self._closed = threading.Event()
 
     # --- life cycle -----------------------------------------------------------------------
@@ -375,12 +388,16 @@ class Replay:
         self._clock = ReplayClock(self.speed, self.lead_s)
         try:
             for dev in self.session.devices.values():
-                if dev.kind == "scanner":
-                    self._start_scanner(dev, host, port)
+                if dev.kind in ("scanner", "gnss"):
+                    self._start_serial(dev, host, port)
                     port = port + 1 if port else 0
-                else:
+                elif dev.kind == "camera":
                     self._start_camera(dev, chost, cport, cpath)
                     cport = cport + 1 if cport else 0
+                else:
+                    self._can = ReplayCanBus(self._stream(dev)).start()
+                    self._servers.append(self._can)
+                    self.urls[dev.name] = self._can.url
         except BaseException:
             self.close()
             raise
@@ -397,18 +414,20 @@ class Replay:
         self.errors.append(message)
         log.error("%s", message)
 
-    def _start_scanner(self, dev: DeviceLog, host: str, port: int) -> None:
-
+    def _start_serial(self, dev: DeviceLog, host: str, port: int) -> None:
+        """A scanner or the GNSS receiver (on TCP, a pyserial ``socket://`` URL)."""
         stream = self._stream(dev)
         meta = dev.metadata
         device: Any
-        scip = _wire(dev.driver) == SCIP
-        if scip:
+        scip = dev.kind == "gnss" or _wire(dev.driver) == SCIP
+        if dev.kind == "gnss":
+            device = NmeaReplayDevice(stream)
+        elif scip:
             device = ScipReplayDevice(stream, meta["info"], meta["params"], self._report)
         else:
             device = ColaReplayDevice(stream, meta.get("info", {}), meta["geometry"], self._report)
         server: Any
-        if self.pty and scip:
+        if self.pty and scip and dev.kind == "scanner":
             server = PtyDeviceServer(device)
             self._servers.append(server)
             self.urls[dev.name] = server.url
@@ -512,13 +531,14 @@ class Replay:
                     protocol = info.get("extra", {}).get("protocol")
                     entry["protocol"] = entry.get("protocol") or protocol or "cola-b"
                 scanners.append(entry)
-            else:
+            elif dev.kind == "camera":
                 if entry.get("driver") != "opencv":  # served as MJPEG over HTTP
                     entry = {k: v for k, v in entry.items() if k not in ("options", "fourcc")}
                     entry["driver"] = "opencv"
                 entry["source"] = self.urls[dev.name]
                 cameras.append(entry)
         data: dict[str, Any] = {"version": 1, "scanners": scanners, "cameras": cameras}
+        data.update(vehicle_entries(recorded, self._can, self.urls.get("gnss")))
         calib = calibration
         if calib is None and rec is not None and rec.calibration is not None:
             calib = rec.calibration if rec.calibration.exists() else None

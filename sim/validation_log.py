@@ -168,15 +168,3 @@ def write_validation_log(
     return ValidationLog(
         writer.files, truth, calib, street, vehicle, label, scans[0].true_ranges, start_ns
     )
-
-
-if __name__ == "__main__":  # a quick look: python -m acq.sim.validation_log OUT_DIR
-    import sys
-
-    from acq.camera import calibfile
-
-    out = Path(sys.argv[1])
-    log = write_validation_log(out)
-    calibfile.save(log.calibration, out / "calib.yaml")
-    names = log.beam_colour()
-    print(*log.files, out / "calib.yaml", {n: names.count(n) for n in LABELS})

@@ -1,16 +1,22 @@
 """A simulated rig for the recorder, replay and demo tests: a UTM-30LX speaking SCIP on
-TCP (in this process) and the fisheye camera serving MJPEG over HTTP (in its own
-process), with a recorder configuration pointing at them."""
+TCP (in this process), the fisheye camera serving MJPEG over HTTP (in its own
+process) and, if asked, the car on a python-can ``virtual`` bus and a GNSS receiver on
+TCP (in this process), with a recorder configuration pointing at them."""
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import yaml
 
 from acq.log.reader import LogReader
 from acq.record import config as configfile
+from acq.record.recorder import Recorder
+from acq.sim.can_vehicle import DBC_PATH, SimVehicle
 from acq.sim.mjpeg_server import MjpegServerProcess
+from acq.sim.nmea_device import NmeaDevice
+from acq.sim.replay import Replay
 from acq.sim.scanner_models import MODELS
 from acq.sim.scip_device import ScipDevice
 from acq.sim.transport import TcpDeviceServer
@@ -18,13 +24,22 @@ from acq.sim.transport import TcpDeviceServer
 
 class Rig:
     """A simulated rig: a UTM-30LX on TCP and fisheye cameras over HTTP, each in its own
-    process (default one, ``camera``; ``self.camera`` is the first)."""
+    process (default one, ``camera``; ``self.camera`` is the first, None without any);
+    with ``vehicle``, the car (:attr:`car`, a ``virtual`` bus: a recorder in this process)
+    and a GNSS receiver (:attr:`receiver`, 10 Hz on TCP)."""
 
-    def __init__(self, cameras: tuple[str, ...] = ("camera",)) -> None:
+    def __init__(self, cameras: tuple[str, ...] = ("camera",), vehicle: bool = False) -> None:
         self.scanner = ScipDevice(MODELS["utm-30lx"])
         self.scanner_server = TcpDeviceServer(self.scanner).start()
         self.cameras = {name: MjpegServerProcess(seed=k) for k, name in enumerate(cameras)}
-        self.camera = next(iter(self.cameras.values()))
+        self.camera = next(iter(self.cameras.values()), None)
+        self.car: SimVehicle | None = None
+        self.receiver: NmeaDevice | None = None
+        self.gnss_server: TcpDeviceServer | None = None
+        if vehicle:
+            self.car = SimVehicle(channel=f"acq-test-{id(self)}").start()
+            self.receiver = NmeaDevice()
+            self.gnss_server = TcpDeviceServer(self.receiver).start()
 
     def config(
         self, tmp_path: Path, latency: float | str = "auto", **output: object
@@ -42,6 +57,13 @@ class Rig:
             ],
             "output": {"dir": str(tmp_path / "logs"), **output},
         }  # fmt: skip
+        if self.car is not None and self.gnss_server is not None:
+            data["can"] = {
+                "interface": "virtual",
+                "channel": self.car.channel,
+                "dbc": str(DBC_PATH),
+            }
+            data["gnss"] = {"url": self.gnss_server.url, "time": "receipt"}  # fmt: skip
         path = tmp_path / "rig.yaml"
         path.write_text(yaml.safe_dump(data))
         return configfile.load(path)
@@ -69,6 +91,10 @@ class Rig:
 
     def close(self) -> None:
         self.scanner_server.close()
+        if self.car is not None:
+            self.car.close()
+        if self.gnss_server is not None:
+            self.gnss_server.close()
         for camera in self.cameras.values():
             camera.close()
 
@@ -82,3 +108,20 @@ def read_log(path: Path) -> dict[str, list[tuple[int, int, object]]]:
         decoded = reader.decode(schema, channel, message)
         out.setdefault(channel.topic, []).append((message.log_time, message.publish_time, decoded))
     return out
+
+
+def record_replay(replay: Replay, cfg: configfile.Config, timeout_s: float) -> None:
+    """Record ``replay`` with a recorder of ``cfg`` (in a thread) until it has been served
+    to its end, within ``timeout_s``; asserts the recorder exits 0 and the replay saw no
+    error."""
+    recorder = Recorder(cfg)
+    codes: list[int] = []
+    thread = threading.Thread(target=lambda: codes.append(recorder.run()))
+    thread.start()
+    try:
+        assert replay.wait(timeout=timeout_s), "the replay did not play to its end"
+    finally:
+        recorder.stop()
+        thread.join(10)
+    assert codes == [0]
+    assert not replay.errors

@@ -43,7 +43,7 @@ import numpy as np
 
 from acq import progress
 from acq.calib.board_pose import BoardPose, board_pose_from_corners
-from acq.calib.fisheye_calib import BoardSpec, detect_corners
+from acq.calib.fisheye_calib import BoardSpec, board_hint, detect_corners
 from acq.camera.camera_models import CameraModel
 from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
@@ -52,10 +52,12 @@ from acq.log.locate import locate
 
 __all__ = [
     "METHOD",
+    "NOT_IN_IMAGE",
     "CornerFinder",
     "PoseData",
     "average_corners",
     "board_segment",
+    "board_size_hint",
     "parse_poses",
     "poses_from_log",
     "scan_points",
@@ -63,6 +65,7 @@ __all__ = [
 ]
 
 METHOD = "zhang_pless"
+NOT_IN_IMAGE = "board not found in the image"  # PoseData.problem
 # still frames of one pose in a row without the board before the pose is given up: a
 # board in another camera's view (a rig of several) costs that many searches, not ten
 MISSES_BEFORE_GIVING_UP = 3
@@ -429,7 +432,7 @@ def _pose_in(
         why = (
             "no frame of the camera model's size"
             if all(int(k) in odd for k in order[::step][:frames_per_pose])
-            else "board not found in the image"
+            else NOT_IN_IMAGE
         )
         return PoseData(start, end, -1, math.nan, None, why)
     uv, n_frames = average_corners(detections)
@@ -446,6 +449,32 @@ def _pose_in(
     pid = f"{(start - int(log.scan_ns[0])) * 1e-9:.2f}s"
     pose = BoardPose.from_fit(fit, pts, id=pid)
     return PoseData(start, end, used, fit.rms_px, pose, frames=n_frames)
+
+
+def board_size_hint(
+    log: drive_log.DriveLog,
+    model: CameraModel,
+    intervals: Sequence[tuple[int, int]],
+    spec: BoardSpec,
+    max_frames: int = 5,
+) -> str:
+    """:func:`acq.calib.fisheye_calib.board_hint` on the middle frame of up to
+    ``max_frames`` of ``intervals`` (host ns; those where the board was not found), a
+    size found as :class:`CornerFinder` finds it through ``model``."""
+    finders: dict[BoardSpec, CornerFinder] = {}
+
+    def find(gray: np.ndarray, size: BoardSpec) -> np.ndarray | None:
+        return finders.setdefault(size, CornerFinder(size, model))(gray)
+
+    grays = []
+    for start, end in intervals[:: max(1, len(intervals) // max_frames)][:max_frames]:
+        f = np.flatnonzero((log.frame_ns >= start) & (log.frame_ns <= end))
+        if f.size and log.jpegs:
+            jpeg = np.frombuffer(log.jpegs[int(f[f.size // 2])], np.uint8)
+            gray = cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE)
+            if gray is not None:
+                grays.append(gray)
+    return board_hint(grays, spec, find)
 
 
 def poses_from_log(

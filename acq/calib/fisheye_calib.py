@@ -14,6 +14,12 @@ calibration mirrors them). Its standard deviations (from the covariance of the f
 scaled by the residuals' variance) go into calib.yaml's ``std``. The circle alone writes
 none: its fit's σ of the centre (hundredths of a pixel) says nothing of how far the
 principal point is from the circle's centre (1.2 px on the real images).
+
+The circle's f rests on two assumptions the circle cannot check: the data sheet's
+aperture and an equidistant lens. Alone, it says so (:func:`circle_assumptions`: the
+range of f for an aperture :data:`APERTURE_TOLERANCE_DEG` off, and a note kept in
+calib.yaml); with a board, :func:`circle_check` says how far the circle's model is from
+the board's and which assumption put it there.
 """
 
 from __future__ import annotations
@@ -36,9 +42,14 @@ from acq.errors import InputValueError
 from acq.geometry.rotations import matrix_from_rotvec, rotation_between, rotvec_from_matrix
 
 __all__ = [
+    "APERTURE_TOLERANCE_DEG",
     "BoardFit",
     "BoardSpec",
+    "CircleAssumptions",
+    "CircleCheck",
     "calibrate_board",
+    "circle_assumptions",
+    "circle_check",
     "circle_model",
     "detect_corners",
     "fit_kannala_brandt",
@@ -51,6 +62,9 @@ __all__ = [
 
 METHOD_CIRCLE = "image_circle"
 METHOD_BOARD = "checkerboard (kannala_brandt, from image_circle)"
+APERTURE_TOLERANCE_DEG = 5.0
+"""How far a data sheet's full aperture (``--fov``) is taken to be off, degrees: the
+range of f the circle alone states."""
 
 
 # --- from the circle --------------------------------------------------------------------
@@ -81,21 +95,142 @@ def circle_model(result: CircleResult, fov_deg: float) -> KannalaBrandt:
     )
 
 
+@dataclass(frozen=True)
+class CircleAssumptions:
+    """What the circle's ``f = r / theta_max`` rests on, unchecked: the aperture
+    ``fov_deg`` (degrees, full) and an equidistant lens. ``f_px`` the circle's f (mean of
+    fx, fy), ``f_range_px`` its values for an aperture ``tolerance_deg`` wider and
+    narrower (px/rad)."""
+
+    fov_deg: float
+    tolerance_deg: float
+    f_px: float
+    f_range_px: tuple[float, float]
+
+    def note(self) -> str:
+        """One line for calib.yaml's ``note`` and the printed result."""
+        lo, hi = self.f_range_px
+        a, t = self.fov_deg, self.tolerance_deg
+        return (
+            f"f = r / theta_max from the image circle alone, not checked: it assumes an "
+            f"aperture of {a:g} deg (--fov) and an equidistant lens (r = f theta); an "
+            f"aperture {t:g} deg off ({a - t:g}..{a + t:g} deg) gives f {lo:.1f}..{hi:.1f} "
+            f"px/rad ({lo - self.f_px:+.1f}/{hi - self.f_px:+.1f}), a lens that is not "
+            "equidistant can be further off (--board checks both on a checkerboard)"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "fov_deg": self.fov_deg,
+            "tolerance_deg": self.tolerance_deg,
+            "f_px": round(self.f_px, 3),
+            "f_range_px": [round(f, 3) for f in self.f_range_px],
+            "note": self.note(),
+        }
+
+
+def circle_assumptions(
+    model: KannalaBrandt, tolerance_deg: float = APERTURE_TOLERANCE_DEG
+) -> CircleAssumptions:
+    """The circle model's (:func:`circle_model`) f and its range for an aperture
+    ``tolerance_deg`` (full, degrees) off: ``f = r / theta_max`` scales as
+    ``1 / theta_max``."""
+    fov = model.fov_deg
+    f = (model.fx + model.fy) / 2
+    wide, narrow = fov + tolerance_deg, max(fov - tolerance_deg, 1e-6)
+    return CircleAssumptions(fov, tolerance_deg, f, (f * fov / wide, f * fov / narrow))
+
+
+@dataclass(frozen=True)
+class CircleCheck:
+    """The circle's model against a board's fit of the same lens: ``f_circle_px`` and
+    ``f_board_px`` (means of fx, fy, px/rad) and how far apart (``off_percent``, the
+    circle's relative to the board's); ``rim_deg`` the angle off the axis at which the
+    board's lens images the circle's rim (``radius_px``), against the stated
+    ``fov_deg`` / 2; ``off_percent`` split into the aperture's part (rim angle against
+    the stated one) and the lens's departure from equidistance (the rest, so that
+    ``(1 + aperture) (1 + equidistance) = 1 + off``); ``gap_px`` the largest distance
+    between the two models' images of a ray up to ``max_theta_deg`` (the board's)."""
+
+    f_circle_px: float
+    f_board_px: float
+    off_percent: float
+    radius_px: float
+    rim_deg: float
+    fov_deg: float
+    aperture_percent: float
+    equidistance_percent: float
+    gap_px: float
+    max_theta_deg: float
+
+    def line(self) -> str:
+        if not math.isfinite(self.rim_deg):
+            return (
+                f"the circle's model against the board's: f {self.f_circle_px:.2f} px/rad is "
+                f"{abs(self.off_percent):.1f} % {'below' if self.off_percent < 0 else 'above'} "
+                f"the board's {self.f_board_px:.2f}; the board's lens model does not reach the "
+                f"rim (r {self.radius_px:.1f} px); up to {self.gap_px:.1f} px apart over the "
+                f"board's angles (to {self.max_theta_deg:.1f} deg)"
+            )
+        return (
+            f"the circle's model against the board's: f {self.f_circle_px:.2f} px/rad is "
+            f"{abs(self.off_percent):.1f} % {'below' if self.off_percent < 0 else 'above'} "
+            f"the board's {self.f_board_px:.2f}; the board's lens images the rim (r "
+            f"{self.radius_px:.1f} px) at {self.rim_deg:.1f} deg off the axis (aperture "
+            f"{2 * self.rim_deg:.1f} deg against --fov {self.fov_deg:g}): the aperture "
+            f"accounts for {self.aperture_percent:+.1f} %, the lens not being equidistant "
+            f"for {self.equidistance_percent:+.1f} %; up to {self.gap_px:.1f} px apart over "
+            f"the board's angles (to {self.max_theta_deg:.1f} deg)"
+        )
+
+    def to_dict(self) -> dict[str, float]:
+        return {k: round(float(v), 3) for k, v in vars(self).items()}
+
+
+def circle_check(circle: KannalaBrandt, radius_px: float, fit: BoardFit) -> CircleCheck:
+    """How far the circle's model (:func:`circle_model`, rim ``radius_px``) is from the
+    board's fit ``fit`` (:class:`CircleCheck`)."""
+    board = fit.model
+    f_c, f_b = (circle.fx + circle.fy) / 2, (board.fx + board.fy) / 2
+    stated = math.radians(circle.fov_deg) / 2
+    with np.errstate(all="ignore"):  # a lens polynomial that cannot reach the rim: NaN
+        rim = float(board.undistort_theta(np.array([radius_px / f_b]))[0])
+    if not (math.isfinite(rim) and 0 < rim <= math.pi):
+        rim = math.nan
+    aperture = stated / rim  # f_c = r / stated = (r / rim) (rim / stated)
+    equidistance = radius_px / rim / f_b
+    return CircleCheck(
+        f_circle_px=f_c,
+        f_board_px=f_b,
+        off_percent=100 * (f_c / f_b - 1),
+        radius_px=radius_px,
+        rim_deg=math.degrees(rim),
+        fov_deg=circle.fov_deg,
+        aperture_percent=100 * (1 / aperture - 1),
+        equidistance_percent=100 * (equidistance - 1),
+        gap_px=model_gap_px(circle, board, math.radians(fit.max_theta_deg)),
+        max_theta_deg=fit.max_theta_deg,
+    )
+
+
 def update_calibration(
     path: Path,
     camera: str | None,
     model: KannalaBrandt,
     method: str,
     std: CalibStd | None = None,
+    note: str = "",
 ) -> tuple[Calibration, str, list[str]]:
     """The calibration in ``path`` (a new one if absent) with ``camera``'s intrinsics set.
 
     ``std``: the intrinsics' standard deviations (its fx, fy, cx, cy, k; none if None),
-    which replace the old ones. The camera's extrinsics, their std and time offset, the
+    which replace the old ones, as ``note`` (what they rest on) replaces the old note.
+    The camera's extrinsics, their std and time offset, the
     other cameras and the laser entries are kept; a new camera has no ``camera_to_laser``
     (``acq calibrate extrinsic`` adds it). ``camera`` None: the file's only camera, or
     ``camera`` for a new file. Returns the calibration, the camera's name and notes for
-    the user. Raises CalibFileError.
+    the user (among them how far the new f is from the one it replaces). Raises
+    CalibFileError.
     """
     intr = (std or CalibStd()).merged(CalibStd(), CalibStd.EXTRINSICS)
     notes: list[str] = []
@@ -110,7 +245,7 @@ def update_calibration(
         cameras = dict(old.cameras)
         prev = cameras.get(camera)
         if prev is None:
-            entry = CameraCalib(model, None, method=method, std=intr)
+            entry = CameraCalib(model, None, method=method, std=intr, note=note)
             notes.append(f"camera {camera!r} added to {path}")
         else:
             size = (prev.model.width, prev.model.height)
@@ -119,13 +254,22 @@ def update_calibration(
                     f"camera {camera!r}: image size {size[0]}x{size[1]} replaced by "
                     f"{model.width}x{model.height}; check its extrinsics"
                 )
+            elif isinstance(prev.model, KannalaBrandt):  # a second estimate of f: compared
+                f_old, f_new = (prev.model.fx + prev.model.fy) / 2, (model.fx + model.fy) / 2
+                if abs(f_new / f_old - 1) > 0.005:
+                    notes.append(
+                        f"camera {camera!r}: f {f_new:.2f} px/rad ({method}) replaces "
+                        f"{f_old:.2f} ({prev.method or 'no method'}) in {path}, "
+                        f"{100 * (f_new / f_old - 1):+.1f} %"
+                    )
             kept = prev.std.merged(intr, CalibStd.INTRINSICS)
-            entry = CameraCalib(model, prev.extrinsics, prev.time_offset_s, method, kept)
+            entry = CameraCalib(model, prev.extrinsics, prev.time_offset_s, method, kept, note)
         cameras[camera] = entry
         calib = Calibration(old.laser, cameras, old.laser_to_vehicle)
     else:
         camera = camera or "camera"
-        calib = Calibration(cameras={camera: CameraCalib(model, None, method=method, std=intr)})
+        entry = CameraCalib(model, None, method=method, std=intr, note=note)
+        calib = Calibration(cameras={camera: entry})
     return calib, camera, notes
 
 
@@ -139,6 +283,10 @@ class BoardSpec:
     cols: int
     rows: int
     square: float
+
+    def text(self) -> str:
+        """As --board takes it: ``9x7x0.1``."""
+        return f"{self.cols}x{self.rows}x{self.square:g}"
 
     def object_points(self) -> np.ndarray:
         """(cols*rows, 3) corner positions on the board, m, in OpenCV's detection order."""
@@ -179,6 +327,46 @@ def detect_corners(
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
     refined = cv2.cornerSubPix(img, corners, (5, 5), (-1, -1), crit)
     return np.asarray(refined, dtype=np.float64).reshape(-1, 2)
+
+
+def board_size(grays: Sequence[np.ndarray]) -> tuple[int, int] | None:
+    """The size (cols, rows; cols >= rows, inner corners) the checkerboard in ``grays``
+    seems to have, or None: OpenCV's sector-based detector, let find a board larger
+    than the 3x3 it is asked for, sees part of it in each image (where the lens cuts or
+    bends it); the largest along each side over the images (~0.1-0.8 s an image)."""
+    sizes: list[tuple[int, int]] = []
+    for g in grays:
+        img = np.clip(g, 0, 255).astype(np.uint8)
+        found, _, meta = cv2.findChessboardCornersSBWithMeta(img, (3, 3), flags=cv2.CALIB_CB_LARGER)
+        if found and meta is not None:
+            rows, cols = meta.shape[:2]
+            sizes.append((max(rows, cols), min(rows, cols)))
+    if not sizes:
+        return None
+    return max(c for c, _ in sizes), max(r for _, r in sizes)
+
+
+def board_hint(
+    grays: Sequence[np.ndarray],
+    board: BoardSpec,
+    find: Callable[[np.ndarray, BoardSpec], object] | None = None,
+) -> str:
+    """ "; the images show a board of 9x7 inner corners (not squares): try --board 9x7x0.1"
+    when :func:`board_size` is not ``board``'s (either way round) and ``find`` (default
+    :func:`detect_corners`; None: not found) finds a board of that size in one of
+    ``grays``, else "". The square's side stays ``board``'s."""
+    size = board_size(grays)
+    if size is None or size == (max(board.cols, board.rows), min(board.cols, board.rows)):
+        return ""
+    c, r = size if board.cols >= board.rows else size[::-1]
+    spec = BoardSpec(c, r, board.square)
+    look = find or (lambda g, b: detect_corners(g, b, fast=True))
+    if not any(look(g, spec) is not None for g in grays):
+        return ""
+    return (
+        f"; the images show a board of {c}x{r} inner corners (not squares): try --board "
+        f"{spec.text()}"
+    )
 
 
 def project_kb(intr: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -382,7 +570,9 @@ def calibrate_board(
     grays: Sequence[np.ndarray], board: BoardSpec, init: KannalaBrandt
 ) -> tuple[BoardFit, np.ndarray]:
     """Find the board in each image and fit Kannala–Brandt; returns the fit and which
-    images had the board (bool per image)."""
+    images had the board (bool per image). InputValueError when none shows ``board``
+    but a board of another size is found (:func:`board_hint`), ValueError when none
+    shows a board."""
     found: list[np.ndarray] = []
     used = np.zeros(len(grays), bool)
     for i, g in enumerate(grays):
@@ -391,7 +581,11 @@ def calibrate_board(
             found.append(c)
             used[i] = True
     if not found:
-        raise ValueError(f"no image shows the {board.cols}x{board.rows} board")
+        hint = board_hint(grays, board)
+        what = f"no image shows the {board.cols}x{board.rows} board"
+        if hint:  # the board is there, of another size: --board is wrong
+            raise InputValueError(f"--board {board.text()}: {what}{hint}")
+        raise ValueError(what)
     fit = fit_kannala_brandt(board.object_points(), found, init)
     fit = replace(fit, views=[int(i) for i in np.flatnonzero(used)])
     return fit, used

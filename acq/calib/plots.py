@@ -22,6 +22,7 @@ from acq.provenance import write_image
 
 __all__ = [
     "PALETTE",
+    "draw_legend",
     "draw_overlay",
     "line_plot",
     "residual_plot",
@@ -69,6 +70,37 @@ def _text(
     elif anchor == "r":
         x -= w
     cv2.putText(img, s, (x, y + h // 2), _FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
+
+
+def draw_legend(
+    img: np.ndarray,
+    entries: Sequence[tuple[tuple[int, int, int] | None, str]],
+    corner: str = "bl",
+    scale: float = 0.45,
+) -> tuple[int, int, int, int]:
+    """Draw a legend into ``img`` (BGR uint8, in place): one line per entry, a square of
+    its colour (BGR; None: a line of text only) and its label, white on a darkened box
+    in the corner ``corner`` ("tl", "tr", "bl", "br"). The box (x0, y0, x1, y1), px."""
+    pad, sw = 6, 10
+    sizes = [cv2.getTextSize(label, _FONT, scale, 1)[0] for _, label in entries]
+    line_h = max(h for _, h in sizes) + 8
+    width = 2 * pad + sw + 6 + max(w for w, _ in sizes)
+    height = 2 * pad + line_h * len(entries) - 8
+    h_img, w_img = img.shape[:2]
+    x0 = 4 if corner[1] == "l" else w_img - width - 4
+    y0 = 4 if corner[0] == "t" else h_img - height - 4
+    x0, y0 = max(x0, 0), max(y0, 0)
+    x1, y1 = min(x0 + width, w_img), min(y0 + height, h_img)
+    img[y0:y1, x0:x1] = (img[y0:y1, x0:x1] * 0.3).astype(np.uint8)
+    for k, ((colour, label), (_, th)) in enumerate(zip(entries, sizes, strict=True)):
+        top = y0 + pad + k * line_h
+        x = x0 + pad
+        if colour is not None:
+            cv2.rectangle(img, (x, top), (x + sw - 1, top + sw - 1), colour, -1)
+            x += sw + 6
+        cv2.putText(img, label, (x, top + (sw + th) // 2), _FONT, scale, (255, 255, 255), 1,
+                    cv2.LINE_AA)  # fmt: skip
+    return x0, y0, x1, y1
 
 
 def line_plot(

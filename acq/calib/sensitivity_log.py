@@ -31,6 +31,7 @@ from acq.calib.sensitivity import (
 )
 from acq.camera import calibfile
 from acq.camera.camera_models import KannalaBrandt
+from acq.camera.selection import choose_cameras
 from acq.errors import AcqError, InputValueError
 from acq.log import drive_log
 from acq.provenance import SOFTWARE, write_image
@@ -75,9 +76,16 @@ def analyze_logs(
     if not bin_deg > 0:
         raise InputValueError("bin width must be > 0 deg")
     cal = calibfile.load(calib)
-    log = drive_log.read_log(logs)
-    name = camera or (log.camera if log.camera in cal.cameras else None)
-    cam = cal.camera(name)
+    # the laser's points only: a log without frames takes the calibration's camera
+    log = drive_log.read_log(logs, cameras=[camera] if camera else list(cal.cameras), jpegs=False)
+    if log.camera_names:
+        [(_, name)] = choose_cameras(
+            [camera] if camera else None, log.camera_names, list(cal.cameras), one=True,
+            calib=cal.label,
+        )  # fmt: skip
+    else:
+        name = camera or ""
+    cam = cal.camera(name or None)
     p = params_from_calib(cam)
     sig, src = choose_sigma(p, cam, sigma)
     lens = cam.model

@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from acq.calib.plots import draw_legend
 from acq.camera.calibfile import CameraCalib
 from acq.errors import AcqError
 from acq.log import drive_log
@@ -334,6 +335,11 @@ def _decode(jpeg: bytes) -> np.ndarray | None:
     return img if img is not None and img.ndim == 3 else None
 
 
+def _colour(right: bool) -> tuple[int, int, int]:
+    """An overlay point's colour (BGR): green on the right colour, red otherwise."""
+    return (0, 255, 0) if right else (0, 0, 255)
+
+
 def validate(
     log: drive_log.DriveLog,
     camera: CameraCalib,
@@ -424,8 +430,13 @@ def validate(
     if overlay is not None and best_img is not None:
         draw = best_img.copy()
         for (u, v), good in zip(best_uv, best_right, strict=True):
-            colour = (0, 255, 0) if good else (0, 0, 255)
-            cv2.circle(draw, (round(float(u)), round(float(v))), 1, colour, -1)
+            cv2.circle(draw, (round(float(u)), round(float(v))), 1, _colour(good), -1)
+        share = 100 * float(np.mean(best_right)) if len(best_right) else 0.0
+        draw_legend(draw, [
+            (None, f"frame with the most pattern points: {len(best_right)}, {share:.1f} % right"),
+            (_colour(True), "laser point on its set's colours (bars or panel)"),
+            (_colour(False), "laser point on another colour"),
+        ])  # fmt: skip
         overlay.parent.mkdir(parents=True, exist_ok=True)
         write_image(overlay, draw)
     return res

@@ -20,6 +20,11 @@ valid::
 extrinsic`` rotation_deg and translation_m, ``acq calibrate time-offset``
 time_offset_s; each keeps the others' part.
 
+And one optional line per camera, ``note``: what its intrinsics rest on that no figure
+shows (``acq calibrate fisheye`` from the circle alone: the stated aperture and an
+equidistant lens, and the range of f an aperture 5 degrees off gives); kept by the
+other calibrations, replaced when the intrinsics are.
+
 Every number is checked against the bounds below (finite, focal lengths and image sizes
 positive and bounded, the principal point near the image, distortion coefficients,
 translations and the time offset bounded), so what loads projects without overflow.
@@ -59,6 +64,7 @@ __all__ = [
     "dump",
     "load",
     "merged",
+    "method_with",
     "parse",
     "save",
 ]
@@ -175,6 +181,7 @@ class CameraCalib:
     time_offset_s: float = 0.0  # camera time minus laser time
     method: str = ""
     std: CalibStd = field(default_factory=CalibStd)
+    note: str = ""  # what the intrinsics rest on, unchecked (module docstring)
     source: str = field(default="", compare=False, repr=False)
     name: str = field(default="", compare=False, repr=False)
 
@@ -201,6 +208,8 @@ class CameraCalib:
         std = self.std.to_dict()
         if std:
             d["std"] = std
+        if self.note:
+            d["note"] = self.note
         return d
 
 
@@ -211,6 +220,12 @@ class Calibration:
     laser: str = "laser"
     cameras: dict[str, CameraCalib] = field(default_factory=dict)
     laser_to_vehicle: Rigid | None = None
+    source: str = field(default="", compare=False)  # the file it was read from, or ""
+
+    @property
+    def label(self) -> str:
+        """How messages name it: its file, or "the calibration"."""
+        return self.source or "the calibration"
 
     def camera(self, name: str | None = None) -> CameraCalib:
         """The named camera, or the only one when ``name`` is None."""
@@ -333,6 +348,7 @@ class _Camera(_Model):
     time_offset_s: _Offset = 0.0
     method: str = ""
     std: _Std | None = None
+    note: str = ""
 
     @field_validator("model")
     @classmethod
@@ -402,6 +418,7 @@ class _Camera(_Model):
             time_offset_s=self.time_offset_s,
             method=self.method,
             std=CalibStd(**std),
+            note=self.note,
             source=source,
             name=name,
         )
@@ -462,6 +479,7 @@ def parse(data: Any, source: str = "calib.yaml", *, intrinsics_only: bool = Fals
         laser=f.laser,
         cameras={name: cam.calib(source, name) for name, cam in f.cameras.items()},
         laser_to_vehicle=None if f.laser_to_vehicle is None else f.laser_to_vehicle.rigid(),
+        source=source,
     )
 
 
@@ -493,6 +511,14 @@ def merged(old: Calibration, new: Calibration, names: Sequence[str], source: str
             cameras[name] = cam
     ltv = old.laser_to_vehicle if old.laser_to_vehicle is not None else new.laser_to_vehicle
     return Calibration(old.laser, cameras, ltv)
+
+
+def method_with(method: str, key: str, how: str) -> str:
+    """A camera's ``method`` with the part on ``key`` (``"KEY: HOW"``, parts joined by
+    ``"; "``) set to ``how``: what one calibration step changed said beside the others'
+    (e.g. ``"simulator truth; time_offset_s: estimated from drive.mcap ..."``)."""
+    parts = [p for p in method.split("; ") if p and not p.startswith(f"{key}: ")]
+    return "; ".join([*parts, f"{key}: {how}"])
 
 
 def save(calib: Calibration, path: str | Path) -> None:

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from acq.cli import output_files
+from acq.cli.camera_option import add_camera_option
 from acq.cli.option_types import real
 from acq.cli.output_files import Output
 from acq.errors import InputError
@@ -49,12 +50,15 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "dropping k2 theta^3 reaches 0.5..4 px); DIR/sensitivity.json. Files of their kind "
         "in DIR are replaced, any other is refused.",
     )
-    sens.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP logs of one session")
+    sens.add_argument(
+        "logs", nargs="+", type=Path, metavar="LOG", help="MCAP logs of one session, or its folder"
+    )
     sens.add_argument("--calib", type=Path, required=True, metavar="CALIB", help="calib.yaml")
     sens.add_argument(
         "-o", "--output", type=Path, default=Path("sensitivity"), metavar="DIR",
         help="where to write the PNGs and sensitivity.json (default: ./sensitivity)",
     )  # fmt: skip
+    add_camera_option(sens, "the camera to analyse")
     sens.add_argument(
         "--camera-height", type=real(0, 100, lo_open=True, what="metres"), default=2.0,
         metavar="M",
@@ -98,11 +102,11 @@ def run_sensitivity(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise InputError(f"-o {out}: is a file; give a folder")
     inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
-    outputs = [Output("-o", out / name, kind) for name, kind in WRITES]
+    outputs = [Output("-o", out / name, kind, makes_folder=True) for name, kind in WRITES]
     output_files.check(inputs, outputs, force=args.force)
     report = sensitivity_log.analyze_logs(
         args.calib, args.logs, out, args.camera_height, args.building_distance,
-        sigma=dict(args.sigma or ()),
+        camera=args.camera, sigma=dict(args.sigma or ()),
     )  # fmt: skip
     if args.json:
         print(json.dumps(report, indent=2))

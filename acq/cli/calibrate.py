@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from acq.cli import output_files
+from acq.cli.camera_option import add_camera_option
+from acq.cli.colorize import TRAJECTORY_HELP
 from acq.cli.option_types import LONGEST_S, integer, real
 from acq.cli.output_files import IMAGE_SUFFIXES, Output
 from acq.errors import AcqError, InputError, InputValueError
@@ -26,6 +28,7 @@ if TYPE_CHECKING:
     from acq.calib.validate import ValidationResult
     from acq.camera.calibfile import Calibration, CameraCalib
     from acq.camera.camera_models import KannalaBrandt
+    from acq.log.drive_log import DriveLog
 
 HELP = "calibrate the rig's sensors"
 FORCE_HELP = (
@@ -45,8 +48,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "Hough circle, and a sub-pixel fit of the rim along rays (the one used). Works on "
         "circles cut by the sensor edges. Writes u0, v0 = the centre and f = r / theta_max "
         "(theta_max = fov / 2) into the camera's entry of CALIB (equidistant model; the rest "
-        "of an existing file is kept), and an overlay PNG. With --board, also fits the "
-        "Kannala-Brandt model (k1..k4) to a checkerboard in the images and writes that instead. "
+        "of an existing file is kept), and an overlay PNG. That f rests on --fov and on an "
+        "equidistant lens, which the circle cannot check: the result and the camera's note in "
+        "CALIB say so, with f for an aperture 5 degrees off. With --board, also fits the "
+        "Kannala-Brandt model (k1..k4) to a checkerboard in the images and writes that instead, "
+        "saying how far the circle's f is from it and how much of that the aperture explains. "
         "An existing CALIB is updated, its old content kept as CALIB.bak; an IMAGE or any file "
         "that is not YAML is refused as CALIB.",
     )
@@ -56,10 +62,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         required=True, metavar="DEG",
         help="the lens's full aperture in degrees, from its data sheet (e.g. 185)",
     )  # fmt: skip
-    fish.add_argument(
-        "--camera", metavar="NAME",
-        help="the entry under cameras: (default: CALIB's only camera, or 'camera' in a new file)",
-    )  # fmt: skip
+    add_camera_option(
+        fish,
+        "the entry of CALIB to write",
+        default="CALIB's only camera, or 'camera' in a new file",
+    )
     fish.add_argument(
         "-o", "--output", type=Path, required=True, metavar="CALIB",
         help="calib.yaml to create or update (the old one kept as CALIB.bak)",
@@ -101,13 +108,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "with --force. Nothing is written when any camera fails.",
     )
     ext.add_argument(
-        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s)"
+        "logs", nargs="+", type=Path, metavar="LOG", help="the recording's MCAP file(s) or folder"
     )
-    ext.add_argument(
-        "--camera", metavar="NAME", action="append",
-        help="a camera to calibrate; repeat for several (default: every camera of "
-        "--intrinsics that the log has frames of)",
-    )  # fmt: skip
+    add_camera_option(ext, "a camera to calibrate", several=True)
     ext.add_argument(
         "--intrinsics", type=Path, required=True, metavar="CALIB",
         help="calib.yaml with the camera's intrinsics (a non-identity camera_to_laser is used "
@@ -159,8 +162,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "most informative of the laser's return strengths (mutual information) wins. Needs "
         "the rig moving (CAN odometry in the log or --trajectory), textured surfaces "
         "(facades, road markings) and return strengths in the log (SCIP ME / CoLa RSSI1). "
-        "Writes OUT: a copy of CALIB with the camera's time_offset_s and its standard "
-        "deviation set; an existing OUT is updated (that camera's entry replaced, the others "
+        "Writes OUT: a copy of CALIB with the camera's time_offset_s, its standard "
+        "error (a jackknife over blocks of consecutive frames) and in its method how it "
+        "was estimated; an existing OUT is updated (that camera's entry replaced, the others "
         "kept, the old file kept as OUT.bak). An output that is one of the inputs, or an "
         "existing file of another kind, is refused; `--calib C -o C --force` updates C in "
         "place. Every camera of CALIB the log has frames of, or those --camera names; "
@@ -175,14 +179,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "-o", "--output", type=Path, required=True, metavar="OUT",
         help="calib.yaml to write, or to update (its other cameras kept, the old one as OUT.bak)",
     )  # fmt: skip
-    tof.add_argument(
-        "--camera", metavar="NAME", action="append",
-        help="the camera to estimate (repeat for several; default: every camera of CALIB "
-        "that the log has frames of)",
-    )  # fmt: skip
+    add_camera_option(tof, "a camera to estimate", several=True)
     tof.add_argument(
         "--trajectory", type=Path, metavar="CSV",
-        help="post-processed GNSS/INS trajectory (default: the log's CAN odometry)",
+        help=f"{TRAJECTORY_HELP} (default: the log's CAN odometry)",
     )  # fmt: skip
     tof.add_argument(
         "--start", type=real(0, LONGEST_S, what="seconds"), metavar="S",
@@ -214,11 +214,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "on their set's colours, the pixel-error histogram (0, 1, 2, 3, >3 px, as the "
         "paper's Table 4) and sigma of a normal fit to the errors at the front set's edges.",
     )
-    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s)")
+    val.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP file(s) or a folder")
     val.add_argument(
         "--calib", required=True, type=Path, help="calibration (intrinsics + camera_to_laser)"
     )
-    val.add_argument("--camera", metavar="NAME", help="camera (default: the only one)")
+    add_camera_option(val, "the camera to validate")
     val.add_argument("--json", action="store_true", help="JSON instead of text")
     val.add_argument(
         "-o",
@@ -279,8 +279,9 @@ def run_fisheye(args: argparse.Namespace) -> int:
         METHOD_BOARD,
         METHOD_CIRCLE,
         calibrate_board,
+        circle_assumptions,
+        circle_check,
         circle_model,
-        model_gap_px,
         parse_board,
         read_images,
         update_calibration,
@@ -311,24 +312,32 @@ def run_fisheye(args: argparse.Namespace) -> int:
     lines = _circle_lines(result, model, fov_deg, len(imgs))
     method = METHOD_CIRCLE
     std = None  # the circle's fit sigma is not the principal point's: no std from it
-    if spec is not None:
+    assumed = circle_assumptions(model)
+    note = assumed.note()  # unless a board checks the circle
+    if spec is None:
+        report["circle_model_assumes"] = assumed.to_dict()
+        lines.append(note)
+    else:
         grays = [image_circle.to_gray(i) for i in imgs]
         try:
             fit, _ = calibrate_board(grays, spec, model)
+        except InputValueError:  # a board of another size found: --board is wrong
+            raise
         except ValueError as e:  # too few boards found
             raise AcqError(str(e)) from e
         m = fit.model
-        gap = model_gap_px(model, m, math.radians(fit.max_theta_deg))
-        report["board"] = fit.to_dict() | {"circle_model_gap_px": round(gap, 3)}
+        check = circle_check(model, result.circle.radius, fit)
+        report["board"] = fit.to_dict() | {"circle_model_gap_px": round(check.gap_px, 3)}
+        report["circle_check"] = check.to_dict()
         lines.append(
             f"checkerboard ({len(fit.views)} of {len(imgs)} images, corners up to "
             f"{fit.max_theta_deg:.1f} deg off axis): Kannala-Brandt fx {m.fx:.2f} fy "
             f"{m.fy:.2f} cx {m.cx:.2f} cy {m.cy:.2f} k {', '.join(f'{k:.5f}' for k in m.k)}; "
-            f"RMS {fit.rms_px:.3f} px; the circle's model is up to {gap:.1f} px away from it "
-            "over those angles"
+            f"RMS {fit.rms_px:.3f} px"
         )
-        model, method, std = m, METHOD_BOARD, fit.std()
-    calib, name, notes = update_calibration(output, args.camera, model, method, std)
+        lines.append(check.line())
+        model, method, std, note = m, METHOD_BOARD, fit.std(), ""
+    calib, name, notes = update_calibration(output, args.camera, model, method, std, note)
     output_files.keep_backups("acq calibrate fisheye", backups)
     calibfile.save(calib, output)
     title = f"{Path(images[0]).name}: {len(imgs)} image(s)"
@@ -414,31 +423,31 @@ class _Calibrated:
 
 def _calibrate_one(
     args: argparse.Namespace,
-    camera: str | None,
+    log: DriveLog,
+    name: str,
     calib: Calibration,
     target: Calibration,
     spec: BoardSpec,
     plots: dict[str, Path],
     several: bool,
-) -> _Calibrated | None:
-    """Camera ``camera``'s calibration from the logs (None: the log has no frames of
-    it and it was not asked for by name)."""
+) -> _Calibrated:
+    """The calibration of ``log``'s camera, ``name`` in ``calib``, from the logs."""
     import numpy as np
 
     from acq.calib.extrinsic import calibrate
-    from acq.calib.extrinsic_log import METHOD, parse_poses, poses_from_log, still_intervals
+    from acq.calib.extrinsic_log import (
+        METHOD,
+        NOT_IN_IMAGE,
+        board_size_hint,
+        parse_poses,
+        poses_from_log,
+        still_intervals,
+    )
     from acq.camera import calibfile
     from acq.camera.calibfile import CalibStd, CameraCalib
     from acq.geometry.transforms import Rigid
-    from acq.log import drive_log
 
-    try:
-        log = drive_log.read_log(list(args.logs), camera=camera)
-    except InputValueError as e:
-        if args.camera is None and camera is not None and str(e).startswith("no camera "):
-            return None  # a camera of --intrinsics that this recording did not film
-        raise
-    name, cam = drive_log.camera_calib(log, calib, camera)
+    cam = calib.cameras[name]
     target_cam = cam
     if args.lens_swap is not None:
         try:
@@ -456,9 +465,12 @@ def _calibrate_one(
         result = calibrate(good)
     except ValueError as e:  # too few or degenerate poses
         who = f"camera {name!r}: " if several else ""
-        raise AcqError(
-            f"{who}{e} ({len(good)} usable of {len(intervals)} still poses found)"
-        ) from e
+        unseen = [(p.start_ns, p.end_ns) for p in data if p.problem == NOT_IN_IMAGE]
+        hint = board_size_hint(log, cam.model, unseen, spec) if unseen else ""
+        found = f"{e} ({len(good)} usable of {len(intervals)} still poses found)"
+        if hint:  # a board of another size found: --board is wrong
+            raise InputError(f"{who}--board {args.board}: {found}{hint}") from e
+        raise AcqError(f"{who}{found}") from e
     std = CalibStd(  # about the laser axes (rad -> deg), m; the intrinsics' std kept
         rotation_deg=tuple(np.degrees(result.std[:3])), translation_m=tuple(result.std[3:])
     ).rounded()
@@ -467,7 +479,7 @@ def _calibrate_one(
     if args.lens_swap is not None:
         T = Rigid(T.rotation, T.translation + T.rotation @ np.array([0.0, 0.0, args.pupil_shift]))
         method = f"{METHOD}+lens_swap"
-    entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std)
+    entry = CameraCalib(target_cam.model, T, target_cam.time_offset_s, method, std, target_cam.note)
     plot = plots.get(name) or next(iter(plots.values()))
     return _Calibrated(name, t0, data, good, result, entry, plot)
 
@@ -476,8 +488,8 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     """Write each camera's camera_to_laser, calibrated from the board poses in the logs,
     into CALIB (a copy of --intrinsics with them set, merged into an existing CALIB).
 
-    Cameras: each --camera given (repeatable); none given: --intrinsics' only camera,
-    or with several every one of them the logs have frames of.
+    Cameras: each --camera given (repeatable); none given: every camera of both the
+    logs and --intrinsics (:func:`acq.camera.selection.choose_cameras`).
 
     --lens-swap (the paper's way): the logs were recorded with a regular lens that
     --intrinsics describes, and the fisheye was mounted afterwards; CALIB is then a copy
@@ -496,6 +508,8 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     from acq.calib.relative_pose import relative_poses
     from acq.camera import calibfile
     from acq.camera.calibfile import Calibration
+    from acq.camera.selection import choose_cameras
+    from acq.log import drive_log
 
     logs, intrinsics, board, output = args.logs, args.intrinsics, args.board, args.output
     lens_swap = args.lens_swap
@@ -516,32 +530,25 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     backups = output_files.check(inputs, outputs, force=args.force)
     spec = parse_board(board)
     calib = calibfile.load(intrinsics, intrinsics_only=True)
-    names: list[str | None]
-    if asked is not None:
-        names = list(asked)
-    elif len(calib.cameras) > 1:
-        names = list(calib.cameras)
-    else:
-        names = [None]  # the only camera of --intrinsics, and of the log
-    if len(names) > 1 and asked is None:
-        plots = _plots(args.plot, output, [str(n) for n in names])
-        outputs = [yaml_out, *(Output("--plot", p, "image") for p in plots.values())]
-        backups = output_files.check(inputs, outputs, force=args.force)
-    else:
-        plots = first_plots
     target = calib if lens_swap is None else calibfile.load(lens_swap, intrinsics_only=True)
     old = None if in_place or not output.exists() else calibfile.load(output, intrinsics_only=True)
     if old is not None:
         calibfile.merged(old, target, (), str(output))  # another laser's: refused before the work
-    done: list[_Calibrated] = []
-    for camera in names:
-        one = _calibrate_one(args, camera, calib, target, spec, plots, len(names) > 1)
-        if one is not None:
-            done.append(one)
-    if not done:
-        raise InputValueError(
-            f"none of --intrinsics' cameras ({', '.join(calib.cameras)}) has frames in the log"
+    log = drive_log.read_log(list(logs), cameras=asked or [], calib=calib)
+    picked = choose_cameras(asked, log.camera_names, list(calib.cameras), one=False,
+                            calib=calib.label)  # fmt: skip
+    if len(picked) > 1 and asked is None:
+        plots = _plots(args.plot, output, [key for _, key in picked])
+        outputs = [yaml_out, *(Output("--plot", p, "image") for p in plots.values())]
+        backups = output_files.check(inputs, outputs, force=args.force)
+    else:
+        plots = first_plots
+    done = [
+        _calibrate_one(
+            args, log.with_camera(name), key, calib, target, spec, plots, len(picked) > 1
         )
+        for name, key in picked
+    ]
     entries = {c.name: c.entry for c in done}
     out = Calibration(target.laser, {**target.cameras, **entries}, target.laser_to_vehicle)
     if old is not None:
@@ -658,7 +665,12 @@ def run_time_offset(args: argparse.Namespace) -> int:
         std = cj.cam.std
         if np.isfinite(est.std_s):
             std = std.merged(CalibStd(time_offset_s=est.std_s).rounded(), ("time_offset_s",))
-        cams[key] = replace(cj.cam, time_offset_s=round(est.offset_s, 6), std=std)
+        how = (
+            f"estimated from {', '.join(Path(p).name for p in args.logs)} ({est.frames} frames, "
+            f"{est.points} laser points; mutual information of grey levels and return strengths)"
+        )
+        method = calibfile.method_with(cj.cam.method, "time_offset_s", how)
+        cams[key] = replace(cj.cam, time_offset_s=round(est.offset_s, 6), std=std, method=method)
     result = replace(calib, cameras=cams)
     if old is not None:
         result = calibfile.merged(old, result, keys, str(args.output))
@@ -709,9 +721,11 @@ def run_validate(args: argparse.Namespace) -> int:
         if args.out.exists() and not args.out.is_dir():
             raise InputError(f"-o {args.out}: is a file; give a folder")
         inputs = [("--calib", args.calib), *(("LOG", p) for p in args.logs)]
-        output_files.check(inputs, [Output("-o", overlay, "image")], force=args.force)
+        output_files.check(
+            inputs, [Output("-o", overlay, "image", makes_folder=True)], force=args.force
+        )
     cal = calibfile.load(args.calib)
-    log = drive_log.read_log(list(args.logs), camera=args.camera)
+    log = drive_log.read_log(list(args.logs), camera=args.camera, calib=cal)
     name, cam = drive_log.camera_calib(log, cal, args.camera)
     res = validate(log, cam, overlay=overlay)
     if args.json:

@@ -9,10 +9,17 @@ from dataclasses import asdict
 from pathlib import Path
 
 from acq.cli import output_files
+from acq.cli.camera_option import add_camera_option
 from acq.cli.option_types import integer, real
 from acq.cli.output_files import Output
 from acq.errors import InputError
 
+# the columns acq.motion.ins.from_csv reads
+TRAJECTORY_HELP = (
+    "post-processed GNSS/INS trajectory, a CSV file with a header line: time (UTC seconds "
+    "or ISO-8601) or gps_week,gps_sow; x,y,z (m) or lat,lon,h (WGS-84 deg, m); "
+    "roll,pitch,yaw or roll,pitch,heading (deg); other columns ignored"
+)
 HELP = "coloured 3D cloud of a drive (PLY, LAS, LAZ, COPC or E57)"
 # a chunk's scans and their points are in memory at once: a few seconds at the least
 CHUNK_S = real(1, 600, what="seconds")
@@ -48,12 +55,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "OUT.laz (the same, LASzip-compressed), OUT.copc.laz (Cloud-Optimized Point Cloud, "
         "for streaming; the cloud is held in memory) or OUT.e57 (ASTM E57)",
     )  # fmt: skip
-    col.add_argument(
-        "--camera", metavar="NAME", action="append",
-        help="colour from this camera (repeat for several; default: every camera of CALIB "
-        "that the log has frames of). Each point takes the camera whose view of it is best: "
+    add_camera_option(
+        col, "colour from this camera (each point takes the camera whose view of it is best: "
         "the smallest footprint on the surface, away from the image circle's rim, nearest in "
-        "time; the PLY's scalar_camera and scalar_frame (LAS: camera, frame) say which",
+        "time; the PLY's scalar_camera and scalar_frame, LAS: camera, frame, say which)",
+        several=True,
     )  # fmt: skip
     col.add_argument(
         "--blend", action="store_true",
@@ -78,8 +84,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )  # fmt: skip
     col.add_argument(
         "--trajectory", type=Path, metavar="CSV",
-        help="post-processed GNSS/INS trajectory (see acq/trajectory.py for the columns); "
-        "laser_to_vehicle from CALIB is the lever arm and boresight",
+        help=f"{TRAJECTORY_HELP}; laser_to_vehicle from CALIB is the lever arm and boresight "
+        "(default: the log's CAN odometry, fused with its GNSS fixes)",
     )  # fmt: skip
     col.add_argument(
         "--crs", metavar="EPSG:CODE",

@@ -35,7 +35,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "folder only with --force; an input or a file is refused. "
         "Exit status: 0 written, 2 bad input, 1 another failure.",
     )
-    ros2.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files of a session")
+    ros2.add_argument(
+        "logs", nargs="+", type=Path, metavar="LOG", help="MCAP files of a session, or its folder"
+    )
     ros2.add_argument(
         "-o", "--output", type=Path, required=True, metavar="BAG", help="the bag's folder"
     )

@@ -18,11 +18,16 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help=HELP,
         description="Summarise MCAP logs: channels with counts, rates and gaps; time span; "
         "drops and disconnects per device; clock-sync quality (drift, uncertainty, receive "
-        "minus stamp). Several files of one session are summarised together too. A file "
-        "whose writer was killed is read up to the cut and reported as not closed; "
-        "--repair writes an indexed copy of it.",
+        "minus stamp). Several files of one session are summarised together too; files of "
+        "several sessions each session on its own. A folder stands for its .mcap files. A "
+        "file being written is read as far as its recorder has written it; one whose "
+        "writer was killed is read up to the cut and reported as not closed; --repair "
+        "writes an indexed copy of it, which later commands read in its place when given "
+        "both (a folder holding both).",
     )
-    info.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files")
+    info.add_argument(
+        "logs", nargs="+", type=Path, metavar="LOG", help="MCAP files, or folders of them"
+    )
     info.add_argument("--json", action="store_true", help="JSON instead of text")
     info.add_argument(
         "--repair",
@@ -33,25 +38,31 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     info.add_argument(
         "-o", "--output", type=Path, help="with --repair and one LOG: the copy (a new file)"
     )
-    info.set_defaults(handler=run)
+    info.set_defaults(handler=run, sessions_apart=True)
 
 
 def run(args: argparse.Namespace) -> int:
-    from acq.log import summary
+    from acq.log import inputs, summary
     from acq.log.repair import repair
 
     if args.repair:
-        if args.output is not None and len(args.logs) > 1:
+        logs = inputs.log_files(args.logs)
+        if args.output is not None and len(logs) > 1:
             raise InputError("-o: with one LOG only (each LOG's copy is LOG.repaired.mcap)")
-        for src in args.logs:
+        for src in logs:
             dst = args.output if args.output else src.with_suffix(".repaired.mcap")
             option = "-o" if args.output else "the copy"
-            output_files.check([("LOG", p) for p in args.logs], [Output(option, dst, "mcap")])
+            output_files.check([("LOG", p) for p in logs], [Output(option, dst, "mcap")])
             if dst.exists():
                 raise InputError(f"{dst}: exists; not overwritten")
             with output_files.atomic(dst) as tmp:  # a failure leaves no half copy
                 n = repair(src, tmp)
             print(f"{src} -> {dst}: {n} messages, indexed")
         return 0
-    print(summary.format_info(summary.info_many(args.logs), json=args.json))
+    sessions = inputs.sessions(args.logs)
+    infos = [i for s in sessions for i in summary.info_many(s.files)]
+    if len(sessions) > 1 and not args.json:
+        listed = "; ".join(s.describe() for s in sessions)
+        print(f"{len(sessions)} recording sessions, each summarised on its own: {listed}\n")
+    print(summary.format_info(infos, json=args.json))
     return 0

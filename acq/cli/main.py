@@ -23,9 +23,11 @@ import logging
 import os
 import sys
 import traceback
+import warnings
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from acq import __version__, progress
 from acq.cli import (
@@ -69,7 +71,13 @@ EXIT_FAILURE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
 
 class _Parser(argparse.ArgumentParser):
     """argparse's parser, its usage errors one line (``acq colorize: argument --chunk:
-    expected seconds in [1, 600], got 'nan'``) and exit status 2; its sub-parsers too."""
+    expected seconds in [1, 600], got 'nan'``) and exit status 2; its sub-parsers too.
+    Options are taken by their whole names only: a prefix (``--camera`` for
+    ``--camera-height``) is no option."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         _say(self.prog, message)
@@ -143,8 +151,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     # what the imports made lives as long as the process: out of the collector's scans
     # (its full collections otherwise walk it again while a log's messages are read)
     gc.freeze()
-    logs: list[os.PathLike[str]] = getattr(args, "logs", None) or []
+    logs: Sequence[os.PathLike[str]] = getattr(args, "logs", None) or []
     try:
+        if logs:
+            logs = _log_inputs(args, logs)
         progress.enable(progress.wanted(getattr(args, "progress", False)))
         with progress.reading(logs):
             code = handler(args)
@@ -166,6 +176,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_FAILURE
 
 
+def _log_inputs(args: argparse.Namespace, logs: Sequence[os.PathLike[str]]) -> list[Path]:
+    """The files a command's LOG arguments (files or folders) name, for its progress bar;
+    ``args.logs`` becomes them, one session's (:func:`acq.log.inputs.session_files`:
+    InputError naming each session otherwise), unless the command takes several
+    sessions (``sessions_apart``: it resolves them itself)."""
+    from acq.log.inputs import log_files, session_files
+
+    if getattr(args, "sessions_apart", False):
+        return log_files(logs)
+    args.logs = session_files(logs)
+    return list(args.logs)
+
+
 def _log_lines(prog: str) -> None:
     """Library warnings as the command's own lines on stderr (``acq colorize: X.mcap: 1
     corrupt chunk skipped ...``), unless something already takes them (``acq record``
@@ -178,6 +201,22 @@ def _log_lines(prog: str) -> None:
     handler.addFilter(RedactingFilter())
     root.addHandler(handler)
     root.setLevel(logging.WARNING)
+    warnings.showwarning = _warning_line
+
+
+def _warning_line(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object = None,
+    line: str | None = None,
+) -> None:
+    """A library's warning (numpy's RuntimeWarning...) as one of the command's lines,
+    not Python's two lines of source."""
+    logging.getLogger("py.warnings").warning(
+        "warning: %s: %s (%s, line %d)", category.__name__, message, Path(filename).name, lineno
+    )
 
 
 def _flushed(prog: str, code: int, failed: OSError | None = None) -> int:

@@ -12,7 +12,8 @@ The rule every command that writes follows (its --help says it in :data:`RULE`):
 - an existing product (a cloud, an image, a JSON report) is replaced when acq wrote it
   (its mark, :mod:`acq.provenance`: the same command run again), otherwise only with
   --force; an existing MCAP log never;
-- two outputs of one command never name the same file.
+- two outputs of one command never name the same file;
+- an output goes into an existing folder, unless the command makes it (``-o DIR``).
 """
 
 from __future__ import annotations
@@ -129,13 +130,15 @@ class Output:
     the existing file and writes it back changed (``calibrate fisheye -o``): no --force
     needed, the old one is kept as NAME.bak all the same. ``in_place_of``: the input
     options (``--calib``) this output may be the same file as, to update it in place
-    (with --force, as any existing YAML)."""
+    (with --force, as any existing YAML). ``makes_folder``: the command creates the
+    folder the output goes into (``-o DIR``), so it need not exist."""
 
     option: str
     path: Path
     kind: str
     update: bool = False
     in_place_of: tuple[str, ...] = ()
+    makes_folder: bool = False
 
     def named(self) -> str:
         return f"{self.option} {self.path}"
@@ -163,6 +166,8 @@ def check(
         if same_input is not None and same_input[0] not in out.in_place_of:
             opt, p = same_input
             raise InputError(f"{out.named()}: is the input {opt} {p}; give another file")
+        if not out.makes_folder:
+            _check_folder(out)
         if not out.path.exists():
             continue
         if out.path.is_dir():
@@ -193,6 +198,19 @@ def check(
             )
         backups.append(out)
     return backups
+
+
+def _check_folder(out: Output) -> None:
+    """Refuse an output whose folder is missing or is not a folder, naming it."""
+    folder = out.path.absolute().parent
+    if folder.is_dir():
+        return
+    missing = folder
+    while not missing.parent.exists() and missing.parent != missing:
+        missing = missing.parent
+    if missing.exists():
+        raise InputError(f"{out.named()}: {missing} is a file, not a folder")
+    raise InputError(f"{out.named()}: the folder {missing} does not exist; create it first")
 
 
 def backup_name(path: Path) -> Path:

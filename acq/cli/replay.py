@@ -29,7 +29,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         description="Serve recorded logs (the split files of one session, in order) back "
         "through simulated devices: each scanner's raw telegrams byte for byte over SCIP "
         "(TCP, or a pseudo-terminal with --pty) or CoLa (TCP), each camera's JPEG bytes as "
-        "MJPEG over HTTP, at their recorded receive times. Prints the devices' URLs and a "
+        "MJPEG over HTTP, the vehicle's CAN frames on python-can udp_multicast (TTL 0: on "
+        "this host) and the GNSS receiver's NMEA sentences on TCP, at their recorded "
+        "receive times. Prints the devices' URLs and a "
         "configuration for `acq record -c`. The replay starts when a client first asks a "
         "device for data, and ends with the log (or Ctrl-C / SIGTERM). An address on every "
         "interface (0.0.0.0, ::) is warned of: the devices have no authentication. "
@@ -37,14 +39,17 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         + " Exit status: 0 served, 1 runtime failure, 2 bad log or "
         "address.",
     )
-    replay.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files, in order")
+    replay.add_argument(
+        "logs", nargs="+", type=Path, metavar="LOG", help="MCAP files in order, or a folder"
+    )
     replay.add_argument(
         "--speed", type=real(0.01, 1000, what="a speed"), default=1.0, metavar="X",
         help="playback speed (default 1, the recorded pace; 2 plays twice as fast)",
     )  # fmt: skip
     replay.add_argument(
         "--listen", metavar="tcp://HOST:PORT",
-        help="the first scanner's address, the next ones on the following ports "
+        help="the first scanner's address, the next scanners and the GNSS receiver on the "
+        "following ports "
         "(default: 127.0.0.1, free ports)",
     )  # fmt: skip
     replay.add_argument(
@@ -71,7 +76,7 @@ def _describe_session(replay: Replay) -> str:
     s = replay.session
     parts = []
     for d in s.devices.values():
-        what = "scans" if d.kind == "scanner" else "frames"
+        what = {"scanner": "scans", "gnss": "sentences", "can": "CAN frames"}.get(d.kind, "frames")
         parts.append(f"{d.name}: {len(d.data)} {what} at {d.rate_hz:.1f} Hz ({d.driver})")
     files = f"{len(s.files)} file" + ("s" if len(s.files) != 1 else "")
     return f"replaying {files}, {s.duration_s:.1f} s at speed {replay.speed:g}: " + "; ".join(parts)

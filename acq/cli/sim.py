@@ -1,4 +1,4 @@
-"""`acq sim render|scanner|camera`: the synthetic street and its simulated devices."""
+"""`acq sim render|scanner|camera|rig`: the synthetic street and its simulated devices."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import sys
 import threading
 from pathlib import Path
 
-from acq.cli import output_files
+from acq.cli import output_files, sim_logs
+from acq.cli.camera_option import add_camera_option
 from acq.cli.exposure import warn_if_exposed
 from acq.cli.option_types import SEED, real
 from acq.cli.output_files import Output
@@ -48,8 +49,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="an exactly equidistant lens instead of the default with small k1..k4",
     )
+    add_camera_option(
+        render, "the simulated camera to render", named="camera (the one-camera rig's) or "
+        "left, right, rear (the three-camera rig's)", default="camera",
+    )  # fmt: skip
     render.set_defaults(handler=run_render)
 
+    sim_logs.add_parser(sim_sub)
     simscan = sim_sub.add_parser(
         "scanner",
         help="serve one simulated scanner for any client",
@@ -87,17 +93,58 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     simcam.add_argument("--seed", type=SEED, default=0, help="street seed")
     simcam.set_defaults(handler=run_camera)
+    _add_rig_parser(sim_sub)
+
+
+RIG_MARK = ".acq-sim-rig"  # in a folder `acq sim rig` wrote: it may write there again
+RIG_FILES = ("rig.yaml", "calib.yaml")
+
+
+def _add_rig_parser(sim_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    rig = sim_sub.add_parser(
+        "rig",
+        help="serve the whole simulated rig (scanner, two cameras, car, GNSS) for acq record",
+        description="Serve the simulated rig of `acq demo` as live devices on this host's "
+        "loopback, all driving down the synthetic street from one instant: a UTM-30LX "
+        "speaking SCIP over TCP, two 185-degree fisheyes (left, right) serving MJPEG over "
+        "HTTP, each from its own process, the car's wheel speeds and yaw rate as CAN frames "
+        "(python-can udp_multicast, TTL 0: they stay on this host) and a GNSS receiver "
+        "sending NMEA over TCP. The cameras first render the frames of the drive's first "
+        "--prerender seconds (later frames are rendered when due, late on a busy machine). "
+        "When the devices are up it writes DIR/rig.yaml (the configuration for `acq record "
+        "-c`) and DIR/calib.yaml (the rig's true calibration, for `acq colorize --calib`) "
+        "and prints the commands to record and colour; DIR/rig.yaml is removed when the rig "
+        "stops (its devices are gone). Runs until Ctrl-C, SIGTERM or --duration. The drive "
+        "loops over the street's 1 km every 180 s: record less than that. DIR must be new, "
+        f"empty or an earlier rig's (it holds {RIG_MARK}): only its own files there are "
+        "replaced.",
+    )
+    rig.add_argument(
+        "--out", default="rig", help="folder for rig.yaml and calib.yaml (default: rig)"
+    )
+    rig.add_argument(
+        "--duration", type=real(0, 1e6, lo_open=True, what="seconds"), metavar="S",
+        help="stop S seconds after it is ready (default: run until Ctrl-C)",
+    )  # fmt: skip
+    rig.add_argument(
+        "--prerender", type=real(0, 170, what="seconds"), default=30.0, metavar="S",
+        help="seconds of the drive the cameras render before it starts, at most 170 "
+        "(default 30, enough to record 20 s; 93 s to start with a load of 10 on 2 cores; "
+        "1.8 MB of memory a second per camera)",
+    )  # fmt: skip
+    rig.set_defaults(handler=run_rig)
 
 
 def run_render(args: argparse.Namespace) -> int:
     from acq.sim import render
 
+    render.check_camera(args.camera or "camera")  # before any output is touched
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; give a folder")
-    outputs = [Output("--out", out / name, kind) for name, kind in RENDERED]
+    outputs = [Output("--out", out / name, kind, makes_folder=True) for name, kind in RENDERED]
     output_files.keep_backups("acq sim render", output_files.check([], outputs, force=args.force))
-    s = render.write(args.out, args.time, args.seed, args.equidistant)
+    s = render.write(args.out, args.time, args.seed, args.equidistant, args.camera or "camera")
     print(
         f"t = {s.time_s:.3f} s: {s.laser_points} laser points with an echo, {s.in_image} on "
         f"the fisheye image ({s.occluded} hidden behind nearer objects)\n"
@@ -111,13 +158,16 @@ def run_render(args: argparse.Namespace) -> int:
     return 0
 
 
-def _wait_for_signal() -> None:
-    """Block until Ctrl-C or SIGTERM."""
+def _wait_for_signal(deadline: float | None = None) -> None:
+    """Block until Ctrl-C or SIGTERM, or until ``deadline`` (monotonic s)."""
+    import time
+
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     try:
-        while not done.wait(0.5):
-            pass
+        while not done.wait(0.5 if deadline is None else min(0.5, deadline - time.monotonic())):
+            if deadline is not None and time.monotonic() >= deadline:
+                break
     except KeyboardInterrupt:
         pass
 
@@ -167,4 +217,58 @@ def run_camera(args: argparse.Namespace) -> int:
         _wait_for_signal()
     finally:
         server.close()
+    return 0
+
+
+def _interrupt(*_: object) -> None:
+    raise KeyboardInterrupt
+
+
+def run_rig(args: argparse.Namespace) -> int:
+    import time
+
+    import yaml
+
+    from acq.camera import calibfile
+    from acq.sim.demo_rig import CAMERAS, SimRig, rig_config, true_calibration
+    from acq.sim.out_folder import claim_folder
+
+    out = Path(args.out)
+    claim_folder(out, RIG_MARK, "an acq sim rig", RIG_FILES)
+    config_path, calib_path = out / "rig.yaml", out / "calib.yaml"
+    config_path.unlink(missing_ok=True)  # an earlier rig's: its devices are gone
+    print(
+        f"acq sim rig: a simulated UTM-30LX, two 185-degree fisheyes ({', '.join(CAMERAS)}), "
+        "the car's CAN bus and a GNSS receiver on the synthetic street, on this host's "
+        f"loopback; the cameras first render {args.prerender:g} s of frames",
+        flush=True,
+    )
+    signal.signal(signal.SIGTERM, _interrupt)  # while the cameras render: stop them too
+    rig = SimRig(prerender_s=args.prerender, loopback=True, gnss=True)
+    try:
+        for name, url in rig.urls.items():
+            print(f"  {name}: {url}", flush=True)
+        calibfile.save(true_calibration(), calib_path)
+        data = rig_config(rig, Path(calib_path.name), {"dir": "logs", "prefix": "rig"})
+        output_files.write_text(
+            config_path,
+            "# `acq sim rig`'s devices, while it runs (it removes this file when it stops)\n"
+            + yaml.safe_dump(data, sort_keys=False),
+        )
+        print(
+            f"wrote {config_path} and {calib_path} (the rig's true calibration)\n"
+            f"record it: acq record -c {config_path} --out logs --duration 20\n"
+            f"colour it: acq colorize logs/rig_*.mcap --calib {calib_path} -o cloud.ply\n"
+            + (
+                f"the rig stops in {args.duration:g} s"
+                if args.duration
+                else "the rig runs until Ctrl-C"
+            ),
+            flush=True,
+        )
+        _wait_for_signal(None if args.duration is None else time.monotonic() + args.duration)
+    finally:
+        rig.close()
+        config_path.unlink(missing_ok=True)
+    print(f"acq sim rig: stopped; removed {config_path}", flush=True)
     return 0

@@ -73,12 +73,13 @@ from acq.cloud.chunks import (
     plan,
     start_chunk,
 )
-from acq.cloud.job import CameraJob, Job, prepare, remap, session_files
+from acq.cloud.job import CameraJob, Job, prepare, remap
 from acq.cloud.preview import preview_png
 from acq.cloud.report import Report
 from acq.cloud.writer import FORMATS, CloudWriter
 from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
+from acq.log.inputs import session_files
 from acq.log.locate import locate
 from acq.motion import Trajectory
 from acq.time.host_clock_summary import utc_doubt
@@ -392,7 +393,8 @@ def run(
     report = Report(output=str(output), view=options.view)
     # here, a log up to READ_ONCE_BYTES is read once with its images; a longer one's
     # chunks read their own part (its images never all in memory), as workers do
-    size = sum(f.stat().st_size for f in session_files(logs) if f.is_file())
+    logs = session_files(logs)
+    size = sum(f.stat().st_size for f in logs if f.is_file())
     local = workers <= 1 and not dask
     once = local and size <= READ_ONCE_BYTES
     auto = isinstance(time_offset_s, str)

@@ -19,18 +19,23 @@ from acq import motion
 from acq.camera import projection
 from acq.camera.calibfile import Calibration, CameraCalib
 from acq.camera.camera_models import CameraModel
+from acq.camera.selection import choose_cameras
 from acq.cloud import views
 from acq.cloud.report import Report
 from acq.drivers.scanner import SCANNERS
 from acq.errors import InputValueError
+from acq.geometry.rotations import matrix_from_quat
 from acq.geometry.transforms import Rigid
-from acq.log.drive_log import DriveLog, camera_calib, read_log
+from acq.log.drive_log import DriveLog, check_frame_size, read_log
+from acq.log.inputs import session_files
 from acq.log.vehicle_log import read_vehicle
 from acq.motion import Trajectory
 from acq.time import retime
 from acq.time.utc import host_ns_from_utc
 
-__all__ = ["CameraJob", "Job", "check_crs", "prepare", "remap", "session_files"]
+__all__ = ["CameraJob", "Job", "check_crs", "prepare", "remap"]
+
+POSE_GAP_S = 0.5  # s: no pose inside a longer interval between two poses, as for odometry
 
 
 @dataclass(frozen=True)
@@ -86,6 +91,9 @@ def remap(old: np.ndarray, new: np.ndarray, stamps: np.ndarray) -> np.ndarray:
 def _retime_scans(log: DriveLog, report: Report) -> np.ndarray:
     """New stamps for ``log``'s scans (its recorded ones, sorted); notes in ``report``."""
     scan_new = log.scan_ns.copy()
+    if not np.any(log.scan_ticks >= 0):  # a ROS 2 bag, or no timing records
+        report.notes.append("scans not re-timed: the log has no device ticks (stamps kept)")
+        return scan_new
     driver = log.metadata.get(f"device.{log.laser}", {}).get("driver", "")
     try:
         cls = SCANNERS.get(driver)
@@ -143,7 +151,13 @@ def _trajectory(
     if vehicle is None:
         vehicle = read_vehicle(list(files))
     report.notes += vehicle.notes
-    odo, fixes = vehicle.odometry, vehicle.fixes
+    odo, fixes, poses = vehicle.odometry, vehicle.fixes, vehicle.poses
+    if len(odo) < 2 and len(poses) >= 2:  # a ROS 2 bag's /tf, when it has no odometry
+        report.trajectory = f"the log's odom -> base_link poses ({len(poses)}, /tf)"
+        return Trajectory(
+            poses.t_ns, matrix_from_quat(poses.quaternion), poses.translation,
+            max_gap_s=POSE_GAP_S,
+        )  # fmt: skip
     usable = np.isfinite(fixes.lat) & (fixes.quality > 0) if len(fixes) else np.zeros(0, bool)
     if len(odo) < 2 and usable.sum() < 5:
         return None
@@ -251,14 +265,9 @@ def prepare(
     first = calib.cameras.get(names[0]) if names else next(iter(calib.cameras.values()), None)
     if first is not None:
         threading.Thread(target=_warm_kernels, args=(first.model,), daemon=True).start()
-    # a calibration of one camera pairs with the log's only camera, whatever its name
-    single = not names and len(calib.cameras) == 1
-    index = read_log(
-        files, cameras=None if single else (names or list(calib.cameras)), jpegs=jpegs,
-        vehicle=trajectory is None,
-    )  # fmt: skip
+    index = read_log(files, cameras=names, jpegs=jpegs, vehicle=trajectory is None, calib=calib)
     report.notes += index.notes
-    pairs = _camera_calibs(index, calib, names, single, report)
+    pairs = _camera_calibs(index, calib, names, report)
     scan_new = _retime_scans(index, report) if retime_offline else index.scan_ns
     traj = _trajectory(files, trajectory, index, report, crs)
     world = frame == "world" if frame is not None else traj is not None
@@ -267,6 +276,14 @@ def prepare(
                          "in the log, or --trajectory CSV); use --frame laser")  # fmt: skip
     if crs:
         check_crs(crs, traj, world, report.trajectory or "none")
+    if options.view == "best" and (traj is None or not options.motion_compensation):
+        raise InputValueError(
+            "--view best needs a trajectory (CAN odometry or GNSS fixes in the log, or "
+            "--trajectory CSV) and motion compensation; use --view nearest"
+            if traj is None
+            else "--view best needs motion compensation: drop --no-motion-compensation, "
+            "or use --view nearest"
+        )
     if traj is None:
         report.notes.append(
             "no trajectory: points in the laser frame at their own time, coloured without "
@@ -313,53 +330,31 @@ def prepare(
 
 
 def _camera_calibs(
-    index: DriveLog, calib: Calibration, names: list[str], single: bool, report: Report
+    index: DriveLog, calib: Calibration, names: list[str], report: Report
 ) -> list[tuple[str, CameraCalib]]:
     """(name in the log, calibration) of each camera to colour from: those ``names``,
-    else every camera of ``calib`` the log has frames of (``single``: the calibration's
-    only camera for the log's only one). UnknownCameraError for a camera not in
-    ``calib``; InputValueError when a named camera, or every one, has no frames."""
-    if single:
-        name, cam = camera_calib(index, calib, None)
-        return [(index.camera, cam)]
-    pairs = []
-    for name in names or list(calib.cameras):
-        cam = calib.camera(name)
-        if index.cameras.get(name) is None or not index.cameras[name].frame_ns.size:
-            if names:
-                raise InputValueError(f"--camera {name}: the log has no frames of it")
-            report.notes.append(f"camera {name}: no frames in the log; not used")
-            continue
-        pairs.append((name, cam))
-    if not pairs:
-        raise InputValueError(
-            f"the log has no frames of the calibration's cameras ({', '.join(calib.cameras)})"
-        )
-    return pairs
+    else every camera of both the log and ``calib``
+    (:func:`acq.camera.selection.choose_cameras`); a camera of ``calib`` left out for
+    want of frames is noted in ``report``."""
+    picked = choose_cameras(names, index.camera_names, list(calib.cameras), one=False,
+                            calib=calib.label)  # fmt: skip
+    used = {key for _, key in picked}
+    report.notes += [f"camera {n}: no frames in the log; not used" for n in calib.cameras
+                     if n not in used]  # fmt: skip
+    for name, key in picked:
+        check_frame_size(index, name, calib.cameras[key])
+    return [(name, calib.cameras[key]) for name, key in picked]
 
 
 def _median_speed(traj: Any, scan_ns: np.ndarray) -> float:
     """The rig's median speed over the log (m/s), 0 without a trajectory."""
-    if traj is None or scan_ns.size < 2:
+    t = np.unique(scan_ns)  # sorted; a stamp twice has no speed
+    if traj is None or t.size < 2:
         return 0.0
-    t = np.sort(scan_ns)[:: max(1, scan_ns.size // 200)]
+    t = t[:: max(1, t.size // 200)]
     t = t[traj.covers(t)]
     if t.size < 2:
         return 0.0
     _, pos = traj.pose_at(t)
     v = np.linalg.norm(np.diff(pos, axis=0), axis=1) / (np.diff(t) * 1e-9)
     return float(np.median(v)) if v.size else 0.0
-
-
-def session_files(logs: Sequence[Path]) -> list[Path]:
-    """The MCAP files of ``logs`` (a folder stands for its *.mcap files, sorted)."""
-    out: list[Path] = []
-    for p in logs:
-        if p.is_dir():
-            found = sorted(p.glob("*.mcap"))
-            if not found:
-                raise InputValueError(f"{p}: no .mcap files in this folder")
-            out += found
-        else:
-            out.append(p)
-    return out

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass
 
 import cv2
@@ -288,20 +289,50 @@ def preview_panels(
 
 
 def _label(
-    img: np.ndarray, text: str, x: int = 10, scale: float = 0.55, colour: tuple[int, ...] = _TEXT
+    img: np.ndarray,
+    text: str,
+    x: int = 10,
+    scale: float = 0.55,
+    colour: tuple[int, ...] = _TEXT,
+    y: int = 23,
 ) -> int:
-    """Write ``text`` at ``x``; returns the x just after it, px."""
-    cv2.putText(img, text, (x, 23), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
-    return x + cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0]
+    """Write ``text`` at ``x`` on the baseline ``y``; returns the x just after it, px."""
+    cv2.putText(img, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
+    return x + _width(text, scale)
+
+
+def _width(text: str, scale: float) -> int:
+    return int(cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0])
+
+
+def _wrapped(text: str, width: int, scale: float) -> list[str]:
+    """``text`` in lines of at most ``width`` px, broken after a "; " or ", " where
+    that is enough, else between words (never before a unit or a closing bracket)."""
+    lines: list[str] = []
+    for phrase in re.split(r"(?<=[;,]) ", text):
+        words = [phrase] if _width(phrase, scale) <= width else re.split(r" (?![%)]|cm/)", phrase)
+        for word in words:
+            if lines and _width(f"{lines[-1]} {word}", scale) <= width:
+                lines[-1] = f"{lines[-1]} {word}"
+            else:
+                lines.append(word)
+    return lines
 
 
 def _band(w: int, text: str, res: float = 0.0, scale: float = 0.55) -> np.ndarray:
-    """A 34 px caption strip, with a 10 m scale bar at its right when ``res`` is given."""
-    band = np.full((34, w, 3), _BG, dtype=np.uint8)
-    _label(band, text, scale=scale)
+    """A caption strip (34 px, and 22 px more a line where the text is wrapped), with a
+    10 m scale bar at its right when ``res`` is given: the text is wrapped to end before
+    the bar (or the strip's edge)."""
     bar = round(10.0 / res) if res > 0 else 0
-    if bar and bar + 80 < w // 2:
-        x1 = w - 60
+    if not (bar and bar + 80 < w // 2):
+        bar = 0
+    x1 = w - 60
+    room = (x1 - bar - 16 if bar else w - 10) - 10
+    lines = _wrapped(text, room, scale)
+    band = np.full((34 + 22 * (len(lines) - 1), w, 3), _BG, dtype=np.uint8)
+    for k, line in enumerate(lines):
+        _label(band, line, scale=scale, y=23 + 22 * k)
+    if bar:
         cv2.line(band, (x1 - bar, 17), (x1, 17), _TEXT, 2)
         _label(band, "10 m", x1 + 8, 0.5)
     return band
@@ -309,13 +340,25 @@ def _band(w: int, text: str, res: float = 0.0, scale: float = 0.55) -> np.ndarra
 
 def _legend(w: int, text: str, cameras: list[tuple[str, float]]) -> np.ndarray:
     """A caption strip: ``text``, then per camera a swatch of its colour, its name and
-    its share of the points, then the share no camera coloured."""
-    band = _band(w, text)
-    x = 10 + cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.55, 1)[0][0] + 24
-    for k, (name, share) in enumerate(cameras):
-        colour = UNCOLOURED_RGB if k == len(cameras) - 1 else _palette(k)
-        cv2.rectangle(band, (x, 11), (x + 14, 25), colour, -1)
-        x = _label(band, f"{name} {100 * share:.1f} %", x + 20) + 24
+    its share of the points, then the share no camera coloured; on further lines where
+    the strip is too narrow."""
+    scale = 0.55
+    lines = _wrapped(text, w - 20, scale)
+    x, k = 10 + _width(lines[-1], scale) + 24, len(lines) - 1
+    places = []
+    for name, share in cameras:
+        label = f"{name} {100 * share:.1f} %"
+        if x + 20 + _width(label, scale) > w - 10:
+            x, k = 10, k + 1
+        places.append((x, k, label))
+        x += 20 + _width(label, scale) + 24
+    band = np.full((34 + 22 * k, w, 3), _BG, dtype=np.uint8)
+    for n, line in enumerate(lines):
+        _label(band, line, scale=scale, y=23 + 22 * n)
+    for c, (x, n, label) in enumerate(places):
+        colour = UNCOLOURED_RGB if c == len(cameras) - 1 else _palette(c)
+        cv2.rectangle(band, (x, 11 + 22 * n), (x + 14, 25 + 22 * n), colour, -1)
+        _label(band, label, x + 20, scale, y=23 + 22 * n)
     return band
 
 

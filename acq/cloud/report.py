@@ -59,7 +59,7 @@ class Report:
                 f"re-timed offline: scans moved {rt.get('scan_shift_rms_ms', 0):.3f} ms RMS, "
                 f"frames {rt.get('frame_residual_rms_ms', 0):.2f} ms RMS receipt jitter removed"
             )
-        out += self._camera_lines() + self._balance_lines()
+        out += self._camera_lines() + self._time_offset_lines() + self._balance_lines()
         total = sum(self.seconds.values())
         if total:
             parts = ", ".join(f"{k} {v:.1f} s" for k, v in self.seconds.items())
@@ -79,6 +79,25 @@ class Report:
             if "frames" in c:
                 frames += f" of {c['frames']:,}"
             out.append(f"camera {name}: {n:,} points ({share:.1f} %) from {frames} frames")
+        return out
+
+    def _time_offset_lines(self) -> list[str]:
+        """--time-offset auto: per camera the offset used (camera minus laser time), with
+        its standard error when estimated, else CALIB's and why (the note)."""
+        out = []
+        for name, c in self.time_offset.get("cameras", {}).items():
+            if "found" not in c:  # not estimated: CALIB's or --time-offset S, as given
+                continue
+            used = f"{1e3 * c.get('used_s', 0.0):+.2f} ms"
+            if c["found"]:
+                se = c.get("std_s", float("nan"))
+                se_text = f" +- {1e3 * se:.2f} ms" if se == se else " (no standard error)"
+                out.append(
+                    f"time offset {name}: {used}{se_text} (camera minus laser time), estimated "
+                    f"from {c.get('frames', 0):,} frames of this log (--time-offset auto)"
+                )
+            else:
+                out.append(f"time offset {name}: {used}, CALIB's: no estimate (see the note)")
         return out
 
     def _balance_lines(self) -> list[str]:

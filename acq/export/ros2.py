@@ -5,7 +5,9 @@ What goes in (:mod:`acq.export.ros_messages` for the frames and fields):
 
 - ``/<laser>/scan``: sensor_msgs/LaserScan, stamped at the scan's first point;
 - ``/<camera>/image/compressed``: sensor_msgs/CompressedImage, at mid-exposure;
-- ``/<camera>/camera_info``: sensor_msgs/CameraInfo, from ``/<camera>/calibration``;
+- ``/<camera>/camera_info``: sensor_msgs/CameraInfo, from ``/<camera>/calibration``
+  (else the log's ``calibration`` record), one with every image and stamped as it is
+  (as ROS image pipelines pair them);
 - ``/tf_static``: tf2_msgs/TFMessage, offered transient-local (as tf2's static
   broadcaster does, so a late subscriber of ``ros2 bag play`` gets it);
 - ``/odom`` (nav_msgs/Odometry) and ``/tf`` (odom -> base_link), one of each per
@@ -13,8 +15,8 @@ What goes in (:mod:`acq.export.ros_messages` for the frames and fields):
 - ``/gnss/fix``: sensor_msgs/NavSatFix.
 
 Header stamps and the bag's receive times are UTC ns (:mod:`acq.export.log_clock`).
-A latched message repeated at the start of each file of a split session (the
-calibration, ``/tf_static``) goes in once, again only when it changes. The acq.* timing,
+``/tf_static``, repeated at the start of each file of a split session, goes in once,
+again only when it changes. The acq.* timing,
 raw and status records have no ROS counterpart and are counted as left out.
 """
 
@@ -97,6 +99,7 @@ class _Session:
     clock: LogClock
     odometry: VehicleReader
     cameras: list[str]  # from their image and calibration topics
+    calibrations: dict[str, Any]  # each camera's first foxglove.CameraCalibration
 
 
 def _first_pass(files: Sequence[Path]) -> _Session:
@@ -105,12 +108,16 @@ def _first_pass(files: Sequence[Path]) -> _Session:
     pairs: list[tuple[int, int]] = []
     vehicle = VehicleReader()
     cameras: set[str] = set()
+    calibrations: dict[str, Any] = {}
 
-    def wanted(_schema: Any, channel: Any) -> str | None:
+    def wanted(schema: Any, channel: Any) -> str | None:
+        topic: str = channel.topic
         for suffix in ("/image/compressed", "/calibration"):
-            if channel.topic.endswith(suffix):
-                cameras.add(channel.topic[1:].removesuffix(suffix))
-        return channel.topic if channel.topic in (_CLOCK_TOPIC, ODOMETRY_TOPIC) else None
+            if topic.endswith(suffix):
+                cameras.add(_camera(topic, suffix))
+        if schema is not None and schema.name == _CALIBRATION:
+            return topic
+        return topic if topic in (_CLOCK_TOPIC, ODOMETRY_TOPIC) else None
 
     for path in files:
         metadata.update(read_metadata(path))
@@ -118,10 +125,49 @@ def _first_pass(files: Sequence[Path]) -> _Session:
             if topic == _CLOCK_TOPIC:
                 if msg is not None:
                     pairs.append((int(msg.monotonic_ns), int(msg.realtime_ns)))
+            elif topic.endswith("/calibration"):
+                if msg is not None:
+                    calibrations.setdefault(_camera(topic, "/calibration"), msg)
             else:
                 vehicle.add(topic, msg)
     clock = LogClock(TimeBase.of_metadata(metadata), np.array(pairs, np.int64).reshape(-1, 2))
-    return _Session(metadata, clock, vehicle, sorted(cameras))
+    missing = [c for c in cameras if c not in calibrations]
+    calibrations.update(_recorded_calibrations(metadata, missing) if missing else {})
+    return _Session(metadata, clock, vehicle, sorted(cameras), calibrations)
+
+
+def _recorded_calibrations(
+    metadata: dict[str, dict[str, str]], cameras: list[str]
+) -> dict[str, Any]:
+    """foxglove.CameraCalibration of ``cameras`` from the log's ``calibration`` record
+    (the calib.yaml of the recording), for a log without calibration messages."""
+    import yaml
+
+    from acq.camera import calibfile
+    from acq.errors import InputError
+    from acq.log import schemas
+
+    text = metadata.get("calibration", {}).get("yaml")
+    if not text:
+        return {}
+    try:
+        calib = calibfile.parse(yaml.safe_load(text), "the log's calibration record")
+    except (InputError, yaml.YAMLError):
+        return {}
+    out = {}
+    for name in cameras:
+        if name in calib.cameras:
+            try:
+                data = schemas.camera_calibration(calib.cameras[name], name, 0)
+            except ValueError:  # a camera model Foxglove's message cannot hold
+                continue
+            out[name] = schemas.decode(_CALIBRATION, data)
+    return out
+
+
+def _camera(topic: str, suffix: str) -> str:
+    """The camera of ``/<camera><suffix>``."""
+    return topic[1:].removesuffix(suffix)
 
 
 def export_ros2(
@@ -181,6 +227,8 @@ def export_ros2(
 
     left_out: Counter[str] = Counter()
     seen_latched: dict[str, bytes] = {}
+    calibrations = dict(session.calibrations)  # the latest before an image, else the first
+    uncalibrated: set[str] = set()
     geometry: dict[str, ScanGeometry] = {}
     read = 0
     try:
@@ -218,12 +266,19 @@ def export_ros2(
                     ros = build.laser_scan(msg, stamp, geometry[laser])
                     put(topic, "sensor_msgs/msg/LaserScan", ros, log_ns)
                 elif name == "foxglove.CompressedImage":
-                    ros = build.compressed_image(msg, clock.to_utc(build.stamp_ns(msg)))
+                    stamp = clock.to_utc(build.stamp_ns(msg))
+                    ros = build.compressed_image(msg, stamp)
                     put(topic, "sensor_msgs/msg/CompressedImage", ros, log_ns)
-                elif name == "foxglove.CameraCalibration":
-                    ros = build.camera_info(msg, clock.to_utc(build.stamp_ns(msg)))
-                    info_topic = topic.removesuffix("/calibration") + "/camera_info"
-                    put(info_topic, "sensor_msgs/msg/CameraInfo", ros, log_ns)
+                    camera = _camera(topic, "/image/compressed")
+                    calibration = calibrations.get(camera)
+                    if calibration is not None:  # each image with its camera_info
+                        info = build.camera_info(calibration, stamp)
+                        put(f"/{camera}/camera_info", "sensor_msgs/msg/CameraInfo", info, log_ns)
+                    elif camera not in uncalibrated:
+                        uncalibrated.add(camera)
+                        report.notes.append(f"{camera}: no calibration in the log: no camera_info")
+                elif name == _CALIBRATION:  # the one the next images go with
+                    calibrations[_camera(topic, "/calibration")] = msg
                 elif name == "foxglove.FrameTransforms":
                     ros = build.tf_static(msg, clock.to_utc)
                     put("/tf_static", "tf2_msgs/msg/TFMessage", ros, log_ns, static=True)
@@ -245,6 +300,7 @@ def export_ros2(
     return report
 
 
+_CALIBRATION = "foxglove.CameraCalibration"
 _CONVERTED = frozenset(
     {
         "foxglove.LaserScan",
@@ -254,7 +310,7 @@ _CONVERTED = frozenset(
         "foxglove.LocationFix",
     }
 )
-_LATCHED = frozenset({"foxglove.CameraCalibration", "foxglove.FrameTransforms"})
+_LATCHED = frozenset({"foxglove.FrameTransforms"})
 
 
 class _OdometryTrack:

@@ -23,6 +23,9 @@ import numpy as np
 
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
+from acq.camera.selection import choose_cameras
+from acq.drivers.errors import ProtocolError
+from acq.drivers.mjpeg import jpeg_size
 from acq.errors import InputValueError
 from acq.log.reader import LogReader, read_metadata
 from acq.log.vehicle_log import VehicleLog, VehicleReader
@@ -33,12 +36,15 @@ class CameraFrames:
     """One camera's frames in a log: ``frame_ns`` (F,) host ns of the middle of
     exposure, sorted; ``frame_seq`` (F,) the driver's sequence numbers (-1 where unknown;
     they restart on a reconnect); ``frame_recv_ns`` (F,) receipt (-1 where unknown);
-    ``jpegs`` the bytes as the camera sent them (empty when read without them)."""
+    ``jpegs`` the bytes as the camera sent them (empty when read without them);
+    ``size`` (width, height) px of the first frame read whose JPEG header parses (None:
+    none did)."""
 
     frame_ns: np.ndarray
     frame_seq: np.ndarray
     frame_recv_ns: np.ndarray
     jpegs: list[bytes]
+    size: tuple[int, int] | None = None
 
     @staticmethod
     def empty() -> CameraFrames:
@@ -57,6 +63,7 @@ class CameraFrames:
             frame_seq=part(self.frame_seq),
             frame_recv_ns=part(self.frame_recv_ns),
             jpegs=[self.jpegs[int(i)] for i in f] if self.jpegs else [],
+            size=self.size,
         )
 
 
@@ -73,7 +80,8 @@ class DriveLog:
     log without frames; :meth:`with_camera` picks another). ``clock`` (K,2) int64 pairs
     (monotonic ns, realtime ns). ``metadata`` by name (the last record of each name).
     ``vehicle``: the odometry and GNSS fixes (:class:`acq.log.vehicle_log.VehicleLog`)
-    when read with them.
+    when read with them. ``camera_names``: every camera the log has frames of, read or
+    not.
     """
 
     files: tuple[Path, ...]
@@ -92,6 +100,7 @@ class DriveLog:
     notes: list[str] = field(default_factory=list)  # what was missing and assumed
     scan_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     vehicle: VehicleLog | None = None
+    camera_names: tuple[str, ...] = ()  # every camera with frames in the log, read or not
 
     @property
     def frames(self) -> CameraFrames:
@@ -197,6 +206,7 @@ def read_log(
     end_ns: int | None = None,
     jpegs: bool = True,
     vehicle: bool = False,
+    calib: Calibration | None = None,
 ) -> DriveLog:
     """Scans, frames, clock pairs and metadata of a log (or of a session's files, in the
     order given). ``laser``/``camera`` name the devices where the log has several;
@@ -208,7 +218,10 @@ def read_log(
     fixes, whatever their time in those chunks; metadata whatever their time.
     ``jpegs=False`` leaves the images' bytes out (their stamps stay); ``vehicle``: also
     the odometry and GNSS fixes, in the same pass, as
-    :func:`acq.log.vehicle_log.read_vehicle`.
+    :func:`acq.log.vehicle_log.read_vehicle`. ``calib``: the cameras read are then
+    those :func:`acq.camera.selection.choose_cameras` picks from the log's and
+    ``calib``'s, ``camera`` or ``cameras`` being what ``--camera`` asked (with
+    ``cameras``, every camera of both when it is empty).
 
     Files whose writer was killed are read up to their last good record
     (:class:`acq.log.LogReader`); undecodable messages are skipped (noted).
@@ -223,6 +236,7 @@ def read_log(
     metadata: dict[str, dict[str, str]] = {}
     scans: dict[str, list[_ScanMsg]] = {}
     frames: dict[str, list[tuple[int, bytes]]] = {}
+    sizes: dict[str, tuple[int, int] | None] = {}  # by camera: its first frame's
     timing: dict[str, dict[int, tuple[int, int, int]]] = {}  # stamp -> (tick, seq, recv)
     lo = -(2**63) if start_ns is None else start_ns
     hi = 2**63 - 1 if end_ns is None else end_ns
@@ -249,6 +263,8 @@ def read_log(
             if not jpegs and topic.endswith("/image/compressed"):
                 name = topic[1:].removesuffix("/image/compressed")
                 frames.setdefault(name, []).append((_stamp_of(message), b""))
+                if sizes.get(name) is None:
+                    sizes[name] = _jpeg_size(reader.decode(schema, channel, message))
                 continue
             msg = reader.decode(schema, channel, message)
             if msg is None:
@@ -268,6 +284,8 @@ def read_log(
                 elif topic.endswith("/image/compressed"):
                     name = topic[1:].removesuffix("/image/compressed")
                     frames.setdefault(name, []).append((_stamp(msg), bytes(msg.data)))
+                    if sizes.get(name) is None:
+                        sizes[name] = _jpeg_size(msg)
                 elif topic == "/acq/clock":
                     clock.append((int(msg.monotonic_ns), int(msg.realtime_ns)))
                 elif topic.startswith("/acq/timing/"):
@@ -280,7 +298,16 @@ def read_log(
             except AttributeError:  # a message of another schema on a topic of that name
                 bad += 1
     laser = _pick(scans, laser, "laser scanner", "/scan")
-    if cameras:
+    found = tuple(sorted(n for n, f in frames.items() if f))
+    if calib is not None:
+        several = cameras is not None
+        asked = list(cameras or ()) if several else [camera] if camera else None
+        picked = choose_cameras(
+            asked, found, list(calib.cameras), one=not several, calib=calib.label
+        )
+        names = [n for n, _ in picked]
+        camera = names[0]
+    elif cameras:
         camera = camera or cameras[0]
         names = list(dict.fromkeys([camera, *cameras]))
     else:
@@ -293,11 +320,13 @@ def read_log(
         camera,
         scans[laser],
         {name: frames.get(name, []) for name in names},
+        sizes,
         timing,
         clock,
         metadata,
         notes,
     )
+    log = replace(log, camera_names=found)
     if vehicle_reader is not None:
         log = replace(log, vehicle=vehicle_reader.result(files))
     return log
@@ -309,6 +338,7 @@ def _assemble(
     camera: str,
     scans: list[_ScanMsg],
     frames: dict[str, list[tuple[int, bytes]]],
+    sizes: dict[str, tuple[int, int] | None],
     timing: dict[str, dict[int, tuple[int, int, int]]],
     clock: list[tuple[int, int]],
     metadata: dict[str, dict[str, str]],
@@ -354,7 +384,10 @@ def _assemble(
         angle_increment=inc,
         time_increment=time_increment,
         scan_ticks=scan_ticks,
-        cameras={name: _camera_frames(f, timing.get(name, {})) for name, f in frames.items()},
+        cameras={
+            name: _camera_frames(f, timing.get(name, {}), sizes.get(name))
+            for name, f in frames.items()
+        },
         clock=np.array(clock, dtype=np.int64).reshape(-1, 2),
         metadata=metadata,
         notes=notes,
@@ -362,15 +395,26 @@ def _assemble(
     )
 
 
+def _jpeg_size(msg: Any) -> tuple[int, int] | None:
+    """(width, height) px of a decoded image message's JPEG; None when it has none that
+    parses (the decoder reports those)."""
+    try:
+        return jpeg_size(bytes(msg.data))
+    except (ProtocolError, AttributeError):
+        return None
+
+
 def _camera_frames(
-    frames: list[tuple[int, bytes]], timing: dict[int, tuple[int, int, int]]
+    frames: list[tuple[int, bytes]],
+    timing: dict[int, tuple[int, int, int]],
+    size: tuple[int, int] | None = None,
 ) -> CameraFrames:
     """One camera's (stamp, JPEG) messages and its timing records, in stamp order."""
     frames.sort(key=lambda f: f[0])
     frame_ns = np.array([t for t, _ in frames], dtype=np.int64)
     seq = np.array([timing.get(int(t), (0, -1, -1))[1] for t in frame_ns], dtype=np.int64)
     recv = np.array([timing.get(int(t), (0, -1, -1))[2] for t in frame_ns], dtype=np.int64)
-    return CameraFrames(frame_ns, seq, recv, [j for _, j in frames])
+    return CameraFrames(frame_ns, seq, recv, [j for _, j in frames], size)
 
 
 # --- colouring -------------------------------------------------------------------------
@@ -379,14 +423,32 @@ def _camera_frames(
 def camera_calib(
     log: DriveLog, calib: Calibration, camera: str | None
 ) -> tuple[str, calibfile.CameraCalib]:
-    """(name, calibration) of the camera to use: ``camera``, else the calibration's only
-    one, else the log's camera. UnknownCameraError for an unknown camera; InputValueError
-    when the log has no frames."""
-    if camera is None and len(calib.cameras) != 1 and log.camera:
-        name = log.camera
-    else:
-        name = camera if camera is not None else next(iter(calib.cameras), "")
-    cam = calib.camera(name)
+    """(name in the calibration, calibration) of ``log``'s camera: ``camera``, else the
+    one :func:`acq.camera.selection.choose_cameras` picks from the log's and the
+    calibration's names. CameraChoiceError (InputValueError) listing them when none
+    fits, or the log has no frames."""
+    in_log = [log.camera] if log.camera else []
+    [(_, name)] = choose_cameras(
+        [camera] if camera else None, in_log, list(calib.cameras), one=True, calib=calib.label
+    )
     if not log.n_frames:
         raise InputValueError("the log has no camera frames")
+    cam = calib.cameras[name]
+    check_frame_size(log, log.camera or name, cam)
     return name, cam
+
+
+def check_frame_size(log: DriveLog, name: str, cam: calibfile.CameraCalib) -> None:
+    """InputValueError naming the calibration file, the camera and both sizes when the
+    log's frames of camera ``name`` (its first frame's size) are not the size ``cam`` was
+    calibrated at: a calibration of another camera or resolution."""
+    size = log.cameras.get(name, log.frames).size  # a lone camera pairs whatever its name
+    want = (cam.model.width, cam.model.height)
+    if size is None or size == want:
+        return
+    files = ", ".join(p.name for p in log.files[:2]) + (" ..." if len(log.files) > 2 else "")
+    raise InputValueError(
+        f"{cam.source or 'calib.yaml'}: cameras.{cam.name or name}.image_size is "
+        f"{want[0]}x{want[1]} px but the log's frames of camera {name} are {size[0]}x{size[1]}"
+        f" ({files}): a calibration of another camera or resolution"
+    )

@@ -35,7 +35,7 @@ import struct
 import threading
 import zlib
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,6 +66,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from acq import progress
 from acq.errors import InputValueError
+from acq.log import writer_lock
 from acq.log.mcap_records import (
     HEADER_BYTES,
     KNOWN_OPCODES,
@@ -74,6 +75,7 @@ from acq.log.mcap_records import (
     index_messages,
     record_name,
 )
+from acq.log.rosbag_source import acq_records, is_bag, laser_channels
 from acq.log.timebase import MONOTONIC, TimeBase
 
 __all__ = [
@@ -93,13 +95,16 @@ _NO_SUMMARY = "no summary section"
 
 
 class LogError(InputValueError):
-    """A file that is not an MCAP log at all (missing, unreadable, bad magic)."""
+    """A file that is not an MCAP log at all (missing, unreadable, bad magic); ``offset``:
+    the byte where it goes wrong, named in the message when there is one (None: the file
+    as a whole)."""
 
-    def __init__(self, path: str | os.PathLike[str], offset: int, reason: str) -> None:
+    def __init__(self, path: str | os.PathLike[str], offset: int | None, reason: str) -> None:
         self.path = Path(path)
         self.offset = offset
         self.reason = reason
-        super().__init__(f"{self.path}: {reason} (byte {offset})")
+        where = f" (byte {offset})" if offset is not None else ""
+        super().__init__(f"{self.path}: {reason}{where}")
 
 
 @dataclass
@@ -136,17 +141,17 @@ def _check_magic(path: Path) -> int:
             head = f.read(len(MAGIC))
             size = os.fstat(f.fileno()).st_size
     except FileNotFoundError:
-        raise LogError(path, 0, "no such file") from None
+        raise LogError(path, None, "no such file") from None
     except IsADirectoryError:
-        raise LogError(path, 0, "is a directory, not an MCAP file") from None
+        raise LogError(path, None, "is a folder, not an MCAP file") from None
     except OSError as e:
-        raise LogError(path, 0, f"cannot read: {e.strerror or e}") from None
+        raise LogError(path, None, f"cannot read: {e.strerror or e}") from None
     if not head:
-        raise LogError(path, 0, "empty file, not an MCAP file")
+        raise LogError(path, None, "empty file, not an MCAP file")
     if head != MAGIC and MAGIC.startswith(head):
         raise LogError(path, len(head), f"cut inside the MCAP magic, {len(head)} bytes long")
     if head != MAGIC:
-        raise LogError(path, 0, f"not an MCAP file: bad magic {head!r}")
+        raise LogError(path, None, f"not an MCAP file: bad magic {head!r}")
     return size
 
 
@@ -206,16 +211,24 @@ class LogReader:
     ``log_time`` (first, last) host monotonic ns: a closed file's chunks whose messages all
     lie outside it are not read (others may still yield messages outside it: the caller
     filters). ``time_base``: the log's clock, from its ``acq`` metadata record once
-    reading has passed it (the writer puts it first).
+    reading has passed it (the writer puts it first). ``writing``: its writer was alive
+    when the pass began (:mod:`acq.log.writer_lock`). ``progress``: the bytes read move a
+    progress bar (:mod:`acq.progress`); False for a glance at a file's start.
     """
 
     def __init__(
-        self, path: str | os.PathLike[str], log_time: tuple[int, int] | None = None
+        self,
+        path: str | os.PathLike[str],
+        log_time: tuple[int, int] | None = None,
+        *,
+        progress: bool = True,
     ) -> None:
         self.path = Path(path)
         self.log_time = log_time
         self.size = _check_magic(self.path)
+        self.progress = progress
         self.closed = False
+        self.writing = False
         self.bytes_read = len(MAGIC)
         self._shown = 0  # bytes reported to a progress bar (acq.progress)
         self.stop: str | None = None  # why a linear pass stopped before a valid footer
@@ -243,6 +256,13 @@ class LogReader:
                 f"not indexed: a footer at byte {self.footer_at} but {self.stop}{why};"
                 " read linearly, every record before it"
             )
+        elif not self.closed and self.writing:
+            rest = self.size - self.bytes_read
+            tail = f" (the {rest} after them are still being written)" if rest > 0 else ""
+            parts.append(
+                f"being written: its recorder is running (it holds the file's lock); read"
+                f" the {self.bytes_read} bytes written so far{tail}"
+            )
         elif not self.closed:
             parts.append(
                 f"not closed: the writer stopped at byte {self.bytes_read} of {self.size}"
@@ -251,12 +271,13 @@ class LogReader:
         parts.extend(self.notes)
         return "; ".join(parts) or None
 
-    def records(self) -> Iterator[McapRecord]:
+    def records(self) -> Generator[McapRecord, None, None]:
         """Header, Schema, Channel, Message, Metadata and Attachment records in file order
         (a closed file's schemas, channels, metadata and attachments first, from its
         summary and index)."""
         try:
             with self.path.open("rb") as f:
+                self.writing = writer_lock.locked(f)
                 summary = self._closed_summary(f)
                 if summary is not None and summary.chunk_indexes:
                     self.closed = True
@@ -271,7 +292,7 @@ class LogReader:
 
     def _shown_to(self, pos: int) -> None:
         """Reading has got to byte ``pos``: the bytes since the last call to a progress bar."""
-        if pos > self._shown:
+        if pos > self._shown and self.progress:
             progress.advance(pos - self._shown)
             self._shown = pos
 
@@ -310,7 +331,7 @@ class LogReader:
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
         orphans = 0
-        for record in self.records():
+        for record in acq_records(self.records(), self.notes):  # a rosbag2 as a log
             if isinstance(record, Message):
                 channel = channels.get(record.channel_id)
                 if channel is None:
@@ -638,13 +659,23 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
     writes a newer record when a device reconnects): from the summary's index when the
     file is closed, else from everything before the cut."""
     out: dict[str, dict[str, str]] = {}
+    lasers = None  # a rosbag2's: its scanners' records come with their first scans
     try:
         with open(path, "rb") as f:
-            for m in SeekingReader(f).iter_metadata():
-                out[m.name] = dict(m.metadata)
-        return out
+            seeking = SeekingReader(f)
+            if is_bag(seeking.get_header()):
+                lasers = laser_channels(seeking.get_summary())
+            else:
+                for m in seeking.iter_metadata():
+                    out[m.name] = dict(m.metadata)
+                return out
     except Exception:  # no usable summary (a killed writer): read linearly
-        reader = LogReader(path)
-        for _ in reader.messages():
-            pass
-        return {m.name: dict(m.metadata) for m in reader.metadata}
+        pass
+    reader = LogReader(path)
+    scans = set()
+    for _schema, channel, _message in reader.messages():
+        if lasers is not None and channel.topic.endswith("/scan"):
+            scans.add(channel.id)
+            if len(scans) >= lasers:
+                break
+    return {m.name: dict(m.metadata) for m in reader.metadata}

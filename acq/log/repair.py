@@ -1,5 +1,9 @@
 """Repair a log: copy every readable message of a closed, cut or damaged MCAP file
-(with its schemas, channels, metadata and attachments) into a new, indexed file."""
+(with its schemas, channels, metadata and attachments) into a new, indexed file.
+
+The copy carries a :data:`REPAIR_RECORD` metadata record naming its source (file name
+and size when copied), so that a command given both reads the session once
+(:mod:`acq.log.inputs`)."""
 
 from __future__ import annotations
 
@@ -11,19 +15,23 @@ from mcap.writer import CompressionType, Writer
 
 from acq.log.reader import LogReader
 
-__all__ = ["repair"]
+__all__ = ["REPAIR_RECORD", "repair"]
+
+REPAIR_RECORD = "acq.repair"  # metadata: source (file name), source_bytes (its size)
 
 
 def repair(
     src: str | os.PathLike[str], dst: str | os.PathLike[str], *, chunk_size: int = 1 << 20
 ) -> int:
     """Write every readable message of ``src`` (with its schemas, channels, metadata and
-    attachments) to a new, indexed, zstd-chunked MCAP ``dst``; returns the message count.
+    attachments) to a new, indexed, zstd-chunked MCAP ``dst``, marked as its repaired
+    copy (:data:`REPAIR_RECORD`); returns the message count.
 
     Raises FileExistsError rather than overwrite ``dst``, :class:`acq.log.reader.LogError`
     when ``src`` is not an MCAP log. ``chunk_size`` is the uncompressed chunk size, bytes.
     """
     reader = LogReader(src)
+    mark = {"source": reader.path.name, "source_bytes": str(reader.size)}
     dst = Path(dst)
     schema_ids: dict[int, int] = {}
     channel_ids: dict[int, int] = {}
@@ -38,10 +46,12 @@ def repair(
                 if isinstance(record, Header):
                     if not started:
                         writer.start(profile=record.profile, library=record.library)
+                        writer.add_metadata(REPAIR_RECORD, mark)
                         started = True
                     continue
                 if not started:
                     writer.start()
+                    writer.add_metadata(REPAIR_RECORD, mark)
                     started = True
                 if isinstance(record, Schema):
                     schemas[record.id] = record
@@ -63,7 +73,7 @@ def repair(
                         sequence=record.sequence,
                     )
                     count += 1
-                elif isinstance(record, Metadata):
+                elif isinstance(record, Metadata) and record.name != REPAIR_RECORD:
                     writer.add_metadata(record.name, dict(record.metadata))
                 elif isinstance(record, Attachment):
                     writer.add_attachment(
@@ -75,6 +85,7 @@ def repair(
                     )
             if not started:
                 writer.start()
+                writer.add_metadata(REPAIR_RECORD, mark)
             for old_id, channel in pending.items():  # channels without messages, too
                 if old_id not in channel_ids:
                     channel_ids[old_id] = _register(writer, channel, schemas, schema_ids)

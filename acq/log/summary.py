@@ -96,6 +96,7 @@ class LogInfo:
     camera, the frames of another size than expected, recorded and flagged (from the last
     ``/acq/status``; an older log's status has no such count: none listed).
     ``host_clock``: the ``/acq/timebase`` readings summarised, None in a log without.
+    ``writing``: a file of it was being written by a live recorder when read.
     ``silent``: the devices of the last ``/acq/status`` (every configured one) that
     recorded nothing, or stopped well before the end (:mod:`acq.log.silent_devices`).
     """
@@ -122,6 +123,7 @@ class LogInfo:
     time_base: TimeBase = MONOTONIC
     gnss_stamping: GnssStamping | None = None  # None: no GNSS fixes
     host_clock: HostClockSummary | None = None
+    writing: bool = False
     silent: list[SilentDevice] = field(default_factory=list)
 
 
@@ -352,17 +354,16 @@ def info_many(paths: Iterable[str | os.PathLike[str]]) -> list[LogInfo]:
             session.add_metadata(record)
         acc.attachments += reader.attachments
         session.attachments += reader.attachments
-        out.append(
-            _result(
-                acc,
-                reader.path,
-                (reader.path,),
-                reader.closed,
-                reader.bytes_read,
-                reader.size,
-                reader.problem(),
-            )
+        one = _result(
+            acc,
+            reader.path,
+            (reader.path,),
+            reader.closed,
+            reader.bytes_read,
+            reader.size,
+            reader.problem(),
         )
+        out.append(dataclasses.replace(one, writing=reader.writing))
     if len(out) > 1:
         problems = [f"{i.path.name}: {i.problem}" for i in out if i.problem]
         out.append(
@@ -376,6 +377,7 @@ def info_many(paths: Iterable[str | os.PathLike[str]]) -> list[LogInfo]:
                 " | ".join(problems) or None,
             )
         )
+        out[-1] = dataclasses.replace(out[-1], writing=any(i.writing for i in out[:-1]))
     return out
 
 
@@ -403,7 +405,7 @@ def _meta_item(key: str, value: str) -> str:
 
 def _format_one(i: LogInfo) -> list[str]:
     title = str(i.path) if len(i.files) == 1 else f"session {i.path} ({len(i.files)} files)"
-    state = "closed" if i.closed else "NOT CLOSED"
+    state = "closed" if i.closed else "BEING WRITTEN" if i.writing else "NOT CLOSED"
     lines = [f"{title}: {state}"]
     if i.problem:
         lines.append(f"  warning: {i.problem}")
@@ -412,7 +414,9 @@ def _format_one(i: LogInfo) -> list[str]:
         if i.start_realtime_ns is not None:
             where += f", from {_utc(i.start_realtime_ns)}"
         lines.append(f"  span      {i.duration_s:.3f} s ({where})")
-    if i.time_base.utc:
+    if i.metadata.get("acq", {}).get("source") == "rosbag2":  # acq.log.rosbag_source
+        clock = "a ROS 2 bag (rosbag2): its stamps taken as UTC; ROS topics read as acq's"
+    elif i.time_base.utc:
         clock = (
             f"UTC (host monotonic + {i.time_base.utc_offset_ns / 1e9:.6f} s, fixed at the"
             " session start); acq.* messages host monotonic"

@@ -1,7 +1,8 @@
 """The vehicle's odometry and GNSS fixes of a recorded session, as numpy arrays.
 
-:func:`read_vehicle` reads ``/vehicle/odometry`` (``acq.Odometry``) and ``/gnss/fix``
-(``foxglove.LocationFix``) from one or several MCAP files of a session (files whose
+:func:`read_vehicle` reads ``/vehicle/odometry`` (``acq.Odometry``), ``/gnss/fix``
+(``foxglove.LocationFix``) and ``/vehicle/pose`` (a ROS 2 bag's odom -> base_link
+transforms, :mod:`acq.log.rosbag_source`) from one or several MCAP files of a session (files whose
 writer was killed are read up to their last good record), sorted by time. Times are
 host monotonic ns (the log's clock), the stamps the recorder gave: for odometry the
 CAN receive stamp, for a fix its fix instant.
@@ -29,12 +30,15 @@ import numpy.typing as npt
 from mcap.records import Channel, Schema
 
 from acq.log.reader import LogReader
+from acq.log.rosbag_source import POSE_TOPIC
 
 __all__ = [
     "FIX_TOPIC",
     "ODOMETRY_TOPIC",
+    "POSE_TOPIC",
     "Fixes",
     "Odometry",
+    "Poses",
     "VehicleLog",
     "VehicleReader",
     "read_vehicle",
@@ -89,6 +93,22 @@ class Fixes:
 
 
 @dataclass(frozen=True)
+class Poses:
+    """The vehicle's poses in the odometry frame, sorted by ``t_ns`` (unique)."""
+
+    t_ns: np.ndarray  # (K,) int64 host ns (a ROS 2 bag's: its stamps)
+    translation: np.ndarray  # (K,3) float64 m
+    quaternion: np.ndarray  # (K,4) float64 w, x, y, z
+
+    def __len__(self) -> int:
+        return int(self.t_ns.size)
+
+
+def _no_poses() -> Poses:
+    return Poses(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
+
+
+@dataclass(frozen=True)
 class VehicleLog:
     """What :func:`read_vehicle` found; ``notes`` lists what was skipped."""
 
@@ -96,6 +116,7 @@ class VehicleLog:
     odometry: Odometry
     fixes: Fixes
     notes: list[str] = field(default_factory=list)
+    poses: Poses = field(default_factory=_no_poses)
 
 
 def _interp(
@@ -188,11 +209,12 @@ class VehicleReader:
     """Collects the vehicle topics' decoded messages (one pass over a log can feed it
     beside other readers, as :func:`acq.log.drive_log.read_log` does)."""
 
-    TOPICS = (ODOMETRY_TOPIC, FIX_TOPIC)
+    TOPICS = (ODOMETRY_TOPIC, FIX_TOPIC, POSE_TOPIC)
 
     def __init__(self) -> None:
         self.odometry: list[tuple[int, int, float, float, tuple[float, ...]]] = []
         self.fixes: list[tuple[Any, ...]] = []
+        self.poses: dict[int, tuple[float, ...]] = {}  # stamp -> x, y, z, qw, qx, qy, qz
         self.bad = 0
 
     def add(self, topic: str, msg: Any) -> None:
@@ -208,6 +230,10 @@ class VehicleReader:
                 self.odometry.append((_stamp(msg), int(msg.arbitration_id), speed, yaw, wheels))
             elif topic == FIX_TOPIC:
                 self.fixes.append(_fix_row(msg))
+            elif topic == POSE_TOPIC:
+                for tf in msg.transforms:
+                    tr, q = tf.translation, tf.rotation
+                    self.poses[_stamp(tf)] = (tr.x, tr.y, tr.z, q.w, q.x, q.y, q.z)
         except Exception:  # a payload that decoded to something else: that message is lost
             self.bad += 1
 
@@ -217,7 +243,12 @@ class VehicleReader:
             notes.append(f"no {ODOMETRY_TOPIC} messages")
         if not self.fixes:
             notes.append(f"no {FIX_TOPIC} messages")
-        return VehicleLog(files, _odometry(self.odometry), _fixes(self.fixes), notes)
+        poses = _no_poses()
+        if self.poses:
+            t = np.array(sorted(self.poses), dtype=np.int64)
+            rows = np.array([self.poses[int(k)] for k in t], dtype=np.float64)
+            poses = Poses(t, rows[:, :3], rows[:, 3:])
+        return VehicleLog(files, _odometry(self.odometry), _fixes(self.fixes), notes, poses)
 
 
 def read_vehicle(paths: Sequence[str | os.PathLike[str]] | str | os.PathLike[str]) -> VehicleLog:

@@ -3,7 +3,12 @@
 Files are named ``<prefix>_<UTC start YYYYmmddTHHMMSSZ>_<NNN>.mcap``: the UTC time the
 writer (the session) started, shared by all parts, and the part number from 000. They
 are created with ``O_EXCL`` and never overwritten: if a name is taken (a restart within
-the same second) the next free part number is used.
+the same second) the next free part number is used. The ``acq`` metadata record of every
+part names the session (``session``: that UTC start and a random suffix), so a reader
+tells the parts of one session from another's (:mod:`acq.log.inputs`), whatever the
+files are renamed to. The open file holds an exclusive ``flock`` as long as its writer
+lives (a killed one's goes with it): a reader tells a file being written from one whose
+writer stopped (:mod:`acq.log.writer_lock`).
 
 Each file stands alone: header and profile, then the metadata records, every channel
 with its schema, and the latched messages (calibration, ``/tf_static``), then the data.
@@ -25,6 +30,7 @@ from __future__ import annotations
 
 import errno
 import os
+import secrets
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -36,6 +42,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, MCAP0_MAGIC, CompressionType, IndexT
 from mcap.writer import Writer as McapWriter
 
 from acq import __version__
+from acq.log import writer_lock
 from acq.log.schemas import Schema
 from acq.log.timebase import TimeBase
 
@@ -163,15 +170,16 @@ class LogWriter:
         self.sync_interval_ns = int(sync_interval_s * 1e9)
         self.profile = profile
         self.time_base = TimeBase.session_start() if time_base is None else time_base
+        self._stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+        self.session = f"{self._stamp}-{secrets.token_hex(4)}"
         given = {name: dict(values) for name, values in (metadata or {}).items()}
         # the ``acq`` record first: a reader knows the time base before any message
         self._metadata: dict[str, dict[str, str]] = {
-            "acq": {**given.pop("acq", {}), **self.time_base.metadata()},
+            "acq": {**given.pop("acq", {}), "session": self.session, **self.time_base.metadata()},
             **given,
         }
         self._channels: dict[str, _Channel] = {}
         self._latched: dict[str, tuple[LatchedData, int]] = {}
-        self._stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
         self._part = 0
         self._files: list[Path] = []
         self._messages = 0
@@ -401,6 +409,7 @@ class LogWriter:
                 break
             except FileExistsError:
                 continue
+        writer_lock.hold(fd)
         self._path = path
         self._files.append(path)
         self._out = _File(fd)

@@ -128,8 +128,11 @@ def retime_frames(
         return FrameRetiming(out, float("nan"), 0, int(t.size), 0.0, 0.0, "too few frames")
     order = np.argsort(t, kind="stable")
     ts = t[order].astype(np.float64)
-    gaps = np.flatnonzero(np.diff(ts) > max_gap_s * 1e9) + 1
-    period = float(np.median(np.diff(ts)))
+    steps = np.diff(ts)
+    if not (steps > 0).any():
+        return FrameRetiming(out, float("nan"), 0, int(t.size), 0.0, 0.0, "one stamp only")
+    gaps = np.flatnonzero(steps > max_gap_s * 1e9) + 1
+    period = float(np.median(steps[steps > 0]))  # a frame read twice has no period
     periods, resid, runs, kept = [], [], 0, 0
     fitted = ts.copy()
     for run in np.split(np.arange(ts.size), gaps):

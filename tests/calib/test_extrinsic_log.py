@@ -172,7 +172,7 @@ def test_too_few_poses_exits_1(
     assert not out.exists()
 
 
-def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std(
+def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std_and_note(
     rec: tuple[BoardLog, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
 
@@ -182,7 +182,8 @@ def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std(
     intr_std = CalibStd(fx=0.08, fy=0.09, cx=0.07, cy=0.07, k=(2e-3, 4e-3, 3e-3, 1e-3))
     cam = log.calibration.camera("camera")
     intr = tmp_path / "intrinsics.yaml"
-    calibfile.save(Calibration(cameras={"camera": replace(cam, std=intr_std)}), intr)
+    note = "f = r / theta_max from the image circle alone, not checked"
+    calibfile.save(Calibration(cameras={"camera": replace(cam, std=intr_std, note=note)}), intr)
     out = tmp_path / "calib.yaml"
     assert calibrate_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
     report = json.loads(capsys.readouterr().out)
@@ -193,6 +194,7 @@ def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std(
     np.testing.assert_allclose(std.rotation_deg, report["std_rot_deg"], rtol=5e-3)
     np.testing.assert_allclose(std.translation_m, report["std"][3:], rtol=5e-3)
     assert std.merged(CalibStd(), CalibStd.EXTRINSICS) == intr_std
+    assert calibfile.load(out).camera("camera").note == note  # the intrinsics' own
 
 
 def test_an_existing_calib_is_updated_and_keeps_the_other_cameras(
@@ -223,3 +225,21 @@ def test_an_existing_calib_is_updated_and_keeps_the_other_cameras(
     rot, trans = _errors(cal.camera("camera").camera_to_laser, log.truth)
     assert rot < 0.15 and trans < 0.003
     assert (tmp_path / "calib.yaml.bak").read_text() == before
+
+
+def test_a_wrong_board_size_is_answered_with_the_boards(rec: tuple[BoardLog, Path]) -> None:
+    """Corners counted as squares, or one short: the size the frames show is suggested
+    (in the order given); the right size, either way round, gets no hint."""
+    from acq.calib.extrinsic_log import board_size_hint
+
+    log, _ = rec
+    dl = drive_log.read_log(log.files)
+    intervals = still_intervals(dl)
+    model = log.calibration.camera().model
+    assert board_size_hint(dl, model, intervals, parse_board("8x6x0.1")) == (
+        "; the images show a board of 9x7 inner corners (not squares): try --board 9x7x0.1"
+    )
+    assert board_size_hint(dl, model, intervals, parse_board("8x10x0.1")).endswith(
+        "try --board 7x9x0.1"
+    )
+    assert board_size_hint(dl, model, intervals, parse_board("7x9x0.1")) == ""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import cv2
@@ -81,6 +82,63 @@ def test_json_has_centre_radius_estimators_and_spread(
     assert d["camera"] == "left" and d["model"]["model"] == "equidistant"
     assert d["model"]["fx"] == pytest.approx(c["radius"] / math.radians(95.0), abs=0.01)
     assert d["model"]["fov_deg"] == 190.0
+
+
+def test_the_circle_alone_says_what_f_rests_on(
+    sim_png: tuple[Path, CircleTruth], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """f = r / theta_max holds only for the stated aperture and an equidistant lens: the
+    result and calib.yaml say so, with f for an aperture 5 degrees off (px/rad); a board
+    fit, which checks both, drops the note."""
+    path, _ = sim_png
+    out = tmp_path / "calib.yaml"
+    assert calibrate_fisheye([path], 185.0, out, json_out=True) == 0
+    d = json.loads(capsys.readouterr().out)
+    r = d["circle"]["radius"]
+    assumed = d["circle_model_assumes"]
+    assert assumed["fov_deg"] == 185.0 and assumed["tolerance_deg"] == 5.0
+    lo, hi = assumed["f_range_px"]
+    assert lo == pytest.approx(r / math.radians(95.0), abs=0.01)
+    assert hi == pytest.approx(r / math.radians(90.0), abs=0.01)
+    assert calibrate_fisheye([path], 185.0, out) == 0
+    text = capsys.readouterr().out
+    note = calibfile.load(out, intrinsics_only=True).camera().note
+    assert note == assumed["note"] and note in text.splitlines()
+    assert f"f {lo:.1f}..{hi:.1f} px/rad" in note and "equidistant" in note
+    assert "aperture of 185 deg" in note and "--board" in note
+    # the intrinsics replaced by a board's fit: the note goes with them
+    kb = KannalaBrandt(780, 582, 200.0, 200.2, 390.0, 291.0, (0.01, 0.0, 0.0, 0.0))
+    calib, _, _ = fisheye_calib.update_calibration(out, None, kb, "board")
+    calibfile.save(calib, out)
+    assert calibfile.load(out, intrinsics_only=True).camera().note == ""
+    assert "note" not in out.read_text()
+    # the circle again over the board's fit: how far the two f are apart is said
+    assert calibrate_fisheye([path], 185.0, out) == 0
+    f = d["model"]["fx"]
+    assert (
+        f"warning: camera 'camera': f {f:.2f} px/rad (image_circle) replaces 200.10 (board) "
+        f"in {out}, {100 * (f / 200.1 - 1):+.1f} %"
+    ) in capsys.readouterr().err.splitlines()
+
+
+def test_circle_check_splits_the_gap_and_says_when_the_rim_is_out_of_reach() -> None:
+    """An equidistant lens whose true aperture is 180 deg, stated as 185: the circle's f
+    is off by the aperture alone; a board model that puts the rim past 180 deg off the
+    axis cannot say where the rim is, and says so (no warning, no made-up angle)."""
+    truth = KannalaBrandt(780, 582, 180.0, 180.0, 390.0, 291.0, (0.0, 0.0, 0.0, 0.0), 180.0)
+    radius = 180.0 * math.pi / 2
+    circle = Equidistant.from_f(radius / math.radians(92.5), 390.0, 291.0, 780, 582, 185.0)
+    fit = fisheye_calib.BoardFit(truth, 0.1, [0.1], [0], {}, 60.0, [])
+    check = fisheye_calib.circle_check(circle, radius, fit)
+    assert check.rim_deg == pytest.approx(90.0)
+    assert check.off_percent == pytest.approx(100 * (90 / 92.5 - 1))
+    assert check.aperture_percent == pytest.approx(check.off_percent)
+    assert check.equidistance_percent == pytest.approx(0.0, abs=1e-9)
+    assert "at 90.0 deg off the axis (aperture 180.0 deg against --fov 185)" in check.line()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        far = fisheye_calib.circle_check(circle, 4 * 180.0, fit)
+    assert math.isnan(far.rim_deg) and "does not reach the rim" in far.line()
 
 
 def test_keeps_other_cameras_and_the_extrinsics(
@@ -334,6 +392,18 @@ def test_real_images_circle_then_board(
     # the paper's 3-parameter model does not describe this lens: over the board's angles
     # it is tens of pixels away from the board's model (see Table 3 for the paper's lens)
     assert b["circle_model_gap_px"] > 10.0
+    # how far the circle's f is off, and why: the aperture is about right (the rim at
+    # ~92 deg), the lens is not equidistant
+    check = d["circle_check"]
+    assert check["f_circle_px"] == pytest.approx(f_circle, abs=1e-3)
+    assert check["f_board_px"] == pytest.approx(REFERENCE_F, rel=0.01)
+    assert -16.0 < check["off_percent"] < -12.0
+    assert abs(check["aperture_percent"]) < 2.0 and check["equidistance_percent"] < -10.0
+    whole = (1 + check["aperture_percent"] / 100) * (1 + check["equidistance_percent"] / 100)
+    assert whole == pytest.approx(1 + check["off_percent"] / 100, abs=1e-4)
+    assert 2 * check["rim_deg"] == pytest.approx(185.0, abs=4.0)
+    assert check["gap_px"] == b["circle_model_gap_px"]
+    assert calibfile.load(out, intrinsics_only=True).camera().note == ""  # checked
     cam = camera_models.load(out)
     assert type(cam) is KannalaBrandt and cam.k[0] < 0
     # the fit's standard deviations are in calib.yaml (3 significant digits)
@@ -346,3 +416,18 @@ def test_real_images_circle_then_board(
     # the board's lens puts the circle's rim at about half the 185-degree aperture
     theta_rim = float(cam.undistort_theta(np.array([c["radius"] / cam.fx]))[0])
     assert math.degrees(2 * theta_rim) == pytest.approx(185.0, abs=4.0)
+
+
+def test_a_wrong_board_size_on_the_real_images_names_the_boards(
+    shared_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The real images show an 8x6 board, which the lens cuts and bends: a 9x7 --board is
+    bad input, answered with the size they show; nothing is written."""
+    paths = real_paths(shared_dir)
+    out = tmp_path / "calib.yaml"
+    assert calibrate_fisheye(paths, 185.0, out, board="9x7x0.117") == 2
+    assert capsys.readouterr().err == (
+        "acq calibrate fisheye: --board 9x7x0.117: no image shows the 9x7 board; the images "
+        "show a board of 8x6 inner corners (not squares): try --board 8x6x0.117\n"
+    )
+    assert not out.exists()

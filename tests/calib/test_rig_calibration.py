@@ -115,7 +115,8 @@ def test_a_bad_camera_name_is_one_line_and_exit_2(
     out = tmp_path / "calib.yaml"
     assert calibrate_extrinsic(log.files, "rear", intr, log.spec, out) == 2
     err = capsys.readouterr().err
-    assert err == ("acq calibrate extrinsic: no camera 'rear' in the log (has left, right)\n"), err
+    assert err.startswith("acq calibrate extrinsic: --camera rear: in neither the log nor "), err
+    assert "(the log has left, right; " in err and err.count("\n") == 1, err
     assert not out.exists()
 
 

@@ -62,6 +62,13 @@ def test_calibrate_time_offset_finds_the_latency_error(
     assert abs(curve["offset_s"][int(np.argmax(curve["mi_nats"]))] - err) <= 0.003
     kept = truth.calibration.camera("camera").camera_to_laser
     np.testing.assert_allclose(cam.camera_to_laser.matrix(), kept.matrix(), atol=1e-12)
+    # the method says the offset is the log's estimate, no longer the input's "truth"
+    name = truth.files[0].name
+    assert cam.method == (
+        f"truth; time_offset_s: estimated from {name} ({report['frames']} frames, "
+        f"{report['points']} laser points; mutual information of grey levels and return "
+        "strengths)"
+    )
 
 
 def test_colorize_auto_uses_the_estimate_and_gets_the_pixels_right(
@@ -85,6 +92,15 @@ def test_colorize_auto_uses_the_estimate_and_gets_the_pixels_right(
             assert report.time_offset["found"]
             assert report.time_offset["used_s"] == pytest.approx(_true_error(truth), abs=0.0015)
             assert "time offset" in report.seconds
+            # printed without --json too: the offset used and its standard error
+            t = report.time_offset
+            assert (
+                f"time offset camera: {1e3 * t['used_s']:+.2f} ms +- {1e3 * t['std_s']:.2f} ms "
+                f"(camera minus laser time), estimated from {t['frames']:,} frames of this log "
+                "(--time-offset auto)"
+            ) in report.lines()
+        else:
+            assert not any(ln.startswith("time offset") for ln in report.lines())
     print(errors)
     assert errors["configured"] > 1.5 and errors["auto"] < 0.5
 
@@ -101,6 +117,32 @@ def test_the_estimate_reads_its_window_itself_for_workers(drive: tuple[DriveTrut
     assert mine.found and mine.frames == given.frames and mine.points == given.points
     assert mine.offset_s == given.offset_s
     assert mine.offset_s == pytest.approx(_true_error(truth), abs=0.003)
+
+
+def test_the_standard_error_follows_the_offset_along_the_drive(
+    drive: tuple[DriveTruth, Path],
+) -> None:
+    """The estimate's error comes from the scene, which neighbouring frames share: its
+    standard error is a jackknife over blocks of consecutive frames, not the spread of
+    sets of every k-th frame (those agree with each other while all being off together).
+    Here the camera's stamps drift from -8 to +8 ms over the drive: the blocks' offsets
+    spread over that, which the standard error shows (their mean's: about 1.3 ms), and
+    leaving out an early block (stamps early) raises the estimate."""
+    from dataclasses import replace
+
+    from acq.cloud.colorize import Report, estimate_offset, prepare
+
+    truth, calib = drive
+    job, whole = prepare(truth.files, calibfile.load(calib), Report(output="x"), jpegs=True)
+    cj = job.cameras[0]
+    drift = np.linspace(-8e6, 8e6, cj.frame_new.size).astype(np.int64)
+    drifting = replace(job, cameras=(replace(cj, frame_new=cj.frame_new + drift),))
+    est = estimate_offset(drifting, whole=whole, threads=2)
+    print(est.offset_s, est.std_s, est.folds_s)
+    assert est.found and len(est.folds_s) == 12
+    assert est.std_s > 0.0012
+    early, late = np.mean(est.folds_s[:6]), np.mean(est.folds_s[6:])
+    assert early > late + 0.0003
 
 
 def test_no_estimate_without_motion_or_return_strengths(

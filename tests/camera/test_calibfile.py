@@ -554,3 +554,13 @@ def test_merged_replaces_the_cameras_named_and_keeps_the_rest() -> None:
     assert out.laser_to_vehicle is ltv
     with pytest.raises(CalibFileError, match=r"^calib.yaml: .* laser 'laser', .* 'scanner2'"):
         calibfile.merged(old, Calibration(laser="scanner2"), [], "calib.yaml")
+
+
+def test_method_with_sets_one_part_and_keeps_the_others() -> None:
+    """A calibration step says how it got its part of a camera's entry beside the
+    others' (acq calibrate time-offset on a calibration of another origin)."""
+    m = calibfile.method_with("simulator truth", "time_offset_s", "estimated from a.mcap")
+    assert m == "simulator truth; time_offset_s: estimated from a.mcap"
+    again = calibfile.method_with(m, "time_offset_s", "estimated from b.mcap")
+    assert again == "simulator truth; time_offset_s: estimated from b.mcap"
+    assert calibfile.method_with("", "time_offset_s", "x") == "time_offset_s: x"

@@ -17,7 +17,7 @@ from acq.log import summary
 # `acq info` whose summary is long text, without a log: for the stdout tests
 _LONG_INFO = (
     "import sys; from acq.log import summary; "
-    "summary.info_many = lambda logs: None; "
+    "summary.info_many = lambda logs: []; "
     "summary.format_info = lambda info, json: 'a line of the summary\\n' * 200_000; "
     "from acq.cli import main; sys.exit(main(['info', 'x.mcap']))"
 )
@@ -85,6 +85,19 @@ def test_a_full_stdout_exits_1_with_one_line() -> None:
         )
     assert done.returncode == 1
     assert done.stderr == "acq info: No space left on device\n"
+
+
+def test_a_library_warning_is_one_line_of_the_command() -> None:
+    script = (
+        "import sys, numpy as np; from acq.log import summary; "
+        "summary.info_many = lambda logs: [np.float64(1.0) / 0.0][:0]; "
+        "summary.format_info = lambda info, json: 'done'; "
+        "from acq.cli import main; sys.exit(main(['info', 'x.mcap']))"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout == "done\n"
+    assert done.stderr.startswith("acq info: warning: RuntimeWarning: divide by zero")
+    assert done.stderr.count("\n") == 1, done.stderr
 
 
 def test_python_m_acq_cli() -> None:

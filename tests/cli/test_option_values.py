@@ -15,7 +15,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acq.cli import analyze, calibrate, colorize, demo, main, probe, record, replay, sim
+from acq.cli import (
+    analyze,
+    calibrate,
+    colorize,
+    demo,
+    main,
+    probe,
+    record,
+    replay,
+    sim,
+    sim_logs,
+)
 from acq.cli.main import build_parser
 from acq.cli.option_types import Number
 
@@ -25,6 +36,8 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ("sim", "render"): ["--out", "x"],
     ("sim", "scanner"): ["--model", "utm-30lx"],
     ("sim", "camera"): [],
+    ("sim", "log"): ["validation", "--out", "x"],
+    ("sim", "rig"): [],
     ("probe", "scanner"): ["--driver", "hokuyo", "--url", "socket://127.0.0.1:1"],
     ("probe", "camera"): ["--driver", "opencv", "--source", "0"],
     ("record",): [],
@@ -85,7 +98,7 @@ def _no_run(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     handlers = {
         demo: ["run"], record: ["run"], replay: ["run"], colorize: ["run"],
         probe: ["run_scanner", "run_camera"], analyze: ["run_sensitivity"],
-        sim: ["run_render", "run_scanner", "run_camera"],
+        sim: ["run_render", "run_scanner", "run_camera", "run_rig"], sim_logs: ["run_log"],
         calibrate: ["run_fisheye", "run_extrinsic", "run_time_offset", "run_validate"],
     }  # fmt: skip
     for module, names in handlers.items():
@@ -119,6 +132,8 @@ def _no_run(monkeypatch: pytest.MonkeyPatch) -> list[str]:
         (("calibrate", "extrinsic"), "--pupil-shift", "nan"),
         (("sim", "render"), "--time", "inf"),
         (("demo",), "--seconds", "nan"),
+        (("sim", "log"), "--seconds", "nan"),
+        (("sim", "log"), "--cameras", "3"),
     ],
 )
 def test_a_bad_value_is_one_line_and_exit_2(

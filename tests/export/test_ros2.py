@@ -142,7 +142,7 @@ def test_every_message_with_its_type_counted(bag: tuple[Path, dict]) -> None:
     out, read = bag
     counts = {topic: len(msgs) for topic, msgs in read.items()}
     assert counts == {
-        "/tf_static": 1, "/camera/camera_info": 1, "/laser/scan": SCANS,
+        "/tf_static": 1, "/camera/camera_info": FRAMES, "/laser/scan": SCANS,
         "/camera/image/compressed": FRAMES, "/odom": ODOMETRY, "/tf": ODOMETRY,
         "/gnss/fix": FIXES,
     }  # fmt: skip
@@ -202,10 +202,15 @@ def test_images_calibration_and_static_frames(bag: tuple[Path, dict]) -> None:
         assert _ns(img.header) == utc(MONO0 + 20_000_000 + i * 200_000_000)
         assert img.header.frame_id == "camera_optical" and img.format == "jpeg"
         assert bytes(img.data) == bytes([0xFF, 0xD8, i, 0xFF, 0xD9])
-    info = read["/camera/camera_info"][0][1]
-    assert info.header.frame_id == "camera_optical" and (info.width, info.height) == (640, 480)
-    assert info.distortion_model == "equidistant" and info.d.tolist() == [0.1, -0.01, 0.001, 0.0]
-    assert info.k[0] == 300.0 and info.p[2] == 320.0
+    infos = read["/camera/camera_info"]
+    images = read["/camera/image/compressed"]
+    assert len(infos) == len(images)  # each image with its camera_info, as image_proc pairs them
+    for (received, info), (img_received, img) in zip(infos, images, strict=True):
+        assert _ns(info.header) == _ns(img.header) and received == img_received
+        assert info.header.frame_id == "camera_optical" and (info.width, info.height) == (640, 480)
+        assert info.distortion_model == "equidistant"
+        assert info.d.tolist() == [0.1, -0.01, 0.001, 0.0]
+        assert info.k[0] == 300.0 and info.p[2] == 320.0
     tfs = read["/tf_static"][0][1].transforms
     pairs = [(t.header.frame_id, t.child_frame_id) for t in tfs]
     assert pairs == [("base_link", "laser"), ("laser", "camera_optical")]
@@ -263,12 +268,13 @@ def test_a_log_without_clock_pairs_is_refused(tmp_path: Path) -> None:
 
 
 def test_a_split_sessions_latched_messages_go_in_once(tmp_path: Path) -> None:
-    """Each file of a split session starts with /tf_static and the calibration again."""
+    """Each file of a split session starts with /tf_static and the calibration again:
+    /tf_static goes in once, camera_info once per image."""
     files = _write_log(tmp_path / "log", split_s=0.3)
     assert len(files) >= 3
     report = export_ros2(files, tmp_path / "bag")
     assert report.counts == {
-        "/tf_static": 1, "/camera/camera_info": 1, "/laser/scan": SCANS,
+        "/tf_static": 1, "/camera/camera_info": FRAMES, "/laser/scan": SCANS,
         "/camera/image/compressed": FRAMES, "/odom": ODOMETRY, "/tf": ODOMETRY,
         "/gnss/fix": FIXES,
     }  # fmt: skip

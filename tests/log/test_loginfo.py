@@ -580,7 +580,8 @@ def test_repair_gives_an_indexed_file(rig: Built, tmp_path: Path, zeros: int) ->
     assert msgs == want  # log-time order is also the write order here
     assert summary is not None and summary.chunk_indexes
     assert summary.statistics is not None and summary.statistics.message_count == len(want)
-    assert {m.name: m.metadata for m in metadata} == rig.metadata
+    marks = {"acq.repair": {"source": "cut.mcap", "source_bytes": str(src.stat().st_size)}}
+    assert {m.name: m.metadata for m in metadata} == {**marks, **rig.metadata}
     assert [(a.name, a.data) for a in attachments] == [("calib.yaml", b"version: 1\n")]
     repaired = info(dst)
     assert repaired.closed and repaired.problem is None and repaired.messages == len(want)
@@ -731,11 +732,11 @@ def test_format_info_human_and_json(rig: Built, tmp_path: Path) -> None:
 
 def test_log_errors(tmp_path: Path) -> None:
     missing = tmp_path / "missing.mcap"
-    with pytest.raises(LogError, match=r"missing\.mcap: no such file \(byte 0\)"):
+    with pytest.raises(LogError, match=r"missing\.mcap: no such file$"):
         info(missing)
     garbage = tmp_path / "garbage.mcap"
     garbage.write_bytes(random.Random(1).randbytes(5000))
-    with pytest.raises(LogError, match=r"garbage\.mcap: not an MCAP file: bad magic .* \(byte 0\)"):
+    with pytest.raises(LogError, match=r"garbage\.mcap: not an MCAP file: bad magic [^(]*$"):
         info(garbage)
     with pytest.raises(LogError, match=r"garbage\.mcap"):
         read_messages(garbage)  # at once, not on first iteration

@@ -112,8 +112,9 @@ def read_file(path: Path) -> list[tuple[str, int, int, Any]]:
         ]
 
 
-def assert_file_starts_standalone(path: Path, metadata: dict[str, dict[str, str]]) -> None:
-    """Header, the metadata, every channel and the latched messages before any data."""
+def assert_file_starts_standalone(path: Path, metadata: dict[str, dict[str, str]]) -> str:
+    """Header, the metadata, every channel and the latched messages before any data; the
+    session its ``acq`` record names (the writer's start and a random suffix)."""
     records = linear(path.read_bytes())
     assert isinstance(records[0], Header)
     first_data = next(
@@ -124,7 +125,10 @@ def assert_file_starts_standalone(path: Path, metadata: dict[str, dict[str, str]
         in {c.id for c in records if isinstance(c, Channel) and c.topic not in LATCHED}
     )
     head = records[:first_data]
-    assert {r.name: r.metadata for r in head if isinstance(r, Metadata)} == metadata
+    found = {r.name: dict(r.metadata) for r in head if isinstance(r, Metadata)}
+    session = found["acq"].pop("session")
+    assert re.fullmatch(r"\d{8}T\d{6}Z-[0-9a-f]{8}", session)
+    assert found == metadata
     assert {r.topic for r in head if isinstance(r, Channel)} == {CLOCK, RAW, TF, CALIB}
     assert {r.name for r in head if isinstance(r, Schema)} == {
         "acq.Clock",
@@ -139,7 +143,10 @@ def assert_file_starts_standalone(path: Path, metadata: dict[str, dict[str, str]
         summary = reader.get_summary()
         assert summary is not None
         assert {c.topic for c in summary.channels.values()} == {CLOCK, RAW, TF, CALIB}
-        assert {m.name: m.metadata for m in reader.iter_metadata()} == metadata
+        indexed = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        assert indexed["acq"].pop("session") == session
+        assert indexed == metadata
+    return session
 
 
 # --- layout and decoding -------------------------------------------------------------------
@@ -389,7 +396,8 @@ def test_rollover_by_size(tmp_path: Path) -> None:
         seen += numbers
         if k < len(files) - 1:
             assert split * 0.9 < path.stat().st_size < split + 4096 + 8000, path
-        assert_file_starts_standalone(path, WRITTEN_META)
+        # every part names the one session
+        assert assert_file_starts_standalone(path, WRITTEN_META) == w.session
         # latched messages carry the file's start: its first data message's log time
         first = min(lt for t, lt, _, _ in msgs if t not in LATCHED)
         for t, lt, pt, d in msgs:
@@ -426,7 +434,7 @@ def test_metadata_updates_reach_the_current_and_later_files(tmp_path: Path) -> N
     first, second = w.files
     with open(first, "rb") as f:
         records = [(m.name, m.metadata) for m in make_reader(f).iter_metadata()]
-    acq = ("acq", MONOTONIC.metadata())  # first: the time base
+    acq = ("acq", {"session": w.session, **MONOTONIC.metadata()})  # first: the time base
     assert records == [
         acq,
         ("config", {"v": "1"}),

@@ -6,7 +6,6 @@ ranges) and JPEG bytes, in order, at the recorded pace."""
 from __future__ import annotations
 
 import socket
-import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +20,7 @@ from acq.record import config as configfile
 from acq.record.recorder import Recorder
 from acq.sim.replay import Replay
 from acq.sim.transport import TcpDeviceServer
-from tests.sim_rig import Rig
+from tests.sim_rig import Rig, record_replay
 
 # drives simulated devices in real time: run alone (`make test`)
 pytestmark = pytest.mark.realtime
@@ -108,17 +107,7 @@ def test_round_trip_reproduces_scans_and_frames(recorded: list[Path], tmp_path: 
         assert [s.url for s in cfg.scanners] == [replay.urls["laser"]]
         assert cfg.scanners[0].options == {"intensity": True}
         assert cfg.cameras[0].source == replay.urls["camera"] and cfg.cameras[0].latency_s == 0.022
-        recorder = Recorder(cfg)
-        codes: list[int] = []
-        thread = threading.Thread(target=lambda: codes.append(recorder.run()))
-        thread.start()
-        try:
-            assert replay.wait(timeout=RECORD_S + 8.0), "the replay did not play to its end"
-        finally:
-            recorder.stop()
-            thread.join(10)
-        assert codes == [0]
-        assert not replay.errors
+        record_replay(replay, cfg, RECORD_S + 8.0)
         sent = replay.sent()
         end = replay.end_time()
         assert end is not None

@@ -42,7 +42,7 @@ done
 
 step "acq --version, every command's --help"
 "$acq" --version
-for cmd in demo "sim render" "sim scanner" "sim camera" "probe scanner" "probe camera" record \
+for cmd in demo "sim render" "sim scanner" "sim camera" "sim rig" "probe scanner" "probe camera" record \
     info replay colorize "calibrate fisheye" "calibrate extrinsic" "calibrate time-offset" \
     "calibrate validate" "analyze sensitivity" devices "export ros2"; do
   # shellcheck disable=SC2086
@@ -88,4 +88,14 @@ step "acq analyze sensitivity on that one-camera log"
 "$acq" analyze sensitivity --calib "$site/acq/config/sim_calib.yaml" logs/*.mcap -o sensitivity \
   > /dev/null
 [ -s sensitivity/sensitivity.json ]
+
+step "the README's walkthrough: acq sim rig, acq record -c rig/rig.yaml, acq colorize"
+"$acq" sim rig --out rig --prerender 8 > rig.log 2>&1 &
+pids+=($!)
+for i in $(seq 1 1200); do [ -e rig/rig.yaml ] && break; sleep 0.1; done
+[ -e rig/rig.yaml ] || { echo "wheel smoke: acq sim rig did not start" >&2; cat rig.log >&2; exit 1; }
+"$acq" record -c rig/rig.yaml --out riglogs --duration 2
+"$acq" colorize riglogs/rig_*.mcap --calib rig/calib.yaml -o rig.ply --no-preview > rig.txt \
+  || { cat rig.txt; exit 1; }
+grep -q 'CAN odometry' rig.txt || { cat rig.txt; exit 1; }
 step "passed"

@@ -175,11 +175,10 @@ class MjpegServer:
             if frame is None:
                 with self._lock:
                     watched = bool(self._clients or self._requests)
-                # frames that would be too late to be sent once made (the server was held
-                # up, or renders slower than real time on a busy machine) are not
-                # rendered, as a camera would not expose them: rendering each just
-                # before its limit would leave every frame late, none sent. Never one
-                # not yet due: a render the process was stopped in seems long
+                # a frame too late to send once made (the server held up, or rendering
+                # slower than real time) is not made: made at its limit, every frame
+                # would be late, none sent. Never one not yet due (a render the process
+                # was stopped in seems long)
                 t0 = time.monotonic()
                 late = min(t0 + render_s - self.late_s, t0)
                 cam.skip_until(late - 4 * cam.jitter_s, "late")
@@ -562,8 +561,7 @@ class MjpegServerProcess:
         self._proc.send_signal(signal.SIGCONT)
 
     def kill(self) -> None:
-        """The camera's process dies (SIGKILL): the kernel closes its connections and
-        its port; :meth:`close` still cleans up."""
+        """The camera's process dies (SIGKILL): its connections and port closed."""
         self._proc.kill()
         self._proc.wait(5)
 

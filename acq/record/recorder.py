@@ -491,10 +491,11 @@ class Recorder:
             self.exit_code = EXIT_FAILURE
         finally:
             self._stop.set()
+            ended_ns = time.monotonic_ns()
             self.host_clock.stop()
             self.notifier.stopping()
             self._close(writer)
-            self._report_devices(time.monotonic_ns())
+            self._report_devices(ended_ns)
             for t in self._threads:
                 t.join(timeout=1.0)
         return self.exit_code

@@ -164,9 +164,11 @@ def _record(work: Path, scanner_url: str, camera_url: str | None, seconds: float
         "output": {"dir": str(out)},
     }
     if camera_url is not None:
+        # optional: a camera flooding empty parts records nothing (exit status 0 all the same)
         config["cameras"] = [
-            {"name": "camera", "driver": "opencv", "source": camera_url, "fps": FPS}
-        ]
+            {"name": "camera", "driver": "opencv", "source": camera_url, "fps": FPS,
+             "required": False}
+        ]  # fmt: skip
     path = work / "rig.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     with (work / "record.log").open("w") as log:

@@ -34,6 +34,7 @@ from acq.records import DeviceInfo, Frame, Scan
 from acq.time.clocksync import Unwrapper
 
 __all__ = [
+    "CAMERA_STALL_S",
     "Backoff",
     "CameraLink",
     "LinkEvent",
@@ -93,6 +94,7 @@ class Backoff:
 
 _DEFAULT_PORTS = {"http": 80, "https": 443, "rtsp": 554}
 FAULTS_FORGOTTEN_S = 30.0  # after this long without a fault, the fault backoff starts afresh
+CAMERA_STALL_S = 1.0  # a camera's stream without a frame for this long is closed, s
 
 
 def describe(e: BaseException) -> str:
@@ -132,8 +134,9 @@ class Relink(Generic[R]):
 
     ``on_event`` receives every :class:`LinkEvent`; ``on_connect`` runs at each
     connection, the device identified and not yet streaming (time queries go there);
-    counters (``disconnects``, ``protocol_errors``, ``faults``) are kept for status
-    reports.
+    a connected device with no record for ``stall_periods`` record periods (at least
+    ``min_stall_s`` seconds) is stalled: closed and connected again; counters
+    (``disconnects``, ``protocol_errors``, ``faults``) are kept for status reports.
     """
 
     def __init__(
@@ -143,6 +146,7 @@ class Relink(Generic[R]):
         *,
         backoff: Backoff | None = None,
         stall_periods: float = 3.0,
+        min_stall_s: float = 0.25,
         max_protocol_errors: int = 10,
         on_event: Callable[[LinkEvent], None] | None = None,
         on_connect: Callable[[], None] | None = None,
@@ -153,6 +157,7 @@ class Relink(Generic[R]):
         self.read = read
         self.backoff = backoff if backoff is not None else Backoff()
         self.stall_periods = stall_periods
+        self.min_stall_s = min_stall_s
         self.max_protocol_errors = max_protocol_errors
         self.on_event = on_event
         self.reachable = reachable
@@ -183,9 +188,9 @@ class Relink(Generic[R]):
         self.device.start()
         period = self.period()
         if period is not None:
-            # a stream with nothing for this long is stalled (at least 0.25 s: a busy host
-            # can hold a reader up for tens of ms, which is not a stalled device)
-            self.device.timeout = max(self.stall_periods * period, 0.25)
+            # a stream with nothing for this long is stalled (at least min_stall_s: a busy
+            # host can hold a reader up for tens of ms, which is not a stalled device)
+            self.device.timeout = max(self.stall_periods * period, self.min_stall_s)
         self.connected = True
         self.backoff.reset()
         self._emit("connected", f"{info.vendor} {info.model} {info.serial}".strip())
@@ -323,20 +328,32 @@ class Reconnecting(Relink[Scan]):
 class CameraLink(Relink[Frame]):
     """A camera's frames through reconnections (an unplugged, stalled or hostile camera).
 
-    A camera that takes a connection but sends no frame within the timeout (stalled, or
+    A stream is closed as stalled only after :data:`CAMERA_STALL_S` without a frame (or
+    ``stall_periods`` frame periods, if longer): a frame late by a few periods (a busy
+    camera or host) comes on the same connection, which costs nothing to keep, whereas
+    closing it would lose every frame sent until the next connection is made; a
+    camera that goes away closes its connection, which is noticed at once. A camera
+    that takes a connection but sends no frame within the timeout (stalled, or
     its process frozen) is tried again at once, not after a growing backoff: each attempt
     waits its timeout anyway, and the attempt in flight gets the first frame the moment
     the camera sends again. A connection that ends, other than by a stall, within
-    ``settle_s`` of being made (a camera that floods junk after a good frame, or hangs
-    up after each) is not made again at once: the next attempt waits a backoff of its
-    own, which grows while that goes on and is reset by a connection that lasts.
+    ``settle_s`` of being made and before it gave ``settle_frames`` frames (a camera
+    that floods junk after a good frame, or hangs up after each) is not made again at
+    once: the next attempt waits a backoff of its own, which grows while that goes on
+    and is reset by a connection that lasts or streams. Any other is made again at once,
+    so frames flow again within a frame or two of the camera taking connections.
     """
 
-    def __init__(self, camera: Camera, *, settle_s: float = 1.0, **options: Any) -> None:
+    def __init__(
+        self, camera: Camera, *, settle_s: float = 1.0, settle_frames: int = 5, **options: Any
+    ) -> None:
         """``options`` as for :class:`Relink`."""
+        options.setdefault("min_stall_s", CAMERA_STALL_S)
         super().__init__(camera, camera.read_frame, **options)
         self.camera = camera
         self.settle_s = settle_s
+        self.settle_frames = settle_frames
+        self._frames = 0  # frames read on this connection
         self.hold_off = Backoff()  # before reconnecting after a connection that did not last
         self._stop = threading.Event()
         self._connected_at = 0.0  # monotonic s
@@ -355,6 +372,10 @@ class CameraLink(Relink[Frame]):
             self._timed_out = True
             raise
         self._connected_at = time.monotonic()
+        self._frames = 0
+
+    def check(self, record: Frame) -> None:
+        self._frames += 1
 
     def _wait(self, delay: float, stop: threading.Event) -> None:
         if self._timed_out:
@@ -366,7 +387,8 @@ class CameraLink(Relink[Frame]):
         super()._drop(kind, detail, error)
         if kind == "stalled":
             return
-        if time.monotonic() - self._connected_at >= self.settle_s:
+        lasted = time.monotonic() - self._connected_at >= self.settle_s
+        if lasted or self._frames >= self.settle_frames:
             self.hold_off.reset()
             return
         super()._wait(self.hold_off.next(), self._stop)

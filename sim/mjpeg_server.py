@@ -170,14 +170,21 @@ class MjpegServer:
         cam = self.camera
         cam.skip_until(time.monotonic())
         frame: SimFrame | None = None
+        render_s = 0.0  # how long the last frame took to make, s
         while not self._stop.is_set():
             if frame is None:
                 with self._lock:
                     watched = bool(self._clients or self._requests)
-                # frames too late to be sent (the server was held up: its process stopped,
-                # say) are not rendered, as a camera would not expose them
-                cam.skip_until(time.monotonic() - self.late_s - 4 * cam.jitter_s, "late")
+                # a frame too late to send once made (the server held up, or rendering
+                # slower than real time) is not made: made at its limit, every frame
+                # would be late, none sent. Never one not yet due (a render the process
+                # was stopped in seems long)
+                t0 = time.monotonic()
+                late = min(t0 + render_s - self.late_s, t0)
+                cam.skip_until(late - 4 * cam.jitter_s, "late")
                 frame = cam.next_frame(render=watched)
+                if watched:
+                    render_s = time.monotonic() - t0
             self._service(frame.t_available)
             if self._stop.is_set():
                 return
@@ -552,6 +559,11 @@ class MjpegServerProcess:
     def thaw(self) -> None:
         """Resume the process :meth:`freeze` stopped (SIGCONT)."""
         self._proc.send_signal(signal.SIGCONT)
+
+    def kill(self) -> None:
+        """The camera's process dies (SIGKILL): its connections and port closed."""
+        self._proc.kill()
+        self._proc.wait(5)
 
     def flooded_bytes(self) -> int:
         return int(self._call("flooded_bytes"))

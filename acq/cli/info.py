@@ -8,6 +8,7 @@ from pathlib import Path
 from acq.cli import output_files
 from acq.cli.output_files import Output
 from acq.errors import InputError
+from acq.log.silent_devices import STOPPED_EARLY_S
 
 HELP = "channels, rates, gaps, drops and clock-sync quality of logs"
 
@@ -18,7 +19,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help=HELP,
         description="Summarise MCAP logs: channels with counts, rates and gaps; time span; "
         "drops and disconnects per device; clock-sync quality (drift, uncertainty, receive "
-        "minus stamp). Several files of one session are summarised together too; files of "
+        "minus stamp); a warning for each configured device that recorded nothing or "
+        f"stopped recording more than {STOPPED_EARLY_S:g} s before the end. "
+        "Several files of one session are summarised together too; files of "
         "several sessions each session on its own. A folder stands for its .mcap files. A "
         "file being written is read as far as its recorder has written it; one whose "
         "writer was killed is read up to the cut and reported as not closed; --repair "

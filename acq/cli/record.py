@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from acq.cli.option_types import LONGEST_S, real
+from acq.log.silent_devices import STOPPED_EARLY_S
 
 HELP = "record the rig's devices to MCAP (the daemon systemd runs)"
 
@@ -17,9 +18,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         description="Record every scanner and camera of a configuration into MCAP files: "
         "one thread per device, reconnection with backoff, device clocks mapped to the host "
         "clock, zstd chunks fsynced every second, files split by size and duration. Ctrl-C "
-        "or SIGTERM finish the file. Exit status: 0 stopped, 1 runtime failure (or a "
-        "required device without a record), 2 bad "
-        "configuration, 3 disk below its reserve (the file is closed first).",
+        "or SIGTERM finish the file. When it stops, it names each device that recorded "
+        f"nothing or stopped recording more than {STOPPED_EARLY_S:g} s before the end. "
+        "Exit status: 0 "
+        "stopped, 1 runtime failure (a required device without a record, or a device that "
+        "recorded nothing, unless `required: false` in the configuration makes it "
+        "optional), 2 bad configuration, 3 disk below its reserve (the file is closed first).",
     )
     rec.add_argument(
         "-c",

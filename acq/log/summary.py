@@ -37,6 +37,7 @@ from acq.log.device_timing import (
     latency_line,
 )
 from acq.log.reader import LogReader, quiet
+from acq.log.silent_devices import DeviceRecords, SilentDevice, silent_devices, why_silent
 from acq.log.timebase import MONOTONIC, TimeBase
 from acq.time.host_clock import HostClock
 from acq.time.host_clock_summary import HostClockSummary, summarise_host_clock
@@ -96,6 +97,8 @@ class LogInfo:
     ``/acq/status``; an older log's status has no such count: none listed).
     ``host_clock``: the ``/acq/timebase`` readings summarised, None in a log without.
     ``writing``: a file of it was being written by a live recorder when read.
+    ``silent``: the devices of the last ``/acq/status`` (every configured one) that
+    recorded nothing, or stopped well before the end (:mod:`acq.log.silent_devices`).
     """
 
     path: Path
@@ -121,6 +124,7 @@ class LogInfo:
     gnss_stamping: GnssStamping | None = None  # None: no GNSS fixes
     host_clock: HostClockSummary | None = None
     writing: bool = False
+    silent: list[SilentDevice] = field(default_factory=list)
 
 
 # --- summarising --------------------------------------------------------------------
@@ -156,6 +160,7 @@ class _Acc:
     sizes: dict[str, int] = field(default_factory=dict)
     timing: dict[str, DeviceTiming] = field(default_factory=dict)
     status: Any = None
+    status_ns: int = 0  # log time of the last status
     clock: list[tuple[int, int]] = field(default_factory=list)  # (monotonic, realtime) ns
     host_clock: list[HostClock] = field(default_factory=list)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
@@ -174,7 +179,7 @@ class _Acc:
             if topic == GNSS_TIMING:
                 self.gnss.append(gnss_fix_timing(decoded))
         elif topic == "/acq/status":
-            self.status = decoded
+            self.status, self.status_ns = decoded, message.log_time
         elif topic == "/acq/clock":
             realtime, monotonic = (
                 field_of(decoded, "realtime_ns"),
@@ -218,6 +223,30 @@ class _Acc:
             if name and n:
                 out[str(name)] = int(n)
         return out
+
+    def silent(self, end_ns: int | None) -> list[SilentDevice]:
+        """The devices of the last status that recorded nothing or stopped early."""
+        status_devices = field_of(self.status, "devices") if self.status is not None else None
+        if end_ns is None or not status_devices:
+            return []
+        records = []
+        for dev in status_devices:
+            name, received = field_of(dev, "name"), field_of(dev, "received")
+            if not name or received is None:
+                continue  # a status from before these fields
+            gap_s = float(field_of(dev, "gap_s") or 0.0)
+            records.append(
+                DeviceRecords(
+                    name=str(name),
+                    kind=str(field_of(dev, "kind") or "device"),
+                    received=int(received),
+                    last_ns=self.status_ns - round(gap_s * 1e9) if received else None,
+                    why=why_silent(
+                        bool(field_of(dev, "connected")), str(field_of(dev, "last_event") or "")
+                    ),
+                )
+            )
+        return silent_devices(records, end_ns)
 
     def devices(self) -> tuple[list[DeviceSync], dict[str, int], dict[str, int]]:
         drops: dict[str, int] = {}
@@ -294,6 +323,7 @@ def _result(
         time_base=time_base,
         gnss_stamping=gnss_stamping(acc.gnss, acc.clock, time_base),
         host_clock=summarise_host_clock(acc.host_clock) if acc.host_clock else None,
+        silent=acc.silent(end),
     )
 
 
@@ -458,6 +488,7 @@ def _format_one(i: LogInfo) -> list[str]:
     if i.odd_size:
         counts = ", ".join(f"{name} {n}" for name, n in i.odd_size.items())
         lines.append(f"  warning: frames of an unexpected size (recorded, flagged): {counts}")
+    lines.extend(f"  warning: {s.line()}" for s in i.silent)
     return lines
 
 

@@ -141,7 +141,9 @@ class ScannerConfig(_Model):
     # its latency_probe; else 0
     latency_s: float | Literal["auto"] = Field(default=None, validate_default=True)
     options: dict[str, Any] = {}  # keyword arguments of the driver class
-    required: bool = False  # no record from it soon after the start stops the recorder
+    # true: without a record within 10 s of the start the recorder stops (exit 1);
+    # unset: without one by the end the exit status is 1; false: optional, a warning
+    required: bool | None = None
 
     @field_validator("name")
     @classmethod
@@ -218,7 +220,7 @@ class CameraConfig(_Model):
     # middle of exposure to receipt, s, where unknown
     latency_s: float = Field(default=0.0, ge=0, le=MAX_LATENCY_S)
     options: dict[str, Any] = {}  # keyword arguments of the driver class
-    required: bool = False  # no record from it soon after the start stops the recorder
+    required: bool | None = None  # as a scanner's
 
     @field_validator("name")
     @classmethod
@@ -298,7 +300,7 @@ class CanConfig(_Model):
     yaw_rate: str = "YAW_RATE.YAW_RATE"  # positive counter-clockwise (left turn)
     speed: str | None = None  # a vehicle speed signal; None: mean of the wheel speeds
     options: dict[str, Any] = {}  # keyword arguments of can.Bus
-    required: bool = False  # no odometry soon after the start stops the recorder
+    required: bool | None = None  # as a scanner's
 
     _driver = field_validator("driver", mode="plain")(_driver_name("can"))
     _empty = field_validator("options", mode="before")(_none_is_empty)
@@ -356,7 +358,7 @@ class GnssConfig(_Model):
     baudrate: int = Field(default=9600, gt=0, le=MAX_BAUD)
     time: Literal["auto", "fix", "receipt"] = "auto"
     latency_s: float = Field(default=0.0, ge=0, le=MAX_LATENCY_S)
-    required: bool = False  # no fix soon after the start stops the recorder
+    required: bool | None = None  # as a scanner's
 
     _driver = field_validator("driver", mode="plain")(_driver_name("gnss"))
 

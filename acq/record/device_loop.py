@@ -44,6 +44,7 @@ from typing import Any, ClassVar, Generic, TypeVar
 
 from acq.credentials import redact
 from acq.drivers.reconnect import FAULTS_FORGOTTEN_S, Backoff, LinkEvent, Relink, describe
+from acq.log.silent_devices import why_silent
 from acq.log.writer import LogWriter
 from acq.time.clocksync import DeviceClock
 
@@ -164,9 +165,7 @@ class DeviceState:
     def why_silent(self) -> str:
         """Why no record comes: not connected and the last connect error, or what the
         connected device did last."""
-        if not self.connected:
-            return f"not connected ({self.last_event or 'no answer yet'})"
-        return f"connected, but no record ({self.last_event})"
+        return why_silent(self.connected, self.last_event)
 
     def watch(self, now_ns: int, started_ns: int) -> None:
         """The silence watch (on the writer's thread): a warning when no record came for

@@ -34,9 +34,14 @@ why, and the exit code is 1. Once it has recorded, a required device that goes a
 reconnected like any other. The credentials of device URLs are redacted in the log
 lines (:func:`setup_logging`), the metadata and the status.
 
+When it stops, the recorder says what each device recorded, names each that recorded
+nothing or stopped recording well before the end (:mod:`acq.log.silent_devices`), and
+exits 1 when a device recorded nothing, unless the configuration marks it optional
+(``required: false``: then a warning).
+
 Exit codes: 0 stopped (signal or ``--duration``), 1 runtime failure (a required device
-absent), 2 bad configuration, 3 disk below its reserve (listed in the unit's
-``RestartPreventExitStatus``).
+absent, a device that recorded nothing), 2 bad configuration, 3 disk below its reserve
+(listed in the unit's ``RestartPreventExitStatus``).
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ from acq.drivers.can_odometry import DbcError, OdometryDecoder
 from acq.drivers.reconnect import describe
 from acq.errors import InputError, InputValueError
 from acq.log import schemas
+from acq.log.silent_devices import DeviceRecords, silent_devices
 from acq.log.writer import LogWriter
 from acq.record.adapters import GNSS, VEHICLE, adapters_for
 from acq.record.config import CanConfig, Config, dump
@@ -77,6 +83,7 @@ __all__ = [
     "Recorder",
     "RecorderError",
     "UnknownDevice",
+    "optional_devices",
     "required_devices",
 ]
 
@@ -101,15 +108,26 @@ class UnknownDevice(InputValueError):
     """A device asked for by name (``required``) that the configuration does not have."""
 
 
+def _requirements(config: Config) -> list[tuple[str, bool | None]]:
+    """Each device's name and its ``required`` (None: unset)."""
+    out = [(s.name, s.required) for s in config.scanners]
+    out += [(c.name, c.required) for c in config.cameras]
+    if config.can is not None:
+        out.append((VEHICLE, config.can.required))
+    if config.gnss is not None:
+        out.append((GNSS, config.gnss.required))
+    return out
+
+
 def required_devices(config: Config) -> list[str]:
     """The names of the devices the configuration marks ``required: true``."""
-    names = [s.name for s in config.scanners if s.required]
-    names += [c.name for c in config.cameras if c.required]
-    if config.can is not None and config.can.required:
-        names.append(VEHICLE)
-    if config.gnss is not None and config.gnss.required:
-        names.append(GNSS)
-    return names
+    return [name for name, required in _requirements(config) if required]
+
+
+def optional_devices(config: Config) -> list[str]:
+    """The names of the devices the configuration marks ``required: false``: one that
+    records nothing is a warning, not a failure."""
+    return [name for name, required in _requirements(config) if required is False]
 
 
 class Recorder:
@@ -152,6 +170,8 @@ class Recorder:
                     + ", ".join(self.devices)
                 )
         self.required_within_s = required_within_s
+        self.optional = [n for n in optional_devices(config) if n not in self.required]
+        self._said_missing: set[str] = set()  # required devices an error line named
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.writer: LogWriter | None = None
@@ -265,6 +285,7 @@ class Recorder:
             waited,
             "; ".join(f"{d.name} {d.why_silent()}" for d in missing),
         )
+        self._said_missing = {d.name for d in missing}
         return False
 
     def _write_rate(self) -> float:
@@ -470,12 +491,37 @@ class Recorder:
             self.exit_code = EXIT_FAILURE
         finally:
             self._stop.set()
+            ended_ns = time.monotonic_ns()
             self.host_clock.stop()
             self.notifier.stopping()
             self._close(writer)
+            self._report_devices(ended_ns)
             for t in self._threads:
                 t.join(timeout=1.0)
         return self.exit_code
+
+    def _report_devices(self, end_ns: int) -> None:
+        """The closing lines: what each device recorded; an error line for each that
+        recorded nothing (exit status 1, unless it is optional: a warning) and a warning
+        for each that stopped recording well before the end."""
+        counts = ", ".join(f"{d.name} {d.received}" for d in self.devices.values())
+        log.info("stopped after %.1f s; records: %s", (end_ns - self.started_ns) * 1e-9, counts)
+        records = [
+            DeviceRecords(d.name, d.kind, d.received, d.last_recv_ns or None, d.why_silent())
+            for d in self.devices.values()
+        ]
+        for silent in silent_devices(records, end_ns):
+            if silent.name in self._said_missing:
+                continue
+            if not silent.recorded_nothing:
+                log.warning("%s", silent.line())
+            elif silent.name in self.optional:
+                log.warning("%s (optional: required: false)", silent.line())
+            else:
+                log.error("%s; exit status 1 (`required: false` makes a device optional)",
+                          silent.line())  # fmt: skip
+                if self.exit_code == EXIT_OK:
+                    self.exit_code = EXIT_FAILURE
 
     def _close(self, writer: LogWriter) -> None:
         path = writer.path

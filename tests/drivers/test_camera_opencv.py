@@ -165,11 +165,79 @@ def test_camera_link_comes_back(server: MjpegServerProcess) -> None:
         if len(got) == 5:
             server.drop_connection()
         if len(got) == 10:
-            server.stall(0.5)
+            server.stall(0.5)  # shorter than CAMERA_STALL_S: the connection is kept
         if len(got) == 20:
             stop.set()
-    assert link.disconnects >= 2
+    assert link.disconnects == 1
     assert len(got) == 20
+
+
+def _frames_in_thread(link: CameraLink) -> tuple[list[Frame], threading.Event, threading.Thread]:
+    """The link read on a thread until the event is set: (the frames so far, stop, thread)."""
+    stop = threading.Event()
+    frames: list[Frame] = []
+
+    def run() -> None:
+        for frame in link.frames(stop):
+            frames.append(frame)
+
+    reader = threading.Thread(target=run, daemon=True)
+    reader.start()
+    return frames, stop, reader
+
+
+def _wait_for(frames: list[Frame], n: int, timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while len(frames) < n and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(frames) >= n, f"{len(frames)} of {n} frames in {timeout} s"
+
+
+def test_a_stall_of_a_few_periods_keeps_the_stream_and_every_frame(
+    server: MjpegServerProcess,
+) -> None:
+    """The camera sends nothing for 10 frame periods (a busy camera or host): the stream
+    is not closed, and every frame it sent is read, on the same connection."""
+    link = CameraLink(_camera(server.url))
+    frames, stop, reader = _frames_in_thread(link)
+    try:
+        _wait_for(frames, 5)
+        n = len(frames)
+        server.stall(0.4)
+        _wait_for(frames, n + 25)
+    finally:
+        stop.set()
+        reader.join(5.0)
+    assert link.disconnects == 0
+    got = [jpeg_digest(f.jpeg) for f in frames]
+    sent = [t.digest for t in server.truth() if t.status == "sent"]
+    first = sent.index(got[0])
+    assert got == sent[first : first + len(got)]  # none lost on the way
+
+
+def test_a_dropped_connection_streams_again_within_half_a_second() -> None:
+    """The camera closes the connection (twice, 0.6 s apart, as a flaky link would):
+    each time the first frame after comes within 0.5 s, the link not held off by a
+    connection that streamed."""
+    with MjpegServerProcess(exposure_s=EXPOSURE, latency_s=LATENCY, seed=6) as srv:
+        link = CameraLink(_camera(srv.url))
+        frames, stop, reader = _frames_in_thread(link)
+        backs = []
+        try:
+            _wait_for(frames, 10)
+            for _ in range(2):
+                t0 = time.monotonic_ns()
+                srv.drop_connection()
+                deadline = time.monotonic() + 5.0
+                while not frames[-1].recv_ns > t0 + 1 and time.monotonic() < deadline:
+                    time.sleep(0.005)
+                backs.append((next(f.recv_ns for f in frames if f.recv_ns > t0 + 1) - t0) * 1e-9)
+                time.sleep(0.6)
+        finally:
+            stop.set()
+            reader.join(5.0)
+    assert link.disconnects == 2
+    assert max(backs) < 0.5, backs
 
 
 def _read_in_thread(link: CameraLink, seconds: float) -> tuple[list[Frame], float]:

@@ -143,7 +143,7 @@ def test_a_failing_device_is_contained_and_credentials_stay_out(
     cameras = [
         {"name": "hostile", "driver": "opencv", "fps": 5,
          "source": f"http://admin:{SECRET}@127.0.0.1:{hostile.port}/stream.mjpg"},
-        dead_camera(),
+        dead_camera(required=False),  # optional: the recording exits 0 without it
     ]  # fmt: skip
     cfg = write_config(tmp_path, scanner.url, cameras)
     duration = 5.0
@@ -266,3 +266,68 @@ def test_require_names_a_device_of_the_configuration(
     assert last == (
         "acq record: --require: no device named 'lidar'; the configuration's devices: laser"
     )
+
+
+def test_a_scanner_that_never_connected_fails_the_recording_and_is_named(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two scanners: ``laser`` never connects (nothing listens on its port), ``laser2``
+    records for about a second and then goes away for good. The recorder exits 1, its
+    closing lines name both (an error, a warning), and `acq info` on the file warns for
+    both."""
+    gone = TcpDeviceServer(ScipDevice(MODELS["utm-30lx"])).start()
+    data = {
+        "version": 1,
+        "scanners": [
+            {"name": "laser", "driver": "hokuyo", "url": f"socket://127.0.0.1:{closed_port()}"},
+            {"name": "laser2", "driver": "hokuyo", "url": gone.url, "latency_s": 0.0},
+        ],
+        "output": {"dir": str(tmp_path / "logs")},
+    }
+    recorder = Recorder(configfile.parse(data), duration_s=6.0)
+    laser2 = recorder.devices["laser2"]
+
+    def pull_laser2() -> None:  # once it has recorded
+        deadline = time.monotonic() + 3.0
+        while not laser2.received and time.monotonic() < deadline:
+            time.sleep(0.02)
+        gone.close()
+
+    threading.Thread(target=pull_laser2, daemon=True).start()
+    try:
+        with caplog.at_level(logging.INFO, logger="acq.record"):
+            code = recorder.run()
+    finally:
+        gone.close()
+    assert code == EXIT_FAILURE
+    closing = [(r.levelno, r.getMessage()) for r in caplog.records]
+    errors = [m for level, m in closing if level == logging.ERROR]
+    assert len(errors) == 1, errors
+    assert errors[0].startswith("scanner laser recorded nothing: not connected (connect_failed")
+    assert "refused" in errors[0] and "exit status 1" in errors[0]
+    stopped = re.compile(r"scanner laser2 stopped recording \d+\.\d s before the end")
+    assert any(level == logging.WARNING and stopped.match(m) for level, m in closing), closing
+    assert any(m.startswith("stopped after ") and "laser 0, laser2 " in m for _, m in closing)
+
+    (path,) = sorted((tmp_path / "logs").glob("*.mcap"))
+    assert main(["info", str(path)]) == 0
+    warnings = [x.strip() for x in capsys.readouterr().out.splitlines() if "warning:" in x]
+    assert any(x.startswith("warning: scanner laser recorded nothing: not connected")
+               for x in warnings), warnings  # fmt: skip
+    assert any(re.match(r"warning: scanner laser2 stopped recording \d+\.\d s before the end",
+                        x) for x in warnings), warnings  # fmt: skip
+
+
+def test_an_optional_device_that_recorded_nothing_is_a_warning(
+    scanner: TcpDeviceServer, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """``required: false``: a camera that never connects is named, and the exit status is 0."""
+    cfg = configfile.load(write_config(tmp_path, scanner.url, [dead_camera(required=False)]))
+    with caplog.at_level(logging.INFO, logger="acq.record"):
+        assert Recorder(cfg, duration_s=1.5).run() == 0
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any(
+        m.startswith("camera dead recorded nothing: not connected") and "optional" in m
+        for m in warnings
+    ), warnings
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR]

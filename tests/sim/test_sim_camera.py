@@ -321,3 +321,34 @@ def test_prerendered_frames_are_the_live_ones(camera_args: dict[str, object]) ->
         assert e.sequence == v.sequence and e.t_mid == v.t_mid
         assert jpeg_digest(e.jpeg) == jpeg_digest(v.jpeg)
     assert not early._prerendered
+
+
+class SlowCamera(SimCamera):
+    """A camera whose frames take 60 ms to make, longer than its 40 ms period: the
+    renderer on a busy machine, emulated by a sleep (the load cannot be had on demand)."""
+
+    def render(self, t: float) -> np.ndarray:
+        time.sleep(0.06)
+        return super().render(t)
+
+
+def test_a_camera_rendering_slower_than_real_time_still_sends_in_time(
+    camera_args: dict[str, object],
+) -> None:
+    """It falls behind, and frames too late to send once rendered are not rendered:
+    frames keep coming (fewer than 25 a second), where before the server rendered each
+    just before its limit, dropped it as late, and sent nothing more."""
+    cam = SlowCamera(**camera_args, latency_s=0.02, seed=2)  # type: ignore[arg-type]
+    with MjpegServer(cam, late_s=0.3) as srv:
+        reader = PlainReader(srv.port)
+        reader.head()
+        t_end = time.monotonic() + 3.0
+        arrived = []
+        while time.monotonic() < t_end:
+            arrived.append(reader.part()[2])
+        reader.close()
+        truth = cam.truth()
+    # it falls late_s behind within a second or so; the last 1.5 s must still flow
+    last = [t for t in arrived if t > arrived[-1] - 1.5]
+    assert len(last) >= 8, np.diff(arrived)
+    assert any(t.status == "late" for t in truth)  # it did fall behind

@@ -409,12 +409,15 @@ def _format_one(i: LogInfo) -> list[str]:
     lines = [f"{title}: {state}"]
     if i.problem:
         lines.append(f"  warning: {i.problem}")
+    bag = i.metadata.get("acq", {}).get("source") == "rosbag2"  # acq.log.rosbag_source
     if i.start_ns is not None and i.end_ns is not None:
-        where = f"monotonic {i.start_ns / 1e9:.3f} s .. {i.end_ns / 1e9:.3f} s"
+        where = f"monotonic {i.start_ns / 1e9:.3f} s .. {i.end_ns / 1e9:.3f} s, "
+        if bag:  # its stamps are UTC: no host monotonic clock to name
+            where = ""
         if i.start_realtime_ns is not None:
-            where += f", from {_utc(i.start_realtime_ns)}"
-        lines.append(f"  span      {i.duration_s:.3f} s ({where})")
-    if i.metadata.get("acq", {}).get("source") == "rosbag2":  # acq.log.rosbag_source
+            where += f"from {_utc(i.start_realtime_ns)}"
+        lines.append(f"  span      {i.duration_s:.3f} s ({where.removesuffix(', ')})")
+    if bag:
         clock = "a ROS 2 bag (rosbag2): its stamps taken as UTC; ROS topics read as acq's"
     elif i.time_base.utc:
         clock = (

@@ -61,6 +61,8 @@ def test_info_reads_the_export_as_a_log(
     assert acq_main(["info", str(bag)]) == 0
     out = capsys.readouterr().out
     assert "a ROS 2 bag (rosbag2)" in out
+    span = next(line for line in out.splitlines() if line.startswith("  span"))
+    assert "monotonic" not in span and " UTC)" in span, span  # a bag's stamps are UTC
     rows = {line.split()[0]: line.split() for line in out.splitlines() if line.startswith("  /")}
     assert rows["/laser/scan"][1:3] == ["foxglove.LaserScan", str(original.n_scans)]
     for camera in ("left", "right"):

@@ -95,7 +95,7 @@ pids+=($!)
 for i in $(seq 1 1200); do [ -e rig/rig.yaml ] && break; sleep 0.1; done
 [ -e rig/rig.yaml ] || { echo "wheel smoke: acq sim rig did not start" >&2; cat rig.log >&2; exit 1; }
 "$acq" record -c rig/rig.yaml --out riglogs --duration 2
-"$acq" colorize riglogs/rig_*.mcap --calib rig/calib.yaml -o rig.ply --no-preview > rig.txt \
+"$acq" colorize riglogs --calib rig/calib.yaml -o rig.ply --no-preview > rig.txt \
   || { cat rig.txt; exit 1; }
 grep -q 'CAN odometry' rig.txt || { cat rig.txt; exit 1; }
 step "passed"

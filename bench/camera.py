@@ -24,7 +24,7 @@ import numpy as np
 from acq.drivers.camera_opencv import OpenCVCamera
 from acq.drivers.mjpeg import jpeg_size
 from acq.sim.camera_device import SimCamera
-from acq.sim.mjpeg_server import MjpegServerProcess
+from acq.sim.mjpeg_process import MjpegServerProcess
 from acq.sim.world import Street
 
 FPS = 25.0

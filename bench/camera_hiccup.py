@@ -2,7 +2,7 @@
 line per result.
 
 The simulated fisheye serves MJPEG over HTTP from its own process
-(:class:`acq.sim.mjpeg_server.MjpegServerProcess`); the recorder's camera path reads it
+(:class:`acq.sim.mjpeg_process.MjpegServerProcess`); the recorder's camera path reads it
 (:class:`acq.record.adapters.CameraAdapter` in :func:`acq.record.device_loop.run_device`,
 the OpenCV driver through its :class:`acq.drivers.reconnect.CameraLink`), with two busy
 loops (``python -c 'while 1: pass'``) beside it on this machine's cores.
@@ -41,7 +41,7 @@ from typing import Any
 from acq.record.adapters import CameraAdapter
 from acq.record.config import CameraConfig
 from acq.record.device_loop import Outbox, run_device
-from acq.sim.mjpeg_server import MjpegServerProcess
+from acq.sim.mjpeg_process import MjpegServerProcess
 
 FPS = 25.0
 # the camera renders its frames first (a frame costs 20-40 ms of a core, and more beside

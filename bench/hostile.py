@@ -53,7 +53,7 @@ from processes import acq_command, end, start_simulator
 from acq.drivers.camera_opencv import OpenCVCamera
 from acq.drivers.reconnect import CameraLink
 from acq.log import LogReader
-from acq.sim.mjpeg_server import MjpegServerProcess
+from acq.sim.mjpeg_process import MjpegServerProcess
 
 FPS = 25.0
 TARGET_RECOVERY_S = 2.0

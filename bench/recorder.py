@@ -73,7 +73,7 @@ from processes import acq_command, end, wait_line
 
 from acq.log import LogInfo, LogReader, info_many
 from acq.sim.camera_device import jpeg_digest
-from acq.sim.mjpeg_server import MjpegServerProcess
+from acq.sim.mjpeg_process import MjpegServerProcess
 
 ROOT = Path(__file__).resolve().parents[1]
 SCAN_HZ = 40.0  # UTM-30LX

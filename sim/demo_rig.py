@@ -31,7 +31,7 @@ from acq.camera.calibfile import Calibration, CameraCalib
 from acq.motion.trajectory import Trajectory
 from acq.sim.can_vehicle import DBC_PATH, SimVehicle, multicast_can
 from acq.sim.device_clock import SimClock
-from acq.sim.mjpeg_server import MjpegServerProcess
+from acq.sim.mjpeg_process import MjpegServerProcess
 from acq.sim.nmea_device import NmeaDevice, NmeaPtyServer
 from acq.sim.scan_source import StreetSource
 from acq.sim.scanner_models import MODELS

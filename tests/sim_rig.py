@@ -14,7 +14,7 @@ from acq.log.reader import LogReader
 from acq.record import config as configfile
 from acq.record.recorder import Recorder
 from acq.sim.can_vehicle import DBC_PATH, SimVehicle
-from acq.sim.mjpeg_server import MjpegServerProcess
+from acq.sim.mjpeg_process import MjpegServerProcess
 from acq.sim.nmea_device import NmeaDevice
 from acq.sim.replay import Replay
 from acq.sim.scanner_models import MODELS

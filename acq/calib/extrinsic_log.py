@@ -43,7 +43,7 @@ import numpy as np
 
 from acq import progress
 from acq.calib.board_pose import BoardPose, board_pose_from_corners
-from acq.calib.fisheye_calib import BoardSpec, board_hint, detect_corners
+from acq.calib.checkerboard import BoardSpec, board_hint, detect_corners
 from acq.camera.camera_models import CameraModel
 from acq.errors import InputValueError
 from acq.geometry.transforms import Rigid
@@ -458,7 +458,7 @@ def board_size_hint(
     spec: BoardSpec,
     max_frames: int = 5,
 ) -> str:
-    """:func:`acq.calib.fisheye_calib.board_hint` on the middle frame of up to
+    """:func:`acq.calib.checkerboard.board_hint` on the middle frame of up to
     ``max_frames`` of ``intervals`` (host ns; those where the board was not found), a
     size found as :class:`CornerFinder` finds it through ``model``."""
     finders: dict[BoardSpec, CornerFinder] = {}

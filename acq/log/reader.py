@@ -10,7 +10,9 @@ chunk whose CRC or compression is bad is skipped and reported, and reading goes 
 after it (its length is known, so the records after it are still framed). Skipped chunks
 are also logged, one WARNING line per file naming their times and the messages lost, once
 per process (a command that reads a file several times says it once); :func:`quiet`
-leaves that to a caller that reports the damage itself (``acq info``).
+leaves that to a caller that reports the damage itself (``acq info``); both in
+:mod:`acq.log.skipped_chunks`. A file that is not MCAP at all raises :class:`LogError`
+(:mod:`acq.log.mcap_magic`).
 
 Messages are decoded from the schemas stored in the file, never from our own
 generated classes, so older logs with fewer fields still read: :meth:`LogReader.decode`
@@ -20,30 +22,24 @@ makes one decoder per channel, the first time a message of that channel is decod
 Times are integer nanoseconds of the host monotonic clock, whatever the log's clock
 (:mod:`acq.log.timebase`): in a UTC log, :meth:`LogReader.messages` gives ``log_time``
 and ``publish_time`` less the session's offset, and :meth:`LogReader.decode` the
-Foxglove messages' timestamps likewise; :meth:`LogReader.records` gives the records as
-they are in the file.
+Foxglove messages' timestamps likewise (:mod:`acq.log.stamp_shift`);
+:meth:`LogReader.records` gives the records as they are in the file.
 """
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import io
 import logging
 import os
 import struct
-import threading
 import zlib
 from collections import deque
 from collections.abc import Callable, Generator, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, TypeVar, cast
+from typing import IO, Any, TypeVar
 
-from google.protobuf.descriptor import Descriptor, FieldDescriptor
 from google.protobuf.message import DecodeError
-from google.protobuf.message import Message as Protobuf
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
@@ -66,7 +62,8 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from acq import progress
 from acq.errors import InputValueError
-from acq.log import writer_lock
+from acq.log import skipped_chunks, writer_lock
+from acq.log.mcap_magic import MAGIC, LogError, check_magic
 from acq.log.mcap_records import (
     HEADER_BYTES,
     KNOWN_OPCODES,
@@ -76,6 +73,8 @@ from acq.log.mcap_records import (
     record_name,
 )
 from acq.log.rosbag_source import acq_records, is_bag, laser_channels
+from acq.log.skipped_chunks import Skipped, quiet
+from acq.log.stamp_shift import shift_stamps
 from acq.log.timebase import MONOTONIC, TimeBase
 
 __all__ = [
@@ -88,115 +87,13 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-MAGIC = b"\x89MCAP0\r\n"
 _FOOTER = HEADER_BYTES + 8 + 8 + 4  # a whole Footer record, bytes
 _MAX_CHUNK_BYTES = 4 * 2**30  # a larger uncompressed size in a chunk header is garbage
 _NO_SUMMARY = "no summary section"
 
 
-class LogError(InputValueError):
-    """A file that is not an MCAP log at all (missing, unreadable, bad magic); ``offset``:
-    the byte where it goes wrong, named in the message when there is one (None: the file
-    as a whole)."""
-
-    def __init__(self, path: str | os.PathLike[str], offset: int | None, reason: str) -> None:
-        self.path = Path(path)
-        self.offset = offset
-        self.reason = reason
-        where = f" (byte {offset})" if offset is not None else ""
-        super().__init__(f"{self.path}: {reason}{where}")
-
-
-@dataclass
-class _Skipped:
-    """A corrupt chunk skipped: its record's byte offset, its messages' first and last log
-    times (ns; None: unknown) and how many there were (None: unknown)."""
-
-    at: int
-    start_ns: int | None = None
-    end_ns: int | None = None
-    messages: int | None = None
-
-
-_REPORTED: set[tuple[str, int]] = set()  # (file, chunk offset) already logged here
-_REPORTED_LOCK = threading.Lock()
-_QUIET: contextvars.ContextVar[bool] = contextvars.ContextVar("acq_log_quiet", default=False)
-
-
-@contextlib.contextmanager
-def quiet() -> Iterator[None]:
-    """Within it, the logs read log no warning for their corrupt chunks: for a caller that
-    reports :meth:`LogReader.problem` itself."""
-    token = _QUIET.set(True)
-    try:
-        yield
-    finally:
-        _QUIET.reset(token)
-
-
-def _check_magic(path: Path) -> int:
-    """File size in bytes, after checking that ``path`` starts with the MCAP magic."""
-    try:
-        with path.open("rb") as f:
-            head = f.read(len(MAGIC))
-            size = os.fstat(f.fileno()).st_size
-    except FileNotFoundError:
-        raise LogError(path, None, "no such file") from None
-    except IsADirectoryError:
-        raise LogError(path, None, "is a folder, not an MCAP file") from None
-    except OSError as e:
-        raise LogError(path, None, f"cannot read: {e.strerror or e}") from None
-    if not head:
-        raise LogError(path, None, "empty file, not an MCAP file")
-    if head != MAGIC and MAGIC.startswith(head):
-        raise LogError(path, len(head), f"cut inside the MCAP magic, {len(head)} bytes long")
-    if head != MAGIC:
-        raise LogError(path, None, f"not an MCAP file: bad magic {head!r}")
-    return size
-
-
 Decoder = Callable[[bytes], Any]
 T = TypeVar("T")
-
-_TIMESTAMP = "google.protobuf.Timestamp"
-# by message type (its descriptor: two files may hold two versions of one schema)
-_STAMP_FIELDS: dict[Descriptor, tuple[tuple[FieldDescriptor, bool], ...]] = {}
-
-
-def _stamp_fields(
-    descriptor: Descriptor, within: frozenset[Descriptor] = frozenset()
-) -> tuple[tuple[FieldDescriptor, bool], ...]:
-    """The message fields of a message type that are or may hold a Timestamp, each with
-    whether it is one (``within``: the types being looked into, so a type that holds
-    itself ends). Cached whole, so threads decoding at once see all or nothing."""
-    known = _STAMP_FIELDS.get(descriptor)
-    if known is not None:
-        return known
-    found = []
-    for field in descriptor.fields:
-        sub = field.message_type
-        if sub is None or sub in within:
-            continue
-        if sub.full_name == _TIMESTAMP or _stamp_fields(sub, within | {descriptor}):
-            found.append((field, sub.full_name == _TIMESTAMP))
-    _STAMP_FIELDS[descriptor] = result = tuple(found)
-    return result
-
-
-def _shift_stamps(msg: Protobuf, delta_ns: int) -> None:
-    """Add ``delta_ns`` to every Timestamp set in ``msg``, nested ones included."""
-    for field, is_stamp in _stamp_fields(cast(Descriptor, msg.DESCRIPTOR)):
-        if field.is_repeated:
-            items = list(getattr(msg, field.name))
-        elif msg.HasField(field.name):
-            items = [getattr(msg, field.name)]
-        else:
-            continue
-        for item in items:
-            if is_stamp:
-                item.FromNanoseconds(item.ToNanoseconds() + delta_ns)
-            else:
-                _shift_stamps(item, delta_ns)
 
 
 class LogReader:
@@ -225,7 +122,7 @@ class LogReader:
     ) -> None:
         self.path = Path(path)
         self.log_time = log_time
-        self.size = _check_magic(self.path)
+        self.size = check_magic(self.path)
         self.progress = progress
         self.closed = False
         self.writing = False
@@ -238,7 +135,7 @@ class LogReader:
         self.metadata: list[Metadata] = []
         self.time_base: TimeBase = MONOTONIC
         self.attachments = 0
-        self.skipped: list[_Skipped] = []  # the corrupt chunks skipped
+        self.skipped: list[Skipped] = []  # the corrupt chunks skipped
         self._start_ns: int | None = None  # the file's first log time, for the warning
         self._factory = DecoderFactory()  # per file: it caches message classes by schema id
         self._decoders: dict[int, Decoder | None] = {}  # by channel id; None: undecodable
@@ -299,32 +196,9 @@ class LogReader:
     def _report_skipped(self) -> None:
         """One WARNING line for the corrupt chunks skipped that this process has not
         reported yet (unless :func:`quiet`)."""
-        if not self.skipped or _QUIET.get():
-            return
-        key = str(self.path.resolve())
-        with _REPORTED_LOCK:
-            new = [s for s in self.skipped if (key, s.at) not in _REPORTED]
-            _REPORTED.update((key, s.at) for s in new)
-        if not new:
-            return
-        start = self._start_ns
-        where = []
-        for s in new[:3]:
-            if start is not None and s.start_ns is not None and s.end_ns is not None:
-                where.append(
-                    f"{(s.start_ns - start) * 1e-9:.1f}..{(s.end_ns - start) * 1e-9:.1f} s"
-                )
-            else:
-                where.append(f"at byte {s.at}")
-        text = ", ".join(where) + (f" and {len(new) - 3} more" if len(new) > 3 else "")
-        if any(w.endswith(" s") for w in where):
-            text += " into the file"
-        known = [s.messages for s in new if s.messages is not None]
-        if known:
-            least = "" if len(known) == len(new) else "at least "
-            text += f", {least}{sum(known)} messages lost"
-        chunks = "chunk" if len(new) == 1 else "chunks"
-        log.warning("%s: %d corrupt %s skipped (%s)", self.path, len(new), chunks, text)
+        new = skipped_chunks.unreported(self.path, self.skipped)
+        if new:
+            log.warning("%s: %s", self.path, skipped_chunks.describe(new, self._start_ns))
 
     def messages(self) -> Iterator[tuple[Schema | None, Channel, Message]]:
         """(schema, channel, message) of every readable message, in file order."""
@@ -369,7 +243,7 @@ class LogReader:
             return None
         offset = self.time_base.utc_offset_ns
         if offset and schema is not None and schema.name.startswith("foxglove."):
-            _shift_stamps(decoded, -offset)
+            shift_stamps(decoded, -offset)
         return decoded
 
     def decoded(
@@ -495,7 +369,7 @@ class LogReader:
                     self.notes.append(f"corrupt chunk at byte {at} skipped ({e})")
                     index = by_start[at]
                     self.skipped.append(
-                        _Skipped(
+                        Skipped(
                             at,
                             index.message_start_time,
                             index.message_end_time,
@@ -545,7 +419,7 @@ class LogReader:
         StreamReader parse each complete record."""
         pos = len(MAGIC)
         size = self.size
-        lost: _Skipped | None = None  # a corrupt chunk whose message index records follow
+        lost: Skipped | None = None  # a corrupt chunk whose message index records follow
         while True:
             self.bytes_read = pos
             self._shown_to(pos)
@@ -585,7 +459,7 @@ class LogReader:
             except RECORD_ERRORS as e:
                 if opcode == Opcode.CHUNK:
                     self.notes.append(f"corrupt chunk at byte {pos} skipped ({e})")
-                    self.skipped.append(_Skipped(pos))
+                    self.skipped.append(Skipped(pos))
                     lost = None
                     pos += HEADER_BYTES + length
                     continue
@@ -618,7 +492,7 @@ class LogReader:
                     yield from self._chunk_records(record)
                 except RECORD_ERRORS as e:
                     self.notes.append(f"corrupt chunk at byte {pos} skipped ({e})")
-                    lost = _Skipped(pos, record.message_start_time, record.message_end_time)
+                    lost = Skipped(pos, record.message_start_time, record.message_end_time)
                     self.skipped.append(lost)
             elif isinstance(record, Header | Schema | Channel | Message | Metadata | Attachment):
                 if isinstance(record, Message) and self._start_ns is None:

@@ -17,7 +17,10 @@ from hypothesis import strategies as st
 
 from acq.cli import (
     analyze,
-    calibrate,
+    calibrate_extrinsic,
+    calibrate_fisheye,
+    calibrate_time_offset,
+    calibrate_validate,
     colorize,
     demo,
     main,
@@ -99,7 +102,8 @@ def _no_run(monkeypatch: pytest.MonkeyPatch) -> list[str]:
         demo: ["run"], record: ["run"], replay: ["run"], colorize: ["run"],
         probe: ["run_scanner", "run_camera"], analyze: ["run_sensitivity"],
         sim: ["run_render", "run_scanner", "run_camera", "run_rig"], sim_logs: ["run_log"],
-        calibrate: ["run_fisheye", "run_extrinsic", "run_time_offset", "run_validate"],
+        calibrate_fisheye: ["run_fisheye"], calibrate_extrinsic: ["run_extrinsic"],
+        calibrate_time_offset: ["run_time_offset"], calibrate_validate: ["run_validate"],
     }  # fmt: skip
     for module, names in handlers.items():
         for name in names:

@@ -19,7 +19,8 @@ from acq.drivers.errors import ConnectionLost, DeviceError
 from acq.drivers.reconnect import Backoff, CameraLink
 from acq.records import Frame
 from acq.sim.camera_device import SimCamera, jpeg_digest
-from acq.sim.mjpeg_server import MjpegServer, MjpegServerProcess
+from acq.sim.mjpeg_process import MjpegServerProcess
+from acq.sim.mjpeg_server import MjpegServer
 from acq.sim.world import Street
 
 # drives simulated devices in real time: run alone (`make test`)

@@ -1,0 +1,76 @@
+"""The corrupt chunks a pass over a log skipped (:class:`acq.log.reader.LogReader`), and
+the one warning line per file that names their times and the messages lost, said once per
+process (a command that reads a file several times says it once); :func:`quiet` leaves
+that to a caller that reports the damage itself (``acq info``)."""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["Skipped", "describe", "quiet", "unreported"]
+
+
+@dataclass
+class Skipped:
+    """A corrupt chunk skipped: its record's byte offset, its messages' first and last log
+    times (ns; None: unknown) and how many there were (None: unknown)."""
+
+    at: int
+    start_ns: int | None = None
+    end_ns: int | None = None
+    messages: int | None = None
+
+
+_REPORTED: set[tuple[str, int]] = set()  # (file, chunk offset) already reported here
+_REPORTED_LOCK = threading.Lock()
+_QUIET: contextvars.ContextVar[bool] = contextvars.ContextVar("acq_log_quiet", default=False)
+
+
+@contextlib.contextmanager
+def quiet() -> Iterator[None]:
+    """Within it, the logs read log no warning for their corrupt chunks: for a caller that
+    reports :meth:`acq.log.reader.LogReader.problem` itself."""
+    token = _QUIET.set(True)
+    try:
+        yield
+    finally:
+        _QUIET.reset(token)
+
+
+def unreported(path: Path, skipped: list[Skipped]) -> list[Skipped]:
+    """The chunks of ``skipped`` this process has not reported yet, now marked reported;
+    none within :func:`quiet`."""
+    if not skipped or _QUIET.get():
+        return []
+    key = str(path.resolve())
+    with _REPORTED_LOCK:
+        new = [s for s in skipped if (key, s.at) not in _REPORTED]
+        _REPORTED.update((key, s.at) for s in new)
+    return new
+
+
+def describe(skipped: list[Skipped], start_ns: int | None) -> str:
+    """``N corrupt chunks skipped (WHERE, M messages lost)``: where as seconds from the
+    file's first log time ``start_ns`` (ns) when known, else as byte offsets."""
+    where = []
+    for s in skipped[:3]:
+        if start_ns is not None and s.start_ns is not None and s.end_ns is not None:
+            where.append(
+                f"{(s.start_ns - start_ns) * 1e-9:.1f}..{(s.end_ns - start_ns) * 1e-9:.1f} s"
+            )
+        else:
+            where.append(f"at byte {s.at}")
+    text = ", ".join(where) + (f" and {len(skipped) - 3} more" if len(skipped) > 3 else "")
+    if any(w.endswith(" s") for w in where):
+        text += " into the file"
+    known = [s.messages for s in skipped if s.messages is not None]
+    if known:
+        least = "" if len(known) == len(skipped) else "at least "
+        text += f", {least}{sum(known)} messages lost"
+    chunks = "chunk" if len(skipped) == 1 else "chunks"
+    return f"{len(skipped)} corrupt {chunks} skipped ({text})"

@@ -8,12 +8,13 @@ from pathlib import Path
 from acq.cli import output_files
 from acq.cli.output_files import Output
 from acq.errors import InputError
-from acq.log.silent_devices import STOPPED_EARLY_S
 
 HELP = "channels, rates, gaps, drops and clock-sync quality of logs"
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from acq.log.silent_devices import STOPPED_EARLY_S  # imported for this command only
+
     info = sub.add_parser(
         "info",
         help=HELP,

@@ -6,12 +6,13 @@ import argparse
 from pathlib import Path
 
 from acq.cli.option_types import LONGEST_S, real
-from acq.log.silent_devices import STOPPED_EARLY_S
 
 HELP = "record the rig's devices to MCAP (the daemon systemd runs)"
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from acq.log.silent_devices import STOPPED_EARLY_S  # imported for this command only
+
     rec = sub.add_parser(
         "record",
         help=HELP,

@@ -61,7 +61,7 @@ from acq.sim.demo_rig import (
     true_calibration,
 )
 from acq.sim.demo_truth import check_log, check_odometry
-from acq.sim.out_folder import claim_folder
+from acq.sim.out_folder import claim_folder, record_files
 
 __all__ = ["MAX_SECONDS", "OUT_MARK", "DemoResult", "run"]
 
@@ -292,6 +292,15 @@ def _run(result: DemoResult, seconds: float, progress: Callable[[str], None]) ->
             "(one drive down the simulated 1 km street)"
         )
     claim_folder(out, OUT_MARK, "acq demo's", FILES)
+    try:
+        _make(result, seconds, progress)
+    finally:  # what it wrote, also when it failed: the next run may replace it
+        record_files(out, OUT_MARK, "acq demo's", FILES)
+
+
+def _make(result: DemoResult, seconds: float, progress: Callable[[str], None]) -> None:
+    """The demo's files into its claimed folder ``result.out``."""
+    out = result.out
     clock = _Clock(progress)
     progress(
         f"acq demo: a simulated UTM-30LX and two 185-degree fisheyes ({', '.join(CAMERAS)}) "

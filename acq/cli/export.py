@@ -31,8 +31,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "and /tf (odom -> base_link) dead-reckoned from the CAN odometry, /gnss/fix "
         "(sensor_msgs/NavSatFix). Stamps are UTC (a log on the host's monotonic clock is "
         "mapped through its /acq/clock pairs). acq's timing and raw records are left out. "
-        "Replay: ros2 bag play BAG. An existing BAG is replaced when acq wrote it, another "
-        "folder only with --force; an input or a file is refused. "
+        "Replay: ros2 bag play BAG. An existing BAG is replaced when it holds only the files "
+        "acq wrote there; a folder with any other file is refused, and with --force kept "
+        "whole as BAG.bak (a file acq did not write is never deleted); an input, a file "
+        "or the current folder is refused. "
         "Exit status: 0 written, 2 bad input, 1 another failure.",
     )
     ros2.add_argument(
@@ -41,38 +43,47 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     ros2.add_argument(
         "-o", "--output", type=Path, required=True, metavar="BAG", help="the bag's folder"
     )
-    ros2.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
+    ros2.add_argument(
+        "--force",
+        action="store_true",
+        help="a BAG folder holding files acq did not write: keep it whole as BAG.bak and "
+        "write the bag in its place (without: refused, naming the files)",
+    )
     ros2.set_defaults(handler=run)
 
 
-def _check_bag(logs: list[Path], bag: Path, force: bool) -> None:
-    """Refuse a BAG that is an input, an existing file, or a folder acq did not write
-    (without --force)."""
-    from acq.export.ros2 import made_by_acq
+def _check_bag(logs: list[Path], bag: Path, force: bool) -> Path | None:
+    """Refuse a BAG that is an input, holds one, is an existing file, or holds files acq
+    did not write (without --force); the path the old folder is kept as (--force), or
+    None."""
+    from acq.export.ros2 import bag_files
 
     if not bag.is_dir():  # absent, or a file: the files' rule says why not
         output_files.check([("LOG", p) for p in logs], [Output("-o", bag, "mcap")])
-        return
+        return None
     if any(p.resolve().is_relative_to(bag.resolve()) for p in logs):
         raise InputError(f"-o {bag}: holds an input LOG; give another folder")
-    if not (force or made_by_acq(bag) or not any(bag.iterdir())):
-        raise InputError(f"-o {bag}: exists and is not a bag acq wrote; --force replaces it")
+    return output_files.check_folder_replace("-o", bag, bag_files(bag), force=force)
 
 
 def run(args: argparse.Namespace) -> int:
     from acq.export import export_ros2
+    from acq.export.ros2 import bag_files
 
-    bag: Path = args.output
-    _check_bag(args.logs, bag, args.force)
+    bag = output_files.folder_output("-o", args.output)
+    kept = _check_bag(args.logs, bag, args.force)
     # written in a folder beside (rosbags names its storage file after the bag's folder),
     # then put in place: a failure leaves the old bag as it was
     work = bag.with_name(f".{bag.name}.{secrets.token_hex(4)}.tmp")
     try:
         work.mkdir()
         report = export_ros2(args.logs, work / bag.name)
-        if bag.is_dir():
-            os.replace(bag, work / "old")
-        os.replace(work / bag.name, bag)
+        if kept is not None:
+            os.rename(bag, kept)  # whole, as it was: nothing of the user's deleted
+            print(f"acq export ros2: kept the old {bag} as {kept}", file=sys.stderr)
+        elif bag.is_dir() and not output_files.foreign_files(bag, bag_files(bag)):
+            os.replace(bag, work / "old")  # acq's files only: removed with the work folder
+        os.replace(work / bag.name, bag)  # refused (the old one stays) if files came since
     finally:
         shutil.rmtree(work, ignore_errors=True)
     counts = ", ".join(f"{topic} {n}" for topic, n in sorted(report.counts.items()))

@@ -22,7 +22,7 @@ import os
 import secrets
 import shutil
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +38,9 @@ __all__ = [
     "atomic",
     "backup_name",
     "check",
+    "check_folder_replace",
+    "folder_output",
+    "foreign_files",
     "keep_backup",
     "keep_backups",
     "kind_of",
@@ -256,3 +259,53 @@ def write_text(path: Path, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically (:func:`atomic`)."""
     with atomic(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+# a folder a command replaces whole (``export ros2 -o BAG``)
+
+
+def folder_output(option: str, path: Path) -> Path:
+    """``path`` as an absolute folder with a name of its own (``.``, ``..`` and ``/``
+    resolved); InputError for the current folder, one that holds it, or the root."""
+    folder = Path(os.path.abspath(path))
+    if not folder.name or Path.cwd().is_relative_to(folder):
+        raise InputError(
+            f"{option} {path}: is the current folder or holds it; give a folder of its own"
+        )
+    return folder
+
+
+def foreign_files(folder: Path, ours: Collection[str]) -> list[str]:
+    """The names in ``folder`` (sorted) that are not among ``ours``, the files acq wrote
+    there; none for a folder that does not exist."""
+    if not folder.is_dir():
+        return []
+    return sorted(p.name for p in folder.iterdir() if p.name not in ours or not p.is_file())
+
+
+def check_folder_replace(
+    option: str, folder: Path, ours: Collection[str], *, force: bool = False
+) -> Path | None:
+    """Refuse (InputError) to replace ``folder`` unless it is absent, empty or holds only
+    ``ours`` (the files acq wrote there, which the new folder replaces). A folder with
+    other files is refused, naming them; with ``force`` it is kept whole beside as
+    ``NAME.bak`` (refused when that exists): the path it is kept as, else None. A file
+    acq did not write is never deleted."""
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{option} {folder}: is a file; give a folder")
+    others = foreign_files(folder, ours)
+    if not others:
+        return None
+    shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+    bak = backup_name(folder)
+    if not force:
+        raise InputError(
+            f"{option} {folder}: holds {shown}, which acq did not write; give a new or "
+            f"empty folder (--force keeps the old folder whole as {bak.name})"
+        )
+    if bak.exists() or bak.is_symlink():
+        raise InputError(
+            f"{option} {folder}: holds {shown}, which acq did not write, and {bak} exists "
+            "to keep it; move one of them away"
+        )
+    return bak

@@ -231,7 +231,7 @@ def run_rig(args: argparse.Namespace) -> int:
 
     from acq.camera import calibfile
     from acq.sim.demo_rig import CAMERAS, SimRig, rig_config, true_calibration
-    from acq.sim.out_folder import claim_folder
+    from acq.sim.out_folder import claim_folder, record_files
 
     out = Path(args.out)
     claim_folder(out, RIG_MARK, "an acq sim rig", RIG_FILES)
@@ -255,6 +255,7 @@ def run_rig(args: argparse.Namespace) -> int:
             "# `acq sim rig`'s devices, while it runs (it removes this file when it stops)\n"
             + yaml.safe_dump(data, sort_keys=False),
         )
+        record_files(out, RIG_MARK, "an acq sim rig", RIG_FILES)
         print(
             f"wrote {config_path} and {calib_path} (the rig's true calibration)\n"
             f"record it: acq record -c {config_path} --out logs --duration 20\n"
@@ -270,5 +271,6 @@ def run_rig(args: argparse.Namespace) -> int:
     finally:
         rig.close()
         config_path.unlink(missing_ok=True)
+        record_files(out, RIG_MARK, "an acq sim rig", RIG_FILES)
     print(f"acq sim rig: stopped; removed {config_path}", flush=True)
     return 0

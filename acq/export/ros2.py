@@ -42,7 +42,7 @@ from acq.log.vehicle_log import ODOMETRY_TOPIC, VehicleReader
 from acq.motion.odometry import dead_reckon
 from acq.provenance import SOFTWARE
 
-__all__ = ["BAG_VERSION", "Ros2Report", "export_ros2", "made_by_acq"]
+__all__ = ["BAG_VERSION", "Ros2Report", "bag_files", "export_ros2", "made_by_acq"]
 
 BAG_VERSION: Final = 9  # rosbag2's metadata version of ROS 2 Jazzy
 _CLOCK_TOPIC = "/acq/clock"
@@ -66,6 +66,25 @@ def made_by_acq(bag: Path) -> bool:
     except (OSError, UnicodeDecodeError):
         return False
     return f"software: {SOFTWARE.split()[0]} " in text
+
+
+def bag_files(bag: Path) -> frozenset[str]:
+    """The names of the files acq wrote in the folder ``bag``: its metadata.yaml and the
+    storage files that metadata lists; none when acq did not write the bag."""
+    import yaml
+
+    if not made_by_acq(bag):
+        return frozenset()
+    try:
+        info = yaml.safe_load((bag / "metadata.yaml").read_text(encoding="utf-8"))
+        paths = info["rosbag2_bagfile_information"]["relative_file_paths"]
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
+        return frozenset()
+    if not isinstance(paths, list):
+        return frozenset()
+    # a listed name that is a path (a/b, ..) is no file of this folder
+    names = (p for p in paths if isinstance(p, str) and p == Path(p).name != "..")
+    return frozenset({"metadata.yaml", *names})
 
 
 def _latched_key(msg: Any) -> bytes:

@@ -251,7 +251,78 @@ def test_an_existing_bag_is_kept_unless_acq_wrote_it_or_force(
     assert acq_main(["export", "ros2", str(log), "-o", str(other)]) == 2
     assert "--force" in capsys.readouterr().err and (other / "notes.txt").exists()
     assert acq_main(["export", "ros2", str(log), "-o", str(other), "--force"]) == 0
-    assert not (other / "notes.txt").exists() and (other / "metadata.yaml").exists()
+    assert (other / "metadata.yaml").exists() and not (other / "notes.txt").exists()
+    assert (tmp_path / "other.bak" / "notes.txt").read_text() == "mine"  # kept aside
+
+
+def test_force_never_deletes_other_sessions_files(
+    bag: tuple[Path, dict], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A folder of logs and a calibration given as BAG: refused naming them; --force
+    keeps the folder whole beside (BAG.bak), and refuses when that name is taken."""
+    out, _ = bag
+    log = next((out.parent / "log").glob("*.mcap"))
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    mine = {"other.mcap": log.read_bytes(), "calib.yaml": b"cameras: {}\n"}
+    for name, data in mine.items():
+        (logs / name).write_bytes(data)
+    capsys.readouterr()
+    assert acq_main(["export", "ros2", str(log), "-o", str(logs)]) == 2
+    err = capsys.readouterr().err
+    assert "calib.yaml, other.mcap" in err and "acq did not write" in err
+    assert len(err.strip().splitlines()) == 1
+    (tmp_path / "logs.bak").mkdir()  # where --force would keep it: taken
+    assert acq_main(["export", "ros2", str(log), "-o", str(logs), "--force"]) == 2
+    assert "logs.bak exists" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in logs.iterdir()} == mine
+    (tmp_path / "logs.bak").rmdir()
+    assert acq_main(["export", "ros2", str(log), "-o", str(logs), "--force"]) == 0
+    kept = tmp_path / "logs.bak"
+    assert {p.name: p.read_bytes() for p in kept.iterdir()} == mine
+    assert (logs / "metadata.yaml").exists() and (logs / "logs.mcap").exists()
+    assert not (logs / "other.mcap").exists()
+
+
+def test_a_file_added_to_acqs_bag_survives_a_new_export(
+    bag: tuple[Path, dict], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A bag acq wrote is replaced only while it holds acq's files alone."""
+    out, _ = bag
+    log = next((out.parent / "log").glob("*.mcap"))
+    again = tmp_path / "again"
+    assert acq_main(["export", "ros2", str(log), "-o", str(again)]) == 0
+    (again / "notes.txt").write_text("mine")
+    (again / "extra").mkdir()
+    before = {p.name for p in again.iterdir()}
+    capsys.readouterr()
+    assert acq_main(["export", "ros2", str(log), "-o", str(again)]) == 2
+    err = capsys.readouterr().err
+    assert "extra, notes.txt" in err and "metadata.yaml" not in err
+    assert {p.name for p in again.iterdir()} == before
+    assert (again / "notes.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize("given", [".", "..", "sub/..", "/"])
+def test_the_current_folder_or_one_holding_it_is_refused_in_one_line(
+    bag: tuple[Path, dict],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    given: str,
+) -> None:
+    out, _ = bag
+    log = next((out.parent / "log").glob("*.mcap"))
+    here = tmp_path / "here"
+    (here / "sub").mkdir(parents=True)
+    (here / "mine.txt").write_text("mine")
+    monkeypatch.chdir(here)
+    capsys.readouterr()
+    assert acq_main(["export", "ros2", str(log), "-o", given, "--force"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "current folder" in err[0] and f"-o {given}" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["here"]
+    assert sorted(p.name for p in here.iterdir()) == ["mine.txt", "sub"]
 
 
 def test_a_utc_log_keeps_its_own_times() -> None:

@@ -470,3 +470,37 @@ def test_out_is_new_empty_or_an_earlier_demos(tmp_path: Path) -> None:
     for foreign in (tmp_path, tmp_path / "a_file"):
         with pytest.raises(InputError, match="--out"):
             claim_folder(foreign, demo.OUT_MARK, "acq demo's", demo.FILES)
+
+
+def test_a_file_of_the_demos_names_not_as_it_left_it_is_never_overwritten(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """In a folder the demo marked, its own files are replaced; one it did not write
+    there (put there, or changed since) is refused, naming it, before anything runs."""
+    import os
+
+    from acq.errors import InputError
+    from acq.sim import demo
+    from acq.sim.out_folder import claim_folder, record_files
+
+    out = tmp_path / "demo"
+    claim_folder(out, demo.OUT_MARK, "acq demo's", demo.FILES)
+    (out / "calib.yaml").write_text("the demo's")
+    (out / "cloud.ply").write_text("the demo's")
+    record_files(out, demo.OUT_MARK, "acq demo's", demo.FILES)
+    claim_folder(out, demo.OUT_MARK, "acq demo's", demo.FILES)  # its own: replaced
+    (out / "demo.mcap").write_bytes(b"\x89MCAP0\r\n the user's drive")  # put there since
+    st = (out / "calib.yaml").stat()
+    (out / "calib.yaml").write_text("mine: edited")  # changed since
+    os.utime(out / "calib.yaml", ns=(st.st_atime_ns, st.st_mtime_ns))  # even at its mtime
+    with pytest.raises(InputError, match=r"--out .*calib\.yaml, demo\.mcap"):
+        claim_folder(out, demo.OUT_MARK, "acq demo's", demo.FILES)
+    capsys.readouterr()
+    assert acq_main(["demo", "--out", str(out), "--seconds", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "calib.yaml, demo.mcap" in err[0]
+    assert (out / "calib.yaml").read_text() == "mine: edited"
+    assert (out / "demo.mcap").read_bytes().endswith(b"the user's drive")
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [demo.OUT_MARK, "calib.yaml", "cloud.ply", "demo.mcap"]
+    )

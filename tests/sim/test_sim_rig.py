@@ -105,3 +105,21 @@ def test_sim_rig_writes_into_no_folder_of_anyone_else(
     assert "--out" in err and len(err.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.yaml"]
     assert (tmp_path / "rig.yaml").read_text() == "mine"
+
+
+def test_sim_rig_never_overwrites_a_calibration_put_in_its_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A rig's folder (its mark) where the user then saved their own calib.yaml:
+    refused before the rig starts, the file as it was."""
+    from acq.cli.sim import RIG_FILES, RIG_MARK
+    from acq.sim.out_folder import claim_folder
+
+    claim_folder(tmp_path, RIG_MARK, "an acq sim rig", RIG_FILES)
+    (tmp_path / "calib.yaml").write_text("mine")
+    capsys.readouterr()
+    args = ["--out", str(tmp_path), "--duration", "0.1", "--prerender", "1"]
+    assert acq_main(["sim", "rig", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "calib.yaml" in err[0] and "not overwritten" in err[0]
+    assert (tmp_path / "calib.yaml").read_text() == "mine"

@@ -9,7 +9,6 @@ says otherwise (``_s`` seconds, ``_ms`` milliseconds, ``_hz`` hertz).
 from __future__ import annotations
 
 import dataclasses
-import json as _json
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -20,6 +19,7 @@ from typing import Any
 import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 
+from acq import json_text
 from acq.log import schemas
 from acq.log.device_timing import (
     GNSS_TIMING,
@@ -509,6 +509,6 @@ def format_info(infos: LogInfo | Iterable[LogInfo], *, json: bool = False) -> st
     ``json=True``, a JSON list with one object per :class:`LogInfo`."""
     items = [infos] if isinstance(infos, LogInfo) else list(infos)
     if json:
-        return _json.dumps([_jsonable(i) for i in items], indent=2)
+        return json_text.dumps([_jsonable(i) for i in items], what="acq info --json")
     blocks = ["\n".join(_format_one(i)) for i in items]
     return "\n\n".join(blocks)

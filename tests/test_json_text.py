@@ -3,11 +3,9 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -19,15 +17,7 @@ from acq.log.writer import LogWriter
 from acq.time.absent import Absent
 from acq.time.chrony import ChronyTracking
 from acq.time.host_clock import HostClock
-
-
-def strict(text: str) -> Any:
-    """``text`` parsed as RFC 8259 JSON: NaN and Infinity refused."""
-
-    def refuse(word: str) -> None:
-        raise ValueError(f"not JSON: {word}")
-
-    return json.loads(text, parse_constant=refuse)
+from tests.strict_json import strict_json
 
 
 def test_values_that_are_not_finite_are_null_and_named_once(
@@ -36,7 +26,7 @@ def test_values_that_are_not_finite_are_null_and_named_once(
     value = {"a": float("nan"), "b": [1.0, np.float32("inf")], "c": np.arange(2), "d": (Path("x"),)}
     with caplog.at_level(logging.WARNING):
         text = json_text.dumps(value, what="acq x --json")
-    assert strict(text) == {"a": None, "b": [1.0, None], "c": [0, 1], "d": ["x"]}
+    assert strict_json(text) == {"a": None, "b": [1.0, None], "c": [0, 1], "d": ["x"]}
     (line,) = [r.getMessage() for r in caplog.records]
     assert line.startswith("acq x --json: 2 values not finite numbers (NaN or infinite)")
     assert line.endswith("$.a, $.b[1]")
@@ -66,7 +56,7 @@ def test_info_json_with_a_nan_chrony_reading_is_json(
     writer.close()
     with caplog.at_level(logging.WARNING):
         assert main(["info", "--json", str(writer.files[0])]) == 0
-    (log_info,) = strict(capsys.readouterr().out)
+    (log_info,) = strict_json(capsys.readouterr().out)
     assert log_info["host_clock"]["records"] == 3
     assert log_info["host_clock"]["chrony_offset_ms_max"] is None
     (line,) = [r.getMessage() for r in caplog.records if "as JSON has no NaN" in r.getMessage()]

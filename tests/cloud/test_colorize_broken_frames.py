@@ -4,43 +4,24 @@ log, sim/drive_log.py, its frames replaced by acq.log.writer)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
 
-from acq.camera import calibfile
 from acq.cli import main as acq_main
 from acq.log.locate import first_log_time
-from acq.sim.drive_log import DriveTruth, write_drive_log
+from acq.sim.drive_log import DriveTruth
 from tests.log_rewrite import rewrite
+from tests.strict_json import strict_json
 
 # a JPEG's start-of-image marker, then bytes no decoder accepts
 BROKEN = b"\xff\xd8\xff\xe0" + bytes(range(256)) * 4
 
 
-@pytest.fixture(scope="module")
-def drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriveTruth, Path]:
-    d = tmp_path_factory.mktemp("drive")
-    truth = write_drive_log(d, 2.0, pattern_at=15.0)
-    calib = d / "calib.yaml"
-    calibfile.save(truth.calibration, calib)
-    return truth, calib
-
-
-def _strict(text: str) -> object:
-    """``text`` parsed as RFC 8259 JSON: NaN and Infinity refused."""
-
-    def refuse(word: str) -> None:
-        raise ValueError(f"not JSON: {word}")
-
-    return json.loads(text, parse_constant=refuse)
-
-
 def test_frames_that_do_not_decode_are_counted_and_the_first_named(
-    drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    short_drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    truth, calib = drive
+    truth, calib = short_drive
     files, times = rewrite(truth.files, tmp_path, frames={10: BROKEN, 31: BROKEN})
     out = tmp_path / "c.ply"
     argv = ["colorize", *map(str, files), "--calib", str(calib), "-o", str(out), "--no-preview"]
@@ -55,16 +36,16 @@ def test_frames_that_do_not_decode_are_counted_and_the_first_named(
 
 
 def test_a_camera_whose_frames_all_fail_says_why_and_its_json_is_json(
-    drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    short_drive: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """Every frame broken: no point coloured, and the JSON report (strict RFC 8259, no
     NaN) counts them."""
-    truth, calib = drive
+    truth, calib = short_drive
     files, _ = rewrite(truth.files, tmp_path, frames=dict.fromkeys(range(100), BROKEN))
     out = tmp_path / "c.ply"
     argv = ["colorize", *map(str, files), "--calib", str(calib), "-o", str(out), "--no-preview"]
     assert acq_main([*argv, "--json"]) == 0
-    report = _strict(capsys.readouterr().out)
+    report = strict_json(capsys.readouterr().out)
     assert isinstance(report, dict)
     assert report["coloured"] == 0
     n = report["frames"]

@@ -15,22 +15,12 @@ from mcap.reader import make_reader
 from mcap.records import Schema
 from mcap.writer import Writer
 
-from acq.camera import calibfile
 from acq.cli import main as acq_main
 from acq.log.reader import LogReader
-from acq.sim.drive_log import DriveTruth, write_drive_log
+from acq.sim.drive_log import DriveTruth
 from acq.sim.replay import ReplayError, load_session
 
 GARBAGE = b"\xff\xff\xff\xff"  # a protobuf tag with a varint that never ends
-
-
-@pytest.fixture(scope="module")
-def drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriveTruth, Path]:
-    d = tmp_path_factory.mktemp("drive")
-    truth = write_drive_log(d, 1.0, pattern_at=15.0)
-    calib = d / "calib.yaml"
-    calibfile.save(truth.calibration, calib)
-    return truth, calib
 
 
 def _copy(
@@ -73,12 +63,12 @@ def _warnings(caplog: pytest.LogCaptureFixture) -> list[str]:
 
 
 def test_garbled_scan_payloads_are_one_warning_counted_and_named(
-    drive: tuple[DriveTruth, Path],
+    short_drive: tuple[DriveTruth, Path],
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    truth, calib = drive
+    truth, calib = short_drive
     log = tmp_path / "garbled.mcap"
     counts = _copy(truth.files[0], log, lambda t, d: GARBAGE if t.endswith("/scan") else d)
     (scan_topic,) = [t for t in counts if t.endswith("/scan")]
@@ -114,9 +104,9 @@ def test_garbled_scan_payloads_are_one_warning_counted_and_named(
 
 
 def test_garbled_camera_records_are_one_warning_in_replay(
-    drive: tuple[DriveTruth, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
+    short_drive: tuple[DriveTruth, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    truth, _ = drive
+    truth, _ = short_drive
     log = tmp_path / "garbled.mcap"
     counts = _copy(
         truth.files[0], log, lambda t, d: GARBAGE if t.endswith("/image/compressed") else d
@@ -134,12 +124,12 @@ def test_garbled_camera_records_are_one_warning_in_replay(
 
 
 def test_a_garbled_schema_in_export_ros2_is_one_warning(
-    drive: tuple[DriveTruth, Path],
+    short_drive: tuple[DriveTruth, Path],
     tmp_path: Path,
     caplog: pytest.LogCaptureFixture,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    truth, _ = drive
+    truth, _ = short_drive
     log = tmp_path / "garbled.mcap"
     counts = _copy(
         truth.files[0], log,

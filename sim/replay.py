@@ -206,9 +206,8 @@ def _device_of(schema: Schema | None, channel: Channel) -> tuple[str, str] | Non
 
 def _read_records(reader: LogReader, devices: dict[str, DeviceLog]) -> None:
     path = reader.path
-    for (device, kind), channel, message, decoded in reader.decoded(_device_of):
-        if decoded is None:  # a garbled record
-            log.warning("%s: an undecodable %s record skipped", path, channel.topic)
+    for (device, kind), _channel, message, decoded in reader.decoded(_device_of):
+        if decoded is None:  # a garbled record: counted, the reader warns once per channel
             continue
         dev = devices.get(device)
         if dev is None:

@@ -10,8 +10,13 @@ a real rig would meet, so `make test` runs them alone, then the rest on both cor
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from acq.sim.drive_log import DriveTruth
+
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -23,3 +28,17 @@ def shared_dir() -> Path:
     if not SHARED.is_dir():
         pytest.skip(f"{SHARED} is absent: the real captures and ARCHITECTURE.md are not here")
     return SHARED
+
+
+@pytest.fixture(scope="session")
+def short_drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriveTruth, Path]:
+    """A 2 s simulated drive (sim/drive_log.py: one laser, one camera, CAN odometry) as a
+    real MCAP log, and its calibration file; for tests that copy it and damage the copy."""
+    from acq.camera import calibfile  # here: most tests need neither
+    from acq.sim.drive_log import write_drive_log
+
+    d = tmp_path_factory.mktemp("short_drive")
+    truth = write_drive_log(d, 2.0, pattern_at=15.0)
+    calib = d / "calib.yaml"
+    calibfile.save(truth.calibration, calib)
+    return truth, calib

@@ -5,7 +5,6 @@ of a recorded log's laser points, with its figures (:mod:`acq.calib.plots`), Tab
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -14,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from acq import json_text
 from acq.calib.plots import sensitivity_figure, third_order_figure
 from acq.calib.sensitivity import (
     CAMERA,
@@ -159,7 +159,9 @@ def analyze_logs(
     for k, path in figs.items():
         write_image(path, images[k])
     mark = {"software": SOFTWARE}  # first: what acq.provenance looks for
-    (out / "sensitivity.json").write_text(json.dumps(mark | report, indent=2) + "\n")
+    (out / "sensitivity.json").write_text(
+        json_text.dumps(mark | report, what="sensitivity.json") + "\n"
+    )
     return report
 
 

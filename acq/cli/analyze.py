@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
+from acq import json_text
 from acq.cli import output_files
 from acq.cli.camera_option import add_camera_option
 from acq.cli.option_types import real
@@ -109,7 +109,7 @@ def run_sensitivity(args: argparse.Namespace) -> int:
         camera=args.camera, sigma=dict(args.sigma or ()),
     )  # fmt: skip
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json_text.dumps(report, what="--json"))
         return 0
     th = report["theta_deg"]
     print(

@@ -4,11 +4,11 @@ a recording (paper §3.2)."""
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from acq import json_text
 from acq.cli import output_files
 from acq.cli.calibrate_output import FORCE_HELP, same_file
 from acq.cli.camera_option import add_camera_option
@@ -297,7 +297,7 @@ def run_extrinsic(args: argparse.Namespace) -> int:
         }  # fmt: skip
         if relative:
             report["relative"] = [r.to_dict() for r in relative]
-        print(json.dumps(report, indent=2))
+        print(json_text.dumps(report, what="--json"))
     else:
         for c in done:
             if len(done) > 1:

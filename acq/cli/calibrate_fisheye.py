@@ -4,12 +4,12 @@ Kannala-Brandt fit to a checkerboard (paper §3.3.2)."""
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from acq import json_text
 from acq.cli import output_files
 from acq.cli.camera_option import add_camera_option
 from acq.cli.option_types import real
@@ -186,7 +186,7 @@ def run_fisheye(args: argparse.Namespace) -> int:
     report |= {"camera": name, "calib": str(output), "model": model.to_dict()}
     report |= {"method": method, "overlay": str(overlay)}
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json_text.dumps(report, what="--json"))
     else:
         lines.append(
             f"wrote {output} (camera {name!r}, {model.name}, method {method}); overlay {overlay}"

@@ -4,12 +4,12 @@ the frames' grey levels and the laser's return strengths)."""
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from dataclasses import asdict, replace
 from pathlib import Path
 
+from acq import json_text
 from acq.cli import output_files
 from acq.cli.calibrate_output import FORCE_HELP, same_file
 from acq.cli.camera_option import add_camera_option
@@ -121,7 +121,7 @@ def run_time_offset(args: argparse.Namespace) -> int:
             out["prior_s"] = cj.cam.time_offset_s
             reports.append(out if len(found) == 1 else {"camera": key, **out})
         whole = reports[0] if len(reports) == 1 else {"cameras": reports}
-        print(json.dumps(whole, indent=2, default=float))
+        print(json_text.dumps(whole, what="--json"))
     failed = [f"{k}: {e.note}" for k, e in zip(keys, found, strict=True) if not e.found]
     if failed:  # nothing written unless every camera has its estimate
         notes = [e.note for e in found if not e.found]

@@ -4,10 +4,10 @@ validation pattern (paper §4.2)."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from acq import json_text
 from acq.cli import output_files
 from acq.cli.camera_option import add_camera_option
 from acq.cli.output_files import Output
@@ -89,7 +89,7 @@ def run_validate(args: argparse.Namespace) -> int:
         report.update(res.to_dict())
         if overlay is not None:
             report["overlay"] = str(overlay)
-        print(json.dumps(report, indent=2))
+        print(json_text.dumps(report, what="--json"))
     else:
         print("\n".join(_validate_lines(res, name)))
         if overlay is not None:

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from dataclasses import asdict
 from pathlib import Path
 
+from acq import json_text
 from acq.cli import output_files
 from acq.cli.camera_option import add_camera_option
 from acq.cli.option_types import integer, real
@@ -188,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
         progress=args.progress or (not args.json and sys.stderr.isatty()),
     )  # fmt: skip
     if args.json:
-        print(json.dumps(asdict(report), indent=2))
+        print(json_text.dumps(report, what="--json"))
     else:
         print("\n".join(report.lines()))
     return 0

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
+
+from acq import json_text
 
 HELP = "list attached scanners, cameras, serial ports, CAN interfaces"
 
@@ -29,7 +30,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.reset is not None:
         done = devices.reset(args.reset)
-        print(json.dumps({"reset": done}) if args.json else f"reset USB device {done}")
+        print(
+            json_text.dumps({"reset": done}, indent=None)
+            if args.json
+            else f"reset USB device {done}"
+        )
         return 0
     found = devices.list_devices()
     print(devices.devices_json(found) if args.json else devices.format_devices(found))

@@ -7,7 +7,6 @@ or as JSON lines (``--json``: one object for the device, one per scan).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from collections.abc import Callable, Iterator
@@ -15,6 +14,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from acq import json_text
 from acq.cli import output_files
 from acq.cli.option_types import integer, real
 from acq.cli.output_files import IMAGE_SUFFIXES, Output
@@ -110,7 +110,7 @@ def _reported(command: str, where: str, close: Callable[[], None]) -> Iterator[N
 
 
 def _emit(record: dict[str, Any]) -> None:
-    print(redact(json.dumps(record)), flush=True)
+    print(redact(json_text.dumps(record, indent=None)), flush=True)
 
 
 def run_scanner(args: argparse.Namespace) -> int:

@@ -94,6 +94,8 @@ class ChunkResult:
     seconds: dict[str, float] = field(default_factory=dict)
     # frames of another size than the camera model's, not used, by camera: stamp -> (w, h)
     odd_size: dict[str, dict[int, tuple[int, int]]] = field(default_factory=dict)
+    # frames that do not decode, not used, by camera: their recorded stamps
+    undecodable: dict[str, set[int]] = field(default_factory=dict)
     gains: balance.Gains | None = None  # the colour balance applied (None: off)
     # with want_uv, per camera: its own (rgb, balanced rgb, coloured) of every point
     samples: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
@@ -398,6 +400,11 @@ class ChunkColouring:
                 "finish": time.perf_counter() - t_choose,
             },
             odd_size=self.odd_size,
+            undecodable={
+                cj.name: set(frames[c].frame_ns[col.failed].tolist())
+                for c, (cj, col) in enumerate(zip(job.cameras, cols, strict=True))
+                if col.failed.size
+            },
             gains=gains,
             samples=(
                 {

@@ -46,7 +46,7 @@ import os
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -107,19 +107,24 @@ PREVIEW_POINTS = 4_000_000  # at most about this many points kept for the previe
 log = logging.getLogger(__name__)
 
 
+def _first_at(drive: DriveLog, stamps: Iterable[int], files: Sequence[str]) -> str:
+    """Where the first of ``stamps`` (recorded stamps of ``drive``'s frames) lies: its
+    log time (its receipt) and file."""
+    first = min(stamps)
+    i = int(np.searchsorted(drive.frame_ns, first))
+    recv = int(drive.frame_recv_ns[i]) if i < drive.frame_recv_ns.size else -1
+    return locate(files, recv if recv >= 0 else first)
+
+
 def _odd_size_note(
     drive: DriveLog, odd: dict[int, tuple[int, int]], model: CameraModel, files: Sequence[str]
 ) -> str:
     """What was skipped: ``odd`` (recorded stamp -> (w, h) px) frames of ``drive``, not of
     ``model``'s size; the first named by its log time (its receipt) and file."""
-    first = min(odd)
-    i = int(np.searchsorted(drive.frame_ns, first))
-    recv = int(drive.frame_recv_ns[i]) if i < drive.frame_recv_ns.size else -1
     sizes = ", ".join(sorted({f"{w}x{h}" for w, h in odd.values()}))
     return (
         f"{len(odd)} frames of another size ({sizes}) than the camera model's "
-        f"{model.width}x{model.height} skipped; the first at "
-        f"{locate(files, recv if recv >= 0 else first)}"
+        f"{model.width}x{model.height} skipped; the first at {_first_at(drive, odd, files)}"
     )
 
 
@@ -471,13 +476,19 @@ def run(
             "frames": int(cj.frame_old.size),
         }
     report.balance = tally.balance_summary([c.name for c in job.cameras], job.options.balance)
-    report.frames_failed = tally.failed
     for cj in job.cameras:
         odd = tally.odd_size.get(cj.name)
         if odd:
             report.frames_odd_size += len(odd)
             note = _odd_size_note(index.with_camera(cj.name), odd, cj.cam.model, job.files)
             report.notes.append(f"{cj.name}: {note}" if len(job.cameras) > 1 else note)
+        bad = tally.undecodable.get(cj.name)
+        if bad:
+            report.cameras[cj.name]["frames_undecodable"] = len(bad)
+            first = _first_at(index.with_camera(cj.name), bad, job.files)
+            note = f"{len(bad)} frames that do not decode as JPEG skipped; the first at {first}"
+            report.notes.append(f"{cj.name}: {note}" if len(job.cameras) > 1 else note)
+    report.frames_failed = sum(len(b) for b in tally.undecodable.values())
     report.duration_s = float(np.ptp(scan_new)) * 1e-9 if scan_new.size else 0.0
     report.chunks = len(chunks)
     report.bytes = size
@@ -515,7 +526,6 @@ class _Tally:
     points: int = 0
     coloured: int = 0
     hidden: int = 0
-    failed: int = 0
     outside: int = 0
     used: list[np.ndarray] = field(default_factory=list)
     by_camera: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -526,11 +536,14 @@ class _Tally:
     preview: list[ChunkResult] = field(default_factory=list)
     # by camera: stamp -> (w, h)
     odd_size: dict[str, dict[int, tuple[int, int]]] = field(default_factory=dict)
+    undecodable: dict[str, set[int]] = field(default_factory=dict)  # by camera: stamps
 
     def add(self, r: ChunkResult) -> None:
         self.points += r.time_ns.size
         for name, odd in r.odd_size.items():
             self.odd_size.setdefault(name, {}).update(odd)
+        for name, bad in r.undecodable.items():
+            self.undecodable.setdefault(name, set()).update(bad)
         self.coloured += int(np.count_nonzero(r.coloured))
         counts = np.bincount(r.camera[r.coloured], minlength=self.by_camera.size)
         if counts.size > self.by_camera.size:
@@ -543,7 +556,6 @@ class _Tally:
             self.pairs.append(r.gains.by_camera)
             self.pair_total += r.gains.pairs
         self.hidden += int(np.count_nonzero(r.hidden))
-        self.failed += r.frames_failed
         self.outside += r.outside
         if r.used_stamps is not None:
             self.used.append(r.used_stamps)

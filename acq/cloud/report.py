@@ -15,7 +15,8 @@ class Report:
 
     ``cameras``: per camera name, ``points`` (int) coloured from it, ``frames_used``
     (int) its frames that coloured at least one point, optionally ``frames`` (int) its
-    frames in the log. ``balance``: the colour balance between cameras and frames,
+    frames in the log, optionally ``frames_undecodable`` (int) those that do not decode
+    (skipped, named in a note). ``balance``: the colour balance between cameras and frames,
     empty when none was computed: ``applied`` (bool, False with ``--no-balance``),
     ``pairs`` (int) point pairs (one point seen by two cameras or frames) the gains
     were fitted on, ``cameras``: per camera name ``pairs`` (int) of them involving it and
@@ -29,7 +30,7 @@ class Report:
     hidden: int = 0
     frames: int = 0
     frames_used: int = 0
-    frames_failed: int = 0
+    frames_failed: int = 0  # that do not decode as JPEG: not used
     frames_odd_size: int = 0  # of another size than the camera model's: not used
     scans: int = 0
     duration_s: float = 0.0
@@ -78,7 +79,9 @@ class Report:
             frames = f"{c.get('frames_used', 0):,}"
             if "frames" in c:
                 frames += f" of {c['frames']:,}"
-            out.append(f"camera {name}: {n:,} points ({share:.1f} %) from {frames} frames")
+            bad = c.get("frames_undecodable", 0)
+            why = f" ({bad:,} do not decode: see the note)" if bad else ""
+            out.append(f"camera {name}: {n:,} points ({share:.1f} %) from {frames} frames{why}")
         return out
 
     def _time_offset_lines(self) -> list[str]:

@@ -112,7 +112,8 @@ class Coloured:
     (N,) float32 the point's distance from the camera then, m (NaN where not coloured);
     ``hidden`` (N,) bool: seen by a candidate frame but hidden in all (``best``); ``uv``
     (N,2) float32 the pixel in that frame (NaN; only when asked for); ``pairs``: points
-    sampled again in other frames (:class:`Pairs`)."""
+    sampled again in other frames (:class:`Pairs`); ``failed`` (K,) int64 the frames that
+    did not decode (indices into the frames given)."""
 
     rgb: np.ndarray
     coloured: np.ndarray
@@ -125,6 +126,7 @@ class Coloured:
     uv: np.ndarray | None = None
     depth: np.ndarray | None = None
     pairs: Pairs = field(default_factory=Pairs.none)
+    failed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def odd_sized(jpegs: Sequence[bytes], model: CameraModel) -> dict[int, tuple[int, int]]:
@@ -213,6 +215,7 @@ class Colouring:
         self.time_ns, self.frame_ns = time_ns, frame_ns
         self.model, self.bilinear = model, bilinear
         self.futures: list[Future[bool]] = []
+        self.future_frames: list[int] = []  # the frame each future colours from
         self.frame_map: np.ndarray | None = None  # frame indices of a subset -> the caller's
         self.pair_point = np.zeros(0, np.int64) if pair_point is None else pair_point
         self.pair_frame = np.zeros(0, np.int64) if pair_frame is None else pair_frame
@@ -247,6 +250,9 @@ class Colouring:
         """Wait for every frame; the points' colours (see :class:`Coloured`)."""
         done = [f.result() for f in self.futures]
         used_n, failed = sum(done), len(done) - sum(done)
+        bad = np.array(
+            [j for j, ok in zip(self.future_frames, done, strict=True) if not ok], np.int64
+        )
         coloured = self.coloured
         frame = np.where(coloured, self.frame, -1)
         dt = np.where(coloured, (self.time_ns - self.frame_ns[np.maximum(frame, 0)]) * 1e-9, np.nan)
@@ -256,10 +262,11 @@ class Colouring:
         if self.frame_map is not None:
             frame = np.where(frame >= 0, self.frame_map[np.maximum(frame, 0)], -1)
             pair_frame = self.frame_map[pair_frame]
+            bad = self.frame_map[bad]
         pairs = Pairs(self.pair_point, pair_frame, self.pair_bgr[:, ::-1], self.pair_ok)
         return Coloured(
             self.bgr[:, ::-1], coloured, frame, dt.astype(np.float32), theta, self.hidden,
-            used_n, failed, self.uv, depth, pairs,
+            used_n, failed, self.uv, depth, pairs, bad,
         )  # fmt: skip
 
 
@@ -333,6 +340,7 @@ def start_colouring(
             out.colour_frame, jpegs[j], points.get(j, none), Rs[k], ts[k], again.get(j)
         )
         out.futures.append(task)
+        out.future_frames.append(j)
     return out
 
 

@@ -268,8 +268,7 @@ def export_ros2(
                     left_out[topic] += 1
                     continue
                 msg = reader.decode(schema, channel, message)
-                if msg is None:
-                    report.notes.append(f"{path.name}: an undecodable {topic} message skipped")
+                if msg is None:  # counted: the reader warns once per channel
                     continue
                 log_ns = int(message.log_time)
                 if name in _LATCHED:

@@ -178,6 +178,17 @@ def _pick(found: Iterable[str], name: str | None, what: str, topic: str) -> str:
     return names[0]
 
 
+def _no_scans_because(undecodable: dict[str, int]) -> None:
+    """No scan decoded: InputValueError naming the scan topics whose messages did not
+    decode (``undecodable``: topic -> messages), if any."""
+    lost = {t: n for t, n in undecodable.items() if t.endswith("/scan")}
+    if lost:
+        counts = ", ".join(f"{n} {t}" for t, n in sorted(lost.items()))
+        raise InputValueError(
+            f"no laser scan in the log decodes ({counts} messages cannot be decoded)"
+        )
+
+
 @dataclass(frozen=True)
 class _ScanMsg:
     stamp_ns: int
@@ -242,6 +253,7 @@ def read_log(
     hi = 2**63 - 1 if end_ns is None else end_ns
     clock: list[tuple[int, int]] = []
     bad = 0
+    undecodable: dict[str, int] = {}  # by topic, every file's
     vehicle_reader = VehicleReader() if vehicle else None
     vehicle_topics = VehicleReader.TOPICS if vehicle else ()
     span = None if start_ns is None and end_ns is None else (lo, hi)
@@ -297,6 +309,10 @@ def read_log(
                     )
             except AttributeError:  # a message of another schema on a topic of that name
                 bad += 1
+        for topic, n in reader.undecodable.items():
+            undecodable[topic] = undecodable.get(topic, 0) + n
+    if not scans:
+        _no_scans_because(undecodable)
     laser = _pick(scans, laser, "laser scanner", "/scan")
     found = tuple(sorted(n for n, f in frames.items() if f))
     if calib is not None:

@@ -139,6 +139,9 @@ class LogReader:
         self._start_ns: int | None = None  # the file's first log time, for the warning
         self._factory = DecoderFactory()  # per file: it caches message classes by schema id
         self._decoders: dict[int, Decoder | None] = {}  # by channel id; None: undecodable
+        # messages not decoded, by topic, and why (the first failure's reason)
+        self.undecodable: dict[str, int] = {}
+        self._why: dict[str, tuple[str, str]] = {}  # topic -> (schema name, reason)
 
     def problem(self) -> str | None:
         """One line: what is wrong with the file, or None."""
@@ -201,7 +204,15 @@ class LogReader:
             log.warning("%s: %s", self.path, skipped_chunks.describe(new, self._start_ns))
 
     def messages(self) -> Iterator[tuple[Schema | None, Channel, Message]]:
-        """(schema, channel, message) of every readable message, in file order."""
+        """(schema, channel, message) of every readable message, in file order. When the
+        pass ends, one WARNING per channel whose messages did not decode (:meth:`decode`),
+        with their count."""
+        try:
+            yield from self._messages()
+        finally:
+            self._report_undecodable()
+
+    def _messages(self) -> Iterator[tuple[Schema | None, Channel, Message]]:
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
         orphans = 0
@@ -229,17 +240,22 @@ class LogReader:
 
     def decode(self, schema: Schema | None, channel: Channel, message: Message) -> Any:
         """The message decoded by its channel's schema (a protobuf message), or None when
-        the schema or the payload cannot be decoded. A Foxglove message's timestamps are
-        host monotonic ns (see the module docstring)."""
+        the schema or the payload cannot be decoded (counted in ``undecodable``, by
+        topic). A Foxglove message's timestamps are host monotonic ns (see the module
+        docstring)."""
         try:
             decoder = self._decoders[channel.id]
         except KeyError:
             decoder = self._decoders[channel.id] = self._decoder_for(schema, channel)
         if decoder is None:
+            self.undecodable[channel.topic] = self.undecodable.get(channel.topic, 0) + 1
             return None
         try:
             decoded = decoder(message.data)
-        except DecodeError:  # a garbled payload
+        except DecodeError as e:  # a garbled payload
+            self.undecodable[channel.topic] = self.undecodable.get(channel.topic, 0) + 1
+            why = f"garbled payloads (DecodeError: {e or 'no reason given'})"
+            self._why.setdefault(channel.topic, (_schema_name(schema), why))
             return None
         offset = self.time_base.utc_offset_ns
         if offset and schema is not None and schema.name.startswith("foxglove."):
@@ -265,10 +281,17 @@ class LogReader:
         try:
             return self._factory.decoder_for(channel.message_encoding, schema)
         except Exception as e:  # a schema the file garbled: its messages counted, not decoded
-            name = schema.name if schema is not None else "no schema"
-            log.warning("%s: %s (%s) cannot be decoded: %s: %s; its messages are skipped",
-                        self.path, channel.topic, name, type(e).__name__, e)  # fmt: skip
+            why = f"its schema: {type(e).__name__}: {e}"
+            self._why[channel.topic] = (_schema_name(schema), why)
             return None
+
+    def _report_undecodable(self) -> None:
+        """One WARNING per channel whose messages did not decode (this pass's count),
+        once per process and file (unless :func:`quiet`)."""
+        for topic, n in skipped_chunks.unreported_topics(self.path, self.undecodable).items():
+            name, why = self._why.get(topic, ("?", "unknown"))
+            log.warning("%s: %s (%s) cannot be decoded: %s; %d messages skipped",
+                        self.path, topic, name, why, n)  # fmt: skip
 
     # -- closed files: mcap's seeking reader and the chunk index ----------------------
 
@@ -517,6 +540,10 @@ class LogReader:
             if block.count(0) != len(block):
                 return f"invalid record (opcode 0x00) at byte {pos}"
         return f"zero-filled tail from byte {pos}, {self.size - pos} bytes, as after a power loss"
+
+
+def _schema_name(schema: Schema | None) -> str:
+    return schema.name if schema is not None else "no schema"
 
 
 def read_messages(

@@ -1,6 +1,7 @@
 """The corrupt chunks a pass over a log skipped (:class:`acq.log.reader.LogReader`), and
 the one warning line per file that names their times and the messages lost, said once per
-process (a command that reads a file several times says it once); :func:`quiet` leaves
+process (a command that reads a file several times says it once), and the same for the
+channels whose messages did not decode (:func:`unreported_topics`); :func:`quiet` leaves
 that to a caller that reports the damage itself (``acq info``)."""
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Skipped", "describe", "quiet", "unreported"]
+__all__ = ["Skipped", "describe", "quiet", "unreported", "unreported_topics"]
 
 
 @dataclass
@@ -27,6 +28,7 @@ class Skipped:
 
 
 _REPORTED: set[tuple[str, int]] = set()  # (file, chunk offset) already reported here
+_REPORTED_TOPICS: set[tuple[str, str]] = set()  # (file, topic) undecodable, reported here
 _REPORTED_LOCK = threading.Lock()
 _QUIET: contextvars.ContextVar[bool] = contextvars.ContextVar("acq_log_quiet", default=False)
 
@@ -51,6 +53,18 @@ def unreported(path: Path, skipped: list[Skipped]) -> list[Skipped]:
     with _REPORTED_LOCK:
         new = [s for s in skipped if (key, s.at) not in _REPORTED]
         _REPORTED.update((key, s.at) for s in new)
+    return new
+
+
+def unreported_topics(path: Path, counts: dict[str, int]) -> dict[str, int]:
+    """The topics of ``counts`` (topic -> messages not decoded) this process has not
+    reported for ``path`` yet, now marked reported; none within :func:`quiet`."""
+    if not counts or _QUIET.get():
+        return {}
+    key = str(path.resolve())
+    with _REPORTED_LOCK:
+        new = {t: n for t, n in counts.items() if n and (key, t) not in _REPORTED_TOPICS}
+        _REPORTED_TOPICS.update((key, t) for t in new)
     return new
 
 

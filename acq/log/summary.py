@@ -9,7 +9,6 @@ says otherwise (``_s`` seconds, ``_ms`` milliseconds, ``_hz`` hertz).
 from __future__ import annotations
 
 import dataclasses
-import json as _json
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -20,6 +19,7 @@ from typing import Any
 import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 
+from acq import json_text
 from acq.log import schemas
 from acq.log.device_timing import (
     GNSS_TIMING,
@@ -66,7 +66,8 @@ class ChannelInfo:
     interval between consecutive messages, seconds; ``gaps`` the intervals
     ``(start_ns, end_ns)`` longer than 3x the median period, or, for topics at 2 Hz or
     slower (1 Hz status and clock), longer than the median period + 0.5 s (one missed
-    beat). ``bytes`` is the sum of the message payloads.
+    beat). ``bytes`` is the sum of the message payloads. ``undecodable``: its messages
+    that cannot be decoded (a garbled schema or payload), which every command skips.
     """
 
     topic: str
@@ -78,6 +79,7 @@ class ChannelInfo:
     max_gap_s: float
     gaps: list[tuple[int, int]]
     bytes: int
+    undecodable: int = 0
 
 
 @dataclass(frozen=True)
@@ -166,6 +168,12 @@ class _Acc:
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: int = 0
     gnss: list[tuple[int, int, str]] = field(default_factory=list)  # recv ns, UTC µs, source
+    undecodable: dict[str, int] = field(default_factory=dict)  # by topic
+
+    def add_undecodable(self, counts: dict[str, int]) -> None:
+        """A pass's messages that did not decode, by topic."""
+        for topic, n in counts.items():
+            self.undecodable[topic] = self.undecodable.get(topic, 0) + n
 
     def add(self, schema: Schema | None, channel: Channel, message: Message, decoded: Any) -> None:
         topic = channel.topic
@@ -210,6 +218,7 @@ class _Acc:
                     max_gap_s=max_gap_s,
                     gaps=gaps,
                     bytes=self.sizes[topic],
+                    undecodable=self.undecodable.get(topic, 0),
                 )
             )
         return out
@@ -345,10 +354,14 @@ def info_many(paths: Iterable[str | os.PathLike[str]]) -> list[LogInfo]:
         acc = _Acc()
         with quiet():  # the damage is in the summary's problem
             for schema, channel, message in reader.messages():
-                wanted = _decode_topic(channel.topic)
-                decoded = reader.decode(schema, channel, message) if wanted else None
+                # every message is decoded, to count those that do not decode
+                decoded = reader.decode(schema, channel, message)
+                if not _decode_topic(channel.topic):
+                    decoded = None
                 acc.add(schema, channel, message, decoded)
                 session.add(schema, channel, message, decoded)
+        acc.add_undecodable(reader.undecodable)
+        session.add_undecodable(reader.undecodable)
         for record in reader.metadata:
             acc.add_metadata(record)
             session.add_metadata(record)
@@ -455,6 +468,12 @@ def _format_one(i: LogInfo) -> list[str]:
                 )
                 more = f" and {len(c.gaps) - 5} more" if len(c.gaps) > 5 else ""
                 lines.append(f"  gaps on {c.topic} (s from start): {shown}{more}")
+        bad = [f"{c.topic} {c.undecodable} of {c.count}" for c in i.channels if c.undecodable]
+        if bad:
+            lines.append(
+                "  warning: messages that cannot be decoded (a garbled schema or payload;"
+                f" every command skips them): {', '.join(bad)}"
+            )
     names = [d.name for d in i.devices] + sorted(
         (set(i.drops) | set(i.disconnects)) - {d.name for d in i.devices}
     )
@@ -509,6 +528,6 @@ def format_info(infos: LogInfo | Iterable[LogInfo], *, json: bool = False) -> st
     ``json=True``, a JSON list with one object per :class:`LogInfo`."""
     items = [infos] if isinstance(infos, LogInfo) else list(infos)
     if json:
-        return _json.dumps([_jsonable(i) for i in items], indent=2)
+        return json_text.dumps([_jsonable(i) for i in items], what="acq info --json")
     blocks = ["\n".join(_format_one(i)) for i in items]
     return "\n\n".join(blocks)

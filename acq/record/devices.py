@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import errno
 import fcntl
-import json
 import os
 import re
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from acq import json_text
 from acq.errors import AcqError, InputValueError
 
 __all__ = [
@@ -476,7 +476,7 @@ def format_devices(found: list[Found]) -> str:
 
 def devices_json(found: list[Found]) -> str:
     """The listing as JSON: ``{"devices": [...], "nothing_found": bool}``."""
-    return json.dumps(
+    return json_text.dumps(
         {
             "devices": [asdict(f) for f in found],
             "nothing_found": not any(f.kind in PLUGGABLE for f in found),

@@ -178,7 +178,7 @@ def from_gnss(
     outliers first with :func:`acq.motion.gnss_outliers.screen_fixes`.
     :class:`NoHeadingError` when the vehicle never moves (a parked drive)."""
     if len(track) < 3:
-        raise ValueError("from_gnss needs at least 3 fixes")
+        raise InputValueError(f"GNSS alone needs at least 3 usable fixes, got {len(track)}")
     t, P = track.t_ns, track.xyz
     ts = (t - t[0]) * 1e-9
     pos, vel = local_quadratic(ts, P, 1.0 / _trusted_sigma(track.sigma_m) ** 2, smooth_s / 2)

@@ -36,7 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -212,6 +212,7 @@ def write_drive_log(
     intensities: bool = True,
     gnss_hz: float = 0.0,
     gnss_noise_m: float = 0.02,
+    gnss_edit: Callable[[int, Fix], Fix] | None = None,
     start_ns: int = 2_000_000_000_000,
     rig: Rig | None = None,
 ) -> DriveTruth:
@@ -227,7 +228,8 @@ def write_drive_log(
     ``odometry_span_s`` (start, end) s limits the odometry (default: the whole drive);
     ``intensity_noise``: the relative spread of the scans' return strengths;
     ``intensities=False``: scans without them (a scanner asked for ranges only);
-    ``gnss_hz`` > 0: GNSS fixes of the true position with ``gnss_noise_m`` (m) noise.
+    ``gnss_hz`` > 0: GNSS fixes of the true position with ``gnss_noise_m`` (m) noise;
+    ``gnss_edit(k, fix)``: the fix written as fix number k (an outlier, say).
     """
     rig = rig or default_rig()
     latencies = _latencies(rig, camera_latency_s)
@@ -393,11 +395,15 @@ def write_drive_log(
         _, pos = traj.poses(ts)
         noisy = pos + gnss_rng.normal(0.0, gnss_noise_m, pos.shape)
         geo = WorldFrame("enu", DEFAULT_ORIGIN).to_geodetic(noisy)
-        for t, lat, lon, h in zip(ts.tolist(), *(a.tolist() for a in geo), strict=True):
+        for k, (t, lat, lon, h) in enumerate(
+            zip(ts.tolist(), *(a.tolist() for a in geo), strict=True)
+        ):
             stamp = host(t)
             fix = Fix(recv_ns=stamp + 45_000_000, utc_s=to_log(stamp) * 1e-9,
                       latitude=lat, longitude=lon, altitude=h, quality=4, satellites=14,
                       hdop=0.7)  # fmt: skip
+            if gnss_edit is not None:
+                fix = gnss_edit(k, fix)
             events.append(
                 (fix.recv_ns, stamp, "/gnss/fix", schemas.location_fix(fix, to_log(stamp)))
             )

@@ -30,6 +30,8 @@ from acq.log.drive_log import DriveLog, check_frame_size, read_log
 from acq.log.inputs import session_files
 from acq.log.vehicle_log import read_vehicle
 from acq.motion import Trajectory
+from acq.motion.gnss import NoHeadingError, usable_fixes
+from acq.motion.gnss_outliers import screen_fixes
 from acq.time import retime
 from acq.time.utc import host_ns_from_utc
 
@@ -158,7 +160,7 @@ def _trajectory(
             poses.t_ns, matrix_from_quat(poses.quaternion), poses.translation,
             max_gap_s=POSE_GAP_S,
         )  # fmt: skip
-    usable = np.isfinite(fixes.lat) & (fixes.quality > 0) if len(fixes) else np.zeros(0, bool)
+    usable = _usable_fixes(fixes, report)
     if len(odo) < 2 and usable.sum() < 5:
         return None
     if usable.sum() >= 5:
@@ -166,9 +168,17 @@ def _trajectory(
             fixes.t_ns, fixes.lat, fixes.lon, fixes.alt, hdop=fixes.hdop, quality=fixes.quality,
             frame=crs or "enu",
         )  # fmt: skip
+        screened = screen_fixes(track)
+        track = screened.track
+        if screened.note:
+            report.notes.append(screened.note)
     if len(odo) < 2:
         course = fixes.course[np.searchsorted(fixes.t_ns, track.t_ns)]  # NaN where not sent
-        traj = motion.from_gnss(track, course_rad=course)
+        try:
+            traj = motion.from_gnss(track, course_rad=course)
+        except NoHeadingError as e:
+            report.notes.append(f"{e}: no trajectory")
+            return None
         report.trajectory = (
             f"GNSS alone ({len(track)} fixes; heading from the track, no CAN odometry)"
         )
@@ -176,13 +186,28 @@ def _trajectory(
     if usable.sum() >= 5:
         fusion = motion.fuse(odo.t_ns, odo.speed, odo.yaw_rate, track, on_gap="flag")
         report.trajectory = (
-            f"CAN odometry ({len(odo)} samples) fused with {int(usable.sum())} GNSS fixes "
+            f"CAN odometry ({len(odo)} samples) fused with {len(track)} GNSS fixes "
             f"(residual {fusion.residual_rms_m:.2f} m RMS)"
         )
         return fusion.trajectory
     traj = motion.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
     report.trajectory = f"CAN odometry ({len(odo)} samples, dead reckoning)"
     return traj
+
+
+def _usable_fixes(fixes: Any, report: Report) -> np.ndarray:
+    """Which of the log's fixes are usable (bool); a note in ``report`` for those out of
+    range (latitude beyond ±90°, longitude beyond ±180°)."""
+    if not len(fixes):
+        return np.zeros(0, dtype=bool)
+    valid = np.isfinite(fixes.lat) & np.isfinite(fixes.lon) & (fixes.quality > 0)
+    usable = valid & usable_fixes(fixes.lat, fixes.lon, fixes.alt)
+    if n := int((valid & ~usable).sum()):
+        report.notes.append(
+            f"GNSS: {n} of {len(fixes)} fixes out of range (latitude beyond ±90°, longitude "
+            "beyond ±180° or height not finite) dropped"
+        )
+    return np.asarray(usable, dtype=bool)
 
 
 def check_crs(crs: str, traj: Any, world: bool, what: str) -> None:

@@ -1,11 +1,13 @@
 """The vehicle's motion: a trajectory (poses on the host clock, interpolated on SE(3)) from
 wheel odometry, GNSS, their fusion or a GNSS/INS file. The names below are those of its
 modules: ``trajectory`` (the :class:`Trajectory` itself), ``odometry``, ``gnss``,
-``fusion``, ``ins`` (files). The vehicle's log is read by :mod:`acq.log.vehicle_log`.
+``gnss_outliers``, ``fusion``, ``ins`` (files). The vehicle's log is read by
+:mod:`acq.log.vehicle_log`.
 """
 
 from acq.motion.fusion import Fusion, fuse
-from acq.motion.gnss import GnssTrack, from_gnss, gnss_from_fixes, gnss_track
+from acq.motion.gnss import GnssTrack, NoHeadingError, from_gnss, gnss_from_fixes, gnss_track
+from acq.motion.gnss_outliers import Screened, screen_fixes
 from acq.motion.ins import TrajectoryFileError, from_csv, to_csv
 from acq.motion.odometry import dead_reckon, from_odometry, speed_from_wheels, yaw_rate_from_wheels
 from acq.motion.trajectory import MAX_EXTRAPOLATION_S, OutOfSpanError, Trajectory, laser_poses
@@ -14,7 +16,9 @@ __all__ = [
     "MAX_EXTRAPOLATION_S",
     "Fusion",
     "GnssTrack",
+    "NoHeadingError",
     "OutOfSpanError",
+    "Screened",
     "Trajectory",
     "TrajectoryFileError",
     "dead_reckon",
@@ -25,6 +29,7 @@ __all__ = [
     "gnss_from_fixes",
     "gnss_track",
     "laser_poses",
+    "screen_fixes",
     "speed_from_wheels",
     "to_csv",
     "yaw_rate_from_wheels",

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from acq.errors import InputValueError
 from acq.geometry.geodesy import WorldFrame
 from acq.geometry.rotations import matrices_from_euler
 from acq.motion.trajectory import Trajectory
@@ -19,7 +20,36 @@ from acq.motion.trajectory import Trajectory
 if TYPE_CHECKING:
     from acq.records import Fix
 
-__all__ = ["GnssTrack", "from_gnss", "gnss_from_fixes", "gnss_track"]
+__all__ = [
+    "GnssTrack",
+    "NoHeadingError",
+    "from_gnss",
+    "gnss_from_fixes",
+    "gnss_track",
+    "local_quadratic",
+    "usable_fixes",
+]
+
+
+class NoHeadingError(InputValueError):
+    """GNSS alone gives no heading: the vehicle never moves fast enough (parked)."""
+
+
+def usable_fixes(
+    lat_deg: npt.ArrayLike,
+    lon_deg: npt.ArrayLike,
+    alt_m: npt.ArrayLike,
+    quality: npt.ArrayLike | None = None,
+    min_quality: int = 1,
+) -> np.ndarray:
+    """Which fixes are usable (bool): finite, latitude within ±90°, longitude within
+    ±180°, and GGA fix ``quality`` at least ``min_quality`` when given."""
+    lat, lon, alt = (np.asarray(a, dtype=np.float64).reshape(-1) for a in (lat_deg, lon_deg, alt_m))
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(alt) & (np.abs(lat) <= 90.0) & (np.abs(lon) <= 180.0)
+    if quality is not None:
+        ok &= np.asarray(quality).reshape(-1) >= min_quality
+    return np.asarray(ok, dtype=bool)
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,8 +101,9 @@ def gnss_track(
 
     ``frame`` "enu" puts the tangent plane at ``origin`` (lat, lon, h; default the first
     usable fix) or a projected CRS (``origin`` its offset, default zero). Fixes with
-    ``quality`` (GGA fix quality) below ``min_quality``, non-finite values or a repeated
-    time are dropped. ``sigma_m`` is ``hdop * uere_m`` (``uere_m`` when hdop is unknown).
+    ``quality`` (GGA fix quality) below ``min_quality``, non-finite or out-of-range
+    values (:func:`usable_fixes`) or a repeated time are dropped. ``sigma_m`` is
+    ``hdop * uere_m`` (``uere_m`` when hdop is unknown).
     """
     t = np.asarray(t_ns)
     if t.dtype.kind not in "iu":
@@ -83,13 +114,13 @@ def gnss_track(
         raise ValueError("t_ns, lat, lon, alt lengths differ")
     hd = np.ones(t.size) if hdop is None else np.asarray(hdop, dtype=np.float64).reshape(-1)
     hd = np.where(np.isfinite(hd) & (hd > 0), hd, 1.0)
-    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(alt)
-    if quality is not None:
-        ok &= np.asarray(quality).reshape(-1) >= min_quality
+    ok = usable_fixes(lat, lon, alt, quality, min_quality)
     order = np.argsort(t[ok], kind="stable")
     keep = np.flatnonzero(ok)[order]
     if keep.size == 0:
-        raise ValueError("no usable GNSS fix (all invalid, non-finite or below min_quality)")
+        raise InputValueError(
+            "no usable GNSS fix (all invalid, non-finite, out of range or below min_quality)"
+        )
     keep = keep[np.concatenate([[True], np.diff(t[keep]) > 0])]
     if origin is None:
         origin = (lat[keep[0]], lon[keep[0]], alt[keep[0]]) if frame == "enu" else (0, 0, 0)
@@ -140,12 +171,17 @@ def from_gnss(
     a fit; roll and pitch zero; intervals between fixes longer than ``max_gap_s`` are
     gaps. The quadratic follows a curve without the bias a line has (10 cm lateral
     acceleration over 2 s: 2 cm); the heading is noisy with fixes of metres (1.4 m at
-    5 Hz, 6 m/s, 2 s: ~0.1 rad): prefer :func:`fuse` with odometry there."""
+    5 Hz, 6 m/s, 2 s: ~0.1 rad): prefer :func:`fuse` with odometry there.
+
+    No fix weighs more than 9 times the track's typical one (its sigma floored at a
+    third of the median): a receiver's claimed accuracy is not trusted blindly. Reject
+    outliers first with :func:`acq.motion.gnss_outliers.screen_fixes`.
+    :class:`NoHeadingError` when the vehicle never moves (a parked drive)."""
     if len(track) < 3:
-        raise ValueError("from_gnss needs at least 3 fixes")
+        raise InputValueError(f"GNSS alone needs at least 3 usable fixes, got {len(track)}")
     t, P = track.t_ns, track.xyz
     ts = (t - t[0]) * 1e-9
-    pos, vel = _local_quadratic(ts, P, 1.0 / track.sigma_m**2, smooth_s / 2)
+    pos, vel = local_quadratic(ts, P, 1.0 / _trusted_sigma(track.sigma_m) ** 2, smooth_s / 2)
     speed = np.hypot(vel[:, 0], vel[:, 1])
     yaw = np.full(ts.size, np.nan)
     moving = np.isfinite(speed) & (speed >= min_speed_mps)
@@ -158,14 +194,23 @@ def from_gnss(
         yaw[take] = np.pi / 2 - course[take]  # clockwise from north -> from east, ENU
         moving |= take
     if not moving.any():
-        raise ValueError(f"the vehicle never moves faster than {min_speed_mps} m/s: no heading")
+        raise NoHeadingError(
+            f"GNSS alone gives no heading: the vehicle never moves faster than "
+            f"{min_speed_mps} m/s over the {len(track)} fixes (parked?) and the receiver "
+            "sends no course"
+        )
     yaw = np.interp(ts, ts[moving], np.unwrap(yaw[moving]))
     return Trajectory(
         t, matrices_from_euler(0.0, 0.0, yaw), pos, track.frame, track.origin, max_gap_s=max_gap_s
     )
 
 
-def _local_quadratic(
+def _trusted_sigma(sigma_m: np.ndarray) -> np.ndarray:
+    """``sigma_m`` (m) floored at a third of its median."""
+    return np.asarray(np.maximum(sigma_m, np.median(sigma_m) / 3.0), dtype=np.float64)
+
+
+def local_quadratic(
     ts: np.ndarray, P: np.ndarray, w: np.ndarray, half_s: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per sample k, the weighted least-squares quadratic in (t - t_k) through the samples

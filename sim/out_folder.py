@@ -7,7 +7,7 @@ from pathlib import Path
 
 from acq.errors import InputError
 
-__all__ = ["claim_folder"]
+__all__ = ["claim_folder", "make_folder"]
 
 
 def claim_folder(out: Path, mark: str, command: str, files: tuple[str, ...]) -> None:
@@ -21,8 +21,18 @@ def claim_folder(out: Path, mark: str, command: str, files: tuple[str, ...]) -> 
             f"--out {out}: holds files and is not an earlier {command} folder (no {mark}); "
             "give a new or empty folder"
         )
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     (out / mark).write_text(
         f"{command} writes {', '.join(files)} here, replacing its own files on a new run\n",
         encoding="utf-8",
     )
+
+
+def make_folder(out: Path) -> None:
+    """Create folder ``out`` (and its parents) if missing; InputError naming ``--out``
+    when it or a folder above it is a file."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        above = next(p for p in (out, *out.parents) if p.exists())
+        raise InputError(f"--out {out}: {above} is a file, not a folder") from None

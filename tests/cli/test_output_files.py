@@ -107,11 +107,15 @@ def test_an_input_or_a_file_of_another_kind_is_never_an_output(
 # (argv with {log}, {img}, {cal} for the inputs, {file} a file, {none} a missing folder;
 # the option named): an output that cannot go where it is meant, refused before any work
 # (the inputs are junk: any work would fail first on them); those made as folders (-o DIR
-# of validate and sensitivity, --out of sim render) were once refused only after it
+# of validate and sensitivity, --out of sim render) were once refused only after it, and
+# the folders of sim log, sim rig and demo with exit 1 and "Not a directory"
 BAD_FOLDER = [
     (["calibrate", "validate", "{log}", "--calib", "{cal}", "-o", "{file}/overlays"], "-o"),
     (["analyze", "sensitivity", "{log}", "--calib", "{cal}", "-o", "{file}/sens"], "-o"),
     (["sim", "render", "--out", "{file}/render"], "--out"),
+    (["sim", "log", "board", "--out", "{file}/board"], "--out"),
+    (["sim", "rig", "--out", "{file}/rig", "--duration", "1"], "--out"),
+    (["demo", "--out", "{file}/demo", "--seconds", "1"], "--out"),
     (["export", "ros2", "{log}", "-o", "{file}/bag"], "-o"),
     (["colorize", "{log}", "--calib", "{cal}", "-o", "c.ply", "--preview", "{none}/p.png"],
      "--preview"),

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import re
-import secrets
 import struct
 import zlib
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from acq import __version__
+from acq.atomic_write import temporary_beside
 
 __all__ = ["SOFTWARE", "made_by_acq", "marked_image", "write_image"]
 
@@ -62,7 +62,7 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray) -> None:
         ok = False
     if not ok:
         raise OSError(f"{path}: cannot encode the image ({image.shape}, {image.dtype})")
-    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{suffix}")
+    tmp = temporary_beside(path, suffix)
     try:
         tmp.write_bytes(marked_image(buf.tobytes()))
         os.replace(tmp, path)

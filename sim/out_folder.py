@@ -11,7 +11,7 @@ from pathlib import Path
 
 from acq.errors import InputError
 
-__all__ = ["claim_folder", "record_files"]
+__all__ = ["claim_folder", "make_folder", "record_files"]
 
 _WRITTEN = "written"  # a mark's line: written NAME SIZE MTIME_NS
 _LISTED = "the files it wrote (name, bytes, modification time in ns):"
@@ -72,7 +72,7 @@ def claim_folder(out: Path, mark: str, command: str, files: tuple[str, ...]) -> 
             f"--out {out}: {', '.join(others)} changed or put there since {command} run "
             "wrote it; not overwritten: move it away or give a new folder"
         )
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     _write_mark(out, mark, command, files, mine)
 
 
@@ -94,3 +94,13 @@ def _write_mark(
         if name in written and state is not None:
             lines.append(f"{_WRITTEN} {name} {state[0]} {state[1]}")
     (out / mark).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def make_folder(out: Path) -> None:
+    """Create folder ``out`` (and its parents) if missing; InputError naming ``--out``
+    when it or a folder above it is a file."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        above = next(p for p in (out, *out.parents) if p.exists())
+        raise InputError(f"--out {out}: {above} is a file, not a folder") from None

@@ -49,6 +49,7 @@ import yaml
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from acq import yamlcheck
+from acq.atomic_write import atomic
 from acq.camera import camera_models
 from acq.camera.camera_models import CameraModel
 from acq.errors import InputError, InputValueError
@@ -522,8 +523,7 @@ def method_with(method: str, key: str, how: str) -> str:
 
 
 def save(calib: Calibration, path: str | Path) -> None:
-    """Write a calibration atomically (a reader never sees half a file)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(dump(calib), encoding="utf-8")
-    tmp.replace(path)
+    """Write a calibration atomically (a reader never sees half a file, two writers at
+    once never mix theirs: :func:`acq.atomic_write.atomic`)."""
+    with atomic(Path(path)) as tmp:
+        tmp.write_text(dump(calib), encoding="utf-8")

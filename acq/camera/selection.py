@@ -12,16 +12,25 @@ from collections.abc import Sequence
 
 from acq.errors import InputValueError
 
-__all__ = ["CameraChoiceError", "choose_cameras"]
+__all__ = ["CameraChoiceError", "choose_cameras", "named_once"]
 
 
 class CameraChoiceError(InputValueError):
-    """No camera, a camera that is not in the log or the calibration, or several where
-    one is needed; the message lists the names found (exit status 2)."""
+    """No camera, a camera that is not in the log or the calibration, one named twice,
+    or several where one is needed; the message lists the names found (exit status 2)."""
 
 
 def _listed(names: Sequence[str]) -> str:
     return ", ".join(names) if names else "none"
+
+
+def named_once(asked: Sequence[str]) -> list[str]:
+    """The names given with ``--camera``; :class:`CameraChoiceError` naming one given
+    twice (a slip, another camera meant perhaps: said, not merged)."""
+    twice = next((n for k, n in enumerate(asked) if n in asked[:k]), None)
+    if twice is not None:
+        raise CameraChoiceError(f"--camera {twice}: named twice; give each camera once")
+    return list(asked)
 
 
 def choose_cameras(
@@ -34,17 +43,17 @@ def choose_cameras(
 ) -> list[tuple[str, str]]:
     """(name in the log, name in the calibration) of each camera to work on.
 
-    ``asked``: the names given with ``--camera`` (None or empty: choose); ``in_log``:
-    the cameras the log has frames of; ``in_calib``: the calibration's; ``one``: the
-    command works on one camera (several found is then an error unless one is asked
-    for); ``calib`` names the calibration file in messages. Unasked, every camera in
-    both (or the only one of each). Raises :class:`CameraChoiceError` naming the option
+    ``asked``: the names given with ``--camera``, each once (None or empty: choose);
+    ``in_log``: the cameras the log has frames of; ``in_calib``: the calibration's;
+    ``one``: the command works on one camera (several found is then an error unless one
+    is asked for); ``calib`` names the calibration file in messages. Unasked, every
+    camera in both (or the only one of each). Raises :class:`CameraChoiceError` naming the option
     and listing the log's and the calibration's names, saying which do not match.
     """
     log_names, calib_names = sorted(in_log), list(in_calib)
     found = f"the log has {_listed(log_names)}; {calib} has {_listed(calib_names)}"
     if asked:
-        wanted = list(dict.fromkeys(asked))
+        wanted = named_once(asked)
         if one and len(wanted) > 1:
             raise CameraChoiceError(f"--camera: give one camera, not {_listed(wanted)}")
         for name in wanted:

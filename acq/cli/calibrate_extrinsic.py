@@ -238,7 +238,7 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     from acq.calib.relative_pose import relative_poses
     from acq.camera import calibfile
     from acq.camera.calibfile import Calibration
-    from acq.camera.selection import choose_cameras
+    from acq.camera.selection import choose_cameras, named_once
     from acq.log import drive_log
 
     logs, intrinsics, board, output = args.logs, args.intrinsics, args.board, args.output
@@ -251,7 +251,7 @@ def run_extrinsic(args: argparse.Namespace) -> int:
     yaml_out = Output(
         "-o", output, "yaml", update=not in_place, in_place_of=("--intrinsics", "--lens-swap")
     )
-    asked: list[str] | None = list(dict.fromkeys(args.camera)) if args.camera else None
+    asked = named_once(args.camera) if args.camera else None
     first_plots = _plots(args.plot, output, asked or ["camera"])
     for p in first_plots.values():
         if p.suffix.lower() not in IMAGE_SUFFIXES:

@@ -19,14 +19,13 @@ The rule every command that writes follows (its --help says it in :data:`RULE`):
 from __future__ import annotations
 
 import os
-import secrets
 import shutil
 import sys
-from collections.abc import Collection, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from acq.atomic_write import atomic
 from acq.errors import InputError
 from acq.provenance import made_by_acq
 
@@ -169,8 +168,7 @@ def check(
         if same_input is not None and same_input[0] not in out.in_place_of:
             opt, p = same_input
             raise InputError(f"{out.named()}: is the input {opt} {p}; give another file")
-        if not out.makes_folder:
-            _check_folder(out)
+        _check_folder(out)
         if not out.path.exists():
             continue
         if out.path.is_dir():
@@ -204,7 +202,8 @@ def check(
 
 
 def _check_folder(out: Output) -> None:
-    """Refuse an output whose folder is missing or is not a folder, naming it."""
+    """Refuse an output whose folder is not a folder or is under a file, or is missing
+    (unless the command makes it), naming it: before the work, not after."""
     folder = out.path.absolute().parent
     if folder.is_dir():
         return
@@ -213,7 +212,10 @@ def _check_folder(out: Output) -> None:
         missing = missing.parent
     if missing.exists():
         raise InputError(f"{out.named()}: {missing} is a file, not a folder")
-    raise InputError(f"{out.named()}: the folder {missing} does not exist; create it first")
+    if not missing.parent.is_dir():
+        raise InputError(f"{out.named()}: {missing.parent} is a file, not a folder")
+    if not out.makes_folder:
+        raise InputError(f"{out.named()}: the folder {missing} does not exist; create it first")
 
 
 def backup_name(path: Path) -> Path:
@@ -234,25 +236,6 @@ def keep_backups(prog: str, outputs: Sequence[Output]) -> None:
     for out in outputs:
         bak = keep_backup(out.path)
         print(f"{prog}: kept the old {out.path} as {bak}", file=sys.stderr, flush=True)
-
-
-@contextmanager
-def atomic(path: Path) -> Iterator[Path]:
-    """A fresh temporary path beside ``path`` (same suffix, not created) to write; moved
-    onto ``path`` when the block ends, removed when it fails, so that ``path`` is the
-    old file or the new one, never half of one. A write error names ``path``."""
-    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    except OSError as e:  # named for the file meant, not the temporary one
-        if e.strerror and e.filename in (None, str(tmp)):
-            raise OSError(e.errno, e.strerror, str(path)) from e
-        if not e.strerror and str(tmp) in str(e):
-            raise OSError(str(e).replace(str(tmp), str(path))) from e
-        raise
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def write_text(path: Path, text: str) -> None:

@@ -44,6 +44,7 @@ def run_log(args: argparse.Namespace) -> int:
     """Write the recording and its calib.yaml into --out; print the files and the command.
     0; 2 for an --out that is a file or not empty (nothing there is replaced)."""
     from acq.camera import calibfile
+    from acq.sim.out_folder import make_folder
     from acq.sim.world import default_rig
 
     out: Path = args.out
@@ -52,7 +53,7 @@ def run_log(args: argparse.Namespace) -> int:
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise InputError(f"--out {out}: {'is a file' if not out.is_dir() else 'not empty'}; "
                          "give a new or empty folder")  # fmt: skip
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     logs: list[Path]
     if args.kind == "board":
         from acq.sim.board_log import write_board_log

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from acq.atomic_write import temporary_beside
 from acq.cloud.las import (
     CAMERAS_VLR,
     SYSTEM_IDENTIFIER,
@@ -50,7 +51,7 @@ class CopcStream:
         comments: Sequence[str] = (), cameras: Sequence[str] = (),
     ) -> None:  # fmt: skip
         self.path = Path(path)
-        self._tmp = self.path.with_name(self.path.name + ".tmp")
+        self._tmp = temporary_beside(self.path)
         self._cameras = cameras_text(cameras).encode()
         if len(self._cameras) > _spare():
             raise ValueError(f"the cameras' names take {len(self._cameras)} bytes: at most "

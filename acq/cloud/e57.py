@@ -12,8 +12,8 @@ its description (``camera <index> <name>``). E57 has no standard field for eithe
 reader that does not know the extension reads the standard fields as before (pye57's
 ``read_scan`` does). The CRS from ``crs`` as OGC WKT 1 in the root's
 ``coordinateMetadata``; acq's mark (:mod:`acq.provenance`) in the scan's
-``sensorSoftwareVersion``. Written as points come, under ``path``.tmp, renamed on
-:meth:`E57Stream.close`.
+``sensorSoftwareVersion``. Written as points come, under a temporary of its own beside
+``path`` (:func:`acq.atomic_write.temporary_beside`), renamed on :meth:`E57Stream.close`.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from acq.atomic_write import temporary_beside
 from acq.provenance import SOFTWARE
 from acq.time.gpstime import utc_to_gps
 
@@ -55,7 +56,7 @@ class E57Stream:
         from pye57 import libe57
 
         self.path = Path(path)
-        self._tmp = self.path.with_name(self.path.name + ".tmp")
+        self._tmp = temporary_beside(self.path)
         wkt = ""
         if crs:
             import pyproj

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from acq.atomic_write import temporary_beside
 from acq.provenance import SOFTWARE
 from acq.time.gpstime import gps_adjusted_standard_time
 
@@ -58,10 +59,11 @@ _EXTRA: dict[str, tuple[type[np.integer], int | None, str]] = {
 
 
 class LasStream:
-    """A LAS 1.4 file (module docstring) written part by part to ``path``.tmp, renamed
-    on :meth:`close` (:meth:`abort` removes it); LAZ (compressed) when ``path`` ends in
-    .laz. The offset is the first part's rounded minimum; the header's extent, counts
-    and GPS time span grow with every part. ``cameras``: the names, in index order, of
+    """A LAS 1.4 file (module docstring) written part by part to a temporary of its own
+    beside ``path`` (:func:`acq.atomic_write.temporary_beside`), renamed on :meth:`close`
+    (:meth:`abort` removes it); LAZ (compressed) when ``path`` ends in .laz. The offset
+    is the first part's rounded minimum; the header's extent, counts and GPS time span
+    grow with every part. ``cameras``: the names, in index order, of
     the cameras the points' ``camera`` indexes. ``comments`` have no place in LAS: unused.
     ``utc_doubt``: why the points' UTC cannot be trusted, as the :data:`TIME_BASE_VLR`."""
 
@@ -74,7 +76,7 @@ class LasStream:
         from laspy.vlrs.known import WktCoordinateSystemVlr
 
         self.path = Path(path)
-        self._tmp = self.path.with_name(self.path.name + ".tmp")
+        self._tmp = temporary_beside(self.path)
         self._compress = self.path.suffix.lower() == ".laz"
         header = laspy.LasHeader(point_format=7, version="1.4")
         header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from acq.atomic_write import temporary_beside
+
 PLY_DTYPE = np.dtype(
     [
         ("x", "<f8"),
@@ -43,23 +45,24 @@ class PlyStream:
     red green blue (uchar), scalar_time (double, UTC s), scalar_scan (int), intensity
     (float), scalar_coloured (uchar 0/1), scalar_camera (uchar, the index in ``cameras``
     of the camera that coloured the point, 255 none), scalar_frame (int, the index of
-    that camera's frame, -1 none); written part by part to
-    ``path``.tmp, renamed on :meth:`close` (:meth:`abort` removes it). Its header, with
-    the counts known only at the end, is written last into the room kept for it (the
-    rest of the room a comment of spaces)."""
+    that camera's frame, -1 none); written part by part to a temporary of its own
+    beside ``path`` (:func:`acq.atomic_write.temporary_beside`), renamed on
+    :meth:`close` (:meth:`abort` removes it). Its header, with the counts known only at
+    the end, is written last into the room kept for it (the rest of the room a comment
+    of spaces)."""
 
     def __init__(
         self, path: str | os.PathLike[str], comments: Sequence[str] = (),
         cameras: Sequence[str] = (),
     ) -> None:  # fmt: skip
         self.path = Path(path)
-        self._tmp = self.path.with_name(self.path.name + ".tmp")
+        self._tmp = temporary_beside(self.path)
         self._comments = [*comments, *(f"camera {k} {name}" for k, name in enumerate(cameras))]
         if not all(c.isprintable() for c in self._comments):  # a line break ends the header
             raise ValueError(f"a PLY comment is one line of printable text: {self._comments}")
         self.points = self.coloured = 0
         self._room = len(self._header(10**15, 10**15))
-        self._file = open(self._tmp, "wb")
+        self._file = open(self._tmp, "xb")
         self._file.seek(self._room)
 
     def _header(self, points: int, coloured: int, pad: int = 0) -> bytes:

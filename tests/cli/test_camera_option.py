@@ -156,3 +156,20 @@ def test_sim_render_takes_camera_and_lists_the_rigs(
     assert acq_main(["sim", "render", "--out", str(out), "--camera", "right"]) == 0
     assert list(calibfile.load(out / "calib.yaml").cameras) == ["right"]
     assert "pixel error against the truth: RMS 0.0" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", ["colorize", "calibrate extrinsic"])
+def test_a_camera_named_twice_is_refused_naming_it(
+    two: tuple[DriveTruth, Path], tmp_path: Path, command: str,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    """Once coloured twice into one cloud, its header naming "camera 0 left" and "camera 1
+    left"; then merged without a word: a repeated name is a slip, refused before work."""
+    truth, calib = two
+    argv = _commands(list(map(str, truth.files)), calib, tmp_path)[command]
+    assert acq_main([*argv, "--camera", "left", "--camera", "right", "--camera", "left"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"acq {command}: --camera left: named twice; give each camera once\n", err
+    assert sorted(tmp_path.iterdir()) == []
+    with pytest.raises(CameraChoiceError, match="--camera right: named twice"):
+        choose_cameras(["right", "right"], ["left", "right"], ["left", "right"], one=False)

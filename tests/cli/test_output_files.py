@@ -104,6 +104,52 @@ def test_an_input_or_a_file_of_another_kind_is_never_an_output(
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in files.values())
 
 
+# (argv with {log}, {img}, {cal} for the inputs, {file} a file, {none} a missing folder;
+# the option named): an output that cannot go where it is meant, refused before any work
+# (the inputs are junk: any work would fail first on them); those made as folders (-o DIR
+# of validate and sensitivity, --out of sim render) were once refused only after it, and
+# the folders of sim log, sim rig and demo with exit 1 and "Not a directory"
+BAD_FOLDER = [
+    (["calibrate", "validate", "{log}", "--calib", "{cal}", "-o", "{file}/overlays"], "-o"),
+    (["analyze", "sensitivity", "{log}", "--calib", "{cal}", "-o", "{file}/sens"], "-o"),
+    (["sim", "render", "--out", "{file}/render"], "--out"),
+    (["sim", "log", "board", "--out", "{file}/board"], "--out"),
+    (["sim", "rig", "--out", "{file}/rig", "--duration", "1"], "--out"),
+    (["demo", "--out", "{file}/demo", "--seconds", "1"], "--out"),
+    (["export", "ros2", "{log}", "-o", "{file}/bag"], "-o"),
+    (["colorize", "{log}", "--calib", "{cal}", "-o", "c.ply", "--preview", "{none}/p.png"],
+     "--preview"),
+    (["colorize", "{log}", "--calib", "{cal}", "-o", "{none}/c.ply"], "-o"),
+    (["calibrate", "time-offset", "{log}", "--calib", "{cal}", "-o", "{none}/c.yaml"], "-o"),
+    (["calibrate", "fisheye", "{img}", "--fov", "185", "-o", "c.yaml", "--overlay",
+      "{file}/o.png"], "--overlay"),
+    (["replay", "{log}", "--config-out", "{none}/r.yaml"], "--config-out"),
+    (["info", "--repair", "{log}", "-o", "{file}/fixed.mcap"], "-o"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("argv", "option"), BAD_FOLDER)
+def test_an_output_into_a_missing_folder_or_under_a_file_is_refused_before_the_work(
+    argv: list[str], option: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    files = _files(tmp_path)
+    names = {k: str(p) for k, p in files.items()}
+    names |= {"file": str(files["cal"]), "none": str(tmp_path / "nodir")}
+    before = {k: _digest(p) for k, p in files.items()}
+    assert main([a.format(**names) for a in argv]) == 2
+    err = capsys.readouterr().err
+    why = (
+        f"{files['cal']} is a file, not a folder"
+        if "{file}" in " ".join(argv)
+        else f"the folder {tmp_path / 'nodir'} does not exist; create it first"
+    )
+    assert err.count("\n") == 1 and f": {option} " in err and err.endswith(f": {why}\n"), err
+    assert {k: _digest(p) for k, p in files.items()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in files.values())
+
+
 def test_the_line_names_the_output_and_the_input(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

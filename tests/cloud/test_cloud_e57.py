@@ -50,7 +50,8 @@ def test_e57_in_parts_keeps_every_field(tmp_path: Path) -> None:
     for p in parts:
         out.write(*p)
     size = out.close()
-    assert size == (tmp_path / "c.e57").stat().st_size and not (tmp_path / "c.e57.tmp").exists()
+    assert size == (tmp_path / "c.e57").stat().st_size
+    assert list(tmp_path.iterdir()) == [tmp_path / "c.e57"]  # no temporary left
     got, (imf, scan), wkt = _read(tmp_path / "c.e57")
     xyz, rgb, utc, intensity, scan_i, coloured, camera, frame = (
         np.concatenate(c) for c in zip(*parts, strict=True)

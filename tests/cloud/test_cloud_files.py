@@ -41,7 +41,8 @@ def test_ply_in_parts_reads_back_whole_with_its_counts(tmp_path: Path) -> None:
     for p in parts:
         out.write(*p)
     size = out.close()
-    assert size == (tmp_path / "c.ply").stat().st_size and not (tmp_path / "c.ply.tmp").exists()
+    assert size == (tmp_path / "c.ply").stat().st_size
+    assert list(tmp_path.iterdir()) == [tmp_path / "c.ply"]  # no temporary left
     ply = PlyData.read(str(tmp_path / "c.ply"))
     v = ply["vertex"].data
     xyz, rgb, utc, intensity, scan, coloured, camera, frame = (

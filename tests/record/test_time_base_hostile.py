@@ -9,8 +9,9 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
+from contextlib import closing
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -38,18 +39,12 @@ fi
 """
 
 
-@pytest.fixture
-def scanner() -> Iterator[TcpDeviceServer]:
-    server = TcpDeviceServer(ScipDevice(MODELS["utm-30lx"])).start()
-    try:
-        yield server
-    finally:
-        server.close()
+DURATION_S = 4.0
 
 
-def test_hostile_chronyc_readings_are_contained_and_bounded(
-    scanner: TcpDeviceServer, tmp_path: Path
-) -> None:
+def _record(scanner_url: str, tmp_path: Path) -> Path:
+    """``acq record`` of the scanner for :data:`DURATION_S` with the hostile chronyc first
+    on PATH: its log, after checking the recorder exited 0 having asked chronyc twice."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     chronyc = bin_dir / "chronyc"
@@ -58,36 +53,36 @@ def test_hostile_chronyc_readings_are_contained_and_bounded(
     cfg = tmp_path / "rig.yaml"
     config = {
         "version": 1,
-        "scanners": [{"name": "laser", "driver": "hokuyo", "url": scanner.url}],
+        "scanners": [{"name": "laser", "driver": "hokuyo", "url": scanner_url}],
         "output": {"dir": str(tmp_path / "logs")},
     }
     cfg.write_text(yaml.safe_dump(config))
-    duration = 4.0
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
     done = subprocess.run(
-        [sys.executable, "-m", "acq.cli", "record", "-c", str(cfg), "--duration", str(duration)],
+        [sys.executable, "-m", "acq.cli", "record", "-c", str(cfg), "--duration", str(DURATION_S)],
         cwd=ROOT, env=env, capture_output=True, timeout=60,
     )  # fmt: skip
     err = done.stderr.decode(errors="replace")
     assert done.returncode == 0, err
     assert "Traceback" not in err and "Value out of range" not in err
     assert int((bin_dir / "chronyc.count").read_text()) >= 2, "both answers were read"
-
     (path,) = sorted((tmp_path / "logs").glob("*.mcap"))
+    return path
+
+
+def test_hostile_chronyc_readings_are_contained_and_bounded(tmp_path: Path) -> None:
+    with closing(TcpDeviceServer(ScipDevice(MODELS["utm-30lx"])).start()) as scanner:
+        path = _record(scanner.url, tmp_path)
     log = read_log(path)
     scans = np.array([t for t, _, _ in log["/laser/scan"]]) * 1e-9
-    assert len(scans) > 50 and scans[-1] - scans[0] > duration - 2.0  # recorded throughout
-    readings = [m for _, _, m in log["/acq/timebase"]]
+    assert len(scans) > 50 and scans[-1] - scans[0] > DURATION_S - 2.0  # recorded throughout
+    readings: list[Any] = [m for _, _, m in log["/acq/timebase"]]
     assert len(readings) >= 2
-    reasons = [a for m in readings for a in m.absent if a.startswith("chrony: ")]  # type: ignore[attr-defined]
-    assert not any(m.HasField("chrony") for m in readings)  # type: ignore[attr-defined]
+    reasons = [a for m in readings for a in m.absent if a.startswith("chrony: ")]
+    assert not any(m.HasField("chrony") for m in readings)
     assert "chrony: chronyc tracking: reference ID 'FFFFFFFFFFFFFFFFFFFF' is not in" in reasons[0]
     assert any("chronyc printed more than 65536 bytes" in r for r in reasons), reasons
     with path.open("rb") as f:
-        sizes = [
-            len(m.data)
-            for _, c, m in make_reader(f).iter_messages(topics=["/acq/timebase"])
-            if c.topic == "/acq/timebase"
-        ]
+        sizes = [len(m.data) for _, _, m in make_reader(f).iter_messages(topics=["/acq/timebase"])]
     assert max(sizes) < 1000, f"a time base record of {max(sizes)} bytes"
     print(f"{len(sizes)} time base records, {sum(sizes)} bytes in all, {max(sizes)} at most")

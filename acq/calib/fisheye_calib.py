@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+import imagesize
 import numpy as np
 import numpy.typing as npt
 
@@ -513,9 +514,15 @@ def model_gap_px(a: KannalaBrandt, b: KannalaBrandt, theta_max: float) -> float:
     return float(np.max(np.hypot(d[:, 0], d[:, 1])))
 
 
+# 4 times the largest fisheye sensors' 25 MP: a 16-bit colour image of it decodes to 600 MB
+MAX_IMAGE_PIXELS = 100_000_000
+
+
 def read_images(paths: Sequence[Path]) -> list[np.ndarray]:
     """The images as stored (grey or BGR uint8, 16-bit scaled down, alpha dropped);
-    InputValueError naming a file that is not an 8- or 16-bit grey or colour image."""
+    InputValueError naming a file that is not an 8- or 16-bit grey or colour image, or
+    whose header declares more than :data:`MAX_IMAGE_PIXELS` (checked before decoding,
+    for every format ``imagesize`` reads: PNG, JPEG, BMP, TIFF, WebP, Netpbm...)."""
     images = []
     for p in paths:
         path = Path(p)
@@ -523,6 +530,12 @@ def read_images(paths: Sequence[Path]) -> list[np.ndarray]:
             raise InputValueError(f"{p}: a directory, not an image")
         if not path.is_file():
             raise InputValueError(f"{p}: no such file")
+        width, height = imagesize.get(path)
+        if width * height > MAX_IMAGE_PIXELS and width > 0 and height > 0:
+            raise InputValueError(
+                f"{p}: declares {width}x{height} pixels ({width * height / 1e6:.0f} MP), more"
+                f" than the {MAX_IMAGE_PIXELS / 1e6:.0f} MP an image may have; not decoded"
+            )
         img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
         if img is None or img.size == 0:
             raise InputValueError(f"{p}: cannot read as an image")

@@ -41,7 +41,11 @@ def add_parser(cal_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
         "An existing CALIB is updated, its old content kept as CALIB.bak; an IMAGE or any file "
         "that is not YAML is refused as CALIB.",
     )
-    fish.add_argument("images", nargs="+", type=Path, metavar="IMAGE", help="images of one camera")
+    fish.add_argument(
+        "images", nargs="+", type=Path, metavar="IMAGE",
+        help="images of one camera (8- or 16-bit, grey or colour); one whose header declares "
+        "more than 100 megapixels is refused before it is decoded",
+    )  # fmt: skip
     fish.add_argument(
         "--fov", type=real(0, 360, lo_open=True, hi_open=True, what="degrees"),
         required=True, metavar="DEG",

@@ -4,6 +4,7 @@ one that is not: missing, unreadable, a folder, empty, cut inside the magic or n
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 
 from acq.errors import InputValueError
@@ -29,6 +30,10 @@ class LogError(InputValueError):
 def check_magic(path: Path) -> int:
     """File size in bytes, after checking that ``path`` starts with the MCAP magic."""
     try:
+        mode = path.stat().st_mode
+        if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):  # never opened: a FIFO would block
+            kind = "a named pipe (FIFO)" if stat.S_ISFIFO(mode) else "not a regular file"
+            raise LogError(path, None, f"{kind}: a log is read by seeking in it, save it to a file")
         with path.open("rb") as f:
             head = f.read(len(MAGIC))
             size = os.fstat(f.fileno()).st_size

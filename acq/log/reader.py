@@ -559,6 +559,7 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, dict[str, str]]:
     """A log's metadata records by name, the last of each name winning (the recorder
     writes a newer record when a device reconnects): from the summary's index when the
     file is closed, else from everything before the cut."""
+    check_magic(Path(path))  # LogError naming a file that is no log (a FIFO never opened)
     out: dict[str, dict[str, str]] = {}
     lasers = None  # a rosbag2's: its scanners' records come with their first scans
     try:

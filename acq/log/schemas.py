@@ -532,7 +532,8 @@ _HOST_CLOCK_PARTS: dict[str, type[Any]] = {
 def time_base_record(reading: HostClock) -> bytes:
     """``acq.TimeBase`` for ``/acq/timebase``: one reading of the host clock's sources,
     stamped with its monotonic time; a source that is absent is left unset and its
-    reason listed in ``absent`` ("chrony: chronyc not installed")."""
+    reason listed in ``absent`` ("chrony: chronyc not installed"), as is a source whose
+    value the record cannot hold (a reading from outside: never an error of the writer)."""
     msg = TimeBaseMsg(
         realtime_ns=reading.realtime_ns,
         monotonic_ns=reading.monotonic_ns,
@@ -543,10 +544,15 @@ def time_base_record(reading: HostClock) -> bytes:
         part = getattr(reading, name)
         if isinstance(part, Absent):
             msg.absent.append(f"{name}: {part.why}")
-        else:
-            sub = getattr(msg, name)
-            for f in fields(part):
+            continue
+        sub = getattr(msg, name)
+        for f in fields(part):
+            try:
                 setattr(sub, f.name, getattr(part, f.name))
+            except (ValueError, TypeError):
+                msg.ClearField(name)
+                msg.absent.append(f"{name}: {f.name} {getattr(part, f.name)!r:.40} out of range")
+                break
     return _serialized(msg)
 
 

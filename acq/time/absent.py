@@ -5,11 +5,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["Absent"]
+__all__ = ["WHY_MAX_CHARS", "Absent"]
+
+# a reason quotes what a tool printed: bounded, since the recorder writes it every second
+WHY_MAX_CHARS = 200
 
 
 @dataclass(frozen=True)
 class Absent:
-    """No reading from a clock source; ``why`` says why, in a few words."""
+    """No reading from a clock source; ``why`` says why, in a few words (cut to
+    :data:`WHY_MAX_CHARS`, an ellipsis marking the cut)."""
 
     why: str
+
+    def __post_init__(self) -> None:
+        if len(self.why) > WHY_MAX_CHARS:
+            object.__setattr__(self, "why", self.why[: WHY_MAX_CHARS - 1] + "…")

@@ -34,10 +34,14 @@ class PpsSource:
 
 
 def parse_edge(text: str) -> tuple[float, int]:
-    """A sysfs edge, ``<seconds>.<nanoseconds>#<sequence>``: (UTC s, sequence)."""
+    """A sysfs edge, ``<seconds>.<nanoseconds>#<sequence>``: (UTC s, sequence);
+    ValueError for another text or a sequence outside 64 bits."""
     stamp, _, sequence = text.strip().partition("#")
     seconds, _, nanos = stamp.partition(".")
-    return int(seconds) + int(nanos or 0) * 1e-9, int(sequence or 0)
+    count = int(sequence or 0)
+    if len(text) > 64 or not 0 <= count < 2**64:
+        raise ValueError(f"not a PPS edge: {text.strip()[:64]!r}")
+    return int(seconds) + int(nanos or 0) * 1e-9, count
 
 
 def read_pps(root: Path = PPS_ROOT) -> PpsSource | Absent:

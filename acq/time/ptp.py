@@ -6,16 +6,17 @@ socket or no answer is :class:`acq.time.absent.Absent`, not an error.
 from __future__ import annotations
 
 import shutil
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
 from acq.time.absent import Absent
+from acq.time.tool_answer import ask_tool
 
 __all__ = ["PTP4L_SOCKET", "PtpTime", "parse_time_status", "read_ptp_time"]
 
 PTP4L_SOCKET = Path("/var/run/ptp4l")  # ptp4l's default management socket
 TIMEOUT_S = 0.5
+IDENTITY_MAX_CHARS = 64  # a clock identity: 8 bytes, 23 characters as pmc prints it
 
 
 @dataclass(frozen=True)
@@ -37,10 +38,13 @@ def parse_time_status(text: str) -> PtpTime:
         if len(parts) == 2:
             values[parts[0]] = parts[1]
     try:
+        offset, identity = values["master_offset"], values["gmIdentity"]
+        if len(offset) > 24 or len(identity) > IDENTITY_MAX_CHARS:
+            raise ValueError
         return PtpTime(
-            master_offset_s=int(values["master_offset"]) / 1e9,
+            master_offset_s=int(offset) / 1e9,
             gm_present=values["gmPresent"] == "true",
-            gm_identity=values["gmIdentity"],
+            gm_identity=identity,
         )
     except (KeyError, ValueError):
         raise ValueError("pmc: no TIME_STATUS_NP in the answer") from None
@@ -55,14 +59,9 @@ def read_ptp_time(socket: Path = PTP4L_SOCKET, timeout_s: float = TIMEOUT_S) -> 
     if not socket.exists():
         return Absent("ptp4l not running")
     command = [pmc, "-u", "-b", "0", "-s", str(socket), "GET TIME_STATUS_NP"]
-    try:
-        done = subprocess.run(
-            command, capture_output=True, text=True, timeout=timeout_s, check=False
-        )
-    except subprocess.TimeoutExpired:
-        return Absent(f"ptp4l gave no answer within {timeout_s:g} s")
-    except OSError as e:
-        return Absent(f"pmc cannot run: {e.strerror or e}")
+    done = ask_tool(command, "pmc", timeout_s)
+    if isinstance(done, Absent):
+        return done
     try:
         return parse_time_status(done.stdout)
     except ValueError:

@@ -19,7 +19,7 @@ from acq.geometry.transforms import Rigid
 from acq.log import schemas
 from acq.records import CanFrame, CovarianceType, Fix, Frame, Odometry, Scan
 from acq.time.absent import Absent
-from acq.time.chrony import parse_tracking
+from acq.time.chrony import ChronyTracking, parse_tracking
 from acq.time.host_clock import GnssTime, HostClock
 from acq.time.kernel_clock import KernelClock
 from acq.time.pps import PpsSource
@@ -454,3 +454,12 @@ def test_a_time_base_record_keeps_every_source_and_why_one_is_absent() -> None:
     )  # fmt: skip
     back = schemas.host_clock_of(schemas.decode("acq.TimeBase", schemas.time_base_record(with_pps)))
     assert back == with_pps and not back.synchronised
+
+
+def test_a_time_base_source_the_record_cannot_hold_is_absent_not_an_error() -> None:
+    chrony = ChronyTracking(2**40, "x", 2**33, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, "Normal")
+    reading = HostClock(1, 2, Absent("adjtimex not available"), chrony,
+                        Absent("ptp4l not running"), Absent("no PPS source"))  # fmt: skip
+    msg = schemas.decode("acq.TimeBase", schemas.time_base_record(reading))
+    assert not msg.HasField("chrony")
+    assert list(msg.absent)[1] == "chrony: reference_id 1099511627776 out of range"

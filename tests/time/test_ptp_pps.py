@@ -46,3 +46,14 @@ def test_a_pps_source_from_sysfs(tmp_path: Path) -> None:
     assert isinstance(got, PpsSource) and got.name == "pps1" and got.assert_sequence == 42
     assert got.assert_error_s == pytest.approx(12e-6, abs=1e-7) and got.clear_s == 0
     assert parse_edge("12.5#3") == (12.000000005, 3)
+
+
+def test_hostile_pmc_and_pps_values_are_refused() -> None:
+    huge = PMC_ANSWER.replace("-1234", "9" * 400)  # a float cannot hold it
+    with pytest.raises(ValueError, match="no TIME_STATUS_NP"):
+        parse_time_status(huge)
+    with pytest.raises(ValueError, match="no TIME_STATUS_NP"):
+        parse_time_status(PMC_ANSWER.replace("aabbcc.fffe.ddeeff", "a" * 5_000_000))
+    for edge in ("12.5#-1", f"12.5#{2**64}"):
+        with pytest.raises(ValueError, match="not a PPS edge"):
+            parse_edge(edge)

@@ -29,6 +29,28 @@ def test_redact_hides_the_user_and_password_of_every_url(text: str, expected: st
     assert redact(text) == expected
 
 
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("http://host/x?user=admin&password=s3cret: cannot connect",
+         "http://host/x?user=admin&password=*** cannot connect"),
+        ("http://cam/cgi-bin/CGIStream.cgi?cmd=GetMJStream&usr=admin&pwd=s3cret",
+         "http://cam/cgi-bin/CGIStream.cgi?cmd=GetMJStream&usr=admin&pwd=***"),
+        ("{\"source\": \"http://h/v?PASS=a%26b&fps=25\"}",
+         "{\"source\": \"http://h/v?PASS=***&fps=25\"}"),
+        ("source: 'rtsp://u:p@h/x?passwd=1;token=2&api_key=3&X-Api-Key=4#access_token=5'",
+         "source: 'rtsp://***@h/x?passwd=***;token=***&api_key=***&X-Api-Key=***"
+         "#access_token=***'"),
+        ("http://h/x?secret=&key=k&client_secret=c", "http://h/x?secret=***&key=***&client_secret=***"),
+        # names that only hold a secret's letters stay, as do values outside a query
+        ("http://h/x?keyframe=1&passive=0&monkey=2&keys=3", "http://h/x?keyframe=1&passive=0&monkey=2&keys=3"),
+        ("password=s3cret in a sentence", "password=s3cret in a sentence"),
+    ],
+)  # fmt: skip
+def test_redact_hides_the_secret_parameters_of_a_query(text: str, expected: str) -> None:
+    assert redact(text) == expected
+
+
 def test_the_filter_redacts_messages_arguments_and_tracebacks() -> None:
     stream = io.StringIO()
     handler = logging.StreamHandler(stream)

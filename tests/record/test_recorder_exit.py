@@ -1,12 +1,15 @@
 """How `acq record` ends, against a simulated UTM-30LX on TCP (127.0.0.1), its files read
 back with the `mcap` seeking reader: every signal that would end the process but SIGKILL,
-the faults and the watchdog's SIGABRT finishes the file (SIGHUP, an ssh link that drops,
-included); a recording with its stdout closed exits 0, its file not on descriptor 1."""
+the faults and the watchdog's SIGABRT finishes the file, SIGHUP included (a terminal on a
+pseudo-terminal that is hung up, as when an ssh link drops); a recording with its stdout
+closed exits 0, its file not on descriptor 1."""
 
 from __future__ import annotations
 
 import logging
 import os
+import pty
+import select
 import signal
 import subprocess
 import sys
@@ -17,6 +20,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from acq.record import config as configfile
@@ -66,7 +70,10 @@ def closed_scans(folder: Path) -> int:
     not closed has none (the seeking reader needs its footer)."""
     (path,) = sorted(folder.glob("*.mcap"))
     with path.open("rb") as f:
-        summary = make_reader(f).get_summary()
+        try:
+            summary = make_reader(f).get_summary()
+        except McapError as e:  # no footer where the seeking reader looks for it
+            raise AssertionError(f"{path}: not closed ({e})") from None
     assert summary is not None and summary.statistics is not None, f"{path}: not closed"
     ids = [c.id for c in summary.channels.values() if c.topic == "/laser/scan"]
     return sum(summary.statistics.channel_message_counts.get(i, 0) for i in ids)
@@ -82,10 +89,54 @@ def wait_for_scans(folder: Path, proc: subprocess.Popen[bytes], timeout_s: float
     time.sleep(2.0)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGUSR1], ids=["SIGHUP", "SIGUSR1"])
-def test_sighup_and_sigusr1_finish_the_file(
-    scanner: TcpDeviceServer, tmp_path: Path, sig: signal.Signals
+# the child takes the terminal on its standard input as its controlling terminal, as a
+# login shell's does, then becomes the recorder: the terminal's hang-up is its SIGHUP
+AS_SESSION = (
+    "import fcntl, os, sys, termios; fcntl.ioctl(0, termios.TIOCSCTTY, 0); "
+    "os.execv(sys.executable, [sys.executable, '-m', 'acq.cli', *sys.argv[1:]])"
+)
+
+
+def test_a_terminal_that_goes_away_finishes_the_file(
+    scanner: TcpDeviceServer, tmp_path: Path
 ) -> None:
+    cfg = write_config(tmp_path, scanner)
+    master, tty = pty.openpty()
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", AS_SESSION, "record", "-c", str(cfg)],
+            cwd=ROOT, stdin=tty, stdout=tty, stderr=tty, start_new_session=True,
+        )  # fmt: skip
+    finally:
+        os.close(tty)
+    said, stop = bytearray(), threading.Event()
+    reader = threading.Thread(target=read_terminal, args=(master, said, stop), daemon=True)
+    reader.start()
+    try:
+        wait_for_scans(tmp_path / "logs", proc)
+        stop.set()
+        reader.join()  # no read holds the terminal open
+        os.close(master)  # the ssh link drops: the kernel hangs the terminal up
+        code = proc.wait(20)
+    finally:
+        proc.kill()
+    text = said.decode(errors="replace")
+    assert code == 0, text  # not -1: killed by the SIGHUP
+    assert "recording laser" in text
+    assert closed_scans(tmp_path / "logs") > 20
+
+
+def read_terminal(fd: int, into: bytearray, stop: threading.Event) -> None:
+    """What the recorder writes to its terminal, until ``stop``."""
+    while not stop.is_set():
+        if select.select([fd], [], [], 0.05)[0]:
+            try:
+                into += os.read(fd, 65536)
+            except OSError:  # EIO: the recorder is gone
+                return
+
+
+def test_sigusr1_finishes_the_file(scanner: TcpDeviceServer, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, scanner)
     proc = subprocess.Popen(
         [sys.executable, "-m", "acq.cli", "record", "-c", str(cfg)],
@@ -93,13 +144,13 @@ def test_sighup_and_sigusr1_finish_the_file(
     )  # fmt: skip
     try:
         wait_for_scans(tmp_path / "logs", proc)
-        proc.send_signal(sig)
+        proc.send_signal(signal.SIGUSR1)
         _, err = proc.communicate(timeout=20)
     finally:
         proc.kill()
     text = err.decode(errors="replace")
     assert proc.returncode == 0, text
-    assert f"{sig.name}: finishing the file" in text
+    assert "SIGUSR1: finishing the file" in text
     assert closed_scans(tmp_path / "logs") > 20
 
 

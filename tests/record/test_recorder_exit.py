@@ -15,7 +15,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -25,8 +24,6 @@ from mcap.reader import make_reader
 
 from acq.record import config as configfile
 from acq.record.recorder import record
-from acq.sim.scanner_models import MODELS
-from acq.sim.scip_device import ScipDevice
 from acq.sim.transport import TcpDeviceServer
 
 # drives a simulated scanner in real time: run alone (`make test`)
@@ -43,15 +40,6 @@ ENDING = {"SIGABRT", "SIGALRM", "SIGBUS", "SIGFPE", "SIGHUP", "SIGILL", "SIGINT"
 # watchdog's abort (its stack dump), and the two Python ignores (the write fails instead)
 DEFAULT = {"SIGKILL", "SIGSEGV", "SIGBUS", "SIGILL", "SIGFPE", "SIGABRT", "SIGPIPE", "SIGXFSZ"}
 DEFAULT_HANDLERS = {signal.SIG_DFL, signal.SIG_IGN, signal.default_int_handler, None}
-
-
-@pytest.fixture(scope="module")
-def scanner() -> Iterator[TcpDeviceServer]:
-    server = TcpDeviceServer(ScipDevice(MODELS["utm-30lx"])).start()
-    try:
-        yield server
-    finally:
-        server.close()
 
 
 def write_config(tmp_path: Path, scanner: TcpDeviceServer) -> Path:

@@ -98,15 +98,6 @@ def closed_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.fixture(scope="module")
-def scanner() -> Iterator[TcpDeviceServer]:
-    server = TcpDeviceServer(ScipDevice(MODELS["utm-30lx"])).start()
-    try:
-        yield server
-    finally:
-        server.close()
-
-
 @pytest.fixture
 def hostile() -> Iterator[HostileCamera]:
     cam = HostileCamera()

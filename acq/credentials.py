@@ -29,10 +29,12 @@ SECRET_KEYS = ("password", "passwd", "pass", "pwd", "pw", "passphrase", "secret"
 a longer name (``api_key``, ``X-Api-Key``, ``access_token``, ``client.secret``)."""
 
 # ?name=value, &name=value, ;name=value or #name=value (a fragment's OAuth token): the
-# value runs to the next parameter, the fragment, a blank or a quote
+# value runs to the next parameter, the fragment, a blank, a double quote (not allowed
+# in a URL) or a single quote that closes a quoted text ('...pwd=x': or 'pwd=x', 1); a
+# JSON escape (\" \\) and a YAML single-quoted string's '' are part of it
 _SECRET_PARAM = re.compile(
     r"(?P<name>[?&;#](?:[A-Za-z0-9%_.\-]*[_.\-])?(?:" + "|".join(SECRET_KEYS) + r")=)"
-    r"[^&;#\s'\"<>]*",
+    r"(?:\\.|''|'(?![\s,:)\]}]|$)|[^&;#\s'\"<>\\])*",
     re.IGNORECASE,
 )
 

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import io
+import json
 import logging
 
 import pytest
+import yaml
 
 from acq.credentials import RedactingFilter, redact
 
@@ -71,3 +73,17 @@ def test_the_filter_redacts_messages_arguments_and_tracebacks() -> None:
     assert "S3CRET" not in text
     assert "camera: http://***@127.0.0.1:1/x: refused" in text
     assert "ConnectionError: rtsp://***@cam/live: reset" in text
+
+
+@pytest.mark.parametrize("secret", ["it's", "a'b\\c", "x''", "é%27s"])
+def test_a_secret_with_quotes_is_hidden_whole_wherever_it_is_written(secret: str) -> None:
+    url = f"http://cam/x?usr=admin&pwd={secret}&fps=25"
+    hidden = "http://cam/x?usr=admin&pwd=***&fps=25"
+    as_json = redact(json.dumps({"source": url}))
+    assert json.loads(as_json) == {"source": hidden}
+    as_yaml = redact(yaml.safe_dump({"source": url}))
+    assert yaml.safe_load(as_yaml) == {"source": hidden}
+    listed = redact(repr([url[:-7], 1]))  # as %r writes it, the secret last
+    assert listed in (f"['{hidden[:-7]}', 1]", f'["{hidden[:-7]}", 1]'), listed
+    quoted = redact(f"'{url[:-7]}': connection refused")
+    assert quoted == f"'{hidden[:-7]}': connection refused"

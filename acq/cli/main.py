@@ -43,6 +43,7 @@ from acq.cli import (
     replay,
     sim,
 )
+from acq.cli.standard_streams import reopen_closed
 from acq.credentials import RedactingFilter, redact
 from acq.errors import AcqError, InputError
 
@@ -138,6 +139,7 @@ def _command(argv: Sequence[str]) -> str | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run `acq` with ``argv`` (default: the process's); the exit status."""
+    reopen_closed()  # a closed stdout (`acq record >&-`) is /dev/null, not the next file
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         args = build_parser(_command(argv) or "").parse_args(argv)

@@ -18,8 +18,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help=HELP,
         description="Record every scanner and camera of a configuration into MCAP files: "
         "one thread per device, reconnection with backoff, device clocks mapped to the host "
-        "clock, zstd chunks fsynced every second, files split by size and duration. Ctrl-C "
-        "or SIGTERM finish the file. When it stops, it names each device that recorded "
+        "clock, zstd chunks fsynced every second, files split by size and duration. Ctrl-C, "
+        "SIGTERM, SIGHUP (a dropped ssh link) and every other signal that would end the "
+        "process finish the file, but SIGKILL, the faults and the watchdog's SIGABRT. "
+        "When it stops, it names each device that recorded "
         f"nothing or stopped recording more than {STOPPED_EARLY_S:g} s before the end. "
         "Exit status: 0 "
         "stopped, 1 runtime failure (a required device without a record, or a device that "

@@ -39,6 +39,11 @@ nothing or stopped recording well before the end (:mod:`acq.log.silent_devices`)
 exits 1 when a device recorded nothing, unless the configuration marks it optional
 (``required: false``: then a warning).
 
+Every signal that would end the process finishes the file first (SIGTERM, SIGINT, and
+SIGHUP too: a dropped ssh link ends the recording with its file whole rather than leave
+it unattended), but SIGKILL, the faults and the watchdog's SIGABRT
+(:mod:`acq.record.stop_signals` says why).
+
 Exit codes: 0 stopped (signal or ``--duration``), 1 runtime failure (a required device
 absent, a device that recorded nothing), 2 bad configuration, 3 disk below its reserve
 (listed in the unit's ``RestartPreventExitStatus``).
@@ -73,6 +78,7 @@ from acq.record.adapters import GNSS, VEHICLE, adapters_for
 from acq.record.config import CanConfig, Config, dump
 from acq.record.device_loop import DeviceState, Outbox, Queued, finite, run_device
 from acq.record.sdnotify import JournalFormatter, Notifier, use_journal_format
+from acq.record.stop_signals import finishing
 from acq.time.absent import Absent
 from acq.time.host_clock import NO_GNSS, GnssTime, HostClockPoller, gnss_time
 from acq.time.host_clock_summary import HostClockTally
@@ -571,20 +577,10 @@ def record(
     notifier: Notifier | None = None,
     required: Iterable[str] = (),
 ) -> int:
-    """Run a :class:`Recorder` with SIGTERM and SIGINT finishing the file; the exit code."""
-    import signal
-
+    """Run a :class:`Recorder` with every signal that would end the process finishing the
+    file (SIGTERM, SIGINT, SIGHUP...: :mod:`acq.record.stop_signals`); the exit code."""
     recorder = Recorder(
         config, out_dir=out_dir, duration_s=duration_s, notifier=notifier, required=required
     )
-
-    def finish(signum: int, _frame: object) -> None:
-        log.info("%s: finishing the file", signal.Signals(signum).name)
-        recorder.stop()
-
-    old = {s: signal.signal(s, finish) for s in (signal.SIGTERM, signal.SIGINT)}
-    try:
+    with finishing(recorder.stop):
         return recorder.run()
-    finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)

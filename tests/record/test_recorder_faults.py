@@ -1,8 +1,8 @@
 """The recorder against hostile and absent devices, over real transports on 127.0.0.1: a
 camera whose MJPEG part header is hostile (a superscript digit in its length), a camera
-URL with nothing listening (and a password in it), and a good simulated UTM-30LX that
-must record on through both; required devices; the credentials of device URLs kept out
-of the log lines and the MCAP file."""
+URL with nothing listening (a password in it and in its query), and a good simulated
+UTM-30LX that must record on through both; required devices; the credentials of device
+URLs kept out of the log lines and the MCAP file."""
 
 from __future__ import annotations
 
@@ -37,6 +37,7 @@ pytestmark = pytest.mark.realtime
 
 ROOT = Path(__file__).resolve().parents[2]
 SECRET = "S3CRET"
+QUERY = f"?cmd=GetMJStream&usr=admin&pwd={SECRET}"  # a Foscam's credentials
 JPEG = cv2.imencode(".jpg", np.full((48, 64, 3), 128, np.uint8))[1].tobytes()
 
 
@@ -97,15 +98,6 @@ def closed_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.fixture(scope="module")
-def scanner() -> Iterator[TcpDeviceServer]:
-    server = TcpDeviceServer(ScipDevice(MODELS["utm-30lx"])).start()
-    try:
-        yield server
-    finally:
-        server.close()
-
-
 @pytest.fixture
 def hostile() -> Iterator[HostileCamera]:
     cam = HostileCamera()
@@ -128,7 +120,7 @@ def write_config(tmp_path: Path, scanner_url: str, cameras: list[dict[str, objec
 
 
 def dead_camera(**extra: object) -> dict[str, object]:
-    url = f"http://admin:{SECRET}@127.0.0.1:{closed_port()}/stream.mjpg"
+    url = f"http://admin:{SECRET}@127.0.0.1:{closed_port()}/stream.mjpg{QUERY}"
     return {"name": "dead", "driver": "opencv", "source": url, "fps": 25, **extra}
 
 
@@ -142,7 +134,7 @@ def test_a_failing_device_is_contained_and_credentials_stay_out(
 ) -> None:
     cameras = [
         {"name": "hostile", "driver": "opencv", "fps": 5,
-         "source": f"http://admin:{SECRET}@127.0.0.1:{hostile.port}/stream.mjpg"},
+         "source": f"http://admin:{SECRET}@127.0.0.1:{hostile.port}/stream.mjpg{QUERY}"},
         dead_camera(required=False),  # optional: the recording exits 0 without it
     ]  # fmt: skip
     cfg = write_config(tmp_path, scanner.url, cameras)
@@ -200,7 +192,9 @@ def test_a_failing_device_is_contained_and_credentials_stay_out(
     assert SECRET not in repr(metadata)
     assert not any(SECRET.encode() in data for data in messages)
     described = dict(metadata)["device.hostile"]["info"]
-    assert f"http://***@127.0.0.1:{hostile.port}/stream.mjpg" in described
+    at = f"http://***@127.0.0.1:{hostile.port}/stream.mjpg?cmd=GetMJStream&usr=admin&pwd=***"
+    assert at in described
+    assert "pwd=***" in dict(metadata)["config"]["yaml"]
 
 
 def test_a_required_device_without_a_record_stops_the_recorder(

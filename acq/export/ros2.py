@@ -303,9 +303,8 @@ def export_ros2(
                 elif name == "foxglove.LocationFix":
                     ros = build.nav_sat_fix(msg, clock.to_utc(build.stamp_ns(msg)))
                     put(topic, "sensor_msgs/msg/NavSatFix", ros, log_ns)
-            problem = reader.problem()
-            if problem:
-                report.notes.append(f"{path.name}: {problem}")
+            if reader.notes:  # a file not closed the reader itself names, with its span
+                report.notes.append(f"{path.name}: {'; '.join(reader.notes)}")
         odometry.until(2**63 - 1)  # what is after the last converted message
     except (WriterError, OSError) as e:
         raise AcqError(f"{bag_path}: cannot write the bag: {e}") from e

@@ -137,6 +137,7 @@ class LogReader:
         self.attachments = 0
         self.skipped: list[Skipped] = []  # the corrupt chunks skipped
         self._start_ns: int | None = None  # the file's first log time, for the warning
+        self._end_ns: int | None = None  # the last log time read, for the warning
         self._factory = DecoderFactory()  # per file: it caches message classes by schema id
         self._decoders: dict[int, Decoder | None] = {}  # by channel id; None: undecodable
         # messages not decoded, by topic, and why (the first failure's reason)
@@ -175,6 +176,7 @@ class LogReader:
         """Header, Schema, Channel, Message, Metadata and Attachment records in file order
         (a closed file's schemas, channels, metadata and attachments first, from its
         summary and index)."""
+        whole = False  # the pass reached the file's end: its span is known
         try:
             with self.path.open("rb") as f:
                 self.writing = writer_lock.locked(f)
@@ -186,8 +188,11 @@ class LogReader:
                     self.closed = summary is not None
                     f.seek(len(MAGIC))
                     yield from self._linear(f)
+            whole = True
         finally:  # also when the caller stops early: what was skipped until then
             self._report_skipped()
+            if whole:
+                self._report_cut()
             self._shown_to(self.size)
 
     def _shown_to(self, pos: int) -> None:
@@ -202,6 +207,26 @@ class LogReader:
         new = skipped_chunks.unreported(self.path, self.skipped)
         if new:
             log.warning("%s: %s", self.path, skipped_chunks.describe(new, self._start_ns))
+
+    def _report_cut(self) -> None:
+        """One WARNING line, once per process and file (unless :func:`quiet`), for a file
+        that is not closed: being written or cut, and the span of log time read."""
+        if self.closed or not skipped_chunks.unreported_cut(self.path):
+            return
+        if self.writing:
+            how = "is being written (its recorder is running)"
+        elif self.footer_at is not None:
+            how = f"was not closed (a footer at byte {self.footer_at} but {self.stop})"
+        else:
+            how = "was not closed (its writer stopped)"
+        start, end = self._start_ns, self._end_ns
+        if start is None or end is None:
+            log.warning("%s: %s: no message in the %d bytes read", self.path, how, self.bytes_read)
+            return
+        offset = self.time_base.utc_offset_ns  # log times as messages() gives them
+        first, last = (start - offset) * 1e-9, (end - offset) * 1e-9
+        log.warning("%s: %s: read up to %.1f s of it (log time %.3f..%.3f s)",
+                    self.path, how, last - first, first, last)  # fmt: skip
 
     def messages(self) -> Iterator[tuple[Schema | None, Channel, Message]]:
         """(schema, channel, message) of every readable message, in file order. When the
@@ -513,13 +538,16 @@ class LogReader:
                     self._start_ns = record.message_start_time
                 try:
                     yield from self._chunk_records(record)
+                    self._end_ns = max(self._end_ns or 0, record.message_end_time)
                 except RECORD_ERRORS as e:
                     self.notes.append(f"corrupt chunk at byte {pos} skipped ({e})")
                     lost = Skipped(pos, record.message_start_time, record.message_end_time)
                     self.skipped.append(lost)
             elif isinstance(record, Header | Schema | Channel | Message | Metadata | Attachment):
-                if isinstance(record, Message) and self._start_ns is None:
-                    self._start_ns = record.log_time
+                if isinstance(record, Message):
+                    if self._start_ns is None:
+                        self._start_ns = record.log_time
+                    self._end_ns = max(self._end_ns or 0, record.log_time)
                 if isinstance(record, Metadata):
                     self._take_time_base([record])
                 yield record

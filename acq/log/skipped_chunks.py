@@ -1,7 +1,8 @@
 """The corrupt chunks a pass over a log skipped (:class:`acq.log.reader.LogReader`), and
 the one warning line per file that names their times and the messages lost, said once per
 process (a command that reads a file several times says it once), and the same for the
-channels whose messages did not decode (:func:`unreported_topics`); :func:`quiet` leaves
+channels whose messages did not decode (:func:`unreported_topics`) and for a file that was
+not closed (:func:`unreported_cut`); :func:`quiet` leaves
 that to a caller that reports the damage itself (``acq info``)."""
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Skipped", "describe", "quiet", "unreported", "unreported_topics"]
+__all__ = ["Skipped", "describe", "quiet", "unreported", "unreported_cut", "unreported_topics"]
 
 
 @dataclass
@@ -29,6 +30,7 @@ class Skipped:
 
 _REPORTED: set[tuple[str, int]] = set()  # (file, chunk offset) already reported here
 _REPORTED_TOPICS: set[tuple[str, str]] = set()  # (file, topic) undecodable, reported here
+_REPORTED_CUT: set[str] = set()  # files not closed, reported here
 _REPORTED_LOCK = threading.Lock()
 _QUIET: contextvars.ContextVar[bool] = contextvars.ContextVar("acq_log_quiet", default=False)
 
@@ -65,6 +67,18 @@ def unreported_topics(path: Path, counts: dict[str, int]) -> dict[str, int]:
     with _REPORTED_LOCK:
         new = {t: n for t, n in counts.items() if n and (key, t) not in _REPORTED_TOPICS}
         _REPORTED_TOPICS.update((key, t) for t in new)
+    return new
+
+
+def unreported_cut(path: Path) -> bool:
+    """Whether this process has not yet said that ``path`` was not closed, now marked said;
+    False within :func:`quiet`."""
+    if _QUIET.get():
+        return False
+    key = str(path.resolve())
+    with _REPORTED_LOCK:
+        new = key not in _REPORTED_CUT
+        _REPORTED_CUT.add(key)
     return new
 
 

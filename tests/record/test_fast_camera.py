@@ -61,29 +61,33 @@ def test_a_flooding_camera_is_warned_about_counted_and_reported(
     assert "warning: camera recorded" in format_info(info(path))
 
 
-def test_the_rate_watch_waits_warns_with_a_backoff_and_forgets() -> None:
+def test_the_rate_watch_waits_warns_with_a_backoff_and_forgets(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     """Records counted at chosen host times (no device: the watch's arithmetic)."""
     state = DeviceState("camera", "camera", expected_hz=10.0)
-    warned: list[float] = []
     t_ns = 0
 
-    def run(seconds: float, hz: float, caplog_records: list[float]) -> None:
+    def run(seconds: float, hz: float) -> None:
         nonlocal t_ns
         end = t_ns + round(seconds * 1e9)
         while t_ns < end:
             t_ns += round(1e9 / hz)
             state.count(t_ns)
-            before = state._fast_warnings
             state.watch_rate(t_ns)
-            if state._fast_warnings > before:
-                caplog_records.append(t_ns * 1e-9)
 
-    run(10.0, 14.0, warned)  # 1.4 times: not too fast
-    assert warned == [] and state.fast_s == 0.0
-    start = t_ns * 1e-9
-    run(20.0, 100.0, warned)  # 10 times: warned after ~2 s, then 5 and 10 s later
-    assert [round(w - start) for w in warned] == [2, 7, 17]
-    assert state.fast_s == pytest.approx(20.0, abs=0.5)
-    run(5.0, 10.0, warned)  # back to its rate: the watch starts afresh
-    run(3.0, 100.0, warned)
-    assert len(warned) == 4
+    def fast_for_s() -> list[int]:  # "camera: 100 records/s for 2 s, ..."
+        return [int(w.split(" for ")[1].split()[0]) for w in _fast_warnings(caplog)]
+
+    with caplog.at_level(logging.WARNING):
+        run(10.0, 14.0)  # 1.4 times: not too fast
+        assert fast_for_s() == [] and state.fast_s == 0.0
+        run(20.0, 100.0)  # 10 times: warned after 2 s, then 5 and 10 s later
+        assert fast_for_s() == [2, 7, 17]
+        assert _fast_warnings(caplog)[0].startswith(
+            "camera: 100 records/s for 2 s, configured 10/s"
+        )
+        assert state.fast_s == pytest.approx(20.0, abs=0.5)
+        run(5.0, 10.0)  # back to its rate: the watch starts afresh
+        run(3.0, 100.0)
+        assert fast_for_s() == [2, 7, 17, 2]

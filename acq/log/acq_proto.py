@@ -83,6 +83,7 @@ _ACQ_MESSAGES: dict[str, list[_FieldSpec]] = {
         ("clock_uncertainty_s", 14, _F.TYPE_DOUBLE, _ONE, ""),
         ("epoch", 15, _F.TYPE_UINT32, _ONE, ""),
         ("odd_size", 16, _F.TYPE_UINT64, _ONE, ""),  # frames of an unexpected size (cameras)
+        ("fast_s", 17, _F.TYPE_DOUBLE, _ONE, ""),  # s over 1.5 x the configured fps (cameras)
     ],
     "Status": [
         ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),

@@ -446,6 +446,7 @@ class DeviceStatus:
     clock_uncertainty_s: float = math.nan
     epoch: int = 0
     odd_size: int = 0  # frames of another size than expected, recorded and flagged (cameras)
+    fast_s: float = 0.0  # time delivering over 1.5 times the configured rate (cameras)
 
 
 _DEVICE_STATUS_KEYS = frozenset(f.name for f in fields(DeviceStatus))

@@ -36,6 +36,7 @@ from acq.log.device_timing import (
     host_clock_lines,
     latency_line,
 )
+from acq.log.fast_devices import FastDevice, fast_cameras
 from acq.log.reader import LogReader, quiet
 from acq.log.silent_devices import DeviceRecords, SilentDevice, silent_devices, why_silent
 from acq.log.timebase import MONOTONIC, TimeBase
@@ -101,6 +102,8 @@ class LogInfo:
     ``writing``: a file of it was being written by a live recorder when read.
     ``silent``: the devices of the last ``/acq/status`` (every configured one) that
     recorded nothing, or stopped well before the end (:mod:`acq.log.silent_devices`).
+    ``fast``: the cameras that recorded far faster than configured
+    (:mod:`acq.log.fast_devices`).
     """
 
     path: Path
@@ -127,6 +130,7 @@ class LogInfo:
     host_clock: HostClockSummary | None = None
     writing: bool = False
     silent: list[SilentDevice] = field(default_factory=list)
+    fast: list[FastDevice] = field(default_factory=list)
 
 
 # --- summarising --------------------------------------------------------------------
@@ -333,6 +337,7 @@ def _result(
         gnss_stamping=gnss_stamping(acc.gnss, acc.clock, time_base),
         host_clock=summarise_host_clock(acc.host_clock) if acc.host_clock else None,
         silent=acc.silent(end),
+        fast=fast_cameras(((c.topic, c.rate_hz) for c in channels), acc.metadata),
     )
 
 
@@ -511,6 +516,7 @@ def _format_one(i: LogInfo) -> list[str]:
         counts = ", ".join(f"{name} {n}" for name, n in i.odd_size.items())
         lines.append(f"  warning: frames of an unexpected size (recorded, flagged): {counts}")
     lines.extend(f"  warning: {s.line()}" for s in i.silent)
+    lines.extend(f"  warning: {f.line()}" for f in i.fast)
     return lines
 
 

@@ -234,6 +234,7 @@ class CameraAdapter(DeviceAdapter[Frame, _FrameItem]):
     def __init__(self, cfg: CameraConfig, size: tuple[int, int] | None = None) -> None:
         super().__init__(cfg.name, cfg.driver)
         self.cfg = cfg
+        self.state.expected_hz = cfg.fps  # a camera far faster is a warning
         self.size = size
         self._size_from = "the calibration's camera model"
 

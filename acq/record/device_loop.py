@@ -20,7 +20,10 @@ one line (its traceback at debug level), counted as a disconnection in the statu
 device is closed and opened again after a backoff while the other devices record on.
 A device that delivers no record for :data:`SILENT_FIRST_S` (from the start, or since its
 last record) is a warning naming it and why (:meth:`DeviceState.watch`), repeated after
-5, 10, 20 s... up to every :data:`SILENT_CAP_S`.
+5, 10, 20 s... up to every :data:`SILENT_CAP_S`. A device with an expected rate
+(``DeviceState.expected_hz``: a camera's configured fps) that delivers more than
+:data:`FAST_FACTOR` times it for :data:`FAST_FIRST_S` is a warning too, with the same
+backoff, and the seconds it does are counted (``fast_s``).
 
 Device URLs may carry a password: event texts and descriptions go through
 :func:`acq.credentials.redact` before they are kept.
@@ -44,11 +47,13 @@ from typing import Any, ClassVar, Generic, TypeVar
 
 from acq.credentials import redact
 from acq.drivers.reconnect import FAULTS_FORGOTTEN_S, Backoff, LinkEvent, Relink, describe
+from acq.log.fast_devices import FAST_FACTOR
 from acq.log.silent_devices import why_silent
 from acq.log.writer import LogWriter
 from acq.time.clocksync import DeviceClock
 
 __all__ = [
+    "FAST_FIRST_S",
     "SILENT_CAP_S",
     "SILENT_FIRST_S",
     "DeviceAdapter",
@@ -67,6 +72,7 @@ P = TypeVar("P")  # what goes through the queue to the writer
 SILENT_FIRST_S = 4.0  # no record for this long: a warning (then after 5, 10, 20 s ...)
 SILENT_REPEAT_S = 5.0
 SILENT_CAP_S = 300.0  # the longest time between two warnings about one silence
+FAST_FIRST_S = 2.0  # too fast for this long: a warning (then after 5, 10, 20 s ...)
 
 
 @dataclass
@@ -92,6 +98,14 @@ class DeviceState:
     times: deque[int] = field(default_factory=lambda: deque(maxlen=256))  # recent recv ns
     odd_size: int = 0  # frames of another size than expected (recorded, flagged)
     faults: int = 0
+    expected_hz: float = 0.0  # the configured rate (a camera's fps); 0: not watched
+    fast_s: float = 0.0  # seconds spent above FAST_FACTOR * expected_hz
+    # the rate watch, on the writer's thread: too fast since (0: not), the next warning
+    _fast_from_ns: int = field(default=0, init=False, repr=False)
+    _fast_seen_ns: int = field(default=0, init=False, repr=False)
+    _next_fast_s: float = field(default=FAST_FIRST_S, init=False, repr=False)
+    _fast_warnings: int = field(default=0, init=False, repr=False)
+    _counts: deque[tuple[int, int]] = field(default_factory=deque, init=False, repr=False)
     # the silence watch, on the writer's thread: since when, the next warning, how many
     _silent_from_ns: int = field(default=0, init=False, repr=False)
     _next_warning_s: float = field(default=SILENT_FIRST_S, init=False, repr=False)
@@ -187,6 +201,44 @@ class DeviceState:
         after = "since the start" if not self.received else "since the last one"
         log.warning("%s: no record for %.0f s %s: %s", self.name, silent_s, after,
                     self.why_silent())  # fmt: skip
+
+    def watch_rate(self, now_ns: int) -> None:
+        """The rate watch (on the writer's thread): a warning when the device has been
+        delivering more than :data:`FAST_FACTOR` times ``expected_hz`` for
+        :data:`FAST_FIRST_S`, again after 5, 10, 20 s... (at most :data:`SILENT_CAP_S`
+        apart); the time it does so is added to ``fast_s``. The rate is the records
+        counted over the last 2 s (not :meth:`rate_hz`: a flood brings hundreds of
+        records in one read, sharing a receive time, more than ``times`` holds)."""
+        if self.expected_hz <= 0:
+            return
+        counts = self._counts
+        counts.append((now_ns, self.received))
+        while now_ns - counts[0][0] > 2_000_000_000:
+            counts.popleft()
+        span_ns = now_ns - counts[0][0]
+        if span_ns < 500_000_000:
+            return  # too short a look to call a rate
+        rate = (self.received - counts[0][1]) / (span_ns * 1e-9)
+        if rate <= FAST_FACTOR * self.expected_hz:
+            if self._fast_warnings:
+                log.info("%s: back to %.1f records/s (%g configured)", self.name, rate,
+                         self.expected_hz)  # fmt: skip
+            self._fast_from_ns = self._fast_warnings = 0
+            self._next_fast_s = FAST_FIRST_S
+            return
+        if not self._fast_from_ns:
+            self._fast_from_ns = self._fast_seen_ns = now_ns
+        self.fast_s += (now_ns - self._fast_seen_ns) * 1e-9
+        self._fast_seen_ns = now_ns
+        fast_for_s = (now_ns - self._fast_from_ns) * 1e-9
+        if fast_for_s < self._next_fast_s:
+            return
+        self._fast_warnings += 1
+        step = min(SILENT_REPEAT_S * 2 ** (self._fast_warnings - 1), SILENT_CAP_S)
+        self._next_fast_s = fast_for_s + step
+        log.warning("%s: %.0f records/s for %.0f s, configured %g/s (over %g times): a "
+                    "misconfigured or faulty device; recording every record",
+                    self.name, rate, fast_for_s, self.expected_hz, FAST_FACTOR)  # fmt: skip
 
     def bad_record(self, what: str, detail: str) -> None:
         """A record that does not decode, from a stream that goes on (a CAN bus, NMEA):

@@ -344,6 +344,7 @@ class Recorder:
                     dropped=d.dropped + d.source_drops,
                     corrupt=d.corrupt,
                     odd_size=d.odd_size,
+                    fast_s=d.fast_s,
                     disconnects=d.disconnects,
                     protocol_errors=d.protocol_errors,
                     gap_s=gap,
@@ -438,6 +439,7 @@ class Recorder:
             if drain_until is None:
                 for state in self.devices.values():
                     state.watch(now, self.started_ns)
+                    state.watch_rate(now)
             if now >= next_status:
                 next_status = now + round(STATUS_PERIOD_S * 1e9)
                 writer.sync()

@@ -1,15 +1,17 @@
 """Whether a file is an MCAP log at all (its magic), and :class:`LogError`, raised for
-one that is not: missing, unreadable, a folder, empty, cut inside the magic or not MCAP."""
+one that is not: missing, unreadable, a folder, empty, cut inside the magic or not MCAP;
+and what lies where a log's records stop (a zero-filled tail or garbage)."""
 
 from __future__ import annotations
 
 import os
 import stat
 from pathlib import Path
+from typing import IO
 
 from acq.errors import InputValueError
 
-__all__ = ["MAGIC", "LogError", "check_magic"]
+__all__ = ["MAGIC", "LogError", "check_magic", "zeros_or_garbage"]
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -50,3 +52,14 @@ def check_magic(path: Path) -> int:
     if head != MAGIC:
         raise LogError(path, None, f"not an MCAP file: bad magic {head!r}")
     return size
+
+
+def zeros_or_garbage(f: IO[bytes], pos: int, size: int) -> str:
+    """Why a log of ``size`` bytes holds no record at byte ``pos`` where one should start
+    (a record of opcode 0): a zero-filled tail to its end, as a power loss leaves, or a
+    record that is garbage."""
+    f.seek(pos)
+    while block := f.read(1 << 20):
+        if block.count(0) != len(block):
+            return f"invalid record (opcode 0x00) at byte {pos}"
+    return f"zero-filled tail from byte {pos}, {size - pos} bytes, as after a power loss"

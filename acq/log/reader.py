@@ -63,7 +63,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from acq import progress
 from acq.errors import InputValueError
 from acq.log import skipped_chunks, writer_lock
-from acq.log.mcap_magic import MAGIC, LogError, check_magic
+from acq.log.mcap_magic import MAGIC, LogError, check_magic, zeros_or_garbage
 from acq.log.mcap_records import (
     HEADER_BYTES,
     KNOWN_OPCODES,
@@ -213,20 +213,11 @@ class LogReader:
         that is not closed: being written or cut, and the span of log time read."""
         if self.closed or not skipped_chunks.unreported_cut(self.path):
             return
-        if self.writing:
-            how = "is being written (its recorder is running)"
-        elif self.footer_at is not None:
-            how = f"was not closed (a footer at byte {self.footer_at} but {self.stop})"
-        else:
-            how = "was not closed (its writer stopped)"
-        start, end = self._start_ns, self._end_ns
-        if start is None or end is None:
-            log.warning("%s: %s: no message in the %d bytes read", self.path, how, self.bytes_read)
-            return
-        offset = self.time_base.utc_offset_ns  # log times as messages() gives them
-        first, last = (start - offset) * 1e-9, (end - offset) * 1e-9
-        log.warning("%s: %s: read up to %.1f s of it (log time %.3f..%.3f s)",
-                    self.path, how, last - first, first, last)  # fmt: skip
+        how = skipped_chunks.describe_cut(
+            self.writing, self.footer_at, self.stop, self._start_ns, self._end_ns,
+            self.time_base.utc_offset_ns, self.bytes_read,
+        )  # fmt: skip
+        log.warning("%s: %s", self.path, how)
 
     def messages(self) -> Iterator[tuple[Schema | None, Channel, Message]]:
         """(schema, channel, message) of every readable message, in file order. When the
@@ -480,7 +471,7 @@ class LogReader:
                 return
             opcode, length = struct.unpack("<BQ", head)
             if opcode == 0:
-                self.stop = self._zeros_or_garbage(f, pos)
+                self.stop = zeros_or_garbage(f, pos, self.size)
                 return
             present = size - pos - HEADER_BYTES
             if length > present:
@@ -561,13 +552,6 @@ class LogReader:
                     self.time_base = TimeBase.of_acq_record(record.metadata)
                 except InputValueError as e:
                     raise InputValueError(f"{self.path}: {e}") from None
-
-    def _zeros_or_garbage(self, f: IO[bytes], pos: int) -> str:
-        f.seek(pos)
-        while block := f.read(1 << 20):
-            if block.count(0) != len(block):
-                return f"invalid record (opcode 0x00) at byte {pos}"
-        return f"zero-filled tail from byte {pos}, {self.size - pos} bytes, as after a power loss"
 
 
 def _schema_name(schema: Schema | None) -> str:

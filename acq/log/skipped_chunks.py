@@ -14,7 +14,15 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Skipped", "describe", "quiet", "unreported", "unreported_cut", "unreported_topics"]
+__all__ = [
+    "Skipped",
+    "describe",
+    "describe_cut",
+    "quiet",
+    "unreported",
+    "unreported_cut",
+    "unreported_topics",
+]
 
 
 @dataclass
@@ -102,3 +110,27 @@ def describe(skipped: list[Skipped], start_ns: int | None) -> str:
         text += f", {least}{sum(known)} messages lost"
     chunks = "chunk" if len(skipped) == 1 else "chunks"
     return f"{len(skipped)} corrupt {chunks} skipped ({text})"
+
+
+def describe_cut(
+    writing: bool,
+    footer_at: int | None,
+    stop: str | None,
+    start_ns: int | None,
+    end_ns: int | None,
+    utc_offset_ns: int,
+    bytes_read: int,
+) -> str:
+    """What a file that is not closed is and what of it was read: being written (its
+    recorder alive) or cut, and the span of log time (``start_ns``..``end_ns``, the file's
+    own log times less ``utc_offset_ns``: as the reader's messages give them)."""
+    if writing:
+        how = "is being written (its recorder is running)"
+    elif footer_at is not None:
+        how = f"was not closed (a footer at byte {footer_at} but {stop})"
+    else:
+        how = "was not closed (its writer stopped)"
+    if start_ns is None or end_ns is None:
+        return f"{how}: no message in the {bytes_read} bytes read"
+    first, last = (start_ns - utc_offset_ns) * 1e-9, (end_ns - utc_offset_ns) * 1e-9
+    return f"{how}: read up to {last - first:.1f} s of it (log time {first:.3f}..{last:.3f} s)"

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import secrets
 import shutil
 import sys
 from pathlib import Path
 
+from acq.atomic_write import temporary_beside
 from acq.cli import output_files
 from acq.cli.output_files import Output
 from acq.errors import InputError
@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     kept = _check_bag(args.logs, bag, args.force)
     # written in a folder beside (rosbags names its storage file after the bag's folder),
     # then put in place: a failure leaves the old bag as it was
-    work = bag.with_name(f".{bag.name}.{secrets.token_hex(4)}.tmp")
+    work = temporary_beside(bag, suffix="")
     try:
         work.mkdir()
         report = export_ros2(args.logs, work / bag.name)

@@ -21,11 +21,12 @@ Every command that reads logs resolves its LOG arguments here (:func:`sessions`,
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from mcap.records import Message, Metadata
@@ -141,7 +142,24 @@ def session_files(paths: Sequence[str | os.PathLike[str]], option: str = "LOG") 
 
 def _glance(path: Path) -> _Log:
     """A log's session, repair mark and first message, from the metadata at its start
-    (the writer puts it first; a closed file's from its index) and its first chunk."""
+    (the writer puts it first; a closed file's from its index) and its first chunk; read
+    once per process while the file keeps its size and time (the command line resolves a
+    command's logs, and the library it calls again)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return _read_glance(path)  # uncached: the reader names what is wrong with it
+    return replace(_cached_glance(path.absolute(), st.st_size, st.st_mtime_ns), path=path)
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_glance(path: Path, size: int, mtime_ns: int) -> _Log:
+    """:func:`_read_glance` of ``path`` as it is at ``size`` bytes and ``mtime_ns``."""
+    return _read_glance(path)
+
+
+def _read_glance(path: Path) -> _Log:
+    """:func:`_glance`, read from the file."""
     reader = LogReader(path, progress=False)
     metadata: dict[str, dict[str, str]] = {}
     first_ns = None

@@ -173,3 +173,19 @@ def test_a_camera_named_twice_is_refused_naming_it(
     assert sorted(tmp_path.iterdir()) == []
     with pytest.raises(CameraChoiceError, match="--camera right: named twice"):
         choose_cameras(["right", "right"], ["left", "right"], ["left", "right"], one=False)
+
+
+@pytest.mark.parametrize("command", ["analyze sensitivity", "calibrate validate"])
+def test_a_one_camera_command_refuses_a_second_camera(
+    two: tuple[DriveTruth, Path], tmp_path: Path, command: str,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    """argparse's ``store`` kept the last of two ``--camera`` silently: the work was done
+    for one camera when two were asked for."""
+    truth, calib = two
+    argv = _commands(list(map(str, truth.files)), calib, tmp_path)[command]
+    assert acq_main([*argv, "--camera", "left", "--camera", "right"]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"acq {command}: argument --camera: given twice (left, right): this "
+                   "command works on one camera; run it once for each\n"), err  # fmt: skip
+    assert sorted(tmp_path.iterdir()) == []

@@ -189,3 +189,15 @@ def test_a_one_camera_command_refuses_a_second_camera(
     assert err == (f"acq {command}: argument --camera: given twice (left, right): this "
                    "command works on one camera; run it once for each\n"), err  # fmt: skip
     assert sorted(tmp_path.iterdir()) == []
+
+
+def test_colorize_one_camera_of_two_does_not_call_the_other_missing(
+    two: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The right camera has frames; it was only not asked for."""
+    truth, calib = two
+    argv = _commands(list(map(str, truth.files)), calib, tmp_path)["colorize"]
+    assert acq_main([*argv, "--camera", "left", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert not any("right" in note for note in report["notes"]), report["notes"]
+    assert list(report["cameras"]) == ["left"]

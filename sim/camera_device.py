@@ -76,6 +76,9 @@ class SimCamera:
     4·jitter_s, or ``uniform`` on [0, 2·jitter_s]). The drive loops over the street.
     ``seed`` seeds the jitter and, unless ``street_seed`` is given, the street; the rig's
     first camera is the one filming (:meth:`acq.sim.world.Rig.only` picks another).
+    ``still``: every frame is the street's first view with its time written in a corner,
+    so a frame costs a JPEG encoding (about 1.5 ms) instead of a render (20-40 ms): for
+    tests of the link and its timing, whose camera must keep its rate on a busy machine.
     """
 
     def __init__(
@@ -96,6 +99,7 @@ class SimCamera:
         street_seed: int | None = None,
         t_origin: float | None = None,
         truth_limit: int = 1_000_000,
+        still: bool = False,
     ) -> None:
         if fps <= 0 or exposure_s < 0 or exposure_s > 1.0 / fps:
             raise ValueError(f"need fps > 0 and 0 <= exposure_s <= 1/fps, got {fps}, {exposure_s}")
@@ -124,7 +128,8 @@ class SimCamera:
         self._truth: dict[int, FrameTruth] = {}
         self._lock = threading.Lock()
         # Power-up: compile or load the ray caster now, not in the middle of a stream.
-        sensors.render_frame(self.street, self.trajectory, self.rig, 0.0)
+        first = sensors.render_frame(self.street, self.trajectory, self.rig, 0.0)
+        self._still = first if still else None
 
     @property
     def width(self) -> int:
@@ -151,6 +156,11 @@ class SimCamera:
 
     def _render_drive(self, t_drive: float) -> np.ndarray:
         """(H,W,3) uint8 BGR view ``t_drive`` s after the drive's start."""
+        if self._still is not None:
+            image = self._still.copy()
+            cv2.putText(image, f"{t_drive:.3f}", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0,
+                        (255, 255, 255), 2)  # fmt: skip
+            return image
         loop = max(self.street.length_m, 1.0) / self.trajectory.speed
         return sensors.render_frame(self.street, self.trajectory, self.rig, t_drive % loop)
 

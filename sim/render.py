@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from acq.atomic_write import write_text
 from acq.calib.plots import draw_legend
 from acq.camera import calibfile, projection
 from acq.camera.calibfile import Calibration, CameraCalib
@@ -194,5 +195,5 @@ def write(
         write_image(out / name, image)
     calibfile.save(result.calibration, out / "calib.yaml")
     summary = {"software": SOFTWARE} | asdict(result.stats)  # the mark first (provenance)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     return result.stats

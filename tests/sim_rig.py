@@ -1,7 +1,8 @@
 """A simulated rig for the recorder, replay and demo tests: a UTM-30LX speaking SCIP on
-TCP (in this process), the fisheye camera serving MJPEG over HTTP (in its own
-process) and, if asked, the car on a python-can ``virtual`` bus and a GNSS receiver on
-TCP (in this process), with a recorder configuration pointing at them."""
+TCP (in this process), the fisheye camera serving MJPEG over HTTP (in its own process, a
+still scene: it keeps its rate on a busy machine) and, if asked, the car on a python-can
+``virtual`` bus and a GNSS receiver on TCP (in this process), with a recorder
+configuration pointing at them."""
 
 from __future__ import annotations
 
@@ -31,7 +32,9 @@ class Rig:
     def __init__(self, cameras: tuple[str, ...] = ("camera",), vehicle: bool = False) -> None:
         self.scanner = ScipDevice(MODELS["utm-30lx"])
         self.scanner_server = TcpDeviceServer(self.scanner).start()
-        self.cameras = {name: MjpegServerProcess(seed=k) for k, name in enumerate(cameras)}
+        self.cameras = {
+            name: MjpegServerProcess(seed=k, still=True) for k, name in enumerate(cameras)
+        }
         self.camera = next(iter(self.cameras.values()), None)
         self.car: SimVehicle | None = None
         self.receiver: NmeaDevice | None = None

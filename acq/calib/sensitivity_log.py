@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from acq import json_text
+from acq.atomic_write import write_text
 from acq.calib.plots import sensitivity_figure, third_order_figure
 from acq.calib.sensitivity import (
     CAMERA,
@@ -159,8 +160,8 @@ def analyze_logs(
     for k, path in figs.items():
         write_image(path, images[k])
     mark = {"software": SOFTWARE}  # first: what acq.provenance looks for
-    (out / "sensitivity.json").write_text(
-        json_text.dumps(mark | report, what="sensitivity.json") + "\n"
+    write_text(
+        out / "sensitivity.json", json_text.dumps(mark | report, what="sensitivity.json") + "\n"
     )
     return report
 

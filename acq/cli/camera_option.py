@@ -12,6 +12,24 @@ import argparse
 __all__ = ["add_camera_option"]
 
 
+class _OneCamera(argparse.Action):
+    """``--camera`` of a command that works on one camera: a second one is refused
+    (argparse's ``store`` would keep the last silently)."""
+
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+        values: object, option_string: str | None = None,
+    ) -> None:  # fmt: skip
+        before = getattr(namespace, self.dest, None)
+        if before is not None:
+            raise argparse.ArgumentError(
+                self,
+                f"given twice ({before}, {values}): this command works on one "
+                "camera; run it once for each",
+            )
+        setattr(namespace, self.dest, values)
+
+
 def add_camera_option(
     parser: argparse.ArgumentParser,
     use: str,
@@ -34,7 +52,7 @@ def add_camera_option(
     parser.add_argument(
         "--camera",
         metavar="NAME",
-        action="append" if several else "store",
+        action="append" if several else _OneCamera,
         help=f"{use}, {named}{repeat} (default: "
         f"{default}); a name that is missing or wrong is refused with the names found",
     )

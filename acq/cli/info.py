@@ -7,6 +7,7 @@ from pathlib import Path
 
 from acq.cli import output_files
 from acq.cli.output_files import Output
+from acq.credentials import redact
 from acq.errors import InputError
 
 HELP = "channels, rates, gaps, drops and clock-sync quality of logs"
@@ -68,5 +69,6 @@ def run(args: argparse.Namespace) -> int:
     if len(sessions) > 1 and not args.json:
         listed = "; ".join(s.describe() for s in sessions)
         print(f"{len(sessions)} recording sessions, each summarised on its own: {listed}\n")
-    print(summary.format_info(infos, json=args.json))
+    # logs of older versions may hold a password in a device URL's query
+    print(redact(summary.format_info(infos, json=args.json)))
     return 0

@@ -43,7 +43,6 @@ __all__ = [
     "keep_backup",
     "keep_backups",
     "kind_of",
-    "write_text",
 ]
 
 RULE = (
@@ -236,12 +235,6 @@ def keep_backups(prog: str, outputs: Sequence[Output]) -> None:
     for out in outputs:
         bak = keep_backup(out.path)
         print(f"{prog}: kept the old {out.path} as {bak}", file=sys.stderr, flush=True)
-
-
-def write_text(path: Path, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`atomic`)."""
-    with atomic(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
 
 
 # a folder a command replaces whole (``export ros2 -o BAG``)

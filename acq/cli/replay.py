@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from acq import progress
+from acq.atomic_write import write_text
 from acq.cli import output_files
 from acq.cli.exposure import warn_if_exposed
 from acq.cli.option_types import real
@@ -90,7 +91,7 @@ def _calibration_beside(config: Path) -> Path:
 def _write(path: Path, text: str, backups: list[Output]) -> None:
     """Write ``path`` atomically, keeping the old file first when it is to be replaced."""
     output_files.keep_backups("acq replay", [o for o in backups if o.path == path])
-    output_files.write_text(path, text)
+    write_text(path, text)
 
 
 def _serve_with_a_bar(replay: Replay, stop: threading.Event) -> None:

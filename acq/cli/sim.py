@@ -8,6 +8,7 @@ import sys
 import threading
 from pathlib import Path
 
+from acq.atomic_write import write_text
 from acq.cli import output_files, sim_logs
 from acq.cli.camera_option import add_camera_option
 from acq.cli.exposure import warn_if_exposed
@@ -250,7 +251,7 @@ def run_rig(args: argparse.Namespace) -> int:
             print(f"  {name}: {url}", flush=True)
         calibfile.save(true_calibration(), calib_path)
         data = rig_config(rig, Path(calib_path.name), {"dir": "logs", "prefix": "rig"})
-        output_files.write_text(
+        write_text(
             config_path,
             "# `acq sim rig`'s devices, while it runs (it removes this file when it stops)\n"
             + yaml.safe_dump(data, sort_keys=False),

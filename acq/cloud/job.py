@@ -359,13 +359,14 @@ def _camera_calibs(
 ) -> list[tuple[str, CameraCalib]]:
     """(name in the log, calibration) of each camera to colour from: those ``names``,
     else every camera of both the log and ``calib``
-    (:func:`acq.camera.selection.choose_cameras`); a camera of ``calib`` left out for
-    want of frames is noted in ``report``."""
+    (:func:`acq.camera.selection.choose_cameras`); without ``names``, a camera of
+    ``calib`` left out for want of frames is noted in ``report``."""
     picked = choose_cameras(names, index.camera_names, list(calib.cameras), one=False,
                             calib=calib.label)  # fmt: skip
     used = {key for _, key in picked}
-    report.notes += [f"camera {n}: no frames in the log; not used" for n in calib.cameras
-                     if n not in used]  # fmt: skip
+    if not names:  # else the others were not asked for
+        report.notes += [f"camera {n}: no frames in the log; not used" for n in calib.cameras
+                         if n not in used]  # fmt: skip
     for name, key in picked:
         check_frame_size(index, name, calib.cameras[key])
     return [(name, calib.cameras[key]) for name, key in picked]

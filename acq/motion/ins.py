@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from acq.atomic_write import atomic
 from acq.errors import InputValueError
 from acq.geometry.geodesy import WorldFrame, ned_to_enu
 from acq.geometry.rotations import euler_from_matrices, matrices_from_euler
@@ -246,7 +247,7 @@ def to_csv(
     if not np.isfinite(utc).all():
         raise ValueError("host_to_utc gave non-finite UTC times (a log without clock pairs?)")
     roll, pitch, yaw = (np.degrees(a) for a in euler_from_matrices(R))
-    with Path(path).open("w", newline="") as f:
+    with atomic(Path(path)) as tmp, tmp.open("w", newline="") as f:
         f.write(f"# frame: {world.name}\n")
         if world.name != "odometry":
             f.write("# origin: " + ", ".join(repr(v) for v in world.origin) + "\n")

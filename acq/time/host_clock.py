@@ -7,6 +7,7 @@ PPS source (:mod:`acq.time.pps`), and the GNSS receiver's time against the host 
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from dataclasses import dataclass, replace
@@ -22,6 +23,8 @@ __all__ = [
 ]  # fmt: skip
 
 NO_GNSS = Absent("no GNSS receiver")
+
+log = logging.getLogger("acq.time.host_clock")
 
 
 @dataclass(frozen=True)
@@ -104,11 +107,22 @@ class HostClockPoller:
         self._stop.set()
 
     def _run(self) -> None:
+        failing = False
         while not self._stop.is_set():
             started = time.monotonic()
-            reading = read_host_clock(self.chrony_socket)
-            with self._lock:
-                self._latest = reading
+            try:
+                reading = read_host_clock(self.chrony_socket)
+            except Exception as e:  # an unforeseen failure must not end the time base
+                if not failing:
+                    log.warning("reading the host clock's sources failed (%s: %s); trying "
+                                "again every %g s", type(e).__name__, e, self.period_s)  # fmt: skip
+                failing = True
+            else:
+                if failing:
+                    log.warning("the host clock's sources are read again")
+                failing = False
+                with self._lock:
+                    self._latest = reading
             self._stop.wait(max(self.period_s - (time.monotonic() - started), 0.05))
 
     def take(self, gnss: GnssTime | Absent = NO_GNSS) -> HostClock | None:

@@ -173,3 +173,31 @@ def test_a_camera_named_twice_is_refused_naming_it(
     assert sorted(tmp_path.iterdir()) == []
     with pytest.raises(CameraChoiceError, match="--camera right: named twice"):
         choose_cameras(["right", "right"], ["left", "right"], ["left", "right"], one=False)
+
+
+@pytest.mark.parametrize("command", ["analyze sensitivity", "calibrate validate"])
+def test_a_one_camera_command_refuses_a_second_camera(
+    two: tuple[DriveTruth, Path], tmp_path: Path, command: str,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    """argparse's ``store`` kept the last of two ``--camera`` silently: the work was done
+    for one camera when two were asked for."""
+    truth, calib = two
+    argv = _commands(list(map(str, truth.files)), calib, tmp_path)[command]
+    assert acq_main([*argv, "--camera", "left", "--camera", "right"]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"acq {command}: argument --camera: given twice (left, right): this "
+                   "command works on one camera; run it once for each\n"), err  # fmt: skip
+    assert sorted(tmp_path.iterdir()) == []
+
+
+def test_colorize_one_camera_of_two_does_not_call_the_other_missing(
+    two: tuple[DriveTruth, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The right camera has frames; it was only not asked for."""
+    truth, calib = two
+    argv = _commands(list(map(str, truth.files)), calib, tmp_path)["colorize"]
+    assert acq_main([*argv, "--camera", "left", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert not any("right" in note for note in report["notes"]), report["notes"]
+    assert list(report["cameras"]) == ["left"]

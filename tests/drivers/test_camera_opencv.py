@@ -40,7 +40,9 @@ def street() -> Street:
 def server() -> Iterator[MjpegServerProcess]:
     """One simulated camera in its own process for the fault tests (its renderer would
     hold this process's GIL and delay the driver's receipt times)."""
-    with MjpegServerProcess(exposure_s=EXPOSURE, latency_s=LATENCY, jitter_s=JITTER, seed=4) as srv:
+    with MjpegServerProcess(
+        exposure_s=EXPOSURE, latency_s=LATENCY, jitter_s=JITTER, seed=4, still=True
+    ) as srv:
         yield srv
 
 
@@ -50,7 +52,9 @@ def _camera(url: str, timeout: float = 1.0) -> OpenCVCamera:
 
 def test_ten_seconds_at_25_hz_nothing_lost_bytes_exact() -> None:
     """The sim camera in its own process (its renderer holds the GIL), 10 s of frames."""
-    with MjpegServerProcess(exposure_s=EXPOSURE, latency_s=LATENCY, jitter_s=JITTER, seed=7) as srv:
+    with MjpegServerProcess(
+        exposure_s=EXPOSURE, latency_s=LATENCY, jitter_s=JITTER, seed=7, still=True
+    ) as srv:
         cam = camera_for("opencv", srv.url, fps=25.0, latency_s=EXPOSURE / 2 + LATENCY)
         info = cam.connect()
         cam.start()
@@ -220,7 +224,7 @@ def test_a_dropped_connection_streams_again_within_half_a_second() -> None:
     """The camera closes the connection (twice, 0.6 s apart, as a flaky link would):
     each time the first frame after comes within 0.5 s, the link not held off by a
     connection that streamed."""
-    with MjpegServerProcess(exposure_s=EXPOSURE, latency_s=LATENCY, seed=6) as srv:
+    with MjpegServerProcess(exposure_s=EXPOSURE, latency_s=LATENCY, seed=6, still=True) as srv:
         link = CameraLink(_camera(srv.url))
         frames, stop, reader = _frames_in_thread(link)
         backs = []

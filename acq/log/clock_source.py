@@ -46,6 +46,7 @@ class InferredClock:
 
     time_base: TimeBase
     how: str
+    acq_messages: bool = True  # found from acq's messages (else: the log has none)
 
     def describe(self) -> str:
         """``its times taken as ...``, for the warning line."""
@@ -97,8 +98,8 @@ def _cached(path: Path, size: int, mtime_ns: int) -> InferredClock:
     if approximate is not None:
         return _clock(*approximate)
     if first is not None and first >= _UTC_AFTER_NS:
-        return InferredClock(TimeBase(True, 0), "no acq.* message holds the host clock")
-    return InferredClock(MONOTONIC, "no acq.* message holds the host clock")
+        return InferredClock(TimeBase(True, 0), "no acq.* message holds the host clock", False)
+    return InferredClock(MONOTONIC, "no acq.* message holds the host clock", False)
 
 
 def _clock(offset: int, how: str) -> InferredClock:
@@ -108,8 +109,9 @@ def _clock(offset: int, how: str) -> InferredClock:
 class ClockSource:
     """The clock of one pass over the log at ``path``: ``time_base``, from its ``acq``
     record (:meth:`take`) or its messages; ``note``: why and what its metadata lacks,
-    when it came from its messages. ``raw``: the times as in the file, whatever its
-    metadata (for :func:`inferred_clock` itself)."""
+    when it came from its messages (a WARNING when the log is acq's: an ``acq`` record
+    or ``acq.*`` messages; a wholly foreign MCAP file is not warned of). ``raw``: the
+    times as in the file, whatever its metadata (for :func:`inferred_clock` itself)."""
 
     def __init__(self, path: Path, raw: bool = False) -> None:
         self.path = path
@@ -134,7 +136,7 @@ class ClockSource:
                 try:
                     self.time_base = TimeBase.of_acq_record(record.metadata)
                 except InputValueError as e:
-                    self._infer(f"{e}: ignored")
+                    self._infer(f"{e}: ignored", warn=True)
 
     def first_message(self, first_ns: int | None, metadata: Sequence[object]) -> None:
         """Messages come, the first at log time ``first_ns`` (as in the file; None:
@@ -148,7 +150,8 @@ class ClockSource:
         if first_ns is not None and self.time_base.utc and first_ns - offset < 0:
             self._infer(
                 f"metadata acq.utc_offset_ns: {offset} puts the first message (log time"
-                f" {first_ns}) before the host's boot: ignored"
+                f" {first_ns}) before the host's boot: ignored",
+                warn=True,
             )
         if self._named or self.raw:
             return
@@ -165,12 +168,13 @@ class ClockSource:
             + ", ".join(lacks)
         )
 
-    def _infer(self, why: str) -> None:
-        """The time base from the log's messages; ``why`` and it said once."""
+    def _infer(self, why: str, warn: bool = False) -> None:
+        """The time base from the log's messages; ``why`` and it said once (``warn``, or
+        when the log holds acq's messages)."""
         clock = inferred_clock(self.path)
         self.time_base = clock.time_base
         self.note = f"{why}; {clock.describe()}"
-        if skipped_chunks.unreported_note(self.path, "clock"):
+        if (warn or clock.acq_messages) and skipped_chunks.unreported_note(self.path, "clock"):
             log.warning("%s: %s", self.path, self.note)
 
 

@@ -81,6 +81,11 @@ def test_a_log_without_metadata_reads_on_its_clock_and_says_what_is_missing_once
     for missing in ("no acq record (clock", "scanner geometry", "no calibration record"):
         assert missing in line, line
     assert f"host monotonic + {original.utc_offset_ns / 1e9:.6f} s" in line, line
+    # cut short (read linearly, no index): the same, up to the cut
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(bare.read_bytes()[: bare.stat().st_size * 2 // 3])
+    read = _read(cut)
+    assert read and read == expected[: len(read)]
     # acq info: the same span and start in UTC as the log with its metadata
     assert info(bare).start_realtime_ns == info(src).start_realtime_ns is not None
     assert "no metadata records" in (info(bare).problem or "")

@@ -323,11 +323,15 @@ class LogReader:
                 self._why[channel.topic] = (schema.name, why)
                 return None
         try:
-            return self._factory.decoder_for(channel.message_encoding, schema)
+            decoder = self._factory.decoder_for(channel.message_encoding, schema)
         except Exception as e:  # a schema the file garbled: its messages counted, not decoded
             why = f"its schema: {type(e).__name__}: {e}"
             self._why[channel.topic] = (_schema_name(schema), why)
             return None
+        if decoder is None:  # another encoding (json, ros2msg...) under whatever name
+            why = f"its messages are {channel.message_encoding!r}, not acq's protobuf"
+            self._why[channel.topic] = (_schema_name(schema), why)
+        return decoder
 
     def _report_undecodable(self) -> None:
         """One WARNING per channel whose messages did not decode (this pass's count),

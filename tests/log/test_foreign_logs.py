@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from google.protobuf import descriptor_pb2
 from mcap.records import Schema
+from mcap.writer import Writer
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
@@ -214,6 +215,28 @@ def test_a_foreign_schema_under_acqs_name_is_not_read_as_acqs(
     reader = LogReader(older)
     decoded = [reader.decode(s, c, m) for s, c, m in reader.messages() if c.topic == topic]
     assert decoded and all(d is not None and len(d.ranges) > 100 for d in decoded)
+
+
+def test_a_channel_of_another_encoding_under_acqs_name_is_named(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = tmp_path / "json.mcap"
+    with path.open("wb") as f:
+        w = Writer(f)
+        w.start()
+        schema = w.register_schema("foxglove.LaserScan", "jsonschema", b'{"type": "object"}')
+        channel = w.register_channel("/laser/scan", "json", schema)
+        for t in range(3):
+            w.add_message(channel, log_time=t, data=b'{"ranges": [1.0]}', publish_time=t)
+        w.finish()
+    reader = LogReader(path)
+    with caplog.at_level(logging.WARNING):
+        assert [reader.decode(s, c, m) for s, c, m in reader.messages()] == [None] * 3
+    (line,) = _warnings(caplog, path)
+    assert line == (
+        f"{path}: /laser/scan (foxglove.LaserScan) cannot be decoded: its messages are 'json',"
+        " not acq's protobuf; 3 messages skipped"
+    )
 
 
 @pytest.mark.parametrize(

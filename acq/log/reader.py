@@ -113,7 +113,7 @@ class LogReader:
 
     A log whose ``acq`` record does not name its clock (none: a copy made without its
     metadata records; an unusable ``utc_offset_ns``) is read on the clock its messages
-    show (:mod:`acq.log.inferred_clock`), and one WARNING line per file and process says
+    show (:mod:`acq.log.clock_source`), and one WARNING line per file and process says
     so with what is missing (``clock_note``, also in :meth:`problem`). ``raw_times``:
     the times as in the file, whatever the metadata (for that inference).
     """
@@ -402,6 +402,8 @@ class LogReader:
             extras = []
             self.notes.append(f"unreadable metadata or attachments ({e})")
         self._clock.take(extras)
+        if self._start_ns is None and summary.chunk_indexes:
+            self._start_ns = min(i.message_start_time for i in summary.chunk_indexes)
         self._clock.first_message(self._start_ns, extras)
         yield from extras
         count = 0
@@ -413,8 +415,6 @@ class LogReader:
             for index in summary.chunk_indexes
             if index.message_end_time >= lo and index.message_start_time <= hi
         )
-        if self._start_ns is None and summary.chunk_indexes:
-            self._start_ns = min(i.message_start_time for i in summary.chunk_indexes)
         # each chunk read here, decompressed and parsed on a thread two chunks ahead of
         # the caller (the decompression and its CRC run without the GIL)
         with ThreadPoolExecutor(max_workers=1) as pool:

@@ -113,9 +113,8 @@ class LogReader:
 
     A log whose ``acq`` record does not name its clock (none: a copy made without its
     metadata records; an unusable ``utc_offset_ns``) is read on the clock its messages
-    show (:mod:`acq.log.clock_source`), and one WARNING line per file and process says
-    so with what is missing (``clock_note``, also in :meth:`problem`). ``raw_times``:
-    the times as in the file, whatever the metadata (for that inference).
+    show (:mod:`acq.log.clock_source`), said once with what is missing (also in
+    :meth:`problem`). ``raw_times``: the times as in the file, whatever the metadata.
     """
 
     def __init__(
@@ -155,11 +154,6 @@ class LogReader:
         """The log's clock (:mod:`acq.log.clock_source`)."""
         return self._clock.time_base
 
-    @property
-    def clock_note(self) -> str | None:
-        """Why the clock was taken from the messages and what the metadata lacks, or None."""
-        return self._clock.note
-
     def problem(self) -> str | None:
         """One line: what is wrong with the file, or None."""
         parts = []
@@ -186,8 +180,8 @@ class LogReader:
                 f" ({self.stop or 'no footer'}); read everything before it"
             )
         parts.extend(self.notes)
-        if self.clock_note:
-            parts.append(self.clock_note)
+        if self._clock.note:
+            parts.append(self._clock.note)
         return "; ".join(parts) or None
 
     def records(self) -> Generator[McapRecord, None, None]:
@@ -337,7 +331,7 @@ class LogReader:
         """One WARNING per channel whose messages did not decode (this pass's count),
         once per process and file (unless :func:`quiet`)."""
         for topic, n in skipped_chunks.unreported_topics(self.path, self.undecodable).items():
-            name, why = self._why.get(topic, ("?", "unknown"))  # as why_undecodable
+            name, why = self._why.get(topic, ("?", "unknown"))
             log.warning("%s: %s (%s) cannot be decoded: %s; %d messages skipped",
                         self.path, topic, name, why, n)  # fmt: skip
 

@@ -1,15 +1,19 @@
 """Copies of recorded logs for the tests, rewritten with acq.log.writer: camera frames
-replaced (a camera that sends another size), smaller chunks, one chunk's bytes flipped."""
+replaced (a camera that sends another size), smaller chunks, one chunk's bytes flipped;
+or copied record by record with mcap's writer (:func:`mcap_copy`): payloads, schemas or
+metadata records changed, as other tools write them."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-from mcap.reader import SeekingReader
+from mcap.reader import SeekingReader, make_reader
+from mcap.records import Schema
+from mcap.writer import Writer
 
 from acq.log import schemas
 from acq.log.reader import LogReader, read_metadata
@@ -93,3 +97,43 @@ def corrupt_chunk(path: Path, which: int) -> tuple[int, int, int]:
     path.write_bytes(bytes(data))
     to_host = TimeBase.of_metadata(read_metadata(path)).to_host
     return to_host(c.message_start_time), to_host(c.message_end_time), len(chunks)
+
+
+def mcap_copy(
+    src: Path,
+    dst: Path,
+    payload: Callable[[str, bytes], bytes] = lambda _t, d: d,
+    schema_data: Callable[[Schema], bytes] = lambda s: s.data,
+    metadata: Callable[[str, dict[str, str]], dict[str, str] | None] = lambda _n, m: m,
+) -> dict[str, int]:
+    """``src`` copied to ``dst`` with mcap's writer (metadata, schemas, channels, messages),
+    payloads, schemas and metadata records through the given functions (``metadata``
+    gives None: the record left out, as ``mcap filter`` does without
+    ``--include-metadata``); the messages per topic."""
+    counts: dict[str, int] = {}
+    with src.open("rb") as f, dst.open("wb") as g:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        w = Writer(g)
+        w.start()
+        for m in reader.iter_metadata():
+            kept = metadata(m.name, dict(m.metadata))
+            if kept is not None:
+                w.add_metadata(m.name, kept)
+        schema_ids = {
+            s.id: w.register_schema(s.name, s.encoding, schema_data(s))
+            for s in summary.schemas.values()
+        }
+        channel_ids = {
+            c.id: w.register_channel(
+                c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), c.metadata
+            )
+            for c in summary.channels.values()
+        }
+        for _s, channel, m in reader.iter_messages(log_time_order=False):
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            data = payload(channel.topic, m.data)
+            w.add_message(channel_ids[channel.id], m.log_time, data, m.publish_time, m.sequence)
+        w.finish()
+    return counts

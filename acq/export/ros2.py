@@ -37,7 +37,7 @@ from acq.errors import AcqError, InputValueError
 from acq.export.log_clock import LogClock
 from acq.export.ros_messages import BASE_LINK, ODOM, Messages, ScanGeometry
 from acq.log.reader import LogReader, read_metadata
-from acq.log.timebase import TimeBase
+from acq.log.timebase import MONOTONIC
 from acq.log.vehicle_log import ODOMETRY_TOPIC, VehicleReader
 from acq.motion.odometry import dead_reckon
 from acq.provenance import SOFTWARE
@@ -138,9 +138,11 @@ def _first_pass(files: Sequence[Path]) -> _Session:
             return topic
         return topic if topic in (_CLOCK_TOPIC, ODOMETRY_TOPIC) else None
 
+    time_base = MONOTONIC
     for path in files:
         metadata.update(read_metadata(path))
-        for topic, _channel, _message, msg in LogReader(path).decoded(wanted):
+        reader = LogReader(path)
+        for topic, _channel, _message, msg in reader.decoded(wanted):
             if topic == _CLOCK_TOPIC:
                 if msg is not None:
                     pairs.append((int(msg.monotonic_ns), int(msg.realtime_ns)))
@@ -149,7 +151,8 @@ def _first_pass(files: Sequence[Path]) -> _Session:
                     calibrations.setdefault(_camera(topic, "/calibration"), msg)
             else:
                 vehicle.add(topic, msg)
-    clock = LogClock(TimeBase.of_metadata(metadata), np.array(pairs, np.int64).reshape(-1, 2))
+        time_base = reader.time_base  # named by its metadata, else by its messages
+    clock = LogClock(time_base, np.array(pairs, np.int64).reshape(-1, 2))
     missing = [c for c in cameras if c not in calibrations]
     calibrations.update(_recorded_calibrations(metadata, missing) if missing else {})
     return _Session(metadata, clock, vehicle, sorted(cameras), calibrations)

@@ -178,15 +178,17 @@ def _pick(found: Iterable[str], name: str | None, what: str, topic: str) -> str:
     return names[0]
 
 
-def _no_scans_because(undecodable: dict[str, int]) -> None:
+def _no_scans_because(undecodable: dict[str, int], why: dict[str, str]) -> None:
     """No scan decoded: InputValueError naming the scan topics whose messages did not
-    decode (``undecodable``: topic -> messages), if any."""
+    decode (``undecodable``: topic -> messages), if any, and why (``why``: topic ->
+    ``FILE: reason``, the first file's)."""
     lost = {t: n for t, n in undecodable.items() if t.endswith("/scan")}
     if lost:
-        counts = ", ".join(f"{n} {t}" for t, n in sorted(lost.items()))
-        raise InputValueError(
-            f"no laser scan in the log decodes ({counts} messages cannot be decoded)"
+        counts = "; ".join(
+            f"{n} {t} messages cannot be decoded" + (f": {why[t]}" if t in why else "")
+            for t, n in sorted(lost.items())
         )
+        raise InputValueError(f"no laser scan in the log decodes ({counts})")
 
 
 @dataclass(frozen=True)
@@ -254,6 +256,7 @@ def read_log(
     clock: list[tuple[int, int]] = []
     bad = 0
     undecodable: dict[str, int] = {}  # by topic, every file's
+    undecodable_why: dict[str, str] = {}  # by topic: "FILE: reason", the first file's
     vehicle_reader = VehicleReader() if vehicle else None
     vehicle_topics = VehicleReader.TOPICS if vehicle else ()
     span = None if start_ns is None and end_ns is None else (lo, hi)
@@ -311,8 +314,9 @@ def read_log(
                 bad += 1
         for topic, n in reader.undecodable.items():
             undecodable[topic] = undecodable.get(topic, 0) + n
+            undecodable_why.setdefault(topic, f"{path}: {reader.why_undecodable(topic)}")
     if not scans:
-        _no_scans_because(undecodable)
+        _no_scans_because(undecodable, undecodable_why)
     laser = _pick(scans, laser, "laser scanner", "/scan")
     found = tuple(sorted(n for n, f in frames.items() if f))
     if calib is not None:

@@ -7,8 +7,8 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from acq.log.reader import LogError, LogReader, read_metadata
-from acq.log.timebase import TimeBase
+from acq.log.clock_source import time_base_of
+from acq.log.reader import LogError, LogReader
 
 __all__ = ["first_log_time", "locate"]
 
@@ -21,7 +21,7 @@ def first_log_time(path: str | os.PathLike[str]) -> int | None:
     with reader.path.open("rb") as f:
         summary = reader._closed_summary(f)
     if reader._start_ns is not None and summary is not None:
-        return TimeBase.of_metadata(read_metadata(path)).to_host(reader._start_ns)
+        return time_base_of(path).to_host(reader._start_ns)
     for _, _, message in reader.messages():  # the pass ends here, its file closed
         return message.log_time
     return None

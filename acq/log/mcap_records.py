@@ -6,23 +6,27 @@ from __future__ import annotations
 
 import struct
 import zlib
+from typing import IO
 
 import zstandard
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import Chunk, McapRecord, Message
-from mcap.stream_reader import CRCValidationError
+from mcap.records import Chunk, ChunkIndex, McapRecord, Message
+from mcap.stream_reader import CRCValidationError, breakup_chunk
 
 __all__ = [
     "HEADER_BYTES",
     "KNOWN_OPCODES",
     "RECORD_ERRORS",
     "chunk_messages",
+    "chunk_records",
     "index_messages",
+    "indexed_messages",
     "record_name",
 ]
 
 HEADER_BYTES = 9  # opcode (1) + record length (8), bytes
+_MAX_CHUNK_BYTES = 4 * 2**30  # a larger uncompressed size in a chunk header is garbage
 KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
 
 # What mcap's record parsers raise on a cut or garbled record or chunk, and nothing else:
@@ -78,6 +82,27 @@ RECORD_ERRORS: tuple[type[BaseException], ...] = (
     UnicodeDecodeError,
     zstandard.ZstdError,
 )
+
+
+def chunk_records(chunk: Chunk, messages_only: bool = False) -> list[McapRecord]:
+    """A chunk's records; ``messages_only`` (a closed file, whose summary holds the
+    schemas and channels): only its messages, by the faster parser."""
+    if chunk.uncompressed_size > _MAX_CHUNK_BYTES:
+        raise McapError(f"implausible uncompressed size {chunk.uncompressed_size}")
+    if messages_only and chunk.compression in ("zstd", ""):
+        return chunk_messages(chunk)
+    return breakup_chunk(chunk, validate_crc=True)
+
+
+def indexed_messages(f: IO[bytes], index: ChunkIndex) -> int | None:
+    """How many messages a chunk held, from its message index records (None: none)."""
+    if not index.message_index_length:
+        return None
+    try:
+        f.seek(index.chunk_start_offset + index.chunk_length)
+        return index_messages(f.read(index.message_index_length))
+    except (OSError, struct.error):
+        return None
 
 
 def index_messages(data: bytes) -> int:

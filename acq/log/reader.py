@@ -47,7 +47,6 @@ from mcap.records import (
     Attachment,
     Channel,
     Chunk,
-    ChunkIndex,
     Footer,
     Header,
     McapRecord,
@@ -56,26 +55,27 @@ from mcap.records import (
     Metadata,
     Schema,
 )
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 from mcap_protobuf.decoder import DecoderFactory
 
 from acq import progress
-from acq.errors import InputValueError
 from acq.log import skipped_chunks, writer_lock
+from acq.log.clock_source import ClockSource
 from acq.log.mcap_magic import MAGIC, LogError, check_magic, zeros_or_garbage
 from acq.log.mcap_records import (
     HEADER_BYTES,
     KNOWN_OPCODES,
     RECORD_ERRORS,
-    chunk_messages,
-    index_messages,
+    chunk_records,
+    indexed_messages,
     record_name,
 )
 from acq.log.rosbag_source import acq_records, is_bag, laser_channels
+from acq.log.schema_match import mismatch
 from acq.log.skipped_chunks import Skipped, quiet
 from acq.log.stamp_shift import shift_stamps
-from acq.log.timebase import MONOTONIC, TimeBase
+from acq.log.timebase import TimeBase
 
 __all__ = [
     "LogError",
@@ -88,7 +88,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 _FOOTER = HEADER_BYTES + 8 + 8 + 4  # a whole Footer record, bytes
-_MAX_CHUNK_BYTES = 4 * 2**30  # a larger uncompressed size in a chunk header is garbage
 _NO_SUMMARY = "no summary section"
 
 
@@ -111,6 +110,11 @@ class LogReader:
     reading has passed it (the writer puts it first). ``writing``: its writer was alive
     when the pass began (:mod:`acq.log.writer_lock`). ``progress``: the bytes read move a
     progress bar (:mod:`acq.progress`); False for a glance at a file's start.
+
+    A log whose ``acq`` record does not name its clock (none: a copy made without its
+    metadata records; an unusable ``utc_offset_ns``) is read on the clock its messages
+    show (:mod:`acq.log.clock_source`), said once with what is missing (also in
+    :meth:`problem`). ``raw_times``: the times as in the file, whatever the metadata.
     """
 
     def __init__(
@@ -119,6 +123,7 @@ class LogReader:
         log_time: tuple[int, int] | None = None,
         *,
         progress: bool = True,
+        raw_times: bool = False,
     ) -> None:
         self.path = Path(path)
         self.log_time = log_time
@@ -133,7 +138,7 @@ class LogReader:
         self.expected_messages: int | None = None  # from the summary's statistics
         self.footer_at: int | None = None  # a footer the linear pass reached, byte offset
         self.metadata: list[Metadata] = []
-        self.time_base: TimeBase = MONOTONIC
+        self._clock = ClockSource(self.path, raw_times)
         self.attachments = 0
         self.skipped: list[Skipped] = []  # the corrupt chunks skipped
         self._start_ns: int | None = None  # the file's first log time, for the warning
@@ -143,6 +148,11 @@ class LogReader:
         # messages not decoded, by topic, and why (the first failure's reason)
         self.undecodable: dict[str, int] = {}
         self._why: dict[str, tuple[str, str]] = {}  # topic -> (schema name, reason)
+
+    @property
+    def time_base(self) -> TimeBase:
+        """The log's clock (:mod:`acq.log.clock_source`)."""
+        return self._clock.time_base
 
     def problem(self) -> str | None:
         """One line: what is wrong with the file, or None."""
@@ -170,6 +180,8 @@ class LogReader:
                 f" ({self.stop or 'no footer'}); read everything before it"
             )
         parts.extend(self.notes)
+        if self._clock.note:
+            parts.append(self._clock.note)
         return "; ".join(parts) or None
 
     def records(self) -> Generator[McapRecord, None, None]:
@@ -219,7 +231,7 @@ class LogReader:
         )  # fmt: skip
         log.warning("%s: %s", self.path, how)
 
-    def messages(self) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    def messages(self) -> Generator[tuple[Schema | None, Channel, Message], None, None]:
         """(schema, channel, message) of every readable message, in file order. When the
         pass ends, one WARNING per channel whose messages did not decode (:meth:`decode`),
         with their count."""
@@ -293,13 +305,27 @@ class LogReader:
             if value is not None:
                 yield value, channel, message, self.decode(schema, channel, message)
 
+    def why_undecodable(self, topic: str) -> str:
+        """Why the messages of ``topic`` did not decode (the first failure's reason)."""
+        return self._why.get(topic, ("?", "unknown"))[1]
+
     def _decoder_for(self, schema: Schema | None, channel: Channel) -> Decoder | None:
+        if schema is not None and channel.message_encoding == "protobuf":
+            foreign = mismatch(schema.name, schema.encoding, schema.data)
+            if foreign is not None:  # decoded, its fields would all read as unset
+                why = f"its schema is not acq's {schema.name} ({foreign})"
+                self._why[channel.topic] = (schema.name, why)
+                return None
         try:
-            return self._factory.decoder_for(channel.message_encoding, schema)
+            decoder = self._factory.decoder_for(channel.message_encoding, schema)
         except Exception as e:  # a schema the file garbled: its messages counted, not decoded
             why = f"its schema: {type(e).__name__}: {e}"
             self._why[channel.topic] = (_schema_name(schema), why)
             return None
+        if decoder is None:  # another encoding (json, ros2msg...) under whatever name
+            why = f"its messages are {channel.message_encoding!r}, not acq's protobuf"
+            self._why[channel.topic] = (_schema_name(schema), why)
+        return decoder
 
     def _report_undecodable(self) -> None:
         """One WARNING per channel whose messages did not decode (this pass's count),
@@ -360,6 +386,7 @@ class LogReader:
         f.seek(0)
         reader = SeekingReader(f, validate_crcs=True)
         header = reader.get_header()
+        self._clock.header(header)
         yield header
         yield from summary.schemas.values()
         yield from summary.channels.values()
@@ -368,7 +395,10 @@ class LogReader:
         except RECORD_ERRORS as e:
             extras = []
             self.notes.append(f"unreadable metadata or attachments ({e})")
-        self._take_time_base(extras)
+        self._clock.take(extras)
+        if self._start_ns is None and summary.chunk_indexes:
+            self._start_ns = min(i.message_start_time for i in summary.chunk_indexes)
+        self._clock.first_message(self._start_ns, extras)
         yield from extras
         count = 0
         lo, hi = self.log_time or (-(2**63), 2**64)
@@ -379,8 +409,6 @@ class LogReader:
             for index in summary.chunk_indexes
             if index.message_end_time >= lo and index.message_start_time <= hi
         )
-        if self._start_ns is None and summary.chunk_indexes:
-            self._start_ns = min(i.message_start_time for i in summary.chunk_indexes)
         # each chunk read here, decompressed and parsed on a thread two chunks ahead of
         # the caller (the decompression and its CRC run without the GIL)
         with ThreadPoolExecutor(max_workers=1) as pool:
@@ -391,7 +419,7 @@ class LogReader:
                     record = next(StreamReader(f, skip_magic=True, emit_chunks=True).records)
                     if not isinstance(record, Chunk):
                         raise McapError(f"expected a chunk, found {type(record).__name__}")
-                    return pool.submit(self._chunk_records, record, True)
+                    return pool.submit(chunk_records, record, True)
                 except RECORD_ERRORS as e:
                     failed: Future[list[McapRecord]] = Future()
                     failed.set_exception(e)
@@ -412,7 +440,7 @@ class LogReader:
                             at,
                             index.message_start_time,
                             index.message_end_time,
-                            self._indexed_messages(f, index),
+                            indexed_messages(f, index),
                         )
                     )
                     continue
@@ -428,27 +456,6 @@ class LogReader:
             self.notes.append(
                 f"the summary counts {self.expected_messages} messages, the chunks hold {count}"
             )
-
-    @staticmethod
-    def _indexed_messages(f: IO[bytes], index: ChunkIndex) -> int | None:
-        """How many messages a chunk held, from its message index records (None: none)."""
-        if not index.message_index_length:
-            return None
-        try:
-            f.seek(index.chunk_start_offset + index.chunk_length)
-            return index_messages(f.read(index.message_index_length))
-        except (OSError, struct.error):
-            return None
-
-    @staticmethod
-    def _chunk_records(chunk: Chunk, messages_only: bool = False) -> list[McapRecord]:
-        """A chunk's records; ``messages_only`` (a closed file, whose summary holds the
-        schemas and channels): only its messages, by the faster parser."""
-        if chunk.uncompressed_size > _MAX_CHUNK_BYTES:
-            raise McapError(f"implausible uncompressed size {chunk.uncompressed_size}")
-        if messages_only and chunk.compression in ("zstd", ""):
-            return chunk_messages(chunk)
-        return breakup_chunk(chunk, validate_crc=True)
 
     # -- anything else: a linear scan that stops at the cut ---------------------------
 
@@ -524,11 +531,16 @@ class LogReader:
                     lost.messages = (lost.messages or 0) + len(record.records)
             else:
                 lost = None
+            if isinstance(record, Header):
+                self._clock.header(record)
+            elif isinstance(record, Chunk | Message):
+                first = record.message_start_time if isinstance(record, Chunk) else record.log_time
+                self._clock.first_message(first, self.metadata)
             if isinstance(record, Chunk):
                 if self._start_ns is None:
                     self._start_ns = record.message_start_time
                 try:
-                    yield from self._chunk_records(record)
+                    yield from chunk_records(record)
                     self._end_ns = max(self._end_ns or 0, record.message_end_time)
                 except RECORD_ERRORS as e:
                     self.notes.append(f"corrupt chunk at byte {pos} skipped ({e})")
@@ -540,18 +552,9 @@ class LogReader:
                         self._start_ns = record.log_time
                     self._end_ns = max(self._end_ns or 0, record.log_time)
                 if isinstance(record, Metadata):
-                    self._take_time_base([record])
+                    self._clock.take([record])
                 yield record
             pos += HEADER_BYTES + length
-
-    def _take_time_base(self, records: list[McapRecord]) -> None:
-        """The log's time base from its ``acq`` metadata record, if among ``records``."""
-        for record in records:
-            if isinstance(record, Metadata) and record.name == "acq":
-                try:
-                    self.time_base = TimeBase.of_acq_record(record.metadata)
-                except InputValueError as e:
-                    raise InputValueError(f"{self.path}: {e}") from None
 
 
 def _schema_name(schema: Schema | None) -> str:

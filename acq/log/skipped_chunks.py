@@ -21,6 +21,7 @@ __all__ = [
     "quiet",
     "unreported",
     "unreported_cut",
+    "unreported_note",
     "unreported_topics",
 ]
 
@@ -39,6 +40,7 @@ class Skipped:
 _REPORTED: set[tuple[str, int]] = set()  # (file, chunk offset) already reported here
 _REPORTED_TOPICS: set[tuple[str, str]] = set()  # (file, topic) undecodable, reported here
 _REPORTED_CUT: set[str] = set()  # files not closed, reported here
+_REPORTED_NOTES: set[tuple[str, str]] = set()  # (file, kind of note) said here
 _REPORTED_LOCK = threading.Lock()
 _QUIET: contextvars.ContextVar[bool] = contextvars.ContextVar("acq_log_quiet", default=False)
 
@@ -87,6 +89,18 @@ def unreported_cut(path: Path) -> bool:
     with _REPORTED_LOCK:
         new = key not in _REPORTED_CUT
         _REPORTED_CUT.add(key)
+    return new
+
+
+def unreported_note(path: Path, kind: str) -> bool:
+    """Whether this process has not yet said the note ``kind`` (e.g. ``"clock"``) about
+    ``path``, now marked said; False within :func:`quiet`."""
+    if _QUIET.get():
+        return False
+    key = (str(path.resolve()), kind)
+    with _REPORTED_LOCK:
+        new = key not in _REPORTED_NOTES
+        _REPORTED_NOTES.add(key)
     return new
 
 

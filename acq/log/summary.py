@@ -299,12 +299,12 @@ def _result(
     bytes_read: int,
     bytes_total: int,
     problem: str | None,
+    time_base: TimeBase,
 ) -> LogInfo:
     channels = acc.channels()
     devices, drops, disconnects = acc.devices()
     start = min((c.first_ns for c in channels), default=None)
     end = max((c.last_ns for c in channels), default=None)
-    time_base = TimeBase.of_metadata(acc.metadata)
     if start is None:
         start_utc = None
     elif time_base.utc:
@@ -380,6 +380,7 @@ def info_many(paths: Iterable[str | os.PathLike[str]]) -> list[LogInfo]:
             reader.bytes_read,
             reader.size,
             reader.problem(),
+            reader.time_base,
         )
         out.append(dataclasses.replace(one, writing=reader.writing))
     if len(out) > 1:
@@ -393,6 +394,7 @@ def info_many(paths: Iterable[str | os.PathLike[str]]) -> list[LogInfo]:
                 sum(i.bytes_read for i in out),
                 sum(i.bytes_total for i in out),
                 " | ".join(problems) or None,
+                readers[-1].time_base,
             )
         )
         out[-1] = dataclasses.replace(out[-1], writing=any(i.writing for i in out[:-1]))

@@ -62,7 +62,7 @@ class TimeBase:
     def of_metadata(cls, metadata: Mapping[str, Mapping[str, str]]) -> TimeBase:
         """The time base a log's metadata (name -> map) names; host monotonic when its
         ``acq`` record has no ``utc_offset_ns``. Raises InputValueError for one that is not
-        an integer."""
+        an integer within int64 (MCAP's times are 64-bit)."""
         return cls.of_acq_record(metadata.get("acq", {}))
 
     @classmethod
@@ -72,11 +72,15 @@ class TimeBase:
         if text is None:
             return MONOTONIC
         try:
-            return cls(True, int(text))
+            offset = int(text)
         except ValueError:
+            offset = None
+        if offset is None or not -(2**63) <= offset < 2**63:
+            shown = text if len(text) <= 40 else f"{text[:40]}..."
             raise InputValueError(
-                f"metadata acq.utc_offset_ns: {text!r} is not an integer (ns)"
-            ) from None
+                f"metadata acq.utc_offset_ns: {shown!r} is not an integer within int64 (ns)"
+            )
+        return cls(True, offset)
 
     def to_log(self, host_ns: int) -> int:
         """The log's time (ns) of host monotonic ``host_ns``."""

@@ -118,7 +118,9 @@ def _acq_classes(*, old: bool = False) -> dict[str, Any]:
                 msg.field.add(name=fname, number=number, type=ftype, label=_F.LABEL_OPTIONAL)
         return msg
 
-    add("Timing", _TIMING)
+    timing = add("Timing", _TIMING)
+    ticks = next(f for f in timing.field if f.name == "device_ticks")
+    ticks.label = _F.LABEL_REPEATED  # as acq's always was: a schema that differs is foreign
     add("Clock", [("realtime_ns", _F.TYPE_INT64), ("monotonic_ns", _F.TYPE_INT64)])
     add("DeviceStatus", _DEVICE)
     status = add("Status", _STATUS)
@@ -347,16 +349,16 @@ def test_closed_file_exact_counts_rates_gaps(rig: Built) -> None:
 def test_a_time_span_reads_only_the_chunks_that_hold_it(
     rig: Built, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import acq.log.reader
+    import acq.log.mcap_records
 
     parsed: list[int] = []
-    real = acq.log.reader.chunk_messages
+    real = acq.log.mcap_records.chunk_messages
 
     def counted(chunk: Any) -> Any:
         parsed.append(chunk.message_start_time)
         return real(chunk)
 
-    monkeypatch.setattr(acq.log.reader, "chunk_messages", counted)
+    monkeypatch.setattr(acq.log.mcap_records, "chunk_messages", counted)
     span = (T0 + 3 * S + S // 2, T0 + 4 * S + S // 2)  # in chunks 3 and 4 only
     got = [(c.topic, m.log_time, m.data) for _, c, m in read_messages(rig.path, span)]
     first = sum(rig.chunk_sizes[:3])

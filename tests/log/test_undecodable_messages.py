@@ -7,55 +7,17 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from mcap.reader import make_reader
-from mcap.records import Schema
-from mcap.writer import Writer
 
 from acq.cli import main as acq_main
 from acq.log.reader import LogReader
 from acq.sim.drive_log import DriveTruth
 from acq.sim.replay import ReplayError, load_session
+from tests.log_rewrite import mcap_copy
 
 GARBAGE = b"\xff\xff\xff\xff"  # a protobuf tag with a varint that never ends
-
-
-def _copy(
-    src: Path,
-    dst: Path,
-    payload: Callable[[str, bytes], bytes] = lambda _t, d: d,
-    schema_data: Callable[[Schema], bytes] = lambda s: s.data,
-) -> dict[str, int]:
-    """``src`` copied to ``dst`` (metadata, schemas, channels, messages), payloads and
-    schemas through the given functions; the messages per topic."""
-    counts: dict[str, int] = {}
-    with src.open("rb") as f, dst.open("wb") as g:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None
-        w = Writer(g)
-        w.start()
-        for m in reader.iter_metadata():
-            w.add_metadata(m.name, m.metadata)
-        schema_ids = {
-            s.id: w.register_schema(s.name, s.encoding, schema_data(s))
-            for s in summary.schemas.values()
-        }
-        channel_ids = {
-            c.id: w.register_channel(
-                c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), c.metadata
-            )
-            for c in summary.channels.values()
-        }
-        for _s, channel, m in reader.iter_messages(log_time_order=False):
-            counts[channel.topic] = counts.get(channel.topic, 0) + 1
-            data = payload(channel.topic, m.data)
-            w.add_message(channel_ids[channel.id], m.log_time, data, m.publish_time, m.sequence)
-        w.finish()
-    return counts
 
 
 def _warnings(caplog: pytest.LogCaptureFixture) -> list[str]:
@@ -70,7 +32,7 @@ def test_garbled_scan_payloads_are_one_warning_counted_and_named(
 ) -> None:
     truth, calib = short_drive
     log = tmp_path / "garbled.mcap"
-    counts = _copy(truth.files[0], log, lambda t, d: GARBAGE if t.endswith("/scan") else d)
+    counts = mcap_copy(truth.files[0], log, lambda t, d: GARBAGE if t.endswith("/scan") else d)
     (scan_topic,) = [t for t in counts if t.endswith("/scan")]
     n = counts[scan_topic]
     assert n > 20
@@ -108,7 +70,7 @@ def test_garbled_camera_records_are_one_warning_in_replay(
 ) -> None:
     truth, _ = short_drive
     log = tmp_path / "garbled.mcap"
-    counts = _copy(
+    counts = mcap_copy(
         truth.files[0], log, lambda t, d: GARBAGE if t.endswith("/image/compressed") else d
     )
     (topic,) = [t for t in counts if t.endswith("/image/compressed")]
@@ -131,7 +93,7 @@ def test_a_garbled_schema_in_export_ros2_is_one_warning(
 ) -> None:
     truth, _ = short_drive
     log = tmp_path / "garbled.mcap"
-    counts = _copy(
+    counts = mcap_copy(
         truth.files[0], log,
         schema_data=lambda s: b"\xff\x00garbage" if s.name == "foxglove.LaserScan" else s.data,
     )  # fmt: skip

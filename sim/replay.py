@@ -29,6 +29,7 @@ port in use. The command is :mod:`acq.cli.replay`.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import threading
@@ -206,6 +207,9 @@ class Replay:
         servers, self._servers = self._servers, []
         for server in servers:
             server.close()
+        for stream in self._streams.values():
+            with contextlib.suppress(ValueError):  # a server thread that did not stop
+                stream.close()
 
     def __enter__(self) -> Replay:
         return self.start()

@@ -30,6 +30,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from acq.errors import AcqError
 from acq.log.reader import LogReader
 
 __all__ = ["Cursor", "LogRecords", "MemoryRecords", "Records", "Select"]
@@ -224,16 +225,21 @@ class _FileCursor:
             return None
         if self._last is not None and self._last[0] == k:
             return self._last[1]
-        if self._it is None or k < self._next or k - self._next > SKIP_MAX:
-            self._open(k)
-        assert self._it is not None
-        while self._next <= k:
-            data = next(self._it, None)
-            if data is None:
-                self._gone(k)
-                return None
-            self._last = (self._next, data)
-            self._next += 1
+        try:
+            if self._it is None or k < self._next or k - self._next > SKIP_MAX:
+                self._open(k)
+            assert self._it is not None
+            while self._next <= k:
+                data = next(self._it, None)
+                if data is None:
+                    self._gone(k, "no longer in the log files (changed since they were read?)")
+                    return None
+                self._last = (self._next, data)
+                self._next += 1
+        except (OSError, AcqError) as e:  # a file removed or damaged since the first pass
+            self.close()
+            self._gone(k, f"cannot be read: {e}")
+            return None
         return self._last[1] if self._last is not None else None
 
     def _open(self, k: int) -> None:
@@ -244,14 +250,11 @@ class _FileCursor:
         self._it = self.records.records_from(t)
         self._next = first
 
-    def _gone(self, k: int) -> None:
+    def _gone(self, k: int, why: str) -> None:
         if not self._lost:
             self._lost = True
-            log.error(
-                "%s: record %d of %d is no longer in the log files (changed since they "
-                "were read?); the device goes silent",
-                self.records.name, k, len(self.records),
-            )  # fmt: skip
+            log.error("%s: record %d of %d %s; the device goes silent",
+                      self.records.name, k, len(self.records), why)  # fmt: skip
 
     def close(self) -> None:
         it, self._it = self._it, None

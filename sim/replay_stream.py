@@ -141,6 +141,10 @@ class ReplayStream:
         self.sent += len(out)
         return out
 
+    def close(self) -> None:
+        """Close the files the stream reads (once its server has stopped)."""
+        self._cursor.close()
+
     def latest(self, now: float) -> bytes:
         """The last record due by ``now`` (the first one before it), for a polled scan."""
         k = int(np.searchsorted(self.times_ns, self.clock.log_ns_at(now), side="right")) - 1

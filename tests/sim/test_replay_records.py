@@ -6,6 +6,7 @@ record on, across the files of a session, a cut file and records out of order.""
 from __future__ import annotations
 
 import hashlib
+import logging
 import tracemalloc
 from pathlib import Path
 
@@ -122,3 +123,21 @@ def test_records_come_in_time_order_from_any_record_across_files(tmp_path: Path)
     finally:
         cursor.close()
     assert records.head(3) == want[:3]
+
+
+def test_a_file_removed_after_loading_silences_the_device_with_one_error(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The bytes are read when due: a file removed since the replay was loaded ends its
+    device's stream with one ERROR line naming the file (no traceback in a server
+    thread)."""
+    (one,) = write_session(tmp_path, [(T0 + k * FRAME_NS, b"x%d" % k) for k in range(5)],
+                           chunk_size=200)  # fmt: skip
+    records = load_session([one]).devices["cam"].records
+    one.unlink()
+    cursor = records.cursor()
+    with caplog.at_level(logging.ERROR):
+        assert cursor.get(0) is None
+        assert cursor.get(1) is None
+    errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    assert len(errors) == 1 and str(one) in errors[0] and "cam" in errors[0], errors

@@ -12,7 +12,7 @@ whose records of the device are not in time order, those within its largest late
 
 - :class:`LogRecords`: a device's records in the files of one session (in the given
   order; files that overlap in time are merged, each opened when the merge reaches it).
-- :class:`MemoryRecords`: records given as lists (tests, simulated devices).
+- :class:`MemoryRecords`: records given as lists (tests).
 
 The records are in time order, ties in file order (a stable sort of every file's records
 in the given order), as a replay serves them.
@@ -69,7 +69,7 @@ class Records(Protocol):
 
 
 class MemoryRecords:
-    """Records held as a list (a short test log, a simulated device)."""
+    """Records held as a list (a short test log)."""
 
     def __init__(self, times_ns: Sequence[int], data: Sequence[bytes]) -> None:
         if len(times_ns) != len(data):

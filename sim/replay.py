@@ -19,8 +19,8 @@ steps and cluster (Hokuyo), the same CoLa encoding (SICK); anything else is refu
 the reason is logged and kept in :attr:`Replay.errors`. When the log ends the devices go
 silent (connections stay open, nothing is sent) until the replay is closed.
 
-The session's telegrams and JPEGs are held in memory (the simulated rig: about 1.5 MB/s,
-so 10 minutes take some 0.9 GB); replay a long session file by file.
+Only the records' receive times are held in memory; their bytes are read from the files
+as they are due (:mod:`acq.sim.replay_records`), so memory does not grow with the drive.
 
 :class:`ReplayError` (an InputError) for a missing or unreadable log, nothing to replay,
 an unknown driver or a bad listen address, with one line naming the file; OSError for a
@@ -29,38 +29,34 @@ port in use. The command is :mod:`acq.cli.replay`.
 
 from __future__ import annotations
 
-import json
+import contextlib
 import logging
 import math
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
 import yaml
-from mcap.records import Channel, Schema
 
-from acq.drivers.cola_codec import unframe
-from acq.drivers.errors import ProtocolError
-from acq.drivers.registry import DriverImportError, UnknownDriver
-from acq.drivers.scanner import SCANNERS
 from acq.drivers.scip_codec import parse_scan_echo
-from acq.errors import InputValueError
-from acq.log import LogError, LogReader, read_metadata
 from acq.record import config as configfile
-from acq.record.config import CameraConfig, Config, ScannerConfig
+from acq.record.config import Config
 from acq.sim.devices import parse_listen
-from acq.sim.replay_devices import (
-    ColaReplayDevice,
-    ReplayClock,
-    ReplayMjpegServer,
-    ReplayStream,
-    ScipReplayDevice,
+from acq.sim.replay_devices import ColaReplayDevice, ReplayMjpegServer, ScipReplayDevice
+from acq.sim.replay_session import (
+    COLA,
+    SCIP,
+    DeviceLog,
+    ReplayError,
+    Session,
+    load_session,
+    scanner_wire,
 )
-from acq.sim.replay_vehicle import NmeaReplayDevice, ReplayCanBus, pack_can, vehicle_entries
+from acq.sim.replay_stream import ReplayClock, ReplayStream
+from acq.sim.replay_vehicle import NmeaReplayDevice, ReplayCanBus, vehicle_entries
 from acq.sim.transport import PtyDeviceServer, TcpDeviceServer
 
 __all__ = [
@@ -74,249 +70,10 @@ __all__ = [
 
 log = logging.getLogger("acq.sim.replay")
 
-SCIP, COLA = "SCIP", "CoLa"  # the wire protocols a replay serves (a driver's ``wire``)
 DEFAULT_SCANNER_LISTEN = "tcp://127.0.0.1:0"
 DEFAULT_CAMERA_LISTEN = "http://127.0.0.1:0/stream.mjpg"
 LEAD_S = 0.05  # from the request that starts the clock to that device's first record, s
 END_MARGIN_S = 0.1  # after the last record is due, s: it is on its way to the client
-_RAW_SUFFIX = "/raw"
-_IMAGE_SUFFIX = "/image/compressed"
-# the vehicle's buses: topic -> (schema, device, kind), as the recorder writes them
-_VEHICLE_TOPICS = {
-    "/vehicle/can": ("acq.CanFrame", "vehicle", "can"),
-    "/gnss/raw": ("acq.RawTelegram", "gnss", "gnss"),
-}
-
-
-class ReplayError(InputValueError):
-    """A log that cannot be replayed; ``str(e)`` is one line naming the file."""
-
-
-@dataclass
-class DeviceLog:
-    """What a session recorded of one device, in receive order."""
-
-    name: str
-    kind: str  # scanner | camera | can | gnss
-    driver: str  # the recorded driver (hokuyo, sick, opencv, v4l2)
-    file: Path  # the first file holding its records
-    times_ns: list[int] = field(default_factory=list)  # receive times, host monotonic ns
-    # telegrams and sentences as received, JPEGs as sent, CAN frames packed (pack_can)
-    data: list[bytes] = field(default_factory=list)
-    metadata: dict[str, Any] = field(default_factory=dict)  # device.<name>, JSON decoded
-
-    @property
-    def duration_s(self) -> float:
-        return (self.times_ns[-1] - self.times_ns[0]) * 1e-9 if self.times_ns else 0.0
-
-    @property
-    def rate_hz(self) -> float:
-        return (len(self.times_ns) - 1) / self.duration_s if self.duration_s > 0 else 0.0
-
-
-@dataclass
-class Session:
-    """The files of one recording, read: devices (scanners first), recorded config."""
-
-    files: tuple[Path, ...]
-    devices: dict[str, DeviceLog]
-    config: Config | None  # the recorded configuration (metadata ``config``), if readable
-    calibration_yaml: str | None  # the recorded calibration (metadata ``calibration``)
-
-    @property
-    def start_ns(self) -> int:
-        return min(d.times_ns[0] for d in self.devices.values())
-
-    @property
-    def end_ns(self) -> int:
-        return max(d.times_ns[-1] for d in self.devices.values())
-
-    @property
-    def duration_s(self) -> float:
-        return (self.end_ns - self.start_ns) * 1e-9
-
-
-# --- reading --------------------------------------------------------------------------------
-
-
-def _recorded_config(meta: dict[str, dict[str, str]], path: Path) -> Config | None:
-    text = meta.get("config", {}).get("yaml")
-    if not text:
-        return None
-    try:
-        return configfile.parse(yaml.safe_load(text), f"{path}: metadata config")
-    except (configfile.ConfigError, yaml.YAMLError) as e:
-        log.warning(
-            "%s: the recorded configuration is unusable (%s); using the device metadata", path, e
-        )
-        return None
-
-
-def load_session(paths: Sequence[str | Path]) -> Session:
-    """Read the files of one session (in the given order): every device's records and
-    description, the recorded configuration and calibration. Raises :class:`ReplayError`."""
-    files = tuple(Path(p) for p in paths)
-    if not files:
-        raise ReplayError("no log given")
-    try:
-        readers = [LogReader(p) for p in files]  # missing or not MCAP: at once
-    except LogError as e:
-        raise ReplayError(str(e)) from None
-    devices: dict[str, DeviceLog] = {}
-    config: Config | None = None
-    calibration: str | None = None
-    described: dict[str, dict[str, str]] = {}
-    for path, reader in zip(files, readers, strict=True):
-        meta = read_metadata(path)
-        if config is None:
-            config = _recorded_config(meta, path)
-        if calibration is None:
-            calibration = meta.get("calibration", {}).get("yaml")
-        for name, values in meta.items():
-            if name.startswith("device."):
-                described.setdefault(name[len("device.") :], values)
-        try:
-            _read_records(reader, devices)
-        except LogError as e:
-            raise ReplayError(str(e)) from None
-    if not devices:
-        where = ", ".join(str(p) for p in files)
-        raise ReplayError(
-            f"{where}: no raw scanner telegrams, camera images, CAN frames or NMEA sentences "
-            "to replay"
-        )
-    for dev in devices.values():
-        _describe(dev, described.get(dev.name, {}), config)
-    ordered = sorted(devices.values(), key=lambda d: (d.kind != "scanner", _order(d, config)))
-    return Session(files, {d.name: d for d in ordered}, config, calibration)
-
-
-def _device_of(schema: Schema | None, channel: Channel) -> tuple[str, str] | None:
-    """(device, kind) whose records the channel holds, or None: not replayed."""
-    topic, name = channel.topic, schema.name if schema is not None else ""
-    if topic in _VEHICLE_TOPICS:
-        schema_name, device, kind = _VEHICLE_TOPICS[topic]
-        return (device, kind) if name == schema_name else None
-    if name == "acq.RawTelegram" and topic.endswith(_RAW_SUFFIX):
-        return topic[1 : -len(_RAW_SUFFIX)], "scanner"
-    if name == "foxglove.CompressedImage" and topic.endswith(_IMAGE_SUFFIX):
-        return topic[1 : -len(_IMAGE_SUFFIX)], "camera"
-    return None
-
-
-def _read_records(reader: LogReader, devices: dict[str, DeviceLog]) -> None:
-    path = reader.path
-    for (device, kind), _channel, message, decoded in reader.decoded(_device_of):
-        if decoded is None:  # a garbled record: counted, the reader warns once per channel
-            continue
-        dev = devices.get(device)
-        if dev is None:
-            dev = devices[device] = DeviceLog(device, kind, "", path)
-        elif dev.kind != kind:
-            raise ReplayError(f"{path}: {device!r} has both {dev.kind} and {kind} records")
-        dev.times_ns.append(message.log_time)
-        dev.data.append(pack_can(decoded) if kind == "can" else bytes(decoded.data))
-
-
-def _order(dev: DeviceLog, config: Config | None) -> int:
-    names = config.devices() if config is not None else []
-    return names.index(dev.name) if dev.name in names else len(names)
-
-
-def _describe(dev: DeviceLog, values: dict[str, str], config: Config | None) -> None:
-    """Fill in the device's driver and metadata; check that it can be replayed."""
-    if any(b < a for a, b in zip(dev.times_ns, dev.times_ns[1:], strict=False)):
-        order = sorted(range(len(dev.times_ns)), key=dev.times_ns.__getitem__)
-        dev.times_ns = [dev.times_ns[i] for i in order]
-        dev.data = [dev.data[i] for i in order]
-    for key in ("info", "geometry", "params", "format"):
-        if key in values:
-            try:
-                dev.metadata[key] = json.loads(values[key])
-            except ValueError:
-                raise ReplayError(
-                    f"{dev.file}: metadata device.{dev.name}: {key} is not JSON"
-                ) from None
-    cfg = _device_config(config, dev.name)
-    dev.driver = values.get("driver") or (str(cfg.driver) if cfg is not None else "")
-    if dev.kind != "scanner":
-        return
-    wire = _wire(dev.driver)
-    if wire not in _CHECKS:
-        got = repr(dev.driver) if dev.driver else "no recorded driver"
-        served = [d for d in SCANNERS.names() if _wire(d) in _CHECKS]
-        raise ReplayError(
-            f"{dev.file}: scanner {dev.name!r}: {got}; a replay serves "
-            + " and ".join(served)
-            + " scanners"
-        )
-    _CHECKS[wire](dev)
-
-
-def _wire(driver: str) -> str:
-    """The wire protocol of a scanner driver of the registry ("" when there is none)."""
-    try:
-        return SCANNERS.get(driver).wire
-    except (UnknownDriver, DriverImportError):
-        return ""
-
-
-def _check_scip(dev: DeviceLog) -> None:
-
-    if "params" not in dev.metadata or "info" not in dev.metadata:
-        raise ReplayError(
-            f"{dev.file}: no device.{dev.name} metadata (the PP parameters and "
-            "identity a Hokuyo replay answers with)"
-        )
-    echoes = {d.split(b"\n", 1)[0] for d in dev.data}
-    if len(echoes) > 1:
-        shown = ", ".join(sorted(e.decode("ascii", "replace") for e in echoes))
-        raise ReplayError(
-            f"{dev.file}: {dev.name}: scans of different commands ({shown}); "
-            "replay the files of each separately"
-        )
-    echo = echoes.pop()
-    try:
-        parsed = parse_scan_echo(echo)
-    except ProtocolError as e:
-        raise ReplayError(f"{dev.file}: {dev.name}: not a SCIP scan stream: {e}") from None
-    if parsed.command[0] not in "MN":
-        raise ReplayError(
-            f"{dev.file}: {dev.name}: single scans ({parsed.command}) cannot be "
-            "replayed as a stream"
-        )
-
-
-def _check_cola(dev: DeviceLog) -> None:
-
-    if "geometry" not in dev.metadata:
-        raise ReplayError(
-            f"{dev.file}: no device.{dev.name} metadata (the scan geometry a "
-            "SICK replay answers with)"
-        )
-    try:
-        first = unframe(dev.data[0])
-    except ProtocolError as e:
-        raise ReplayError(f"{dev.file}: {dev.name}: not a CoLa telegram: {e}") from None
-    if first.name != "LMDscandata":
-        raise ReplayError(
-            f"{dev.file}: {dev.name}: not LMDscandata telegrams ({first.kind} {first.name})"
-        )
-    if len({d[:4] == b"\x02\x02\x02\x02" for d in dev.data}) > 1:
-        raise ReplayError(
-            f"{dev.file}: {dev.name}: both CoLa-A and CoLa-B telegrams; replay "
-            "the files of each separately"
-        )
-
-
-_CHECKS = {SCIP: _check_scip, COLA: _check_cola}
-
-
-def _device_config(config: Config | None, name: str) -> ScannerConfig | CameraConfig | None:
-    if config is None:
-        return None
-    found = [d for d in config.scanners if d.name == name]
-    return found[0] if found else next((c for c in config.cameras if c.name == name), None)
 
 
 # --- serving --------------------------------------------------------------------------------
@@ -405,7 +162,7 @@ class Replay:
     def _stream(self, dev: DeviceLog) -> Any:
 
         assert self._clock is not None
-        stream = ReplayStream(dev.name, dev.times_ns, dev.data, self._clock)
+        stream = ReplayStream(dev.name, dev.records, self._clock)
         self._streams[dev.name] = stream
         return stream
 
@@ -418,7 +175,7 @@ class Replay:
         stream = self._stream(dev)
         meta = dev.metadata
         device: Any
-        scip = dev.kind == "gnss" or _wire(dev.driver) == SCIP
+        scip = dev.kind == "gnss" or scanner_wire(dev.driver) == SCIP
         if dev.kind == "gnss":
             device = NmeaReplayDevice(stream)
         elif scip:
@@ -450,6 +207,9 @@ class Replay:
         servers, self._servers = self._servers, []
         for server in servers:
             server.close()
+        for stream in self._streams.values():
+            with contextlib.suppress(ValueError):  # a server thread that did not stop
+                stream.close()
 
     def __enter__(self) -> Replay:
         return self.start()
@@ -525,7 +285,7 @@ class Replay:
             if dev.kind == "scanner":
                 entry["driver"] = dev.driver
                 entry["url"] = self.urls[dev.name]
-                if _wire(dev.driver) == COLA:
+                if scanner_wire(dev.driver) == COLA:
                     info = dev.metadata.get("info", {})
                     protocol = info.get("extra", {}).get("protocol")
                     entry["protocol"] = entry.get("protocol") or protocol or "cola-b"
@@ -553,10 +313,10 @@ def _derived_entry(dev: DeviceLog) -> dict[str, Any]:
     """A configuration entry for a device the recorded configuration does not list (or a
     log without one): for a Hokuyo, the options that ask for the recorded scans."""
     entry: dict[str, Any] = {"name": dev.name, "driver": dev.driver}
-    if _wire(dev.driver) != SCIP:
+    if scanner_wire(dev.driver) != SCIP:
         return entry
 
-    echo = parse_scan_echo(dev.data[0].split(b"\n", 1)[0])
+    echo = parse_scan_echo(dev.records.head(1)[0].split(b"\n", 1)[0])
     p = dev.metadata["params"]
     options: dict[str, Any] = {}
     if echo.command in ("ME", "NE"):

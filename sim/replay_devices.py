@@ -6,13 +6,8 @@ times they were received (MCAP ``log_time``), shifted to now and divided by the 
 A recorder that records the replay therefore gets the same device ticks, ranges and
 JPEG bytes; only the receive times are new.
 
-- :class:`ReplayClock` is the session's time axis, shared by all of its devices so that
-  they keep their recorded timing relative to each other. It starts the first time a
-  client asks any device for its time or its data (SCIP ``II``/``TM``/a scan command,
-  CoLa ``LMDscandata``, an MJPEG stream request): that device's first record is then
-  due ``lead_s`` later. It is a live device's time: a client that connects later, or
-  reconnects, gets what is due from then on, not what it missed.
-- :class:`ReplayStream` is one device's records on that axis.
+- :class:`ReplayClock` (the session's time axis) and :class:`ReplayStream` (one device's
+  records on it) are in :mod:`acq.sim.replay_stream`.
 - :class:`ScipReplayDevice` and :class:`ColaReplayDevice` are ``SimDevice``s (serve them
   with :class:`acq.sim.transport.TcpDeviceServer` or ``PtyDeviceServer``): they answer the
   start-up like the simulated devices (identity as recorded), and once the client starts
@@ -31,11 +26,9 @@ monotonic nanoseconds.
 
 from __future__ import annotations
 
-import bisect
 import math
-import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -55,6 +48,7 @@ from acq.sim.camera_device import SimFrame
 from acq.sim.cola_device import ColaDevice, ScanShape
 from acq.sim.device_clock import SimClock
 from acq.sim.mjpeg_server import MjpegServer
+from acq.sim.replay_stream import ReplayClock, ReplayStream
 from acq.sim.scanner_models import MODELS, ScannerModel
 from acq.sim.scip_device import ScipDevice
 
@@ -73,115 +67,6 @@ Report = Callable[[str], None]
 
 def _ignore(_msg: str) -> None:
     pass
-
-
-class ReplayClock:
-    """Log time (recorded host monotonic ns) -> replay time (monotonic s), for a session.
-
-    ``at(log_ns) = origin + (log_ns - anchor_ns) / speed``; :meth:`start` fixes origin
-    and anchor once. Thread-safe.
-    """
-
-    def __init__(self, speed: float = 1.0, lead_s: float = 0.05) -> None:
-        if not (math.isfinite(speed) and speed > 0):
-            raise ValueError(f"speed must be a positive number, got {speed}")
-        self.speed = speed
-        self.lead_s = lead_s
-        self._lock = threading.Lock()
-        self._started = threading.Event()
-        self._origin = 0.0  # s
-        self._anchor_ns = 0
-
-    @property
-    def started(self) -> bool:
-        return self._started.is_set()
-
-    def start(self, now: float, first_ns: int) -> bool:
-        """Start the clock unless it runs: log time ``first_ns`` is due at ``now + lead_s``.
-        True when this call started it."""
-        with self._lock:
-            if self._started.is_set():
-                return False
-            self._origin = now + self.lead_s
-            self._anchor_ns = first_ns
-            self._started.set()
-            return True
-
-    def wait_started(self, timeout: float | None = None) -> bool:
-        return self._started.wait(timeout)
-
-    def at(self, log_ns: int) -> float:
-        """Replay time (monotonic s) at which log time ``log_ns`` is due."""
-        return self._origin + (log_ns - self._anchor_ns) * 1e-9 / self.speed
-
-    def log_ns_at(self, t: float) -> int:
-        """Log time (ns) due at replay time ``t`` (monotonic s)."""
-        return self._anchor_ns + round((t - self._origin) * self.speed * 1e9)
-
-
-class ReplayStream:
-    """One device's records: receive times (log ns, ascending) and bytes, served on a
-    :class:`ReplayClock`. Used by one server thread."""
-
-    def __init__(
-        self, name: str, times_ns: Sequence[int], data: Sequence[bytes], clock: ReplayClock
-    ) -> None:
-        if not times_ns or len(times_ns) != len(data):
-            raise ValueError(f"{name}: need as many record times as records, at least one")
-        self.name = name
-        self.times_ns = list(times_ns)
-        self.data = list(data)
-        self.clock = clock
-        self.active = False
-        self.sent = 0  # records handed out so far
-        self._k = 0  # next record
-
-    def __len__(self) -> int:
-        return len(self.data)
-
-    @property
-    def first_ns(self) -> int:
-        return self.times_ns[0]
-
-    @property
-    def last_ns(self) -> int:
-        return self.times_ns[-1]
-
-    def start_clock(self, now: float) -> None:
-        """Start the shared clock here, unless it runs: this device's first record is due
-        ``lead_s`` from now."""
-        self.clock.start(now, self.first_ns)
-
-    def begin(self, now: float) -> None:
-        """A client starts streaming: serve from the first record due at or after ``now``."""
-        self.start_clock(now)
-        self._k = bisect.bisect_left(self.times_ns, self.clock.log_ns_at(now))
-        self.active = True
-
-    def stop(self) -> None:
-        self.active = False
-
-    def due(self) -> float | None:
-        """When the next record is due (monotonic s); None when stopped or at the end."""
-        if not self.active or self._k >= len(self.data):
-            return None
-        return self.clock.at(self.times_ns[self._k])
-
-    def take(self, now: float) -> list[bytes]:
-        """The records due by ``now``, in order (a burst when the server fell behind)."""
-        out: list[bytes] = []
-        if not self.active:
-            return out
-        while self._k < len(self.data) and self.clock.at(self.times_ns[self._k]) <= now:
-            out.append(self.data[self._k])
-            self._k += 1
-        self.sent += len(out)
-        return out
-
-    def latest(self, now: float) -> bytes:
-        """The last record due by ``now`` (the first one before it), for a polled scan."""
-        k = bisect.bisect_right(self.times_ns, self.clock.log_ns_at(now)) - 1
-        return self.data[max(k, 0)]
 
 
 class _NoSource:
@@ -236,9 +121,10 @@ class _RecordedTicks:
         self.tick_hz = tick_hz
         self.bits = bits
         wrap, half = 1 << bits, 1 << (bits - 1)
-        k0, r0 = _scip_tick(stream.data[0]), stream.first_ns
+        first = stream.head(200)
+        k0, r0 = _scip_tick(first[0]), stream.first_ns
         best = 0.0
-        for data, r in zip(stream.data[:200], stream.times_ns[:200], strict=False):
+        for data, r in zip(first, stream.times_ns[:200].tolist(), strict=False):
             dk = (_scip_tick(data) - k0 + half) % wrap - half
             best = max(best, dk - (r - r0) * 1e-9 * tick_hz)
         self._k0 = k0 + best
@@ -283,7 +169,7 @@ class ScipReplayDevice(ScipDevice):
     ) -> None:
         self.stream = stream
         self.report = report
-        self.echo = stream.data[0].split(b"\n", 1)[0]
+        self.echo = stream.head(1)[0].split(b"\n", 1)[0]
         self.recorded_info = info
         model = scip_model(info, params)
         ticks = _RecordedTicks(stream, model.clock_hz, model.clock_bits)
@@ -526,9 +412,9 @@ class ColaReplayDevice(ColaDevice):
     ) -> None:
         self.stream = stream
         self.report = report
-        self.recorded_binary = stream.data[0][:4] == STX4
+        self.recorded_binary = stream.head(1)[0][:4] == STX4
         try:
-            first: ScanData | None = parse_scandata(stream.data[0])
+            first: ScanData | None = parse_scandata(stream.head(1)[0])
         except ProtocolError:
             first = None
         model = cola_model(info, geometry, first)

@@ -15,7 +15,6 @@ KNOWN_OVER = {
     "drivers/camera_v4l2.py",
     "drivers/nmea.py",
     "sim/cola_device.py",
-    "sim/replay_devices.py",
     "sim/world.py",
 }
 

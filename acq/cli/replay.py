@@ -78,7 +78,7 @@ def _describe_session(replay: Replay) -> str:
     parts = []
     for d in s.devices.values():
         what = {"scanner": "scans", "gnss": "sentences", "can": "CAN frames"}.get(d.kind, "frames")
-        parts.append(f"{d.name}: {len(d.data)} {what} at {d.rate_hz:.1f} Hz ({d.driver})")
+        parts.append(f"{d.name}: {len(d.times_ns)} {what} at {d.rate_hz:.1f} Hz ({d.driver})")
     files = f"{len(s.files)} file" + ("s" if len(s.files) != 1 else "")
     return f"replaying {files}, {s.duration_s:.1f} s at speed {replay.speed:g}: " + "; ".join(parts)
 

@@ -15,6 +15,7 @@ from acq.drivers.cola_scandata import ScanData, encode_scandata, parse_scandata
 from acq.sim.cola_device import PASSWORDS, ColaDevice
 from acq.sim.device_clock import SimClock
 from acq.sim.replay_devices import ColaReplayDevice, ReplayClock, ReplayStream
+from acq.sim.replay_records import MemoryRecords
 from acq.sim.scan_source import StreetSource
 from acq.sim.scanner_models import MODELS
 
@@ -226,7 +227,7 @@ def replay_of(name: str, data: list[bytes], reports: list[str]) -> ColaReplayDev
         "range_max": model.range_max,
     }
     times = [int(k * 0.02e9) for k in range(len(data))]
-    stream_ = ReplayStream(name, times, data, ReplayClock())
+    stream_ = ReplayStream(name, MemoryRecords(times, data), ReplayClock())
     return ColaReplayDevice(stream_, info, geometry, report=reports.append)
 
 

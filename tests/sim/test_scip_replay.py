@@ -10,6 +10,7 @@ import pytest
 
 from acq.drivers.scip_codec import RawScan, parse_reply, parse_scan_reply
 from acq.sim.replay_devices import ReplayClock, ReplayStream, ScipReplayDevice
+from acq.sim.replay_records import MemoryRecords
 from acq.sim.scanner_models import MODELS
 from acq.sim.scip_device import ScipDevice
 
@@ -32,7 +33,7 @@ Served = tuple[ScipReplayDevice, list[bytes], list[str]]  # the device, the log,
 def replay() -> Served:
     data = recorded_telegrams()
     times = [1_000_000_000 + k * 25_000_000 for k in range(len(data))]
-    stream = ReplayStream("laser", times, data, ReplayClock(lead_s=0.0))
+    stream = ReplayStream("laser", MemoryRecords(times, data), ReplayClock(lead_s=0.0))
     info = {"model": "UST-10LX", "extra": {"VV.PROT": "SCIP 2.2", "PP.MODL": "UST-10LX"}}
     params = {"dmin": 20, "dmax": 30000, "scan_rpm": 2400, "amin": 0, "amax": 1080,
               "afrt": 540, "ares": 1440}  # fmt: skip

@@ -4,8 +4,10 @@ line on stderr and an exit status.
 Exit status: 0 success; 2 bad usage or bad input (a bad option or value, refused while
 the command line is parsed, or :class:`acq.errors.InputError`: one line naming the
 option, or the file and the key); 1 a runtime failure (any other error: one line, the
-traceback with ``--debug``); 130 Ctrl-C; ``acq record`` also 3, the disk below its
-reserve. A closed stdout (``acq info LOG | head``) ends the command quietly.
+traceback with ``--debug``); 3 an output that did not fit on its disk (``acq record``:
+the disk below its reserve); 130 Ctrl-C; a command that writes files (``stops_cleanly``)
+stopped by a signal: 128 + its number, its temporaries removed and one line said. A
+closed stdout (``acq info LOG | head``) ends the command quietly.
 
 Each command's module imports the library it calls inside its handler, and only the
 command named is given its arguments (their choices come from the driver registry, the
@@ -25,6 +27,7 @@ import sys
 import traceback
 import warnings
 from collections.abc import Callable, Sequence
+from contextlib import nullcontext
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any, NoReturn
@@ -45,7 +48,8 @@ from acq.cli import (
 )
 from acq.cli.standard_streams import reopen_closed
 from acq.credentials import RedactingFilter, redact
-from acq.errors import AcqError, InputError
+from acq.errors import AcqError, DiskFullError, InputError
+from acq.stopped import Stopped, stopping
 
 if TYPE_CHECKING:
     from _typeshed import SupportsWrite
@@ -67,7 +71,7 @@ COMMANDS: dict[str, ModuleType] = {
     "devices": devices,
 }
 VERSION = f"acq {__version__}"
-EXIT_FAILURE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
+EXIT_FAILURE, EXIT_USAGE, EXIT_DISK_FULL, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 3, 130, 141
 
 
 class _Parser(argparse.ArgumentParser):
@@ -158,18 +162,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         if logs:
             logs = _log_inputs(args, logs)
         progress.enable(progress.wanted(getattr(args, "progress", False)))
-        with progress.reading(logs):
+        stops = stopping() if getattr(args, "stops_cleanly", False) else nullcontext()
+        with stops, progress.reading(logs):
             code = handler(args)
         sys.stdout.flush()  # a closed or full stdout fails here, not at exit
         return code
     except InputError as e:
         _say(prog, str(e))
         return EXIT_USAGE
+    except Stopped as e:
+        _drop_stdout()
+        _say(prog, f"stopped by {e.name}: the file being written removed, its old output kept")
+        return e.exit_status
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # the reader went away (`acq info LOG | head`): nothing to say
         _drop_stdout()
         return EXIT_BROKEN_PIPE
+    except DiskFullError as e:
+        _drop_stdout()
+        _say(prog, str(e))
+        return EXIT_DISK_FULL
     except Exception as e:
         _drop_stdout()
         if args.debug:

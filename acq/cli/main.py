@@ -20,6 +20,7 @@ every library the commands call imported at the top (best of 5 and of 3, a loade
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import logging
 import os
@@ -27,7 +28,6 @@ import sys
 import traceback
 import warnings
 from collections.abc import Callable, Sequence
-from contextlib import nullcontext
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any, NoReturn
@@ -162,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if logs:
             logs = _log_inputs(args, logs)
         progress.enable(progress.wanted(getattr(args, "progress", False)))
-        stops = stopping() if getattr(args, "stops_cleanly", False) else nullcontext()
+        stops = stopping() if getattr(args, "stops_cleanly", False) else contextlib.nullcontext()
         with stops, progress.reading(logs):
             code = handler(args)
         sys.stdout.flush()  # a closed or full stdout fails here, not at exit
@@ -172,7 +172,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     except Stopped as e:
         _drop_stdout()
-        _say(prog, f"stopped by {e.name}: the file being written removed, its old output kept")
+        with contextlib.suppress(OSError):  # SIGHUP: the terminal may be gone
+            _say(prog, f"stopped by {e.name}: the file being written removed, its old output kept")
         return e.exit_status
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED

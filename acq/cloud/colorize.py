@@ -258,8 +258,11 @@ def _run_each(
                 ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool,
             ):
                 pending = [pool.submit(colour_chunk, job, c, None, reports) for c in chunks]
-                for fut in completed(pending):
-                    done(fut.result())
+                try:
+                    for fut in completed(pending):
+                        done(fut.result())
+                finally:  # on an error (a full disk, a signal) the chunks not begun are dropped
+                    pool.shutdown(cancel_futures=True)
     else:  # one process: the log read once (whole), or each chunk its part
         threads = ThreadPoolExecutor(max_workers=max(1, job.threads))
         try:

@@ -31,10 +31,10 @@ def _acq(*argv: str) -> subprocess.CompletedProcess[str]:
                           text=True, timeout=120, preexec_fn=_limited)  # fmt: skip
 
 
-def _said_full(err: str, output: Path) -> None:
+def _said_full(err: str, output: Path, command: str) -> None:
     lines = [ln for ln in err.splitlines() if not ln.startswith(("note:", "warning:"))]
     line = next(ln for ln in lines if str(output) in ln)
-    assert line.startswith(f"acq {'export ros2' if output.suffix == '' else 'colorize'}: ")
+    assert line.startswith(f"acq {command}: ")
     assert (
         f"{output}: too large for the disk of {output.parent} or the process's file size limit ("
         in line
@@ -52,7 +52,7 @@ def test_a_cloud_that_does_not_fit_is_one_line_exit_3_and_no_temporary(
     run = _acq("colorize", *map(str, truth.files), "--calib", str(calib), "-o", str(out),
                "--no-preview")  # fmt: skip
     assert run.returncode == 3, run.stderr
-    _said_full(run.stderr, out)
+    _said_full(run.stderr, out, "colorize")
     assert list(tmp_path.iterdir()) == []  # neither the cloud nor its temporary
 
 
@@ -63,7 +63,20 @@ def test_a_bag_that_does_not_fit_is_one_line_exit_3_and_no_work_folder(
     bag = tmp_path / "bag"
     run = _acq("export", "ros2", *map(str, truth.files), "-o", str(bag))
     assert run.returncode == 3, run.stderr
-    _said_full(run.stderr, bag)
+    _said_full(run.stderr, bag, "export ros2")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_any_file_a_command_writes_past_the_disk_is_the_same_line(
+    short_drive: tuple[DriveTruth, Path], tmp_path: Path
+) -> None:
+    """A file error of a full disk that reaches the command line (here `info --repair`'s
+    copy) is said the same way, exit status 3."""
+    truth, _ = short_drive
+    copy = tmp_path / "copy.mcap"
+    run = _acq("info", "--repair", str(truth.files[0]), "-o", str(copy))
+    assert run.returncode == 3, run.stderr
+    _said_full(run.stderr, copy, "info")
     assert list(tmp_path.iterdir()) == []
 
 

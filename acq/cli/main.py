@@ -180,16 +180,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # the reader went away (`acq info LOG | head`): nothing to say
         _drop_stdout()
         return EXIT_BROKEN_PIPE
-    except DiskFullError as e:
-        _drop_stdout()
-        _say(prog, str(e))
-        return EXIT_DISK_FULL
     except Exception as e:
         _drop_stdout()
+        full = e if isinstance(e, DiskFullError) else _full_disk(e)
+        if full is not None:
+            _say(prog, str(full))
+            return EXIT_DISK_FULL
         if args.debug:
             traceback.print_exc()
         _say(prog, _describe(e, args.debug))
         return EXIT_FAILURE
+
+
+def _full_disk(e: Exception) -> DiskFullError | None:
+    """A file error of a full disk (a quota, a size limit) as the line naming the file
+    and its disk; None for any other."""
+    from acq.disk_space import FULL_DISK_ERRNOS, full_disk_error
+
+    if isinstance(e, OSError) and e.errno in FULL_DISK_ERRNOS and e.filename:
+        return full_disk_error(Path(os.fsdecode(e.filename)), e)
+    return None
 
 
 def _log_inputs(args: argparse.Namespace, logs: Sequence[os.PathLike[str]]) -> list[Path]:

@@ -3,16 +3,19 @@ status 3 (as `acq record` at its disk reserve), no temporary left behind, whatev
 writing library makes of the failed write (lazrs: ``LazrsError: IoError``, libE57:
 ``E57Exception``, numpy: ``N requested and M written``).
 
-A full file system cannot be made here without root, so the commands run as real
-subprocesses under a file size limit (RLIMIT_FSIZE): the kernel itself then refuses
-every write past the limit (EFBIG, SIGXFSZ being ignored by Python), on real files,
-through the same calls a full disk fails (ENOSPC); nothing in acq is mocked."""
+A full file system cannot be made without root, so the commands run as real subprocesses
+under a file size limit (RLIMIT_FSIZE): the kernel itself then refuses every write past
+the limit (EFBIG, SIGXFSZ being ignored by Python), on real files, through the same calls
+a full disk fails (ENOSPC); nothing in acq is mocked. Where a small tmpfs can be mounted
+(root), one case also fills a real file system (skipped elsewhere)."""
 
 from __future__ import annotations
 
+import contextlib
 import resource
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -26,9 +29,24 @@ def _limited() -> None:
     resource.setrlimit(resource.RLIMIT_FSIZE, (LIMIT, LIMIT))
 
 
-def _acq(*argv: str) -> subprocess.CompletedProcess[str]:
+def _acq(*argv: str, limited: bool = True) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "acq.cli", *argv], capture_output=True,
-                          text=True, timeout=120, preexec_fn=_limited)  # fmt: skip
+                          text=True, timeout=120,
+                          preexec_fn=_limited if limited else None)  # fmt: skip
+
+
+@contextlib.contextmanager
+def _small_tmpfs(folder: Path, kilobytes: int) -> Iterator[Path]:
+    """``folder`` as a tmpfs of ``kilobytes``; skips the test where none can be mounted."""
+    folder.mkdir()
+    mount = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={kilobytes}k", "tmpfs",
+                            str(folder)], capture_output=True, timeout=30)  # fmt: skip
+    if mount.returncode != 0:
+        pytest.skip(f"no tmpfs can be mounted here (not root?): {mount.stderr.decode().strip()}")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", str(folder)], check=True, timeout=30)
 
 
 def _said_full(err: str, output: Path, command: str) -> None:
@@ -78,6 +96,20 @@ def test_any_file_a_command_writes_past_the_disk_is_the_same_line(
     assert run.returncode == 3, run.stderr
     _said_full(run.stderr, copy, "info")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_laz_on_a_really_full_disk(short_drive: tuple[DriveTruth, Path], tmp_path: Path) -> None:
+    """lazrs's ``IoError: Failed to call write`` on a file system that is full (ENOSPC)."""
+    truth, calib = short_drive
+    with _small_tmpfs(tmp_path / "disk", 64) as disk:
+        out = disk / "c.laz"
+        run = _acq("colorize", *map(str, truth.files), "--calib", str(calib), "-o", str(out),
+                   "--no-preview", limited=False)  # fmt: skip
+        assert run.returncode == 3, run.stderr
+        assert f"acq colorize: {out}: no space left on the disk of {disk} (0.0 MB free)" in (
+            run.stderr.splitlines()
+        )
+        assert list(disk.iterdir()) == []
 
 
 def test_a_library_error_is_the_disk_only_when_the_disk_says_so(tmp_path: Path) -> None:

@@ -16,7 +16,6 @@ output removes it, saying so in a warning; a temporary of a run still writing is
 
 from __future__ import annotations
 
-import errno
 import fcntl
 import logging
 import os
@@ -99,7 +98,7 @@ def remove_stale(path: Path, suffix: str | None = None) -> list[Path]:
     suffix = path.suffix if suffix is None else suffix
     pattern = re.compile(rf"\.{re.escape(path.stem)}\.[0-9a-f]{{8}}\.tmp{re.escape(suffix)}")
     try:
-        names = os.listdir(path.parent if str(path.parent) else ".")
+        names = os.listdir(path.parent)
     except OSError:
         return []
     removed = []
@@ -113,17 +112,15 @@ def remove_stale(path: Path, suffix: str | None = None) -> list[Path]:
             continue
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as e:
-            if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
-                raise
-            continue  # its writer is alive
+        except OSError:  # its writer is alive (or the file system cannot tell: kept)
+            continue
         else:
             try:
                 if tmp.is_dir() and not tmp.is_symlink():
                     shutil.rmtree(tmp)
                 else:
                     tmp.unlink()
-            except FileNotFoundError:  # removed by another run meanwhile
+            except OSError:  # removed by another run meanwhile, or not ours to remove
                 continue
             removed.append(tmp)
             log.warning("removed a stale temporary %s left by a run that was killed", tmp)

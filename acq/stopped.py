@@ -12,12 +12,13 @@ SIGKILL cannot be caught: what it leaves is removed by the next run
 from __future__ import annotations
 
 import contextlib
+import signal
 from collections.abc import Iterator
 from types import FrameType
 
-from acq.record.stop_signals import handling, signal_name
+from acq.record.stop_signals import finishing_signals, handling, signal_name
 
-__all__ = ["Stopped", "stopping"]
+__all__ = ["Stopped", "shield_resource_tracker", "stopping"]
 
 
 class Stopped(KeyboardInterrupt):
@@ -49,3 +50,17 @@ def stopping() -> Iterator[None]:
 
     with handling(stop):
         yield
+
+
+def shield_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (unless it runs) with the finishing signals
+    blocked, so that a signal to the whole process group leaves it to the end: it ignores
+    SIGINT and SIGTERM itself, but dies of a SIGHUP, and its successor then prints a
+    traceback for each of the workers' resources while the command stops."""
+    from multiprocessing import resource_tracker
+
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, finishing_signals())
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)

@@ -11,6 +11,7 @@ added, the writing is acq's own."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -48,10 +49,11 @@ sys.exit(main(sys.argv[2:]))
 
 
 def _held(mark: Path, *argv: str) -> subprocess.Popen[str]:
-    """``acq ARGV`` held in the middle of its write (module docstring): returned once
-    there."""
+    """``acq ARGV`` held in the middle of its write (module docstring), in a process
+    group of its own (with its workers): returned once there."""
     proc = subprocess.Popen([sys.executable, "-c", _HOLD, str(mark), *argv],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
     deadline = time.monotonic() + 120
     while not mark.exists():
         assert proc.poll() is None, proc.communicate()
@@ -128,6 +130,28 @@ def test_colorize_stopped_by_a_signal_removes_its_temporary_and_keeps_the_old_cl
         "removed, its old output kept"
     )
     assert _files(folder) == before
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_colorize_on_workers_stopped_with_its_workers_says_one_line(
+    drive_and_folder: tuple[DriveTruth, Path, Path], tmp_path: Path, signum: int
+) -> None:
+    """A signal to the whole process group (systemd stopping a unit, a terminal closing):
+    the workers and the progress queue's server end at once; the command still ends with
+    its one line, no traceback of the queue's reader or of multiprocessing's resource
+    tracker (which a SIGHUP would end)."""
+    truth, calib, folder = drive_and_folder
+    out = folder / "y.laz"
+    proc = _held(tmp_path / "mark", *_colorize(truth, calib, out), "--workers", "2")
+    time.sleep(0.5)  # the progress queue's reader asks again meanwhile
+    os.killpg(proc.pid, signum)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signum, err
+    assert err.splitlines() == [
+        f"acq colorize: stopped by {signal.Signals(signum).name}: the file being written "
+        "removed, its old output kept"
+    ]
+    assert _files(folder) == {}
 
 
 def test_colorize_killed_leaves_a_temporary_the_next_run_removes(

@@ -1,8 +1,8 @@
 """The coloured cloud's file, written chunk by chunk (step 5 of :mod:`acq.cloud.colorize`):
 PLY, LAS, LAZ, COPC or E57 by the output's suffix (:func:`format_of`), under a temporary name
 renamed at the end; a full disk is said as such, naming the output and the disk. Every
-point keeps the camera and frame it was coloured from, and the
-file names the cameras (each format's way: see its module)."""
+point keeps the camera and frame it was coloured from, and the file names the cameras
+(each format's way: see its module)."""
 
 from __future__ import annotations
 
@@ -61,13 +61,13 @@ def _naming(output: Path) -> Iterator[None]:
 
 class CloudWriter:
     """The output file, written chunk by chunk in chunk order: PLY, LAS, LAZ, COPC or E57 by
-        ``output``'s suffix; ``seconds`` spent writing. Its errors name ``output`` (a full
-    disk: :class:`acq.errors.DiskFullError`).
-        ``cameras``: the job's camera names, in the order the points' ``camera`` indexes;
-        InputValueError for more than 255 (255 is :data:`NO_CAMERA`) or a name that is not one
-        line of printable ASCII (the formats' headers hold them as text lines). ``utc_doubt``:
-        why the points' UTC cannot be trusted (:func:`acq.time.host_clock_summary.utc_doubt`),
-        written as a comment (in LAS, whose files have no comments, as a VLR)."""
+    ``output``'s suffix; ``seconds`` spent writing. Its errors name ``output`` (a full
+    disk: :class:`acq.errors.DiskFullError`). ``cameras``: the job's camera names, in the
+    order the points' ``camera`` indexes; InputValueError for more than 255 (255 is
+    :data:`NO_CAMERA`) or a name that is not one line of printable ASCII (the formats'
+    headers hold them as text lines). ``utc_doubt``: why the points' UTC cannot be trusted
+    (:func:`acq.time.host_clock_summary.utc_doubt`), written as a comment (in LAS, whose
+    files have no comments, as a VLR)."""
 
     def __init__(
         self, output: Path, crs: str | None, clock: np.ndarray, report: Report,

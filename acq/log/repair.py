@@ -33,8 +33,8 @@ def repair(
 
     Raises FileExistsError rather than overwrite ``dst`` (unless ``into_empty``: ``dst``
     is an empty temporary of :func:`acq.atomic_write.temporary_beside`, written in place),
-    :class:`acq.log.reader.LogError`
-    when ``src`` is not an MCAP log. ``chunk_size`` is the uncompressed chunk size, bytes.
+    :class:`acq.log.reader.LogError` when ``src`` is not an MCAP log. ``chunk_size`` is
+    the uncompressed chunk size, bytes.
     """
     reader = LogReader(src)
     mark = {"source": reader.path.name, "source_bytes": str(reader.size)}

@@ -1,13 +1,13 @@
 """The root of every error acq raises, and the one kind the command line reports as bad input.
 
 Libraries raise these (or their own subclasses, defined where they are raised);
-``acq.cli`` turns them into a line and an exit status: :class:`InputError` 2, any other
-1.
+``acq.cli`` turns them into a line and an exit status: :class:`InputError` 2,
+:class:`DiskFullError` 3, any other 1.
 """
 
 from __future__ import annotations
 
-__all__ = ["AcqError", "InputError", "InputValueError"]
+__all__ = ["AcqError", "DiskFullError", "InputError", "InputValueError"]
 
 
 class AcqError(Exception):
@@ -22,3 +22,9 @@ class InputError(AcqError):
 class InputValueError(InputError, ValueError):
     """A bad value given by the user (a flag's, a file's); also a ValueError, for the
     callers that catch that."""
+
+
+class DiskFullError(AcqError):
+    """An output that did not fit on its disk (no space left, a quota or a file size
+    limit reached): exit status 3, as `acq record` at its disk reserve; the message names
+    the output and the disk (:func:`acq.disk_space.full_disk_error`)."""

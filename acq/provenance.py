@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from acq import __version__
-from acq.atomic_write import temporary_beside
+from acq.atomic_write import discard, temporary_beside
 
 __all__ = ["SOFTWARE", "made_by_acq", "marked_image", "write_image"]
 
@@ -69,7 +69,7 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray) -> None:
     except OSError as e:
         raise OSError(e.errno, e.strerror or str(e), str(path)) from e
     finally:
-        tmp.unlink(missing_ok=True)
+        discard(tmp)
 
 
 def made_by_acq(path: str | os.PathLike[str]) -> bool:

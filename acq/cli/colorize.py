@@ -44,7 +44,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "point keeps its time (PLY 'scalar_time': UTC s; LAS: Adjusted Standard GPS time), scan "
         "index and intensity. OUT and the preview replace what acq wrote before; an input, a "
         "file of another kind or anyone else's is refused (--force replaces the last). Exit "
-        "status: 0 written, 2 bad input.",
+        "status: 0 written, 2 bad input, 3 the disk full, 1 another failure; stopped by a "
+        "signal (SIGTERM, SIGHUP, Ctrl-C), 128 + its number, the old OUT kept.",
     )
     col.add_argument("logs", nargs="+", type=Path, metavar="LOG", help="MCAP files or a folder")
     col.add_argument("--calib", type=Path, required=True, help="calib.yaml (camera and laser)")
@@ -137,7 +138,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.add_argument("--no-preview", action="store_true", help="no preview image")
     col.add_argument("--json", action="store_true", help="JSON report instead of text")
     col.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
-    col.set_defaults(handler=run)
+    col.set_defaults(handler=run, stops_cleanly=True)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import sys
 from pathlib import Path
 
-from acq.atomic_write import temporary_beside
+from acq.atomic_write import discard, temporary_beside
 from acq.cli import output_files
 from acq.cli.output_files import Output
+from acq.disk_space import naming_full_disk
 from acq.errors import InputError
 
 HELP = "logs for other tools: a ROS 2 bag (rosbag2, MCAP storage)"
@@ -35,7 +35,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "acq wrote there; a folder with any other file is refused, and with --force kept "
         "whole as BAG.bak (a file acq did not write is never deleted); an input, a file "
         "or the current folder is refused. "
-        "Exit status: 0 written, 2 bad input, 1 another failure.",
+        "Exit status: 0 written, 2 bad input, 3 the disk full, 1 another failure; stopped by "
+        "a signal (SIGTERM, SIGHUP, Ctrl-C), 128 + its number, the old BAG kept.",
     )
     ros2.add_argument(
         "logs", nargs="+", type=Path, metavar="LOG", help="MCAP files of a session, or its folder"
@@ -49,7 +50,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="a BAG folder holding files acq did not write: keep it whole as BAG.bak and "
         "write the bag in its place (without: refused, naming the files)",
     )
-    ros2.set_defaults(handler=run)
+    ros2.set_defaults(handler=run, stops_cleanly=True)
 
 
 def _check_bag(logs: list[Path], bag: Path, force: bool) -> Path | None:
@@ -74,10 +75,10 @@ def run(args: argparse.Namespace) -> int:
     kept = _check_bag(args.logs, bag, args.force)
     # written in a folder beside (rosbags names its storage file after the bag's folder),
     # then put in place: a failure leaves the old bag as it was
-    work = temporary_beside(bag, suffix="")
+    work = temporary_beside(bag, suffix="", folder=True)
     try:
-        work.mkdir()
-        report = export_ros2(args.logs, work / bag.name)
+        with naming_full_disk(bag):
+            report = export_ros2(args.logs, work / bag.name)
         if kept is not None:
             os.rename(bag, kept)  # whole, as it was: nothing of the user's deleted
             print(f"acq export ros2: kept the old {bag} as {kept}", file=sys.stderr)
@@ -85,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
             os.replace(bag, work / "old")  # acq's files only: removed with the work folder
         os.replace(work / bag.name, bag)  # refused (the old one stays) if files came since
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        discard(work)
     counts = ", ".join(f"{topic} {n}" for topic, n in sorted(report.counts.items()))
     print(f"{bag}: {counts}")
     if report.left_out:

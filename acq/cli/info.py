@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
             if dst.exists():
                 raise InputError(f"{dst}: exists; not overwritten")
             with output_files.atomic(dst) as tmp:  # a failure leaves no half copy
-                n = repair(src, tmp)
+                n = repair(src, tmp, into_empty=True)
             print(f"{src} -> {dst}: {n} messages, indexed")
         return 0
     sessions = inputs.sessions(args.logs)

@@ -4,8 +4,10 @@ line on stderr and an exit status.
 Exit status: 0 success; 2 bad usage or bad input (a bad option or value, refused while
 the command line is parsed, or :class:`acq.errors.InputError`: one line naming the
 option, or the file and the key); 1 a runtime failure (any other error: one line, the
-traceback with ``--debug``); 130 Ctrl-C; ``acq record`` also 3, the disk below its
-reserve. A closed stdout (``acq info LOG | head``) ends the command quietly.
+traceback with ``--debug``); 3 an output that did not fit on its disk (``acq record``:
+the disk below its reserve); 130 Ctrl-C; a command that writes files (``stops_cleanly``)
+stopped by a signal: 128 + its number, its temporaries removed and one line said. A
+closed stdout (``acq info LOG | head``) ends the command quietly.
 
 Each command's module imports the library it calls inside its handler, and only the
 command named is given its arguments (their choices come from the driver registry, the
@@ -18,6 +20,7 @@ every library the commands call imported at the top (best of 5 and of 3, a loade
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import logging
 import os
@@ -45,7 +48,8 @@ from acq.cli import (
 )
 from acq.cli.standard_streams import reopen_closed
 from acq.credentials import RedactingFilter, redact
-from acq.errors import AcqError, InputError
+from acq.errors import AcqError, DiskFullError, InputError
+from acq.stopped import Stopped, stopping
 
 if TYPE_CHECKING:
     from _typeshed import SupportsWrite
@@ -67,7 +71,7 @@ COMMANDS: dict[str, ModuleType] = {
     "devices": devices,
 }
 VERSION = f"acq {__version__}"
-EXIT_FAILURE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
+EXIT_FAILURE, EXIT_USAGE, EXIT_DISK_FULL, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 3, 130, 141
 
 
 class _Parser(argparse.ArgumentParser):
@@ -158,13 +162,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         if logs:
             logs = _log_inputs(args, logs)
         progress.enable(progress.wanted(getattr(args, "progress", False)))
-        with progress.reading(logs):
+        stops = stopping() if getattr(args, "stops_cleanly", False) else contextlib.nullcontext()
+        with stops, progress.reading(logs):
             code = handler(args)
         sys.stdout.flush()  # a closed or full stdout fails here, not at exit
         return code
     except InputError as e:
         _say(prog, str(e))
         return EXIT_USAGE
+    except Stopped as e:
+        _drop_stdout()
+        with contextlib.suppress(OSError):  # SIGHUP: the terminal may be gone
+            _say(prog, f"stopped by {e.name}: the file being written removed, its old output kept")
+        return e.exit_status
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # the reader went away (`acq info LOG | head`): nothing to say
@@ -172,10 +182,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BROKEN_PIPE
     except Exception as e:
         _drop_stdout()
+        full = e if isinstance(e, DiskFullError) else _full_disk(e)
+        if full is not None:
+            _say(prog, str(full))
+            return EXIT_DISK_FULL
         if args.debug:
             traceback.print_exc()
         _say(prog, _describe(e, args.debug))
         return EXIT_FAILURE
+
+
+def _full_disk(e: Exception) -> DiskFullError | None:
+    """A file error of a full disk (a quota, a size limit) as the line naming the file
+    and its disk; None for any other."""
+    from acq.disk_space import FULL_DISK_ERRNOS, full_disk_error
+
+    if isinstance(e, OSError) and e.errno in FULL_DISK_ERRNOS and e.filename:
+        return full_disk_error(Path(os.fsdecode(e.filename)), e)
+    return None
 
 
 def _log_inputs(args: argparse.Namespace, logs: Sequence[os.PathLike[str]]) -> list[Path]:

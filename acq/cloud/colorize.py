@@ -82,6 +82,7 @@ from acq.log.drive_log import DriveLog, read_log
 from acq.log.inputs import session_files
 from acq.log.locate import locate
 from acq.motion import Trajectory
+from acq.stopped import shield_resource_tracker
 from acq.time.host_clock_summary import utc_doubt
 
 # the pipeline's parts, as callers of `acq colorize` and its bench know them
@@ -244,6 +245,7 @@ def _run_each(
         from concurrent.futures import as_completed as completed
 
         ctx = multiprocessing.get_context("spawn")  # numba and threads: no fork
+        shield_resource_tracker()
         with ctx.Manager() as manager:
             reports = manager.Queue()
 
@@ -252,14 +254,20 @@ def _run_each(
                     return [reports.get(timeout=0.2)]
                 except queues.Empty:
                     return []
+                except (EOFError, OSError):  # its server ended (a signal to the group)
+                    time.sleep(0.2)
+                    return []
 
             with (
                 _draining(shares, take),
                 ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool,
             ):
                 pending = [pool.submit(colour_chunk, job, c, None, reports) for c in chunks]
-                for fut in completed(pending):
-                    done(fut.result())
+                try:
+                    for fut in completed(pending):
+                        done(fut.result())
+                finally:  # on an error (a full disk, a signal) the chunks not begun are dropped
+                    pool.shutdown(cancel_futures=True)
     else:  # one process: the log read once (whole), or each chunk its part
         threads = ThreadPoolExecutor(max_workers=max(1, job.threads))
         try:

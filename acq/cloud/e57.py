@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from acq.atomic_write import temporary_beside
+from acq.atomic_write import discard, release, temporary_beside
 from acq.provenance import SOFTWARE
 from acq.time.gpstime import utc_to_gps
 
@@ -56,15 +56,28 @@ class E57Stream:
         from pye57 import libe57
 
         self.path = Path(path)
-        self._tmp = temporary_beside(self.path)
         wkt = ""
         if crs:
             import pyproj
 
             wkt = pyproj.CRS.from_user_input(crs).to_wkt(pyproj.enums.WktVersion.WKT1_GDAL)
         self._e = libe57
-        imf = libe57.ImageFile(str(self._tmp), "w")
+        self._tmp = temporary_beside(self.path)
+        try:
+            imf = libe57.ImageFile(str(self._tmp), "w")
+        except BaseException:
+            discard(self._tmp)
+            raise
         self._imf = imf
+        try:
+            self._start(imf, comments, cameras, wkt)
+        except BaseException:
+            self.abort()
+            raise
+
+    def _start(self, imf: Any, comments: Sequence[str], cameras: Sequence[str], wkt: str) -> None:
+        """Write the file's tree up to the points, and open the points' writer."""
+        libe57 = self._e
         root = imf.root()
         imf.extensionsAdd("", libe57.E57_V1_0_URI)
         imf.extensionsAdd("acq", ACQ_URI)
@@ -183,12 +196,21 @@ class E57Stream:
         scan.set("colorLimits", colours)
         imf.close()
         self._tmp.replace(self.path)
+        release(self._tmp)
         return self.path.stat().st_size
 
     def abort(self) -> None:
-        """Drop the unfinished file."""
+        """Drop the unfinished file; never raises (libE57 closing a half-written file on a
+        full disk fails again, which would hide the first error)."""
         try:
-            self._writer.close()
-        finally:
+            writer = getattr(self, "_writer", None)
+            if writer is not None and writer.isOpen():
+                writer.close()
+        except Exception:  # the file is dropped whatever closing it says
+            pass
+        try:
             self._imf.cancel()
-            self._tmp.unlink(missing_ok=True)
+        except Exception:
+            pass
+        finally:
+            discard(self._tmp)

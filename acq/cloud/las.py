@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from acq.atomic_write import temporary_beside
+from acq.atomic_write import discard, release, temporary_beside
 from acq.provenance import SOFTWARE
 from acq.time.gpstime import gps_adjusted_standard_time
 
@@ -76,7 +76,6 @@ class LasStream:
         from laspy.vlrs.known import WktCoordinateSystemVlr
 
         self.path = Path(path)
-        self._tmp = temporary_beside(self.path)
         self._compress = self.path.suffix.lower() == ".laz"
         header = laspy.LasHeader(point_format=7, version="1.4")
         header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
@@ -94,6 +93,7 @@ class LasStream:
             text = utc_doubt.encode("ascii", "replace")[:60000]  # a VLR holds < 64 KiB
             header.vlrs.append(laspy.VLR(*TIME_BASE_VLR, text))
         self._header = header
+        self._tmp = temporary_beside(self.path)  # last: nothing above leaves it behind
         self._writer: laspy.LasWriter | None = None
         # each extra dimension's (min, max) over the points written; None before any
         self._ranges: dict[str, tuple[int, int]] = {}
@@ -137,13 +137,19 @@ class LasStream:
         self._writer.close()
         write_extra_bytes_ranges(self._tmp, self._ranges)
         self._tmp.replace(self.path)
+        release(self._tmp)
         return self.path.stat().st_size
 
     def abort(self) -> None:
-        """Drop the unfinished file."""
-        if self._writer is not None:
-            self._writer.close()
-        self._tmp.unlink(missing_ok=True)
+        """Drop the unfinished file; never raises (it runs on the way out of an error, which
+        the writer's own, at closing a half-written file on a full disk, would hide)."""
+        try:
+            if self._writer is not None:
+                self._writer.close()
+        except Exception:  # the file is dropped whatever closing it says
+            pass
+        finally:
+            discard(self._tmp)
 
 
 def extra_dims() -> list[laspy.ExtraBytesParams]:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acq.atomic_write import temporary_beside
+from acq.atomic_write import discard, release, temporary_beside
 
 PLY_DTYPE = np.dtype(
     [
@@ -56,13 +56,13 @@ class PlyStream:
         cameras: Sequence[str] = (),
     ) -> None:  # fmt: skip
         self.path = Path(path)
-        self._tmp = temporary_beside(self.path)
         self._comments = [*comments, *(f"camera {k} {name}" for k, name in enumerate(cameras))]
         if not all(c.isprintable() for c in self._comments):  # a line break ends the header
             raise ValueError(f"a PLY comment is one line of printable text: {self._comments}")
         self.points = self.coloured = 0
         self._room = len(self._header(10**15, 10**15))
-        self._file = open(self._tmp, "xb")
+        self._tmp = temporary_beside(self.path)
+        self._file = open(self._tmp, "r+b")
         self._file.seek(self._room)
 
     def _header(self, points: int, coloured: int, pad: int = 0) -> bytes:
@@ -107,9 +107,15 @@ class PlyStream:
         self._file.write(head)
         self._file.close()
         self._tmp.replace(self.path)
+        release(self._tmp)
         return self.path.stat().st_size
 
     def abort(self) -> None:
-        """Drop the unfinished file."""
-        self._file.close()
-        self._tmp.unlink(missing_ok=True)
+        """Drop the unfinished file; never raises (closing it flushes what a full disk
+        refused again)."""
+        try:
+            self._file.close()
+        except OSError:
+            pass
+        finally:
+            discard(self._tmp)

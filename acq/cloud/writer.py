@@ -1,7 +1,8 @@
 """The coloured cloud's file, written chunk by chunk (step 5 of :mod:`acq.cloud.colorize`):
 PLY, LAS, LAZ, COPC or E57 by the output's suffix (:func:`format_of`), under a temporary name
-renamed at the end. Every point keeps the camera and frame it was coloured from, and the
-file names the cameras (each format's way: see its module)."""
+renamed at the end; a full disk is said as such, naming the output and the disk. Every
+point keeps the camera and frame it was coloured from, and the file names the cameras
+(each format's way: see its module)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from acq.cloud.e57 import E57Stream
 from acq.cloud.las import LasStream
 from acq.cloud.ply import PlyStream
 from acq.cloud.report import Report
+from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
 from acq.time.utc import utc_seconds
 
@@ -42,21 +44,30 @@ def format_of(output: Path, option: str = "-o") -> str:
 
 @contextmanager
 def _naming(output: Path) -> Iterator[None]:
-    """An OSError writing ``output`` (really its temporary file) names ``output``."""
+    """An error writing ``output`` (really its temporary file) that came from a full disk
+    is the :class:`acq.errors.DiskFullError` naming ``output`` and its disk (the
+    libraries' own, LazrsError, E57Exception, hide it: :mod:`acq.disk_space`); another
+    OSError names ``output``."""
     try:
         yield
-    except OSError as e:
-        raise OSError(e.errno, e.strerror or str(e), str(output)) from e
+    except Exception as e:
+        full = full_disk_error(output, e)
+        if full is not None:
+            raise full from e
+        if isinstance(e, OSError):
+            raise OSError(e.errno, e.strerror or str(e), str(output)) from e
+        raise
 
 
 class CloudWriter:
     """The output file, written chunk by chunk in chunk order: PLY, LAS, LAZ, COPC or E57 by
-    ``output``'s suffix; ``seconds`` spent writing. Its OSErrors name ``output``.
-    ``cameras``: the job's camera names, in the order the points' ``camera`` indexes;
-    InputValueError for more than 255 (255 is :data:`NO_CAMERA`) or a name that is not one
-    line of printable ASCII (the formats' headers hold them as text lines). ``utc_doubt``:
-    why the points' UTC cannot be trusted (:func:`acq.time.host_clock_summary.utc_doubt`),
-    written as a comment (in LAS, whose files have no comments, as a VLR)."""
+    ``output``'s suffix; ``seconds`` spent writing. Its errors name ``output`` (a full
+    disk: :class:`acq.errors.DiskFullError`). ``cameras``: the job's camera names, in the
+    order the points' ``camera`` indexes; InputValueError for more than 255 (255 is
+    :data:`NO_CAMERA`) or a name that is not one line of printable ASCII (the formats'
+    headers hold them as text lines). ``utc_doubt``: why the points' UTC cannot be trusted
+    (:func:`acq.time.host_clock_summary.utc_doubt`), written as a comment (in LAS, whose
+    files have no comments, as a VLR)."""
 
     def __init__(
         self, output: Path, crs: str | None, clock: np.ndarray, report: Report,

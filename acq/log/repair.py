@@ -21,14 +21,20 @@ REPAIR_RECORD = "acq.repair"  # metadata: source (file name), source_bytes (its 
 
 
 def repair(
-    src: str | os.PathLike[str], dst: str | os.PathLike[str], *, chunk_size: int = 1 << 20
+    src: str | os.PathLike[str],
+    dst: str | os.PathLike[str],
+    *,
+    chunk_size: int = 1 << 20,
+    into_empty: bool = False,
 ) -> int:
     """Write every readable message of ``src`` (with its schemas, channels, metadata and
     attachments) to a new, indexed, zstd-chunked MCAP ``dst``, marked as its repaired
     copy (:data:`REPAIR_RECORD`); returns the message count.
 
-    Raises FileExistsError rather than overwrite ``dst``, :class:`acq.log.reader.LogError`
-    when ``src`` is not an MCAP log. ``chunk_size`` is the uncompressed chunk size, bytes.
+    Raises FileExistsError rather than overwrite ``dst`` (unless ``into_empty``: ``dst``
+    is an empty temporary of :func:`acq.atomic_write.temporary_beside`, written in place),
+    :class:`acq.log.reader.LogError` when ``src`` is not an MCAP log. ``chunk_size`` is
+    the uncompressed chunk size, bytes.
     """
     reader = LogReader(src)
     mark = {"source": reader.path.name, "source_bytes": str(reader.size)}
@@ -38,7 +44,7 @@ def repair(
     schemas: dict[int, Schema] = {}
     pending: dict[int, Channel] = {}
     count = 0
-    with dst.open("xb") as out:
+    with dst.open("r+b" if into_empty else "xb") as out:
         writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         started = False
         try:

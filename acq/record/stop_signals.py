@@ -28,7 +28,7 @@ import signal
 from collections.abc import Callable, Iterator
 from types import FrameType
 
-__all__ = ["LEFT_TO_DEFAULT", "finishing", "finishing_signals", "signal_name"]
+__all__ = ["LEFT_TO_DEFAULT", "finishing", "finishing_signals", "handling", "signal_name"]
 
 log = logging.getLogger("acq.record")
 
@@ -67,14 +67,22 @@ def finishing(stop: Callable[[], None]) -> Iterator[list[int]]:
         log.info("%s: finishing the file", signal_name(signum))
         stop()
 
+    with handling(finish) as handled:
+        yield handled
+
+
+@contextlib.contextmanager
+def handling(handler: Callable[[int, FrameType | None], None]) -> Iterator[list[int]]:
+    """Within, ``handler`` handles each of :func:`finishing_signals`; the handlers before
+    are put back after. Yields the signals handled (main thread only)."""
     old: dict[int, object] = {}
     try:
         for s in finishing_signals():
             try:
-                old[s] = signal.signal(s, finish)
+                old[s] = signal.signal(s, handler)
             except (OSError, ValueError):  # one the C library keeps for itself
                 continue
         yield sorted(old)
     finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)  # type: ignore[arg-type]
+        for s, h in old.items():
+            signal.signal(s, h)  # type: ignore[arg-type]

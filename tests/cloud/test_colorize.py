@@ -181,9 +181,10 @@ def test_a_full_disk_midway_is_one_line_and_leaves_the_old_output(
     monkeypatch.setattr(cloud.PlyStream, "write", write)
     args = _args(*map(str, truth.files), "--calib", str(calib), "-o", str(out), "--frame",
                  "laser", "--no-preview", "--chunk", "1.5")  # fmt: skip
-    assert acq_main(args) == 1  # a runtime failure, not bad input
+    assert acq_main(args) == 3  # the disk full, as `acq record` at its reserve
     err = capsys.readouterr().err
-    assert err == f"acq colorize: {out}: No space left on device\n"
+    assert err.startswith(f"acq colorize: {out}: no space left on the disk of {tmp_path} (")
+    assert err.endswith(" MB free)\n") and err.count("\n") == 1
     assert out.read_bytes() == earlier and sorted(tmp_path.iterdir()) == [out]
 
 

@@ -29,7 +29,7 @@ def test_probe_camera_reads_the_simulated_camera_at_25_hz(
 ) -> None:
     url = f"http://127.0.0.1:{free_port()}/stream.mjpg"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "acq.cli", "sim", "camera", "--listen", url],
+        [sys.executable, "-m", "acq.cli", "sim", "camera", "--listen", url, "--still"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:

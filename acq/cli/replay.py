@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
-import signal
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from acq import progress
 from acq.atomic_write import write_text
@@ -16,6 +16,7 @@ from acq.cli.exposure import warn_if_exposed
 from acq.cli.option_types import real
 from acq.cli.output_files import Output
 from acq.errors import InputError
+from acq.record.stop_signals import handling, signal_name
 
 if TYPE_CHECKING:
     from acq.sim.replay import Replay
@@ -136,10 +137,15 @@ def run(args: argparse.Namespace) -> int:
     except OSError as e:
         raise OSError(e.errno, f"cannot serve: {e.strerror or e}") from e
     stop = threading.Event()
-    old: dict[signal.Signals, Any] = {}
+    signals = contextlib.ExitStack()
     if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            old[sig] = signal.signal(sig, lambda *_: stop.set())
+        # every signal that would end the process (a dropped ssh link's SIGHUP too):
+        # the devices close their connections and the command ends as at the log's end
+        def _stop(signum: int, _frame: object) -> None:
+            log.info("%s: the replay stops", signal_name(signum))
+            stop.set()
+
+        signals.enter_context(handling(_stop))
     try:
         print(_describe_session(replay))
         for name, url in replay.urls.items():
@@ -174,5 +180,4 @@ def run(args: argparse.Namespace) -> int:
         return 0
     finally:
         replay.close()
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
+        signals.close()

@@ -5,6 +5,7 @@ ranges) and JPEG bytes, in order, at the recorded pace."""
 
 from __future__ import annotations
 
+import signal
 import socket
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -306,3 +307,27 @@ def test_the_cli_shows_a_bar_of_the_log_served(recorded: list[Path]) -> None:
     assert states and "100%" in states[-1], err
     assert len(states) >= 3  # RECORD_S / 2 s of serving, redrawn at least every second
     assert "the log has been served to its end" in err
+
+
+@pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGUSR1])
+def test_a_signal_that_would_end_the_replay_closes_it(recorded: list[Path], signum: int) -> None:
+    """A dropped ssh link (SIGHUP) or any other ending signal closes the devices and ends
+    the command as at the log's end; only SIGTERM and SIGINT did (SIGHUP killed it)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", "replay", *map(str, recorded)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if line.startswith("the replay starts"):
+                break
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert f"{signal.Signals(signum).name}: the replay stops" in err

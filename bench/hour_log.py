@@ -43,14 +43,15 @@ How a copy is made (copy ``k``, times shifted by ``k * period_ns``):
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import errno
 import json
 import math
 import os
 import resource
 import shutil
+import signal
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -62,37 +63,21 @@ import yaml
 from mcap.reader import make_reader
 
 from acq.atomic_write import temporary_beside
-from acq.drivers.registry import REGISTRIES, DriverImportError, UnknownDriver
-from acq.drivers.scip_codec import SCAN_COMMANDS, checksum, decode_int, encode
 from acq.errors import InputError
 from acq.log import LogError, LogReader, LogWriter, read_metadata
 from acq.log.acq_proto import TimeBaseMsg, TimingMsg
 from acq.log.schemas import Schema, host_clock_of, message_class
 from acq.log.stamp_shift import shift_stamps
 from acq.log.timebase import TimeBase
-from acq.record.adapters import GNSS_TICK_HZ
 from acq.record.config import OutputConfig
 from acq.time.host_clock_summary import HostClockTally
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as a script or loaded by path
+from shifted_copy import CounterKey, Shifter, Ticks, counter_steps, device_ticks
 
 __all__ = ["HourLogError", "write_hour_log"]
 
 _FAST_HZ = 2.0  # channels faster than this must record over the whole window
-_GNSS_TICK_BITS = 62  # as the recorder's GNSS clock (acq.record.adapters)
-# the fields holding host or UTC ns, by schema (Timestamps are found by their type)
-_NS_FIELDS = {
-    "acq.Timing": ("recv_ns", "stamp_ns"),
-    "acq.RawTelegram": ("recv_ns",),
-    "acq.Clock": ("realtime_ns", "monotonic_ns"),
-    "acq.Odometry": ("recv_ns",),
-    "acq.CanFrame": ("recv_ns", "wall_ns"),
-    "acq.TimeBase": ("realtime_ns", "monotonic_ns"),
-}
-_COUNTERS = {"acq.Timing": ("sequence", "received", "dropped"), "acq.RawTelegram": ("sequence",)}
-_STATUS_COUNTERS = (
-    "received", "dropped", "corrupt", "disconnects", "protocol_errors", "odd_size"
-)  # fmt: skip
-
-CounterKey = tuple[str, ...]
 
 
 class HourLogError(InputError):
@@ -110,14 +95,6 @@ class _Source:
     metadata: dict[str, dict[str, str]]
     time_base: TimeBase
     profile: str
-
-
-@dataclass(frozen=True)
-class _Ticks:
-    """A device's clock counter: its rate (Hz) and width (bits)."""
-
-    hz: float
-    bits: int
 
 
 @dataclass(frozen=True)
@@ -178,7 +155,7 @@ def _median_period_ns(times: Sequence[int]) -> float:
     return float(np.median(d)) if d.size else math.inf
 
 
-def _plan(source: _Source, minutes: float, ticks: dict[str, _Ticks]) -> _Plan:
+def _plan(source: _Source, minutes: float, ticks: dict[str, Ticks]) -> _Plan:
     """The window the copies repeat and how many copies make ``minutes`` of log time.
 
     A message belongs to the window by its stamp (``publish_time``): a scanner's come
@@ -242,11 +219,14 @@ def _plan(source: _Source, minutes: float, ticks: dict[str, _Ticks]) -> _Plan:
             head.append(i)
         if t0 <= pub and log_ns <= cut:
             tail.append(i)
-    steps = _counter_steps(source, middle)
+    steps = counter_steps(
+        (source.messages[i][0], source.schemas[source.messages[i][0]].name, source.messages[i][3])
+        for i in middle
+    )
     return _Plan(head, middle, tail, copies, period_ns, steps)
 
 
-def _scan_period_ns(source: _Source, name: str, ticks: dict[str, _Ticks]) -> float | None:
+def _scan_period_ns(source: _Source, name: str, ticks: dict[str, Ticks]) -> float | None:
     """A scanner's period by its own clock (the median step of its ticks), ns; None
     without ticks."""
     clock = ticks.get(name)
@@ -270,182 +250,6 @@ def _steady(source: _Source, window: list[int], period_ns: int) -> bool:
         first.setdefault(topic, log_ns)
         last[topic] = log_ns
     return all(first[t] + period_ns > last[t] for t in first)
-
-
-# --- counters ----------------------------------------------------------------------------
-
-
-def _counters(schema: str, msg: Any) -> dict[CounterKey, int]:
-    """The counters a message holds, by key (field, or device and field)."""
-    if schema in _COUNTERS:
-        return {(f,): int(getattr(msg, f)) for f in _COUNTERS[schema]}
-    if schema == "acq.Status":
-        return {(d.name, f): int(getattr(d, f)) for d in msg.devices for f in _STATUS_COUNTERS}
-    if schema == "acq.TimeBase" and msg.HasField("pps"):
-        return {("pps", f): int(getattr(msg.pps, f)) for f in ("assert_sequence", "clear_sequence")}
-    return {}
-
-
-def _add_counters(schema: str, msg: Any, steps: dict[CounterKey, int], k: int) -> None:
-    if not steps or k == 0:
-        return
-    if schema in _COUNTERS:
-        for f in _COUNTERS[schema]:
-            setattr(msg, f, getattr(msg, f) + k * steps.get((f,), 0))
-    elif schema == "acq.Status":
-        for d in msg.devices:
-            for f in _STATUS_COUNTERS:
-                setattr(d, f, getattr(d, f) + k * steps.get((d.name, f), 0))
-    elif schema == "acq.TimeBase" and msg.HasField("pps"):
-        for f in ("assert_sequence", "clear_sequence"):
-            setattr(msg.pps, f, getattr(msg.pps, f) + k * steps.get(("pps", f), 0))
-
-
-def _counter_steps(source: _Source, window: list[int]) -> dict[str, dict[CounterKey, int]]:
-    """Per topic and counter, what one window adds: its last value minus its first, plus
-    the usual step between two messages (1 for a sequence, 0 for no drops)."""
-    values: dict[str, dict[CounterKey, list[int]]] = {}
-    for i in window:
-        topic, _log, _pub, data = source.messages[i]
-        schema = source.schemas[topic].name
-        if schema not in _COUNTERS and schema not in ("acq.Status", "acq.TimeBase"):
-            continue
-        for key, v in _counters(schema, message_class(schema).FromString(data)).items():
-            values.setdefault(topic, {}).setdefault(key, []).append(v)
-    steps: dict[str, dict[CounterKey, int]] = {}
-    for topic, by_key in values.items():
-        for key, series in by_key.items():
-            usual = round(float(np.median(np.diff(series)))) if len(series) > 1 else 0
-            steps.setdefault(topic, {})[key] = max(series[-1] - series[0] + usual, 0)
-    return steps
-
-
-# --- device ticks ------------------------------------------------------------------------
-
-
-def _device_ticks(metadata: dict[str, dict[str, str]], source: _Source) -> dict[str, _Ticks]:
-    """The clock counter of every device whose timing records carry ticks: a scanner's
-    from its driver class, the GNSS receiver's (UTC µs) as the recorder keeps it."""
-    named = {
-        t.removeprefix("/acq/timing/") for t, s in source.schemas.items() if s.name == "acq.Timing"
-    } | {t[1:].removesuffix("/raw") for t, s in source.schemas.items() if t.endswith("/raw")}
-    out: dict[str, _Ticks] = {}
-    clock = metadata.get("clock", {})
-    for name in sorted(named):
-        driver = metadata.get(f"device.{name}", {}).get("driver")
-        if name == "gnss":
-            out[name] = _Ticks(GNSS_TICK_HZ, _GNSS_TICK_BITS)
-            continue
-        cls: Any = None
-        if driver:
-            try:
-                cls = REGISTRIES["scanner"].get(driver)
-            except (UnknownDriver, DriverImportError):
-                cls = None
-        if cls is not None:
-            out[name] = _Ticks(float(cls.tick_hz), int(cls.tick_bits))
-        elif f"{name}.tick_hz" in clock:
-            out[name] = _Ticks(float(clock[f"{name}.tick_hz"]), 64)
-    return out
-
-
-def _scip_with_tick(data: bytes, add: int) -> bytes | None:
-    """A SCIP scan telegram with ``add`` ms on its 24-bit timestamp; None if ``data`` is
-    no SCIP scan telegram (echo, status, timestamp line)."""
-    parts = data.split(b"\n", 3)
-    if len(parts) < 4 or parts[0][:2].decode("ascii", "replace") not in SCAN_COMMANDS:
-        return None
-    ts = parts[2]
-    if len(ts) != 5 or ts[4] != checksum(ts[:4]):
-        return None
-    tick = (decode_int(ts[:4]) + add) % (1 << 24)
-    new = encode([tick], 4)
-    return b"\n".join((parts[0], parts[1], new + bytes([checksum(new)]), parts[3]))
-
-
-# --- one message -------------------------------------------------------------------------
-
-
-@dataclass
-class _Shifter:
-    """Shifts one source message into copy ``k``."""
-
-    schemas: dict[str, Schema]
-    ticks: dict[str, _Ticks]
-    steps: dict[str, dict[CounterKey, int]]
-    period_ns: int
-    untouched_telegrams: int = 0  # raw telegrams whose own time field was left
-
-    def __call__(self, topic: str, data: bytes, k: int) -> bytes:
-        if k == 0:
-            return data
-        schema = self.schemas[topic].name
-        msg = message_class(schema).FromString(data)
-        delta = k * self.period_ns
-        shift_stamps(msg, delta)
-        for f in _NS_FIELDS.get(schema, ()):
-            if getattr(msg, f):
-                setattr(msg, f, getattr(msg, f) + delta)
-        _add_counters(schema, msg, self.steps.get(topic, {}), k)
-        if schema == "acq.Status":
-            msg.uptime_s += delta * 1e-9
-        elif schema == "acq.TimeBase":
-            self._time_base(msg, delta)
-        elif schema == "foxglove.LocationFix":
-            _fix_utc(msg, delta)
-        elif schema in ("acq.Timing", "acq.RawTelegram"):
-            self._ticks(topic, schema, msg, delta)
-        out: bytes = msg.SerializeToString()
-        return out
-
-    def _ticks(self, topic: str, schema: str, msg: Any, delta: int) -> None:
-        device = (
-            topic.removeprefix("/acq/timing/")
-            if schema == "acq.Timing"
-            else msg.device or topic[1:].removesuffix("/raw")
-        )
-        ticks = self.ticks.get(device)
-        if ticks is None or not msg.device_ticks:
-            return
-        add = delta * ticks.hz / 1e9
-        if abs(add - round(add)) > 1e-6:
-            raise HourLogError(f"{device}: {delta} ns is not a whole number of its ticks")
-        add = round(add)
-        wrap = 1 << ticks.bits
-        msg.device_ticks[:] = [(t + add) % wrap for t in msg.device_ticks]
-        if schema == "acq.Timing" and msg.unwrapped_tick:
-            msg.unwrapped_tick += add
-        elif schema == "acq.RawTelegram":
-            data = _scip_with_tick(msg.data, add) if ticks.hz == 1000.0 else None
-            if data is None:
-                self.untouched_telegrams += 1
-            else:
-                msg.data = data
-
-    @staticmethod
-    def _time_base(msg: Any, delta: int) -> None:
-        ds = delta * 1e-9
-        if msg.HasField("chrony") and msg.chrony.ref_time_s:
-            msg.chrony.ref_time_s += ds
-        if msg.HasField("pps"):
-            for f in ("assert_s", "clear_s"):
-                if getattr(msg.pps, f):
-                    setattr(msg.pps, f, getattr(msg.pps, f) + ds)
-
-
-def _fix_utc(msg: Any, delta: int) -> None:
-    """A LocationFix's ``utc_s`` and ``utc`` metadata moved by ``delta`` ns."""
-    items = {kv.key: kv for kv in msg.metadata}
-    if "utc_s" not in items:
-        return
-    try:
-        utc_s = float(items["utc_s"].value) + delta * 1e-9
-    except ValueError:
-        return
-    items["utc_s"].value = f"{utc_s:.3f}"
-    if "utc" in items and items["utc"].value:
-        text = dt.datetime.fromtimestamp(utc_s, dt.UTC).isoformat(timespec="milliseconds")
-        items["utc"].value = text.replace("+00:00", "Z")
 
 
 # --- the whole log -----------------------------------------------------------------------
@@ -529,7 +333,8 @@ def write_hour_log(
         raise HourLogError(f"--minutes: {minutes} is not a positive number of minutes")
     _check_out(out, split)
     source = _read_source(src)
-    ticks = _device_ticks(source.metadata, source)
+    names = {topic: schema.name for topic, schema in source.schemas.items()}
+    ticks = device_ticks(source.metadata, names)
     plan = _plan(source, minutes, ticks)
     need = src.stat().st_size * plan.copies
     free = shutil.disk_usage(out.parent).free
@@ -537,7 +342,10 @@ def write_hour_log(
         raise OSError(
             errno.ENOSPC, f"about {need / 1e9:.1f} GB needed, {free / 1e9:.1f} GB free", str(out)
         )
-    shifter = _Shifter(source.schemas, ticks, plan.steps, plan.period_ns)
+    try:
+        shifter = Shifter(names, ticks, plan.steps, plan.period_ns)
+    except ValueError as e:
+        raise HourLogError(str(e)) from None
     folder = out if split else temporary_beside(out, "")
     made_folder = not folder.exists()
     rolling = _rolling(source.metadata)
@@ -618,16 +426,45 @@ def _restamped(source: _Source, topic: str, data: bytes, publish_ns: int) -> Cal
     return encode_at
 
 
+def _measure(src: Path, out: Path, minutes: float, split: bool) -> int:
+    """Write the drive and print its JSON line; the exit status."""
+    t_wall, t_cpu = time.perf_counter(), time.process_time()
+    try:
+        result = write_hour_log(src, out, minutes, split=split)
+    except HourLogError as e:
+        print(f"hour_log: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        print(f"hour_log: {e.filename or out}: {e.strerror or e}", file=sys.stderr)
+        return 3 if e.errno in (errno.ENOSPC, errno.EDQUOT) else 1
+    line = {
+        "bench": "hour_log",
+        "src": str(src),
+        "minutes": minutes,
+        **result,
+        "wall_s": round(time.perf_counter() - t_wall, 1),
+        "cpu_s": round(time.process_time() - t_cpu, 1),
+        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        "loadavg": [round(x, 2) for x in os.getloadavg()],
+    }
+    print(json.dumps(line))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python bench/hour_log.py",
         description="Write a long drive made of time-shifted copies of a short acq log (one "
-        "continuous drive to acq info, colorize and replay); print one JSON line.",
+        "continuous drive to acq info, colorize and replay); print one JSON line: copies, "
+        "messages, bytes, span, wall and CPU s, peak memory. Without SRC and OUT (make "
+        "bench): a minute from the 2 s simulated drive, in a temporary folder removed after.",
     )
-    parser.add_argument("src", type=Path, help="a closed acq log (e.g. acq demo's demo.mcap)")
-    parser.add_argument("out", type=Path, help="the new log (never overwritten)")
     parser.add_argument(
-        "--minutes", type=float, default=60.0, help="the drive's length, minutes (default 60)"
+        "src", type=Path, nargs="?", help="a closed acq log (e.g. acq demo's demo.mcap)"
+    )
+    parser.add_argument("out", type=Path, nargs="?", help="the new log (never overwritten)")
+    parser.add_argument(
+        "--minutes", type=float, default=None, help="the drive's length, minutes (default 60)"
     )
     parser.add_argument(
         "--split",
@@ -637,29 +474,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         "each), not one file",
     )
     args = parser.parse_args(argv)
-    if not math.isfinite(args.minutes) or not 0 < args.minutes <= 24 * 60:
-        parser.error(f"--minutes: {args.minutes} is not within (0, 1440]")
-    t_wall, t_cpu = time.perf_counter(), time.process_time()
-    try:
-        result = write_hour_log(args.src, args.out, args.minutes, split=args.split)
-    except HourLogError as e:
-        print(f"hour_log: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:
-        print(f"hour_log: {e.filename or args.out}: {e.strerror or e}", file=sys.stderr)
-        return 3 if e.errno in (errno.ENOSPC, errno.EDQUOT) else 1
-    result = {
-        "bench": "hour_log",
-        "src": str(args.src),
-        "minutes": args.minutes,
-        **result,
-        "wall_s": round(time.perf_counter() - t_wall, 1),
-        "cpu_s": round(time.process_time() - t_cpu, 1),
-        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
-        "loadavg": [round(x, 2) for x in os.getloadavg()],
-    }
-    print(json.dumps(result))
-    return 0
+    minutes = args.minutes if args.minutes is not None else 60.0 if args.src else 1.0
+    if not math.isfinite(minutes) or not 0 < minutes <= 24 * 60:
+        parser.error(f"--minutes: {minutes} is not within (0, 1440]")
+    if (args.src is None) != (args.out is None):
+        parser.error("give both SRC and OUT, or neither")
+    # a stop ends the run through the writer's clean-up: no half log left behind
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(128 + signal.SIGTERM))
+    if args.src is not None:
+        return _measure(args.src, args.out, minutes, args.split)
+    from acq.sim.drive_log import write_drive_log  # here: only the default needs it
+
+    with tempfile.TemporaryDirectory(prefix="hour_log.") as tmp:
+        src = write_drive_log(Path(tmp), 2.0).files[0]
+        return _measure(src, Path(tmp) / "long.mcap", minutes, args.split)
 
 
 if __name__ == "__main__":

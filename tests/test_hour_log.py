@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 
 from acq.drivers.scip_codec import checksum, encode, encode_lines, parse_scan_reply
-from acq.log import LogWriter, info, read_messages, read_metadata
+from acq.log import LogWriter, info, info_many, read_messages, read_metadata
 from acq.log.reader import LogReader
 from acq.log.schemas import SCHEMAS, decode
 from acq.log.timebase import TimeBase
 from acq.motion.odometry import dead_reckon
 from acq.sim.drive_log import DriveTruth
 
+END_NS = 2003_000_000_000  # the short drive's last message, host monotonic ns
 BENCH = Path(__file__).resolve().parents[1] / "bench" / "hour_log.py"
 
 
@@ -48,6 +49,12 @@ def source(short_drive: tuple[DriveTruth, Path], tmp_path_factory: pytest.TempPa
     scanner's ticks unwrapped in its timing, as the recorder writes them."""
     src = short_drive[0].files[0]
     metadata = read_metadata(src)
+    # as the recorder: a clock pair at the end; files rolled every 3 s (for --split)
+    metadata["clock"] = {
+        "realtime_ns": str(1800000000_000000000 + END_NS),
+        "monotonic_ns": str(END_NS),
+    }
+    metadata["config"] = {"yaml": "output:\n  prefix: drive\n  split_minutes: 0.05\n"}
     out = tmp_path_factory.mktemp("hour_source")
     writer = LogWriter(out, metadata=metadata, time_base=TimeBase.of_metadata(metadata))
     topics: set[str] = set()
@@ -130,6 +137,18 @@ def test_half_a_minute_reads_as_one_drive(source: Path, tmp_path: Path) -> None:
     stamps = np.array([t.stamp_ns for t in timing])  # type: ignore[attr-defined]
     assert (stamps == [m[1] for m in after["/acq/timing/laser"]]).all()
 
+    # the Foxglove stamps (UTC) moved with the log: each still its message's publish time
+    offset = TimeBase.of_metadata(read_metadata(out)).utc_offset_ns
+    for topic in ("/laser/scan", "/camera/image/compressed"):
+        for messages in (before[topic], after[topic]):
+            utc = [m[2].timestamp.ToNanoseconds() for m in messages]  # type: ignore[attr-defined]
+            assert [t - offset for t in utc] == [m[1] for m in messages], topic
+
+    # the clock metadata's pair is at the new end
+    clock = read_metadata(out)["clock"]
+    assert int(clock["monotonic_ns"]) == last
+    assert int(clock["realtime_ns"]) - int(clock["monotonic_ns"]) == 1800000000_000000000
+
     # counters go on: no scan or frame number comes twice
     for topic in ("/acq/timing/laser", "/acq/timing/camera"):
         seq = np.array([m[2].sequence for m in after[topic]])  # type: ignore[attr-defined]
@@ -146,6 +165,21 @@ def test_half_a_minute_reads_as_one_drive(source: Path, tmp_path: Path) -> None:
     ratio = (odo_after[-1][1] - odo_after[0][1]) / (odo_before[-1][1] - odo_before[0][1])
     assert ratio > 10
     assert _path_length(odo_after) == pytest.approx(ratio * _path_length(odo_before), rel=0.05)
+
+
+def test_split_as_the_recorder_rolls(source: Path, tmp_path: Path) -> None:
+    """--split: a session of files, each rolled after the source configuration's 3 s,
+    that reads as one drive."""
+    out = tmp_path / "session"
+    result = _bench().write_hour_log(source, out, 0.25, split=True)
+    files = sorted(out.iterdir())
+    assert [str(f) for f in files] == result["files"] and len(files) == 5
+    assert all(f.name.startswith("drive_") for f in files)
+    session = info_many(files)[-1]  # the whole session, after each file
+    assert session.files == tuple(files) and session.problem is None
+    assert 15.0 - 0.05 < session.duration_s <= 15.0
+    assert all(not c.gaps for c in session.channels)
+    assert session.messages == result["messages"]
 
 
 def test_refuses_what_it_cannot_write(source: Path, tmp_path: Path) -> None:

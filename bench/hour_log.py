@@ -219,9 +219,10 @@ def _plan(source: _Source, minutes: float, ticks: dict[str, Ticks]) -> _Plan:
             head.append(i)
         if t0 <= pub and log_ns <= cut:
             tail.append(i)
+    inside = set(middle)
     steps = counter_steps(
-        (source.messages[i][0], source.schemas[source.messages[i][0]].name, source.messages[i][3])
-        for i in middle
+        (topic, source.schemas[topic].name, data, i in inside)
+        for i, (topic, _log, _pub, data) in enumerate(source.messages)
     )
     return _Plan(head, middle, tail, copies, period_ns, steps)
 
@@ -349,8 +350,8 @@ def write_hour_log(
     folder = out if split else temporary_beside(out, "")
     made_folder = not folder.exists()
     rolling = _rolling(source.metadata)
+    writer: LogWriter | None = None
     done = False
-    span = [math.inf, -math.inf]  # the first and last log time written, host ns
     try:
         writer = LogWriter(
             folder,
@@ -362,31 +363,7 @@ def write_hour_log(
             time_base=source.time_base,
         )
         with writer:
-            for topic, schema in source.schemas.items():
-                writer.add_channel(topic, schema, source.channel_metadata[topic])
-            latched = {
-                t for t in source.schemas if sum(source.messages[i][0] == t for i in plan.head)
-                == 1 and all(source.messages[i][0] != t for i in plan.middle)
-            }  # fmt: skip
-            for k in range(plan.copies):
-                indexes = plan.indexes(k)
-                if k == 0:
-                    for i in indexes:
-                        topic, _log, pub, data = source.messages[i]
-                        if topic in latched:
-                            span[0] = min(span[0], pub)
-                            writer.set_latched(topic, _restamped(source, topic, data, pub), pub)
-                    indexes = [i for i in indexes if source.messages[i][0] not in latched]
-                delta = k * plan.period_ns
-                for group in _groups(source, indexes):
-                    span[0] = min(span[0], group[0][1] + delta)
-                    span[1] = max(span[1], group[0][1] + delta)
-                    writer.write_group([
-                        (topic, shifter(topic, data, k), log_ns + delta, pub + delta)
-                        for topic, log_ns, pub, data in group
-                    ])  # fmt: skip
-                if progress is not None:
-                    progress(k + 1, plan.copies)
+            latched, span = _write_copies(writer, source, plan, shifter, progress)
         files = writer.files
         if not split:
             os.link(files[0], out)  # never onto an existing file
@@ -395,20 +372,59 @@ def write_hour_log(
     finally:
         if not split:
             shutil.rmtree(folder, ignore_errors=True)
-        elif not done:
-            for f in writer.files if "writer" in locals() else []:
+        elif not done:  # nothing half written left behind
+            for f in writer.files if writer is not None else []:
                 f.unlink(missing_ok=True)
             if made_folder:
                 shutil.rmtree(folder, ignore_errors=True)
     return {
         "copies": plan.copies,
         "period_s": plan.period_ns / 1e9,
-        "messages": writer.messages + len(latched) * len(files),  # latched: in every file
+        "messages": writer.messages + latched * len(files),  # latched: in every file
         "bytes": sum(f.stat().st_size for f in files),
         "files": [str(f) for f in files],
-        "span_s": (span[1] - span[0]) / 1e9,
+        "span_s": span * 1e-9,
         "untouched_telegrams": shifter.untouched_telegrams,
     }
+
+
+def _write_copies(
+    writer: LogWriter,
+    source: _Source,
+    plan: _Plan,
+    shifter: Shifter,
+    progress: Callable[[int, int], None] | None,
+) -> tuple[int, int]:
+    """The source's channels and every copy's messages to ``writer``, the latched ones
+    (a channel's one message before the window: calibration, transforms) as the
+    recorder latches them. Returns (the latched channels, the span written in ns)."""
+    for topic, schema in source.schemas.items():
+        writer.add_channel(topic, schema, source.channel_metadata[topic])
+    latched = {
+        t for t in source.schemas if sum(source.messages[i][0] == t for i in plan.head) == 1
+        and all(source.messages[i][0] != t for i in plan.middle)
+    }  # fmt: skip
+    first, last = math.inf, -math.inf
+    for k in range(plan.copies):
+        indexes = plan.indexes(k)
+        if k == 0:
+            for i in indexes:
+                topic, _log, pub, data = source.messages[i]
+                if topic in latched:
+                    first = min(first, pub)
+                    writer.set_latched(topic, _restamped(source, topic, data, pub), pub)
+            indexes = [i for i in indexes if source.messages[i][0] not in latched]
+        delta = k * plan.period_ns
+        for group in _groups(source, indexes):  # of one log time
+            first = min(first, group[0][1] + delta)
+            last = max(last, group[0][1] + delta)
+            writer.write_group([
+                (topic, shifter(topic, data, k), log_ns + delta, pub + delta)
+                for topic, log_ns, pub, data in group
+            ])  # fmt: skip
+        if progress is not None:
+            progress(k + 1, plan.copies)
+    return len(latched), int(last - first)
 
 
 def _restamped(source: _Source, topic: str, data: bytes, publish_ns: int) -> Callable[[int], bytes]:

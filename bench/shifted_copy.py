@@ -93,21 +93,27 @@ def _addcounters(schema: str, msg: Any, steps: dict[CounterKey, int], k: int) ->
             setattr(msg.pps, f, getattr(msg.pps, f) + k * steps.get(("pps", f), 0))
 
 
-def counter_steps(messages: Iterable[tuple[str, str, bytes]]) -> dict[str, dict[CounterKey, int]]:
-    """Per topic and counter, what one copy of ``messages`` (topic, schema name, bytes)
-    adds: its last value minus its first, plus the usual step between two messages (1
-    for a sequence, 0 for no drops)."""
-    values: dict[str, dict[CounterKey, list[int]]] = {}
-    for topic, schema, data in messages:
+def counter_steps(
+    messages: Iterable[tuple[str, str, bytes, bool]],
+) -> dict[str, dict[CounterKey, int]]:
+    """Per topic and counter, what one copy adds, from the source's ``messages`` (topic,
+    schema name, bytes, whether in the copied window): the window's last value minus its
+    first, plus the usual step between two messages of the whole source (1 for a
+    sequence, 0 for no drops; a 1 Hz status once per window has but that)."""
+    values: dict[str, dict[CounterKey, list[tuple[int, bool]]]] = {}
+    for topic, schema, data, inside in messages:
         if schema not in _COUNTERS and schema not in ("acq.Status", "acq.TimeBase"):
             continue
         for key, v in counters(schema, message_class(schema).FromString(data)).items():
-            values.setdefault(topic, {}).setdefault(key, []).append(v)
+            values.setdefault(topic, {}).setdefault(key, []).append((v, inside))
     steps: dict[str, dict[CounterKey, int]] = {}
     for topic, by_key in values.items():
         for key, series in by_key.items():
-            usual = round(float(np.median(np.diff(series)))) if len(series) > 1 else 0
-            steps.setdefault(topic, {})[key] = max(series[-1] - series[0] + usual, 0)
+            every = [v for v, _inside in series]
+            window = [v for v, inside in series if inside]
+            usual = round(float(np.median(np.diff(every)))) if len(every) > 1 else 0
+            span = window[-1] - window[0] if window else 0
+            steps.setdefault(topic, {})[key] = max(span + usual, 0)
     return steps
 
 

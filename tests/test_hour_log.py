@@ -4,34 +4,24 @@ the metadata), written from the 2 s simulated drive with real SCIP telegrams put
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
 
 from acq.drivers.scip_codec import checksum, encode, encode_lines, parse_scan_reply
-from acq.log import LogWriter, info, info_many, read_messages, read_metadata
+from acq.log import LogWriter, info, info_many, read_messages, read_metadata, schemas
+from acq.log.acq_proto import TimeBaseMsg
 from acq.log.reader import LogReader
-from acq.log.schemas import SCHEMAS, decode
+from acq.log.schemas import SCHEMAS, DeviceStatus, decode
 from acq.log.timebase import TimeBase
 from acq.motion.odometry import dead_reckon
+from acq.records import CanFrame, Fix
 from acq.sim.drive_log import DriveTruth
+from tests import bench_scripts
 
 END_NS = 2003_000_000_000  # the short drive's last message, host monotonic ns
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "hour_log.py"
-
-
-def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("bench_hour_log", BENCH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
 
 
 def _telegram(tick: int) -> bytes:
@@ -55,14 +45,12 @@ def source(short_drive: tuple[DriveTruth, Path], tmp_path_factory: pytest.TempPa
         "monotonic_ns": str(END_NS),
     }
     metadata["config"] = {"yaml": "output:\n  prefix: drive\n  split_minutes: 0.05\n"}
+    metadata["time_base"] = {"utc_trusted": "no", "records": "3", "sources": "", "warnings": ""}
     out = tmp_path_factory.mktemp("hour_source")
     writer = LogWriter(out, metadata=metadata, time_base=TimeBase.of_metadata(metadata))
-    topics: set[str] = set()
+    messages: list[tuple[str, str, bytes, int, int]] = []
     for schema, channel, message in read_messages(src):
         assert schema is not None
-        if channel.topic not in topics:
-            writer.add_channel(channel.topic, SCHEMAS[schema.name])
-            topics.add(channel.topic)
         data = bytes(message.data)
         if channel.topic == "/laser/raw":
             raw = decode(schema.name, data)
@@ -72,9 +60,50 @@ def source(short_drive: tuple[DriveTruth, Path], tmp_path_factory: pytest.TempPa
             timing = decode(schema.name, data)
             timing.unwrapped_tick = timing.device_ticks[0]
             data = timing.SerializeToString()
-        writer.write(channel.topic, data, message.log_time, message.publish_time)
+        messages.append((channel.topic, schema.name, data, message.log_time, message.publish_time))
+    messages += _recorder_extras(metadata)
+    for topic, schema_name in dict((m[0], m[1]) for m in messages).items():
+        writer.add_channel(topic, SCHEMAS[schema_name])
+    for topic, _schema, data, log_ns, pub_ns in sorted(messages, key=lambda m: m[3]):
+        writer.write(topic, data, log_ns, pub_ns)
     writer.close()
     return writer.files[0]
+
+
+def _recorder_extras(
+    metadata: dict[str, dict[str, str]],
+) -> list[tuple[str, str, bytes, int, int]]:
+    """What the recorder writes besides the drive (topic, schema, bytes, log and publish
+    ns): 1 Hz status and time base readings (with a PPS source), CAN frames and GNSS
+    fixes with their timing (the fix time in UTC µs ticks)."""
+    utc = TimeBase.of_metadata(metadata).utc_offset_ns
+    out: list[tuple[str, str, bytes, int, int]] = []
+    for k in range(3):
+        t = 2000_000_000_000 + k * 1_000_000_000 + 5_000_000
+        laser = DeviceStatus(name="laser", kind="scanner", received=40 * k, dropped=k)
+        data = schemas.status(timestamp_ns=t, uptime_s=k + 0.005, devices=[laser])
+        out.append(("/acq/status", "acq.Status", data, t, t))
+        base = TimeBaseMsg(realtime_ns=t + utc, monotonic_ns=t)
+        base.timestamp.FromNanoseconds(t)
+        base.pps.name, base.pps.assert_sequence = "pps0", 100 + k
+        base.pps.assert_s = (2000 + k + utc * 1e-9) // 1
+        out.append(("/acq/timebase", "acq.TimeBase", base.SerializeToString(), t, t))
+    for k in range(100):  # CAN at 50 Hz, GNSS at 10 Hz
+        t = 2000_000_000_000 + k * 20_000_000 + 1_000_000
+        frame = CanFrame(recv_ns=t + 300_000, stamp_ns=t, wall_ns=t + utc + 200_000,
+                         arbitration_id=0x120, data=bytes(8))  # fmt: skip
+        out.append(("/vehicle/can", "acq.CanFrame", schemas.can_frame(frame), t + 300_000, t))
+        if k % 5 == 0:
+            utc_s = (t + utc) * 1e-9
+            fix = Fix(recv_ns=t + 45_000_000, utc_s=utc_s, latitude=48.8, longitude=2.3,
+                      altitude=35.0, quality=4)  # fmt: skip
+            tick = round(utc_s * 1e6)
+            timing = schemas.timing(recv_ns=fix.recv_ns, stamp_ns=t, device_ticks=(tick,),
+                                    unwrapped_tick=tick, stamp_source="fix")  # fmt: skip
+            fixed = schemas.location_fix(fix, t + utc)
+            out.append(("/gnss/fix", "foxglove.LocationFix", fixed, fix.recv_ns, t))
+            out.append(("/acq/timing/gnss", "acq.Timing", timing, fix.recv_ns, t))
+    return out
 
 
 def _read(path: Path) -> dict[str, list[tuple[int, int, object]]]:
@@ -98,7 +127,7 @@ def _path_length(odometry: list[tuple[int, int, object]]) -> float:
 
 
 def test_half_a_minute_reads_as_one_drive(source: Path, tmp_path: Path) -> None:
-    bench = _bench()
+    bench = bench_scripts.load("hour_log")
     out = tmp_path / "long.mcap"
     result = bench.write_hour_log(source, out, 0.5)
     assert result["files"] == [str(out)] and result["copies"] > 10
@@ -167,11 +196,45 @@ def test_half_a_minute_reads_as_one_drive(source: Path, tmp_path: Path) -> None:
     assert _path_length(odo_after) == pytest.approx(ratio * _path_length(odo_before), rel=0.05)
 
 
+def test_the_recorders_other_records_run_on(source: Path, tmp_path: Path) -> None:
+    """Status, time base readings, CAN frames and GNSS fixes: their host and UTC times
+    and their counters go on across the copies."""
+    out = tmp_path / "long.mcap"
+    bench_scripts.load("hour_log").write_hour_log(source, out, 0.25)
+    after = _read(out)
+    offset = TimeBase.of_metadata(read_metadata(out)).utc_offset_ns
+
+    status = [m[2] for m in after["/acq/status"]]
+    assert len(status) >= 14
+    assert np.all(np.diff([s.uptime_s for s in status]) > 0.9)  # type: ignore[attr-defined]
+    received = [s.devices[0].received for s in status]  # type: ignore[attr-defined]
+    dropped = [s.devices[0].dropped for s in status]  # type: ignore[attr-defined]
+    assert np.all(np.diff(received) == 40) and np.all(np.diff(dropped) == 1)
+
+    bases = [m[2] for m in after["/acq/timebase"]]
+    assert {b.realtime_ns - b.monotonic_ns for b in bases} == {offset}  # type: ignore[attr-defined]
+    assert np.all(np.diff([b.pps.assert_sequence for b in bases]) == 1)  # type: ignore[attr-defined]
+    pulses = np.diff([b.pps.assert_s for b in bases])  # type: ignore[attr-defined]
+    assert np.all((pulses > 0) & (pulses < 2))
+    assert read_metadata(out)["time_base"]["records"] == str(len(bases))
+
+    frames = after["/vehicle/can"]
+    assert {m[2].wall_ns - m[2].recv_ns for m in frames} == {offset - 100_000}  # type: ignore[attr-defined]
+    assert {m[2].timestamp.ToNanoseconds() for m in frames} == {m[1] for m in frames}  # type: ignore[attr-defined]
+
+    fixes, timing = after["/gnss/fix"], after["/acq/timing/gnss"]
+    assert len(fixes) == len(timing) >= 140
+    for (_log, pub, fix), (_l, _p, tim) in zip(fixes, timing, strict=True):
+        utc_s = float(dict((kv.key, kv.value) for kv in fix.metadata)["utc_s"])  # type: ignore[attr-defined]
+        assert utc_s == pytest.approx((pub + offset) * 1e-9, abs=1e-3)
+        assert tim.device_ticks[0] == tim.unwrapped_tick == round((pub + offset) / 1e3)  # type: ignore[attr-defined]
+
+
 def test_split_as_the_recorder_rolls(source: Path, tmp_path: Path) -> None:
     """--split: a session of files, each rolled after the source configuration's 3 s,
     that reads as one drive."""
     out = tmp_path / "session"
-    result = _bench().write_hour_log(source, out, 0.25, split=True)
+    result = bench_scripts.load("hour_log").write_hour_log(source, out, 0.25, split=True)
     files = sorted(out.iterdir())
     assert [str(f) for f in files] == result["files"] and len(files) == 5
     assert all(f.name.startswith("drive_") for f in files)
@@ -183,7 +246,7 @@ def test_split_as_the_recorder_rolls(source: Path, tmp_path: Path) -> None:
 
 
 def test_refuses_what_it_cannot_write(source: Path, tmp_path: Path) -> None:
-    bench = _bench()
+    bench = bench_scripts.load("hour_log")
     existing = tmp_path / "there.mcap"
     existing.write_bytes(b"not yours")
     with pytest.raises(bench.HourLogError, match="never overwritten"):

@@ -6,21 +6,23 @@ holds (every protobuf ``Timestamp``; ``recv_ns``, ``stamp_ns``, the ``acq.Clock`
 ``acq.TimeBase`` pairs, a CAN interface's ``wall_ns``, chrony's and PPS's UTC seconds,
 ``uptime_s``, a GNSS fix's ``utc`` and ``utc_s``), as many ticks on its device's clock
 (``device_ticks`` modulo the counter's width, ``unwrapped_tick``, and the 24-bit ms
-stamp inside a SCIP telegram), and ``k`` times what one copy adds to each counter
-(sequence numbers, received and dropped counts, PPS sequences). A CoLa (SICK)
-telegram's own time field and a GNSS receiver's NMEA sentences (``/gnss/raw``) keep
-their recorded times.
+stamp inside a SCIP telegram), the UTC time (and date) of a GNSS receiver's NMEA
+sentence (``/gnss/raw``, to the field's decimals), and ``k`` times what one copy adds
+to each counter (sequence numbers, received and dropped counts, PPS sequences). A CoLa
+(SICK) telegram's own time field keeps its recorded time.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from acq.drivers.nmea import checksum as nmea_checksum
 from acq.drivers.registry import REGISTRIES, DriverImportError, UnknownDriver
 from acq.drivers.scip_codec import SCAN_COMMANDS, checksum, decode_int, encode
 from acq.log.schemas import message_class
@@ -35,6 +37,7 @@ __all__ = [
     "counters",
     "device_ticks",
     "fix_utc",
+    "nmea_with_time",
     "scip_with_tick",
 ]
 
@@ -54,6 +57,9 @@ _STATUS_COUNTERS = (
 )  # fmt: skip
 
 CounterKey = tuple[str, ...]
+# the field holding the UTC time of day, by NMEA sentence kind (its last three letters)
+_NMEA_TIME_FIELD = {"GGA": 1, "RMC": 1, "GST": 1, "GNS": 1, "ZDA": 1, "GBS": 1, "GLL": 5}
+_NMEA_TIME = re.compile(r"(\d\d)(\d\d)(\d\d)(\.\d{1,6})?")
 
 
 @dataclass(frozen=True)
@@ -78,7 +84,7 @@ def counters(schema: str, msg: Any) -> dict[CounterKey, int]:
     return {}
 
 
-def _addcounters(schema: str, msg: Any, steps: dict[CounterKey, int], k: int) -> None:
+def _add_counters(schema: str, msg: Any, steps: dict[CounterKey, int], k: int) -> None:
     if not steps or k == 0:
         return
     if schema in _COUNTERS:
@@ -195,13 +201,15 @@ class Shifter:
         for f in _NS_FIELDS.get(schema, ()):
             if getattr(msg, f):
                 setattr(msg, f, getattr(msg, f) + delta)
-        _addcounters(schema, msg, self.steps.get(topic, {}), k)
+        _add_counters(schema, msg, self.steps.get(topic, {}), k)
         if schema == "acq.Status":
             msg.uptime_s += delta * 1e-9
         elif schema == "acq.TimeBase":
             self._time_base(msg, delta)
         elif schema == "foxglove.LocationFix":
             fix_utc(msg, delta)
+        elif schema == "acq.RawTelegram" and msg.data.startswith(b"$"):
+            msg.data = nmea_with_time(msg.data, delta)
         elif schema in ("acq.Timing", "acq.RawTelegram"):
             self._ticks(topic, schema, msg, delta)
         out: bytes = msg.SerializeToString()
@@ -237,6 +245,45 @@ class Shifter:
             for f in ("assert_s", "clear_s"):
                 if getattr(msg.pps, f):
                     setattr(msg.pps, f, getattr(msg.pps, f) + ds)
+
+
+def nmea_with_time(data: bytes, delta_ns: int) -> bytes:
+    """An NMEA sentence with its UTC time of day (and RMC's or ZDA's date) ``delta_ns``
+    later, to the field's own decimals, its checksum made anew; a sentence without a time
+    (VTG, GSA), or that is not one, as it is."""
+    line = data.rstrip(b"\r\n")
+    if len(line) < 4 or line[-3:-2] != b"*":
+        return data
+    fields = line[1:-3].decode("ascii", "replace").split(",")
+    at = _NMEA_TIME_FIELD.get(fields[0][-3:])
+    if at is None or len(fields) <= at:
+        return data
+    when = _NMEA_TIME.fullmatch(fields[at])
+    kind = fields[0][-3:]
+    date = dt.date(2000, 1, 1)  # a sentence without a date: only its time of day moves
+    try:
+        if kind == "RMC" and len(fields) > 9 and fields[9]:
+            date = dt.datetime.strptime(fields[9], "%d%m%y").date()
+        elif kind == "ZDA" and len(fields) > 4 and all(fields[2:5]):
+            date = dt.date(int(fields[4]), int(fields[3]), int(fields[2]))
+    except ValueError:
+        return data
+    if when is None:
+        return data
+    decimals = len(when[4] or ".") - 1  # when[4]: the point and the fraction
+    seconds = int(when[1]) * 3600 + int(when[2]) * 60 + int(when[3]) + float(when[4] or 0)
+    step = 10 ** (6 - decimals)  # the field's resolution, µs
+    moved = round((seconds * 1e6 + delta_ns / 1e3) / step) * step
+    new = dt.datetime.combine(date, dt.time()) + dt.timedelta(microseconds=moved)
+    fields[at] = new.strftime("%H%M%S")
+    if decimals:
+        fields[at] += f".{new.microsecond // step:0{decimals}d}"
+    if kind == "RMC" and len(fields) > 9 and fields[9]:
+        fields[9] = new.strftime("%d%m%y")
+    elif kind == "ZDA" and len(fields) > 4 and all(fields[2:5]):
+        fields[2:5] = [f"{new.day:02d}", f"{new.month:02d}", f"{new.year:04d}"]
+    body = ",".join(fields).encode("ascii")
+    return b"$" + body + b"*%02X" % nmea_checksum(body) + data[len(line) :]
 
 
 def fix_utc(msg: Any, delta: int) -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -119,8 +120,8 @@ def _recorder_extras(
     return out
 
 
-def _read(path: Path) -> dict[str, list[tuple[int, int, object]]]:
-    out: dict[str, list[tuple[int, int, object]]] = {}
+def _read(path: Path) -> dict[str, list[tuple[int, int, Any]]]:
+    out: dict[str, list[tuple[int, int, Any]]] = {}
     reader = LogReader(path, progress=False)
     for schema, channel, message in reader.messages():
         assert schema is not None
@@ -130,11 +131,11 @@ def _read(path: Path) -> dict[str, list[tuple[int, int, object]]]:
     return out
 
 
-def _path_length(odometry: list[tuple[int, int, object]]) -> float:
+def _path_length(odometry: list[tuple[int, int, Any]]) -> float:
     """The distance from the first to the last pose of the odometry dead reckoned, m."""
     t = np.array([pub for _log, pub, _m in odometry], dtype=np.int64)
-    v = np.array([m.speed_mps for _l, _p, m in odometry])  # type: ignore[attr-defined]
-    w = np.array([m.yaw_rate_rps for _l, _p, m in odometry])  # type: ignore[attr-defined]
+    v = np.array([m.speed_mps for _l, _p, m in odometry])
+    w = np.array([m.yaw_rate_rps for _l, _p, m in odometry])
     x, y, _psi = dead_reckon(np.diff(t) * 1e-9, v[:-1], w[:-1])
     return float(math.hypot(x[-1], y[-1]))
 
@@ -170,22 +171,22 @@ def test_half_a_minute_reads_as_one_drive(source: Path, tmp_path: Path) -> None:
     # the scanner's clock runs on: device ticks, unwrapped ticks and the SCIP telegram's
     # own stamp shift together, one scan period apart at every junction as within a copy
     raws = [m[2] for m in after["/laser/raw"]]
-    ticks = np.array([r.device_ticks[0] for r in raws])  # type: ignore[attr-defined]
-    telegram_ticks = [parse_scan_reply(r.data).timestamp for r in raws]  # type: ignore[attr-defined]
+    ticks = np.array([r.device_ticks[0] for r in raws])
+    telegram_ticks = [parse_scan_reply(r.data).timestamp for r in raws]
     assert telegram_ticks == ticks.tolist()
-    src_steps = np.diff([m[2].device_ticks[0] for m in before["/laser/raw"]])  # type: ignore[attr-defined]
+    src_steps = np.diff([m[2].device_ticks[0] for m in before["/laser/raw"]])
     assert src_steps.min() <= np.diff(ticks).min() and np.diff(ticks).max() <= src_steps.max()
     timing = [m[2] for m in after["/acq/timing/laser"]]
-    unwrapped = np.array([t.unwrapped_tick for t in timing])  # type: ignore[attr-defined]
+    unwrapped = np.array([t.unwrapped_tick for t in timing])
     assert (unwrapped == ticks).all()
-    stamps = np.array([t.stamp_ns for t in timing])  # type: ignore[attr-defined]
+    stamps = np.array([t.stamp_ns for t in timing])
     assert (stamps == [m[1] for m in after["/acq/timing/laser"]]).all()
 
     # the Foxglove stamps (UTC) moved with the log: each still its message's publish time
     offset = TimeBase.of_metadata(read_metadata(out)).utc_offset_ns
     for topic in ("/laser/scan", "/camera/image/compressed"):
         for messages in (before[topic], after[topic]):
-            utc = [m[2].timestamp.ToNanoseconds() for m in messages]  # type: ignore[attr-defined]
+            utc = [m[2].timestamp.ToNanoseconds() for m in messages]
             assert [t - offset for t in utc] == [m[1] for m in messages], topic
 
     # the clock metadata's pair is at the new end
@@ -195,11 +196,11 @@ def test_half_a_minute_reads_as_one_drive(source: Path, tmp_path: Path) -> None:
 
     # counters go on: no scan or frame number comes twice
     for topic in ("/acq/timing/laser", "/acq/timing/camera"):
-        seq = np.array([m[2].sequence for m in after[topic]])  # type: ignore[attr-defined]
+        seq = np.array([m[2].sequence for m in after[topic]])
         assert (np.diff(seq) == 1).all(), topic
 
     # host clock pairs keep the session's offset; the metadata's pair is at the new end
-    pairs = {m[2].realtime_ns - m[2].monotonic_ns for m in after["/acq/clock"]}  # type: ignore[attr-defined]
+    pairs = {m[2].realtime_ns - m[2].monotonic_ns for m in after["/acq/clock"]}
     assert len(pairs) == 1
     assert len(after["/acq/clock"]) >= 29
 
@@ -221,32 +222,32 @@ def test_the_recorders_other_records_run_on(source: Path, tmp_path: Path) -> Non
 
     status = [m[2] for m in after["/acq/status"]]
     assert len(status) >= 14
-    assert np.all(np.diff([s.uptime_s for s in status]) > 0.9)  # type: ignore[attr-defined]
-    received = [s.devices[0].received for s in status]  # type: ignore[attr-defined]
-    dropped = [s.devices[0].dropped for s in status]  # type: ignore[attr-defined]
+    assert np.all(np.diff([s.uptime_s for s in status]) > 0.9)
+    received = [s.devices[0].received for s in status]
+    dropped = [s.devices[0].dropped for s in status]
     assert np.all(np.diff(received) == 40) and np.all(np.diff(dropped) == 1)
 
     bases = [m[2] for m in after["/acq/timebase"]]
-    assert {b.realtime_ns - b.monotonic_ns for b in bases} == {offset}  # type: ignore[attr-defined]
-    assert np.all(np.diff([b.pps.assert_sequence for b in bases]) == 1)  # type: ignore[attr-defined]
-    pulses = np.diff([b.pps.assert_s for b in bases])  # type: ignore[attr-defined]
+    assert {b.realtime_ns - b.monotonic_ns for b in bases} == {offset}
+    assert np.all(np.diff([b.pps.assert_sequence for b in bases]) == 1)
+    pulses = np.diff([b.pps.assert_s for b in bases])
     assert np.all((pulses > 0) & (pulses < 2))
     assert read_metadata(out)["time_base"]["records"] == str(len(bases))
 
     frames = after["/vehicle/can"]
-    assert {m[2].wall_ns - m[2].recv_ns for m in frames} == {offset - 100_000}  # type: ignore[attr-defined]
-    assert {m[2].timestamp.ToNanoseconds() for m in frames} == {m[1] for m in frames}  # type: ignore[attr-defined]
+    assert {m[2].wall_ns - m[2].recv_ns for m in frames} == {offset - 100_000}
+    assert {m[2].timestamp.ToNanoseconds() for m in frames} == {m[1] for m in frames}
 
     fixes, timing = after["/gnss/fix"], after["/acq/timing/gnss"]
     assert len(fixes) == len(timing) >= 140
     for (_log, pub, fix), (_l, _p, tim) in zip(fixes, timing, strict=True):
-        utc_s = float(dict((kv.key, kv.value) for kv in fix.metadata)["utc_s"])  # type: ignore[attr-defined]
+        utc_s = float(dict((kv.key, kv.value) for kv in fix.metadata)["utc_s"])
         assert utc_s == pytest.approx((pub + offset) * 1e-9, abs=1e-3)
-        assert tim.device_ticks[0] == tim.unwrapped_tick == round((pub + offset) / 1e3)  # type: ignore[attr-defined]
+        assert tim.device_ticks[0] == tim.unwrapped_tick == round((pub + offset) / 1e3)
     decoder = NmeaDecoder()  # the receiver's own sentences tell the same times
     decoded = [
         decoder.decode(Sentence(recv_ns=pub, data=raw.data)) for _l, pub, raw in after["/gnss/raw"]
-    ]  # type: ignore[attr-defined]
+    ]
     said = [f.utc_s for f in [*decoded, *decoder.flush()] if f is not None]
     expected = [(pub + offset) * 1e-9 for _l, pub, _f in fixes]
     assert said == pytest.approx(expected, abs=0.011)  # to the 10 ms of their fields

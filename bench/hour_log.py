@@ -34,10 +34,10 @@ How a copy is made (copy ``k``, times shifted by ``k * period_ns``):
 - The vehicle's odometry is speeds and yaw rates: dead reckoned, the path goes on from
   where the last copy left it, and a coloured cloud grows along it.
 - Metadata are written once, from the source's last records; the ``clock`` record's
-  realtime/monotonic pair is moved to the new end, ``time_base.records`` counts the
-  readings written. The writer is the recorder's (:class:`acq.log.LogWriter`: zstd,
+  realtime/monotonic pair is moved to the new end, the ``time_base`` record summarises
+  the readings written. The writer is the recorder's (:class:`acq.log.LogWriter`: zstd,
   8 MiB chunks, a new session name), fed message by message: nothing is held but the
-  source.
+  source (a short log, at most :data:`MAX_SOURCE_BYTES`).
 """
 
 from __future__ import annotations
@@ -66,6 +66,7 @@ from acq.atomic_write import temporary_beside
 from acq.errors import InputError
 from acq.log import LogError, LogReader, LogWriter, read_metadata
 from acq.log.acq_proto import TimeBaseMsg, TimingMsg
+from acq.log.reader import quiet
 from acq.log.schemas import Schema, host_clock_of, message_class
 from acq.log.stamp_shift import shift_stamps
 from acq.log.timebase import TimeBase
@@ -78,6 +79,7 @@ from shifted_copy import CounterKey, Shifter, Ticks, counter_steps, device_ticks
 __all__ = ["HourLogError", "write_hour_log"]
 
 _FAST_HZ = 2.0  # channels faster than this must record over the whole window
+MAX_SOURCE_BYTES = 1 << 30  # the source is held in memory: a short log
 
 
 class HourLogError(InputError):
@@ -118,10 +120,18 @@ class _Plan:
 def _read_source(src: Path) -> _Source:
     try:
         reader = LogReader(src, progress=False)
+        if reader.size > MAX_SOURCE_BYTES:
+            raise HourLogError(
+                f"{src}: {reader.size / 1e9:.1f} GB: repeat a short log (at most "
+                f"{MAX_SOURCE_BYTES / 1e9:.1f} GB, it is held in memory)"
+            )
         messages = []
         schemas: dict[str, Schema] = {}
         channel_metadata: dict[str, dict[str, str]] = {}
-        for schema, channel, message in reader.messages():
+        with quiet():  # the damage is said in one line below
+            read = list(reader.messages())
+            metadata = read_metadata(src)
+        for schema, channel, message in read:
             topic = channel.topic
             if topic not in schemas:
                 if schema is None:
@@ -129,7 +139,6 @@ def _read_source(src: Path) -> _Source:
                 schemas[topic] = Schema(schema.name, schema.encoding, bytes(schema.data))
                 channel_metadata[topic] = dict(channel.metadata)
             messages.append((topic, message.log_time, message.publish_time, bytes(message.data)))
-        metadata = read_metadata(src)
     except LogError as e:
         raise HourLogError(str(e)) from None
     if not reader.closed:

@@ -39,8 +39,9 @@ def _telegram(tick: int) -> bytes:
 
 @pytest.fixture(scope="module")
 def source(short_drive: tuple[DriveTruth, Path], tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The short drive with a real SCIP telegram in each ``/laser/raw`` message and the
-    scanner's ticks unwrapped in its timing, as the recorder writes them."""
+    """The short drive as the recorder writes it: a real SCIP telegram in each
+    ``/laser/raw`` message, the scanner's ticks unwrapped in its timing, and its other
+    records (:func:`_recorder_extras`)."""
     src = short_drive[0].files[0]
     metadata = read_metadata(src)
     # as the recorder: a clock pair at the end; files rolled every 3 s (for --split)
@@ -279,4 +280,8 @@ def test_refuses_what_it_cannot_write(source: Path, tmp_path: Path) -> None:
         bench.write_hour_log(source, tmp_path / "none" / "x.mcap", 0.5)
     with pytest.raises(bench.HourLogError, match="--minutes"):
         bench.write_hour_log(source, tmp_path / "x.mcap", math.nan)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["there.mcap"]
+    cut = tmp_path / "cut.mcap"  # a log whose writer stopped: not repeated
+    cut.write_bytes(source.read_bytes()[: source.stat().st_size // 2])
+    with pytest.raises(bench.HourLogError, match="cut.mcap: not a closed log"):
+        bench.write_hour_log(cut, tmp_path / "x.mcap", 0.5)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap", "there.mcap"]

@@ -282,6 +282,6 @@ def test_refuses_what_it_cannot_write(source: Path, tmp_path: Path) -> None:
         bench.write_hour_log(source, tmp_path / "x.mcap", math.nan)
     cut = tmp_path / "cut.mcap"  # a log whose writer stopped: not repeated
     cut.write_bytes(source.read_bytes()[: source.stat().st_size // 2])
-    with pytest.raises(bench.HourLogError, match="cut.mcap: not a closed log"):
+    with pytest.raises(bench.HourLogError, match=r"cut\.mcap: not a closed log"):
         bench.write_hour_log(cut, tmp_path / "x.mcap", 0.5)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap", "there.mcap"]

@@ -168,8 +168,8 @@ def _plan(source: _Source, minutes: float, ticks: dict[str, Ticks]) -> _Plan:
     """The window the copies repeat and how many copies make ``minutes`` of log time.
 
     A message belongs to the window by its stamp (``publish_time``): a scanner's come
-    from its clock, steady where receipts are not, so the window's ends, half a scan
-    between two scans, cut no scan in two ways."""
+    from its clock, steady where receipts are not, so with the window's ends half a scan
+    between two scans no scan is in two copies, and none in none."""
     stamps: dict[str, list[int]] = {}
     for topic, _log, pub, _data in source.messages:
         stamps.setdefault(topic, []).append(pub)

@@ -3,31 +3,18 @@ scans, the drift and its interval, the delays above the lower envelope."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
 
 from acq.time.clocksync import fit_drift
-
-BENCH = Path(__file__).resolve().parents[2] / "bench" / "clocksync_capture.py"
-
-
-def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("bench_clocksync_capture", BENCH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+from tests import bench_scripts
 
 
 def test_lms111_capture_clock(shared_dir: Path) -> None:
-    bench = _bench()
+    bench = bench_scripts.load("clocksync_capture")
     path = shared_dir / "data" / "sick" / "20210302_lms111.pcapng.json"
     a = bench.scan_arrivals(path)
     assert a.ticks.size == 172 and a.counters.tolist() == list(range(4, 176))

@@ -62,7 +62,7 @@ import numpy as np
 import yaml
 from mcap.reader import make_reader
 
-from acq.atomic_write import temporary_beside
+from acq.atomic_write import discard, temporary_beside
 from acq.errors import InputError
 from acq.log import LogError, LogReader, LogWriter, read_metadata
 from acq.log.acq_proto import TimeBaseMsg, TimingMsg
@@ -356,8 +356,8 @@ def write_hour_log(
         shifter = Shifter(names, ticks, plan.steps, plan.period_ns)
     except ValueError as e:
         raise HourLogError(str(e)) from None
-    folder = out if split else temporary_beside(out, "")
-    made_folder = not folder.exists()
+    made_folder = not split or not out.exists()
+    folder = out if split else temporary_beside(out, "", folder=True)
     rolling = _rolling(source.metadata)
     writer: LogWriter | None = None
     done = False
@@ -380,7 +380,7 @@ def write_hour_log(
         done = True
     finally:
         if not split:
-            shutil.rmtree(folder, ignore_errors=True)
+            discard(folder)
         elif not done:  # nothing half written left behind
             for f in writer.files if writer is not None else []:
                 f.unlink(missing_ok=True)

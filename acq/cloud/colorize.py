@@ -456,7 +456,7 @@ def run(
     out = CloudWriter(output, crs, index.clock, report, [c.name for c in job.cameras],
                       utc_doubt=doubt)  # fmt: skip
     # a long log's cloud is not held: counts, and every k-th scan for the preview
-    every = max(1, math.ceil(index.ranges.size / PREVIEW_POINTS))
+    every = max(1, math.ceil(index.n_scans * index.steps / PREVIEW_POINTS))
     tally = _Tally(every if preview is not None else 0)
 
     def emit(r: ChunkResult) -> None:

@@ -278,7 +278,8 @@ def prepare(
     crs: str | None = None,
 ) -> tuple[Job, DriveLog]:
     """The :class:`Job` for ``logs`` (steps 1-3 of the module docstring) and the log's
-    light part (with the images when ``jpegs``); notes go into ``report``. ``camera``:
+    light part (with the images and the scans' returns when ``jpegs``: else the chunks
+    read their own); notes go into ``report``. ``camera``:
     the cameras to colour from (default: every camera of ``calib`` in the log; a
     calibration of one camera pairs with the log's only camera). ``time_offset_s``:
     for every camera, instead of ``calib``'s. ``trajectory``:
@@ -290,7 +291,8 @@ def prepare(
     first = calib.cameras.get(names[0]) if names else next(iter(calib.cameras.values()), None)
     if first is not None:
         threading.Thread(target=_warm_kernels, args=(first.model,), daemon=True).start()
-    index = read_log(files, cameras=names, jpegs=jpegs, vehicle=trajectory is None, calib=calib)
+    index = read_log(files, cameras=names, jpegs=jpegs, returns=jpegs,
+                     vehicle=trajectory is None, calib=calib)  # fmt: skip
     report.notes += index.notes
     pairs = _camera_calibs(index, calib, names, report)
     scan_new = _retime_scans(index, report) if retime_offline else index.scan_ns

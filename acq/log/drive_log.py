@@ -101,6 +101,7 @@ class DriveLog:
     scan_recv_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     vehicle: VehicleLog | None = None
     camera_names: tuple[str, ...] = ()  # every camera with frames in the log, read or not
+    steps: int = 0  # the points a scan has (``ranges``' columns unless read without them)
 
     @property
     def frames(self) -> CameraFrames:
@@ -194,10 +195,14 @@ def _no_scans_because(undecodable: dict[str, int], why: dict[str, str]) -> None:
 @dataclass(frozen=True)
 class _ScanMsg:
     stamp_ns: int
-    ranges: np.ndarray
+    ranges: np.ndarray  # empty when read without the returns
     intensities: np.ndarray
     start_angle: float
     end_angle: float
+    steps: int  # the scan's points
+
+
+_NONE = np.zeros(0, dtype=np.float32)
 
 
 def _stamp(msg: Any) -> int:
@@ -218,6 +223,7 @@ def read_log(
     start_ns: int | None = None,
     end_ns: int | None = None,
     jpegs: bool = True,
+    returns: bool = True,
     vehicle: bool = False,
     calib: Calibration | None = None,
 ) -> DriveLog:
@@ -229,7 +235,10 @@ def read_log(
     only the chunks of a closed file that hold some (a long log's part reads in the
     time of that part): the clock pairs, and with ``vehicle`` the odometry and GNSS
     fixes, whatever their time in those chunks; metadata whatever their time.
-    ``jpegs=False`` leaves the images' bytes out (their stamps stay); ``vehicle``: also
+    ``jpegs=False`` leaves the images' bytes out (their stamps stay); ``returns=False``
+    the scans' ranges and intensities (``ranges`` and ``intensities`` are then (S, 0);
+    ``steps`` keeps the points a scan has): a long log's index then holds its times and
+    no more, a few bytes a scan instead of 8 a point; ``vehicle``: also
     the odometry and GNSS fixes, in the same pass, as
     :func:`acq.log.vehicle_log.read_vehicle`. ``calib``: the cameras read are then
     those :func:`acq.camera.selection.choose_cameras` picks from the log's and
@@ -290,10 +299,11 @@ def read_log(
                     scans.setdefault(topic[1:].removesuffix("/scan"), []).append(
                         _ScanMsg(
                             _stamp(msg),
-                            np.asarray(msg.ranges, dtype=np.float32),
-                            np.asarray(msg.intensities, dtype=np.float32),
+                            np.asarray(msg.ranges, dtype=np.float32) if returns else _NONE,
+                            np.asarray(msg.intensities, dtype=np.float32) if returns else _NONE,
                             float(msg.start_angle),
                             float(msg.end_angle),
+                            len(msg.ranges),
                         )
                     )
                 elif topic.endswith("/image/compressed"):
@@ -365,19 +375,21 @@ def _assemble(
     notes: list[str],
 ) -> DriveLog:
     scans.sort(key=lambda m: m.stamp_ns)
-    n = max(m.ranges.size for m in scans)
-    first = next(m for m in scans if m.ranges.size == n)
+    n = max(m.steps for m in scans)
+    first = next(m for m in scans if m.steps == n)
     angle_min = first.start_angle
     inc = (first.end_angle - angle_min) / (n - 1) if n > 1 else 0.0
-    ranges = np.full((len(scans), n), np.nan, dtype=np.float32)
-    intens = np.zeros((len(scans), n), dtype=np.float32)
+    held = n if first.ranges.size else 0  # read without the returns: none held
+    ranges = np.full((len(scans), held), np.nan, dtype=np.float32)
+    intens = np.zeros((len(scans), held), dtype=np.float32)
     for k, m in enumerate(scans):
-        if m.ranges.size != n:  # a cropped scan after a reconfiguration: not placed
-            notes.append(f"scan {k} has {m.ranges.size} points, not {n}: skipped")
+        if m.steps != n:  # a cropped scan after a reconfiguration: not placed
+            notes.append(f"scan {k} has {m.steps} points, not {n}: skipped")
             continue
-        ranges[k] = m.ranges
-        if m.intensities.size == n:
-            intens[k] = m.intensities
+        if held:
+            ranges[k] = m.ranges
+            if m.intensities.size == n:
+                intens[k] = m.intensities
     scan_ns = np.array([m.stamp_ns for m in scans], dtype=np.int64)
     geometry = json.loads(metadata.get(f"device.{laser}", {}).get("geometry", "null") or "null")
     if geometry and geometry.get("time_increment") is not None:
@@ -412,6 +424,7 @@ def _assemble(
         metadata=metadata,
         notes=notes,
         scan_recv_ns=scan_recv,
+        steps=n,
     )
 
 

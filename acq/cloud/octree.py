@@ -116,6 +116,20 @@ def build(key: Key, scratch: Scratch, cube: Cube, emit: Emit, spawn: Callable[[]
         return
     kept, at = _sample(scratch, key)
     emit(key, kept)
+    del kept  # nothing of this level is held while its children are built
+    children = _split(scratch, at, cube, key, spawn)
+    del at
+    scratch.drop()
+    for ijk, child in sorted(children.items()):
+        build((level + 1, *ijk), child, cube, emit, spawn)
+
+
+def _split(
+    scratch: Scratch, at: np.ndarray, cube: Cube, key: Key, spawn: Callable[[], Scratch]
+) -> dict[tuple[int, int, int], Scratch]:
+    """The records of ``scratch`` but those at the indices ``at`` (sorted), streamed
+    into the scratch files of the children of the cell ``key`` they lie in; those files,
+    by the children's (i, j, k)."""
     children: dict[tuple[int, int, int], Scratch] = {}
     start = 0
     for part in scratch.chunks():
@@ -125,7 +139,7 @@ def build(key: Key, scratch: Scratch, cube: Cube, emit: Emit, spawn: Callable[[]
         rest[at[lo:hi] - start] = False  # the node's own
         part = part[rest]
         start = end
-        cell = cube.cells(cube.xyz(part), level + 1, key)
+        cell = cube.cells(cube.xyz(part), key[0] + 1, key)
         octant = (cell[:, 0] & 1) * 4 + (cell[:, 1] & 1) * 2 + (cell[:, 2] & 1)
         for o in np.unique(octant).tolist():
             i, j, k = (int(v) for v in cell[np.argmax(octant == o)])
@@ -133,11 +147,9 @@ def build(key: Key, scratch: Scratch, cube: Cube, emit: Emit, spawn: Callable[[]
             if child is None:
                 child = children[i, j, k] = spawn()
             child.append(part[octant == o])
-    scratch.drop()
     for child in children.values():
         child.close()
-    for ijk, child in sorted(children.items()):
-        build((level + 1, *ijk), child, cube, emit, spawn)
+    return children
 
 
 def _sample(scratch: Scratch, key: Key) -> tuple[np.ndarray, np.ndarray]:

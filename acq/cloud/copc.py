@@ -91,13 +91,15 @@ class CopcStream:
     ) -> None:  # fmt: skip
         """Append points: ``xyz`` (N,3) m, ``rgb`` (N,3) uint8, ``utc_s`` (N,) UTC
         seconds, ``intensity``, ``scan`` index, ``coloured`` flag, source ``camera``
-        (255 none) and ``frame`` (-1 none). AcqError for a point beyond the 32-bit
-        coordinates' reach of the first part's."""
+        (255 none) and ``frame`` (-1 none). AcqError for a point not finite or beyond
+        the 32-bit coordinates' reach of the first part's."""
         if not xyz.shape[0]:
             return
         # column by column: numpy's axis-0 reduction of an (N,3) array is 9x slower
         lo = np.array([xyz[:, k].min() for k in range(3)])
         hi = np.array([xyz[:, k].max() for k in range(3)])
+        if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+            raise AcqError(f"{self.path}: a point's coordinates are not finite")
         if self._points is None:
             self._offsets = np.floor(lo)
             self._points = self._scratch()

@@ -16,6 +16,7 @@ import pytest
 
 from acq.cloud import octree
 from acq.cloud.copc import CopcStream
+from acq.errors import AcqError
 from acq.sim.long_cloud import parts
 
 
@@ -96,6 +97,7 @@ import json, resource, sys
 from pathlib import Path
 from acq.cloud import octree
 from acq.cloud.copc import CopcStream
+from acq.errors import AcqError
 from acq.sim.long_cloud import parts
 
 octree.BUDGET = 150_000
@@ -123,3 +125,19 @@ def test_the_copc_writers_memory_does_not_grow_with_the_cloud(tmp_path: Path) ->
     growth_mb = (peaks_kb[-1] - peaks_kb[0]) / 1024
     assert growth_mb < 110, f"peak memory grew by {growth_mb:.0f} MB"
     assert [p.name for p in tmp_path.iterdir()] == ["c.copc.laz"]
+
+
+def test_a_point_beyond_the_files_reach_is_refused_naming_the_output(tmp_path: Path) -> None:
+    """The offset is the first part's (the cloud's extent is not known before close): a
+    point 3,000 km away cannot be held in 32-bit millimetres, nor a point not finite."""
+    out = tmp_path / "c.copc.laz"
+    first, far = parts(0.2), parts(0.2, seed=1)
+    stream = CopcStream(out)
+    stream.write(*next(first))
+    xyz, *rest = next(far)
+    with pytest.raises(AcqError, match=rf"^{out}: a point lies 3000 km from the cloud's first"):
+        stream.write(xyz + np.array([3e6, 0.0, 0.0]), *rest)
+    with pytest.raises(AcqError, match=rf"^{out}: a point's coordinates are not finite$"):
+        stream.write(np.where(xyz == xyz[0], np.nan, xyz), *rest)
+    stream.abort()
+    assert list(tmp_path.iterdir()) == []

@@ -64,7 +64,7 @@ class Scratch:
     :func:`drop_all` removes when the writer fails."""
 
     def __init__(self, beside: Path, dtype: np.dtype, made: set[Scratch]) -> None:
-        self.path = temporary_beside(beside, ".scratch")
+        self.path = temporary_beside(beside)  # as any temporary of the output: cleaned alike
         self.dtype = dtype
         self.count = 0
         self._made = made

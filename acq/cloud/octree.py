@@ -7,8 +7,9 @@ points drawn at random from those of its cell not kept by a coarser level, in th
 order they were written within the node; a cell with no more than that is a leaf, and
 the cells of level :data:`MAX_DEPTH` keep whatever is left. A cell holding at most
 :data:`BUDGET` points is built in memory (:func:`octree`); a bigger one keeps its random
-sample and streams the rest of its scratch file into its children's, each built in turn
-(:func:`build`). The random draws are seeded by the node's key: the same file every run.
+sample and streams the rest of its scratch file into its children's in one pass, each
+built in turn (:func:`build`). The random draws are seeded by the node's key: the same
+file every run.
 """
 
 from __future__ import annotations
@@ -114,29 +115,30 @@ def build(key: Key, scratch: Scratch, cube: Cube, emit: Emit, spawn: Callable[[]
         for node, idx in octree(cube.xyz(records), cube, key):
             emit(node, records[idx])
         return
-    kept, at = _sample(scratch, key)
-    emit(key, kept)
-    del kept  # nothing of this level is held while its children are built
-    children = _split(scratch, at, cube, key, spawn)
-    del at
+    at = np.sort(np.random.default_rng(list(key)).choice(scratch.count, NODE_POINTS, replace=False))
+    children = _split(scratch, at, cube, key, spawn, emit)
+    del at  # nothing of this level is held while its children are built
     scratch.drop()
     for ijk, child in sorted(children.items()):
         build((level + 1, *ijk), child, cube, emit, spawn)
 
 
 def _split(
-    scratch: Scratch, at: np.ndarray, cube: Cube, key: Key, spawn: Callable[[], Scratch]
-) -> dict[tuple[int, int, int], Scratch]:
-    """The records of ``scratch`` but those at the indices ``at`` (sorted), streamed
-    into the scratch files of the children of the cell ``key`` they lie in; those files,
-    by the children's (i, j, k)."""
+    scratch: Scratch, at: np.ndarray, cube: Cube, key: Key, spawn: Callable[[], Scratch],
+    emit: Emit,
+) -> dict[tuple[int, int, int], Scratch]:  # fmt: skip
+    """Emit the records of ``scratch`` at the indices ``at`` (sorted) as the node ``key``;
+    stream the others into the scratch files of the children of its cell they lie in;
+    those files, by the children's (i, j, k)."""
     children: dict[tuple[int, int, int], Scratch] = {}
+    kept: list[np.ndarray] = []
     start = 0
     for part in scratch.chunks():
         end = start + part.size
         lo, hi = np.searchsorted(at, [start, end])
         rest = np.ones(part.size, bool)
-        rest[at[lo:hi] - start] = False  # the node's own
+        rest[at[lo:hi] - start] = False
+        kept.append(part[~rest])
         part = part[rest]
         start = end
         cell = cube.cells(cube.xyz(part), key[0] + 1, key)
@@ -149,27 +151,8 @@ def _split(
             child.append(part[octant == o])
     for child in children.values():
         child.close()
+    emit(key, np.concatenate(kept))
     return children
-
-
-def _sample(scratch: Scratch, key: Key) -> tuple[np.ndarray, np.ndarray]:
-    """:data:`NODE_POINTS` records of ``scratch`` drawn at random (seeded by ``key``) in
-    one pass, in file order, and their indices in the file."""
-    rng = np.random.default_rng(list(key))
-    keep = np.zeros(0, scratch.dtype)
-    draw = np.zeros(0)
-    at = np.zeros(0, np.int64)
-    start = 0
-    for part in scratch.chunks():
-        keep = np.concatenate([keep, part])
-        draw = np.concatenate([draw, rng.random(part.size)])
-        at = np.concatenate([at, np.arange(start, start + part.size)])
-        start += part.size
-        if keep.size > NODE_POINTS:
-            best = np.argpartition(draw, NODE_POINTS - 1)[:NODE_POINTS]
-            keep, draw, at = keep[best], draw[best], at[best]
-    order = np.argsort(at)
-    return keep[order], at[order]
 
 
 def octree(xyz: np.ndarray, cube: Cube, root: Key = (0, 0, 0, 0)) -> list[tuple[Key, np.ndarray]]:

@@ -95,10 +95,14 @@ class Scratch:
         return np.fromfile(self.path, self.dtype)
 
     def drop(self) -> None:
-        """Close and remove the file."""
-        self._file.close()
-        self.path.unlink(missing_ok=True)
-        self._made.discard(self)
+        """Close and remove the file (what it could not flush, on a full disk, dropped)."""
+        try:
+            self._file.close()
+        except OSError:
+            pass
+        finally:
+            self.path.unlink(missing_ok=True)
+            self._made.discard(self)
 
 
 Emit = Callable[[Key, np.ndarray], None]  # a node's key and its records, in order

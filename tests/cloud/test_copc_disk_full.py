@@ -84,3 +84,28 @@ def test_colorize_to_copc_on_a_full_disk_says_so_in_one_line(
     assert last.startswith(f"acq colorize: {out}: No space left on device: 0.5 MB free on the "
                            f"disk of {tmp_path}, ")  # fmt: skip
     assert list(tmp_path.iterdir()) == []
+
+
+_DROP_CHILD = """
+import sys
+from pathlib import Path
+import numpy as np
+from acq.cloud.octree import Scratch, drop_all
+
+made = set()
+scratch = Scratch(Path(sys.argv[1]), np.dtype("u1"), made)
+scratch.append(np.zeros(199_000, np.uint8))
+scratch.append(np.zeros(3_000, np.uint8))  # buffered: fails only when flushed
+drop_all(made)
+"""
+
+
+def test_a_scratch_file_that_cannot_flush_is_still_removed(tmp_path: Path) -> None:
+    """A scratch file whose last records are still buffered when the disk is full (here a
+    real file size limit) is removed all the same, with every other one."""
+    done = subprocess.run(
+        [sys.executable, "-c", _DROP_CHILD, str(tmp_path / "c.copc.laz")],
+        capture_output=True, text=True, preexec_fn=_limit_file_size, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert list(tmp_path.iterdir()) == []

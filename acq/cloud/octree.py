@@ -22,7 +22,8 @@ import numpy as np
 from acq.atomic_write import temporary_beside
 
 __all__ = [
-    "BUDGET", "MAX_DEPTH", "NODE_POINTS", "Cube", "Scratch", "build", "drop_all", "octree",
+    "BUDGET", "MAX_DEPTH", "NODE_POINTS", "Cube", "Key", "Scratch", "build", "drop_all",
+    "octree",
 ]  # fmt: skip
 
 NODE_POINTS = 50_000  # points per octree node at most
@@ -119,7 +120,8 @@ def build(key: Key, scratch: Scratch, cube: Cube, emit: Emit, spawn: Callable[[]
         for node, idx in octree(cube.xyz(records), cube, key):
             emit(node, records[idx])
         return
-    at = np.sort(np.random.default_rng(list(key)).choice(scratch.count, NODE_POINTS, replace=False))
+    rng = np.random.default_rng(list(key))
+    at = np.sort(rng.choice(scratch.count, min(NODE_POINTS, scratch.count), replace=False))
     children = _split(scratch, at, cube, key, spawn, emit)
     del at  # nothing of this level is held while its children are built
     scratch.drop()

@@ -53,7 +53,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "-o", "--output", type=Path, required=True, metavar="OUT",
         help="the format from the suffix: OUT.ply, OUT.las (LAS 1.4, point format 7), "
         "OUT.laz (the same, LASzip-compressed), OUT.copc.laz (Cloud-Optimized Point Cloud, "
-        "for streaming; the cloud is held in memory) or OUT.e57 (ASTM E57)",
+        "for streaming; its points wait in scratch files beside OUT, 46 bytes each, twice "
+        "that at most) or OUT.e57 (ASTM E57)",
     )  # fmt: skip
     add_camera_option(
         col, "colour from this camera (each point takes the camera whose view of it is best: "

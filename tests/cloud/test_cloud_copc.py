@@ -12,7 +12,7 @@ from laspy.copc import Bounds
 
 from acq.camera import calibfile
 from acq.cli import main as acq_main
-from acq.cloud import copc
+from acq.cloud import octree
 from acq.cloud.copc import CopcStream
 from acq.provenance import made_by_acq
 from acq.sim.drive_log import write_drive_log
@@ -27,7 +27,7 @@ def _sorted(t: np.ndarray, *cols: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 def test_copc_by_level_and_by_bounds(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(copc, "NODE_POINTS", 500)  # a few levels from a few points
+    monkeypatch.setattr(octree, "NODE_POINTS", 500)  # a few levels from a few points
     parts = [_points(n, seed) for seed, n in enumerate((3000, 0, 5000))]
     out = CopcStream(tmp_path / "c.copc.laz", crs="EPSG:25831", cameras=["left", "right"])
     for p in parts:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acq.atomic_write import temporary_beside
+from acq.atomic_write import discard, release, temporary_beside
 from acq.cloud.las import (
     CAMERAS_VLR,
     SYSTEM_IDENTIFIER,
@@ -170,13 +170,14 @@ class CopcStream:
         _name_extra_bytes(self._tmp, self._cameras)
         write_extra_bytes_ranges(self._tmp, self._ranges)
         self._tmp.replace(self.path)
+        release(self._tmp)
         return self.path.stat().st_size
 
     def abort(self) -> None:
         """Drop the points, the scratch files and any unfinished file."""
         drop_all(self._made)
         self._points = None
-        self._tmp.unlink(missing_ok=True)
+        discard(self._tmp)
 
     def _scratch(self) -> Scratch:
         with self._full():

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acq.atomic_write import temporary_beside
+from acq.atomic_write import discard, temporary_beside
 
 __all__ = [
     "BUDGET", "MAX_DEPTH", "NODE_POINTS", "Cube", "Key", "Scratch", "build", "drop_all",
@@ -70,7 +70,7 @@ class Scratch:
         self.dtype = dtype
         self.count = 0
         self._made = made
-        self._file = open(self.path, "xb")  # closed by close or drop
+        self._file = open(self.path, "wb")  # created and locked: closed by close or drop
         made.add(self)
 
     def append(self, records: np.ndarray) -> None:
@@ -102,7 +102,7 @@ class Scratch:
         except OSError:
             pass
         finally:
-            self.path.unlink(missing_ok=True)
+            discard(self.path)
             self._made.discard(self)
 
 

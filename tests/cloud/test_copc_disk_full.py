@@ -1,7 +1,8 @@
 """A COPC output on a full disk: copclib aborts the whole process on a failed write
 (SIGABRT, exit 134, its temporary left behind), so the writer checks the room before
 each node it hands copclib, and its own scratch writes name the output when they fail.
-The answer is one line naming the output and the disk, exit 1, nothing left behind."""
+The answer is one line naming the output and the disk, exit 3 (the disk reserve's, as
+for every output: acq.disk_space), nothing left behind."""
 
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ def _limit_file_size() -> None:
     resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
 
 
-def test_colorize_to_copc_past_the_file_size_limit_exits_1_leaving_nothing(
+def test_colorize_to_copc_past_the_file_size_limit_exits_3_leaving_nothing(
     tmp_path: Path, short_drive: tuple[DriveTruth, Path]
 ) -> None:
     """A real file size limit (RLIMIT_FSIZE, no root needed) on a real `acq colorize`:
@@ -39,8 +40,9 @@ def test_colorize_to_copc_past_the_file_size_limit_exits_1_leaving_nothing(
          str(calib), "-o", str(out), "--no-preview"],
         capture_output=True, text=True, preexec_fn=_limit_file_size, timeout=120,
     )  # fmt: skip
-    assert done.returncode == 1, done.stderr
-    assert done.stderr == f"acq colorize: {out}: File too large (a scratch file in {tmp_path})\n"
+    assert done.returncode == 3, done.stderr
+    assert done.stderr.startswith(f"acq colorize: {out}: too large for the disk of {tmp_path} ")
+    assert len(done.stderr.splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
 
 
@@ -79,10 +81,9 @@ def test_colorize_to_copc_on_a_full_disk_says_so_in_one_line(
     _little_room(monkeypatch, 500_000)
     out = tmp_path / "c.copc.laz"
     argv = ["colorize", *map(str, truth.files), "--calib", str(calib), "-o", str(out)]
-    assert acq_main([*argv, "--no-preview"]) == 1
+    assert acq_main([*argv, "--no-preview"]) == 3
     last = capsys.readouterr().err.splitlines()[-1]
-    assert last.startswith(f"acq colorize: {out}: No space left on device: 0.5 MB free on the "
-                           f"disk of {tmp_path}, ")  # fmt: skip
+    assert last == f"acq colorize: {out}: no space left on the disk of {tmp_path} (0.5 MB free)"
     assert list(tmp_path.iterdir()) == []
 
 

@@ -8,12 +8,12 @@ per camera (the OpenCV driver reading MJPEG over HTTP) reads what the replay ser
 ``--seconds`` (15) s (keep it under the log's length divided by the speed: the replay
 ends with the log), the child is stopped and its peak over its whole life is taken from
 ``wait4`` (``ru_maxrss``, the ``VmHWM`` at exit; ``after_serving``, with the records each
-client got). ``--repeat N`` first writes a longer log: the given one N times over, each
-copy's times shifted past the previous copy's end (one file, in a temporary folder), so a
-few-minute drive can be made from the demo's 10 s. Target: a peak independent of the
+client got). ``--minutes M`` first synthesises an M-minute drive from the log
+(``bench/hour_log.py``, one file in a temporary folder), so an hour can be made from the
+demo's 10 s. Target: a peak independent of the
 log's length (500 MB for an hour-long drive).
 
-Run as a script: ``python bench/replay_memory.py --log out/demo/demo.mcap [--repeat 18]
+Run as a script: ``python bench/replay_memory.py --log out/demo/demo.mcap [--minutes 60]
 [--speed 10] [--seconds 15]``.
 """
 
@@ -30,53 +30,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
-
 from acq.drivers.camera_opencv import OpenCVCamera
 from acq.drivers.registry import REGISTRIES
 from acq.record import config as configfile
 
-GAP_NS = 10_000_000  # between one copy's last record and the next copy's first, ns
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as a script or loaded by path
+from hour_log import write_hour_log
 
 
 def _line(**values: Any) -> None:
     load = [round(x, 2) for x in os.getloadavg()]
     print(json.dumps({"bench": "replay_memory", **values, "loadavg": load}), flush=True)
-
-
-def repeated(src: Path, n: int, out: Path) -> Path:
-    """``src`` written ``n`` times over into ``out`` (its metadata once), each copy's log
-    and publish times shifted by the span of the copies before it."""
-    with src.open("rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None and summary.statistics is not None
-        stats = summary.statistics
-        shift = stats.message_end_time - stats.message_start_time + GAP_NS
-        with out.open("wb") as g:
-            w = Writer(g, chunk_size=8 << 20, compression=CompressionType.ZSTD)
-            w.start(profile="acq")
-            for m in reader.iter_metadata():
-                w.add_metadata(m.name, m.metadata)
-            schemas = {
-                s.id: w.register_schema(s.name, s.encoding, s.data)
-                for s in summary.schemas.values()
-            }
-            channels = {
-                c.id: w.register_channel(
-                    c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata
-                )
-                for c in summary.channels.values()
-            }
-            for k in range(n):
-                for _s, channel, m in reader.iter_messages():
-                    w.add_message(
-                        channels[channel.id], m.log_time + k * shift, m.data,
-                        m.publish_time + k * shift, m.sequence,
-                    )  # fmt: skip
-            w.finish()
-    return out
 
 
 def peak_mb(pid: int) -> tuple[float, float]:
@@ -183,8 +147,9 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--log", type=Path, action="append", required=True,
                    help="a log (repeat for the files of a session, in order)")  # fmt: skip
-    p.add_argument("--repeat", type=int, default=1,
-                   help="replay the log written this many times over (default 1)")  # fmt: skip
+    p.add_argument("--minutes", type=float, default=None,
+                   help="replay a drive of this length synthesised from the log by "
+                   "bench/hour_log.py (default: the log as it is)")  # fmt: skip
     p.add_argument("--speed", type=float, default=10.0, help="replay speed (default 10)")
     p.add_argument("--seconds", type=float, default=15.0,
                    help="how long the clients read (default 15)")  # fmt: skip
@@ -192,8 +157,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="replay-memory-") as tmp:
         work = Path(tmp)
         logs = args.log
-        if args.repeat > 1:
-            logs = [repeated(args.log[0], args.repeat, work / f"x{args.repeat}.mcap")]
+        if args.minutes is not None:
+            logs = [work / "long.mcap"]
+            write_hour_log(args.log[0], logs[0], args.minutes)
         measure(logs, args.speed, args.seconds, work)
 
 

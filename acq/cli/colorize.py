@@ -129,8 +129,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "see the log files at the same paths",
     )  # fmt: skip
     col.add_argument(
-        "--chunk", type=CHUNK_S, default=30.0, metavar="S",
-        help=f"seconds of scans per chunk, {CHUNK_S.range_text()} (default 30)",
+        "--chunk", type=CHUNK_S, default=None, metavar="S",
+        help=f"seconds of scans per chunk, {CHUNK_S.range_text()} (default 15; two chunks "
+        "and their images are in memory at once)",
     )  # fmt: skip
     col.add_argument(
         "--preview", type=Path, metavar="PNG",
@@ -184,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
         args.logs, calib, args.output, camera=args.camera, frame=args.frame,
         options=options, trajectory=args.trajectory, crs=args.crs,
         retime_offline=not args.no_retime, time_offset_s=args.time_offset,
-        workers=args.workers, dask=args.dask, chunk_s=args.chunk,
+        workers=args.workers, dask=args.dask, chunk_s=args.chunk or colorize.CHUNK_S,
         preview=None if args.no_preview else preview,
         progress=args.progress or (not args.json and sys.stderr.isatty()),
     )  # fmt: skip

@@ -54,15 +54,15 @@ chrony:
 	  { apt-get install -y -qq chrony || { apt-get update -qq && apt-get install -y -qq chrony; }; } \
 	  >/dev/null 2>&1 ) || echo "chrony not installed: the tests that run chronyd skip"
 
-# ruff first; then the real-time tests, with mypy and the wheel's smoke beside them at
-# nice 19 (the real-time tests mostly wait on their devices, and must hold on a busy
-# machine anyway); then the rest on both cores.
+# ruff first; then the real-time tests two at a time, with mypy and the wheel's smoke
+# beside them at nice 19 (the real-time tests mostly wait on their devices, and must hold
+# on a busy machine anyway); then the rest on both cores.
 test: $(STAMP) compile chrony
 	$(BIN)/ruff format --check $(RUFF_PATHS)
 	$(BIN)/ruff check $(RUFF_PATHS)
 	@nice -n 19 $(MAKE) --no-print-directory typecheck > .mypy.out 2>&1 & mypy=$$!; \
 	nice -n 19 $(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
-	$(BIN)/pytest -q -m "not slow and realtime and not interop"; realtime=$$?; \
+	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 2; realtime=$$?; \
 	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2; rest=$$?; \
 	wait $$mypy; typed=$$?; wait $$smoke; smoked=$$?; \
 	echo "mypy:"; cat .mypy.out; echo "wheel smoke:"; cat .smoke.out; rm -f .mypy.out .smoke.out; \

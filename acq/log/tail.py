@@ -6,10 +6,11 @@ chunks only.
 :class:`acq.log.LogReader` reads a whole file in one pass, from its start (or, closed,
 from its index); a view refreshed every second of a 10 GB file being written cannot.
 Here the first poll hops over the records already in the file (9 bytes read per record,
-the bodies skipped), opening chunks only until the channels of the wanted topics are
-known (the writer registers them in its first chunk) and then the last
-``back_chunks``; later polls read the chunks written since. A closed file (footer and
-summary valid) is read from its index: its last chunks.
+the bodies skipped), opening chunks only until the channels are known (the channels of
+the wanted topics, or a first chunk of messages: acq's writer registers every channel
+before its first message) and then the last ``back_chunks``; later polls read the chunks
+written since. A closed file (footer and summary valid) is read from its index: its last
+chunks.
 
 The chunks' headers also give the write rate (:meth:`LogTail.write_rate`): the bytes
 between chunks over the log time between their last messages.
@@ -75,6 +76,7 @@ class LogTail:
         self._decoders: dict[int, Callable[[bytes], Any] | None] = {}
         self._chunk_ends: deque[tuple[int, int]] = deque()  # (end byte, last log time ns)
         self._first = True
+        self._messages_seen = False  # a chunk with messages was opened
 
     def poll(self) -> list[Tailed]:
         """The wanted messages completed since the last call, in file order."""
@@ -104,9 +106,10 @@ class LogTail:
         return (b1 - b0) / ((t1 - t0) * 1e-9) if t1 > t0 else None
 
     def _known(self) -> bool:
-        """Whether every wanted topic's channel has been seen (the writer registers its
-        channels at the file's start: later chunks need not be opened to learn them)."""
-        return self.topics <= {c.topic for c in self._channels.values()}
+        """Whether the channels are known: every wanted topic's seen, or a chunk of
+        messages read (acq's writer registers its channels at the file's start, before
+        any message: later chunks need not be opened to learn them)."""
+        return self._messages_seen or self.topics <= {c.topic for c in self._channels.values()}
 
     def _hop(self, f: Any, size: int) -> list[tuple[int, int]]:
         """Walk the complete records from :attr:`offset`: top-level schemas, channels and
@@ -159,6 +162,7 @@ class LogTail:
         out = []
         for r in inner:
             if isinstance(r, Message):
+                self._messages_seen = True
                 one = self._message(r)
                 if one is not None:
                     out.append(one)

@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 from acq.record.recorder import Recorder
-from tests.sim_rig import Rig
+from tests.sim_rig import Rig, warm_rig
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -44,11 +44,7 @@ def _config(rig: Rig, tmp_path: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def rig() -> Iterator[Rig]:
-    r = Rig()
-    try:
-        yield r.warm_up()
-    finally:
-        r.close()
+    yield from warm_rig()
 
 
 @pytest.fixture(scope="module")

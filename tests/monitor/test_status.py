@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -47,10 +48,15 @@ def rig() -> Iterator[Rig]:
     yield from warm_rig()
 
 
+@dataclass
+class Recording:
+    logs: Path  # the output folder
+    proc: subprocess.Popen[bytes]  # the recorder
+
+
 @pytest.fixture(scope="module")
-def recording(rig: Rig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    """`acq record` of the rig running (its output folder), once the recorder has
-    reported its devices."""
+def recording(rig: Rig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Recording]:
+    """`acq record` of the rig running, once the recorder has reported its devices."""
     tmp = tmp_path_factory.mktemp("recording")
     proc = subprocess.Popen(
         [sys.executable, "-m", "acq.cli", "record", "-c", str(_config(rig, tmp)),
@@ -66,19 +72,19 @@ def recording(rig: Rig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Pa
             if done is not None and done.stdout and len(json.loads(done.stdout)["devices"]) == 2:
                 break
         time.sleep(2.0)  # the rates settle over a few seconds of records
-        yield logs
+        yield Recording(logs, proc)
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.wait(20)
 
 
 @pytest.mark.realtime
-def test_json_of_a_running_recorder(recording: Path) -> None:
-    done = _status(recording, "--json")
+def test_json_of_a_running_recorder(recording: Recording) -> None:
+    done = _status(recording.logs, "--json")
     assert done.returncode == 0, done.stdout + done.stderr
     snap = json.loads(done.stdout)
     assert snap["writing"] and snap["ok"] and snap["problems"] == []
-    assert Path(snap["file"]).parent == recording and snap["file"].endswith("_000.mcap")
+    assert Path(snap["file"]).parent == recording.logs and snap["file"].endswith("_000.mcap")
     assert snap["file_bytes"] > 0 and snap["write_rate_bps"] > 0
     assert 0 < snap["disk_minutes_left"]
     devices = {d["name"]: d for d in snap["devices"]}
@@ -91,10 +97,10 @@ def test_json_of_a_running_recorder(recording: Path) -> None:
 
 
 @pytest.mark.realtime
-def test_the_full_screen_view_through_a_pseudo_terminal(recording: Path) -> None:
+def test_the_full_screen_view_through_a_pseudo_terminal(recording: Recording) -> None:
     main, side = pty.openpty()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "acq.cli", "status", str(recording)],
+        [sys.executable, "-m", "acq.cli", "status", str(recording.logs)],
         cwd=ROOT, stdin=side, stdout=side, stderr=subprocess.PIPE,
         env={**os.environ, "COLUMNS": "120", "LINES": "40", "TERM": "xterm"},
     )  # fmt: skip
@@ -116,21 +122,49 @@ def test_the_full_screen_view_through_a_pseudo_terminal(recording: Path) -> None
         os.close(main)
 
 
-@pytest.mark.realtime
-def test_a_required_scanner_that_stops_exits_1_within_stale_s(rig: Rig, recording: Path) -> None:
-    rig.scanner_server.close()  # the last test of the module to use the scanner
-    stopped = time.monotonic()
+def _until(
+    logs: Path, named: str, within_s: float
+) -> tuple[subprocess.CompletedProcess[str], float]:
+    """`acq status --json --stale-s 2` until a problem names the device ``named`` (or
+    ``within_s`` passes), and how long that took, s."""
+    start = time.monotonic()
     while True:
-        done = _status(recording, "--json", "--stale-s", "2")
-        if done.returncode != 0 or time.monotonic() - stopped > 20:
-            break
+        done = _status(logs, "--json", "--stale-s", "2")
+        problems = json.loads(done.stdout)["problems"] if done.stdout else []
+        if any(p.startswith(f"{named}:") for p in problems) or time.monotonic() - start > within_s:
+            return done, time.monotonic() - start
         time.sleep(0.3)
+
+
+@pytest.mark.realtime
+def test_a_silent_camera_then_a_stopped_required_scanner_exit_1(
+    rig: Rig, recording: Recording
+) -> None:
+    assert rig.camera is not None
+    rig.camera.freeze()  # connected, but silent: nothing sent
+    try:
+        done, took = _until(recording.logs, "camera", 20)
+    finally:
+        rig.camera.thaw()
     assert done.returncode == 1, done.stdout + done.stderr
-    # within --stale-s of the last record, plus the recorder's 1 s status and a loaded
-    # machine's slack
-    assert time.monotonic() - stopped < 2 + 6
+    # after --stale-s of silence, within the recorder's 1 s status and a loaded machine's
+    # slack
+    assert 2 <= took < 2 + 6
     snap = json.loads(done.stdout)
-    assert not snap["ok"] and any(p.startswith("laser:") for p in snap["problems"])
+    assert [p.split(":")[0] for p in snap["problems"]] == ["camera"]
+    assert "no record for" in snap["problems"][0]
+    rig.scanner_server.close()  # the last test of the module to use the scanner
+    done, took = _until(recording.logs, "laser", 20)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert took < 2 + 6  # a required device disconnected: at once
+    assert not json.loads(done.stdout)["ok"]
+    # the recording finished with its scanner down: its last state says so
+    recording.proc.send_signal(signal.SIGTERM)
+    recording.proc.wait(20)
+    done = _status(recording.logs, "--json", "--stale-s", "2")
+    snap = json.loads(done.stdout)
+    assert done.returncode == 1 and snap["closed"] and not snap["writing"]
+    assert any(p.startswith("laser:") for p in snap["problems"])
 
 
 @pytest.mark.realtime

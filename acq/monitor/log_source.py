@@ -17,6 +17,7 @@ import yaml
 from acq.errors import InputValueError
 from acq.log import writer_lock
 from acq.log.inputs import session_stem
+from acq.log.mcap_magic import LogError
 from acq.log.tail import LogTail
 from acq.monitor.snapshot import DeviceView, Snapshot
 
@@ -68,7 +69,14 @@ class LogSource:
         """The recorder's state as of now."""
         path = newest_log(self.given)
         if self._tail is None or self._tail.path != path:
-            self._tail = LogTail(path, TOPICS)
+            try:
+                self._tail = LogTail(path, TOPICS)
+            except LogError:
+                if self._tail is None:
+                    raise
+                # a file the recorder has just created, its first bytes not yet there:
+                # the previous part until the next snapshot
+                path = self._tail.path
         for one in self._tail.poll():
             if one.decoded is None:
                 continue

@@ -57,6 +57,13 @@ def test_the_newest_part_followed_across_rolls(tmp_path: Path) -> None:
     w.write("/acq/status", _status(40.0, laser_connected=False), now, now)
     w.sync()
     assert problems(source.snapshot()) == ["laser: required, disconnected (no answer)"]
+    # the next part as the writer creates it, its magic not yet written: the last read
+    # part stays followed until it is
+    part = newest_log(tmp_path)
+    stem = part.name.removesuffix(".mcap").rsplit("_", 1)[0]
+    (tmp_path / f"{stem}_999.mcap").write_bytes(b"")
+    assert source.snapshot().file == str(part)
+    (tmp_path / f"{stem}_999.mcap").unlink()
     w.close()
     done = source.snapshot()
     assert not done.writing and done.closed and done.status_age_s is None

@@ -81,6 +81,16 @@ def render(snap: Snapshot, stale_s: float) -> Group:
 
 
 def as_json(snap: Snapshot, stale_s: float) -> dict[str, Any]:
-    """The snapshot as plain data, with its problems (``ok``: none)."""
+    """The snapshot as plain data, with its problems (``ok``: none). What is not known
+    is null: ``disk_minutes_left`` when nothing is being written, a device's
+    ``clock_uncertainty_s`` before its clock sync has one."""
     found = problems(snap, stale_s)
-    return {**dataclasses.asdict(snap), "stale_s": stale_s, "ok": not found, "problems": found}
+    out = dataclasses.asdict(snap)
+    out["disk_minutes_left"] = _known(snap.disk_minutes_left)
+    for d in out["devices"]:
+        d["clock_uncertainty_s"] = _known(d["clock_uncertainty_s"])
+    return {**out, "stale_s": stale_s, "ok": not found, "problems": found}
+
+
+def _known(x: float) -> float | None:
+    return x if math.isfinite(x) else None

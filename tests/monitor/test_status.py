@@ -81,7 +81,7 @@ def recording(rig: Rig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Re
 @pytest.mark.realtime
 def test_json_of_a_running_recorder(recording: Recording) -> None:
     done = _status(recording.logs, "--json")
-    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.returncode == 0 and done.stderr == "", done.stdout + done.stderr
     snap = json.loads(done.stdout)
     assert snap["writing"] and snap["ok"] and snap["problems"] == []
     assert Path(snap["file"]).parent == recording.logs and snap["file"].endswith("_000.mcap")
@@ -177,8 +177,9 @@ def test_a_finished_log_shows_its_last_state(tmp_path: Path) -> None:
         rig.close()
     (log,) = (tmp_path / "logs").glob("*.mcap")
     done = _status(log, "--json")
-    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.returncode == 0 and done.stderr == "", done.stdout + done.stderr
     snap = json.loads(done.stdout)
+    assert snap["disk_minutes_left"] is None  # nothing is being written
     assert not snap["writing"] and snap["closed"] and snap["ok"] and snap["file"] == str(log)
     assert [d["name"] for d in snap["devices"]] == ["laser"]
     plain = _status(tmp_path / "logs")  # stdout a pipe: one plain snapshot

@@ -7,6 +7,7 @@ configuration pointing at them."""
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import yaml
@@ -100,6 +101,15 @@ class Rig:
             self.gnss_server.close()
         for camera in self.cameras.values():
             camera.close()
+
+
+def warm_rig(cameras: tuple[str, ...] = ("camera",)) -> Iterator[Rig]:
+    """A warmed-up :class:`Rig`, closed after use: the body of a module's rig fixture."""
+    r = Rig(cameras)
+    try:
+        yield r.warm_up()
+    finally:
+        r.close()
 
 
 def read_log(path: Path) -> dict[str, list[tuple[int, int, object]]]:

@@ -45,6 +45,7 @@ from acq.cli import (
     record,
     replay,
     sim,
+    status,
 )
 from acq.cli.standard_streams import reopen_closed
 from acq.credentials import RedactingFilter, redact
@@ -63,6 +64,7 @@ COMMANDS: dict[str, ModuleType] = {
     "probe": probe,
     "record": record,
     "info": info,
+    "status": status,
     "replay": replay,
     "colorize": colorize,
     "export": export,

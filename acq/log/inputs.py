@@ -36,7 +36,7 @@ from acq.log.reader import LogError, LogReader, quiet
 from acq.log.repair import REPAIR_RECORD
 from acq.log.rosbag_source import bag_files
 
-__all__ = ["Session", "log_files", "session_files", "sessions"]
+__all__ = ["Session", "log_files", "session_files", "session_stem", "sessions"]
 
 log = logging.getLogger(__name__)
 
@@ -138,6 +138,13 @@ def session_files(paths: Sequence[str | os.PathLike[str]], option: str = "LOG") 
             "session's files (each drive has its own clock)"
         )
     return found[0].files if found else []
+
+
+def session_stem(path: Path) -> str | None:
+    """The session part of a writer's file name (``<prefix>_<UTC start>`` of
+    ``<prefix>_<UTC start>_<NNN>.mcap``; None: not such a name): its parts share it."""
+    m = _PART.match(path.name.removesuffix(".mcap"))
+    return m.group(1) if m else None
 
 
 def _glance(path: Path) -> _Log:

@@ -43,7 +43,7 @@ done
 step "acq --version, every command's --help"
 "$acq" --version
 for cmd in demo "sim render" "sim scanner" "sim camera" "sim rig" "probe scanner" "probe camera" record \
-    info replay colorize "calibrate fisheye" "calibrate extrinsic" "calibrate time-offset" \
+    info status replay colorize "calibrate fisheye" "calibrate extrinsic" "calibrate time-offset" \
     "calibrate validate" "analyze sensitivity" devices "export ros2"; do
   # shellcheck disable=SC2086
   "$acq" $cmd --help > /dev/null || { echo "wheel smoke: acq $cmd --help failed" >&2; exit 1; }

@@ -1,0 +1,95 @@
+"""`acq status`: a running recorder's state, read from the log it writes."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from acq.cli.option_types import real
+
+HELP = "a running recorder's devices, time base, disk and file, refreshed each second"
+DEFAULT_FOLDER = Path("logs")  # where `acq record` without -c records, below the working folder
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "status",
+        help=HELP,
+        description="Show a running recorder from the log it is writing: each device's "
+        "rate, drops, time since its last record (gap), clock-sync uncertainty and drift, "
+        "and last event (the recorder's /acq/status, 1 Hz); the host clock's time base "
+        "(/acq/timebase); the file being written, its size and write rate; the disk's "
+        "minutes left above the recorder's reserve at that rate. Only what the recorder "
+        "adds each second is read, and its new files are followed as it rolls them. A "
+        "terminal gets a full-screen view refreshed each second until Ctrl-C; any other "
+        "output one plain snapshot. A log no longer being written is shown in its last "
+        "state. Exit status with --json (and for the plain snapshot): 0 all well, 1 a "
+        "device silent for more than --stale-s s, a required device disconnected, or a "
+        "running recorder silent for --stale-s, 2 no log found.",
+    )
+    p.add_argument(
+        "log",
+        nargs="?",
+        type=Path,
+        metavar="LOG_OR_FOLDER",
+        help="a log, or a folder: its newest session's newest file (default: -c's "
+        "output.dir; without -c, ./logs, where `acq record` without -c records, when it "
+        "exists, else the current folder)",
+    )
+    p.add_argument(
+        "-c",
+        "--config",
+        type=Path,
+        help="a recorder configuration: follow the newest log in its output.dir",
+    )
+    p.add_argument(
+        "--json", action="store_true", help="print one snapshot as JSON (for scripts) and exit"
+    )
+    p.add_argument(
+        "--stale-s",
+        type=real(0.5, 3600, what="seconds"),
+        default=5.0,
+        metavar="S",
+        help="a device without a record for longer than S seconds is down (default 5)",
+    )
+    p.set_defaults(handler=run)
+
+
+def _folder(args: argparse.Namespace) -> Path:
+    if args.log is not None:
+        return Path(args.log)
+    if args.config is not None:
+        from acq.record import config as configfile
+
+        return configfile.load(args.config).output.dir
+    return DEFAULT_FOLDER if DEFAULT_FOLDER.is_dir() else Path(".")
+
+
+def run(args: argparse.Namespace) -> int:
+    from acq.json_text import dumps
+    from acq.monitor.log_source import LogSource
+    from acq.monitor.snapshot import problems
+    from acq.monitor.view import as_json, render
+
+    source = LogSource(_folder(args))
+    if args.json or not sys.stdout.isatty():
+        snap = source.snapshot()
+        if args.json:
+            print(dumps(as_json(snap, args.stale_s), what="acq status --json"))
+        else:
+            from rich.console import Console
+
+            # a pipe or a file: lines as long as the table needs, no escape codes
+            Console(highlight=False, width=160, no_color=True).print(render(snap, args.stale_s))
+        return 1 if problems(snap, args.stale_s) else 0
+    from rich.live import Live
+
+    try:
+        with Live(render(source.snapshot(), args.stale_s), screen=True, auto_refresh=False) as live:
+            while True:
+                time.sleep(1.0)
+                live.update(render(source.snapshot(), args.stale_s), refresh=True)
+    except KeyboardInterrupt:
+        return 0

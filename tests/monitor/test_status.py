@@ -1,0 +1,198 @@
+"""`acq status` against a real `acq record` of the simulated rig (the UTM-30LX speaking
+SCIP on TCP, the fisheye over HTTP MJPEG in its own process): its --json while the
+recorder runs, the full-screen view through a pseudo-terminal, a required scanner that
+stops, a finished log, and no log."""
+
+from __future__ import annotations
+
+import json
+import os
+import pty
+import select
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import yaml
+
+from acq.record.recorder import Recorder
+from tests.sim_rig import Rig, warm_rig
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _status(*args: str | Path, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "acq.cli", "status", *map(str, args)],
+        cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+    )  # fmt: skip
+
+
+def _config(rig: Rig, tmp_path: Path) -> Path:
+    """The rig's configuration with the scanner required."""
+    cfg = rig.config(tmp_path)
+    assert cfg.source is not None
+    data = yaml.safe_load(cfg.source.read_text())
+    data["scanners"][0]["required"] = True
+    cfg.source.write_text(yaml.safe_dump(data))
+    return cfg.source
+
+
+@pytest.fixture(scope="module")
+def rig() -> Iterator[Rig]:
+    yield from warm_rig()
+
+
+@dataclass
+class Recording:
+    logs: Path  # the output folder
+    proc: subprocess.Popen[bytes]  # the recorder
+
+
+@pytest.fixture(scope="module")
+def recording(rig: Rig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Recording]:
+    """`acq record` of the rig running, once the recorder has reported its devices."""
+    tmp = tmp_path_factory.mktemp("recording")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", "record", "-c", str(_config(rig, tmp)),
+         "--duration", "120"],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    logs = tmp / "logs"
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            time.sleep(0.5)
+            done = _status(logs, "--json") if logs.is_dir() and any(logs.glob("*.mcap")) else None
+            if done is not None and done.stdout and len(json.loads(done.stdout)["devices"]) == 2:
+                break
+        time.sleep(2.0)  # the rates settle over a few seconds of records
+        yield Recording(logs, proc)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(20)
+
+
+@pytest.mark.realtime
+def test_json_of_a_running_recorder(recording: Recording) -> None:
+    done = _status(recording.logs, "--json")
+    assert done.returncode == 0 and done.stderr == "", done.stdout + done.stderr
+    snap = json.loads(done.stdout)
+    assert snap["writing"] and snap["ok"] and snap["problems"] == []
+    assert Path(snap["file"]).parent == recording.logs and snap["file"].endswith("_000.mcap")
+    assert snap["file_bytes"] > 0 and snap["write_rate_bps"] > 0
+    assert 0 < snap["disk_minutes_left"]
+    devices = {d["name"]: d for d in snap["devices"]}
+    assert set(devices) == {"laser", "camera"}
+    assert devices["laser"]["required"] and not devices["camera"]["required"]
+    assert abs(devices["laser"]["rate_hz"] - 40.0) < 4.0  # the UTM-30LX's 40 Hz
+    assert abs(devices["camera"]["rate_hz"] - 25.0) < 4.0  # the configured 25 fps
+    assert all(d["connected"] and d["gap_s"] < 5.0 for d in devices.values())
+    assert snap["time_base"].startswith("host clock")
+
+
+@pytest.mark.realtime
+def test_the_full_screen_view_through_a_pseudo_terminal(recording: Recording) -> None:
+    main, side = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", "status", str(recording.logs)],
+        cwd=ROOT, stdin=side, stdout=side, stderr=subprocess.PIPE,
+        env={**os.environ, "COLUMNS": "120", "LINES": "40", "TERM": "xterm"},
+    )  # fmt: skip
+    os.close(side)
+    seen = b""
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not (b"laser" in seen and b"camera" in seen):
+            ready, _, _ = select.select([main], [], [], 1.0)
+            if ready:
+                seen += os.read(main, 65536)
+        assert b"laser" in seen and b"camera" in seen, seen[-2000:]
+        assert b"\x1b[?1049h" in seen  # the alternate screen: a full-screen view
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(10) == 0, proc.stderr.read() if proc.stderr else ""
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        os.close(main)
+
+
+def _until(
+    logs: Path, named: str, within_s: float
+) -> tuple[subprocess.CompletedProcess[str], float]:
+    """`acq status --json --stale-s 2` until a problem names the device ``named`` (or
+    ``within_s`` passes), and how long that took, s."""
+    start = time.monotonic()
+    while True:
+        done = _status(logs, "--json", "--stale-s", "2")
+        problems = json.loads(done.stdout)["problems"] if done.stdout else []
+        if any(p.startswith(f"{named}:") for p in problems) or time.monotonic() - start > within_s:
+            return done, time.monotonic() - start
+        time.sleep(0.3)
+
+
+@pytest.mark.realtime
+def test_a_silent_camera_then_a_stopped_required_scanner_exit_1(
+    rig: Rig, recording: Recording
+) -> None:
+    assert rig.camera is not None
+    rig.camera.freeze()  # connected, but silent: nothing sent
+    try:
+        done, took = _until(recording.logs, "camera", 20)
+    finally:
+        rig.camera.thaw()
+    assert done.returncode == 1, done.stdout + done.stderr
+    # after --stale-s of silence, within the recorder's 1 s status and a loaded machine's
+    # slack
+    assert 2 <= took < 2 + 6
+    snap = json.loads(done.stdout)
+    assert [p.split(":")[0] for p in snap["problems"]] == ["camera"]
+    assert "no record for" in snap["problems"][0]
+    rig.scanner_server.close()  # the last test of the module to use the scanner
+    done, took = _until(recording.logs, "laser", 20)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert took < 2 + 6  # a required device disconnected: at once
+    assert not json.loads(done.stdout)["ok"]
+    # the recording finished with its scanner down: its last state says so
+    recording.proc.send_signal(signal.SIGTERM)
+    recording.proc.wait(20)
+    done = _status(recording.logs, "--json", "--stale-s", "2")
+    snap = json.loads(done.stdout)
+    assert done.returncode == 1 and snap["closed"] and not snap["writing"]
+    assert any(p.startswith("laser:") for p in snap["problems"])
+
+
+@pytest.mark.realtime
+def test_a_finished_log_shows_its_last_state(tmp_path: Path) -> None:
+    rig = Rig(cameras=())
+    try:
+        cfg = rig.config(tmp_path)
+        assert Recorder(cfg, duration_s=3.0).run() == 0
+    finally:
+        rig.close()
+    (log,) = (tmp_path / "logs").glob("*.mcap")
+    done = _status(log, "--json")
+    assert done.returncode == 0 and done.stderr == "", done.stdout + done.stderr
+    snap = json.loads(done.stdout)
+    assert snap["disk_minutes_left"] is None  # nothing is being written
+    assert not snap["writing"] and snap["closed"] and snap["ok"] and snap["file"] == str(log)
+    assert [d["name"] for d in snap["devices"]] == ["laser"]
+    plain = _status(tmp_path / "logs")  # stdout a pipe: one plain snapshot
+    assert plain.returncode == 0 and "finished, not being written" in plain.stdout
+    assert "laser" in plain.stdout and "\x1b[" not in plain.stdout
+
+
+def test_no_log_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    done = _status(tmp_path, "--json")
+    assert done.returncode == 2
+    assert done.stdout == ""
+    assert done.stderr.strip().splitlines() == [
+        f"acq status: {tmp_path}: no .mcap log in this folder"
+    ]
+    done = _status(tmp_path / "missing.mcap")
+    assert done.returncode == 2 and "missing.mcap: no such log or folder" in done.stderr

@@ -58,6 +58,7 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ],
     ("calibrate", "time-offset"): ["x.mcap", "--calib", "c.yaml", "-o", "o.yaml"],
     ("analyze", "sensitivity"): ["x.mcap", "--calib", "c.yaml"],
+    ("status",): [],
 }
 
 

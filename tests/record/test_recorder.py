@@ -73,8 +73,12 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     for topic in ("/laser/scan", "/camera/image/compressed"):
         logt = np.array([t for t, _, _ in log[topic]])
         pub = np.array([p for _, p, _ in log[topic]])
-        # records that came in one read (a host busy for a while) share their receipt
-        assert np.all(np.diff(logt) >= 0) and np.all(np.diff(pub) > 0), (topic, logt, pub)
+        # records that came in one read (a host busy for a while) share their receipt, and
+        # so do the stamps of a camera without a clock of its own (stamped at receipt:
+        # offline re-timing puts its frames back on their grid); a scan's is its own
+        assert np.all(np.diff(logt) >= 0), (topic, logt)
+        strictly = topic == "/laser/scan"
+        assert np.all(np.diff(pub) > 0 if strictly else np.diff(pub) >= 0), (topic, pub)
         assert np.all(pub < logt)  # measured before it was received
     # the Foxglove messages carry what the devices sent
     first = scans[0][2]

@@ -100,8 +100,11 @@ def run(args: argparse.Namespace) -> int:
             raise InputValueError(f"--live: {e}") from None
         warn_if_exposed("acq record", "--live", args.live)
         if not live.is_loopback(host) and not every_interface(args.live):
-            print(f"acq record: warning: --live {args.live}: not loopback; the live server "
-                  "is reachable from the network, without authentication", file=sys.stderr)
+            print(
+                f"acq record: warning: --live {args.live}: not loopback; the live server "
+                "is reachable from the network, without authentication",
+                file=sys.stderr,
+            )
         server = live.LiveServer(host, port, image_hz=args.live_image_hz)
         recorder.log.info("live server on ws://%s:%d (Foxglove WebSocket)", host, server.port)
         listeners.append(server)

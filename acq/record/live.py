@@ -21,7 +21,8 @@ import logging
 import threading
 
 import foxglove
-from foxglove.websocket import ChannelView, Client
+from foxglove import _foxglove_py
+from foxglove.websocket import ChannelView, Client, ServerListener
 
 from acq.errors import AcqError, InputValueError
 from acq.record.listeners import Listener, LogRecord
@@ -67,7 +68,7 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-class _Subscriptions:
+class _Subscriptions(ServerListener):
     """The SDK's server listener: notes the channels subscribed to (on the SDK's thread),
     so the feed's thread can send the latched messages to the new subscribers."""
 
@@ -106,6 +107,12 @@ class LiveServer(Listener):
             )
         except Exception as e:  # the SDK raises its own error types for a bind failure
             raise LiveServerError(f"--live {host}:{port}: cannot listen: {e}") from None
+        # The SDK forwards its log to Python's logging from its own threads, taking the
+        # GIL for each line: a client that goes away with a full backlog is one error
+        # line per message queued, a burst that stalled the device threads past their
+        # timeouts. The clients' troubles are theirs: not forwarded (starting a server
+        # turns the forwarding on, hence after it).
+        _foxglove_py.disable_logging()
         self.port = self.server.port
         self._running = threading.Event()
         self._running.set()

@@ -142,5 +142,7 @@ def test_the_writer_taps_every_message_it_writes(tmp_path: Path) -> None:
     raw = []
     for path in writer.files:
         with path.open("rb") as f:
-            raw += [m.data for _, c, m in make_reader(f).iter_messages() if c.topic == "/acq/status"]
+            raw += [
+                m.data for _, c, m in make_reader(f).iter_messages() if c.topic == "/acq/status"
+            ]
     assert raw == [r.data for r in got.got[1:]]

@@ -11,6 +11,7 @@ records in the log's last ``/acq/status``; ``largest_message_kb`` is the log's l
 
     acq sim rig --out /tmp/rig &
     python bench/live_stalled_client.py -c /tmp/rig/rig.yaml --seconds 60
+    python bench/live_stalled_client.py -c /tmp/rig/rig.yaml --seconds 60 --no-live
 """
 
 from __future__ import annotations
@@ -27,7 +28,10 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
-from websockets.asyncio.client import connect
+
+# the client is a test helper (tests/foxglove_client.py): the repository root on the path
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.foxglove_client import Seen, connect_client, take
 
 
 def _rss_mb(pid: int) -> float:
@@ -39,27 +43,8 @@ def _rss_mb(pid: int) -> float:
 
 async def _stall(url: str, settle_s: float) -> None:
     """Connect, subscribe to everything advertised within ``settle_s``, stop reading."""
-    end = time.monotonic() + 30.0
-    while True:
-        try:
-            ws = await connect(url, subprotocols=["foxglove.sdk.v1"], max_queue=1)  # type: ignore[list-item]
-            break
-        except OSError:
-            if time.monotonic() > end:
-                raise
-            await asyncio.sleep(0.1)
-    until, n = time.monotonic() + settle_s, 0
-    while (left := until - time.monotonic()) > 0:
-        try:
-            frame = await asyncio.wait_for(ws.recv(), timeout=left)
-        except TimeoutError:
-            break
-        if isinstance(frame, str) and json.loads(frame)["op"] == "advertise":
-            subs = []
-            for ch in json.loads(frame)["channels"]:
-                n += 1
-                subs.append({"id": n, "channelId": ch["id"]})
-            await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+    ws = await connect_client(url, max_queue=1)
+    await take(ws, Seen(), time.monotonic() + settle_s, decode=False)
     _HELD.append(ws)  # never read again, the connection held open
 
 

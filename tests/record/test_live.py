@@ -7,59 +7,32 @@ every scan the scanner sent, whatever the clients do."""
 from __future__ import annotations
 
 import asyncio
-import base64
 import json
 import socket
-import struct
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-from websockets.asyncio.client import ClientConnection, connect
 
+from tests.foxglove_client import Seen, connect_client, take
 from tests.sim_rig import Rig, read_log
 
 pytestmark = pytest.mark.realtime
 
 ROOT = Path(__file__).resolve().parents[2]
-SUBPROTOCOL = "foxglove.sdk.v1"
-MESSAGE_DATA = 0x01  # the server's binary opcode for a message
-
-
-@pytest.fixture(scope="module")
-def rig() -> Iterator[Rig]:
-    r = Rig()
-    try:
-        yield r.warm_up()
-    finally:
-        r.close()
 
 
 def _with_calibration(rig: Rig, tmp_path: Path) -> Path:
-    """The rig's configuration with the simulated rig's true calibration (so the log
-    has /tf_static and /camera/calibration, latched)."""
-    from acq.camera import calibfile
-    from acq.camera.calibfile import Calibration, CameraCalib
-    from acq.sim.world import default_rig
-
-    truth = default_rig()
-    calib = Calibration(
-        laser="laser",
-        cameras={"camera": CameraCalib(truth.lens, truth.camera_to_laser, method="truth")},
-        laser_to_vehicle=truth.laser_to_vehicle,
-    )
-    calibfile.save(calib, tmp_path / "calib.yaml")
+    """The rig's configuration with its true calibration (so the log has /tf_static and
+    /camera/calibration, latched)."""
     rig.config(tmp_path)
     path = tmp_path / "rig.yaml"
     data = yaml.safe_load(path.read_text())
-    path.write_text(yaml.safe_dump({**data, "calibration": str(tmp_path / "calib.yaml")}))
+    path.write_text(yaml.safe_dump({**data, "calibration": str(rig.calibration(tmp_path))}))
     return path
 
 
@@ -70,82 +43,22 @@ def _free_port() -> int:
         return port
 
 
-def _message_class(schema_name: str, schema_b64: str) -> Any:
-    """The protobuf class of an advertised channel (its schema: a FileDescriptorSet)."""
-    fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(schema_b64))
-    pool = descriptor_pool.DescriptorPool()
-    for file in fds.file:
-        pool.Add(file)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
-
-
-@dataclass
-class Seen:
-    """What a client received: the server's info, the channels, decoded messages."""
-
-    info: dict[str, Any] = field(default_factory=dict)
-    channels: dict[int, dict[str, Any]] = field(default_factory=dict)
-    messages: dict[str, list[tuple[float, Any]]] = field(default_factory=dict)  # topic -> ...
-
-
-async def _connect(url: str, **kw: Any) -> ClientConnection:
-    """Connect, retrying while the recorder starts its server."""
-    end = time.monotonic() + 30.0
-    while True:
-        try:
-            return await connect(url, subprotocols=[SUBPROTOCOL], **kw)  # type: ignore[list-item]
-        except OSError:
-            if time.monotonic() > end:
-                raise
-            await asyncio.sleep(0.1)
-
-
-async def _take(ws: ClientConnection, seen: Seen, until: float, decode: bool) -> None:
-    """Read until the monotonic time ``until``; subscribe to each channel advertised."""
-    subs: dict[int, int] = {}  # subscription id -> channel id
-    while (left := until - time.monotonic()) > 0:
-        try:
-            frame = await asyncio.wait_for(ws.recv(), timeout=left)
-        except TimeoutError:
-            return
-        if isinstance(frame, str):
-            msg = json.loads(frame)
-            if msg["op"] == "serverInfo":
-                seen.info = msg
-            elif msg["op"] == "advertise":
-                new = []
-                for ch in msg["channels"]:
-                    seen.channels[ch["id"]] = ch
-                    subs[len(subs) + 1] = ch["id"]
-                    new.append({"id": len(subs), "channelId": ch["id"]})
-                await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
-            continue
-        assert frame[0] == MESSAGE_DATA, frame[:1]
-        sub_id, _ = struct.unpack_from("<IQ", frame, 1)
-        ch = seen.channels[subs[sub_id]]
-        payload = frame[13:]
-        if decode:
-            cls = _message_class(ch["schemaName"], ch["schema"])
-            payload = cls.FromString(payload)
-        seen.messages.setdefault(ch["topic"], []).append((time.monotonic(), payload))
-
-
 async def _clients(url: str, seconds: float) -> tuple[Seen, Seen]:
     """A garbage client, a stalled one and a reader, for ``seconds`` once connected."""
     # garbage: a binary frame of no opcode, text that is not JSON, a subscription of nothing
-    bad = await _connect(url)
+    bad = await connect_client(url)
     await bad.send(b"\xff\x00garbage")
     await bad.send("not json {")
     await bad.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": "x"}]}))
     await bad.send(json.dumps({"op": "unsubscribe", "subscriptionIds": [7, 8]}))
     # stalled: subscribes to what is advertised in its first 1.5 s, then never reads
     # (websockets then stops reading the socket: its queue holds 1 message)
-    stalled = await _connect(url, max_queue=1)
+    stalled = await connect_client(url, max_queue=1)
     stalled_seen = Seen()
-    await _take(stalled, stalled_seen, time.monotonic() + 1.5, decode=False)
-    reader = await _connect(url)
+    await take(stalled, stalled_seen, time.monotonic() + 1.5, decode=False)
+    reader = await connect_client(url)
     seen = Seen()
-    await _take(reader, seen, time.monotonic() + seconds, decode=True)
+    await take(reader, seen, time.monotonic() + seconds, decode=True)
     await reader.close()
     stalled.transport.abort()
     bad.transport.abort()

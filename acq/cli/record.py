@@ -69,7 +69,6 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     rec.add_argument(
         "--live-image-hz",
         type=real(0, 1000, what="Hz"),
-        default=5.0,
         metavar="HZ",
         help="camera frames sent to live clients per second and camera, at most (default 5; "
         "0: none); the log keeps every frame",
@@ -90,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         cfg, out = configfile.load(args.config), args.out
     listeners = []
+    if args.live is None and args.live_image_hz is not None:
+        raise InputValueError("--live-image-hz: only with --live")
     if args.live is not None:
         from acq.cli.exposure import every_interface, warn_if_exposed
         from acq.record import live
@@ -105,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
                 "is reachable from the network, without authentication",
                 file=sys.stderr,
             )
-        server = live.LiveServer(host, port, image_hz=args.live_image_hz)
+        hz = 5.0 if args.live_image_hz is None else args.live_image_hz
+        server = live.LiveServer(host, port, image_hz=hz)
         recorder.log.info("live server on ws://%s:%d (Foxglove WebSocket)", host, server.port)
         listeners.append(server)
     try:

@@ -103,10 +103,17 @@ class Feed:
 
     def close(self, timeout_s: float = 1.0) -> None:
         """Stop taking records; the thread finishes what is queued (up to ``timeout_s``),
-        then calls the listener's :meth:`Listener.stop`."""
+        then calls the listener's :meth:`Listener.stop`. One line when it missed records."""
         if self._closing.is_set():
             return
         self._closing.set()
+        self._end(timeout_s)
+        if self.dropped:
+            log.warning("%s fell behind: %d records of the log not passed to it (the log "
+                        "has them)", self._thread.name, self.dropped)  # fmt: skip
+
+    def _end(self, timeout_s: float) -> None:
+        """The end mark on the queue, then wait for the thread."""
         try:
             self._queue.put(None, timeout=timeout_s)
         except queue.Full:

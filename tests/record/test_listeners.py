@@ -4,10 +4,12 @@ from a real MCAP file's writes."""
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
 from acq.log import schemas
@@ -64,7 +66,9 @@ def test_every_listener_gets_every_record_in_order() -> None:
     assert [f.delivered for f in feeds] == [2000, 2000]
 
 
-def test_a_stalled_listener_drops_its_own_records_and_never_blocks() -> None:
+def test_a_stalled_listener_drops_its_own_records_and_never_blocks(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     hub = Listeners(size=8)
     gate = threading.Event()
     stalled, other = Collect(gate), Collect()
@@ -86,7 +90,10 @@ def test_a_stalled_listener_drops_its_own_records_and_never_blocks() -> None:
     assert time.perf_counter() - started < 0.5
     assert stalled_feed.dropped == 1200 - 9
     gate.set()
-    hub.close()
+    with caplog.at_level(logging.WARNING, "acq.record"):
+        hub.close()
+    said = [r.getMessage() for r in caplog.records]
+    assert f"listener Collect fell behind: {stalled_feed.dropped} records" in said[0], said
     # what it got is the first records, in order: none lost but those counted
     assert [r.log_time_ns for r in stalled.got] == list(range(9))
     assert len(other.got) + other_feed.dropped == 1200

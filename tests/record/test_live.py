@@ -139,15 +139,23 @@ def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
     assert len(log["/camera/image/compressed"]) > 25 * 6  # every frame, not 4 Hz
 
 
-def test_live_address_errors_are_one_line(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [(["--live", "nowhere"], "--live: 'nowhere': expected HOST:PORT"),
+     (["--live", "127.0.0.1:70000"], "expected HOST:PORT"),
+     (["--live-image-hz", "2"], "--live-image-hz: only with --live"),
+     (["--live", "--live-image-hz", "-1"], "--live-image-hz")],
+)  # fmt: skip
+def test_live_option_errors_are_one_line(tmp_path: Path, args: list[str], said: str) -> None:
     proc = subprocess.run(
-        [sys.executable, "-m", "acq.cli", "record", "--live", "nowhere", "--duration", "1",
-         "--out", str(tmp_path)],
+        [sys.executable, "-m", "acq.cli", "record", *args, "--duration", "1",
+         "--out", str(tmp_path / "logs")],
         cwd=ROOT, capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert proc.returncode == 2
-    assert "--live" in proc.stderr and "HOST:PORT" in proc.stderr
+    assert said in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert not (tmp_path / "logs").exists()
 
 
 def test_a_taken_port_is_a_runtime_error_before_recording(tmp_path: Path) -> None:

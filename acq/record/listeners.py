@@ -16,6 +16,7 @@ import logging
 import queue
 import threading
 from abc import ABC, abstractmethod
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from acq.drivers.reconnect import describe
@@ -138,10 +139,12 @@ class Listeners:
     """The listeners of one log: :meth:`publish` (on the writer's thread) hands each
     record to every listener's :class:`Feed`. Safe to add to while publishing."""
 
-    def __init__(self, size: int = FEED_SIZE) -> None:
+    def __init__(self, listeners: Iterable[Listener] = (), size: int = FEED_SIZE) -> None:
         self.size = size
         self.feeds: list[Feed] = []
         self._lock = threading.Lock()
+        for listener in listeners:
+            self.add(listener)
 
     def add(self, listener: Listener) -> Feed:
         """Start feeding ``listener`` (from the next record on)."""

@@ -109,9 +109,9 @@ class LiveServer(Listener):
             raise LiveServerError(f"--live {host}:{port}: cannot listen: {e}") from None
         # The SDK forwards its log to Python's logging from its own threads, taking the
         # GIL for each line: a client that goes away with a full backlog is one error
-        # line per message queued, a burst that stalled the device threads past their
-        # timeouts. The clients' troubles are theirs: not forwarded (starting a server
-        # turns the forwarding on, hence after it).
+        # line per message queued, a burst the device threads would wait on. The
+        # clients' troubles are theirs: not forwarded (starting a server turns the
+        # forwarding on, hence after it).
         _foxglove_py.disable_logging()
         self.port = self.server.port
         self._running = threading.Event()

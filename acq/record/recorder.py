@@ -163,9 +163,7 @@ class Recorder:
         listeners: Iterable[Listener] = (),
     ) -> None:
         self.config = config
-        self.listeners = Listeners()
-        for listener in listeners:
-            self.listeners.add(listener)
+        self.listeners = Listeners(listeners)
         self.out_dir = Path(out_dir if out_dir is not None else config.output.dir)
         self.duration_s = duration_s
         self.notifier = notifier if notifier is not None else Notifier()

@@ -206,3 +206,32 @@ def test_which_hosts_are_loopback() -> None:
 
 if __name__ == "__main__":  # the test's clients, in their own process
     print(json.dumps(_summary(sys.argv[1], float(sys.argv[2]))))
+
+
+def test_a_recorders_listener_gets_every_record_of_the_log(rig: Rig, tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    from acq.record.listeners import Listener, LogRecord
+    from acq.record.recorder import Recorder
+
+    class Keep(Listener):
+        def __init__(self) -> None:
+            self.got: list[LogRecord] = []
+
+        def on_record(self, record: LogRecord) -> None:
+            self.got.append(record)
+
+    keep = Keep()
+    cfg = rig.config(tmp_path).model_copy(update={"calibration": rig.calibration(tmp_path)})
+    recorder = Recorder(cfg, duration_s=2.5, listeners=[keep])
+    assert recorder.run() == 0
+    assert recorder.listeners.feeds == []  # closed
+    with next((tmp_path / "logs").glob("*.mcap")).open("rb") as f:
+        in_log = [(c.topic, s.name if s else "", m.data, m.log_time)
+                  for s, c, m in make_reader(f).iter_messages(log_time_order=False)]  # fmt: skip
+    got = [(r.topic, r.schema.name, r.data, r.log_time_ns) for r in keep.got]
+    assert got == in_log  # the same records, bytes, schemas and log times, in order
+    assert {"/laser/scan", "/camera/image/compressed", "/acq/status", "/tf_static"} <= {
+        t for t, *_ in got
+    }
+    assert [r.topic for r in keep.got if r.latched] == ["/tf_static", "/camera/calibration"]

@@ -72,6 +72,23 @@ class Rig:
         path.write_text(yaml.safe_dump(data))
         return configfile.load(path)
 
+    def calibration(self, tmp_path: Path) -> Path:
+        """The simulated rig's true calibration, for its cameras, as ``calib.yaml``."""
+        from acq.camera import calibfile
+        from acq.camera.calibfile import Calibration, CameraCalib
+        from acq.sim.world import default_rig
+
+        truth = default_rig()
+        lens = CameraCalib(truth.lens, truth.camera_to_laser, method="truth")
+        calib = Calibration(
+            laser="laser",
+            cameras=dict.fromkeys(self.cameras, lens),
+            laser_to_vehicle=truth.laser_to_vehicle,
+        )
+        path = tmp_path / "calib.yaml"
+        calibfile.save(calib, path)
+        return path
+
     def warm_up(self) -> Rig:
         """Read a few frames and scans, so no test pays for the simulators' first frames."""
         from acq.drivers.camera_opencv import OpenCVCamera

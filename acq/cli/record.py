@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from acq.cli.option_types import LONGEST_S, real
 
 HELP = "record the rig's devices to MCAP (the daemon systemd runs)"
+
+
+DEFAULT_ADDRESS = "127.0.0.1:8765"  # of --live
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -51,6 +55,24 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "(at most the duration) the file is closed and the exit status is 1; one that goes "
         "away later is reconnected (as `required: true` on a device of the configuration)",
     )
+    rec.add_argument(
+        "--live",
+        nargs="?",
+        const=DEFAULT_ADDRESS,
+        metavar="HOST:PORT",
+        help="serve every channel of the log live over the Foxglove WebSocket protocol "
+        f"(default {DEFAULT_ADDRESS}): in the Foxglove app or Lichtblick, Open connection, "
+        "Foxglove WebSocket, ws://HOST:PORT. Another host than loopback is reachable from "
+        "the network without authentication (a warning says so). A client that does not "
+        "keep up loses its oldest messages; the log loses nothing",
+    )
+    rec.add_argument(
+        "--live-image-hz",
+        type=real(0, 1000, what="Hz"),
+        metavar="HZ",
+        help="camera frames sent to live clients per second and camera, at most (default 5; "
+        "0: none); the log keeps every frame",
+    )
     rec.add_argument("-v", "--verbose", action="store_true", help="debug log lines")
     rec.set_defaults(handler=run)
 
@@ -66,7 +88,34 @@ def run(args: argparse.Namespace) -> int:
         out = args.out if args.out is not None else Path("logs")
     else:
         cfg, out = configfile.load(args.config), args.out
+    listeners = []
+    if args.live is None and args.live_image_hz is not None:
+        raise InputValueError("--live-image-hz: only with --live")
+    if args.live is not None:
+        from acq.cli.exposure import every_interface, warn_if_exposed
+        from acq.record import live
+
+        try:
+            host, port = live.parse_address(args.live)
+        except InputValueError as e:
+            raise InputValueError(f"--live: {e}") from None
+        warn_if_exposed("acq record", "--live", args.live)
+        if not live.is_loopback(host) and not every_interface(args.live):
+            print(
+                f"acq record: warning: --live {args.live}: not loopback; the live server "
+                "is reachable from the network, without authentication",
+                file=sys.stderr,
+            )
+        hz = 5.0 if args.live_image_hz is None else args.live_image_hz
+        server = live.LiveServer(host, port, image_hz=hz)
+        recorder.log.info("live server on ws://%s:%d (Foxglove WebSocket)", host, server.port)
+        listeners.append(server)
     try:
-        return recorder.record(cfg, out_dir=out, duration_s=args.duration, required=args.require)
+        return recorder.record(
+            cfg, out_dir=out, duration_s=args.duration, required=args.require, listeners=listeners
+        )
     except recorder.UnknownDevice as e:
         raise InputValueError(f"--require: {e}") from None
+    finally:
+        for listener in listeners:
+            listener.stop()

@@ -46,13 +46,17 @@ from acq.log import writer_lock
 from acq.log.schemas import Schema
 from acq.log.timebase import TimeBase
 
-__all__ = ["LatchedData", "LogWriter"]
+__all__ = ["LatchedData", "LogWriter", "Tap"]
 
 LIBRARY = f"acq/{__version__} {LIBRARY_IDENTIFIER}"
 
 # A latched message: fixed bytes, or a function encoding it for a file's start time (ns),
 # so that its protobuf timestamp can be the start of each file too.
 LatchedData = bytes | Callable[[int], bytes]
+
+# Called with each message once it is in the file: (topic, schema, data, log time in the
+# log's time base, latched). A latched message is passed once, when it is set.
+Tap = Callable[[str, Schema, bytes, int, bool], None]
 
 _COMPRESSION = {
     "zstd": CompressionType.ZSTD,
@@ -139,6 +143,9 @@ class LogWriter:
     clock of the files' ``log_time`` and ``publish_time``: the times given are written
     through :meth:`TimeBase.to_log`, and the ``acq`` metadata record names it. Whoever
     encodes a Foxglove message's ``timestamp`` does the same (``writer.time_base``).
+
+    ``tap`` (see :data:`Tap`), when set, sees every message written, on the writer's
+    thread: it must return at once (the recorder's :class:`acq.record.listeners.Listeners`).
     """
 
     def __init__(
@@ -154,6 +161,7 @@ class LogWriter:
         metadata: dict[str, dict[str, str]] | None = None,
         profile: str = "",
         time_base: TimeBase | None = None,
+        tap: Tap | None = None,
     ) -> None:
         if compression not in _COMPRESSION:
             raise ValueError(
@@ -169,6 +177,7 @@ class LogWriter:
         self.compression = _COMPRESSION[compression]
         self.sync_interval_ns = int(sync_interval_s * 1e9)
         self.profile = profile
+        self.tap = tap
         self.time_base = TimeBase.session_start() if time_base is None else time_base
         self._stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
         self.session = f"{self._stamp}-{secrets.token_hex(4)}"
@@ -262,6 +271,10 @@ class LogWriter:
         self._channel_id(topic)  # must be registered
         self._latched[topic] = (data, publish_time_ns)
         self._guard(lambda: self._write_latched(topic, None))
+        if self.tap is not None:
+            stamp = self.time_base.to_log(publish_time_ns)
+            payload = data(stamp) if callable(data) else data
+            self.tap(topic, self._channels[topic].schema, payload, stamp, True)
 
     def update_metadata(self, name: str, values: dict[str, str]) -> None:
         """Set metadata ``name``: written now to the current file (a reader takes the last
@@ -314,6 +327,8 @@ class LogWriter:
         # The chunk was written when the file grew: the message went with it.
         self._pending = 0 if out.pos != before else self._pending + len(data) + _MESSAGE_OVERHEAD
         self._messages += 1
+        if self.tap is not None:
+            self.tap(topic, self._channels[topic].schema, data, to_log(log_time_ns), False)
 
     def sync(self) -> None:
         """End the open chunk, write it and fsync: everything written so far survives a

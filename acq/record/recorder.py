@@ -77,6 +77,7 @@ from acq.log.writer import LogWriter
 from acq.record.adapters import GNSS, VEHICLE, adapters_for
 from acq.record.config import CanConfig, Config, dump
 from acq.record.device_loop import DeviceState, Outbox, Queued, finite, run_device
+from acq.record.listeners import Listener, Listeners, LogRecord
 from acq.record.sdnotify import JournalFormatter, Notifier, use_journal_format
 from acq.record.stop_signals import finishing
 from acq.time.absent import Absent
@@ -142,8 +143,10 @@ class Recorder:
     ``out_dir`` overrides ``config.output.dir``; ``calibration`` overrides the file the
     config names; ``required`` names devices that must deliver a record within
     ``required_within_s`` of the start (besides those the configuration marks
-    ``required``; :class:`UnknownDevice` for a name it does not have). :meth:`run`
-    returns the exit code.
+    ``required``; :class:`UnknownDevice` for a name it does not have). ``listeners``
+    get every record written, each through its own bounded queue and thread
+    (:mod:`acq.record.listeners`; :attr:`listeners` takes more). :meth:`run` returns the
+    exit code.
     """
 
     def __init__(
@@ -157,8 +160,10 @@ class Recorder:
         queue_size: int = QUEUE_SIZE,
         required: Iterable[str] = (),
         required_within_s: float = REQUIRED_WITHIN_S,
+        listeners: Iterable[Listener] = (),
     ) -> None:
         self.config = config
+        self.listeners = Listeners(listeners)
         self.out_dir = Path(out_dir if out_dir is not None else config.output.dir)
         self.duration_s = duration_s
         self.notifier = notifier if notifier is not None else Notifier()
@@ -227,6 +232,7 @@ class Recorder:
             split_s=out.split_minutes * 60.0,
             metadata=self._metadata(),
             profile="acq",
+            tap=lambda *message: self.listeners.publish(LogRecord(*message)),
         )
         for adapter in self.adapters:
             for topic, schema in adapter.channels():
@@ -243,8 +249,10 @@ class Recorder:
                 if c.name in calib.cameras:
                     topic = f"/{c.name}/calibration"
                     writer.add_channel(topic, schemas.SCHEMAS["foxglove.CameraCalibration"])
-                    writer.set_latched(topic, functools.partial(
-                        _camera_calibration, calib.cameras[c.name], c.name), now)  # fmt: skip
+                    calibration = functools.partial(
+                        schemas.camera_calibration, calib.cameras[c.name], c.name
+                    )
+                    writer.set_latched(topic, calibration, now)
                 else:
                     log.warning("camera %s has no entry in the calibration", c.name)
         return writer
@@ -503,6 +511,7 @@ class Recorder:
             self.host_clock.stop()
             self.notifier.stopping()
             self._close(writer)
+            self.listeners.close()
             self._report_devices(ended_ns)
             for t in self._threads:
                 t.join(timeout=1.0)
@@ -552,10 +561,6 @@ class Recorder:
             log.info("wrote %s", path)
 
 
-def _camera_calibration(cam: calibfile.CameraCalib, name: str, stamp_ns: int) -> bytes:
-    return schemas.camera_calibration(cam, name, stamp_ns)
-
-
 def setup_logging(verbose: bool = False) -> None:
     """Log lines for the journal (priority prefixes, no time) or for a terminal, the
     credentials of any URL in them redacted."""
@@ -578,11 +583,17 @@ def record(
     duration_s: float | None = None,
     notifier: Notifier | None = None,
     required: Iterable[str] = (),
+    listeners: Iterable[Listener] = (),
 ) -> int:
     """Run a :class:`Recorder` with every signal that would end the process finishing the
     file (SIGTERM, SIGINT, SIGHUP...: :mod:`acq.record.stop_signals`); the exit code."""
     recorder = Recorder(
-        config, out_dir=out_dir, duration_s=duration_s, notifier=notifier, required=required
+        config,
+        out_dir=out_dir,
+        duration_s=duration_s,
+        notifier=notifier,
+        required=required,
+        listeners=listeners,
     )
     with finishing(recorder.stop):
         return recorder.run()

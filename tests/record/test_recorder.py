@@ -30,15 +30,6 @@ TOPICS = {"/laser/scan", "/laser/raw", "/acq/timing/laser", "/camera/image/compr
 LATCHED = {"/tf_static", "/camera/calibration"}
 
 
-@pytest.fixture(scope="module")
-def rig() -> Iterator[Rig]:
-    r = Rig()
-    try:
-        yield r.warm_up()
-    finally:
-        r.close()
-
-
 def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     cfg = rig.config(tmp_path)
     code = Recorder(cfg, duration_s=6.0).run()
@@ -365,19 +356,8 @@ def test_sigkill_at_random_moments_loses_at_most_the_last_second(rig: Rig, tmp_p
 
 
 def test_files_roll_over_with_nothing_lost_or_repeated(rig: Rig, tmp_path: Path) -> None:
-    from acq.camera import calibfile
-    from acq.camera.calibfile import Calibration, CameraCalib
-    from acq.sim.world import default_rig
-
-    truth = default_rig()
-    calib = Calibration(
-        laser="laser",
-        cameras={"camera": CameraCalib(truth.lens, truth.camera_to_laser, method="truth")},
-        laser_to_vehicle=truth.laser_to_vehicle,
-    )
-    calibfile.save(calib, tmp_path / "calib.yaml")
     cfg = rig.config(tmp_path, split_megabytes=1.5)
-    cfg = cfg.model_copy(update={"calibration": tmp_path / "calib.yaml"})
+    cfg = cfg.model_copy(update={"calibration": rig.calibration(tmp_path)})
     assert Recorder(cfg, duration_s=4.0).run() == 0
     files = sorted((tmp_path / "logs").glob("*.mcap"))
     assert len(files) >= 3

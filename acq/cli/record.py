@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from acq.cli.option_types import LONGEST_S, real
+
+if TYPE_CHECKING:
+    from acq.record.status_line import StatusLine
 
 HELP = "record the rig's devices to MCAP (the daemon systemd runs)"
 
@@ -74,6 +79,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "0: none); the log keeps every frame",
     )
     rec.add_argument("-v", "--verbose", action="store_true", help="debug log lines")
+    rec.add_argument(
+        "--status",
+        action="store_true",
+        help="print the recorder's status each second (each device's rate, drops, disk "
+        "left: what systemd's STATUS= gets) when stderr is not a terminal too, a line "
+        "each; in a terminal it is always shown, on the last line under the log lines",
+    )
     rec.set_defaults(handler=run)
 
 
@@ -83,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from acq.record import recorder
 
     recorder.setup_logging(args.verbose)
+    line = _status_line(args.status)
     if args.config is None:  # the shipped simulated rig, recording below the working folder
         cfg = configfile.load(configfile.shipped())
         out = args.out if args.out is not None else Path("logs")
@@ -110,12 +123,31 @@ def run(args: argparse.Namespace) -> int:
         server = live.LiveServer(host, port, image_hz=hz)
         recorder.log.info("live server on ws://%s:%d (Foxglove WebSocket)", host, server.port)
         listeners.append(server)
+    from acq.record.status_line import TerminalNotifier
+
     try:
         return recorder.record(
-            cfg, out_dir=out, duration_s=args.duration, required=args.require, listeners=listeners
-        )
+            cfg, out_dir=out, duration_s=args.duration, required=args.require,
+            listeners=listeners, notifier=None if line is None else TerminalNotifier(line),
+        )  # fmt: skip
     except recorder.UnknownDevice as e:
         raise InputValueError(f"--require: {e}") from None
     finally:
         for listener in listeners:
             listener.stop()
+        if line is not None:
+            line.erase()
+
+
+def _status_line(asked: bool) -> StatusLine | None:
+    """The status line on stderr when it is a terminal (or when ``asked``), the log lines
+    printed above it; None otherwise (systemd's journal: it has STATUS=)."""
+    from acq.record.status_line import StatusLine, StatusLineHandler
+
+    terminal = sys.stderr.isatty()
+    if not (terminal or asked):
+        return None
+    line = StatusLine(sys.stderr, in_place=terminal)
+    root = logging.getLogger()
+    root.handlers[:] = [StatusLineHandler(h, line) for h in root.handlers]
+    return line

@@ -195,3 +195,52 @@ def test_a_closed_stdout_records_and_exits_0(scanner: TcpDeviceServer, tmp_path:
     assert stdout == os.devnull
     assert "Traceback" not in text and "Error" not in text, text
     assert closed_scans(tmp_path / "logs") > 20
+
+
+def test_a_terminal_shows_the_status_each_second_under_the_log_lines(
+    scanner: TcpDeviceServer, tmp_path: Path
+) -> None:
+    """In a terminal the STATUS= text systemd gets is drawn on the last line each second,
+    erased before a log line and drawn again after it; a file's end leaves it erased."""
+    cfg = write_config(tmp_path, scanner)
+    master, tty = pty.openpty()
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "acq.cli", "record", "-c", str(cfg), "--duration", "3.5"],
+            cwd=ROOT, stdin=tty, stdout=tty, stderr=tty,
+        )  # fmt: skip
+    finally:
+        os.close(tty)
+    said, stop = bytearray(), threading.Event()
+    reader = threading.Thread(target=read_terminal, args=(master, said, stop), daemon=True)
+    reader.start()
+    try:
+        code = proc.wait(30)
+        time.sleep(0.2)
+    finally:
+        stop.set()
+        reader.join()
+        os.close(master)
+        proc.kill()
+    text = said.decode(errors="replace")
+    assert code == 0, text
+    drawn = [part for part in text.split("\r\x1b[2K") if part.startswith("laser ")]
+    assert len(drawn) >= 3, text  # about one a second, drawn again after log lines
+    assert all("Hz; drops 0" in part for part in drawn), drawn
+    assert "INFO acq.record: stopped after" in text
+    assert text.rstrip("\r\n").endswith("\r\x1b[2K"), repr(text[-200:])  # erased at the end
+
+
+def test_status_asked_off_a_terminal_is_a_line_a_second(
+    scanner: TcpDeviceServer, tmp_path: Path
+) -> None:
+    """Not a terminal (the journal has STATUS=): no status unless asked; ``--status``
+    gives one plain line each second."""
+    cfg = write_config(tmp_path, scanner)
+    argv = [sys.executable, "-m", "acq.cli", "record", "-c", str(cfg), "--duration", "3.5"]
+    done = subprocess.run([*argv, "--status"], capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0, done.stderr
+    lines = [s for s in done.stderr.splitlines() if s.startswith("status: laser ")]
+    assert len(lines) >= 2 and "\x1b" not in done.stderr, done.stderr
+    quiet = subprocess.run(argv, capture_output=True, text=True, timeout=30)
+    assert quiet.returncode == 0 and "status:" not in quiet.stderr, quiet.stderr

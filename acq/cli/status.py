@@ -86,8 +86,15 @@ def run(args: argparse.Namespace) -> int:
         return 1 if problems(snap, args.stale_s) else 0
     from rich.live import Live
 
+    from acq.stopped import stopping
+
+    # Ctrl-C, and every signal that would end the process (SIGTERM, SIGHUP of a closed
+    # window), leave the view through Live's exit: the terminal given back as it was
     try:
-        with Live(render(source.snapshot(), args.stale_s), screen=True, auto_refresh=False) as live:
+        with (
+            stopping(),
+            Live(render(source.snapshot(), args.stale_s), screen=True, auto_refresh=False) as live,
+        ):
             while True:
                 time.sleep(1.0)
                 live.update(render(source.snapshot(), args.stale_s), refresh=True)

@@ -12,6 +12,7 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -97,7 +98,12 @@ def test_json_of_a_running_recorder(recording: Recording) -> None:
 
 
 @pytest.mark.realtime
-def test_the_full_screen_view_through_a_pseudo_terminal(recording: Recording) -> None:
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_the_full_screen_view_through_a_pseudo_terminal(
+    recording: Recording, signum: signal.Signals
+) -> None:
+    """Ctrl-C, or a SIGTERM (the terminal's window closed, a kill), ends the view with the
+    terminal given back: the alternate screen left, exit 0."""
     main, side = pty.openpty()
     proc = subprocess.Popen(
         [sys.executable, "-m", "acq.cli", "status", str(recording.logs)],
@@ -105,20 +111,31 @@ def test_the_full_screen_view_through_a_pseudo_terminal(recording: Recording) ->
         env={**os.environ, "COLUMNS": "120", "LINES": "40", "TERM": "xterm"},
     )  # fmt: skip
     os.close(side)
-    seen = b""
+    seen = bytearray()
+
+    def read() -> None:  # all the view writes, while it runs and as it ends
+        while select.select([main], [], [], 10.0)[0]:
+            try:
+                seen.extend(os.read(main, 65536))
+            except OSError:  # EIO: the view's process is gone
+                return
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
     try:
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and not (b"laser" in seen and b"camera" in seen):
-            ready, _, _ = select.select([main], [], [], 1.0)
-            if ready:
-                seen += os.read(main, 65536)
-        assert b"laser" in seen and b"camera" in seen, seen[-2000:]
+            time.sleep(0.1)
+        assert b"laser" in seen and b"camera" in seen, bytes(seen[-2000:])
         assert b"\x1b[?1049h" in seen  # the alternate screen: a full-screen view
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         assert proc.wait(10) == 0, proc.stderr.read() if proc.stderr else ""
+        reader.join(10)
+        assert seen.rfind(b"\x1b[?1049l") > seen.rfind(b"\x1b[?1049h")  # screen given back
     finally:
         if proc.poll() is None:
             proc.kill()
+        reader.join(10)
         os.close(main)
 
 

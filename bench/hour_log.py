@@ -356,7 +356,7 @@ def write_hour_log(
         shifter = Shifter(names, ticks, plan.steps, plan.period_ns)
     except ValueError as e:
         raise HourLogError(str(e)) from None
-    made_folder = not split or not out.exists()
+    made_folder = not out.exists()  # the session folder (with --split), removed on failure
     folder = out if split else temporary_beside(out, "", folder=True)
     rolling = _rolling(source.metadata)
     writer: LogWriter | None = None

@@ -18,20 +18,35 @@ from __future__ import annotations
 import functools
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
-from mcap.records import Chunk, Header, Message, Metadata
+from mcap.records import Header, Metadata
 
 from acq.errors import InputValueError
 from acq.log import skipped_chunks
 from acq.log.rosbag_source import is_bag
 from acq.log.timebase import MONOTONIC, TimeBase
 
-__all__ = ["ClockSource", "InferredClock", "inferred_clock", "time_base_of"]
+__all__ = ["ClockSource", "InferredClock", "RawOpener", "inferred_clock"]
 
 log = logging.getLogger(__name__)
+
+
+class _RawPass(Protocol):
+    """What the clock is found with: a pass over a log with its times as in the file
+    (:class:`acq.log.reader.LogReader` with ``raw_times``, given by the reader, so that
+    this module need not import it)."""
+
+    def messages(self) -> Generator[tuple[Any, Any, Any], None, None]: ...
+
+    def decode(self, schema: Any, channel: Any, message: Any) -> Any: ...
+
+
+RawOpener = Callable[..., _RawPass]
+"""The reader's class: ``open_raw(path, progress=False, raw_times=True)``."""
 
 _HOST_FIELDS = {"acq.Timing": "recv_ns", "acq.Status": "timestamp_ns", "acq.Clock": "monotonic_ns"}
 _EXACT = ("acq.Timing", "acq.Status")  # log time = the field through the log's clock
@@ -57,23 +72,21 @@ class InferredClock:
         return f"its times taken as {clock} ({self.how})"
 
 
-def inferred_clock(path: str | os.PathLike[str]) -> InferredClock:
-    """The clock of the log at ``path`` from its messages (see the module docstring);
-    found once per process while the file keeps its size and time."""
+def inferred_clock(path: str | os.PathLike[str], open_raw: RawOpener) -> InferredClock:
+    """The clock of the log at ``path`` from its messages (see the module docstring),
+    read by ``open_raw``; found once per process while the file keeps its size and time."""
     p = Path(path)
     st = p.stat()
-    return _cached(p.absolute(), st.st_size, st.st_mtime_ns)
+    return _cached(p.absolute(), st.st_size, st.st_mtime_ns, open_raw)
 
 
 @functools.lru_cache(maxsize=64)
-def _cached(path: Path, size: int, mtime_ns: int) -> InferredClock:
-    from acq.log.reader import LogReader, quiet  # the reader asks this module
-
-    reader = LogReader(path, progress=False, raw_times=True)
+def _cached(path: Path, size: int, mtime_ns: int, open_raw: RawOpener) -> InferredClock:
+    reader = open_raw(path, progress=False, raw_times=True)
     first: int | None = None
     approximate: tuple[int, str] | None = None
     messages = reader.messages()
-    with quiet():  # the file's damage is for the command's own pass to say
+    with skipped_chunks.quiet():  # the file's damage is for the command's own pass to say
         try:
             for n, (schema, channel, message) in enumerate(messages):
                 first = message.log_time if first is None else first
@@ -111,10 +124,12 @@ class ClockSource:
     record (:meth:`take`) or its messages; ``note``: why and what its metadata lacks,
     when it came from its messages (a WARNING when the log is acq's: an ``acq`` record
     or ``acq.*`` messages; a wholly foreign MCAP file is not warned of). ``raw``: the
-    times as in the file, whatever its metadata (for :func:`inferred_clock` itself)."""
+    times as in the file, whatever its metadata (for :func:`inferred_clock` itself).
+    ``open_raw``: how :func:`inferred_clock` reads the log."""
 
-    def __init__(self, path: Path, raw: bool = False) -> None:
+    def __init__(self, path: Path, open_raw: RawOpener, raw: bool = False) -> None:
         self.path = path
+        self.open_raw = open_raw
         self.raw = raw
         self.time_base: TimeBase = MONOTONIC
         self.note: str | None = None
@@ -171,24 +186,8 @@ class ClockSource:
     def _infer(self, why: str, warn: bool = False) -> None:
         """The time base from the log's messages; ``why`` and it said once (``warn``, or
         when the log holds acq's messages)."""
-        clock = inferred_clock(self.path)
+        clock = inferred_clock(self.path, self.open_raw)
         self.time_base = clock.time_base
         self.note = f"{why}; {clock.describe()}"
         if (warn or clock.acq_messages) and skipped_chunks.unreported_note(self.path, "clock"):
             log.warning("%s: %s", self.path, self.note)
-
-
-def time_base_of(path: str | os.PathLike[str]) -> TimeBase:
-    """A log's clock (:attr:`LogReader.time_base`), from the records before its first
-    message."""
-    from acq.log.reader import LogReader  # the reader asks this module
-
-    reader = LogReader(path, progress=False)
-    records = reader.records()
-    try:
-        for record in records:
-            if isinstance(record, Message | Chunk):
-                break
-    finally:
-        records.close()
-    return reader.time_base

@@ -7,8 +7,10 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from acq.log.clock_source import time_base_of
+from mcap.records import Chunk, Message
+
 from acq.log.reader import LogError, LogReader
+from acq.log.timebase import TimeBase
 
 __all__ = ["first_log_time", "locate"]
 
@@ -21,7 +23,7 @@ def first_log_time(path: str | os.PathLike[str]) -> int | None:
     with reader.path.open("rb") as f:
         summary = reader._closed_summary(f)
     if reader._start_ns is not None and summary is not None:
-        return time_base_of(path).to_host(reader._start_ns)
+        return _time_base(path).to_host(reader._start_ns)
     for _, _, message in reader.messages():  # the pass ends here, its file closed
         return message.log_time
     return None
@@ -47,3 +49,17 @@ def locate(paths: Sequence[str | os.PathLike[str]], log_time_ns: int) -> str:
     if start is None:
         return f"{where} in {found}"
     return f"{where}, {(log_time_ns - start) * 1e-9:.2f} s into {found}"
+
+
+def _time_base(path: str | os.PathLike[str]) -> TimeBase:
+    """A log's clock (:attr:`LogReader.time_base`), from the records before its first
+    message."""
+    reader = LogReader(path, progress=False)
+    records = reader.records()
+    try:
+        for record in records:
+            if isinstance(record, Message | Chunk):
+                break
+    finally:
+        records.close()
+    return reader.time_base

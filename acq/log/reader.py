@@ -138,7 +138,7 @@ class LogReader:
         self.expected_messages: int | None = None  # from the summary's statistics
         self.footer_at: int | None = None  # a footer the linear pass reached, byte offset
         self.metadata: list[Metadata] = []
-        self._clock = ClockSource(self.path, raw_times)
+        self._clock = ClockSource(self.path, LogReader, raw_times)
         self.attachments = 0
         self.skipped: list[Skipped] = []  # the corrupt chunks skipped
         self._start_ns: int | None = None  # the file's first log time, for the warning

@@ -7,41 +7,25 @@ import json
 from pathlib import Path
 
 import pytest
-from mcap.reader import make_reader
-from mcap.writer import Writer
 
 from acq.cli.main import main as acq_main
 from acq.sim.drive_log import DriveTruth
+from tests.log_rewrite import mcap_copy
 
 SECRET = "s3cret-Pw"
 
 
 def _with_old_config(src: Path, dst: Path) -> None:
-    """``src`` copied record by record, with a config metadata whose camera URL carries a
-    password in its query, as logs of older versions stored it."""
-    with open(src, "rb") as f, open(dst, "wb") as g:
-        reader, writer = make_reader(f), Writer(g)
-        writer.start(profile="", library="test")
-        schemas: dict[int, int] = {}
-        channels: dict[int, int] = {}
-        for schema, channel, message in reader.iter_messages(log_time_order=False):
-            if schema is not None and schema.id not in schemas:
-                schemas[schema.id] = writer.register_schema(
-                    schema.name, schema.encoding, schema.data
-                )
-            if channel.id not in channels:
-                channels[channel.id] = writer.register_channel(
-                    channel.topic, channel.message_encoding,
-                    schemas.get(channel.schema_id, 0), channel.metadata,
-                )  # fmt: skip
-            writer.add_message(
-                channels[channel.id], message.log_time, message.data, message.publish_time
-            )
-        for meta in reader.iter_metadata():
-            writer.add_metadata(meta.name, dict(meta.metadata))
-        url = f"http://cam.local/videostream.cgi?user=admin&pwd={SECRET}"
-        writer.add_metadata("device.old", {"url": url, "info": json.dumps({"source": url})})
-        writer.finish()
+    """``src`` copied with a device record whose URL carries a password in its query,
+    as logs of older versions stored it."""
+    url = f"http://cam.local/videostream.cgi?user=admin&pwd={SECRET}"
+
+    def with_url(name: str, values: dict[str, str]) -> dict[str, str]:
+        if not name.startswith("device."):
+            return values
+        return {**values, "url": url, "info": json.dumps({"source": url})}
+
+    mcap_copy(src, dst, metadata=with_url)
 
 
 @pytest.mark.parametrize("as_json", [False, True])

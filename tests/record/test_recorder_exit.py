@@ -89,17 +89,9 @@ def test_a_terminal_that_goes_away_finishes_the_file(
     scanner: TcpDeviceServer, tmp_path: Path
 ) -> None:
     cfg = write_config(tmp_path, scanner)
-    master, tty = pty.openpty()
-    try:
-        proc = subprocess.Popen(
-            [sys.executable, "-c", AS_SESSION, "record", "-c", str(cfg)],
-            cwd=ROOT, stdin=tty, stdout=tty, stderr=tty, start_new_session=True,
-        )  # fmt: skip
-    finally:
-        os.close(tty)
-    said, stop = bytearray(), threading.Event()
-    reader = threading.Thread(target=read_terminal, args=(master, said, stop), daemon=True)
-    reader.start()
+    proc, master, said, stop, reader = in_terminal(
+        [sys.executable, "-c", AS_SESSION, "record", "-c", str(cfg)], start_new_session=True
+    )
     try:
         wait_for_scans(tmp_path / "logs", proc)
         stop.set()
@@ -112,6 +104,25 @@ def test_a_terminal_that_goes_away_finishes_the_file(
     assert code == 0, text  # not -1: killed by the SIGHUP
     assert "recording laser" in text
     assert closed_scans(tmp_path / "logs") > 20
+
+
+def in_terminal(
+    argv: list[str], start_new_session: bool = False
+) -> tuple[subprocess.Popen[bytes], int, bytearray, threading.Event, threading.Thread]:
+    """``argv`` started on a new pseudo-terminal (its standard streams): the process, the
+    terminal's master side, what it writes there (read on a thread until the event)."""
+    master, tty = pty.openpty()
+    try:
+        proc = subprocess.Popen(
+            argv, cwd=ROOT, stdin=tty, stdout=tty, stderr=tty,
+            start_new_session=start_new_session,
+        )  # fmt: skip
+    finally:
+        os.close(tty)
+    said, stop = bytearray(), threading.Event()
+    reader = threading.Thread(target=read_terminal, args=(master, said, stop), daemon=True)
+    reader.start()
+    return proc, master, said, stop, reader
 
 
 def read_terminal(fd: int, into: bytearray, stop: threading.Event) -> None:
@@ -203,17 +214,9 @@ def test_a_terminal_shows_the_status_each_second_under_the_log_lines(
     """In a terminal the STATUS= text systemd gets is drawn on the last line each second,
     erased before a log line and drawn again after it; a file's end leaves it erased."""
     cfg = write_config(tmp_path, scanner)
-    master, tty = pty.openpty()
-    try:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "acq.cli", "record", "-c", str(cfg), "--duration", "3.5"],
-            cwd=ROOT, stdin=tty, stdout=tty, stderr=tty,
-        )  # fmt: skip
-    finally:
-        os.close(tty)
-    said, stop = bytearray(), threading.Event()
-    reader = threading.Thread(target=read_terminal, args=(master, said, stop), daemon=True)
-    reader.start()
+    proc, master, said, stop, reader = in_terminal(
+        [sys.executable, "-m", "acq.cli", "record", "-c", str(cfg), "--duration", "3.5"]
+    )
     try:
         code = proc.wait(30)
         time.sleep(0.2)

@@ -46,7 +46,8 @@ from acq import progress
 from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
 from acq.camera.jpeg import decoded_frames
-from acq.geometry.transforms import PoseFn, Rigid
+from acq.geometry.transforms import PoseFn, Rigid, world_to_laser
+from acq.time import sync
 
 __all__ = ["OffsetEstimate", "estimate_time_offset", "mutual_information"]
 
@@ -188,14 +189,14 @@ def estimate_time_offset(
                     grey: np.ndarray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32)
                     if blur_px > 0:
                         grey = cv2.GaussianBlur(grey, (0, 0), blur_px)
-                    t = f.t_ns - np.rint(offsets_s * 1e9).astype(np.int64)
+                    t = sync.on_laser_clock(f.t_ns, np.rint(offsets_s * 1e9))
                     inside = covers(t)
                     good &= bool(inside.all())
                     if inside.all():
                         R, tr = pose_at(t)
                         P = P_world[f.points]
                         for k in range(offsets_s.size):
-                            P_l = v2l.apply((P - tr[k]) @ R[k])
+                            P_l = world_to_laser(P, R[k], tr[k], v2l)
                             uv, ok = projection.project(P_l, model, c2l)
                             good &= ok
                             m = uv.astype(np.float32).reshape(-1, 1, 2)

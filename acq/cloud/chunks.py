@@ -24,13 +24,13 @@ from typing import Any, ParamSpec, Protocol, TypeVar
 
 import numpy as np
 
-from acq.cloud import balance, multiview, views
+from acq.cloud import balance, scan_colouring, views
 from acq.cloud.job import Job, remap
 from acq.cloud.points import Cloud
+from acq.cloud.scan_colouring import Placed
 from acq.geometry.transforms import Rigid
 from acq.log.drive_log import DriveLog, read_log
 from acq.log.reader import quiet
-from acq.time import sync
 
 __all__ = [
     "NO_CAMERA",
@@ -107,53 +107,14 @@ def _margin_ns(job: Job) -> int:
     return round((o.max_dt_s + o.window * period + o.context_s + 0.2) * 1e9)
 
 
-@dataclass(frozen=True)
-class Placed:
-    """A log part's points in time order: ``scan`` and ``step`` (N,) indices into the
-    log's scans and beams, ``r`` (N,) m, ``time_ns`` (N,), ``P_laser`` (N,3) in the laser
-    frame at their own time, ``P_world`` (N,3) placed with the trajectory (NaN without a
-    pose there; ``P_laser`` without a trajectory), ``inside`` (N,) whether it had one."""
-
-    scan: np.ndarray
-    step: np.ndarray
-    r: np.ndarray
-    time_ns: np.ndarray
-    P_laser: np.ndarray
-    P_world: np.ndarray
-    inside: np.ndarray
-
-
 def place(
     log: DriveLog, scan_ns: np.ndarray, keep: np.ndarray, trajectory: Any,
     laser_to_vehicle: Rigid,
 ) -> Placed:  # fmt: skip
     """The valid points of the scans ``keep`` (S,) bool of ``log``, whose point 0 was
-    measured at ``scan_ns`` (S,), each at its own time (:class:`Placed`)."""
-    ranges = np.where(keep[:, None], log.ranges, np.nan)
-    scan_idx, step = np.nonzero(np.isfinite(ranges))
-    r = ranges[scan_idx, step].astype(np.float64)
-    beams = log.angle_min + log.angle_increment * np.arange(log.ranges.shape[1])
-    P_laser = np.zeros((r.size, 3))  # filled in place: no (N,) temporaries
-    np.multiply(r, np.cos(beams)[step], out=P_laser[:, 0])
-    np.multiply(r, np.sin(beams)[step], out=P_laser[:, 1])
-    time_ns = sync.point_times_ns(scan_ns[scan_idx], log.time_increment, step)
-    if time_ns.size and np.any(np.diff(time_ns) < 0):  # scans out of order, or overlapping
-        order = np.argsort(time_ns, kind="stable")
-        scan_idx, step, P_laser, time_ns, r = (
-            scan_idx[order], step[order], P_laser[order], time_ns[order], r[order]
-        )  # fmt: skip
-    inside = np.ones(time_ns.size, dtype=bool)
-    P_world = P_laser
-    if trajectory is not None:
-        inside = trajectory.covers(time_ns)
-        if inside.all():
-            P_world = trajectory.transform(time_ns, laser_to_vehicle.apply(P_laser))
-        else:
-            P_world = np.full_like(P_laser, np.nan)  # no pose: not placed, not coloured
-            P_world[inside] = trajectory.transform(
-                time_ns[inside], laser_to_vehicle.apply(P_laser[inside])
-            )
-    return Placed(scan_idx, step, r, time_ns, P_laser, P_world, inside)
+    measured at ``scan_ns`` (S,), each at its own time (:func:`scan_colouring.place`)."""
+    beams = scan_colouring.Beams(log.angle_min, log.angle_increment, log.time_increment)
+    return scan_colouring.place(log.ranges, scan_ns, beams, keep, trajectory, laser_to_vehicle)
 
 
 _P = ParamSpec("_P")
@@ -237,42 +198,32 @@ def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) 
     )
     l2v = job.laser_to_vehicle
     pts = place(log, scan_ns, keep_scan, job.trajectory, l2v)
-    pose_at = job.trajectory.pose_at if job.trajectory is not None else None
     # the chunk's own points are coloured; those of its margins only hide others
     core = core_scan[pts.scan] & (pts.inside if job.frame_world else True)
     size = views.point_size(pts.r, log.angle_increment, job.travel_m)
-    compensate = pose_at is not None and job.options.motion_compensation
-    colourings, odd_size = [], {}
-    for cj in job.cameras:
-        frames = log.cameras[cj.name]
-        frame_ns = remap(cj.frame_old, cj.frame_new, frames.frame_ns) - cj.time_offset_ns
-        usable = (
-            job.trajectory.covers(frame_ns) if pose_at is not None else np.ones(frame_ns.size, bool)
+    cameras = [
+        scan_colouring.camera_frames(
+            cj.name,
+            cj.cam,
+            remap(cj.frame_old, cj.frame_new, log.cameras[cj.name].frame_ns),
+            log.cameras[cj.name].jpegs,
+            cj.time_offset_ns,
+            job.trajectory,
         )
-        odd = views.odd_sized(frames.jpegs, cj.cam.model)
-        if odd:
-            usable[list(odd)] = False
-            odd_size[cj.name] = {int(frames.frame_ns[k]): wh for k, wh in odd.items()}
-        colourings.append(
-            views.start_colouring(
-                pts.P_world if compensate else pts.P_laser,
-                pts.time_ns,
-                size,
-                frame_ns,
-                frames.jpegs,
-                cj.cam,
-                l2v,
-                pose_at,
-                job.options,
-                pool=pool,
-                want_uv=job.want_uv,
-                frame_ok=usable,
-                need=core,
-            )
-        )
+        for cj in job.cameras
+    ]
+    colourings = scan_colouring.start(
+        pts, size, cameras, job.trajectory, l2v, job.options, pool=pool, need=core,
+        want_uv=job.want_uv,
+    )  # fmt: skip
+    odd_size = {
+        c.name: {int(log.cameras[c.name].frame_ns[k]): wh for k, wh in c.odd_size.items()}
+        for c in cameras
+        if c.odd_size
+    }
     seconds = {"read": t_read - t0, "place, queue": time.perf_counter() - t_read}
     return ChunkColouring(
-        job, chunk, log, scan_ns, core_scan, core, pts, colourings, seconds, odd_size
+        job, chunk, log, scan_ns, core_scan, core, pts, cameras, colourings, seconds, odd_size
     )
 
 
@@ -288,6 +239,7 @@ class ChunkColouring:
     core_scan: np.ndarray
     core: np.ndarray
     pts: Placed
+    cameras: list[scan_colouring.CameraFrames]
     colourings: list[views.Colouring]
     seconds: dict[str, float]
     # frames of another size than the camera model's, by camera: recorded stamp -> (w, h)
@@ -304,34 +256,8 @@ class ChunkColouring:
         t_colour = time.perf_counter()
         n = pts.time_ns.size
         frames = [log.cameras[cj.name] for cj in job.cameras]
-        gains = (
-            balance.estimate_gains(cols, [f.frame_ns.size for f in frames])
-            if job.options.balance and cols
-            else None
-        )
-        rgbs = [
-            gains.apply(c, col.rgb, col.frame) if gains is not None else col.rgb
-            for c, col in enumerate(cols)
-        ]
-        if cols:
-            choice = multiview.choose(
-                cols, rgbs, [cj.cam.model for cj in job.cameras], job.options.max_dt_s,
-                job.options.blend,
-            )  # fmt: skip
-            cam_idx = choice.camera
-        else:
-            cam_idx = np.full(n, -1, dtype=np.int64)
-        pick = np.maximum(cam_idx, 0)
-        rows = np.arange(n)
-
-        def chosen(name: str, fill: Any) -> np.ndarray:
-            stack = np.stack([getattr(col, name) for col in cols]) if cols else None
-            if stack is None:
-                return np.full(n, fill)
-            out: np.ndarray = np.where(cam_idx >= 0, stack[pick, rows], fill)
-            return out
-
-        frame = chosen("frame", -1)
+        merged = scan_colouring.merge(cols, self.cameras, job.options, n, want_uv=job.want_uv)
+        cam_idx, frame, coloured = merged.camera, merged.frame, merged.coloured
         # the frame's recorded stamp and its index among its camera's frames in the session
         stamp = np.full(n, -1, dtype=np.int64)
         session_frame = np.full(n, -1, dtype=np.int64)
@@ -339,17 +265,6 @@ class ChunkColouring:
             sel = np.flatnonzero(cam_idx == c)
             stamp[sel] = f.frame_ns[frame[sel]]
             session_frame[sel] = np.searchsorted(cj.frame_old, stamp[sel])
-        uv = None
-        if job.want_uv and cols:
-            uv = np.stack([col.uv for col in cols])[pick, rows]  # type: ignore[misc]
-            uv[cam_idx < 0] = np.nan
-        hidden = (
-            np.any(np.stack([col.hidden for col in cols]), axis=0) & (cam_idx < 0)
-            if cols
-            else np.zeros(n, bool)
-        )
-        coloured = cam_idx >= 0
-        rgb = choice.rgb if cols else np.zeros((n, 3), np.uint8)
         t_choose = time.perf_counter()
         l2v = job.laser_to_vehicle
         xyz = pts.P_world if job.frame_world else pts.P_laser
@@ -375,20 +290,20 @@ class ChunkColouring:
         return ChunkResult(
             index=chunk.index,
             xyz=xyz[core],
-            rgb=rgb[core],
+            rgb=merged.rgb[core],
             coloured=coloured[core],
-            hidden=hidden[core],
+            hidden=merged.hidden[core],
             time_ns=pts.time_ns[core],
             scan=(first_scan + local[scan_idx]).astype(np.uint32),
             step=step.astype(np.uint32),
             intensity=log.intensities[scan_idx, step].astype(np.float32),
-            dt_s=chosen("dt_s", np.nan).astype(np.float32)[core],
-            theta=chosen("theta", np.nan).astype(np.float32)[core],
+            dt_s=merged.dt_s[core],
+            theta=merged.theta[core],
             camera=np.where(coloured, cam_idx, NO_CAMERA).astype(np.uint8)[core],
             frame=session_frame.astype(np.int32)[core],
             scan_origin=origin,
             frame_stamp_ns=stamp[core] if job.want_uv else None,
-            uv=uv[core] if uv is not None else None,
+            uv=merged.uv[core] if merged.uv is not None else None,
             frames_used=sum(col.frames_used for col in cols),
             frames_failed=sum(col.frames_failed for col in cols),
             outside=int(np.count_nonzero(~pts.inside & self.core_scan[pts.scan])),
@@ -405,10 +320,10 @@ class ChunkColouring:
                 for c, (cj, col) in enumerate(zip(job.cameras, cols, strict=True))
                 if col.failed.size
             },
-            gains=gains,
+            gains=merged.gains,
             samples=(
                 {
-                    cj.name: (cols[c].rgb[core], rgbs[c][core], cols[c].coloured[core])
+                    cj.name: (cols[c].rgb[core], merged.rgbs[c][core], cols[c].coloured[core])
                     for c, cj in enumerate(job.cameras)
                 }
                 if job.want_uv

@@ -83,6 +83,7 @@ from acq.log.inputs import session_files
 from acq.log.locate import locate
 from acq.motion import Trajectory
 from acq.stopped import shield_resource_tracker
+from acq.time import sync
 from acq.time.host_clock_summary import utc_doubt
 
 # the pipeline's parts, as callers of `acq colorize` and its bench know them
@@ -368,7 +369,8 @@ def estimate_offset(
         return OffsetEstimate.not_found(
             "no laser return strengths in the log (record them: SCIP ME, CoLa RSSI1)"
         )
-    in_span = (frame_ns - cj.time_offset_ns >= lo) & (frame_ns - cj.time_offset_ns < hi)
+    laser_ns = sync.on_laser_clock(frame_ns, cj.time_offset_ns)
+    in_span = (laser_ns >= lo) & (laser_ns < hi)
     sel = np.flatnonzero(in_span)
     odd = views.odd_sized([whole.jpegs[int(i)] for i in sel], cj.cam.model)
     if odd:

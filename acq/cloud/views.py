@@ -37,7 +37,7 @@ from acq.camera.jpeg import decode_jpeg_transient
 from acq.camera.occlusion import occlusion_depths, visible
 from acq.drivers.errors import ProtocolError
 from acq.drivers.mjpeg import jpeg_size
-from acq.geometry.transforms import PoseFn, Rigid
+from acq.geometry.transforms import PoseFn, Rigid, world_to_laser
 from acq.time import sync
 
 __all__ = [
@@ -170,7 +170,7 @@ class _Rig:
         if self.pose_at is None:
             return P_world
         R, t = self._pose(self.pose_at, t_ns)
-        return self.v2l.apply((P_world - t) @ R)
+        return world_to_laser(P_world, R, t, self.v2l)
 
     def camera_poses(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The camera's rotations (M,3,3) and positions (M,3) m in the points' frame at

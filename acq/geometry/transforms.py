@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["PoseFn", "Rigid"]
+__all__ = ["PoseFn", "Rigid", "world_to_laser"]
 
 
 _KERNEL_POINTS = 50_000  # from this many points on, Rigid.apply runs a compiled loop
@@ -79,3 +79,12 @@ class Rigid:
 PoseFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 """Vehicle pose at host times: (N,) int64 ns -> rotations (N,3,3), translations (N,3) m,
 ``P_world = R @ P_vehicle + t``."""
+
+
+def world_to_laser(
+    P_world: npt.ArrayLike, R: np.ndarray, t: np.ndarray, vehicle_to_laser: Rigid
+) -> npt.NDArray[np.float64]:
+    """World points (N,3) m in the laser frame as the rig stood at the vehicle pose
+    ``R`` (3,3), ``t`` (3,) (vehicle -> world): motion compensation, world -> vehicle
+    -> laser."""
+    return vehicle_to_laser.apply((np.asarray(P_world, dtype=np.float64) - t) @ R)

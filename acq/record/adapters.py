@@ -28,7 +28,7 @@ from acq.record.device_loop import DeviceAdapter, finite
 from acq.records import CanFrame, Fix, Frame, Odometry, Scan, Sentence
 from acq.time import kernel_clock
 from acq.time.clocksync import DeviceClock, latency_bounds
-from acq.time.sync import scan_start_ns
+from acq.time.sync import stamp_scan
 from acq.time.utc import host_ns_from_utc
 
 __all__ = [
@@ -135,7 +135,8 @@ class ScannerAdapter(DeviceAdapter[Scan, _ScanItem]):
             self._telegram_latency(scan)
         geometry = self.device.geometry
         offset = geometry.stamp_offset_s if geometry is not None else 0.0
-        stamp = scan_start_ns(clock.to_host_ns(scan.device_ticks[0]), offset, state.latency_s)
+        stamp = stamp_scan(scan, clock, offset, state.latency_s).start_ns
+        assert stamp is not None
         unwrapped = clock.unwrapper.nearest(scan.device_ticks[0])
         return (_ScanItem(scan, stamp, unwrapped, clock.epoch, counts),)
 

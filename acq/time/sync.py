@@ -32,6 +32,7 @@ __all__ = [
     "Pairing",
     "frame_stamp_ns",
     "frames_used",
+    "on_laser_clock",
     "pair_frames",
     "point_times_ns",
     "scan_start_ns",
@@ -111,6 +112,14 @@ def frame_stamp_ns(recv_ns: int, exposure_s: float, latency_s: float) -> int:
     (0 where unknown). For a source that stamps the end of exposure, ``latency_s`` is 0.
     """
     return int(recv_ns) - round(latency_s * 1e9) - round(exposure_s * 0.5e9)
+
+
+def on_laser_clock(frame_ns: npt.ArrayLike, time_offset_ns: npt.ArrayLike) -> np.ndarray:
+    """int64 times on the laser's clock of frames stamped ``frame_ns`` by a camera whose
+    clock is ``time_offset_ns`` ahead of the laser's (calib.yaml's ``time_offset_s``:
+    camera time minus laser time): ``frame_ns - time_offset_ns``, broadcast (several
+    candidate offsets against one frame, as :mod:`acq.calib.time_offset` tries)."""
+    return np.asarray(frame_ns, dtype=np.int64) - np.asarray(time_offset_ns, dtype=np.int64)
 
 
 # --- pairing -------------------------------------------------------------------------

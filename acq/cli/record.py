@@ -78,6 +78,30 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="camera frames sent to live clients per second and camera, at most (default 5; "
         "0: none); the log keeps every frame",
     )
+    rec.add_argument(
+        "--live-swath-s",
+        type=real(0, 3600, lo_open=True, what="seconds"),
+        metavar="S",
+        help="with --live: the seconds of coloured scans in /live/swath, the street as it "
+        "builds up, placed with the rig's odometry or GNSS (in the laser frame without "
+        "them), 2 Hz, at most 300,000 points (default 30)",
+    )
+    rec.add_argument(
+        "--log-colored",
+        action="store_true",
+        help="also write each scan coloured live (/<scanner>/colored, foxglove.PointCloud) "
+        "into the log; off by default: `acq colorize` colours better after the drive "
+        "(re-timing, the best view, colour balance)",
+    )
+    rec.add_argument(
+        "--calib",
+        type=Path,
+        metavar="CALIB",
+        help="the rig's calibration (calib.yaml) instead of the configuration's "
+        "`calibration:`: its /tf_static and camera calibrations go into the log, and with "
+        "--live or --log-colored each scan is coloured as it comes from every camera in "
+        "it (the nearest frame in time, motion compensated with the rig's odometry or GNSS)",
+    )
     rec.add_argument("-v", "--verbose", action="store_true", help="debug log lines")
     rec.add_argument(
         "--status",
@@ -104,6 +128,14 @@ def run(args: argparse.Namespace) -> int:
     listeners = []
     if args.live is None and args.live_image_hz is not None:
         raise InputValueError("--live-image-hz: only with --live")
+    if args.live is None and args.live_swath_s is not None:
+        raise InputValueError("--live-swath-s: only with --live")
+    calib = None
+    if args.calib is not None:
+        from acq.camera import calibfile
+
+        calib = calibfile.load(args.calib)
+    server = None
     if args.live is not None:
         from acq.cli.exposure import every_interface, warn_if_exposed
         from acq.record import live
@@ -125,10 +157,19 @@ def run(args: argparse.Namespace) -> int:
         listeners.append(server)
     from acq.record.status_line import TerminalNotifier
 
+    colouring = None
+    if server is not None or args.log_colored:
+        from acq.record.live_colour import ColourSettings
+        from acq.record.swath import SPAN_S
+
+        swath_s = SPAN_S if args.live_swath_s is None else args.live_swath_s
+        colouring = ColourSettings(log=args.log_colored, server=server, swath_s=swath_s)
+
     try:
         return recorder.record(
             cfg, out_dir=out, duration_s=args.duration, required=args.require,
             listeners=listeners, notifier=None if line is None else TerminalNotifier(line),
+            calibration=calib, colouring=colouring,
         )  # fmt: skip
     except recorder.UnknownDevice as e:
         raise InputValueError(f"--require: {e}") from None

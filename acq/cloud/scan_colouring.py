@@ -101,20 +101,21 @@ def place(
 class CameraFrames:
     """One camera's frames ready to colour from: ``stamp_ns`` (M,) as recorded (sorted),
     ``frame_ns`` (M,) the same on the laser's clock (:func:`acq.time.sync.on_laser_clock`),
-    ``jpegs`` their bytes, ``usable`` (M,) bool (a pose at their time, the model's size),
-    ``odd_size``: index -> (width, height) px of those of another size."""
+    ``jpegs`` their bytes (or images decoded), ``usable`` (M,) bool (a pose at their
+    time, the model's size), ``odd_size``: index -> (width, height) px of those of
+    another size."""
 
     name: str
     cam: CameraCalib
     stamp_ns: np.ndarray
     frame_ns: np.ndarray
-    jpegs: Sequence[bytes]
+    jpegs: Sequence[views.Frame]
     usable: np.ndarray
     odd_size: dict[int, tuple[int, int]] = field(default_factory=dict)
 
 
 def camera_frames(
-    name: str, cam: CameraCalib, stamp_ns: np.ndarray, jpegs: Sequence[bytes],
+    name: str, cam: CameraCalib, stamp_ns: np.ndarray, jpegs: Sequence[views.Frame],
     time_offset_ns: int, poses: PoseSource | None,
 ) -> CameraFrames:  # fmt: skip
     """Camera ``name``'s frames stamped ``stamp_ns`` (sorted) with bytes ``jpegs``: their

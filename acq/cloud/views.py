@@ -44,6 +44,7 @@ __all__ = [
     "VIEWS",
     "Coloured",
     "Colouring",
+    "Frame",
     "Options",
     "Pairs",
     "odd_sized",
@@ -129,16 +130,23 @@ class Coloured:
     failed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
-def odd_sized(jpegs: Sequence[bytes], model: CameraModel) -> dict[int, tuple[int, int]]:
-    """The frames of ``jpegs`` whose JPEG header gives another size than ``model``'s:
-    index -> (width, height) px (a header that does not parse is left to the decoder)."""
+Frame = bytes | np.ndarray  # a JPEG, or its image decoded (H,W,3) BGR uint8
+
+
+def odd_sized(jpegs: Sequence[Frame], model: CameraModel) -> dict[int, tuple[int, int]]:
+    """The frames of ``jpegs`` whose JPEG header (or decoded image) gives another size
+    than ``model``'s: index -> (width, height) px (a header that does not parse is left
+    to the decoder)."""
     want = (model.width, model.height)
     out: dict[int, tuple[int, int]] = {}
     for k, jpeg in enumerate(jpegs):
-        try:
-            size = jpeg_size(jpeg)
-        except ProtocolError:
-            continue
+        if isinstance(jpeg, np.ndarray):
+            size = (jpeg.shape[1], jpeg.shape[0])
+        else:
+            try:
+                size = jpeg_size(jpeg)
+            except ProtocolError:
+                continue
         if size != want:
             out[k] = size
     return out
@@ -224,14 +232,14 @@ class Colouring:
         self.pair_ok = np.zeros(self.pair_point.size, dtype=bool)
 
     def colour_frame(
-        self, jpeg: bytes, idx: np.ndarray, R: np.ndarray, t: np.ndarray,
+        self, jpeg: Frame, idx: np.ndarray, R: np.ndarray, t: np.ndarray,
         pairs: np.ndarray | None = None,
     ) -> bool:  # fmt: skip
-        """Decode one frame and colour its points ``idx`` (the camera at rotation ``R``
-        and position ``t`` in the points' frame) and its ``pairs`` (indices into the
-        pair arrays); False when it does not decode or is not of the camera model's
-        size."""
-        image = decode_jpeg_transient(jpeg)
+        """Decode one frame (unless given decoded) and colour its points ``idx`` (the
+        camera at rotation ``R`` and position ``t`` in the points' frame) and its
+        ``pairs`` (indices into the pair arrays); False when it does not decode or is not
+        of the camera model's size."""
+        image = jpeg if isinstance(jpeg, np.ndarray) else decode_jpeg_transient(jpeg)
         if image is None or image.shape[:2] != (self.model.height, self.model.width):
             return False
         projection.colour_into(
@@ -275,7 +283,7 @@ def start_colouring(
     time_ns: np.ndarray,
     size_m: np.ndarray,
     frame_ns: np.ndarray,
-    jpegs: Sequence[bytes],
+    jpegs: Sequence[Frame],
     cam: CameraCalib,
     laser_to_vehicle: Rigid,
     pose_at: PoseFn | None,
@@ -290,7 +298,8 @@ def start_colouring(
     in the world when ``pose_at`` is given and motion is compensated, else in the laser
     frame at their own time. ``frame_ns`` (M,) the frames' mid-exposure times on the
     laser's clock (the calibration's time offset already applied), ``jpegs`` their
-    bytes; ``size_m`` (N,) each point's share of surface (for the depth buffers);
+    bytes (or their images, decoded); ``size_m`` (N,) each point's share of surface
+    (for the depth buffers);
     ``frame_ok`` (M,) bool: frames that may be used (e.g. those the trajectory covers);
     ``need`` (N,) bool: the points to colour (default all; the others only hide points
     in ``best``'s depth buffers).

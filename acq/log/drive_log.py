@@ -193,19 +193,43 @@ def _no_scans_because(undecodable: dict[str, int], why: dict[str, str]) -> None:
 
 
 @dataclass(frozen=True)
-class _ScanMsg:
+class ScanMessage:
+    """One ``foxglove.LaserScan`` as colouring needs it: its stamp (ns, the log's clock),
+    ranges (m) and intensities float32 (empty when read without the returns), first and
+    last angles (rad) and its number of points."""
+
     stamp_ns: int
-    ranges: np.ndarray  # empty when read without the returns
+    ranges: np.ndarray
     intensities: np.ndarray
     start_angle: float
     end_angle: float
-    steps: int  # the scan's points
+    steps: int
+
+    @property
+    def angle_increment(self) -> float:
+        """rad between two points (0 for a scan of one point)."""
+        n = self.steps
+        return (self.end_angle - self.start_angle) / (n - 1) if n > 1 else 0.0
+
+
+def scan_message(msg: Any, returns: bool = True) -> ScanMessage:
+    """A decoded ``foxglove.LaserScan`` as a :class:`ScanMessage` (``returns=False``:
+    without its ranges and intensities). AttributeError for a message of another schema."""
+    return ScanMessage(
+        stamp_ns(msg),
+        np.asarray(msg.ranges, dtype=np.float32) if returns else _NONE,
+        np.asarray(msg.intensities, dtype=np.float32) if returns else _NONE,
+        float(msg.start_angle),
+        float(msg.end_angle),
+        len(msg.ranges),
+    )
 
 
 _NONE = np.zeros(0, dtype=np.float32)
 
 
-def _stamp(msg: Any) -> int:
+def stamp_ns(msg: Any) -> int:
+    """A foxglove message's ``timestamp`` in ns (the log's clock)."""
     return int(msg.timestamp.seconds) * 10**9 + int(msg.timestamp.nanos)
 
 
@@ -256,7 +280,7 @@ def read_log(
     else:
         files = tuple(Path(p) for p in paths)
     metadata: dict[str, dict[str, str]] = {}
-    scans: dict[str, list[_ScanMsg]] = {}
+    scans: dict[str, list[ScanMessage]] = {}
     frames: dict[str, list[tuple[int, bytes]]] = {}
     sizes: dict[str, tuple[int, int] | None] = {}  # by camera: its first frame's
     timing: dict[str, dict[int, tuple[int, int, int]]] = {}  # stamp -> (tick, seq, recv)
@@ -297,18 +321,11 @@ def read_log(
             try:
                 if topic.endswith("/scan"):
                     scans.setdefault(topic[1:].removesuffix("/scan"), []).append(
-                        _ScanMsg(
-                            _stamp(msg),
-                            np.asarray(msg.ranges, dtype=np.float32) if returns else _NONE,
-                            np.asarray(msg.intensities, dtype=np.float32) if returns else _NONE,
-                            float(msg.start_angle),
-                            float(msg.end_angle),
-                            len(msg.ranges),
-                        )
+                        scan_message(msg, returns)
                     )
                 elif topic.endswith("/image/compressed"):
                     name = topic[1:].removesuffix("/image/compressed")
-                    frames.setdefault(name, []).append((_stamp(msg), bytes(msg.data)))
+                    frames.setdefault(name, []).append((stamp_ns(msg), bytes(msg.data)))
                     if sizes.get(name) is None:
                         sizes[name] = _jpeg_size(msg)
                 elif topic == "/acq/clock":
@@ -366,7 +383,7 @@ def _assemble(
     files: tuple[Path, ...],
     laser: str,
     camera: str,
-    scans: list[_ScanMsg],
+    scans: list[ScanMessage],
     frames: dict[str, list[tuple[int, bytes]]],
     sizes: dict[str, tuple[int, int] | None],
     timing: dict[str, dict[int, tuple[int, int, int]]],
@@ -378,7 +395,7 @@ def _assemble(
     n = max(m.steps for m in scans)
     first = next(m for m in scans if m.steps == n)
     angle_min = first.start_angle
-    inc = (first.end_angle - angle_min) / (n - 1) if n > 1 else 0.0
+    inc = first.angle_increment
     held = n if first.ranges.size else 0  # read without the returns: none held
     ranges = np.full((len(scans), held), np.nan, dtype=np.float32)
     intens = np.zeros((len(scans), held), dtype=np.float32)

@@ -280,21 +280,33 @@ def frame_transforms(
 
 
 _N = PackedElementField.NumericType
-_CLOUD_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+_CLOUD_DTYPE = np.dtype(
+    [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+     ("alpha", "u1")]
+)  # fmt: skip
 _CLOUD_FIELDS = [
-    PackedElementField(name="x", offset=0, type=_N.FLOAT32),
-    PackedElementField(name="y", offset=4, type=_N.FLOAT32),
-    PackedElementField(name="z", offset=8, type=_N.FLOAT32),
-    PackedElementField(name="rgb", offset=12, type=_N.UINT32),
+    PackedElementField(name=name, offset=offset, type=_N.FLOAT32 if name in "xyz" else _N.UINT8)
+    for name, offset in (
+        ("x", 0),
+        ("y", 4),
+        ("z", 8),
+        ("red", 12),
+        ("green", 13),
+        ("blue", 14),
+        ("alpha", 15),
+    )
 ]
 
 
-def point_cloud(points: np.ndarray, rgb: np.ndarray, frame_id: str, stamp_ns: int) -> bytes:
-    """``foxglove.PointCloud`` of (N,3) metres and (N,3) uint8 RGB colours.
+def point_cloud(
+    points: np.ndarray, rgb: np.ndarray, frame_id: str, stamp_ns: int,
+    alpha: np.ndarray | None = None,
+) -> bytes:  # fmt: skip
+    """``foxglove.PointCloud`` of (N,3) metres and (N,3) uint8 RGB colours, ``alpha``
+    (N,) uint8 (default 255: opaque).
 
-    16-byte points: x, y, z float32 at 0, 4, 8 and ``rgb`` uint32 at 12, packed
-    ``0x00RRGGBB`` (bytes B, G, R, 0 little-endian: PCL's layout and Foxglove's
-    "RGB (packed)" colour mode).
+    16-byte points: x, y, z float32 at 0, 4, 8 and red, green, blue, alpha uint8 at
+    12-15 (Foxglove's "RGBA (separate fields)" colour mode).
     """
     P = np.asarray(points)
     C = np.asarray(rgb)
@@ -304,8 +316,8 @@ def point_cloud(points: np.ndarray, rgb: np.ndarray, frame_id: str, stamp_ns: in
         raise ValueError(f"rgb must be (N,3) like points {P.shape}, got shape {C.shape}")
     buf = np.empty(P.shape[0], dtype=_CLOUD_DTYPE)
     buf["x"], buf["y"], buf["z"] = P[:, 0], P[:, 1], P[:, 2]
-    c = C.astype(np.uint32)
-    buf["rgb"] = (c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]
+    buf["red"], buf["green"], buf["blue"] = C[:, 0], C[:, 1], C[:, 2]
+    buf["alpha"] = 255 if alpha is None else alpha
     msg = PointCloud(frame_id=frame_id, point_stride=_CLOUD_DTYPE.itemsize, data=buf.tobytes())
     _set_stamp(msg.timestamp, stamp_ns)
     msg.pose.orientation.w = 1.0

@@ -143,8 +143,7 @@ class LogSource:
         if text is None or self._config_read:
             return
         self._config_read = True
-        from acq.record.config import OutputConfig, parse
-        from acq.record.recorder import required_devices
+        from acq.record.config import OutputConfig, parse, required_devices
 
         self._reserve_bytes = OutputConfig().reserve_megabytes * 1e6
         try:

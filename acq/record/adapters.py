@@ -23,7 +23,15 @@ from acq.drivers.reconnect import CameraLink, LinkEvent, Reconnecting, Relink
 from acq.drivers.registry import REGISTRIES
 from acq.log import schemas
 from acq.log.writer import LogWriter
-from acq.record.config import CameraConfig, CanConfig, Config, GnssConfig, ScannerConfig
+from acq.record.config import (
+    GNSS,
+    VEHICLE,
+    CameraConfig,
+    CanConfig,
+    Config,
+    GnssConfig,
+    ScannerConfig,
+)
 from acq.record.device_loop import DeviceAdapter, finite
 from acq.records import CanFrame, Fix, Frame, Odometry, Scan, Sentence
 from acq.time import kernel_clock
@@ -43,8 +51,6 @@ __all__ = [
 
 log = logging.getLogger("acq.record")
 
-VEHICLE = "vehicle"  # the CAN bus's device name: topics /vehicle/odometry, /vehicle/can
-GNSS = "gnss"  # the GNSS receiver's: /gnss/fix, /gnss/raw, /acq/timing/gnss
 GNSS_TICK_HZ = 1_000_000  # a fix time as a device tick: UTC microseconds since the epoch
 
 

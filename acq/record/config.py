@@ -48,6 +48,8 @@ from acq.yamlcheck import did_you_mean, fail, show
 
 __all__ = [
     "DEFAULT",
+    "GNSS",
+    "VEHICLE",
     "CameraConfig",
     "CanConfig",
     "Config",
@@ -57,7 +59,9 @@ __all__ = [
     "ScannerConfig",
     "dump",
     "load",
+    "optional_devices",
     "parse",
+    "required_devices",
     "shipped",
 ]
 
@@ -72,6 +76,10 @@ MAX_SIDE_PX = 65535
 """The largest requested image width or height, px (JPEG's limit)."""
 MAX_MEGABYTES = 1e9
 """The largest file size or disk reserve, MB (a petabyte)."""
+
+
+VEHICLE = "vehicle"  # the CAN bus's device name: topics /vehicle/odometry, /vehicle/can
+GNSS = "gnss"  # the GNSS receiver's: /gnss/fix, /gnss/raw, /acq/timing/gnss
 
 
 class ConfigError(InputValueError):
@@ -524,3 +532,25 @@ def dump(config: Config) -> str:
     """The YAML text of a configuration (``parse(yaml.safe_load(dump(c)))`` equals ``c``)."""
     data = _plain(config.model_dump(exclude_none=True))
     return yaml.safe_dump(data, sort_keys=False, allow_unicode=True)
+
+
+def _requirements(config: Config) -> list[tuple[str, bool | None]]:
+    """Each device's name and its ``required`` (None: unset)."""
+    out = [(s.name, s.required) for s in config.scanners]
+    out += [(c.name, c.required) for c in config.cameras]
+    if config.can is not None:
+        out.append((VEHICLE, config.can.required))
+    if config.gnss is not None:
+        out.append((GNSS, config.gnss.required))
+    return out
+
+
+def required_devices(config: Config) -> list[str]:
+    """The names of the devices the configuration marks ``required: true``."""
+    return [name for name, required in _requirements(config) if required]
+
+
+def optional_devices(config: Config) -> list[str]:
+    """The names of the devices the configuration marks ``required: false``: one that
+    records nothing is a warning, not a failure."""
+    return [name for name, required in _requirements(config) if required is False]

@@ -63,6 +63,7 @@ import time
 from collections import deque
 from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from acq import __version__
 from acq.camera import calibfile
@@ -74,8 +75,8 @@ from acq.errors import InputError, InputValueError
 from acq.log import schemas
 from acq.log.silent_devices import DeviceRecords, silent_devices
 from acq.log.writer import LogWriter
-from acq.record.adapters import GNSS, VEHICLE, adapters_for
-from acq.record.config import CanConfig, Config, dump
+from acq.record.adapters import GNSS, adapters_for
+from acq.record.config import CanConfig, Config, dump, optional_devices, required_devices
 from acq.record.device_loop import DeviceState, Outbox, Queued, finite, run_device
 from acq.record.listeners import Listener, Listeners, LogRecord
 from acq.record.sdnotify import JournalFormatter, Notifier, use_journal_format
@@ -84,14 +85,15 @@ from acq.time.absent import Absent
 from acq.time.host_clock import NO_GNSS, GnssTime, HostClockPoller, gnss_time
 from acq.time.host_clock_summary import HostClockTally
 
+if TYPE_CHECKING:
+    from acq.record.live_colour import ColourSettings
+
 __all__ = [
     "EXIT_DISK_FULL",
     "REQUIRED_WITHIN_S",
     "Recorder",
     "RecorderError",
     "UnknownDevice",
-    "optional_devices",
-    "required_devices",
 ]
 
 EXIT_OK = 0
@@ -113,28 +115,6 @@ class RecorderError(InputError, RuntimeError):
 
 class UnknownDevice(InputValueError):
     """A device asked for by name (``required``) that the configuration does not have."""
-
-
-def _requirements(config: Config) -> list[tuple[str, bool | None]]:
-    """Each device's name and its ``required`` (None: unset)."""
-    out = [(s.name, s.required) for s in config.scanners]
-    out += [(c.name, c.required) for c in config.cameras]
-    if config.can is not None:
-        out.append((VEHICLE, config.can.required))
-    if config.gnss is not None:
-        out.append((GNSS, config.gnss.required))
-    return out
-
-
-def required_devices(config: Config) -> list[str]:
-    """The names of the devices the configuration marks ``required: true``."""
-    return [name for name, required in _requirements(config) if required]
-
-
-def optional_devices(config: Config) -> list[str]:
-    """The names of the devices the configuration marks ``required: false``: one that
-    records nothing is a warning, not a failure."""
-    return [name for name, required in _requirements(config) if required is False]
 
 
 class Recorder:
@@ -584,9 +564,12 @@ def record(
     notifier: Notifier | None = None,
     required: Iterable[str] = (),
     listeners: Iterable[Listener] = (),
+    calibration: Calibration | None = None,
+    colouring: ColourSettings | None = None,
 ) -> int:
     """Run a :class:`Recorder` with every signal that would end the process finishing the
-    file (SIGTERM, SIGINT, SIGHUP...: :mod:`acq.record.stop_signals`); the exit code."""
+    file (SIGTERM, SIGINT, SIGHUP...: :mod:`acq.record.stop_signals`); the exit code.
+    ``colouring``: colour the scans live (:mod:`acq.record.live_colour`)."""
     recorder = Recorder(
         config,
         out_dir=out_dir,
@@ -594,6 +577,11 @@ def record(
         notifier=notifier,
         required=required,
         listeners=listeners,
+        calibration=calibration,
     )
+    if colouring is not None:
+        from acq.record.live_colour import attach
+
+        attach(recorder, colouring)
     with finishing(recorder.stop):
         return recorder.run()

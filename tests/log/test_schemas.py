@@ -227,12 +227,19 @@ def test_point_cloud_layout() -> None:
     data = schemas.point_cloud(points, rgb, "laser", STAMP)
     msg = schemas.decode("foxglove.PointCloud", data)
     assert msg.point_stride == 16 and msg.frame_id == "laser" and ts_ns(msg.timestamp) == STAMP
-    assert [(f.name, f.offset) for f in msg.fields] == [("x", 0), ("y", 4), ("z", 8), ("rgb", 12)]
+    assert [(f.name, f.offset) for f in msg.fields] == [
+        ("x", 0), ("y", 4), ("z", 8), ("red", 12), ("green", 13), ("blue", 14), ("alpha", 15)
+    ]  # fmt: skip
     assert msg.pose.orientation.w == 1.0
     raw = np.frombuffer(msg.data, dtype=np.uint8).reshape(100, 16)
     np.testing.assert_array_equal(raw[:, :12].copy().view("<f4"), points)
-    np.testing.assert_array_equal(raw[:, 12:15], rgb[:, ::-1])  # B, G, R
-    assert np.all(raw[:, 15] == 0)
+    np.testing.assert_array_equal(raw[:, 12:15], rgb)
+    assert np.all(raw[:, 15] == 255)
+    alpha = (np.arange(100) % 2 * 255).astype(np.uint8)
+    see_through = schemas.decode(
+        "foxglove.PointCloud", schemas.point_cloud(points, rgb, "laser", STAMP, alpha)
+    )
+    np.testing.assert_array_equal(np.frombuffer(see_through.data, np.uint8)[15::16], alpha)
     assert (
         decode_with_mcap("foxglove.PointCloud", data).SerializeToString() == msg.SerializeToString()
     )

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 
@@ -85,7 +86,30 @@ def _summary(url: str, seconds: float) -> dict[str, Any]:
         "transforms": len(tf[0][1].transforms) if tf else 0,
         "status_devices": [d.name for d in status[-1][1].devices] if status else [],
         "stalled_channels": len(stalled.channels),
+        "scan_stamps": [m.timestamp.seconds * 10**9 + m.timestamp.nanos for _, m in scans],
+        "colored": _clouds(seen.messages.get("/laser/colored", [])),
+        "swath": _clouds(seen.messages.get("/live/swath", [])),
     }  # fmt: skip
+
+
+def _clouds(got: list[tuple[float, Any]]) -> dict[str, Any]:
+    """What a client saw of a PointCloud topic: how many, their fields, frame, points, the
+    share of points with a colour (alpha 255), and the newest one's points as a list."""
+    if not got:
+        return {"count": 0}
+    last = got[-1][1]
+    raw = np.frombuffer(last.data, np.uint8).reshape(-1, last.point_stride)
+    alphas = np.concatenate([np.frombuffer(m.data, np.uint8)[15 :: m.point_stride] for _, m in got])
+    return {
+        "count": len(got),
+        "fields": [[f.name, f.offset, f.type] for f in last.fields],
+        "frame_id": last.frame_id,
+        "points": [len(m.data) // m.point_stride for _, m in got],
+        "coloured_share": float(np.mean(alphas == 255)) if alphas.size else 0.0,
+        "stamps": [m.timestamp.seconds * 10**9 + m.timestamp.nanos for _, m in got],
+        "last_xyz": raw[:, :12].copy().view("<f4").round(3).tolist(),
+        "last_rgb": raw[:, 12:15].tolist(),
+    }
 
 
 def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
@@ -96,7 +120,8 @@ def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
     out = tmp_path / "logs"
     proc = subprocess.Popen(
         [sys.executable, "-m", "acq.cli", "record", "-c", str(cfg_path), "--out", str(out),
-         "--duration", "9", "--live", f"127.0.0.1:{port}", "--live-image-hz", "4"],
+         "--duration", "9", "--live", f"127.0.0.1:{port}", "--live-image-hz", "4",
+         "--log-colored", "--live-swath-s", "2"],
         cwd=ROOT, stderr=subprocess.PIPE,
     )  # fmt: skip
     try:
@@ -137,6 +162,28 @@ def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
     laser = next(d for d in log["/acq/status"][-1][2].devices if d.name == "laser")
     assert laser.dropped == 0
     assert len(log["/camera/image/compressed"]) > 25 * 6  # every frame, not 4 Hz
+    # coloured scans: one a scan, x y z float32 and red green blue alpha uint8, stamped
+    # with the scan's own stamp, in the log (--log-colored) and live
+    colored = seen["colored"]
+    assert colored["fields"] == [["x", 0, 7], ["y", 4, 7], ["z", 8, 7], ["red", 12, 1],
+                                 ["green", 13, 1], ["blue", 14, 1], ["alpha", 15, 1]]  # fmt: skip
+    assert colored["frame_id"] == "laser" and colored["count"] > 20 * span
+    assert colored["coloured_share"] > 0.2  # one fisheye sees the street's side
+    live_scans = set(seen["scan_stamps"])
+    assert len(live_scans & set(colored["stamps"])) >= 0.9 * colored["count"]
+    logged, in_log = log["/laser/colored"], log["/laser/scan"]
+    assert len(in_log) - 15 <= len(logged) <= len(in_log)
+
+    def stamps(messages: list[tuple[int, int, Any]]) -> set[int]:
+        return {m.timestamp.seconds * 10**9 + m.timestamp.nanos for *_, m in messages}
+
+    assert stamps(logged) <= stamps(in_log)
+    assert "/live/swath" not in log  # live only
+    # the swath: 2 s of coloured scans at 2 Hz, in the laser frame (this rig has no CAN)
+    swath = seen["swath"]
+    assert swath["frame_id"] == "laser" and 2 * span - 3 <= swath["count"] <= 2 * span + 2
+    assert 0 < max(swath["points"]) <= 300_000
+    assert swath["coloured_share"] == 1.0  # only coloured points
 
 
 @pytest.mark.parametrize(

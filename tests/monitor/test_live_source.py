@@ -19,6 +19,7 @@ import pytest
 from websockets.sync.server import ServerConnection, serve
 
 from acq.log.schemas import ColouringStatus
+from acq.monitor.live_source import LiveSource
 from acq.record.listeners import Listener, LogRecord
 from acq.record.live import LiveServer
 from acq.record.recorder import Recorder
@@ -76,9 +77,18 @@ def test_colouring_figures_in_the_status_the_log_and_the_live_view(
     try:
         time.sleep(2.0)  # the recorder's first status
         live = _status(address, "--json")
+        source = LiveSource("127.0.0.1", server.port)  # in this process: seen to the end
     finally:
         thread.join(30)
     assert codes == [0]
+    try:  # the recorder gone: its last state, and why it is not updated
+        deadline = time.monotonic() + 10
+        while (snap := source.snapshot()).writing and time.monotonic() < deadline:
+            time.sleep(0.1)
+    finally:
+        source.close()
+    assert not snap.writing and snap.colouring is not None and snap.devices
+    assert snap.notes == [f"the live server at {address} closed the connection"]
     assert live.returncode == 0 and live.stderr == "", live.stdout + live.stderr
     colouring = json.loads(live.stdout)["colouring"]
     assert colouring["scans_skipped"] == 3 and colouring["coloured_share"] == 0.625

@@ -235,3 +235,10 @@ def test_a_live_server_that_sends_no_status_is_exit_1() -> None:
     snap = json.loads(done.stdout)
     assert snap["writing"] and snap["devices"] == [] and not snap["ok"]
     assert snap["problems"] == ["the recorder's last status: nothing yet (more than 5 s)"]
+
+
+def test_an_unknown_host_is_exit_1() -> None:
+    done = _status("nowhere.invalid:8765", "--json")  # .invalid: never a host (RFC 2606)
+    assert done.returncode == 1 and done.stdout == "", done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert line.startswith("acq status: nowhere.invalid:8765: unknown host ("), line

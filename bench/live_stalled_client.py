@@ -29,9 +29,7 @@ from pathlib import Path
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-# the client is a test helper (tests/foxglove_client.py): the repository root on the path
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.foxglove_client import Seen, connect_client, take
+from acq.monitor.foxglove_client import Seen, connect_client, take
 
 
 def _rss_mb(pid: int) -> float:

@@ -1,7 +1,8 @@
 """Our own versioned ``acq.*`` protobuf messages (file ``acq/v1.proto``, package ``acq``),
 built at import time from a ``FileDescriptorProto`` (no protoc), and their message
 classes: ``acq.RawTelegram``, ``acq.Timing``, ``acq.Clock``, ``acq.Status``,
-``acq.DeviceStatus``, ``acq.Odometry``, ``acq.CanFrame`` and ``acq.TimeBase`` (with
+``acq.DeviceStatus`` (with the live colouring's ``acq.Colouring`` and ``acq.ColourShare``),
+``acq.Odometry``, ``acq.CanFrame`` and ``acq.TimeBase`` (with
 its parts ``acq.KernelClock``, ``acq.ChronyTracking``, ``acq.PtpTime``, ``acq.PpsSource``
 and ``acq.GnssTime``). A change that is not
 backwards compatible gets a new file (``acq/v2.proto``); v1 field numbers stay, new
@@ -84,6 +85,7 @@ _ACQ_MESSAGES: dict[str, list[_FieldSpec]] = {
         ("epoch", 15, _F.TYPE_UINT32, _ONE, ""),
         ("odd_size", 16, _F.TYPE_UINT64, _ONE, ""),  # frames of an unexpected size (cameras)
         ("fast_s", 17, _F.TYPE_DOUBLE, _ONE, ""),  # s over 1.5 x the configured fps (cameras)
+        ("required", 18, _F.TYPE_BOOL, _ONE, ""),  # its loss fails the recording
     ],
     "Status": [
         ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),
@@ -93,6 +95,17 @@ _ACQ_MESSAGES: dict[str, list[_FieldSpec]] = {
         ("disk_minutes_left", 5, _F.TYPE_DOUBLE, _ONE, ""),
         ("writer_queue", 6, _F.TYPE_UINT32, _ONE, ""),  # records waiting for the writer
         ("devices", 7, _F.TYPE_MESSAGE, _MANY, ".acq.DeviceStatus"),
+        ("colouring", 8, _F.TYPE_MESSAGE, _ONE, ".acq.Colouring"),  # unset: no live colouring
+    ],
+    "ColourShare": [  # one camera's part of the last scans' points
+        ("camera", 1, _F.TYPE_STRING, _ONE, ""),
+        ("share", 2, _F.TYPE_DOUBLE, _ONE, ""),  # 0..1 of the points, coloured from it
+    ],
+    "Colouring": [  # the live colourer's counts since start (acq.Status.colouring)
+        ("scans_coloured", 1, _F.TYPE_UINT64, _ONE, ""),
+        ("scans_skipped", 2, _F.TYPE_UINT64, _ONE, ""),  # it fell behind: not coloured
+        ("coloured_share", 3, _F.TYPE_DOUBLE, _ONE, ""),  # 0..1 of the last scans' points
+        ("cameras", 4, _F.TYPE_MESSAGE, _MANY, ".acq.ColourShare"),
     ],
     "Odometry": [  # /vehicle/odometry: one per decoded CAN message; NaN: not in it
         ("timestamp", 1, _F.TYPE_MESSAGE, _ONE, _TIMESTAMP),  # the CAN receive stamp

@@ -7,7 +7,7 @@ Two families of schemas:
   ``foxglove.LocationFix``), so a log opens in Foxglove as it is.
 - Our own versioned ``acq.*`` schemas (file ``acq/v1.proto``, package ``acq``), built at
   import time (:mod:`acq.log.acq_proto`): ``acq.RawTelegram``, ``acq.Timing``,
-  ``acq.Clock``, ``acq.Status``, ``acq.DeviceStatus``, ``acq.Odometry``,
+  ``acq.Clock``, ``acq.Status`` (``acq.DeviceStatus``, ``acq.Colouring``), ``acq.Odometry``,
   ``acq.CanFrame`` and ``acq.TimeBase`` (what the host knows about its clock).
 
 Times: a Foxglove message's ``timestamp`` is on the log's clock, the same as MCAP
@@ -66,11 +66,13 @@ from acq.time.ptp import PtpTime
 __all__ = [
     "ACQ_PROTO",
     "SCHEMAS",
+    "ColouringStatus",
     "DeviceStatus",
     "Schema",
     "camera_calibration",
     "can_frame",
     "clock",
+    "colouring_of",
     "compressed_image",
     "decode",
     "frame_transforms",
@@ -459,6 +461,27 @@ class DeviceStatus:
     epoch: int = 0
     odd_size: int = 0  # frames of another size than expected, recorded and flagged (cameras)
     fast_s: float = 0.0  # time delivering over 1.5 times the configured rate (cameras)
+    required: bool = False  # its loss fails the recording
+
+
+@dataclass(frozen=True)
+class ColouringStatus:
+    """The live colourer's figures in ``acq.Status``: scans coloured and skipped (it fell
+    behind) since the start; the share (0..1) of the last scans' points coloured, by camera."""
+
+    scans_coloured: int
+    scans_skipped: int
+    coloured_share: float
+    camera_shares: dict[str, float]
+
+
+def colouring_of(msg: Any) -> ColouringStatus | None:
+    """A decoded ``acq.Status``'s colouring (None: no live colouring, or an older log)."""
+    if "colouring" not in msg.DESCRIPTOR.fields_by_name or not msg.HasField("colouring"):
+        return None
+    c = msg.colouring
+    shares = {s.camera: s.share for s in c.cameras}
+    return ColouringStatus(c.scans_coloured, c.scans_skipped, c.coloured_share, shares)
 
 
 _DEVICE_STATUS_KEYS = frozenset(f.name for f in fields(DeviceStatus))
@@ -482,9 +505,10 @@ def status(
     disk_minutes_left: float = math.inf,
     writer_queue: int = 0,
     devices: Iterable[DeviceStatus | Mapping[str, Any]] = (),
+    colouring: ColouringStatus | None = None,
 ) -> bytes:
     """``acq.Status`` for ``/acq/status`` (1 Hz); ``devices`` as :class:`DeviceStatus` or
-    plain dicts with the same keys."""
+    plain dicts with the same keys; ``colouring`` when the recorder colours live."""
     msg = StatusMsg(
         uptime_s=uptime_s,
         file=file,
@@ -496,6 +520,12 @@ def status(
     for d in devices:
         ds = _device_status(d)
         msg.devices.add(**{k: getattr(ds, k) for k in _DEVICE_STATUS_KEYS})
+    if colouring is not None:
+        msg.colouring.SetInParent()  # present even when every figure is 0
+        for k in ("scans_coloured", "scans_skipped", "coloured_share"):
+            setattr(msg.colouring, k, getattr(colouring, k))
+        for camera, share in colouring.camera_shares.items():
+            msg.colouring.cameras.add(camera=camera, share=share)
     return _serialized(msg)
 
 

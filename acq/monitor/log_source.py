@@ -18,8 +18,9 @@ from acq.errors import InputValueError
 from acq.log import writer_lock
 from acq.log.inputs import session_stem
 from acq.log.mcap_magic import LogError
+from acq.log.schemas import colouring_of
 from acq.log.tail import LogTail
-from acq.monitor.snapshot import DeviceView, Snapshot
+from acq.monitor.snapshot import Snapshot, device_views
 
 __all__ = ["LogSource", "newest_log", "time_base_line"]
 
@@ -95,7 +96,7 @@ class LogSource:
         age = None
         if status is not None and writing:
             age = max(time.monotonic_ns() - _ns(status.timestamp), 0) * 1e-9
-        devices = [self._device(d, age or 0.0) for d in status.devices] if status else []
+        devices = device_views(status, age or 0.0, self._required) if status else []
         rate = self._tail.write_rate() if writing else None
         minutes = math.inf
         if writing and rate and free is not None:
@@ -115,25 +116,12 @@ class LogSource:
             disk_free_bytes=free,
             disk_minutes_left=minutes,
             write_rate_bps=rate,
+            colouring=colouring_of(status) if status is not None else None,
             notes=list(self._notes),
         )
 
-    def _device(self, d: Any, age_s: float) -> DeviceView:
-        return DeviceView(
-            name=d.name,
-            kind=d.kind,
-            required=d.name in self._required,
-            connected=d.connected,
-            rate_hz=d.rate_hz,
-            received=d.received,
-            dropped=d.dropped,
-            disconnects=d.disconnects,
-            gap_s=d.gap_s + age_s,
-            last_event=d.last_event,
-            clock_offset_ms=d.clock_offset_ns * 1e-6,
-            clock_drift_ppm=d.clock_drift_ppm,
-            clock_uncertainty_s=d.clock_uncertainty_s,
-        )
+    def close(self) -> None:
+        """Nothing to release: the log is opened for each read."""
 
     def _read_config(self) -> None:
         """The required devices and the disk reserve, from the configuration the log

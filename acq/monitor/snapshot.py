@@ -1,14 +1,18 @@
 """What a view of a running recorder shows: one :class:`Snapshot` of its state, whatever
-it was read from (the log being written, :mod:`acq.monitor.log_source`; a live server
-later), and the problems it shows (:func:`problems`)."""
+it was read from (the log being written, :mod:`acq.monitor.log_source`; its live server,
+:mod:`acq.monitor.live_source`), built from the recorder's ``acq.Status``
+(:func:`device_views`), and the problems it shows (:func:`problems`)."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
-__all__ = ["DeviceView", "Snapshot", "Source", "problems"]
+from acq.log.schemas import ColouringStatus
+
+__all__ = ["DeviceView", "Snapshot", "Source", "device_views", "problems"]
 
 STALE_S = 5.0  # a device silent longer than this is down, s
 
@@ -42,8 +46,9 @@ class Snapshot:
     finishing it, killed); ``status_age_s``: how old its newest report is, s (None:
     it has reported nothing yet); ``disk_minutes_left``: minutes until the disk reaches
     the recorder's reserve at the current write rate (inf: nothing is being written);
-    ``write_rate_bps``: bytes per second written (None: not known yet); ``notes``: what
-    the source could not tell."""
+    ``write_rate_bps``: bytes per second written (None: not known yet); ``colouring``:
+    the live colourer's figures (None: the recorder colours nothing live); ``notes``:
+    what the source could not tell."""
 
     source: str
     file: str | None
@@ -57,13 +62,40 @@ class Snapshot:
     disk_free_bytes: int | None = None
     disk_minutes_left: float = math.inf
     write_rate_bps: float | None = None
+    colouring: ColouringStatus | None = None
     notes: list[str] = field(default_factory=list)
 
 
 class Source(Protocol):
-    """Where snapshots come from: each call the state as of now."""
+    """Where snapshots come from: each call the state as of now; :meth:`close` when done."""
 
     def snapshot(self) -> Snapshot: ...
+
+    def close(self) -> None: ...
+
+
+def device_views(status: Any, age_s: float, required: Collection[str] = ()) -> list[DeviceView]:
+    """The devices of a decoded ``acq.Status`` as of ``age_s`` seconds after it was
+    written; a device is required when the status says so or it is in ``required``."""
+    return [
+        DeviceView(
+            name=d.name,
+            kind=d.kind,
+            # the status's own flag; an older log's has none
+            required=getattr(d, "required", False) or d.name in required,
+            connected=d.connected,
+            rate_hz=d.rate_hz,
+            received=d.received,
+            dropped=d.dropped,
+            disconnects=d.disconnects,
+            gap_s=d.gap_s + age_s,
+            last_event=d.last_event,
+            clock_offset_ms=d.clock_offset_ns * 1e-6,
+            clock_drift_ppm=d.clock_drift_ppm,
+            clock_uncertainty_s=d.clock_uncertainty_s,
+        )
+        for d in status.devices
+    ]
 
 
 def problems(snap: Snapshot, stale_s: float = STALE_S) -> list[str]:

@@ -11,6 +11,7 @@ from rich.console import Group, RenderableType
 from rich.table import Table
 from rich.text import Text
 
+from acq.log.schemas import ColouringStatus
 from acq.monitor.snapshot import Snapshot, problems
 
 __all__ = ["as_json", "render"]
@@ -27,6 +28,8 @@ def render(snap: Snapshot, stale_s: float) -> Group:
     else:
         state = "not being written, not closed (its recorder stopped): its last state"
     size = "" if snap.file_bytes is None else f", {snap.file_bytes / 1e6:.1f} MB"
+    if not snap.source.startswith("log "):  # the recorder's file name, and where from
+        size += f" ({snap.source})"
     head = Text.assemble(("acq status", "bold"), f"  {snap.file or '-'}{size}  ", (state, "cyan"))
     lines: list[RenderableType] = [head]
     facts = []
@@ -41,6 +44,8 @@ def render(snap: Snapshot, stale_s: float) -> Group:
     if facts:
         lines.append(Text(", ".join(facts)))
     lines.append(Text(f"time base: {snap.time_base or 'no /acq/timebase reading yet'}"))
+    if snap.colouring is not None:
+        lines.append(_colouring(snap.colouring))
     table = Table(expand=False)
     widest = max((len(d.name) + 2 for d in snap.devices), default=6)
     table.add_column("device", no_wrap=True, min_width=widest)
@@ -80,12 +85,26 @@ def render(snap: Snapshot, stale_s: float) -> Group:
     return Group(*lines)
 
 
+def _colouring(c: ColouringStatus) -> Text:
+    """The live colouring's line: shares of the last scans' points, scans skipped."""
+    cameras = ", ".join(f"{name} {share:.0%}" for name, share in c.camera_shares.items())
+    return Text.assemble(
+        f"colouring: {c.coloured_share:.0%} of the last scans' points"
+        + (f" ({cameras})" if cameras else "")
+        + f"; {c.scans_coloured} scans coloured, ",
+        (f"{c.scans_skipped} skipped (fell behind)", "yellow" if c.scans_skipped else ""),
+    )
+
+
 def as_json(snap: Snapshot, stale_s: float) -> dict[str, Any]:
     """The snapshot as plain data, with its problems (``ok``: none). What is not known
     is null: ``disk_minutes_left`` when nothing is being written, a device's
-    ``clock_uncertainty_s`` before its clock sync has one."""
+    ``clock_uncertainty_s`` before its clock sync has one. ``colouring`` only when the
+    recorder colours live."""
     found = problems(snap, stale_s)
     out = dataclasses.asdict(snap)
+    if snap.colouring is None:
+        del out["colouring"]
     out["disk_minutes_left"] = _known(snap.disk_minutes_left)
     for d in out["devices"]:
         d["clock_uncertainty_s"] = _known(d["clock_uncertainty_s"])

@@ -7,7 +7,8 @@ returns at once: a full queue drops the record for that listener alone (counted 
 :attr:`Feed.dropped`), so a slow listener never slows the device threads or the writer
 and never costs a logged record. Each listener runs on its own thread, taking records
 off its queue and calling :meth:`Listener.on_record`; an exception there is logged once
-and counted (:attr:`Feed.failed`), the listener keeps its thread.
+and counted (:attr:`Feed.failed`), the listener keeps its thread. A listener that has
+figures for ``/acq/status`` (the live colourer) returns them from :meth:`Listener.status`.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from acq.drivers.reconnect import describe
-from acq.log.schemas import Schema
+from acq.log.schemas import ColouringStatus, Schema
 
 __all__ = ["FEED_SIZE", "Feed", "Listener", "Listeners", "LogRecord"]
 
@@ -51,6 +52,11 @@ class Listener(ABC):
 
     def stop(self) -> None:  # noqa: B027 (an optional hook: most listeners hold nothing)
         """The log is closed: release what the listener holds (on its feed's thread)."""
+
+    def status(self) -> ColouringStatus | None:
+        """Figures for the recorder's ``/acq/status`` (called on the recorder's thread,
+        each second): a live colourer's counts; None, most listeners, has none."""
+        return None
 
 
 class Feed:
@@ -157,6 +163,18 @@ class Listeners:
         """``record`` to every listener's queue; never blocks."""
         for feed in self.feeds:  # a list replaced, never changed: no lock needed to read it
             feed.put(record)
+
+    def colouring(self) -> ColouringStatus | None:
+        """The first listener's colouring figures (None: no listener has any)."""
+        for feed in self.feeds:
+            try:
+                figures = feed.listener.status()
+            except Exception as e:  # a listener's fault costs its figures, not the status
+                log.debug("%s: status: %s", type(feed.listener).__name__, describe(e))
+                continue
+            if figures is not None:
+                return figures
+        return None
 
     def close(self, timeout_s: float = 1.0) -> None:
         """Close every feed (each finishes its queue within ``timeout_s``)."""

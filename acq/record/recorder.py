@@ -341,6 +341,7 @@ class Recorder:
                     clock_drift_ppm=clock.drift_ppm if clock else 0.0,
                     clock_uncertainty_s=finite(clock.uncertainty_s) if clock else 0.0,
                     epoch=clock.epoch if clock else 0,
+                    required=d.name in self.required,
                 )
             )
         path = writer.path
@@ -352,14 +353,11 @@ class Recorder:
             disk_minutes_left=finite(minutes, 1e9),
             writer_queue=self.outbox.qsize(),
             devices=devices,
+            colouring=self.listeners.colouring(),
         )
         writer.write("/acq/status", data, now_ns, now_ns)
-        writer.write(
-            "/acq/clock",
-            schemas.clock(realtime_ns=time.time_ns(), monotonic_ns=time.monotonic_ns()),
-            now_ns,
-            now_ns,
-        )
+        pair = schemas.clock(realtime_ns=time.time_ns(), monotonic_ns=time.monotonic_ns())
+        writer.write("/acq/clock", pair, now_ns, now_ns)
         self._time_base(writer, now_ns)
         summary = ", ".join(
             f"{d.name} {d.rate_hz(now_ns):.1f} Hz" + ("" if d.connected else " (down)")

@@ -67,3 +67,29 @@ def test_the_newest_part_followed_across_rolls(tmp_path: Path) -> None:
     w.close()
     done = source.snapshot()
     assert not done.writing and done.closed and done.status_age_s is None
+
+
+def _older_status_schema() -> schemas.Schema:
+    """``acq.Status`` as logs written before the live colouring declare it: no
+    ``colouring`` (nor its messages), no device ``required``."""
+    from google.protobuf import descriptor_pb2
+
+    fds = descriptor_pb2.FileDescriptorSet.FromString(schemas.SCHEMAS["acq.Status"].data)
+    (acq,) = [f for f in fds.file if f.package == "acq"]
+    for msg in list(acq.message_type):
+        if msg.name in ("Colouring", "ColourShare"):
+            acq.message_type.remove(msg)
+        for f in list(msg.field):
+            if (msg.name, f.name) in {("Status", "colouring"), ("DeviceStatus", "required")}:
+                msg.field.remove(f)
+    return schemas.Schema("acq.Status", "protobuf", fds.SerializeToString())
+
+
+def test_a_log_of_an_older_status_reads_without_colouring(tmp_path: Path) -> None:
+    w = LogWriter(tmp_path, metadata={"config": {"yaml": yaml.safe_dump(CONFIG)}})
+    w.add_channel("/acq/status", _older_status_schema())
+    w.write("/acq/status", _status(1.0), time.monotonic_ns(), time.monotonic_ns())
+    w.close()
+    snap = LogSource(tmp_path).snapshot()
+    assert snap.colouring is None and snap.closed
+    assert [(d.name, d.required) for d in snap.devices] == [("laser", True), ("camera", False)]

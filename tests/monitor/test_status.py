@@ -1,7 +1,8 @@
-"""`acq status` against a real `acq record` of the simulated rig (the UTM-30LX speaking
-SCIP on TCP, the fisheye over HTTP MJPEG in its own process): its --json while the
-recorder runs, the full-screen view through a pseudo-terminal, a required scanner that
-stops, a finished log, and no log."""
+"""`acq status` against a real `acq record --live` of the simulated rig (the UTM-30LX
+speaking SCIP on TCP, the fisheye over HTTP MJPEG in its own process), from the log it
+writes and from its live server (HOST:PORT): the --json while the recorder runs, the
+full-screen view through a pseudo-terminal, a required scanner that stops, a finished
+log, and no log."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import os
 import pty
 import select
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -53,15 +55,25 @@ def rig() -> Iterator[Rig]:
 class Recording:
     logs: Path  # the output folder
     proc: subprocess.Popen[bytes]  # the recorder
+    address: str  # its live server, HOST:PORT
+
+
+def free_port() -> int:
+    """A TCP port of 127.0.0.1 nothing listens on (as of now)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
 
 
 @pytest.fixture(scope="module")
 def recording(rig: Rig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Recording]:
     """`acq record` of the rig running, once the recorder has reported its devices."""
     tmp = tmp_path_factory.mktemp("recording")
+    address = f"127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
         [sys.executable, "-m", "acq.cli", "record", "-c", str(_config(rig, tmp)),
-         "--duration", "120"],
+         "--duration", "120", "--live", address],
         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
     logs = tmp / "logs"
@@ -73,7 +85,7 @@ def recording(rig: Rig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Re
             if done is not None and done.stdout and len(json.loads(done.stdout)["devices"]) == 2:
                 break
         time.sleep(2.0)  # the rates settle over a few seconds of records
-        yield Recording(logs, proc)
+        yield Recording(logs, proc, address)
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.wait(20)
@@ -95,18 +107,37 @@ def test_json_of_a_running_recorder(recording: Recording) -> None:
     assert abs(devices["camera"]["rate_hz"] - 25.0) < 4.0  # the configured 25 fps
     assert all(d["connected"] and d["gap_s"] < 5.0 for d in devices.values())
     assert snap["time_base"].startswith("host clock")
+    assert "colouring" not in snap  # this recorder colours nothing live
 
 
 @pytest.mark.realtime
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_the_full_screen_view_through_a_pseudo_terminal(
-    recording: Recording, signum: signal.Signals
-) -> None:
-    """Ctrl-C, or a SIGTERM (the terminal's window closed, a kill), ends the view with the
-    terminal given back: the alternate screen left, exit 0."""
+def test_json_of_a_running_recorder_from_its_live_server(recording: Recording) -> None:
+    done = _status(recording.address, "--json")
+    assert done.returncode == 0 and done.stderr == "", done.stdout + done.stderr
+    snap = json.loads(done.stdout)
+    assert snap["source"] == f"live ws://{recording.address}"
+    assert snap["writing"] and snap["ok"] and snap["problems"] == []
+    # the recorder's figures: its file's name (not its size), its disk
+    assert snap["file"].endswith("_000.mcap") and snap["file_bytes"] is None
+    assert snap["disk_free_bytes"] > 0 and 0 < snap["disk_minutes_left"]
+    assert 0 <= snap["status_age_s"] < 2.0
+    devices = {d["name"]: d for d in snap["devices"]}
+    assert set(devices) == {"laser", "camera"}
+    # required: the recorder's own flag in its status (no configuration read here)
+    assert devices["laser"]["required"] and not devices["camera"]["required"]
+    assert abs(devices["laser"]["rate_hz"] - 40.0) < 4.0
+    assert abs(devices["camera"]["rate_hz"] - 25.0) < 4.0
+    assert all(d["connected"] and d["gap_s"] < 5.0 for d in devices.values())
+    assert snap["time_base"].startswith("host clock")
+    assert "colouring" not in snap  # this recorder colours nothing live
+
+
+def _view_through_pty(target: str, signum: signal.Signals) -> bytes:
+    """`acq status TARGET` in a pseudo-terminal until it shows both devices, then
+    ``signum``: all it wrote; asserts it ended with exit 0 and the terminal given back."""
     main, side = pty.openpty()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "acq.cli", "status", str(recording.logs)],
+        [sys.executable, "-m", "acq.cli", "status", target],
         cwd=ROOT, stdin=side, stdout=side, stderr=subprocess.PIPE,
         env={**os.environ, "COLUMNS": "120", "LINES": "40", "TERM": "xterm"},
     )  # fmt: skip
@@ -132,11 +163,29 @@ def test_the_full_screen_view_through_a_pseudo_terminal(
         assert proc.wait(10) == 0, proc.stderr.read() if proc.stderr else ""
         reader.join(10)
         assert seen.rfind(b"\x1b[?1049l") > seen.rfind(b"\x1b[?1049h")  # screen given back
+        return bytes(seen)
     finally:
         if proc.poll() is None:
             proc.kill()
         reader.join(10)
         os.close(main)
+
+
+@pytest.mark.realtime
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_the_full_screen_view_through_a_pseudo_terminal(
+    recording: Recording, signum: signal.Signals
+) -> None:
+    """Ctrl-C, or a SIGTERM (the terminal's window closed, a kill), ends the view with the
+    terminal given back: the alternate screen left, exit 0."""
+    _view_through_pty(str(recording.logs), signum)
+
+
+@pytest.mark.realtime
+def test_the_full_screen_view_of_a_live_server(recording: Recording) -> None:
+    seen = _view_through_pty(recording.address, signal.SIGINT)
+    assert f"live ws://{recording.address}".encode() in seen
+    assert b"colouring" not in seen
 
 
 def _until(

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.foxglove_client import Seen, connect_client, take
+from acq.monitor.foxglove_client import Seen, connect_client, take
 from tests.sim_rig import Rig, read_log
 
 pytestmark = pytest.mark.realtime

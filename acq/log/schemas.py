@@ -35,7 +35,6 @@ from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.KeyValuePair_pb2 import KeyValuePair
 from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
 from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
-from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from google.protobuf import descriptor_pb2, timestamp_pb2
 from google.protobuf.descriptor import FileDescriptor
@@ -81,8 +80,9 @@ __all__ = [
     "location_fix",
     "message_class",
     "odometry",
-    "point_cloud",
     "raw_telegram",
+    "serialized",
+    "set_stamp",
     "status",
     "time_base_record",
     "timing",
@@ -99,7 +99,7 @@ class Schema:
     data: bytes
 
 
-def _serialized(msg: Any) -> bytes:
+def serialized(msg: Any) -> bytes:
     """``msg``'s wire bytes (the protobuf classes are untyped: their methods return Any)."""
     data: bytes = msg.SerializeToString()
     return data
@@ -119,7 +119,7 @@ def _file_descriptor_set(file: FileDescriptor) -> bytes:
         f.CopyToProto(fds.file.add())
 
     add(file)
-    return _serialized(fds)
+    return serialized(fds)
 
 
 _CLASSES: dict[str, Any] = {
@@ -166,7 +166,7 @@ def decode(schema_name: str, data: bytes) -> Any:
 # --- helpers ------------------------------------------------------------------------------
 
 
-def _set_stamp(ts: timestamp_pb2.Timestamp, ns: int) -> None:
+def set_stamp(ts: timestamp_pb2.Timestamp, ns: int) -> None:
     """A Timestamp from integer ns (floor division, so nanos stay in [0, 1e9))."""
     ts.seconds, ts.nanos = divmod(int(ns), 1_000_000_000)
 
@@ -203,7 +203,7 @@ def laser_scan(scan: Scan, frame_id: str, stamp_ns: int) -> bytes:
     device sends none; the pose is the identity (the scan is in ``frame_id``'s origin).
     """
     msg = LaserScan(frame_id=frame_id, start_angle=scan.angle_min)
-    _set_stamp(msg.timestamp, stamp_ns)
+    set_stamp(msg.timestamp, stamp_ns)
     msg.pose.orientation.w = 1.0
     msg.end_angle = scan.angle_min + max(scan.size - 1, 0) * scan.angle_increment
     return b"".join(
@@ -221,8 +221,8 @@ def compressed_image(frame: Frame, frame_id: str, stamp_ns: int) -> bytes:
     if not frame.jpeg:
         raise ValueError("compressed_image needs a Frame with jpeg bytes (encode it first)")
     msg = CompressedImage(frame_id=frame_id, data=frame.jpeg, format="jpeg")
-    _set_stamp(msg.timestamp, stamp_ns)
-    return _serialized(msg)
+    set_stamp(msg.timestamp, stamp_ns)
+    return serialized(msg)
 
 
 def camera_calibration(calib: CameraCalib, frame_id: str, stamp_ns: int) -> bytes:
@@ -235,7 +235,7 @@ def camera_calibration(calib: CameraCalib, frame_id: str, stamp_ns: int) -> byte
     """
     model = calib.model
     msg = CameraCalibration(frame_id=frame_id, width=model.width, height=model.height)
-    _set_stamp(msg.timestamp, stamp_ns)
+    set_stamp(msg.timestamp, stamp_ns)
     if isinstance(model, KannalaBrandt):
         msg.distortion_model = "kannala_brandt"
         msg.D.extend(model.k)
@@ -248,14 +248,14 @@ def camera_calibration(calib: CameraCalib, frame_id: str, stamp_ns: int) -> byte
     msg.K.extend([fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0])
     msg.R.extend([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
     msg.P.extend([fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
-    return _serialized(msg)
+    return serialized(msg)
 
 
 def _add_transform(
     msg: FrameTransforms, parent: str, child: str, pose: Rigid, stamp_ns: int
 ) -> None:
     tf = msg.transforms.add(parent_frame_id=parent, child_frame_id=child)
-    _set_stamp(tf.timestamp, stamp_ns)
+    set_stamp(tf.timestamp, stamp_ns)
     tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in pose.translation)
     w, x, y, z = (float(v) for v in quat_from_matrix(pose.rotation))
     tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = x, y, z, w  # Foxglove's order
@@ -278,53 +278,7 @@ def frame_transforms(
         _add_transform(msg, "vehicle", calib.laser, calib.laser_to_vehicle, stamp_ns)
     for name, cam in calib.cameras.items():
         _add_transform(msg, calib.laser, frames.get(name, name), cam.camera_to_laser, stamp_ns)
-    return _serialized(msg)
-
-
-_N = PackedElementField.NumericType
-_CLOUD_DTYPE = np.dtype(
-    [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
-     ("alpha", "u1")]
-)  # fmt: skip
-_CLOUD_FIELDS = [
-    PackedElementField(name=name, offset=offset, type=_N.FLOAT32 if name in "xyz" else _N.UINT8)
-    for name, offset in (
-        ("x", 0),
-        ("y", 4),
-        ("z", 8),
-        ("red", 12),
-        ("green", 13),
-        ("blue", 14),
-        ("alpha", 15),
-    )
-]
-
-
-def point_cloud(
-    points: np.ndarray, rgb: np.ndarray, frame_id: str, stamp_ns: int,
-    alpha: np.ndarray | None = None,
-) -> bytes:  # fmt: skip
-    """``foxglove.PointCloud`` of (N,3) metres and (N,3) uint8 RGB colours, ``alpha``
-    (N,) uint8 (default 255: opaque).
-
-    16-byte points: x, y, z float32 at 0, 4, 8 and red, green, blue, alpha uint8 at
-    12-15 (Foxglove's "RGBA (separate fields)" colour mode).
-    """
-    P = np.asarray(points)
-    C = np.asarray(rgb)
-    if P.ndim != 2 or P.shape[1] != 3:
-        raise ValueError(f"points must be (N,3), got shape {P.shape}")
-    if C.shape != P.shape:
-        raise ValueError(f"rgb must be (N,3) like points {P.shape}, got shape {C.shape}")
-    buf = np.empty(P.shape[0], dtype=_CLOUD_DTYPE)
-    buf["x"], buf["y"], buf["z"] = P[:, 0], P[:, 1], P[:, 2]
-    buf["red"], buf["green"], buf["blue"] = C[:, 0], C[:, 1], C[:, 2]
-    buf["alpha"] = 255 if alpha is None else alpha
-    msg = PointCloud(frame_id=frame_id, point_stride=_CLOUD_DTYPE.itemsize, data=buf.tobytes())
-    _set_stamp(msg.timestamp, stamp_ns)
-    msg.pose.orientation.w = 1.0
-    msg.fields.extend(_CLOUD_FIELDS)
-    return _serialized(msg)
+    return serialized(msg)
 
 
 def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
@@ -347,7 +301,7 @@ def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
         longitude=fix.longitude,
         altitude=fix.altitude,
     )
-    _set_stamp(msg.timestamp, stamp_ns)
+    set_stamp(msg.timestamp, stamp_ns)
     sigmas = (fix.sigma_east, fix.sigma_north, fix.sigma_up)
     known = fix.covariance_type != 0 and all(math.isfinite(s) for s in sigmas)
     covariance = [0.0] * 9
@@ -375,7 +329,7 @@ def location_fix(fix: Fix, stamp_ns: int, frame_id: str = "gnss") -> bytes:
         "geoid_separation_m": f"{fix.geoid_separation:g}",
     }
     msg.metadata.extend(KeyValuePair(key=k, value=v) for k, v in values.items())
-    return _serialized(msg)
+    return serialized(msg)
 
 
 # --- acq.* messages -----------------------------------------------------------------------
@@ -395,8 +349,8 @@ def raw_telegram(
     msg = RawTelegramMsg(
         device=device, data=data, device_ticks=device_ticks, sequence=sequence, recv_ns=recv_ns
     )
-    _set_stamp(msg.timestamp, recv_ns if stamp_ns is None else stamp_ns)
-    return _serialized(msg)
+    set_stamp(msg.timestamp, recv_ns if stamp_ns is None else stamp_ns)
+    return serialized(msg)
 
 
 def timing(
@@ -432,12 +386,12 @@ def timing(
         dropped=dropped,
         stamp_source=stamp_source,
     )
-    return _serialized(msg)
+    return serialized(msg)
 
 
 def clock(*, realtime_ns: int, monotonic_ns: int) -> bytes:
     """``acq.Clock``: one (CLOCK_REALTIME, CLOCK_MONOTONIC) pair in ns, for ``/acq/clock``."""
-    return _serialized(ClockMsg(realtime_ns=realtime_ns, monotonic_ns=monotonic_ns))
+    return serialized(ClockMsg(realtime_ns=realtime_ns, monotonic_ns=monotonic_ns))
 
 
 @dataclass(frozen=True)
@@ -516,7 +470,7 @@ def status(
         disk_minutes_left=disk_minutes_left,
         writer_queue=writer_queue,
     )
-    _set_stamp(msg.timestamp, timestamp_ns)
+    set_stamp(msg.timestamp, timestamp_ns)
     for d in devices:
         ds = _device_status(d)
         msg.devices.add(**{k: getattr(ds, k) for k in _DEVICE_STATUS_KEYS})
@@ -526,7 +480,7 @@ def status(
             setattr(msg.colouring, k, getattr(colouring, k))
         for camera, share in colouring.camera_shares.items():
             msg.colouring.cameras.add(camera=camera, share=share)
-    return _serialized(msg)
+    return serialized(msg)
 
 
 def odometry(odo: Odometry) -> bytes:
@@ -540,8 +494,8 @@ def odometry(odo: Odometry) -> bytes:
         wheel_speeds_mps=odo.wheel_speeds,
         arbitration_id=odo.arbitration_id,
     )
-    _set_stamp(msg.timestamp, odo.stamp_ns)
-    return _serialized(msg)
+    set_stamp(msg.timestamp, odo.stamp_ns)
+    return serialized(msg)
 
 
 def can_frame(frame: CanFrame) -> bytes:
@@ -559,8 +513,8 @@ def can_frame(frame: CanFrame) -> bytes:
         data=frame.data,
         channel=frame.channel,
     )
-    _set_stamp(msg.timestamp, frame.stamp_ns)
-    return _serialized(msg)
+    set_stamp(msg.timestamp, frame.stamp_ns)
+    return serialized(msg)
 
 
 _HOST_CLOCK_PARTS: dict[str, type[Any]] = {
@@ -582,7 +536,7 @@ def time_base_record(reading: HostClock) -> bytes:
         monotonic_ns=reading.monotonic_ns,
         synchronised=reading.synchronised,
     )
-    _set_stamp(msg.timestamp, reading.monotonic_ns)
+    set_stamp(msg.timestamp, reading.monotonic_ns)
     for name in _HOST_CLOCK_PARTS:
         part = getattr(reading, name)
         if isinstance(part, Absent):
@@ -596,7 +550,7 @@ def time_base_record(reading: HostClock) -> bytes:
                 msg.ClearField(name)
                 msg.absent.append(f"{name}: {f.name} {getattr(part, f.name)!r:.40} out of range")
                 break
-    return _serialized(msg)
+    return serialized(msg)
 
 
 def host_clock_of(msg: Any) -> HostClock:

@@ -35,6 +35,7 @@ from acq.camera.jpeg import decode_jpeg
 from acq.cloud import scan_colouring, views
 from acq.geometry.transforms import Rigid
 from acq.log import schemas
+from acq.log.cloud_message import point_cloud
 from acq.log.drive_log import ScanMessage, scan_message, stamp_ns
 from acq.log.stamp_shift import shift_stamps
 from acq.log.writer import LogWriter
@@ -249,7 +250,7 @@ class LiveColourer(Listener):
         )  # fmt: skip
         alpha = np.where(merged.coloured, 255, 0).astype(np.uint8)
         stamp_log = scan.stamp_ns + offset
-        data = schemas.point_cloud(pts.P_laser, merged.rgb, self.scanner, stamp_log, alpha)
+        data = point_cloud(pts.P_laser, merged.rgb, self.scanner, stamp_log, alpha)
         self.emit(LogRecord(self.topic, self._schema, data, self._now_ns + offset))
         self.coloured += 1
         per_camera = np.bincount(merged.camera[merged.coloured], minlength=len(cameras))
@@ -268,14 +269,21 @@ class LiveColourer(Listener):
 
     def shares(self) -> tuple[float, dict[str, float]]:
         """The share of the last scans' points coloured, and by each camera."""
-        points = sum(n for n, _ in self._shares)
+        last = list(self._shares)  # another thread appends
+        points = sum(n for n, _ in last)
         if not points:
             return 0.0, {name: 0.0 for name in self.cameras}
-        by = np.sum([c for _, c in self._shares], axis=0)
+        by = np.sum([c for _, c in last], axis=0)
         names = list(self.cameras)
         return float(by.sum() / points), {
             name: float(by[k] / points) for k, name in enumerate(names)
         }
+
+    def status(self) -> schemas.ColouringStatus:
+        """The figures ``/acq/status`` carries each second (read from the writer's thread:
+        counters and a copy of the last scans' shares)."""
+        share, by_camera = self.shares()
+        return schemas.ColouringStatus(self.coloured, self.skipped, share, by_camera)
 
     def stop(self) -> None:
         """The log is closed: the scans still waiting are coloured with the frames there

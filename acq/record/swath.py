@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acq.log import schemas
+from acq.log.cloud_message import point_cloud
 
 __all__ = ["MAX_POINTS", "PERIOD_S", "SPAN_S", "Swath"]
 
@@ -81,4 +81,4 @@ class Swath:
         step = -(-self._points // self.max_points) if self._points else 1
         xyz = np.concatenate([p.xyz for p in self._parts]) if self._parts else np.zeros((0, 3))
         rgb = np.concatenate([p.rgb for p in self._parts]) if self._parts else np.zeros((0, 3))
-        return schemas.point_cloud(xyz[::step], rgb[::step], self.frame_id, stamp_ns)
+        return point_cloud(xyz[::step], rgb[::step], self.frame_id, stamp_ns)

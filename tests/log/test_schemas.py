@@ -17,6 +17,7 @@ from acq.camera.camera_models import Equidistant, KannalaBrandt, Pinhole
 from acq.geometry.rotations import matrix_from_quat, rotation_from_euler
 from acq.geometry.transforms import Rigid
 from acq.log import schemas
+from acq.log.cloud_message import point_cloud
 from acq.records import CanFrame, CovarianceType, Fix, Frame, Odometry, Scan
 from acq.time.absent import Absent
 from acq.time.chrony import ChronyTracking, parse_tracking
@@ -224,7 +225,7 @@ def test_point_cloud_layout() -> None:
     rng = np.random.default_rng(3)
     points = rng.normal(size=(100, 3)).astype(np.float32)
     rgb = rng.integers(0, 256, size=(100, 3), dtype=np.uint8)
-    data = schemas.point_cloud(points, rgb, "laser", STAMP)
+    data = point_cloud(points, rgb, "laser", STAMP)
     msg = schemas.decode("foxglove.PointCloud", data)
     assert msg.point_stride == 16 and msg.frame_id == "laser" and ts_ns(msg.timestamp) == STAMP
     assert [(f.name, f.offset) for f in msg.fields] == [
@@ -237,20 +238,20 @@ def test_point_cloud_layout() -> None:
     assert np.all(raw[:, 15] == 255)
     alpha = (np.arange(100) % 2 * 255).astype(np.uint8)
     see_through = schemas.decode(
-        "foxglove.PointCloud", schemas.point_cloud(points, rgb, "laser", STAMP, alpha)
+        "foxglove.PointCloud", point_cloud(points, rgb, "laser", STAMP, alpha)
     )
     np.testing.assert_array_equal(np.frombuffer(see_through.data, np.uint8)[15::16], alpha)
     assert (
         decode_with_mcap("foxglove.PointCloud", data).SerializeToString() == msg.SerializeToString()
     )
     empty = schemas.decode(
-        "foxglove.PointCloud", schemas.point_cloud(np.zeros((0, 3)), np.zeros((0, 3)), "l", 0)
+        "foxglove.PointCloud", point_cloud(np.zeros((0, 3)), np.zeros((0, 3)), "l", 0)
     )
     assert empty.data == b""
     with pytest.raises(ValueError, match=r"\(N,3\)"):
-        schemas.point_cloud(np.zeros((4, 2)), np.zeros((4, 3)), "l", 0)
+        point_cloud(np.zeros((4, 2)), np.zeros((4, 3)), "l", 0)
     with pytest.raises(ValueError, match="rgb"):
-        schemas.point_cloud(np.zeros((4, 3)), np.zeros((3, 3)), "l", 0)
+        point_cloud(np.zeros((4, 3)), np.zeros((3, 3)), "l", 0)
 
 
 # --- acq.* messages ------------------------------------------------------------------------

@@ -179,6 +179,11 @@ def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
 
     assert stamps(logged) <= stamps(in_log)
     assert "/live/swath" not in log  # live only
+    figures = log["/acq/status"][-1][2].colouring  # the colourer's figures each second
+    assert figures.scans_coloured > 20 * span and figures.scans_skipped == 0
+    assert [c.camera for c in figures.cameras] == ["camera"]
+    assert figures.coloured_share == pytest.approx(figures.cameras[0].share)
+    assert figures.coloured_share > 0.2
     # the swath: 2 s of coloured scans at 2 Hz, in the laser frame (this rig has no CAN)
     swath = seen["swath"]
     assert swath["frame_id"] == "laser" and 2 * span - 3 <= swath["count"] <= 2 * span + 2

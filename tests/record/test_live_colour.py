@@ -104,6 +104,9 @@ def test_live_colours_agree_with_acq_colorize_scan_by_scan(
     assert same / total >= 0.99
     share, by_camera = colourer.shares()
     assert 0.3 < share <= 1 and list(by_camera) == list(calibfile.load(calib_path).cameras)
+    figures = colourer.status()
+    assert (figures.scans_coloured, figures.scans_skipped) == (n_scans, 0)
+    assert figures.coloured_share == share and figures.camera_shares == by_camera
 
 
 def _records_offset(path: Path) -> int:

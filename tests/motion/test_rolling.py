@@ -1,0 +1,198 @@
+"""The live pose source (RollingTrajectory): fed message by message as the recorder logs
+them, its builds agree with each other (the world frame does not jump) and with the
+offline choice over the same data, on plain arrays and on a real MCAP log."""
+
+from __future__ import annotations
+
+import itertools
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from acq.log.reader import LogReader
+from acq.log.vehicle_log import ODOMETRY_TOPIC, read_vehicle
+from acq.motion import RollingTrajectory, Trajectory, trajectory_from_vehicle
+from acq.sim.drive_log import DriveTruth
+from tests.motion.vehicle_messages import ORIGIN, drive, vehicle_log
+
+
+def _stream(
+    rolling: RollingTrajectory, messages: list[tuple[str, Any]], every: int
+) -> list[Trajectory]:
+    """Feed the messages, asking for the trajectory after every ``every`` of them; the
+    distinct builds seen."""
+    builds: list[Trajectory] = []
+    for i, (topic, msg) in enumerate(messages, 1):
+        rolling.add(topic, msg)
+        if i % every == 0 or i == len(messages):
+            traj = rolling.current()
+            if traj is not None and (not builds or traj is not builds[-1]):
+                builds.append(traj)
+    return builds
+
+
+def _jumps_m(builds: list[Trajectory]) -> np.ndarray:
+    """Per pair of successive builds, the largest distance (m) between their positions
+    at the later build's sample times that the earlier covers."""
+    out = []
+    for a, b in itertools.pairwise(builds):
+        t = b.t_ns[a.covers(b.t_ns)]
+        out.append(np.linalg.norm(a.pose_at(t)[1] - b.pose_at(t)[1], axis=1).max())
+    return np.array(out)
+
+
+def _gap_m(a: Trajectory, b: Trajectory) -> float:
+    """The largest distance (m) between two trajectories at b's sample times a covers."""
+    t = b.t_ns[a.covers(b.t_ns)]
+    assert t.size > 0.9 * len(b)
+    return float(np.linalg.norm(a.pose_at(t)[1] - b.pose_at(t)[1], axis=1).max())
+
+
+def test_odometry_builds_hold_the_frame_and_agree_with_the_whole_drive() -> None:
+    messages = drive(30.0, odometry_hz=100.0)
+    rolling = RollingTrajectory(window_s=5.0, rebuild_s=0.0)
+    builds = _stream(rolling, messages, every=25)
+    assert len(builds) == 120 and rolling.builds == 120 and rolling.error is None
+    jumps = _jumps_m(builds)
+    print(f"odometry: largest jump between builds {jumps.max() * 1e6:.3f} µm")
+    assert jumps.max() < 0.01
+    last = builds[-1]
+    assert (last.end_ns - last.start_ns) * 1e-9 == 5.0  # the window, not the drive
+    assert rolling.kept_rows() == 501
+    whole = trajectory_from_vehicle(vehicle_log(messages)).trajectory
+    assert whole is not None and _gap_m(whole, last) < 0.02
+    np.testing.assert_allclose(last.rotation, whole.pose_at(last.t_ns)[0], atol=1e-9)
+    chosen = rolling.chosen()
+    assert chosen is not None and chosen.description == "CAN odometry (501 samples, dead reckoning)"
+
+
+def test_rows_stay_bounded_without_builds_and_latest_says_how_far_data_reach() -> None:
+    rolling = RollingTrajectory(window_s=2.0)
+    assert rolling.latest_ns() is None and rolling.current() is None
+    messages = drive(20.0, odometry_hz=100.0)
+    for topic, msg in messages:
+        rolling.add(topic, msg)
+    assert rolling.kept_rows() <= 201 + 1024
+    assert rolling.latest_ns() == messages[-1][1].timestamp.ToNanoseconds()
+    rolling.add("/camera/image", object())  # not a vehicle topic: ignored
+    rolling.add(ODOMETRY_TOPIC, None)  # undecodable: counted by the reader, no data
+    assert rolling.latest_ns() == messages[-1][1].timestamp.ToNanoseconds()
+
+
+def test_rebuilt_only_when_data_came_and_rebuild_s_passed() -> None:
+    now = [0.0]
+    rolling = RollingTrajectory(window_s=10.0, rebuild_s=0.2, clock=lambda: now[0])
+    messages = drive(2.0, odometry_hz=50.0)
+    for topic, msg in messages[:50]:
+        rolling.add(topic, msg)
+    first = rolling.current()
+    assert first is not None and rolling.builds == 1
+    for topic, msg in messages[50:]:
+        rolling.add(topic, msg)
+    now[0] = 0.1
+    assert rolling.current() is first  # too soon
+    now[0] = 0.25
+    second = rolling.current()
+    assert second is not first and rolling.builds == 2 and len(second or ()) == 100
+    now[0] = 1.0
+    assert rolling.current() is second and rolling.builds == 2  # no new data
+
+
+def test_a_build_the_data_refuse_keeps_the_last_trajectory_and_says_why() -> None:
+    rolling = RollingTrajectory(rebuild_s=0.0)
+    messages = drive(1.0, odometry_hz=20.0)
+    for topic, msg in messages:
+        rolling.add(topic, msg)
+    good = rolling.current()
+    assert good is not None
+    twin = type(messages[-1][1])()
+    twin.CopyFrom(messages[-1][1])
+    twin.arbitration_id = 7  # another CAN message with the same stamp: times not increasing
+    rolling.add(ODOMETRY_TOPIC, twin)
+    assert rolling.current() is good
+    assert rolling.error is not None and "increase strictly" in rolling.error
+
+
+def test_fed_and_read_on_two_threads() -> None:
+    messages = drive(20.0, odometry_hz=100.0)
+    rolling = RollingTrajectory(window_s=4.0, rebuild_s=0.0)
+    done = threading.Event()
+    seen: list[Trajectory] = []
+
+    def read() -> None:
+        while not done.is_set():
+            traj = rolling.current()
+            if traj is not None and (not seen or traj is not seen[-1]):
+                seen.append(traj)
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    for i, (topic, msg) in enumerate(messages, 1):
+        rolling.add(topic, msg)
+        if i % 400 == 0:  # let the reader build from what came so far
+            builds = rolling.builds
+            for _ in range(1000):
+                if rolling.builds > builds:
+                    break
+                time.sleep(0.005)
+    done.set()
+    reader.join()
+    last = rolling.current()
+    assert last is not None and len(seen) >= 5 and rolling.error is None
+    assert _jumps_m([*seen, last]).max() < 0.01
+    whole = trajectory_from_vehicle(vehicle_log(messages)).trajectory
+    assert whole is not None and _gap_m(whole, last) < 0.02
+
+
+def test_gnss_keeps_the_first_fix_as_enu_origin_and_fused_builds_stay_close() -> None:
+    """Odometry fused with 5 Hz fixes of 2 cm noise, a 30 s window rebuilt each 2 s: the
+    frame's origin is the first fix throughout; successive fits move the track by the
+    fixes' noise, not by a jump."""
+    messages = drive(70.0, odometry_hz=50.0, gnss_hz=5.0)
+    rolling = RollingTrajectory(window_s=30.0, rebuild_s=0.0)
+    builds = _stream(rolling, messages, every=110)  # 2 s of messages
+    assert all(b.frame == "enu" for b in builds)
+    origins = {b.origin for b in builds}
+    assert len(origins) == 1
+    np.testing.assert_allclose(origins.pop(), ORIGIN, atol=1e-5)
+    jumps = _jumps_m(builds[3:])  # once the window holds a few fixes
+    whole = trajectory_from_vehicle(vehicle_log(messages)).trajectory
+    assert whole is not None
+    gap = _gap_m(whole, builds[-1])
+    print(
+        f"fusion: jump between builds median {np.median(jumps) * 100:.1f} cm, "
+        f"max {jumps.max() * 100:.1f} cm; last build vs whole drive {gap * 100:.1f} cm"
+    )
+    assert jumps.max() < 0.1 and gap < 0.1
+
+
+def _vehicle_messages(files: tuple[Path, ...]) -> list[tuple[str, Any]]:
+    """The vehicle topics' messages of a log as the recorder's listener sees them."""
+    out = []
+    for path in files:
+        for topic, _channel, _message, msg in LogReader(path).decoded(
+            lambda _s, channel: channel.topic if channel.topic in RollingTrajectory.TOPICS else None
+        ):
+            out.append((topic, msg))
+    return out
+
+
+def test_a_real_logs_odometry_streamed_agrees_with_the_offline_choice(
+    short_drive: tuple[DriveTruth, Path],
+) -> None:
+    truth, _calib = short_drive
+    messages = _vehicle_messages(truth.files)
+    assert len(messages) >= 90
+    rolling = RollingTrajectory(window_s=1.0, rebuild_s=0.0)
+    builds = _stream(rolling, messages, every=1)
+    assert len(builds) >= 80
+    jumps = _jumps_m(builds[1:])
+    offline = trajectory_from_vehicle(read_vehicle(list(truth.files)))
+    assert offline.trajectory is not None
+    gap = _gap_m(offline.trajectory, builds[-1])
+    print(f"real log: jump max {jumps.max() * 1e6:.3f} µm, vs offline {gap * 1e6:.3f} µm")
+    assert jumps.max() < 0.01 and gap < 0.02
+    assert rolling.kept_rows() <= 51

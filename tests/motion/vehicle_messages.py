@@ -1,0 +1,58 @@
+"""Vehicle messages for the pose-source tests: a synthetic drive's CAN odometry and GNSS
+fixes encoded as the recorder logs them (acq.log.schemas) and decoded back, in time order."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from acq.geometry.geodesy import WorldFrame
+from acq.log import schemas
+from acq.log.vehicle_log import FIX_TOPIC, ODOMETRY_TOPIC, VehicleLog, VehicleReader
+from acq.motion import from_odometry
+from acq.records import Fix, Odometry
+
+T0 = 5_000_000_000_000  # host ns of the drive's start
+ORIGIN = (48.1, 11.5, 520.0)  # lat °, lon °, ellipsoidal height m of the drive's start
+
+
+def speeds(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The drive's speed (m/s) and yaw rate (rad/s) at ``t_s`` s: a winding street."""
+    return 5.0 + np.sin(0.3 * t_s), 0.1 * np.sin(0.2 * t_s)
+
+
+def drive(
+    seconds: float, odometry_hz: float = 100.0, gnss_hz: float = 0.0, noise_m: float = 0.02
+) -> list[tuple[str, Any]]:
+    """(topic, decoded message) of the drive in time order: odometry at ``odometry_hz``
+    and fixes of the true position (the dead-reckoned truth put in ENU at :data:`ORIGIN`
+    heading east) with ``noise_m`` horizontal noise at ``gnss_hz``."""
+    out: list[tuple[int, str, Any]] = []
+    if odometry_hz:
+        t_s = np.arange(0.0, seconds, 1.0 / odometry_hz)
+        v, w = speeds(t_s)
+        for t, vi, wi in zip(T0 + np.round(t_s * 1e9).astype(np.int64), v, w, strict=True):
+            data = schemas.odometry(Odometry(int(t), int(t), float(vi), float(wi)))
+            out.append((int(t), ODOMETRY_TOPIC, schemas.decode("acq.Odometry", data)))
+    if gnss_hz:
+        fine = np.arange(0.0, seconds + 0.01, 0.005)
+        truth = from_odometry(T0 + np.round(fine * 1e9).astype(np.int64), *speeds(fine))
+        t_fix = T0 + np.round(np.arange(0.0, seconds, 1.0 / gnss_hz) * 1e9).astype(np.int64)
+        _, xyz = truth.pose_at(t_fix)
+        xyz[:, :2] += np.random.default_rng(1).normal(0.0, noise_m, (len(t_fix), 2))
+        lat, lon, alt = WorldFrame("enu", ORIGIN).to_geodetic(xyz)
+        for t, la, lo, al in zip(t_fix, lat, lon, alt, strict=True):
+            fix = Fix(int(t), 1.7e9, float(la), float(lo), float(al), quality=4, hdop=0.02)
+            data = schemas.location_fix(fix, int(t))
+            out.append((int(t), FIX_TOPIC, schemas.decode("foxglove.LocationFix", data)))
+    out.sort(key=lambda m: m[0])
+    return [(topic, msg) for _, topic, msg in out]
+
+
+def vehicle_log(messages: list[tuple[str, Any]]) -> VehicleLog:
+    """The messages read as a log's vehicle data."""
+    reader = VehicleReader()
+    for topic, msg in messages:
+        reader.add(topic, msg)
+    return reader.result(())

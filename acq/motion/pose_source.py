@@ -12,7 +12,7 @@ Times are host monotonic ns.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -27,10 +27,12 @@ from acq.motion.gnss_outliers import screen_fixes
 from acq.motion.odometry import from_odometry
 from acq.motion.trajectory import Trajectory
 
-__all__ = ["POSE_GAP_S", "Chosen", "PoseSource", "trajectory_from_vehicle"]
+__all__ = ["POSE_GAP_S", "Chosen", "Kind", "PoseSource", "trajectory_from_vehicle"]
 
 POSE_GAP_S = 0.5  # s: no pose inside a longer interval between two poses, as for odometry
 MIN_FIXES = 5  # usable GNSS fixes for GNSS to count (alone or fused)
+
+Kind = Literal["poses", "fused", "gnss", "odometry", "none"]
 
 
 @runtime_checkable
@@ -64,12 +66,14 @@ class PoseSource(Protocol):
 @dataclass(frozen=True)
 class Chosen:
     """The trajectory :func:`trajectory_from_vehicle` chose (None: none could be made),
-    one line saying which and from what (empty when none), and the notes on the data
-    (skipped messages, dropped fixes)."""
+    one line saying which and from what (empty when none), the notes on the data
+    (skipped messages, dropped fixes), and its kind: the log's ``"poses"``, odometry
+    ``"fused"`` with GNSS, ``"gnss"`` alone, ``"odometry"`` alone, or ``"none"``."""
 
     trajectory: Trajectory | None
     description: str = ""
     notes: tuple[str, ...] = ()
+    kind: Kind = "none"
 
 
 def trajectory_from_vehicle(
@@ -88,15 +92,15 @@ def trajectory_from_vehicle(
     notes = list(vehicle.notes)
     odo, fixes, poses = vehicle.odometry, vehicle.fixes, vehicle.poses
 
-    def chosen(traj: Trajectory | None, description: str = "") -> Chosen:
-        return Chosen(traj, description, tuple(notes))
+    def chosen(traj: Trajectory | None, kind: Kind = "none", description: str = "") -> Chosen:
+        return Chosen(traj, description, tuple(notes), kind)
 
     if len(odo) < 2 and len(poses) >= 2:  # a ROS 2 bag's /tf, when it has no odometry
         traj = Trajectory(
             poses.t_ns, matrix_from_quat(poses.quaternion), poses.translation,
             max_gap_s=POSE_GAP_S,
         )  # fmt: skip
-        return chosen(traj, f"the log's odom -> base_link poses ({len(poses)}, /tf)")
+        return chosen(traj, "poses", f"the log's odom -> base_link poses ({len(poses)}, /tf)")
     usable = _usable_fixes(fixes, notes)
     gnss = int(usable.sum()) >= MIN_FIXES
     if len(odo) < 2 and not gnss:
@@ -118,17 +122,20 @@ def trajectory_from_vehicle(
             notes.append(f"{e}: no trajectory")
             return chosen(None)
         return chosen(
-            traj, f"GNSS alone ({len(track)} fixes; heading from the track, no CAN odometry)"
+            traj,
+            "gnss",
+            f"GNSS alone ({len(track)} fixes; heading from the track, no CAN odometry)",
         )
     if gnss:
         fusion = fuse(odo.t_ns, odo.speed, odo.yaw_rate, track, on_gap="flag")
         return chosen(
             fusion.trajectory,
+            "fused",
             f"CAN odometry ({len(odo)} samples) fused with {len(track)} GNSS fixes "
             f"(residual {fusion.residual_rms_m:.2f} m RMS)",
         )
     traj = from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, start=start, on_gap="flag")
-    return chosen(traj, f"CAN odometry ({len(odo)} samples, dead reckoning)")
+    return chosen(traj, "odometry", f"CAN odometry ({len(odo)} samples, dead reckoning)")
 
 
 def _usable_fixes(fixes: Fixes, notes: list[str]) -> np.ndarray:

@@ -4,29 +4,35 @@ on another, chosen and built as offline (:func:`acq.motion.pose_source.trajector
 
 The world frame holds still between builds: dead reckoning starts each build from the
 previous build's pose at the window's first sample, and GNSS keeps the ENU origin of the
-first build's first fix. The frame's kind changes once when GNSS starts to count
-(``"odometry"`` until 5 usable fixes have come, ``"enu"`` after): the trajectory's
-``frame`` says which. Times are host monotonic ns unless a name ends in ``_s``.
+first build's first fix. When the fixes stop for longer than ``gnss_outage_s`` (a
+tunnel), dead reckoning goes on from the last fused pose at the last fix, in the GNSS
+frame, until they come back (a fit to the few fixes left at the window's start would
+extrapolate their errors over the rest of it). The frame's kind changes once, when GNSS
+starts to count (``"odometry"`` until 5 usable fixes have come, ``"enu"`` or the CRS
+after): the trajectory's ``frame`` says which. Times are host monotonic ns unless a name
+ends in ``_s``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from acq.errors import AcqError
 from acq.geometry.transforms import Rigid
-from acq.log.vehicle_log import VehicleReader
+from acq.log.vehicle_log import Fixes, Odometry, VehicleLog, VehicleReader
 from acq.motion.pose_source import Chosen, trajectory_from_vehicle
 from acq.motion.trajectory import Trajectory
 
 __all__ = ["RollingTrajectory"]
 
 _TRIM_EVERY = 1024  # rows added between two trims when no build trims
+_Table = TypeVar("_Table", Odometry, Fixes)
 
 
 class RollingTrajectory:
@@ -36,7 +42,8 @@ class RollingTrajectory:
     ``window_s``: the span of data each build covers (s; older rows are dropped, so a
     build's cost and the memory stay flat over an hour's drive); ``rebuild_s``: the least
     time between two builds (s); ``crs``: GNSS into this CRS instead of ENU;
-    ``clock``: seconds for ``rebuild_s`` (time.monotonic)."""
+    ``gnss_outage_s``: fixes this much older than the newest odometry are not fused
+    (module docstring); ``clock``: seconds for ``rebuild_s`` (time.monotonic)."""
 
     TOPICS = VehicleReader.TOPICS
 
@@ -46,6 +53,7 @@ class RollingTrajectory:
         window_s: float = 120.0,
         rebuild_s: float = 0.2,
         crs: str | None = None,
+        gnss_outage_s: float = 2.0,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if not window_s > 0 or not rebuild_s >= 0:
@@ -53,6 +61,7 @@ class RollingTrajectory:
         self.window_s = window_s
         self.rebuild_s = rebuild_s
         self.crs = crs
+        self.gnss_outage_s = gnss_outage_s
         self._clock = clock
         self._lock = threading.Lock()  # the rows, _latest, _generation
         self._build_lock = threading.Lock()  # one build at a time, and what it made
@@ -123,10 +132,10 @@ class RollingTrajectory:
                 snapshot.fixes = list(self._rows.fixes)
                 snapshot.poses = dict(self._rows.poses)
             self._built_at, self._built_generation = now, generation
-            vehicle = snapshot.result(())
+            vehicle = _without_stale_fixes(snapshot.result(()), self.gnss_outage_s)
             previous = self._trajectory()
             start = None
-            if previous is not None and previous.frame == "odometry" and len(vehicle.odometry):
+            if previous is not None and len(vehicle.odometry):
                 start = _pose_near(previous, int(vehicle.odometry.t_ns[0]))
             try:
                 chosen = trajectory_from_vehicle(
@@ -135,6 +144,8 @@ class RollingTrajectory:
             except (AcqError, ValueError) as e:
                 self._error = str(e)
                 return previous
+            if chosen.kind == "odometry" and previous is not None and previous.frame != "odometry":
+                chosen = _continued(chosen, previous)
             self._error = None
             self.builds += 1
             self._chosen = chosen
@@ -158,6 +169,30 @@ class RollingTrajectory:
         r.poses = {t: row for t, row in r.poses.items() if t >= cut}
 
 
+def _without_stale_fixes(vehicle: VehicleLog, outage_s: float) -> VehicleLog:
+    """``vehicle`` without its fixes, and without the odometry before the last of them,
+    when that fix is more than ``outage_s`` older than the newest odometry."""
+    odo, fixes = vehicle.odometry, vehicle.fixes
+    if len(odo) < 2 or not len(fixes):
+        return vehicle
+    good = fixes.t_ns[(fixes.quality > 0) & np.isfinite(fixes.lat) & np.isfinite(fixes.lon)]
+    last_fix = int(good.max()) if good.size else None
+    if last_fix is not None and odo.t_ns[-1] - last_fix <= outage_s * 1e9:
+        return vehicle
+    keep = odo.t_ns >= (last_fix if last_fix is not None else odo.t_ns[0])
+    if keep.sum() < 2:  # the outage has just begun: the last two samples
+        keep[-2:] = True
+    return dataclasses.replace(
+        vehicle, odometry=_rows(odo, keep), fixes=_rows(fixes, np.zeros(len(fixes), bool))
+    )
+
+
+def _rows(table: _Table, keep: np.ndarray) -> _Table:
+    """The rows ``keep`` (bool) of a dataclass of row-aligned arrays."""
+    arrays = {f.name: getattr(table, f.name)[keep] for f in dataclasses.fields(table)}
+    return dataclasses.replace(table, **arrays)
+
+
 def _pose_near(traj: Trajectory, t_ns: int) -> Rigid:
     """The pose at ``t_ns``, or at the nearest end when outside (a gap in the odometry
     longer than the window: the vehicle is taken to have stood still)."""
@@ -167,3 +202,16 @@ def _pose_near(traj: Trajectory, t_ns: int) -> Rigid:
         t[0] = traj.t_ns[i]
     R, p = traj.pose_at(t)
     return Rigid(R[0], p[0])
+
+
+def _continued(chosen: Chosen, previous: Trajectory) -> Chosen:
+    """Dead reckoning started from a pose of ``previous`` (in a GNSS frame), labelled
+    with that frame."""
+    traj = chosen.trajectory
+    assert traj is not None
+    moved = Trajectory(
+        traj.t_ns, traj.rotation, traj.translation, previous.frame, previous.origin,
+        traj.max_gap_s, traj.margin_s,
+    )  # fmt: skip
+    description = f"{chosen.description}, continued in the {previous.frame} frame of GNSS"
+    return dataclasses.replace(chosen, trajectory=moved, description=description)

@@ -14,9 +14,9 @@ import numpy as np
 
 from acq.log.reader import LogReader
 from acq.log.vehicle_log import ODOMETRY_TOPIC, read_vehicle
-from acq.motion import RollingTrajectory, Trajectory, trajectory_from_vehicle
+from acq.motion import RollingTrajectory, Trajectory, from_odometry, trajectory_from_vehicle
 from acq.sim.drive_log import DriveTruth
-from tests.motion.vehicle_messages import ORIGIN, drive, vehicle_log
+from tests.motion.vehicle_messages import ORIGIN, T0, drive, speeds, vehicle_log
 
 
 def _stream(
@@ -196,3 +196,27 @@ def test_a_real_logs_odometry_streamed_agrees_with_the_offline_choice(
     print(f"real log: jump max {jumps.max() * 1e6:.3f} µm, vs offline {gap * 1e6:.3f} µm")
     assert jumps.max() < 0.01 and gap < 0.02
     assert rolling.kept_rows() <= 51
+
+
+def test_dead_reckoning_goes_on_in_the_gnss_frame_when_the_fixes_stop() -> None:
+    """Fixes for the first 20 s of a 50 s drive (then a tunnel), a 10 s window: once the
+    last fix is gnss_outage_s old, odometry alone carries on from the fused pose at the
+    last fix, in the same ENU frame, without a jump."""
+    messages = [
+        (topic, msg)
+        for topic, msg in drive(50.0, odometry_hz=50.0, gnss_hz=5.0)
+        if topic == ODOMETRY_TOPIC or msg.timestamp.ToNanoseconds() < T0 + 20 * 10**9
+    ]
+    rolling = RollingTrajectory(window_s=10.0, rebuild_s=0.0)
+    builds = _stream(rolling, messages, every=50)  # 1 s of odometry
+    chosen = rolling.chosen()
+    assert chosen is not None and chosen.kind == "odometry"
+    assert chosen.description.endswith("dead reckoning), continued in the enu frame of GNSS")
+    enu = [b for b in builds if b.frame == "enu"]
+    assert builds[-1].frame == "enu" and len({b.origin for b in enu}) == 1
+    jumps = _jumps_m(enu[3:])
+    print(f"tunnel: largest jump between builds {jumps.max() * 100:.2f} cm")
+    assert jumps.max() < 0.05
+    fine = np.arange(0.0, 50.0, 0.005)
+    truth = from_odometry(T0 + np.round(fine * 1e9).astype(np.int64), *speeds(fine))
+    assert _gap_m(truth, builds[-1]) < 0.2  # 30 s after the last fix

@@ -11,7 +11,7 @@ import pytest
 from acq.geometry.rotations import matrices_from_euler
 from acq.geometry.transforms import Rigid
 from acq.motion import Chosen, PoseSource, from_odometry, trajectory_from_vehicle
-from tests.motion.vehicle_messages import ORIGIN, T0, drive, speeds, vehicle_log
+from acq.sim.vehicle_messages import ORIGIN, T0, drive, speeds, vehicle_log
 
 
 def _placed(source: PoseSource, t_ns: np.ndarray) -> np.ndarray:

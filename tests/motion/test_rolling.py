@@ -15,8 +15,9 @@ import numpy as np
 from acq.log.reader import LogReader
 from acq.log.vehicle_log import ODOMETRY_TOPIC, read_vehicle
 from acq.motion import RollingTrajectory, Trajectory, from_odometry, trajectory_from_vehicle
-from acq.sim.drive_log import DriveTruth
-from tests.motion.vehicle_messages import ORIGIN, T0, drive, speeds, vehicle_log
+from acq.sim.drive_log import DriveTruth, write_drive_log
+from acq.sim.vehicle_messages import ORIGIN, T0, drive, speeds, vehicle_log
+from tests import bench_scripts
 
 
 def _stream(
@@ -220,3 +221,36 @@ def test_dead_reckoning_goes_on_in_the_gnss_frame_when_the_fixes_stop() -> None:
     fine = np.arange(0.0, 50.0, 0.005)
     truth = from_odometry(T0 + np.round(fine * 1e9).astype(np.int64), *speeds(fine))
     assert _gap_m(truth, builds[-1]) < 0.2  # 30 s after the last fix
+
+
+def test_a_real_logs_odometry_and_fixes_streamed_agree_with_the_offline_fusion(
+    tmp_path: Path,
+) -> None:
+    """A 4 s drive log with CAN odometry and 10 Hz fixes of 2 cm noise, streamed through
+    a 2 s window: once 5 fixes have come, every build is in the ENU frame at the log's
+    first fix, close to the fusion of the whole log."""
+    truth = write_drive_log(tmp_path, 4.0, gnss_hz=10.0, pattern_at=12.0)
+    messages = _vehicle_messages(truth.files)
+    rolling = RollingTrajectory(window_s=2.0, rebuild_s=0.0)
+    builds = _stream(rolling, messages, every=10)
+    fixes = read_vehicle(list(truth.files)).fixes
+    first_fix = (fixes.lat[0], fixes.lon[0], fixes.alt[0])
+    frames = [b.frame for b in builds]  # dead reckoning until 5 fixes have come
+    first = frames.index("enu")
+    assert set(frames[:first]) == {"odometry"} and set(frames[first:]) == {"enu"}
+    builds = builds[first:]
+    for b in builds:
+        np.testing.assert_allclose(b.origin, first_fix, atol=1e-9)
+    offline = trajectory_from_vehicle(read_vehicle(list(truth.files)))
+    assert offline.kind == "fused" and offline.trajectory is not None
+    jumps = _jumps_m(builds[2:])
+    gap = _gap_m(offline.trajectory, builds[-1])
+    print(f"real log fused: jump max {jumps.max() * 100:.2f} cm, vs offline {gap * 100:.2f} cm")
+    assert jumps.max() < 0.05 and gap < 0.05
+
+
+def test_the_bench_measures_rebuilds_over_a_bounded_window() -> None:
+    result = bench_scripts.load("rolling_trajectory").measure(20.0, 100.0, 0.0, 5.0, 1.0)
+    assert result["rebuilds"] == 20 and result["rows_kept"] == 501
+    assert result["trajectory"] == "CAN odometry (501 samples, dead reckoning)"
+    assert 0 < float(result["rebuild_ms_median"]) < 1000  # type: ignore[arg-type]

@@ -1,5 +1,6 @@
-"""Vehicle messages for the pose-source tests: a synthetic drive's CAN odometry and GNSS
-fixes encoded as the recorder logs them (acq.log.schemas) and decoded back, in time order."""
+"""A synthetic drive's vehicle messages (CAN odometry, GNSS fixes) encoded as the recorder
+logs them (acq.log.schemas) and decoded back, in time order: for the pose sources' tests
+and bench/rolling_trajectory.py."""
 
 from __future__ import annotations
 

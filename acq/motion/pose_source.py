@@ -27,7 +27,7 @@ from acq.motion.gnss_outliers import screen_fixes
 from acq.motion.odometry import from_odometry
 from acq.motion.trajectory import Trajectory
 
-__all__ = ["POSE_GAP_S", "Chosen", "Kind", "PoseSource", "trajectory_from_vehicle"]
+__all__ = ["MIN_FIXES", "POSE_GAP_S", "Chosen", "Kind", "PoseSource", "trajectory_from_vehicle"]
 
 POSE_GAP_S = 0.5  # s: no pose inside a longer interval between two poses, as for odometry
 MIN_FIXES = 5  # usable GNSS fixes for GNSS to count (alone or fused)

@@ -6,11 +6,11 @@ The world frame holds still between builds: dead reckoning starts each build fro
 previous build's pose at the window's first sample, and GNSS keeps the ENU origin of the
 first build's first fix. When the fixes stop for longer than ``gnss_outage_s`` (a
 tunnel), dead reckoning goes on from the last fused pose at the last fix, in the GNSS
-frame, until they come back (a fit to the few fixes left at the window's start would
-extrapolate their errors over the rest of it). The frame's kind changes once, when GNSS
-starts to count (``"odometry"`` until 5 usable fixes have come, ``"enu"`` or the CRS
-after): the trajectory's ``frame`` says which. Times are host monotonic ns unless a name
-ends in ``_s``.
+frame; when 5 have come back, the fusion starts at their return (a fit to the few fixes
+at one end of the window would extrapolate their errors over the rest of it). The
+frame's kind changes once, when GNSS starts to count (``"odometry"`` until 5 usable fixes
+have come, ``"enu"`` or the CRS after): the trajectory's ``frame`` says which. Times are
+host monotonic ns unless a name ends in ``_s``.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 from acq.errors import AcqError
 from acq.geometry.transforms import Rigid
 from acq.log.vehicle_log import Fixes, Odometry, VehicleLog, VehicleReader
-from acq.motion.pose_source import Chosen, trajectory_from_vehicle
+from acq.motion.pose_source import MIN_FIXES, Chosen, trajectory_from_vehicle
 from acq.motion.trajectory import Trajectory
 
 __all__ = ["RollingTrajectory"]
@@ -132,7 +132,7 @@ class RollingTrajectory:
                 snapshot.fixes = list(self._rows.fixes)
                 snapshot.poses = dict(self._rows.poses)
             self._built_at, self._built_generation = now, generation
-            vehicle = _without_stale_fixes(snapshot.result(()), self.gnss_outage_s)
+            vehicle = _gnss_span(snapshot.result(()), self.gnss_outage_s)
             previous = self._trajectory()
             start = None
             if previous is not None and len(vehicle.odometry):
@@ -169,22 +169,32 @@ class RollingTrajectory:
         r.poses = {t: row for t, row in r.poses.items() if t >= cut}
 
 
-def _without_stale_fixes(vehicle: VehicleLog, outage_s: float) -> VehicleLog:
-    """``vehicle`` without its fixes, and without the odometry before the last of them,
-    when that fix is more than ``outage_s`` older than the newest odometry."""
+def _gnss_span(vehicle: VehicleLog, outage_s: float) -> VehicleLog:
+    """``vehicle`` with the odometry limited to the span its fixes cover: when the last
+    fix is more than ``outage_s`` older than the newest odometry, no fixes and the
+    odometry from the last fix on; when the fixes came after a silence longer than
+    ``outage_s`` (from the odometry's start or between two fixes), the fixes and
+    odometry from their return on, once :data:`MIN_FIXES` have come (no fixes before)."""
     odo, fixes = vehicle.odometry, vehicle.fixes
     if len(odo) < 2 or not len(fixes):
         return vehicle
     good = fixes.t_ns[(fixes.quality > 0) & np.isfinite(fixes.lat) & np.isfinite(fixes.lon)]
-    last_fix = int(good.max()) if good.size else None
-    if last_fix is not None and odo.t_ns[-1] - last_fix <= outage_s * 1e9:
+    if not good.size:
         return vehicle
-    keep = odo.t_ns >= (last_fix if last_fix is not None else odo.t_ns[0])
-    if keep.sum() < 2:  # the outage has just begun: the last two samples
-        keep[-2:] = True
-    return dataclasses.replace(
-        vehicle, odometry=_rows(odo, keep), fixes=_rows(fixes, np.zeros(len(fixes), bool))
-    )
+    outage_ns = outage_s * 1e9
+    if odo.t_ns[-1] - good[-1] > outage_ns:
+        first, fixes = int(good[-1]), _rows(fixes, np.zeros(len(fixes), bool))
+    else:  # a silence since the odometry's first sample or between two fixes
+        silences = np.flatnonzero(np.diff(np.concatenate([odo.t_ns[:1], good])) > outage_ns)
+        if not silences.size:
+            return vehicle
+        first = int(good[silences[-1]])
+        if good.size - silences[-1] < MIN_FIXES:  # too few yet: dead reckoning goes on
+            return dataclasses.replace(vehicle, fixes=_rows(fixes, np.zeros(len(fixes), bool)))
+        fixes = _rows(fixes, fixes.t_ns >= first)
+    keep = odo.t_ns >= first
+    keep[-2:] = True  # a span just begun: the last two samples
+    return dataclasses.replace(vehicle, odometry=_rows(odo, keep), fixes=fixes)
 
 
 def _rows(table: _Table, keep: np.ndarray) -> _Table:

@@ -9,8 +9,9 @@ from typing import Any
 import numpy as np
 
 from acq.geometry.geodesy import WorldFrame
+from acq.geometry.rotations import quat_from_matrix
 from acq.log import schemas
-from acq.log.vehicle_log import FIX_TOPIC, ODOMETRY_TOPIC, VehicleLog, VehicleReader
+from acq.log.vehicle_log import FIX_TOPIC, ODOMETRY_TOPIC, POSE_TOPIC, VehicleLog, VehicleReader
 from acq.motion import from_odometry
 from acq.records import Fix, Odometry
 
@@ -49,6 +50,28 @@ def drive(
             out.append((int(t), FIX_TOPIC, schemas.decode("foxglove.LocationFix", data)))
     out.sort(key=lambda m: m[0])
     return [(topic, msg) for _, topic, msg in out]
+
+
+def tf_poses(seconds: float, hz: float = 20.0, per_message: int = 2) -> list[tuple[str, Any]]:
+    """The drive's poses (dead-reckoned truth, odom -> base_link) as a ROS 2 bag's /tf
+    comes out of :mod:`acq.log.rosbag_source`: ``foxglove.FrameTransforms`` on
+    ``/vehicle/pose``, ``per_message`` transforms in each."""
+    t_s = np.arange(0.0, seconds, 1.0 / hz)
+    truth = from_odometry(T0 + np.round(t_s * 1e9).astype(np.int64), *speeds(t_s))
+    cls = schemas.message_class("foxglove.FrameTransforms")
+    out: list[tuple[str, Any]] = []
+    for i in range(0, t_s.size, per_message):
+        msg = cls()
+        for k in range(i, min(i + per_message, t_s.size)):
+            tf = msg.transforms.add(parent_frame_id="odom", child_frame_id="base_link")
+            tf.timestamp.FromNanoseconds(int(truth.t_ns[k]))
+            tf.translation.x, tf.translation.y, tf.translation.z = truth.translation[k]
+            q = quat_from_matrix(truth.rotation[k])
+            tf.rotation.w, tf.rotation.x, tf.rotation.y, tf.rotation.z = q
+        out.append(
+            (POSE_TOPIC, schemas.decode("foxglove.FrameTransforms", msg.SerializeToString()))
+        )
+    return out
 
 
 def vehicle_log(messages: list[tuple[str, Any]]) -> VehicleLog:

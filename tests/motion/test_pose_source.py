@@ -11,7 +11,7 @@ import pytest
 from acq.geometry.rotations import matrices_from_euler
 from acq.geometry.transforms import Rigid
 from acq.motion import Chosen, PoseSource, from_odometry, trajectory_from_vehicle
-from acq.sim.vehicle_messages import ORIGIN, T0, drive, speeds, vehicle_log
+from acq.sim.vehicle_messages import ORIGIN, T0, drive, speeds, tf_poses, vehicle_log
 
 
 def _placed(source: PoseSource, t_ns: np.ndarray) -> np.ndarray:
@@ -94,3 +94,16 @@ def test_a_crs_projects_the_fixes() -> None:
     traj = trajectory_from_vehicle(vehicle, "EPSG:25832").trajectory
     assert traj is not None and traj.frame == "EPSG:25832" and traj.origin == (0.0, 0.0, 0.0)
     assert 5.3e6 < traj.translation[0, 1] < 5.4e6  # UTM northing at 48.1° N
+
+
+def test_a_bags_tf_poses_are_taken_as_they_are_without_odometry() -> None:
+    messages = tf_poses(3.0)
+    chosen = trajectory_from_vehicle(vehicle_log(messages))
+    assert chosen.kind == "poses" and chosen.trajectory is not None
+    assert chosen.description == "the log's odom -> base_link poses (60, /tf)"
+    fine = np.arange(0.0, 3.0, 0.005)
+    truth = from_odometry(T0 + np.round(fine * 1e9).astype(np.int64), *speeds(fine))
+    t = chosen.trajectory.t_ns
+    np.testing.assert_allclose(chosen.trajectory.translation, truth.pose_at(t)[1], atol=1e-3)
+    with_odometry = trajectory_from_vehicle(vehicle_log(messages + drive(3.0, 50.0)))
+    assert with_odometry.kind == "odometry"  # the CAN bus when there is one

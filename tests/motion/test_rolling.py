@@ -16,7 +16,7 @@ from acq.log.reader import LogReader
 from acq.log.vehicle_log import ODOMETRY_TOPIC, read_vehicle
 from acq.motion import RollingTrajectory, Trajectory, from_odometry, trajectory_from_vehicle
 from acq.sim.drive_log import DriveTruth, write_drive_log
-from acq.sim.vehicle_messages import ORIGIN, T0, drive, speeds, vehicle_log
+from acq.sim.vehicle_messages import ORIGIN, T0, drive, speeds, tf_poses, vehicle_log
 from tests import bench_scripts
 
 
@@ -273,3 +273,14 @@ def test_the_bench_measures_rebuilds_over_a_bounded_window() -> None:
     assert result["rebuilds"] == 20 and result["rows_kept"] == 501
     assert result["trajectory"] == "CAN odometry (501 samples, dead reckoning)"
     assert 0 < float(result["rebuild_ms_median"]) < 1000  # type: ignore[arg-type]
+
+
+def test_a_bags_poses_roll_and_latest_is_their_newest_stamp() -> None:
+    messages = tf_poses(6.0, per_message=2)  # two poses in each message
+    rolling = RollingTrajectory(window_s=2.0, rebuild_s=0.0)
+    builds = _stream(rolling, messages, every=5)
+    chosen = rolling.chosen()
+    assert chosen is not None and chosen.kind == "poses" and builds[-1].frame == "odometry"
+    last_stamp = messages[-1][1].transforms[-1].timestamp.ToNanoseconds()
+    assert rolling.latest_ns() == last_stamp == builds[-1].end_ns
+    assert rolling.kept_rows() == 41 and _jumps_m(builds).max() < 1e-9

@@ -25,17 +25,30 @@ def speeds(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def drive(
-    seconds: float, odometry_hz: float = 100.0, gnss_hz: float = 0.0, noise_m: float = 0.02
+    seconds: float,
+    odometry_hz: float = 100.0,
+    gnss_hz: float = 0.0,
+    noise_m: float = 0.02,
+    *,
+    split: bool = False,
 ) -> list[tuple[str, Any]]:
     """(topic, decoded message) of the drive in time order: odometry at ``odometry_hz``
     and fixes of the true position (the dead-reckoned truth put in ENU at :data:`ORIGIN`
-    heading east) with ``noise_m`` horizontal noise at ``gnss_hz``."""
+    heading east) with ``noise_m`` horizontal noise at ``gnss_hz``. ``split``: each
+    odometry message carries the speed or the yaw rate in turn (NaN the other), as two
+    CAN messages do."""
     out: list[tuple[int, str, Any]] = []
     if odometry_hz:
         t_s = np.arange(0.0, seconds, 1.0 / odometry_hz)
         v, w = speeds(t_s)
-        for t, vi, wi in zip(T0 + np.round(t_s * 1e9).astype(np.int64), v, w, strict=True):
-            data = schemas.odometry(Odometry(int(t), int(t), float(vi), float(wi)))
+        if split:
+            v[1::2], w[0::2] = np.nan, np.nan
+        t_ns = T0 + np.round(t_s * 1e9).astype(np.int64)
+        for i, (t, vi, wi) in enumerate(zip(t_ns, v, w, strict=True)):
+            odo = Odometry(
+                int(t), int(t), float(vi), float(wi), arbitration_id=i % 2 if split else 0
+            )
+            data = schemas.odometry(odo)
             out.append((int(t), ODOMETRY_TOPIC, schemas.decode("acq.Odometry", data)))
     if gnss_hz:
         fine = np.arange(0.0, seconds + 0.01, 0.005)

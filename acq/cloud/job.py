@@ -24,20 +24,16 @@ from acq.cloud import views
 from acq.cloud.report import Report
 from acq.drivers.scanner import SCANNERS
 from acq.errors import InputValueError
-from acq.geometry.rotations import matrix_from_quat
 from acq.geometry.transforms import Rigid
 from acq.log.drive_log import DriveLog, check_frame_size, read_log
 from acq.log.inputs import session_files
 from acq.log.vehicle_log import read_vehicle
 from acq.motion import Trajectory
-from acq.motion.gnss import NoHeadingError, usable_fixes
-from acq.motion.gnss_outliers import screen_fixes
+from acq.motion.pose_source import trajectory_from_vehicle
 from acq.time import retime
 from acq.time.utc import host_ns_from_utc
 
 __all__ = ["CameraJob", "Job", "check_crs", "prepare", "remap"]
-
-POSE_GAP_S = 0.5  # s: no pose inside a longer interval between two poses, as for odometry
 
 
 @dataclass(frozen=True)
@@ -152,62 +148,11 @@ def _trajectory(
     vehicle = log.vehicle
     if vehicle is None:
         vehicle = read_vehicle(list(files))
-    report.notes += vehicle.notes
-    odo, fixes, poses = vehicle.odometry, vehicle.fixes, vehicle.poses
-    if len(odo) < 2 and len(poses) >= 2:  # a ROS 2 bag's /tf, when it has no odometry
-        report.trajectory = f"the log's odom -> base_link poses ({len(poses)}, /tf)"
-        return Trajectory(
-            poses.t_ns, matrix_from_quat(poses.quaternion), poses.translation,
-            max_gap_s=POSE_GAP_S,
-        )  # fmt: skip
-    usable = _usable_fixes(fixes, report)
-    if len(odo) < 2 and usable.sum() < 5:
-        return None
-    if usable.sum() >= 5:
-        track = motion.gnss_track(
-            fixes.t_ns, fixes.lat, fixes.lon, fixes.alt, hdop=fixes.hdop, quality=fixes.quality,
-            frame=crs or "enu",
-        )  # fmt: skip
-        screened = screen_fixes(track)
-        track = screened.track
-        if screened.note:
-            report.notes.append(screened.note)
-    if len(odo) < 2:
-        course = fixes.course[np.searchsorted(fixes.t_ns, track.t_ns)]  # NaN where not sent
-        try:
-            traj = motion.from_gnss(track, course_rad=course)
-        except NoHeadingError as e:
-            report.notes.append(f"{e}: no trajectory")
-            return None
-        report.trajectory = (
-            f"GNSS alone ({len(track)} fixes; heading from the track, no CAN odometry)"
-        )
-        return traj
-    if usable.sum() >= 5:
-        fusion = motion.fuse(odo.t_ns, odo.speed, odo.yaw_rate, track, on_gap="flag")
-        report.trajectory = (
-            f"CAN odometry ({len(odo)} samples) fused with {len(track)} GNSS fixes "
-            f"(residual {fusion.residual_rms_m:.2f} m RMS)"
-        )
-        return fusion.trajectory
-    traj = motion.from_odometry(odo.t_ns, odo.speed, odo.yaw_rate, on_gap="flag")
-    report.trajectory = f"CAN odometry ({len(odo)} samples, dead reckoning)"
-    return traj
-
-
-def _usable_fixes(fixes: Any, report: Report) -> np.ndarray:
-    """Which of the log's fixes are usable (bool); a note in ``report`` for those out of
-    range (latitude beyond ±90°, longitude beyond ±180°)."""
-    if not len(fixes):
-        return np.zeros(0, dtype=bool)
-    valid = np.isfinite(fixes.lat) & np.isfinite(fixes.lon) & (fixes.quality > 0)
-    usable = valid & usable_fixes(fixes.lat, fixes.lon, fixes.alt)
-    if n := int((valid & ~usable).sum()):
-        report.notes.append(
-            f"GNSS: {n} of {len(fixes)} fixes out of range (latitude beyond ±90°, longitude "
-            "beyond ±180° or height not finite) dropped"
-        )
-    return np.asarray(usable, dtype=bool)
+    chosen = trajectory_from_vehicle(vehicle, crs)
+    report.notes += chosen.notes
+    if chosen.trajectory is not None:
+        report.trajectory = chosen.description
+    return chosen.trajectory
 
 
 def check_crs(crs: str, traj: Any, world: bool, what: str) -> None:

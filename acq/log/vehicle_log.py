@@ -217,25 +217,31 @@ class VehicleReader:
         self.poses: dict[int, tuple[float, ...]] = {}  # stamp -> x, y, z, qw, qx, qy, qz
         self.bad = 0
 
-    def add(self, topic: str, msg: Any) -> None:
+    def add(self, topic: str, msg: Any) -> int | None:
         """One decoded message of :attr:`TOPICS` (None: undecodable); a garbled one is
-        counted, not raised."""
+        counted, not raised. Returns the host ns of the newest row it added (None: none)."""
         if msg is None:
             self.bad += 1
-            return
+            return None
+        newest: int | None = None
         try:
             if topic == ODOMETRY_TOPIC:
                 speed, yaw = float(msg.speed_mps), float(msg.yaw_rate_rps)
                 wheels = tuple(float(w) for w in msg.wheel_speeds_mps)
-                self.odometry.append((_stamp(msg), int(msg.arbitration_id), speed, yaw, wheels))
+                newest = _stamp(msg)
+                self.odometry.append((newest, int(msg.arbitration_id), speed, yaw, wheels))
             elif topic == FIX_TOPIC:
                 self.fixes.append(_fix_row(msg))
+                newest = int(self.fixes[-1][0])
             elif topic == POSE_TOPIC:
                 for tf in msg.transforms:
                     tr, q = tf.translation, tf.rotation
-                    self.poses[_stamp(tf)] = (tr.x, tr.y, tr.z, q.w, q.x, q.y, q.z)
+                    stamp = _stamp(tf)
+                    self.poses[stamp] = (tr.x, tr.y, tr.z, q.w, q.x, q.y, q.z)
+                    newest = stamp if newest is None else max(newest, stamp)
         except Exception:  # a payload that decoded to something else: that message is lost
             self.bad += 1
+        return newest
 
     def result(self, files: tuple[Path, ...]) -> VehicleLog:
         notes = [f"{self.bad} undecodable vehicle messages skipped"] if self.bad else []

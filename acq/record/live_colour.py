@@ -38,8 +38,9 @@ from acq.log import schemas
 from acq.log.cloud_message import point_cloud
 from acq.log.drive_log import ScanMessage, scan_message, stamp_ns
 from acq.log.stamp_shift import shift_stamps
+from acq.log.vehicle_log import FIX_TOPIC, ODOMETRY_TOPIC
 from acq.log.writer import LogWriter
-from acq.motion import Trajectory
+from acq.motion import RollingTrajectory, Trajectory
 from acq.record.device_loop import DeviceState, Outbox
 from acq.record.listeners import Listener, LogRecord
 from acq.record.swath import SPAN_S, Swath
@@ -63,10 +64,15 @@ LIVE_OPTIONS = views.Options(view="nearest", balance=False)  # what a scan alone
 WAIT_S = 0.3  # s a scan waits after its last point for the frames (and poses) after it
 MAX_WAITING = 12  # scans waiting at most (0.3 s at 40 Hz); older ones are skipped
 FRAMES_KEPT_S = 1.0  # s of each camera's frames kept before the newest
+# s past the newest vehicle sample the poses extrapolate its motion: a trajectory rebuilt
+# 0.2 s ago covers the scan that just ended (a car's motion changes little in that time)
+POSE_MARGIN_S = 0.3
 SHARE_SCANS = 40  # the coloured shares are those of the last this many scans
 SWATH_TOPIC = "/live/swath"
 IMAGE_SUFFIX = "/image/compressed"
-VEHICLE_TOPICS = ("/vehicle/odometry", "/gnss/fix", "/vehicle/pose")
+VEHICLE_TOPICS = RollingTrajectory.TOPICS
+POSE_WINDOW_S = 20.0  # s of vehicle data the rolling trajectory is built from
+POSE_REBUILD_S = 0.2  # s between two builds at least
 
 
 def coloured_topic(scanner: str) -> str:
@@ -128,6 +134,7 @@ class LiveColourer(Listener):
         time_increment_s: Callable[[], float | None],
         utc_offset_ns: Callable[[], int] = lambda: 0,
         poses: LivePoses | None = None,
+        pose_topics: tuple[str, ...] = VEHICLE_TOPICS,
         swath: Swath | None = None,
         options: views.Options = LIVE_OPTIONS,
         wait_s: float = WAIT_S,
@@ -137,6 +144,7 @@ class LiveColourer(Listener):
         self.topic = coloured_topic(scanner)
         self.emit, self.time_increment_s, self.utc_offset_ns = emit, time_increment_s, utc_offset_ns
         self.poses, self.swath, self.options = poses, swath, options
+        self.pose_topics = pose_topics
         self.wait_ns = round(wait_s * 1e9)
         self.l2v = calibration.laser_to_vehicle or Rigid.identity()
         self.cameras = {
@@ -144,6 +152,8 @@ class LiveColourer(Listener):
             for name, cam in calibration.cameras.items()
         }
         self._waiting: deque[ScanMessage] = deque()
+        self._built: Trajectory | None = None  # the poses' last build, and it extended
+        self._extended: Trajectory | None = None
         self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="live colour")
         self._now_ns = 0  # host ns of the newest record taken
         self._schema = schemas.SCHEMAS["foxglove.PointCloud"]
@@ -171,7 +181,7 @@ class LiveColourer(Listener):
                 camera = self.cameras[topic[1 : -len(IMAGE_SUFFIX)]]
                 camera.frames.append((stamp_ns(msg), bytes(msg.data)))
                 camera.keep_from(camera.frames[-1][0] - round(FRAMES_KEPT_S * 1e9))
-        elif topic in VEHICLE_TOPICS and self.poses is not None:
+        elif topic in self.pose_topics and self.poses is not None:
             msg = self._decode(record, offset)
             if msg is not None:
                 self.poses.add(topic, msg)
@@ -204,9 +214,17 @@ class LiveColourer(Listener):
             if newest is None or newest < end_ns:
                 return False
         if self.poses is not None and self.options.motion_compensation:
-            latest = self.poses.latest_ns()
-            return latest is not None and latest >= end_ns
+            traj = self._trajectory()
+            return traj is not None and bool(traj.covers(np.array([end_ns]))[0])
         return True
+
+    def _trajectory(self) -> Trajectory | None:
+        """The poses' newest build, its motion extrapolated ``POSE_MARGIN_S`` past it."""
+        traj = self.poses.current() if self.poses is not None else None
+        if traj is not self._built:
+            self._built = traj
+            self._extended = replace(traj, margin_s=POSE_MARGIN_S) if traj is not None else None
+        return self._extended
 
     def _colour_ready(self, offset: int, everything: bool = False) -> None:
         """Colour the waiting scans that are ready, in order (``everything``: all, with
@@ -230,7 +248,7 @@ class LiveColourer(Listener):
 
     def _colour(self, scan: ScanMessage, end_ns: int, increment: float, offset: int) -> None:
         beams = scan_colouring.Beams(scan.start_angle, scan.angle_increment, increment)
-        traj = self.poses.current() if self.poses is not None else None
+        traj = self._trajectory()
         if traj is not None and not traj.covers(np.array([scan.stamp_ns, end_ns])).all():
             traj = None  # no pose yet (or a gap): coloured as the laser saw it
         margin = round((self.options.max_dt_s + 0.05) * 1e9)
@@ -368,9 +386,17 @@ def attach(recorder: Recorder, settings: ColourSettings) -> LiveColourer | None:
         elif server is not None:
             server.put(record)
 
+    poses = None
+    if recorder.config.can is not None or recorder.config.gnss is not None:
+        # with wheel odometry, it alone: exact over the milliseconds between a point and
+        # its frame, and a rebuild of dead reckoning costs little (a fusion with the
+        # fixes costs ten times more, for a swath placed better)
+        topics = (ODOMETRY_TOPIC,) if recorder.config.can is not None else (FIX_TOPIC,)
+        poses = RollingTrajectory(window_s=POSE_WINDOW_S, rebuild_s=POSE_REBUILD_S)
     colourer = LiveColourer(
         calib, scanner, emit=emit, time_increment_s=time_increment, utc_offset_ns=utc_offset,
-        poses=None, swath=Swath(settings.swath_s) if server is not None else None,
+        poses=poses, pose_topics=topics if poses is not None else (),
+        swath=Swath(settings.swath_s) if server is not None else None,
     )  # fmt: skip
     recorder.listeners.add(colourer)
     log.info("live colouring %s from %s%s", scanner, ", ".join(calib.cameras),

@@ -18,6 +18,8 @@ from acq.cloud.report import Report
 from acq.log import schemas
 from acq.log.drive_log import read_log
 from acq.log.timebase import TimeBase
+from acq.log.vehicle_log import ODOMETRY_TOPIC
+from acq.motion import RollingTrajectory
 from acq.record.listeners import LogRecord
 from acq.record.live_colour import SWATH_TOPIC, LiveColourer
 from acq.record.swath import Swath
@@ -64,13 +66,19 @@ def _run_live(path: Path, calib_path: Path, **kw: Any) -> tuple[LiveColourer, li
     return colourer, out
 
 
+@pytest.mark.parametrize("moving", [False, True], ids=["still", "motion-compensated"])
 def test_live_colours_agree_with_acq_colorize_scan_by_scan(
-    short_drive: tuple[DriveTruth, Path],
+    short_drive: tuple[DriveTruth, Path], moving: bool
 ) -> None:
+    """Without motion compensation, and with it: live from the odometry as it comes
+    (a rolling trajectory), offline from the whole drive's."""
     truth, calib_path = short_drive
     path = truth.files[0]
-    options = views.Options(view="nearest", balance=False, motion_compensation=False)
-    colourer, out = _run_live(path, calib_path, options=options)
+    options = views.Options(view="nearest", balance=False, motion_compensation=moving)
+    poses = RollingTrajectory(window_s=20.0, rebuild_s=0.0) if moving else None
+    colourer, out = _run_live(
+        path, calib_path, options=options, poses=poses, pose_topics=(ODOMETRY_TOPIC,)
+    )
     coloured = [r for r in out if r.topic == "/laser/colored"]
     # offline, the same time model without re-timing: the same frames for the same points
     job, _ = prepare([path], calibfile.load(calib_path), Report(output=""), frame="laser",
@@ -162,3 +170,19 @@ def test_colouring_that_falls_behind_skips_scans_and_garbage_is_ignored(
     colourer.on_record(LogRecord("/camera/image/compressed", scans[0].schema, b"\x01", 0))
     assert out == [] and colourer.coloured == 0
     assert colourer.skipped == len(scans) - 12  # all but the newest waiting
+
+
+def test_with_odometry_the_swath_is_the_street_placed_in_the_odometry_frame(
+    short_drive: tuple[DriveTruth, Path],
+) -> None:
+    truth, calib_path = short_drive
+    swath = Swath(span_s=1.5, period_s=0.5)
+    poses = RollingTrajectory(window_s=20.0, rebuild_s=0.0)
+    _, out = _run_live(
+        truth.files[0], calib_path, swath=swath, poses=poses, pose_topics=(ODOMETRY_TOPIC,)
+    )
+    xyz, _, _, msg = _cloud([r for r in out if r.topic == SWATH_TOPIC][-1].data)
+    assert msg.frame_id == "odometry"
+    # 1.5 s of a drive at 20 km/h: the scans lie along 8 m of the odometry's x axis
+    travelled = 20 / 3.6 * 1.5
+    assert np.ptp(xyz[:, 0]) == pytest.approx(travelled, abs=1.0)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from acq.log.cloud_message import point_cloud
+from acq.log.cloud_message import CLOUD_DTYPE, cloud_of_points, points
 
 __all__ = ["MAX_POINTS", "PERIOD_S", "SPAN_S", "Swath"]
 
@@ -28,8 +28,7 @@ MAX_POINTS = 300_000  # points in one swath at most
 @dataclass(frozen=True)
 class _Part:
     stamp_ns: int
-    xyz: np.ndarray  # (N,3) float32 m
-    rgb: np.ndarray  # (N,3) uint8
+    points: np.ndarray  # (N,) of cloud_message.CLOUD_DTYPE: as sent
 
 
 class Swath:
@@ -61,11 +60,11 @@ class Swath:
             self._points = 0
             self.frame_id = frame_id
         ok = np.isfinite(xyz).all(axis=1)
-        part = _Part(stamp_ns, xyz[ok].astype(np.float32), rgb[ok].astype(np.uint8))
+        part = _Part(stamp_ns, points(xyz[ok], rgb[ok]))
         self._parts.append(part)
-        self._points += part.xyz.shape[0]
+        self._points += part.points.size
         while self._parts and self._parts[0].stamp_ns < stamp_ns - self.span_ns:
-            self._points -= self._parts.popleft().xyz.shape[0]
+            self._points -= self._parts.popleft().points.size
 
     def due(self, now_ns: int) -> bool:
         """Whether a swath is due at ``now_ns`` (``period_s`` after the last made)."""
@@ -79,6 +78,10 @@ class Swath:
         self._last_ns = now_ns
         self.made += 1
         step = -(-self._points // self.max_points) if self._points else 1
-        xyz = np.concatenate([p.xyz for p in self._parts]) if self._parts else np.zeros((0, 3))
-        rgb = np.concatenate([p.rgb for p in self._parts]) if self._parts else np.zeros((0, 3))
-        return point_cloud(xyz[::step], rgb[::step], self.frame_id, stamp_ns)
+        # every step-th point of the whole, each part's share taken before joining them
+        picked, start = [], 0
+        for part in self._parts:
+            picked.append(part.points[(-start) % step :: step])
+            start += part.points.size
+        held = np.concatenate(picked) if picked else np.zeros(0, CLOUD_DTYPE)
+        return cloud_of_points(held, self.frame_id, stamp_ns)

@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import functools
 import json
 import struct
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -19,6 +21,7 @@ SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # the server's binary opcode for a message
 
 
+@functools.cache  # a class per channel, not per message: a client must keep up at 40 Hz
 def _message_class(schema_name: str, schema_b64: str) -> Any:
     """The protobuf class of an advertised channel (its schema: a FileDescriptorSet)."""
     fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(schema_b64))
@@ -30,11 +33,15 @@ def _message_class(schema_name: str, schema_b64: str) -> Any:
 
 @dataclass
 class Seen:
-    """What a client received: the server's info, the channels, decoded messages."""
+    """What a client received: the server's info, the channels, the messages kept (by
+    topic: (receipt, host monotonic s; the message)), how many of each topic came, and
+    its subscriptions (id -> channel id), so that :func:`take` can be called again."""
 
     info: dict[str, Any] = field(default_factory=dict)
     channels: dict[int, dict[str, Any]] = field(default_factory=dict)
     messages: dict[str, list[tuple[float, Any]]] = field(default_factory=dict)  # topic -> ...
+    counts: dict[str, int] = field(default_factory=dict)
+    subs: dict[int, int] = field(default_factory=dict)
 
 
 async def connect_client(url: str, **kw: Any) -> ClientConnection:
@@ -49,9 +56,17 @@ async def connect_client(url: str, **kw: Any) -> ClientConnection:
             await asyncio.sleep(0.1)
 
 
-async def take(ws: ClientConnection, seen: Seen, until: float, decode: bool) -> None:
-    """Read until the monotonic time ``until``; subscribe to each channel advertised."""
-    subs: dict[int, int] = {}  # subscription id -> channel id
+async def take(
+    ws: ClientConnection,
+    seen: Seen,
+    until: float,
+    decode: bool,
+    keep: Callable[[str], bool] | None = None,
+) -> None:
+    """Read until the monotonic time ``until``; subscribe to each channel advertised.
+    Every message is counted; those of the topics ``keep`` accepts (default all) are kept
+    in ``seen.messages``, decoded with ``decode``."""
+    subs = seen.subs
     while (left := until - time.monotonic()) > 0:
         try:
             frame = await asyncio.wait_for(ws.recv(), timeout=left)
@@ -69,11 +84,16 @@ async def take(ws: ClientConnection, seen: Seen, until: float, decode: bool) -> 
                     new.append({"id": len(subs), "channelId": ch["id"]})
                 await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
             continue
+        received = time.monotonic()
         assert frame[0] == MESSAGE_DATA, frame[:1]
         sub_id, _ = struct.unpack_from("<IQ", frame, 1)
         ch = seen.channels[subs[sub_id]]
+        topic = ch["topic"]
+        seen.counts[topic] = seen.counts.get(topic, 0) + 1
+        if keep is not None and not keep(topic):
+            continue
         payload = frame[13:]
         if decode:
             cls = _message_class(ch["schemaName"], ch["schema"])
             payload = cls.FromString(payload)
-        seen.messages.setdefault(ch["topic"], []).append((time.monotonic(), payload))
+        seen.messages.setdefault(topic, []).append((received, payload))

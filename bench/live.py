@@ -41,16 +41,15 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
-from processes import Procs, Run, acq_command, free_port, tree_cpu_s, wait_line
+from processes import Procs, Run, acq_command, free_port, tree_cpu_s, wait_line, workdir
 from recorder import nominal_scans, read_recorded
 from websockets.exceptions import ConnectionClosed
 
@@ -329,20 +328,6 @@ def part_live(procs: Procs, config: Path, work: Path, warmup_s: float, latency_s
         )  # fmt: skip
 
 
-@contextlib.contextmanager
-def _workdir(keep: bool) -> Iterator[Path]:
-    work = Path(tempfile.mkdtemp(prefix="live-bench-"))
-    try:
-        yield work
-    finally:
-        if keep:
-            print(f"kept {work}", file=sys.stderr)
-        else:
-            import shutil
-
-            shutil.rmtree(work, ignore_errors=True)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cpu", action="store_true", help="(1) CPU with and without --live")
@@ -363,7 +348,7 @@ def main() -> None:
         args.cpu_s = args.latency_s = args.stall_s = 10.0
     every = not (args.cpu or args.latency or args.stalled)
     procs = Procs()
-    with _workdir(args.keep) as work, (work / "sim.log").open("w") as err:
+    with workdir("live-bench-", args.keep) as work, (work / "sim.log").open("w") as err:
         try:
             config = args.config or start_rig(procs, work, args.prerender, err)
             if args.cpu or every:

@@ -225,6 +225,13 @@ def report(args: argparse.Namespace) -> None:
     files = sorted(p for a in args.logs for p in (sorted(a.glob("*.mcap")) if a.is_dir() else [a]))
     geometry = json.loads(read_metadata(files[0])[f"device.{args.laser}"]["geometry"])
     live, orphans = read_live(files, args.laser)
+    line = {"bench": "live_agreement", "topic": f"/{args.laser}/colored",
+            "present": bool(live.scan.size), "orphan_clouds": orphans}  # fmt: skip
+    if not live.scan.size:
+        print(json.dumps({**line, "ok": False}), flush=True)
+        print(f"{files[0]}: no /{args.laser}/colored messages (record with --log-colored)",
+              file=sys.stderr)  # fmt: skip
+        return
     command: list[str] | None = None
     if args.offline is None:
         with tempfile.TemporaryDirectory() as d:
@@ -232,15 +239,8 @@ def report(args: argparse.Namespace) -> None:
             offline = read_ply(Path(d) / "offline.ply")
     else:
         offline = read_ply(args.offline)
-    figures = agreement(live, offline, geometry) if live.scan.size else {"ok": False}
-    print(json.dumps({
-        "bench": "live_agreement", "topic": f"/{args.laser}/colored",
-        "present": bool(live.scan.size), "orphan_clouds": orphans, **figures,
-        "offline_command": command, "target": TARGET, "tolerance": TOLERANCE,
-    }), flush=True)  # fmt: skip
-    if not live.scan.size:
-        print(f"{files[0]}: no /{args.laser}/colored messages (record with --log-colored)",
-              file=sys.stderr)  # fmt: skip
+    print(json.dumps({**line, **agreement(live, offline, geometry), "offline_command": command,
+                      "target": TARGET, "tolerance": TOLERANCE}), flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

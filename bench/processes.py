@@ -8,12 +8,14 @@ import contextlib
 import os
 import re
 import select
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -229,3 +231,16 @@ class Run:
         """The recorder's WARNING/ERROR lines, without their time stamps."""
         lines = self.log.read_text(errors="replace").splitlines()
         return [ln.split(" ", 2)[2] for ln in lines if " WARNING " in ln or " ERROR " in ln]
+
+
+@contextlib.contextmanager
+def workdir(prefix: str, keep: bool) -> Iterator[Path]:
+    """A new temporary folder, removed at the end unless ``keep`` (then named on stderr)."""
+    path = Path(tempfile.mkdtemp(prefix=prefix))
+    try:
+        yield path
+    finally:
+        if keep:
+            print(f"# kept {path}", file=sys.stderr)
+        else:
+            shutil.rmtree(path, ignore_errors=True)

@@ -50,15 +50,13 @@ Run as a script: ``python bench/recorder.py [--cpu] [--rate] [--memory] [--minut
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import pairwise
 from pathlib import Path
@@ -74,6 +72,7 @@ from processes import (
     cpu_s,
     free_port,
     wait_line,
+    workdir,
 )
 
 from acq.log import LogInfo, LogReader, info_many
@@ -647,18 +646,6 @@ def part_memory(work: Path, minutes: float, split_mb: float, recorder_first: boo
 # --- main -----------------------------------------------------------------------------------
 
 
-@contextlib.contextmanager
-def _workdir(keep: bool) -> Iterator[Path]:
-    path = Path(tempfile.mkdtemp(prefix="acq-bench-recorder-"))
-    try:
-        yield path
-    finally:
-        if keep:
-            print(f"# kept {path}", file=sys.stderr)
-        else:
-            shutil.rmtree(path, ignore_errors=True)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cpu", action="store_true", help="(1) CPU share at nominal rates")
@@ -693,7 +680,7 @@ def main() -> None:
         parts.append(("record_memory", lambda w, first: part_memory(w, minutes, 50.0, first)))
     for bench, run in parts:
         for recorder_first in (False, True):
-            with _workdir(args.keep) as work:
+            with workdir("acq-bench-recorder-", args.keep) as work:
                 try:
                     run(work, recorder_first)
                     break

@@ -193,3 +193,24 @@ def test_drops_are_counted_between_two_statuses() -> None:
     assert live.drops_between(statuses, 1.5, 3.5) == {"laser": 2, "left": 6}
     assert live.drops_between(statuses, 0.0, 2.5) == {"laser": 0, "left": 2}
     assert live.drops_between(statuses, 0.0, 0.5) == {}
+
+
+def _script(*args: object) -> tuple[dict[str, object], str]:
+    bench = Path(__file__).resolve().parents[1] / "bench" / "live_agreement.py"
+    done = subprocess.run([sys.executable, str(bench), *map(str, args)], capture_output=True,
+                          text=True, check=True)  # fmt: skip
+    return json.loads(done.stdout), done.stderr
+
+
+def test_the_script_prints_one_line_and_says_when_the_coloured_topic_is_absent(
+    offline: tuple[Path, Path], short_drive: tuple[object, Path], tmp_path: Path
+) -> None:
+    log, ply = offline
+    calib = short_drive[1]
+    line, _ = _script(_with_live(log, ply, tmp_path / "same.mcap"), "--calib", calib,
+                      "--offline", ply)  # fmt: skip
+    assert line["present"] and line["ok"] and line["coloured_live"] == 1.0
+    line, err = _script(log, "--calib", calib)
+    assert line == {"bench": "live_agreement", "topic": "/laser/colored", "present": False,
+                    "orphan_clouds": 0, "ok": False}  # fmt: skip
+    assert "no /laser/colored messages (record with --log-colored)" in err

@@ -10,8 +10,11 @@ beam (the step of the point's bearing, from the ``device.<laser>`` geometry); a 
 pair whose ranges differ by more than 1 cm is counted apart (``range_mismatch``), not
 matched. Figures: ``colour_within`` the share of the points coloured both ways whose
 colours lie within 24/255 in every channel (target at least 0.95); ``coloured_live`` the
-share of the offline-coloured points coloured live (target at least 0.95). A live point
-is coloured unless its alpha is 0.
+share of the offline-coloured points coloured live (target at least 0.95), and the same
+within the scans the live colourer published (``coloured_live_in_live_scans``: what
+skipped scans, and those at the start and end of the recording, do not lower). A live
+point is coloured unless its alpha is 0. ``--no-balance`` colours offline without
+evening out the cameras' exposure (the live colourer does not).
 
     python bench/live_agreement.py LOG [LOG ...] --calib CALIB [--offline OUT.ply]
     python bench/live_agreement.py [--seconds S]
@@ -32,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from processes import acq_command
+from processes import acq_command, workdir
 
 from acq.cloud.ply import PLY_DTYPE
 from acq.log.reader import LogReader, read_metadata
@@ -152,6 +155,7 @@ def agreement(live: Points, offline: Points, geometry: dict[str, Any]) -> dict[s
     both = live.coloured[li] & offline.coloured[oi]
     diff = np.abs(live.rgb[li[both]].astype(int) - offline.rgb[oi[both]].astype(int)).max(axis=1)
     off_coloured = int(offline.coloured.sum())
+    in_live = offline.coloured & np.isin(offline.scan, live.scan)
     within = float((diff <= TOLERANCE).mean()) if diff.size else None
     share = int(both.sum()) / off_coloured if off_coloured else None
     return {
@@ -165,15 +169,18 @@ def agreement(live: Points, offline: Points, geometry: dict[str, Any]) -> dict[s
         "coloured_both": int(both.sum()),
         "colour_within": None if within is None else round(within, 4),
         "coloured_live": None if share is None else round(share, 4),
+        "coloured_live_in_live_scans": round(int(both.sum()) / max(int(in_live.sum()), 1), 4),
         "median_channel_diff": float(np.median(diff)) if diff.size else None,
         "ok": within is not None and share is not None and within >= TARGET and share >= TARGET,
     }
 
 
-def colorize(logs: list[Path], calib: Path, out: Path) -> list[str]:
-    """``acq colorize LOGS --calib CALIB --frame laser --view nearest -o OUT``: the command."""
+def colorize(logs: list[Path], calib: Path, out: Path, *options: str) -> list[str]:
+    """``acq colorize LOGS --calib CALIB --frame laser --view nearest -o OUT [options]``:
+    the command."""
     cmd = [*acq_command(), "colorize", *map(str, logs), "--calib", str(calib), "--frame",
            "laser", "--view", "nearest", "-o", str(out), "--no-preview", "--force"]  # fmt: skip
+    cmd += options
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     return ["acq", *cmd[len(acq_command()) :]]
 
@@ -209,14 +216,16 @@ def main() -> None:
     ap.add_argument("--calib", type=Path, help="the rig's calib.yaml (required with LOG)")
     ap.add_argument("--seconds", type=float, default=20.0, help="without LOG: the recording")
     ap.add_argument("--laser", default="laser", help="the scanner's name (default laser)")
+    ap.add_argument("--keep", action="store_true", help="without LOG: keep the recording")
+    ap.add_argument("--no-balance", action="store_true", help="acq colorize --no-balance")
     ap.add_argument("--offline", type=Path, help="an acq colorize PLY already made of LOG "
                     "with --frame laser --view nearest (default: made now)")  # fmt: skip
     args = ap.parse_args()
     if args.logs and args.calib is None:
         ap.error("--calib is required with LOG")
-    with tempfile.TemporaryDirectory(prefix="live-agreement-") as work:
+    with workdir("live-agreement-", args.keep) as work:
         if not args.logs:
-            args.logs, args.calib = record_rig(Path(work), args.seconds)
+            args.logs, args.calib = record_rig(work, args.seconds)
         report(args)
 
 
@@ -235,7 +244,8 @@ def report(args: argparse.Namespace) -> None:
     command: list[str] | None = None
     if args.offline is None:
         with tempfile.TemporaryDirectory() as d:
-            command = colorize(files, args.calib, Path(d) / "offline.ply")
+            options = ["--no-balance"] if args.no_balance else []
+            command = colorize(files, args.calib, Path(d) / "offline.ply", *options)
             offline = read_ply(Path(d) / "offline.ply")
     else:
         offline = read_ply(args.offline)

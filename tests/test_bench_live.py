@@ -122,6 +122,7 @@ def test_shifted_colours_and_missing_scans_lower_the_figures(
 
     f = _figures(_with_live(log, ply, tmp_path / "edited.mcap", edit), ply)
     assert 0.6 < f["coloured_live"] < 0.85  # a quarter of the scans missing
+    assert f["coloured_live_in_live_scans"] == 1.0  # every point of the scans published
     assert 0.55 < f["colour_within"] < 0.8  # a third of the rest off
     assert not f["ok"]
 

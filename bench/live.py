@@ -117,14 +117,17 @@ class Client:
         self.url = f"ws://127.0.0.1:{port}"
         self.timed, self.stalled, self.settle_s = timed, stalled, settle_s
         self.seen = Seen()
-        self.closed = ""  # why the server closed the connection, if it did
+        self.closed = ""  # why the connection closed before close(), if it did
         self.subscribed = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=lambda: asyncio.run(self._run()), daemon=True)
         self._thread.start()
 
     async def _run(self) -> None:
-        kw: dict[str, Any] = {"max_queue": 1, "ping_interval": None} if self.stalled else {}
+        # no size limit: /live/swath is up to 300,000 points (4.8 MB), over websockets' 1 MB
+        kw: dict[str, Any] = {"max_size": None}
+        if self.stalled:
+            kw |= {"max_queue": 1, "ping_interval": None}
         ws = await connect_client(self.url, **kw)
         try:
             await take(ws, self.seen, time.monotonic() + self.settle_s, decode=True,
@@ -227,6 +230,7 @@ def part_cpu(procs: Procs, config: Path, work: Path, warmup_s: float, seconds: f
     colored = f"/{laser}/colored"
     plain, live, rates = [], [], {}
     client_counts: dict[str, int] = {}
+    client_closed = ""
     for k in range(rounds):
         run = record(procs, config, work / f"cpu_plain_{k}", None)
         share, _ = _cpu_window(run, warmup_s, seconds)
@@ -242,14 +246,16 @@ def part_cpu(procs: Procs, config: Path, work: Path, warmup_s: float, seconds: f
         run.stop()
         live.append(share)
         rates["live"] = _rates(run, run.wall_s)
-        client_counts = dict(client.seen.counts)
+        client_counts, client_closed = dict(client.seen.counts), client.closed
     p, q = float(np.median(plain)), float(np.median(live))
     _line(
         "live_cpu", seconds=seconds, rounds=rounds, cpu_share_plain=round(p, 4),
         cpu_share_live=round(q, 4), overhead=round(q - p, 4),
         rounds_plain=[round(x, 4) for x in plain], rounds_live=[round(x, 4) for x in live],
         colored_present=colored in client_counts, client_messages=client_counts,
-        recorded_hz=rates, target_overhead=TARGET_OVERHEAD, ok=q - p <= TARGET_OVERHEAD,
+        client_closed=client_closed,
+        recorded_hz=rates, target_overhead=TARGET_OVERHEAD,
+        ok=q - p <= TARGET_OVERHEAD and not client_closed,
     )  # fmt: skip
 
 
@@ -291,7 +297,8 @@ def part_live(procs: Procs, config: Path, work: Path, warmup_s: float, latency_s
     if report_latency:
         for topic in topics:
             _line("live_latency", topic=topic, seconds=round(free_hi - free_lo, 1),
-                  **figures(topic, free_lo, free_hi), target_p99_ms=TARGET_P99_MS,
+                  **figures(topic, free_lo, free_hi), reader_closed=reader.closed,
+                  target_p99_ms=TARGET_P99_MS,
                   exit_code=run.exit_code)  # fmt: skip
     if report_stall:
         rec = read_recorded(run.files())
@@ -323,8 +330,9 @@ def part_live(procs: Procs, config: Path, work: Path, warmup_s: float, latency_s
             listeners_behind=behind, reader_latency=latency,
             stalled_client_messages=stalled.seen.counts if stalled is not None else None,
             stalled_client_closed=stalled.closed if stalled is not None else None,
+            reader_closed=reader.closed,
             exit_code=run.exit_code, target_growth_mb=TARGET_GROWTH_MB,
-            ok=growth <= TARGET_GROWTH_MB and not lost and run.exit_code == 0,
+            ok=growth <= TARGET_GROWTH_MB and not lost and run.exit_code == 0 and not reader.closed,
         )  # fmt: skip
 
 

@@ -215,3 +215,33 @@ def test_the_script_prints_one_line_and_says_when_the_coloured_topic_is_absent(
     assert line == {"bench": "live_agreement", "topic": "/laser/colored", "present": False,
                     "orphan_clouds": 0, "ok": False}  # fmt: skip
     assert "no /laser/colored messages (record with --log-colored)" in err
+
+
+@pytest.mark.realtime
+def test_the_live_bench_measures_a_real_recorder(tmp_path: Path) -> None:
+    """bench/live.py's latency and stalled parts against ``acq record --live`` on the
+    simulated rig (a UTM-30LX on TCP, a camera over HTTP): the raw scans' latency, no
+    coloured scans (the rig has no calibration here), no scan lost to the stalled client."""
+    from tests.sim_rig import warm_rig
+
+    for rig in warm_rig():
+        rig.config(tmp_path)
+        bench = Path(__file__).resolve().parents[1] / "bench" / "live.py"
+        done = subprocess.run(
+            [sys.executable, str(bench), "--latency", "--stalled", "-c", str(tmp_path / "rig.yaml"),
+             "--warmup-s", "1", "--latency-s", "3", "--stall-s", "3"],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr[-2000:]
+    lines = [json.loads(line) for line in done.stdout.splitlines()]
+    colored, scan, stalled = lines
+    assert colored["topic"] == "/laser/colored" and not colored["present"]
+    assert colored["median_ms"] is None
+    assert scan["topic"] == "/laser/scan" and scan["present"] and scan["reader_closed"] == ""
+    assert scan["messages"] >= 60  # 40 Hz for 3 s, on a busy machine
+    assert 0 < scan["median_ms"] < 500
+    assert stalled["bench"] == "live_stalled" and stalled["exit_code"] == 0
+    got, nominal = map(int, stalled["scans"].split("/"))
+    assert got == nominal > 100 and stalled["dropped"]["laser"] == 0
+    assert stalled["reader_latency"]["/laser/scan"]["with_stalled"]["present"]
+    assert stalled["stalled_client_messages"]["/laser/scan"] > 0

@@ -8,8 +8,10 @@ its own process tree (``/proc``), never the rig's.
 
 (1) ``live_cpu``: the recorder's CPU share of one core over ``--cpu-s`` after
     ``--warmup-s``, recording without ``--live``, then the same with ``--live`` and one
-    client subscribed to every channel and reading (``--rounds`` such pairs, medians).
-    Target: ``overhead`` (live less plain) at most 0.05 of a core.
+    client subscribed to every channel and reading, then (when the configuration has a
+    ``calibration``, which makes the recorder colour) the same again without it, so
+    that the server's cost and the colouring's are told apart (``--rounds`` such runs,
+    medians). Target: ``overhead`` (live less plain) at most 0.05 of a core.
 (2) ``live_latency``: from a scan's last point (its stamp + (points - 1) x the
     ``time_increment`` of the log's ``device.<laser>`` geometry, taken off the log's UTC
     offset) to a reading client's receipt, on loopback: median and p99 over
@@ -224,38 +226,63 @@ def _rates(run: Run, seconds: float) -> dict[str, float]:
             if c.topic.endswith(("/scan", "/image/compressed", "/colored"))}  # fmt: skip
 
 
+def uncalibrated(config: Path, work: Path) -> Path | None:
+    """A copy of ``config`` without its ``calibration`` (no live colouring), in ``work``;
+    None when it has none."""
+    data = yaml.safe_load(config.read_text())
+    if not data.pop("calibration", None):
+        return None
+    path = work / "rig_uncalibrated.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def _live_cpu(procs: Procs, config: Path, out: Path, warmup_s: float, seconds: float
+              ) -> tuple[float, dict[str, float], Client]:  # fmt: skip
+    """One recording with --live and a reading client: (CPU share, rates, the client)."""
+    port = free_port()
+    run = record(procs, config, out, port)
+    client = Client(port, set())
+    client.subscribed.wait(30.0)
+    share, _ = _cpu_window(run, warmup_s, seconds)
+    client.close()
+    run.stop()
+    return share, _rates(run, run.wall_s), client
+
+
 def part_cpu(procs: Procs, config: Path, work: Path, warmup_s: float, seconds: float,
              rounds: int) -> None:  # fmt: skip
     laser, _ = devices(config)
     colored = f"/{laser}/colored"
-    plain, live, rates = [], [], {}
-    client_counts: dict[str, int] = {}
-    client_closed = ""
+    bare = uncalibrated(config, work)
+    shares: dict[str, list[float]] = {"plain": [], "live": [], "live_uncoloured": []}
+    rates: dict[str, dict[str, float]] = {}
+    clients: dict[str, Client] = {}
     for k in range(rounds):
         run = record(procs, config, work / f"cpu_plain_{k}", None)
         share, _ = _cpu_window(run, warmup_s, seconds)
         run.stop()
-        plain.append(share)
+        shares["plain"].append(share)
         rates["plain"] = _rates(run, run.wall_s)
-        port = free_port()
-        run = record(procs, config, work / f"cpu_live_{k}", port)
-        client = Client(port, set())
-        client.subscribed.wait(30.0)
-        share, _ = _cpu_window(run, warmup_s, seconds)
-        client.close()
-        run.stop()
-        live.append(share)
-        rates["live"] = _rates(run, run.wall_s)
-        client_counts, client_closed = dict(client.seen.counts), client.closed
-    p, q = float(np.median(plain)), float(np.median(live))
+        runs = {"live": config, "live_uncoloured": bare} if bare else {"live": config}
+        for name, cfg in runs.items():
+            out = work / f"cpu_{name}_{k}"
+            share, rates[name], clients[name] = _live_cpu(procs, cfg, out, warmup_s, seconds)
+            shares[name].append(share)
+    p, q = float(np.median(shares["plain"])), float(np.median(shares["live"]))
+    u = float(np.median(shares["live_uncoloured"])) if bare else None
+    counts = dict(clients["live"].seen.counts)
+    closed = {name: c.closed for name, c in clients.items() if c.closed}
     _line(
         "live_cpu", seconds=seconds, rounds=rounds, cpu_share_plain=round(p, 4),
         cpu_share_live=round(q, 4), overhead=round(q - p, 4),
-        rounds_plain=[round(x, 4) for x in plain], rounds_live=[round(x, 4) for x in live],
-        colored_present=colored in client_counts, client_messages=client_counts,
-        client_closed=client_closed,
+        # the same rig without its calibration: --live serving the log's channels, no colouring
+        cpu_share_live_uncoloured=None if u is None else round(u, 4),
+        overhead_uncoloured=None if u is None else round(u - p, 4),
+        per_round={name: [round(x, 4) for x in v] for name, v in shares.items() if v},
+        colored_present=colored in counts, client_messages=counts, clients_closed=closed,
         recorded_hz=rates, target_overhead=TARGET_OVERHEAD,
-        ok=q - p <= TARGET_OVERHEAD and not client_closed,
+        ok=q - p <= TARGET_OVERHEAD and not closed,
     )  # fmt: skip
 
 

@@ -50,26 +50,30 @@ Run as a script: ``python bench/recorder.py [--cpu] [--rate] [--memory] [--minut
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
-import re
 import shutil
-import signal
-import socket
 import subprocess
 import sys
-import tempfile
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from itertools import pairwise
 from pathlib import Path
 from typing import IO, Any
 
 import yaml
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
-from processes import acq_command, end, wait_line
+from processes import (
+    Procs,
+    RecorderExited,
+    Run,
+    acq_command,
+    cpu_s,
+    free_port,
+    wait_line,
+    workdir,
+)
 
 from acq.log import LogInfo, LogReader, info_many
 from acq.sim.camera_device import jpeg_digest
@@ -78,7 +82,6 @@ from acq.sim.mjpeg_process import MjpegServerProcess
 ROOT = Path(__file__).resolve().parents[1]
 SCAN_HZ = 40.0  # UTM-30LX
 FPS = 25.0
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 RATE_STEPS = (1, 2, 5, 10, 15, 20, 25, 30, 40)
 TARGET_CPU_SHARE = 0.10
 TARGET_RATE = 10
@@ -94,51 +97,6 @@ def _line(bench: str, **values: Any) -> None:
 
 
 # --- processes --------------------------------------------------------------------------
-
-
-def cpu_s(pid: int) -> float:
-    """utime + stime of a live process (all its threads), seconds."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
-
-
-def memory_mb(pid: int) -> tuple[float, float]:
-    """(VmRSS, VmHWM: the peak resident size so far) of a live process, MB."""
-    values = {"VmRSS:": float("nan"), "VmHWM:": float("nan")}
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        key = line.split(":", 1)[0] + ":"
-        if key in values:
-            values[key] = int(line.split()[1]) / 1024
-    return values["VmRSS:"], values["VmHWM:"]
-
-
-class Procs:
-    """The subprocesses of one part: every one still running is ended in ``close``."""
-
-    def __init__(self) -> None:
-        self.procs: list[subprocess.Popen[str]] = []
-        self.closers: list[Callable[[], object]] = []
-
-    def start(self, cmd: list[str], **kw: Any) -> subprocess.Popen[str]:
-        proc = subprocess.Popen(cmd, cwd=ROOT, text=True, **kw)
-        self.procs.append(proc)
-        return proc
-
-    def close(self) -> None:
-        for close in self.closers:
-            with contextlib.suppress(Exception):
-                close()
-        for proc in self.procs:
-            end(proc)
-            if proc.stdin is not None:
-                with contextlib.suppress(OSError):
-                    proc.stdin.close()
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def live_scanner(procs: Procs, stderr: IO[str], port: int = 0) -> tuple[subprocess.Popen[str], str]:
@@ -178,7 +136,7 @@ def nominal_rig(
     started."""
     names = camera_names(cameras)
     if recorder_first:
-        ports = [_free_port() for _ in range(cameras + 1)]
+        ports = [free_port() for _ in range(cameras + 1)]
         urls = [f"http://127.0.0.1:{p}/stream.mjpg" for p in ports[1:]]
         run = start_recorder(procs, work, f"socket://127.0.0.1:{ports[0]}", urls, FPS, **output)
         run.wait_for("recording ")
@@ -224,95 +182,6 @@ class Prerendered:
         self.proc.stdin.write('"stats"\n')
         self.proc.stdin.flush()
         return json.loads(self.proc.stdout.readline())["value"]  # type: ignore[no-any-return]
-
-
-class RecorderExited(RuntimeError):
-    """``acq record`` ended before it was stopped; ``summary``: its error and where."""
-
-    def __init__(self, code: int, log_text: str) -> None:
-        lines = [ln.rstrip() for ln in log_text.splitlines() if ln.strip()]
-        error = next(
-            (
-                ln.strip()
-                for ln in reversed(lines)
-                if re.match(r"\w+(Error|Exception)\b", ln.strip())
-            ),
-            lines[-1] if lines else "",
-        )
-        where = [ln.strip() for ln in lines if ln.strip().startswith('File "')]
-        self.code = code
-        self.summary = error + (f" ({where[-1]})" if where else "")
-        super().__init__(f"acq record exited early ({code}): {self.summary}")
-
-
-@dataclass
-class Run:
-    """One ``acq record`` subprocess and what was measured of it."""
-
-    proc: subprocess.Popen[str]
-    out: Path
-    log: Path
-    t_start: float
-    exit_code: int | None = None
-    wall_s: float = 0.0
-    rusage_cpu_s: float = 0.0
-    samples: list[tuple[float, float, float]] = field(default_factory=list)  # (t, cpu, rss)
-    peaks: list[float] = field(default_factory=list)  # VmHWM at each sample, MB
-
-    def sample(self) -> tuple[float, float, float]:
-        """(s since the start, CPU s, VmRSS MB) now, kept in ``samples``."""
-        rss, hwm = memory_mb(self.proc.pid)
-        s = (time.monotonic() - self.t_start, cpu_s(self.proc.pid), rss)
-        self.samples.append(s)
-        self.peaks.append(hwm)
-        return s
-
-    def sleep_until(self, t: float) -> None:
-        """Sleep until ``t`` s after the start; fail at once if the recorder exits."""
-        while (left := self.t_start + t - time.monotonic()) > 0:
-            time.sleep(min(left, 0.5))
-            if self.proc.poll() is not None:
-                raise RecorderExited(self.proc.returncode, self.log.read_text(errors="replace"))
-
-    def wait_for(self, *texts: str, timeout: float = 30.0) -> None:
-        """Wait until the recorder's log holds every one of ``texts``."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            log = self.log.read_text(errors="replace")
-            if all(t in log for t in texts):
-                return
-            if self.proc.poll() is not None:
-                raise RecorderExited(self.proc.returncode, log)
-            time.sleep(0.05)
-        raise RuntimeError(f"acq record: no {texts!r} in its log within {timeout:g} s")
-
-    def stop(self) -> None:
-        """SIGTERM, then the exit status and rusage of the whole run (``os.wait4``)."""
-        self.proc.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + 15.0
-        while True:
-            pid, status, ru = os.wait4(self.proc.pid, os.WNOHANG)
-            if pid:
-                break
-            if time.monotonic() > deadline:
-                self.proc.kill()
-                pid, status, ru = os.wait4(self.proc.pid, 0)
-                break
-            time.sleep(0.02)
-        self.wall_s = time.monotonic() - self.t_start
-        self.exit_code = self.proc.returncode = os.waitstatus_to_exitcode(status)
-        self.rusage_cpu_s = ru.ru_utime + ru.ru_stime
-
-    def files(self) -> list[Path]:
-        return sorted(self.out.glob("*.mcap"))
-
-    def bytes_on_disk(self) -> int:
-        return sum(p.stat().st_size for p in self.files())
-
-    def warnings(self) -> list[str]:
-        """The recorder's WARNING/ERROR lines, without their time stamps."""
-        lines = self.log.read_text(errors="replace").splitlines()
-        return [ln.split(" ", 2)[2] for ln in lines if " WARNING " in ln or " ERROR " in ln]
 
 
 def _true_calibration(work: Path, names: list[str]) -> Path:
@@ -448,7 +317,7 @@ def bytes_per_s(files: list[Path], seconds: float) -> float:
 # --- (1) CPU at nominal rates -------------------------------------------------------------
 
 
-def _nominal_scans(ticks: list[int]) -> int:
+def nominal_scans(ticks: list[int]) -> int:
     """Scans a UTM-30LX makes from the first recorded to the last (25 ms of its clock apart)."""
     return round((ticks[-1] - ticks[0]) / (1000.0 / SCAN_HZ)) + 1 if ticks else 0
 
@@ -486,7 +355,7 @@ def part_cpu(
             cpu_share_whole_run=round(run.rusage_cpu_s / run.wall_s, 4),
             whole_run_s=round(run.wall_s, 1),
             startup_cpu_s=round(c0 - share * t0, 2),
-            scans=f"{len(rec.scan_ticks)}/{_nominal_scans(rec.scan_ticks)}",
+            scans=f"{len(rec.scan_ticks)}/{nominal_scans(rec.scan_ticks)}",
             frames=f"{frames}/{_expected_frames(sent_frames(truth), rec)}",
             scan_hz=round(_rate(info, "/laser/scan"), 2),
             frame_hz={
@@ -584,7 +453,7 @@ def _rate_step(work: Path, k: int, seconds: float, recorder_first: bool) -> dict
     camera_args = ["camera", "--fps", str(FPS * k)]
     try:
         if recorder_first:  # the devices come up while the recorder is already running
-            ports = _free_port(), _free_port()
+            ports = free_port(), free_port()
             run = start_recorder(procs, work, f"socket://127.0.0.1:{ports[0]}",
                                  f"http://127.0.0.1:{ports[1]}/stream.mjpg", FPS * k)  # fmt: skip
             run.wait_for("recording ")
@@ -750,7 +619,7 @@ def part_memory(work: Path, minutes: float, split_mb: float, recorder_first: boo
             peak_rss_mb_every_10s=[round(p, 1) for p in run.peaks],
             files=len(files),
             files_closed=sum(f.closed for f in rec.per_file),
-            scans=f"{len(rec.scan_ticks)}/{_nominal_scans(rec.scan_ticks)}",
+            scans=f"{len(rec.scan_ticks)}/{nominal_scans(rec.scan_ticks)}",
             frames=f"{len(rec.image_times)}/{_expected_frames(frames_sent, rec)}",
             per_file_counts_add_up=counts_ok,
             laser_raw_sequence=seq,
@@ -775,18 +644,6 @@ def part_memory(work: Path, minutes: float, split_mb: float, recorder_first: boo
 
 
 # --- main -----------------------------------------------------------------------------------
-
-
-@contextlib.contextmanager
-def _workdir(keep: bool) -> Iterator[Path]:
-    path = Path(tempfile.mkdtemp(prefix="acq-bench-recorder-"))
-    try:
-        yield path
-    finally:
-        if keep:
-            print(f"# kept {path}", file=sys.stderr)
-        else:
-            shutil.rmtree(path, ignore_errors=True)
 
 
 def main() -> None:
@@ -823,7 +680,7 @@ def main() -> None:
         parts.append(("record_memory", lambda w, first: part_memory(w, minutes, 50.0, first)))
     for bench, run in parts:
         for recorder_first in (False, True):
-            with _workdir(args.keep) as work:
+            with workdir("acq-bench-recorder-", args.keep) as work:
                 try:
                     run(work, recorder_first)
                     break

@@ -11,7 +11,10 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 
 
 def load(name: str) -> ModuleType:
-    """``bench/<name>.py`` as the module ``bench_<name>``."""
+    """``bench/<name>.py`` as the module ``bench_<name>``; bench/ on the path, as when
+    the script runs (the benches import their shared modules, e.g. ``processes``)."""
+    if str(BENCH) not in sys.path:
+        sys.path.append(str(BENCH))
     spec = importlib.util.spec_from_file_location(f"bench_{name}", BENCH / f"{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)

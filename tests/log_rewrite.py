@@ -105,11 +105,13 @@ def mcap_copy(
     payload: Callable[[str, bytes], bytes] = lambda _t, d: d,
     schema_data: Callable[[Schema], bytes] = lambda s: s.data,
     metadata: Callable[[str, dict[str, str]], dict[str, str] | None] = lambda _n, m: m,
+    extra: Callable[[Writer], None] = lambda _w: None,
 ) -> dict[str, int]:
     """``src`` copied to ``dst`` with mcap's writer (metadata, schemas, channels, messages),
     payloads, schemas and metadata records through the given functions (``metadata``
     gives None: the record left out, as ``mcap filter`` does without
-    ``--include-metadata``); the messages per topic."""
+    ``--include-metadata``), then ``extra`` given the writer to add its own; the messages
+    per topic."""
     counts: dict[str, int] = {}
     with src.open("rb") as f, dst.open("wb") as g:
         reader = make_reader(f)
@@ -135,5 +137,6 @@ def mcap_copy(
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
             data = payload(channel.topic, m.data)
             w.add_message(channel_ids[channel.id], m.log_time, data, m.publish_time, m.sequence)
+        extra(w)
         w.finish()
     return counts

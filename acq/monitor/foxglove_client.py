@@ -13,7 +13,7 @@ import functools
 import json
 import struct
 import time
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -60,15 +60,22 @@ def message_class(schema_name: str, schema_b64: str) -> Any:
 @dataclass
 class Seen:
     """What a client received: the server's info, the channels, decoded messages by topic
-    (each with the monotonic time of its receipt, s). :meth:`add` keeps each message."""
+    (each with the monotonic time of its receipt, s), how many of each topic came, and
+    its subscriptions (id -> channel id: :func:`take` may be called again). :meth:`add`
+    keeps each message of the topics ``keep`` accepts (default all)."""
 
     info: dict[str, Any] = field(default_factory=dict)
     channels: dict[int, dict[str, Any]] = field(default_factory=dict)
     messages: dict[str, list[tuple[float, Any]]] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+    subs: dict[int, int] = field(default_factory=dict)
+    keep: Callable[[str], bool] | None = None
 
     def add(self, topic: str, received_s: float, message: Any) -> None:
         """One message of ``topic`` received at monotonic ``received_s``."""
-        self.messages.setdefault(topic, []).append((received_s, message))
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        if self.keep is None or self.keep(topic):
+            self.messages.setdefault(topic, []).append((received_s, message))
 
 
 async def connect_client(url: str, *, retry_s: float = 30.0, **kw: Any) -> ClientConnection:
@@ -99,9 +106,10 @@ async def take(
 ) -> None:
     """Read until the monotonic time ``until`` (s), subscribing to each channel advertised
     (of ``topics`` only, when given); each message to ``seen.add``, decoded when
-    ``decode``. ProtocolError for what the protocol does not allow; the connection's
-    closing (`websockets`' ConnectionClosed) is raised as is."""
-    subs: dict[int, int] = {}  # subscription id -> channel id
+    ``decode`` (those ``seen.keep`` refuses only counted). ProtocolError for what the
+    protocol does not allow; the connection's closing (`websockets`' ConnectionClosed) is
+    raised as is."""
+    subs = seen.subs
     while (left := until - time.monotonic()) > 0:
         try:
             frame = await asyncio.wait_for(ws.recv(), timeout=min(left, 3600.0))
@@ -117,6 +125,9 @@ async def take(
         if ch is None:
             raise ProtocolError(f"a message for subscription {sub_id}, never made")
         payload: Any = frame[1 + _MESSAGE_HEAD.size :]
+        if seen.keep is not None and not seen.keep(ch["topic"]):
+            seen.add(ch["topic"], time.monotonic(), None)  # counted only
+            continue
         if decode:
             try:
                 payload = message_class(ch["schemaName"], ch["schema"]).FromString(payload)

@@ -86,6 +86,7 @@ __all__ = [
     "status",
     "time_base_record",
     "timing",
+    "transform",
 ]
 
 
@@ -259,6 +260,14 @@ def _add_transform(
     tf.translation.x, tf.translation.y, tf.translation.z = (float(v) for v in pose.translation)
     w, x, y, z = (float(v) for v in quat_from_matrix(pose.rotation))
     tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w = x, y, z, w  # Foxglove's order
+
+
+def transform(parent: str, child: str, pose: Rigid, stamp_ns: int) -> bytes:
+    """``foxglove.FrameTransforms`` of one ``parent`` -> ``child`` transform (``pose``
+    takes the child's points into the parent's frame), e.g. the vehicle's pose on ``/tf``."""
+    msg = FrameTransforms()
+    _add_transform(msg, parent, child, pose, stamp_ns)
+    return serialized(msg)
 
 
 def frame_transforms(

@@ -51,6 +51,7 @@ if TYPE_CHECKING:
 __all__ = [
     "LIVE_OPTIONS",
     "SWATH_TOPIC",
+    "TF_TOPIC",
     "ColourSettings",
     "LiveColourer",
     "LivePoses",
@@ -69,6 +70,7 @@ FRAMES_KEPT_S = 1.0  # s of each camera's frames kept before the newest
 POSE_MARGIN_S = 0.3
 SHARE_SCANS = 40  # the coloured shares are those of the last this many scans
 SWATH_TOPIC = "/live/swath"
+TF_TOPIC = "/tf"  # the vehicle's pose in the poses' frame, at each scan coloured with it
 IMAGE_SUFFIX = "/image/compressed"
 VEHICLE_TOPICS = RollingTrajectory.TOPICS
 POSE_WINDOW_S = 20.0  # s of vehicle data the rolling trajectory is built from
@@ -157,6 +159,7 @@ class LiveColourer(Listener):
         self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="live colour")
         self._now_ns = 0  # host ns of the newest record taken
         self._schema = schemas.SCHEMAS["foxglove.PointCloud"]
+        self._tf_schema = schemas.SCHEMAS["foxglove.FrameTransforms"]
         self.coloured = 0  # scans coloured and emitted
         self.skipped = 0  # scans not coloured: colouring fell behind
         self.failed = 0  # scans whose colouring raised
@@ -273,6 +276,10 @@ class LiveColourer(Listener):
         self.coloured += 1
         per_camera = np.bincount(merged.camera[merged.coloured], minlength=len(cameras))
         self._shares.append((pts.time_ns.size, per_camera))
+        if traj is not None:
+            R, t = traj.pose_at(np.array([scan.stamp_ns]))
+            tf = schemas.transform(traj.frame, "vehicle", Rigid(R[0], t[0]), stamp_log)
+            self.emit(LogRecord(TF_TOPIC, self._tf_schema, tf, self._now_ns + offset))
         if self.swath is not None:
             world = traj is not None and self.options.motion_compensation
             xyz = pts.P_world if world else pts.P_laser
@@ -381,7 +388,7 @@ def attach(recorder: Recorder, settings: ColourSettings) -> LiveColourer | None:
     to_log = _LogOutput(recorder.outbox) if settings.log else None
 
     def emit(record: LogRecord) -> None:
-        if record.topic != SWATH_TOPIC and to_log is not None:
+        if record.topic == coloured_topic(scanner) and to_log is not None:
             to_log.put(record)  # the server, if any, has it from the log
         elif server is not None:
             server.put(record)

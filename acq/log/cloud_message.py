@@ -46,7 +46,8 @@ def points(xyz: np.ndarray, rgb: np.ndarray, alpha: np.ndarray | None = None) ->
 
 
 def cloud_of_points(buf: np.ndarray, frame_id: str, stamp_ns: int) -> bytes:
-    """``foxglove.PointCloud`` of points of :data:`CLOUD_DTYPE` (:func:`points`): 16-byte
+    """``foxglove.PointCloud`` of points of :data:`CLOUD_DTYPE` (:func:`points`, or
+    their bytes, (N,16) uint8): 16-byte
     points, x, y, z float32 at 0, 4, 8 and red, green, blue, alpha uint8 at 12-15
     (Foxglove's "RGBA (separate fields)" colour mode)."""
     msg = PointCloud(frame_id=frame_id, point_stride=CLOUD_DTYPE.itemsize, data=buf.tobytes())

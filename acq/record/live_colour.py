@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -140,7 +140,7 @@ class LiveColourer(Listener):
         swath: Swath | None = None,
         options: views.Options = LIVE_OPTIONS,
         wait_s: float = WAIT_S,
-        threads: int = 2,
+        threads: int = 0,
     ) -> None:
         self.scanner = scanner
         self.topic = coloured_topic(scanner)
@@ -156,7 +156,11 @@ class LiveColourer(Listener):
         self._waiting: deque[ScanMessage] = deque()
         self._built: Trajectory | None = None  # the poses' last build, and it extended
         self._extended: Trajectory | None = None
-        self._pool = ThreadPoolExecutor(max(1, threads), thread_name_prefix="live colour")
+        self._pool: Executor = (
+            ThreadPoolExecutor(threads, thread_name_prefix="live colour")
+            if threads > 0
+            else scan_colouring.Inline()
+        )
         self._now_ns = 0  # host ns of the newest record taken
         self._schema = schemas.SCHEMAS["foxglove.PointCloud"]
         self._tf_schema = schemas.SCHEMAS["foxglove.FrameTransforms"]

@@ -20,6 +20,7 @@ from acq.log.cloud_message import CLOUD_DTYPE, cloud_of_points, points
 
 __all__ = ["MAX_POINTS", "PERIOD_S", "SPAN_S", "Swath"]
 
+POINT_BYTES = CLOUD_DTYPE.itemsize
 SPAN_S = 30.0  # s of scans kept (acq record --live-swath-s)
 PERIOD_S = 0.5  # s between two swaths (2 Hz)
 MAX_POINTS = 300_000  # points in one swath at most
@@ -28,7 +29,7 @@ MAX_POINTS = 300_000  # points in one swath at most
 @dataclass(frozen=True)
 class _Part:
     stamp_ns: int
-    points: np.ndarray  # (N,) of cloud_message.CLOUD_DTYPE: as sent
+    points: np.ndarray  # (N,16) uint8: the points of cloud_message.CLOUD_DTYPE, as sent
 
 
 class Swath:
@@ -60,11 +61,11 @@ class Swath:
             self._points = 0
             self.frame_id = frame_id
         ok = np.isfinite(xyz).all(axis=1)
-        part = _Part(stamp_ns, points(xyz[ok], rgb[ok]))
+        part = _Part(stamp_ns, points(xyz[ok], rgb[ok]).view(np.uint8).reshape(-1, POINT_BYTES))
         self._parts.append(part)
-        self._points += part.points.size
+        self._points += part.points.shape[0]
         while self._parts and self._parts[0].stamp_ns < stamp_ns - self.span_ns:
-            self._points -= self._parts.popleft().points.size
+            self._points -= self._parts.popleft().points.shape[0]
 
     def due(self, now_ns: int) -> bool:
         """Whether a swath is due at ``now_ns`` (``period_s`` after the last made)."""
@@ -82,6 +83,6 @@ class Swath:
         picked, start = [], 0
         for part in self._parts:
             picked.append(part.points[(-start) % step :: step])
-            start += part.points.size
-        held = np.concatenate(picked) if picked else np.zeros(0, CLOUD_DTYPE)
+            start += part.points.shape[0]
+        held = np.concatenate(picked) if picked else np.zeros((0, POINT_BYTES), np.uint8)
         return cloud_of_points(held, self.frame_id, stamp_ns)

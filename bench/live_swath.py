@@ -20,10 +20,8 @@ from typing import Any
 
 import cv2
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.live import Client, _line, record, start_rig
-from bench.processes import Procs, free_port, workdir
+from live import Client, _line, record, start_rig
+from processes import Procs, free_port, workdir
 
 SWATH = "/live/swath"
 
@@ -48,21 +46,36 @@ def _panel(u: np.ndarray, v: np.ndarray, depth: np.ndarray, rgb: np.ndarray,
     return img
 
 
-def draw(xyz: np.ndarray, rgb: np.ndarray, res: float = 0.05) -> np.ndarray:
-    """From above (the highest point winning), then the street's left side seen from the
-    track (the nearest point winning); the drive runs to the right."""
+def _caption(img: np.ndarray, text: str) -> np.ndarray:
+    band = np.full((36, img.shape[1], 3), 255, np.uint8)
+    cv2.putText(band, text, (8, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.vstack([band, img])
+
+
+def draw(xyz: np.ndarray, rgb: np.ndarray, res: float = 0.1, half_width_m: float = 14.0
+         ) -> np.ndarray:  # fmt: skip
+    """From above (the highest point winning; ``half_width_m`` either side of the track),
+    then the street's left side seen from the track (the nearest point winning); the
+    drive runs to the right."""
     along = xyz[:, 0] - xyz[:, 0].min()
     bins = (along // 2).astype(int)  # the track's side offset: the median y, every 2 m
     centre = np.zeros(bins.max() + 1)
     for b in np.unique(bins):
         centre[b] = np.median(xyz[bins == b, 1])
     across = xyz[:, 1] - centre[bins]
-    top = _panel(along, across, -xyz[:, 2], rgb, res)
+    near = np.abs(across) < half_width_m
+    top = _panel(along[near], across[near], -xyz[near, 2], rgb[near], res)
     left = across > 0.5
     side = _panel(along[left], xyz[left, 2], across[left], rgb[left], res)
     width = max(top.shape[1], side.shape[1])
-    pad = [np.pad(p, ((0, 8), (0, width - p.shape[1]), (0, 0))) for p in (top, side)]
-    return np.vstack(pad)
+    span = float(np.ptp(along))
+    top = _caption(
+        np.pad(top, ((0, 0), (0, width - top.shape[1]), (0, 0))),
+        f"/live/swath from above: the last {span:.0f} m of the drive, left side up",
+    )
+    side = _caption(np.pad(side, ((0, 0), (0, width - side.shape[1]), (0, 0))),
+                    "its left side seen from the street")  # fmt: skip
+    return np.vstack([top, side])
 
 
 def main() -> None:

@@ -49,9 +49,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         nargs="?",
         metavar="LOG_OR_FOLDER_OR_HOST:PORT",
         help="a log, or a folder: its newest session's newest file (default: -c's "
-        "output.dir; without -c, ./logs, where `acq record` without -c records, when it "
-        "exists, else the current folder); or HOST:PORT ([IPv6]:PORT), the live server of "
-        "`acq record --live` (e.g. 127.0.0.1:8765), when no file of that name exists",
+        "output.dir; without -c, the live server of `acq record --live` on this host, "
+        "127.0.0.1:8765, when one runs, else ./logs, where `acq record` without -c "
+        "records, when it exists, else the current folder); or HOST:PORT ([IPv6]:PORT), "
+        "the live server of `acq record --live` (e.g. 127.0.0.1:8765), when no file of "
+        "that name exists",
     )
     p.add_argument(
         "-c",
@@ -93,7 +95,24 @@ def _source(args: argparse.Namespace) -> Source:
         from acq.record import config as configfile
 
         return LogSource(configfile.load(args.config).output.dir)
+    from acq.cli.record import DEFAULT_ADDRESS
+
+    if _listening(DEFAULT_ADDRESS):  # `acq record --live` on this host
+        args.log = DEFAULT_ADDRESS
+        return _source(args)
     return LogSource(DEFAULT_FOLDER if DEFAULT_FOLDER.is_dir() else Path("."))
+
+
+def _listening(address: str) -> bool:
+    """Whether something accepts TCP connections at ``address`` (HOST:PORT) at once."""
+    import socket
+
+    host, _, port = address.rpartition(":")
+    try:
+        with socket.create_connection((host, int(port)), timeout=0.5):
+            return True
+    except OSError:
+        return False
 
 
 def run(args: argparse.Namespace) -> int:

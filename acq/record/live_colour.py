@@ -70,7 +70,8 @@ FRAMES_KEPT_S = 1.0  # s of each camera's frames kept before the newest
 POSE_MARGIN_S = 0.3
 SHARE_SCANS = 40  # the coloured shares are those of the last this many scans
 SWATH_TOPIC = "/live/swath"
-TF_TOPIC = "/tf"  # the vehicle's pose in the poses' frame, at each scan coloured with it
+TF_TOPIC = "/tf"  # the vehicle's pose in the poses' frame, at most TF_HZ
+TF_HZ = 10.0
 IMAGE_SUFFIX = "/image/compressed"
 VEHICLE_TOPICS = RollingTrajectory.TOPICS
 POSE_WINDOW_S = 20.0  # s of vehicle data the rolling trajectory is built from
@@ -164,6 +165,7 @@ class LiveColourer(Listener):
         self._now_ns = 0  # host ns of the newest record taken
         self._schema = schemas.SCHEMAS["foxglove.PointCloud"]
         self._tf_schema = schemas.SCHEMAS["foxglove.FrameTransforms"]
+        self._tf_ns = -(2**62)  # the stamp of the last /tf sent
         self.coloured = 0  # scans coloured and emitted
         self.skipped = 0  # scans not coloured: colouring fell behind
         self.failed = 0  # scans whose colouring raised
@@ -280,7 +282,8 @@ class LiveColourer(Listener):
         self.coloured += 1
         per_camera = np.bincount(merged.camera[merged.coloured], minlength=len(cameras))
         self._shares.append((pts.time_ns.size, per_camera))
-        if traj is not None:
+        if traj is not None and scan.stamp_ns - self._tf_ns >= 1e9 / TF_HZ:
+            self._tf_ns = scan.stamp_ns
             R, t = traj.pose_at(np.array([scan.stamp_ns]))
             tf = schemas.transform(traj.frame, "vehicle", Rigid(R[0], t[0]), stamp_log)
             self.emit(LogRecord(TF_TOPIC, self._tf_schema, tf, self._now_ns + offset))

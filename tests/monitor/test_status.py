@@ -23,6 +23,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from acq.cli.record import DEFAULT_ADDRESS
 from acq.record.recorder import Recorder
 from tests.sim_rig import Rig, warm_rig
 
@@ -58,6 +59,16 @@ class Recording:
     address: str  # its live server, HOST:PORT
 
 
+def _free(address: str) -> bool:
+    host, _, port = address.rpartition(":")
+    with socket.socket() as s:
+        try:
+            s.bind((host, int(port)))
+        except OSError:
+            return False
+        return True
+
+
 def free_port() -> int:
     """A TCP port of 127.0.0.1 nothing listens on (as of now)."""
     with socket.socket() as s:
@@ -70,7 +81,8 @@ def free_port() -> int:
 def recording(rig: Rig, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Recording]:
     """`acq record` of the rig running, once the recorder has reported its devices."""
     tmp = tmp_path_factory.mktemp("recording")
-    address = f"127.0.0.1:{free_port()}"
+    # --live's default address when free: `acq status` without an argument finds it
+    address = DEFAULT_ADDRESS if _free(DEFAULT_ADDRESS) else f"127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
         [sys.executable, "-m", "acq.cli", "record", "-c", str(_config(rig, tmp)),
          "--duration", "120", "--live", address],
@@ -130,6 +142,20 @@ def test_json_of_a_running_recorder_from_its_live_server(recording: Recording) -
     assert all(d["connected"] and d["gap_s"] < 5.0 for d in devices.values())
     assert snap["time_base"].startswith("host clock")
     assert "colouring" not in snap  # this recorder colours nothing live
+
+
+@pytest.mark.realtime
+def test_without_an_argument_the_live_server_on_this_host_is_shown(
+    recording: Recording, tmp_path: Path
+) -> None:
+    if recording.address != DEFAULT_ADDRESS:
+        pytest.skip(f"{DEFAULT_ADDRESS} was taken: the recorder serves another port")
+    done = subprocess.run(
+        [sys.executable, "-m", "acq.cli", "status", "--json"], cwd=tmp_path,
+        capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert json.loads(done.stdout)["source"] == f"live ws://{DEFAULT_ADDRESS}"
 
 
 def _view_through_pty(target: str, signum: signal.Signals) -> bytes:

@@ -15,11 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
-from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
-from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from mcap.writer import Writer
 
 from acq.log.acq_proto import DeviceStatusMsg, StatusMsg
+from acq.log.cloud_message import point_cloud
 from acq.log.reader import LogReader, read_metadata
 from acq.log.schemas import SCHEMAS  # the descriptor sets the logs carry
 from tests.bench_scripts import load
@@ -27,24 +26,12 @@ from tests.log_rewrite import mcap_copy
 
 agreement = load("live_agreement")
 live = load("live")
-
-_N = PackedElementField.NumericType
-_FIELDS = [("x", 0, _N.FLOAT32), ("y", 4, _N.FLOAT32), ("z", 8, _N.FLOAT32),
-           ("red", 12, _N.UINT8), ("green", 13, _N.UINT8), ("blue", 14, _N.UINT8),
-           ("alpha", 15, _N.UINT8)]  # fmt: skip
-_POINT = np.dtype({"names": [f[0] for f in _FIELDS], "offsets": [f[1] for f in _FIELDS],
-                   "formats": ["<f4"] * 3 + ["u1"] * 4, "itemsize": 16})  # fmt: skip
+swath = load("live_swath")
 
 
 def _cloud(xyz: np.ndarray, rgb: np.ndarray, coloured: np.ndarray, stamp_ns: int) -> bytes:
-    a = np.zeros(len(xyz), _POINT)
-    a["x"], a["y"], a["z"] = xyz.T
-    a["red"], a["green"], a["blue"] = rgb.T
-    a["alpha"] = np.where(coloured, 255, 0)
-    msg = PointCloud(frame_id="laser", point_stride=16, data=a.tobytes())
-    msg.timestamp.seconds, msg.timestamp.nanos = divmod(stamp_ns, 10**9)
-    msg.fields.extend(PackedElementField(name=n, offset=o, type=t) for n, o, t in _FIELDS)
-    return bytes(msg.SerializeToString())
+    """A coloured scan as the live colourer publishes it."""
+    return point_cloud(xyz, rgb, "laser", stamp_ns, np.where(coloured, 255, 0).astype(np.uint8))
 
 
 @pytest.fixture(scope="module")
@@ -245,3 +232,27 @@ def test_the_live_bench_measures_a_real_recorder(tmp_path: Path) -> None:
     assert got == nominal > 100 and stalled["dropped"]["laser"] == 0
     assert stalled["reader_latency"]["/laser/scan"]["with_stalled"]["present"]
     assert stalled["stalled_client_messages"]["/laser/scan"] > 0
+
+
+def test_the_swath_picture_shows_the_street_from_above_and_its_left_side() -> None:
+    """bench/live_swath.py's drawing of a swath: a red wall 5 m left of a straight track,
+    a blue one 5 m right, a grey road between; seen from above and from the street."""
+    x = np.repeat(np.arange(0.0, 40.0, 0.05), 40)
+    z = np.tile(np.linspace(0.0, 8.0, 40), x.size // 40)
+    wall = np.stack([x, np.full_like(x, 5.0), z], axis=1)
+    road = np.stack([x, np.tile(np.linspace(-4, 4, 40), x.size // 40), np.zeros_like(x)], 1)
+    right = wall * [1, -1, 1]
+    rgb = np.vstack([np.tile(c, (x.size, 1)) for c in ([200, 30, 30], [90, 90, 90], [30, 30, 200])])
+    data = point_cloud(np.vstack([wall, road, right]), rgb.astype(np.uint8), "odometry", 0)
+    from acq.log import schemas
+
+    xyz, got_rgb = swath.swath_points(schemas.decode("foxglove.PointCloud", data))
+    np.testing.assert_allclose(xyz[: x.size], wall, atol=1e-5)
+    picture = swath.draw(xyz, got_rgb, res=0.1)
+    red = (picture[..., 2] == 200) & (picture[..., 1] == 30)
+    rows = np.flatnonzero(red.any(axis=1))
+    assert red.sum() > 0.5 * 400 * 80  # the side view: 40 m x 8 m of wall at 10 cm/px
+    assert rows.max() - rows.min() > 70  # the wall's height, seen from the street
+    assert ((picture[..., 0] == 90) & (picture[..., 1] == 90)).sum() > 400 * 40  # road
+    blue = (picture[..., 0] == 200) & (picture[..., 2] == 30)  # BGR
+    assert blue.sum() < 400 * 10  # the right wall only as a line from above

@@ -62,6 +62,7 @@ class Recording:
 def _free(address: str) -> bool:
     host, _, port = address.rpartition(":")
     with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server binds
         try:
             s.bind((host, int(port)))
         except OSError:

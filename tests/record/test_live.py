@@ -188,7 +188,8 @@ def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
     assert figures.coloured_share > 0.2
     # the swath: 2 s of coloured scans at 2 Hz, in the laser frame (this rig has no CAN)
     swath = seen["swath"]
-    assert swath["frame_id"] == "laser" and 2 * span - 3 <= swath["count"] <= 2 * span + 2
+    assert swath["frame_id"] == "laser" and swath["count"] >= 2 * span - 3
+    assert min(np.diff(swath["stamps"])) >= 0.5e9 - 30e6  # 2 Hz at most (a scan's slack)
     assert 0 < max(swath["points"]) <= 300_000
     assert swath["coloured_share"] == 1.0  # only coloured points
 

@@ -1,0 +1,236 @@
+"""Facets from a pushbroom scanner's organised grid (scan x step), the rules of organised
+cloud meshing (PCL's OrganizedFastMesh) adapted to a sensor that moves between scans.
+
+Every grid cell (s, k), (s, k+1), (s+1, k), (s+1, k+1) gives up to two triangles. An edge
+between two returns is refused when one end is missing or not finite, when it is longer
+than ``edge_a_m + edge_b * range`` (range: the nearer end's distance from its own sensor
+origin), or when it is seen at grazing incidence: the angle between the edge and the
+viewing ray from *either* end's own sensor origin is below ``max_grazing_deg`` (a range
+jump, a depth discontinuity, shows as an edge running along the rays). A triangle needs
+its three edges; of a cell's two diagonals the one giving more triangles wins, the shorter
+one when both give as many. Distances are metres, angles degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from acq.errors import InputValueError
+
+__all__ = ["FacetRules", "grid_facets"]
+
+
+@dataclass(frozen=True)
+class FacetRules:
+    """When two neighbouring returns may share a facet (module docstring).
+
+    The defaults keep at least 95 % of the returns on continuous surfaces of the
+    simulated street in a facet with no facet across a depth step (``bench/mesh_facets.py``):
+    ``edge_a_m`` covers the spacing between consecutive profiles (the vehicle's advance
+    per scan: 0.14 m at 20 km/h and 40 scans/s, 0.35 m at 50 km/h); ``edge_b`` is about
+    ten times the spacing of neighbouring beams (0.25 degrees: 0.0044 x range), room for
+    a surface seen obliquely. Depth steps are refused by the grazing angle whatever their
+    size; the length bound only catches what the angle lets through at long range.
+    """
+
+    max_grazing_deg: float = 12.5  # an edge more nearly parallel to the viewing ray is refused
+    edge_a_m: float = 0.5  # an edge longer than edge_a_m + edge_b * range (m) is refused
+    edge_b: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.max_grazing_deg < 90.0:
+            raise InputValueError(f"max_grazing_deg must be in [0, 90), got {self.max_grazing_deg}")
+        if not (self.edge_a_m >= 0.0 and self.edge_b >= 0.0):
+            raise InputValueError(
+                f"edge_a_m and edge_b must be >= 0, got {self.edge_a_m} and {self.edge_b}"
+            )
+
+
+def _check_inputs(
+    scan: np.ndarray, step: np.ndarray, xyz: np.ndarray, origin: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The arrays as int64 (P,), int64 (P,), float64 (P,3), float64 (P,3); ValueError
+    naming the argument when a shape does not fit."""
+    scan_a = np.asarray(scan)
+    step_a = np.asarray(step)
+    xyz_a = np.asarray(xyz, dtype=np.float64)
+    origin_a = np.asarray(origin, dtype=np.float64)
+    for name, a in (("scan", scan_a), ("step", step_a)):
+        if a.ndim != 1:
+            raise ValueError(f"{name} must be one-dimensional (P,), got shape {a.shape}")
+        if a.size and not np.issubdtype(a.dtype, np.integer):
+            raise ValueError(f"{name} must hold integers, got {a.dtype}")
+    P = scan_a.shape[0]
+    for name, a in (("xyz", xyz_a), ("origin", origin_a)):
+        if a.ndim != 2 or a.shape[1] != 3:
+            raise ValueError(f"{name} must have shape (P, 3), got {a.shape}")
+    lengths = {
+        "scan": P,
+        "step": step_a.shape[0],
+        "xyz": xyz_a.shape[0],
+        "origin": origin_a.shape[0],
+    }
+    if len(set(lengths.values())) != 1:
+        told = ", ".join(f"{k} {v}" for k, v in lengths.items())
+        raise ValueError(f"scan, step, xyz and origin must have one length P, got {told}")
+    return scan_a.astype(np.int64), step_a.astype(np.int64), xyz_a, origin_a
+
+
+def _ranks(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each value's rank among the distinct values (P,), and per rank whether the next
+    rank's value is this one + 1 (the next scan or beam is a neighbour)."""
+    distinct, rank = np.unique(values, return_inverse=True)
+    follows = np.zeros(distinct.size, dtype=bool)
+    follows[:-1] = np.diff(distinct) == 1
+    return rank.astype(np.int64), follows
+
+
+def _neighbour(keys_sorted: np.ndarray, order: np.ndarray, want: np.ndarray) -> np.ndarray:
+    """Index of the point whose grid key is ``want`` (-1 where there is none)."""
+    pos = np.searchsorted(keys_sorted, want)
+    pos_c = np.minimum(pos, keys_sorted.size - 1)
+    found = keys_sorted[pos_c] == want
+    return np.where(found, order[pos_c], -1)
+
+
+def _at(ok: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """``ok`` of the edges starting at points ``where`` (False where -1: no point)."""
+    out: np.ndarray = (where >= 0) & ok[where]
+    return out
+
+
+class _Points:
+    """The finite points as separate coordinate arrays (gathers on 1-D arrays are the
+    fast ones): position, viewing ray from the point's own origin, and range (m)."""
+
+    def __init__(self, xyz: np.ndarray, origin: np.ndarray) -> None:
+        self.p = [np.ascontiguousarray(xyz[:, i]) for i in range(3)]
+        self.o = [np.ascontiguousarray(origin[:, i]) for i in range(3)]
+        self.ray = [p - o for p, o in zip(self.p, self.o, strict=True)]
+        self.dist = np.sqrt(sum(r * r for r in self.ray))
+
+    def edges_ok(self, a: np.ndarray, b: np.ndarray, rules: FacetRules) -> np.ndarray:
+        """Whether each edge a[i]-b[i] (point indices, -1 missing) is accepted."""
+        ok = (a >= 0) & (b >= 0)
+        ia, ib = a[ok], b[ok]
+        d = [p[ib] - p[ia] for p in self.p]
+        length = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        ra, rb = self.dist[ia], self.dist[ib]
+        good = (length > 0.0) & (ra > 0.0) & (rb > 0.0)
+        good &= length <= rules.edge_a_m + rules.edge_b * np.minimum(ra, rb)
+        # |cos| of the angle between the edge's line and each end's viewing ray
+        cos_max = math.cos(math.radians(rules.max_grazing_deg))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dot_a = d[0] * self.ray[0][ia] + d[1] * self.ray[1][ia] + d[2] * self.ray[2][ia]
+            good &= np.abs(dot_a) <= cos_max * length * ra
+            dot_b = d[0] * self.ray[0][ib] + d[1] * self.ray[1][ib] + d[2] * self.ray[2][ib]
+            good &= np.abs(dot_b) <= cos_max * length * rb
+        ok[ok] = good
+        return ok
+
+    def diagonal(self, a: np.ndarray, b: np.ndarray, present: np.ndarray) -> np.ndarray:
+        """Length of edge a-b where ``present``, +inf elsewhere (m)."""
+        out = np.full(a.size, np.inf)
+        ia, ib = a[present], b[present]
+        out[present] = np.sqrt(sum((p[ib] - p[ia]) ** 2 for p in self.p))
+        return out
+
+    def oriented(self, v0: np.ndarray, v1: np.ndarray, v2: np.ndarray) -> np.ndarray:
+        """The triangles (v0, v1, v2) (point indices) of non-zero area as (F,3), each
+        ordered counter-clockwise seen from its first vertex's sensor origin (accepted
+        edges are not seen edge-on, so every vertex sees the same side)."""
+        e1 = [p[v1] - p[v0] for p in self.p]
+        e2 = [p[v2] - p[v0] for p in self.p]
+        n = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ]
+        n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
+        e1_2 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2]
+        e2_2 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]
+        keep = n2 > 1e-12 * e1_2 * e2_2  # the sine of the angle at v0 above 1e-6
+        facing = n[0] * self.ray[0][v0] + n[1] * self.ray[1][v0] + n[2] * self.ray[2][v0]
+        flip = facing[keep] > 0.0  # the normal must point against the ray
+        k0, k1, k2 = v0[keep], v1[keep], v2[keep]
+        tri: np.ndarray = np.stack([k0, np.where(flip, k2, k1), np.where(flip, k1, k2)], axis=1)
+        return tri
+
+
+def grid_facets(
+    scan: np.ndarray,
+    step: np.ndarray,
+    xyz: np.ndarray,
+    origin: np.ndarray,
+    rules: FacetRules = FacetRules(),
+) -> np.ndarray:
+    """Triangles (F,3) int64 indexing the P points given: ``scan`` (P,) int scan index
+    (consecutive scans are neighbours; any ints, not necessarily from 0), ``step`` (P,)
+    int beam index within its scan (neighbour beams differ by 1), ``xyz`` (P,3) float m
+    (the points placed, world or laser frame), ``origin`` (P,3) float m: the sensor's
+    position when THAT point was measured (per point, so the caller may give the scan's
+    origin repeated, or a per-point one). Points missing from the grid (no return) are
+    simply absent from the arrays; points with a non-finite coordinate or origin are in
+    no facet. Triangles are consistently oriented (counter-clockwise seen from the sensor
+    side). ValueError on arrays of mismatched lengths or shapes, or a (scan, step) pair
+    given twice."""
+    scan_i, step_i, xyz_f, origin_f = _check_inputs(scan, step, xyz, origin)
+    finite = np.isfinite(xyz_f).all(axis=1) & np.isfinite(origin_f).all(axis=1)
+    idx = np.flatnonzero(finite)
+    if idx.size == 0:
+        return np.zeros((0, 3), dtype=np.int64)
+    s_rank, s_follows = _ranks(scan_i[idx])
+    k_rank, k_follows = _ranks(step_i[idx])
+    width = int(k_rank.max()) + 2  # a key one past a row's end never matches the next row
+    keys = s_rank * width + k_rank
+    order = np.argsort(keys, kind="stable")
+    keys_sorted = keys[order]
+    if keys_sorted.size > 1 and (np.diff(keys_sorted) == 0).any():
+        dup = idx[order[np.flatnonzero(np.diff(keys_sorted) == 0)[0]]]
+        raise ValueError(f"(scan, step) = ({scan_i[dup]}, {step_i[dup]}) is given more than once")
+    # each point's neighbours (s, k+1), (s+1, k), (s+1, k+1), (s+1, k-1), as positions
+    # in idx (-1: none); only true neighbours (value + 1) count, not merely the next
+    # distinct value
+    k_next = k_follows[k_rank]
+    k_prev = np.zeros(k_rank.size, dtype=bool)
+    k_prev[k_rank > 0] = k_follows[k_rank[k_rank > 0] - 1]
+    s_next = s_follows[s_rank]
+    right = np.where(k_next, _neighbour(keys_sorted, order, keys + 1), -1)
+    down = np.where(s_next, _neighbour(keys_sorted, order, keys + width), -1)
+    diag = np.where(k_next & s_next, _neighbour(keys_sorted, order, keys + width + 1), -1)
+    anti = np.where(k_prev & s_next, _neighbour(keys_sorted, order, keys + width - 1), -1)
+
+    pts = _Points(xyz_f[idx], origin_f[idx])
+    p = np.arange(idx.size)
+    right_ok = pts.edges_ok(p, right, rules)
+    down_ok = pts.edges_ok(p, down, rules)
+    diag_ok = pts.edges_ok(p, diag, rules)
+    anti_ok = pts.edges_ok(p, anti, rules)
+
+    # the cell whose first corner a = (s, k) exists: b = (s, k+1), c = (s+1, k), d = (s+1, k+1)
+    a, b, c, d = p, right, down, diag
+    ab, ac, bd, cd = right_ok, down_ok, _at(down_ok, b), _at(right_ok, c)
+    ad, bc = diag_ok, _at(anti_ok, b)
+    abd, adc = ab & bd & ad, ad & cd & ac  # split along a-d
+    abc, bdc = ab & bc & ac, bd & cd & bc  # split along b-c
+    n_ad = abd.astype(np.int8) + adc
+    n_bc = abc.astype(np.int8) + bdc
+    len_ad, len_bc = pts.diagonal(a, d, ad), pts.diagonal(b, c, bc)
+    use_ad = (n_ad > n_bc) | ((n_ad == n_bc) & (len_ad <= len_bc))
+    # the cell whose first corner is missing: its one triangle b, d, c, from b = p
+    no_left = np.ones(idx.size, dtype=bool)
+    no_left[right[right >= 0]] = False
+    bdc_alone = no_left & down_ok & anti_ok & _at(right_ok, anti)
+    corners = [
+        ((a, b, d), abd & use_ad),
+        ((a, d, c), adc & use_ad),
+        ((a, b, c), abc & ~use_ad),
+        ((b, d, c), bdc & ~use_ad),
+        ((p, down, anti), bdc_alone),
+    ]
+    v0, v1, v2 = (np.concatenate([vs[i][m] for vs, m in corners]) for i in range(3))
+    out: np.ndarray = idx[pts.oriented(v0, v1, v2)]
+    return out

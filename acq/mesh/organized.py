@@ -2,13 +2,15 @@
 cloud meshing (PCL's OrganizedFastMesh) adapted to a sensor that moves between scans.
 
 Every grid cell (s, k), (s, k+1), (s+1, k), (s+1, k+1) gives up to two triangles. An edge
-between two returns is refused when one end is missing or not finite, when it is longer
+between two returns is refused when one end is missing or not finite; when it is longer
 than ``edge_a_m + edge_b * range`` (range: the nearer end's distance from its own sensor
-origin), or when it is seen at grazing incidence: the angle between the edge and the
-viewing ray from *either* end's own sensor origin is below ``max_grazing_deg`` (a range
-jump, a depth discontinuity, shows as an edge running along the rays). A triangle needs
-its three edges; of a cell's two diagonals the one giving more triangles wins, the shorter
-one when both give as many. Distances are metres, angles degrees.
+origin) plus the sensor's travel between the two measurements (consecutive profiles lie
+that far apart on any surface, at any speed); or when it is seen at grazing incidence:
+the angle between the edge and the viewing ray from *either* end's own sensor origin is
+below ``max_grazing_deg`` (a range jump, a depth discontinuity, shows as an edge running
+along the rays). A triangle needs its three edges; of a cell's two diagonals the one
+giving more triangles wins, the shorter one when both give as many. Distances are
+metres, angles degrees.
 """
 
 from __future__ import annotations
@@ -27,17 +29,17 @@ __all__ = ["FacetRules", "grid_facets"]
 class FacetRules:
     """When two neighbouring returns may share a facet (module docstring).
 
-    The defaults keep at least 95 % of the returns on continuous surfaces of the
-    simulated street in a facet with no facet across a depth step (``bench/mesh_facets.py``):
-    ``edge_a_m`` covers the spacing between consecutive profiles (the vehicle's advance
-    per scan: 0.14 m at 20 km/h and 40 scans/s, 0.35 m at 50 km/h); ``edge_b`` is about
-    ten times the spacing of neighbouring beams (0.25 degrees: 0.0044 x range), room for
-    a surface seen obliquely. Depth steps are refused by the grazing angle whatever their
-    size; the length bound only catches what the angle lets through at long range.
+    An edge's length bound is ``edge_a_m + edge_b * range`` plus the sensor's own travel
+    between its two ends' measurements (the spacing of consecutive profiles, whatever the
+    speed; nothing within a profile). ``edge_b`` = 0.05 leaves room for a surface seen at
+    the grazing limit by a scanner with beams up to 0.5 degrees apart (their spacing
+    there: range x 0.0087 / sin 12.5 degrees = 0.04 x range). On the simulated street
+    (``bench/mesh_facets.py``) the defaults put 98.7 % of the returns on continuous
+    surfaces in a facet, and no facet across a depth step of more than 0.5 m.
     """
 
     max_grazing_deg: float = 12.5  # an edge more nearly parallel to the viewing ray is refused
-    edge_a_m: float = 0.5  # an edge longer than edge_a_m + edge_b * range (m) is refused
+    edge_a_m: float = 0.05  # an edge longer than edge_a_m + edge_b * range (m) + travel is refused
     edge_b: float = 0.05
 
     def __post_init__(self) -> None:
@@ -120,7 +122,10 @@ class _Points:
         length = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         ra, rb = self.dist[ia], self.dist[ib]
         good = (length > 0.0) & (ra > 0.0) & (rb > 0.0)
-        good &= length <= rules.edge_a_m + rules.edge_b * np.minimum(ra, rb)
+        # the sensor's own travel between the two measurements is the grid's spacing
+        # along the track: allowed on top, whatever the speed
+        travel = np.sqrt(sum((o[ib] - o[ia]) ** 2 for o in self.o))
+        good &= length <= rules.edge_a_m + rules.edge_b * np.minimum(ra, rb) + travel
         # |cos| of the angle between the edge's line and each end's viewing ray
         cos_max = math.cos(math.radians(rules.max_grazing_deg))
         with np.errstate(invalid="ignore", divide="ignore"):

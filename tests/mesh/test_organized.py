@@ -23,13 +23,14 @@ def sweep(
     beams_deg: np.ndarray,
     plane_n: tuple[float, float, float] = (0.0, -1.0, 0.0),
     plane_d: float = -5.0,
+    advance_m: float = SPEED_M,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(scan, step, xyz, origin) of a scanner moving along +x at HEIGHT_M, its beams in
     the y-z plane at ``beams_deg`` above +y, hitting the plane n . p = d (default: a wall
-    at y = 5 m). Rays that miss (or hit behind) are left out."""
+    at y = 5 m), ``advance_m`` apart. Rays that miss (or hit behind) are left out."""
     s, k = np.meshgrid(np.arange(n_scans), np.arange(beams_deg.size), indexing="ij")
     s, k = s.ravel(), k.ravel()
-    origin = np.stack([s * SPEED_M, np.zeros(s.size), np.full(s.size, HEIGHT_M)], axis=1)
+    origin = np.stack([s * advance_m, np.zeros(s.size), np.full(s.size, HEIGHT_M)], axis=1)
     a = np.radians(beams_deg[k])
     ray = np.stack([np.zeros(s.size), np.cos(a), np.sin(a)], axis=1)
     n = np.asarray(plane_n, float)
@@ -162,13 +163,37 @@ def test_each_end_is_judged_from_its_own_sensor_origin() -> None:
 
 
 def test_an_edge_longer_than_its_bound_is_refused() -> None:
-    scan, step, xyz, origin = sweep(3, beams(-1.0, 1.0))  # consecutive scans 0.14 m apart
-    assert grid_facets(scan, step, xyz, origin, FacetRules(edge_a_m=0.15, edge_b=0.0)).size
-    short = FacetRules(edge_a_m=0.10, edge_b=0.0)
-    assert grid_facets(scan, step, xyz, origin, short).shape == (0, 3)
-    # range counts: 0.1 + 0.01 * 5 m > 0.14 m
-    roomy = FacetRules(edge_a_m=0.10, edge_b=0.01)
-    assert grid_facets(scan, step, xyz, origin, roomy).shape[0] == 2 * 2 * 8
+    """Beams 2 degrees apart on a wall 5 m away: 0.175 m between neighbours in a scan."""
+    scan, step, xyz, origin = sweep(3, beams(-4.0, 4.0, 2.0))
+    cells_2x4 = 2 * 2 * 4
+    assert (
+        grid_facets(scan, step, xyz, origin, FacetRules(edge_a_m=0.18, edge_b=0.0)).shape[0]
+        == cells_2x4
+    )
+    assert grid_facets(scan, step, xyz, origin, FacetRules(edge_a_m=0.17, edge_b=0.0)).shape == (
+        0,
+        3,
+    )
+    # range counts: 0.1 + 0.016 * 5 m > 0.175 m, 0.1 + 0.014 * 5 m < 0.175 m
+    assert (
+        grid_facets(scan, step, xyz, origin, FacetRules(edge_a_m=0.10, edge_b=0.016)).shape[0]
+        == cells_2x4
+    )
+    assert grid_facets(scan, step, xyz, origin, FacetRules(edge_a_m=0.10, edge_b=0.014)).shape == (
+        0,
+        3,
+    )
+
+
+def test_the_length_bound_allows_the_sensors_travel_between_scans() -> None:
+    """At 100 km/h (0.7 m between scans) a wall is meshed whole with the default rules;
+    points placed 0.5 m further apart than the sensor moved (beyond 0.05 + 0.05 * 5 m)
+    are not."""
+    scan, step, xyz, origin = sweep(4, beams(-4.0, 4.0), advance_m=0.7)
+    assert grid_facets(scan, step, xyz, origin).shape[0] == 2 * 3 * 32
+    stretched = xyz.copy()
+    stretched[:, 0] = scan * 1.2  # the points 1.2 m apart, the sensor 0.7 m
+    assert grid_facets(scan, step, stretched, origin).shape == (0, 3)
 
 
 def test_the_shorter_diagonal_is_chosen() -> None:
@@ -283,7 +308,9 @@ def test_any_grid_gives_valid_non_degenerate_triangles(
     b: float,
 ) -> None:
     scan, step, xyz, origin = grid
-    tri = grid_facets(scan, step, xyz, origin, FacetRules(grazing, a, b))
+    tri = grid_facets(
+        scan, step, xyz, origin, FacetRules(max_grazing_deg=grazing, edge_a_m=a, edge_b=b)
+    )
     assert tri.dtype == np.int64 and tri.ndim == 2 and tri.shape[1] == 3
     if tri.size == 0:
         return

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -104,65 +105,67 @@ def _at(ok: np.ndarray, where: np.ndarray) -> np.ndarray:
     return out
 
 
+class _Edges(NamedTuple):
+    """The edge from every point to one of its neighbours: ``ok`` (P,) accepted, ``vec``
+    the three (P,) coordinates of the vector to the neighbour (0 where none), ``len2``
+    (P,) its squared length (m, m^2)."""
+
+    ok: np.ndarray
+    vec: list[np.ndarray]
+    len2: np.ndarray
+
+
 class _Points:
-    """The finite points as separate coordinate arrays (gathers on 1-D arrays are the
-    fast ones): position, viewing ray from the point's own origin, and range (m)."""
+    """The finite points as separate coordinate arrays (gathers and arithmetic on 1-D
+    arrays are the fast ones): position, viewing ray from the point's own origin, and
+    range (m)."""
 
     def __init__(self, xyz: np.ndarray, origin: np.ndarray) -> None:
         self.p = [np.ascontiguousarray(xyz[:, i]) for i in range(3)]
         self.o = [np.ascontiguousarray(origin[:, i]) for i in range(3)]
         self.ray = [p - o for p, o in zip(self.p, self.o, strict=True)]
         self.dist = np.sqrt(sum(r * r for r in self.ray))
+        self.index = np.arange(self.dist.size)
 
-    def edges_ok(self, a: np.ndarray, b: np.ndarray, rules: FacetRules) -> np.ndarray:
-        """Whether each edge a[i]-b[i] (point indices, -1 missing) is accepted."""
-        ok = (a >= 0) & (b >= 0)
-        ia, ib = a[ok], b[ok]
-        d = [p[ib] - p[ia] for p in self.p]
-        length = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        ra, rb = self.dist[ia], self.dist[ib]
-        good = (length > 0.0) & (ra > 0.0) & (rb > 0.0)
+    def edges(self, to: np.ndarray, rules: FacetRules) -> _Edges:
+        """The edges from every point to its neighbour ``to`` (P,) (-1: none)."""
+        has = to >= 0
+        j = np.where(has, to, self.index)  # none: an edge to itself, refused
+        d = [p[j] - p for p in self.p]
+        len2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+        length = np.sqrt(len2)
+        ra, rb = self.dist, self.dist[j]
+        ok = has & (length > 0.0) & (ra > 0.0) & (rb > 0.0)
         # the sensor's own travel between the two measurements is the grid's spacing
         # along the track: allowed on top, whatever the speed
-        travel = np.sqrt(sum((o[ib] - o[ia]) ** 2 for o in self.o))
-        good &= length <= rules.edge_a_m + rules.edge_b * np.minimum(ra, rb) + travel
+        travel = np.sqrt(sum((o[j] - o) ** 2 for o in self.o))
+        ok &= length <= rules.edge_a_m + rules.edge_b * np.minimum(ra, rb) + travel
         # |cos| of the angle between the edge's line and each end's viewing ray
         cos_max = math.cos(math.radians(rules.max_grazing_deg))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            dot_a = d[0] * self.ray[0][ia] + d[1] * self.ray[1][ia] + d[2] * self.ray[2][ia]
-            good &= np.abs(dot_a) <= cos_max * length * ra
-            dot_b = d[0] * self.ray[0][ib] + d[1] * self.ray[1][ib] + d[2] * self.ray[2][ib]
-            good &= np.abs(dot_b) <= cos_max * length * rb
-        ok[ok] = good
-        return ok
+        dot_a = d[0] * self.ray[0] + d[1] * self.ray[1] + d[2] * self.ray[2]
+        ok &= np.abs(dot_a) <= cos_max * length * ra
+        dot_b = d[0] * self.ray[0][j] + d[1] * self.ray[1][j] + d[2] * self.ray[2][j]
+        ok &= np.abs(dot_b) <= cos_max * length * rb
+        return _Edges(ok, d, len2)
 
-    def diagonal(self, a: np.ndarray, b: np.ndarray, present: np.ndarray) -> np.ndarray:
-        """Length of edge a-b where ``present``, +inf elsewhere (m)."""
-        out = np.full(a.size, np.inf)
-        ia, ib = a[present], b[present]
-        out[present] = np.sqrt(sum((p[ib] - p[ia]) ** 2 for p in self.p))
-        return out
-
-    def oriented(self, v0: np.ndarray, v1: np.ndarray, v2: np.ndarray) -> np.ndarray:
-        """The triangles (v0, v1, v2) (point indices) of non-zero area as (F,3), each
-        ordered counter-clockwise seen from its first vertex's sensor origin (accepted
-        edges are not seen edge-on, so every vertex sees the same side)."""
-        e1 = [p[v1] - p[v0] for p in self.p]
-        e2 = [p[v2] - p[v0] for p in self.p]
-        n = [
-            e1[1] * e2[2] - e1[2] * e2[1],
-            e1[2] * e2[0] - e1[0] * e2[2],
-            e1[0] * e2[1] - e1[1] * e2[0],
-        ]
+    def triangles(
+        self, mask: np.ndarray, v1: np.ndarray, v2: np.ndarray, e1: _Edges, e2: _Edges
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The triangles (p, v1[p], v2[p]) of the points p in ``mask`` (P,), whose sides
+        from p are ``e1`` and ``e2``, as (v0, v1, v2) index arrays: those of non-zero
+        area, each counter-clockwise seen from p's sensor origin (accepted edges are not
+        seen edge-on, so every vertex sees the same side)."""
+        v0 = np.flatnonzero(mask)
+        a = [c[mask] for c in e1.vec]
+        b = [c[mask] for c in e2.vec]
+        n = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
         n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
-        e1_2 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2]
-        e2_2 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2]
-        keep = n2 > 1e-12 * e1_2 * e2_2  # the sine of the angle at v0 above 1e-6
-        facing = n[0] * self.ray[0][v0] + n[1] * self.ray[1][v0] + n[2] * self.ray[2][v0]
+        keep = n2 > 1e-12 * e1.len2[mask] * e2.len2[mask]  # the angle's sine above 1e-6
+        facing = n[0] * self.ray[0][mask] + n[1] * self.ray[1][mask] + n[2] * self.ray[2][mask]
         flip = facing[keep] > 0.0  # the normal must point against the ray
-        k0, k1, k2 = v0[keep], v1[keep], v2[keep]
-        tri: np.ndarray = np.stack([k0, np.where(flip, k2, k1), np.where(flip, k1, k2)], axis=1)
-        return tri
+        v0 = v0[keep]
+        w1, w2 = v1[v0], v2[v0]
+        return v0, np.where(flip, w2, w1), np.where(flip, w1, w2)
 
 
 def grid_facets(
@@ -209,33 +212,36 @@ def grid_facets(
     anti = np.where(k_prev & s_next, _neighbour(keys_sorted, order, keys + width - 1), -1)
 
     pts = _Points(xyz_f[idx], origin_f[idx])
-    p = np.arange(idx.size)
-    right_ok = pts.edges_ok(p, right, rules)
-    down_ok = pts.edges_ok(p, down, rules)
-    diag_ok = pts.edges_ok(p, diag, rules)
-    anti_ok = pts.edges_ok(p, anti, rules)
+    R, Dn = pts.edges(right, rules), pts.edges(down, rules)
+    D, A = pts.edges(diag, rules), pts.edges(anti, rules)
 
     # the cell whose first corner a = (s, k) exists: b = (s, k+1), c = (s+1, k), d = (s+1, k+1)
-    a, b, c, d = p, right, down, diag
-    ab, ac, bd, cd = right_ok, down_ok, _at(down_ok, b), _at(right_ok, c)
-    ad, bc = diag_ok, _at(anti_ok, b)
+    b, c = right, down
+    ab, ac, bd, cd = R.ok, Dn.ok, _at(Dn.ok, b), _at(R.ok, c)
+    ad, bc = D.ok, _at(A.ok, b)
     abd, adc = ab & bd & ad, ad & cd & ac  # split along a-d
     abc, bdc = ab & bc & ac, bd & cd & bc  # split along b-c
     n_ad = abd.astype(np.int8) + adc
     n_bc = abc.astype(np.int8) + bdc
-    len_ad, len_bc = pts.diagonal(a, d, ad), pts.diagonal(b, c, bc)
-    use_ad = (n_ad > n_bc) | ((n_ad == n_bc) & (len_ad <= len_bc))
-    # the cell whose first corner is missing: its one triangle b, d, c, from b = p
+    len2_bc = np.where(bc, A.len2[b], np.inf)
+    use_ad = (n_ad > n_bc) | ((n_ad == n_bc) & (np.where(ad, D.len2, np.inf) <= len2_bc))
+    # b, d, c is found from b = p: for the cells above, and for the cell whose first
+    # corner is missing
+    from_b = np.zeros(idx.size, dtype=bool)
+    from_b[b[bdc & ~use_ad]] = True
     no_left = np.ones(idx.size, dtype=bool)
     no_left[right[right >= 0]] = False
-    bdc_alone = no_left & down_ok & anti_ok & _at(right_ok, anti)
-    corners = [
-        ((a, b, d), abd & use_ad),
-        ((a, d, c), adc & use_ad),
-        ((a, b, c), abc & ~use_ad),
-        ((b, d, c), bdc & ~use_ad),
-        ((p, down, anti), bdc_alone),
+    from_b |= no_left & Dn.ok & A.ok & _at(R.ok, anti)
+    parts = [
+        pts.triangles(abd & use_ad, right, diag, R, D),
+        pts.triangles(adc & use_ad, diag, down, D, Dn),
+        pts.triangles(abc & ~use_ad, right, down, R, Dn),
+        pts.triangles(from_b, down, anti, Dn, A),
     ]
-    v0, v1, v2 = (np.concatenate([vs[i][m] for vs, m in corners]) for i in range(3))
-    out: np.ndarray = idx[pts.oriented(v0, v1, v2)]
-    return out
+    tri = np.empty((sum(p[0].size for p in parts), 3), dtype=np.int64)
+    start = 0
+    for v0, v1, v2 in parts:
+        rows = slice(start, start + v0.size)
+        tri[rows, 0], tri[rows, 1], tri[rows, 2] = idx[v0], idx[v1], idx[v2]
+        start += v0.size
+    return tri

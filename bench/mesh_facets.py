@@ -24,7 +24,9 @@ One JSON line:
   (target 0: a step of a few decimetres between consecutive profiles, 0.14 m apart, looks
   like a surface at 20-30 degrees to the ray, which no local rule can tell apart); for
   information, facets joining two touching objects (a corner);
-- ``seconds_per_million``: :func:`grid_facets`'s time per million points (median of 3).
+- ``seconds_per_million``: :func:`grid_facets`'s time per million points (median of 5
+  runs, and the best: the machine is shared, ``load_average`` says how busy it was), and
+  its peak memory per million points (``tracemalloc``, numpy's buffers included).
 
 Run as a script: ``python bench/mesh_facets.py [--seconds S] [--work DIR]``.
 """
@@ -33,8 +35,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import tempfile
 import time
+import tracemalloc
 from pathlib import Path
 from typing import Any
 
@@ -141,7 +145,7 @@ def continuous_returns(ids: np.ndarray, P: np.ndarray) -> np.ndarray:
 
 def judge(
     scan: np.ndarray, step: np.ndarray, xyz: np.ndarray, origin: np.ndarray,
-    ids: np.ndarray, cont: np.ndarray, meet: np.ndarray, repeats: int = 3,
+    ids: np.ndarray, cont: np.ndarray, meet: np.ndarray, repeats: int = 5,
     rules: FacetRules | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Mesh the points (``ids``, ``cont`` (S,N) of the truth's grid) and judge the facets."""
@@ -150,6 +154,10 @@ def judge(
         t0 = time.perf_counter()
         tri = grid_facets(scan, step, xyz, origin, rules or FacetRules())
         times.append(time.perf_counter() - t0)
+    tracemalloc.start()  # numpy reports its buffers to tracemalloc
+    grid_facets(scan, step, xyz, origin, rules or FacetRules())
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
     in_facet = np.zeros(scan.size, dtype=bool)
     in_facet[tri.ravel()] = True
     on_cont = cont[scan, step]
@@ -178,6 +186,8 @@ def judge(
         "facets_joining_touching_objects": int((corner & ~across).sum()),
         "facets_on_unidentified_points": int(unknown.sum()),
         "seconds_per_million": round(float(np.median(times)) / (scan.size / 1e6), 3),
+        "seconds_per_million_best": round(min(times) / (scan.size / 1e6), 3),
+        "peak_mb_per_million": round(peak / 2**20 / (scan.size / 1e6)),
     }
 
 
@@ -208,6 +218,7 @@ def main() -> None:
         row: dict[str, Any] = {"bench": "mesh_facets", "seconds": args.seconds,
                                "rules": vars(FacetRules())}  # fmt: skip
         row["hits_unidentified"] = int((hit & (ids < 0)).sum())
+        row["load_average"] = round(os.getloadavg()[0], 2)
         row["truth"] = judge(s, k, P[s, k], origins, ids, cont, meet)
 
         job, whole = prepare(truth.files, truth.calibration, Report(output="x"), jpegs=True)

@@ -9,7 +9,7 @@ import numpy as np
 from acq.mesh import FacetRules
 from acq.sim.world import Box, Cylinder, Material, Quad, Street
 from tests.bench_scripts import load
-from tests.mesh.test_organized import beams, sweep
+from tests.mesh.pushbroom import beams, sweep
 
 bench = load("mesh_facets")
 

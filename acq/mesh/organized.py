@@ -23,7 +23,9 @@ import numpy as np
 
 from acq.errors import InputValueError
 
-__all__ = ["FacetRules", "grid_facets"]
+__all__ = ["BLOCK_POINTS", "FacetRules", "grid_facets"]
+
+BLOCK_POINTS = 1 << 18  # points meshed at once: the working set stays in the caches
 
 
 @dataclass(frozen=True)
@@ -174,6 +176,8 @@ def grid_facets(
     xyz: np.ndarray,
     origin: np.ndarray,
     rules: FacetRules = FacetRules(),
+    *,
+    block_points: int = BLOCK_POINTS,
 ) -> np.ndarray:
     """Triangles (F,3) int64 indexing the P points given: ``scan`` (P,) int scan index
     (consecutive scans are neighbours; any ints, not necessarily from 0), ``step`` (P,)
@@ -184,23 +188,50 @@ def grid_facets(
     simply absent from the arrays; points with a non-finite coordinate or origin are in
     no facet. Triangles are consistently oriented (counter-clockwise seen from the sensor
     side). ValueError on arrays of mismatched lengths or shapes, or a (scan, step) pair
-    given twice."""
+    given twice.
+
+    Worked in blocks of whole scans of about ``block_points`` points (each with the next
+    scan, whose cells the next block makes): the same triangles, in less memory."""
     scan_i, step_i, xyz_f, origin_f = _check_inputs(scan, step, xyz, origin)
     finite = np.isfinite(xyz_f).all(axis=1) & np.isfinite(origin_f).all(axis=1)
     idx = np.flatnonzero(finite)
     if idx.size == 0:
         return np.zeros((0, 3), dtype=np.int64)
-    s_rank, s_follows = _ranks(scan_i[idx])
-    k_rank, k_follows = _ranks(step_i[idx])
+    idx = idx[np.argsort(scan_i[idx], kind="stable")]
+    rows = np.flatnonzero(np.diff(scan_i[idx])) + 1
+    row_start = np.concatenate([[0], rows])
+    row_end = np.concatenate([rows, [idx.size]])
+    parts = []
+    first = 0  # the block's first row
+    while first < row_start.size:
+        last = max(
+            first, int(np.searchsorted(row_end, row_start[first] + block_points, "right")) - 1
+        )
+        block = idx[row_start[first] : row_end[min(last + 1, row_end.size - 1)]]
+        parts.append(block[_block_facets(scan_i[block], step_i[block], xyz_f[block],
+                                         origin_f[block], rules)])  # fmt: skip
+        first = last + 1
+    out: np.ndarray = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    return out
+
+
+def _block_facets(
+    scan_i: np.ndarray, step_i: np.ndarray, xyz_f: np.ndarray, origin_f: np.ndarray,
+    rules: FacetRules,
+) -> np.ndarray:  # fmt: skip
+    """:func:`grid_facets` of finite points: (F,3) indices into the arrays given."""
+    n = scan_i.size
+    s_rank, s_follows = _ranks(scan_i)
+    k_rank, k_follows = _ranks(step_i)
     width = int(k_rank.max()) + 2  # a key one past a row's end never matches the next row
     keys = s_rank * width + k_rank
     order = np.argsort(keys, kind="stable")
     keys_sorted = keys[order]
     if keys_sorted.size > 1 and (np.diff(keys_sorted) == 0).any():
-        dup = idx[order[np.flatnonzero(np.diff(keys_sorted) == 0)[0]]]
+        dup = order[np.flatnonzero(np.diff(keys_sorted) == 0)[0]]
         raise ValueError(f"(scan, step) = ({scan_i[dup]}, {step_i[dup]}) is given more than once")
     # each point's neighbours (s, k+1), (s+1, k), (s+1, k+1), (s+1, k-1), as positions
-    # in idx (-1: none); only true neighbours (value + 1) count, not merely the next
+    # (-1: none); only true neighbours (value + 1) count, not merely the next
     # distinct value
     k_next = k_follows[k_rank]
     k_prev = np.zeros(k_rank.size, dtype=bool)
@@ -211,7 +242,7 @@ def grid_facets(
     diag = np.where(k_next & s_next, _neighbour(keys_sorted, order, keys + width + 1), -1)
     anti = np.where(k_prev & s_next, _neighbour(keys_sorted, order, keys + width - 1), -1)
 
-    pts = _Points(xyz_f[idx], origin_f[idx])
+    pts = _Points(xyz_f, origin_f)
     R, Dn = pts.edges(right, rules), pts.edges(down, rules)
     D, A = pts.edges(diag, rules), pts.edges(anti, rules)
 
@@ -227,9 +258,9 @@ def grid_facets(
     use_ad = (n_ad > n_bc) | ((n_ad == n_bc) & (np.where(ad, D.len2, np.inf) <= len2_bc))
     # b, d, c is found from b = p: for the cells above, and for the cell whose first
     # corner is missing
-    from_b = np.zeros(idx.size, dtype=bool)
+    from_b = np.zeros(n, dtype=bool)
     from_b[b[bdc & ~use_ad]] = True
-    no_left = np.ones(idx.size, dtype=bool)
+    no_left = np.ones(n, dtype=bool)
     no_left[right[right >= 0]] = False
     from_b |= no_left & Dn.ok & A.ok & _at(R.ok, anti)
     parts = [
@@ -242,6 +273,6 @@ def grid_facets(
     start = 0
     for v0, v1, v2 in parts:
         rows = slice(start, start + v0.size)
-        tri[rows, 0], tri[rows, 1], tri[rows, 2] = idx[v0], idx[v1], idx[v2]
+        tri[rows, 0], tri[rows, 1], tri[rows, 2] = v0, v1, v2
         start += v0.size
     return tri

@@ -49,6 +49,21 @@ def test_scan_numbers_need_not_start_at_zero_and_input_order_does_not_matter() -
     assert {tuple(sorted(order[t])) for t in shuffled.tolist()} == as_set
 
 
+@pytest.mark.parametrize("block_points", [1, 40, 100])
+def test_blocks_of_scans_give_the_same_triangles(block_points: int) -> None:
+    """A wall with holes, some where a block ends: meshed in blocks of whole scans
+    (one scan at a time, or a few), each with the next scan."""
+    scan, step, xyz, origin = sweep(9, beams(-5.0, 5.0))
+    holes = ((scan == 3) & (step == 4)) | ((scan == 4) & (step == 0)) | ((scan == 6) & (step > 30))
+    scan, step, xyz, origin = scan[~holes], step[~holes], xyz[~holes], origin[~holes]
+    whole = grid_facets(scan, step, xyz, origin)
+    # an interior hole costs 4 triangles, one at the edge 2, a scan's last 10 returns
+    # 2 x (9 cells x 2 + 1)
+    assert whole.shape[0] == 2 * 8 * 40 - 4 - 2 - 2 * 19
+    blocks = grid_facets(scan, step, xyz, origin, block_points=block_points)
+    assert sorted(map(tuple, blocks.tolist())) == sorted(map(tuple, whole.tolist()))
+
+
 def test_a_missing_return_removes_exactly_its_adjacent_triangles() -> None:
     scan, step, xyz, origin = sweep(8, beams(-10.0, 10.0))
     full = grid_facets(scan, step, xyz, origin)
@@ -271,17 +286,26 @@ def random_grids(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
 
 
 @settings(max_examples=300, deadline=None)
-@given(random_grids(), st.floats(0.0, 80.0), st.floats(0.0, 5.0), st.floats(0.0, 1.0))
+@given(
+    random_grids(),
+    st.floats(0.0, 80.0),
+    st.floats(0.0, 5.0),
+    st.floats(0.0, 1.0),
+    st.integers(1, 30),
+)
 def test_any_grid_gives_valid_non_degenerate_triangles(
     grid: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     grazing: float,
     a: float,
     b: float,
+    block: int,
 ) -> None:
     scan, step, xyz, origin = grid
-    tri = grid_facets(
-        scan, step, xyz, origin, FacetRules(max_grazing_deg=grazing, edge_a_m=a, edge_b=b)
-    )
+    rules = FacetRules(max_grazing_deg=grazing, edge_a_m=a, edge_b=b)
+    tri = grid_facets(scan, step, xyz, origin, rules)
+    # in blocks of a few scans: the same triangles
+    blocks = grid_facets(scan, step, xyz, origin, rules, block_points=block)
+    assert sorted(map(tuple, blocks.tolist())) == sorted(map(tuple, tri.tolist()))
     assert tri.dtype == np.int64 and tri.ndim == 2 and tri.shape[1] == 3
     if tri.size == 0:
         return

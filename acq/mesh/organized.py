@@ -25,7 +25,7 @@ from acq.errors import InputValueError
 
 __all__ = ["BLOCK_POINTS", "FacetRules", "grid_facets"]
 
-BLOCK_POINTS = 1 << 18  # points meshed at once: the working set stays in the caches
+BLOCK_POINTS = 1 << 18  # points meshed at once (about 400 bytes each while they are)
 
 
 @dataclass(frozen=True)

@@ -143,26 +143,33 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.set_defaults(handler=run, stops_cleanly=True)
 
 
+def check_crs_option(crs: str | None, frame: str | None) -> None:
+    """InputError unless ``--crs`` (if given) is a projected CRS and ``--frame`` is not
+    laser (the trajectory's own CRS is checked once it is read)."""
+    if not crs:
+        return
+    import pyproj
+
+    try:
+        found = pyproj.CRS.from_user_input(crs)
+    except pyproj.exceptions.CRSError as e:
+        raise InputError(f"--crs {crs}: {e}") from None
+    if not found.is_projected:
+        raise InputError(f"--crs {crs}: not a projected CRS (metres), as the cloud's is")
+    if frame == "laser":
+        raise InputError(
+            f"--crs {crs}: the points would be in the laser frame (--frame laser); "
+            "--crs needs --frame world and a georeferenced trajectory"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     from acq.camera import calibfile
     from acq.cloud import colorize, views
     from acq.cloud.writer import format_of
 
     format_of(args.output, "-o")
-    if args.crs:
-        import pyproj
-
-        try:
-            crs = pyproj.CRS.from_user_input(args.crs)
-        except pyproj.exceptions.CRSError as e:
-            raise InputError(f"--crs {args.crs}: {e}") from None
-        if not crs.is_projected:
-            raise InputError(f"--crs {args.crs}: not a projected CRS (metres), as the cloud's is")
-        if args.frame == "laser":
-            raise InputError(
-                f"--crs {args.crs}: the points would be in the laser frame (--frame laser); "
-                "--crs needs --frame world and a georeferenced trajectory"
-            )
+    check_crs_option(args.crs, args.frame)
     options = views.Options(
         view=args.view,
         motion_compensation=not args.no_motion_compensation,

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from acq.cli import output_files
 from acq.cli.camera_option import add_camera_option
-from acq.cli.colorize import TRAJECTORY_HELP, check_crs_option
+from acq.cli.colorize import CHUNK_S, TRAJECTORY_HELP, check_crs_option
 from acq.cli.option_types import real
 from acq.cli.output_files import Output
 
@@ -79,6 +79,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--edge-b", type=real(0, 10, what="a ratio"), default=None, metavar="B",
         help="refuse an edge longer than A + B x range: B, metres per metre of range",
     )  # fmt: skip
+    m.add_argument(
+        "--chunk", type=CHUNK_S, default=None, metavar="S",
+        help=f"seconds of scans per chunk, {CHUNK_S.range_text()} (default 15), as `acq "
+        "colorize --chunk`; the facets are the same for any value",
+    )  # fmt: skip
     m.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     m.set_defaults(handler=run, stops_cleanly=True)
 
@@ -106,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     mj = prepare_mesh(
         args.logs, calib, args.output, camera=args.camera, frame=args.frame,
         trajectory=args.trajectory, crs=args.crs, rules=rules, tile_m=args.tile_m,
+        chunk_s=args.chunk,
     )  # fmt: skip
     if mj.paths != [args.output]:  # the tiles' files, now that the track's length is known
         outputs = [Output("-o", p, "mesh") for p in mj.paths]

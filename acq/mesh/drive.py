@@ -133,11 +133,12 @@ def prepare_mesh(
     crs: str | None = None,
     rules: FacetRules | None = None,
     tile_m: float = 50.0,
+    chunk_s: float | None = None,
 ) -> MeshJob:
     """Read ``logs`` and plan the mesh (:class:`MeshJob`; its ``paths``: the files it
     will write, for the caller to check before :meth:`MeshJob.run`); options as `acq
     colorize` takes them; ``rules``: default
-    :class:`FacetRules`. InputError for bad input, named."""
+    :class:`FacetRules`; ``chunk_s``: default colorize's. InputError for bad input, named."""
     t0 = time.perf_counter()
     files.format_of(output)
     logs = session_files(logs)
@@ -170,7 +171,7 @@ def prepare_mesh(
         report.notes.append("--frame laser: no track, one file whatever --tile-m")
     comments = [f"frame {cloud.frame}", *([f"crs {crs}"] if crs else [])]
     return MeshJob(
-        job, index, plan(scan_new, CHUNK_S), origin, tile,
+        job, index, plan(scan_new, chunk_s or CHUNK_S), origin, tile,
         tile_names(output, int(tile[-1]) + 1), rules or FacetRules(), once, report, comments,
     )  # fmt: skip
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -96,7 +96,14 @@ def _write_obj(
     with atomic(path) as tmp, open(tmp, "w", encoding="ascii") as out:
         out.write("".join(f"# {c}\n" for c in lines))
         # four decimals: every colour byte comes back as round(255 * c)
-        v = np.hstack([xyz, rgb / 255.0])
-        np.savetxt(out, v, fmt="v %.4f %.4f %.4f %.4f %.4f %.4f")
-        np.savetxt(out, np.asarray(faces, dtype=np.int64) + 1, fmt="f %d %d %d")
+        _rows(out, "v %.4f %.4f %.4f %.4f %.4f %.4f\n", np.hstack([xyz, rgb / 255.0]))
+        _rows(out, "f %d %d %d\n", np.asarray(faces, dtype=np.int64) + 1)
     return os.path.getsize(path)
+
+
+def _rows(out: TextIO, line: str, values: np.ndarray, block: int = 65536) -> None:
+    """Each row of ``values`` as ``line`` formats it, a block of rows at a time (one
+    string formatting per block: three times numpy's savetxt, which formats row by row)."""
+    for k in range(0, values.shape[0], block):
+        part = values[k : k + block]
+        out.write((line * part.shape[0]) % tuple(part.ravel().tolist()))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from acq.cli import output_files
 from acq.cli.camera_option import add_camera_option
-from acq.cli.colorize import CHUNK_S, TRAJECTORY_HELP, check_crs_option
+from acq.cli.colorize import CHUNK_S, add_placing_options, check_crs_option
 from acq.cli.option_types import real
 from acq.cli.output_files import Output
 
@@ -44,22 +44,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         m, "colour from this camera (each vertex takes the camera whose view of its point "
         "is best)", several=True,
     )  # fmt: skip
-    m.add_argument(
-        "--frame", choices=("world", "laser"),
-        help="world: placed with the trajectory (default when there is one); laser: each "
-        "point in the scanner frame at its own time (one file, no tiles)",
-    )  # fmt: skip
-    m.add_argument(
-        "--trajectory", type=Path, metavar="CSV",
-        help=f"{TRAJECTORY_HELP}; laser_to_vehicle from CALIB is the lever arm and boresight "
-        "(default: the log's CAN odometry, fused with its GNSS fixes)",
-    )  # fmt: skip
-    m.add_argument(
-        "--crs", metavar="EPSG:CODE",
-        help="projected coordinate reference system of the vertices (e.g. EPSG:25831), as "
-        "`acq colorize --crs`: needs a georeferenced trajectory; written as a comment (PLY, "
-        "OBJ) or in asset.extras (glb)",
-    )  # fmt: skip
+    add_placing_options(
+        m,
+        "as a comment (PLY, OBJ) or in asset.extras (glb)",
+        "meshes",
+        laser_note=" (one file, no tiles)",
+    )
     m.add_argument(
         "--tile-m", type=real(1, 1e6, what="metres"), default=50.0, metavar="M",
         help="length of track per file, metres (default 50); a facet goes to the tile of its "

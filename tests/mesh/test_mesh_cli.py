@@ -186,3 +186,38 @@ def test_bad_inputs_are_one_line_and_exit_2(
     err = capsys.readouterr().err
     assert "no laser scanner in the log" in err and err.count("\n") == 1, err
     assert not (tmp_path / "e.glb").exists()
+
+
+def test_laser_frame_is_one_file_and_progress_shows_a_bar(
+    short_drive: Drive, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "l.ply"
+    assert _mesh(short_drive, out, "--frame", "laser", "--tile-m", "3", "--progress") == 0
+    assert sorted(tmp_path.iterdir()) == [out]  # no track in the laser frame: no tiles
+    captured = capsys.readouterr()
+    assert "colouring" in captured.err and "scan" in captured.err
+    assert "--frame laser: no track, one file whatever --tile-m" in captured.out
+    xyz, _, faces = _ply(out)
+    assert faces.shape[0] > 1.5 * xyz.shape[0]
+
+
+def test_a_full_disk_at_a_tile_is_one_line_exit_3(
+    short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    from acq.mesh import files
+
+    real, calls = files.write, []
+
+    def write(path: Path, *args: object, **kwargs: object) -> int:
+        calls.append(path)
+        if len(calls) == 2:  # the disk (which cannot fill here) full at the second tile
+            raise OSError(28, "No space left on device", str(path))
+        return real(path, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(files, "write", write)
+    assert _mesh(short_drive, tmp_path / "t.glb", "--tile-m", "3") == 3
+    err = capsys.readouterr().err
+    assert err.startswith(f"acq mesh: {tmp_path / 't_001.glb'}: no space left on the disk")
+    assert err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t_000.glb"]

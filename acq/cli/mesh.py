@@ -38,7 +38,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "the world's z up turned, the first vertex's coordinates in the node's matrix), "
         "OUT.obj (vertex colours as 'v x y z r g b', no .mtl) or OUT.ply (binary, x y z "
         "double, red green blue); a drive longer than one tile gives OUT_000.SUFFIX, "
-        "OUT_001.SUFFIX... beside OUT, in the order driven",
+        "OUT_001.SUFFIX... beside OUT, in the order driven (an earlier run's files cut otherwise "
+        "are kept, and named)",
     )  # fmt: skip
     add_camera_option(
         m, "colour from this camera (each vertex takes the camera whose view of its point "

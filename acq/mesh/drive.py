@@ -118,8 +118,25 @@ class MeshJob:
                 f"LOG {self.job.files[0]}: no two neighbouring laser returns to join into a "
                 "facet; nothing written"
             )
+        stale = _other_tiles(Path(rep.output), self.paths)
+        if stale:
+            rep.notes.append(
+                "files of an earlier run with other tiles are still there, not replaced: "
+                + ", ".join(p.name for p in stale[:3])
+                + (f" and {len(stale) - 3} more" if len(stale) > 3 else "")
+            )
         rep.seconds += time.perf_counter() - t0
         return rep
+
+
+def _other_tiles(output: Path, written: Sequence[Path]) -> list[Path]:
+    """The files beside ``output`` named as itself or as its tiles (OUT_000...) that acq
+    wrote and this run did not: an earlier run's, cut otherwise."""
+    from acq.provenance import made_by_acq
+
+    found = [output, *output.parent.glob(f"{output.stem}_*{output.suffix}")]
+    tiles = [p for p in found if p == output or p.stem[len(output.stem) + 1 :].isdigit()]
+    return sorted(p for p in tiles if p not in written and p.is_file() and made_by_acq(p))
 
 
 def prepare_mesh(

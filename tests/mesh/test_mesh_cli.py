@@ -95,7 +95,7 @@ def test_glb_and_obj_read_back_as_the_ply(whole: Path, short_drive: Drive, tmp_p
 
 
 def test_tiles_split_by_distance_and_chunks_lose_no_facet(
-    whole: Path, short_drive: Drive, tmp_path: Path
+    whole: Path, short_drive: Drive, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     xyz, _, faces = _ply(whole)
     out = tmp_path / "t.ply"
@@ -116,6 +116,11 @@ def test_tiles_split_by_distance_and_chunks_lose_no_facet(
     assert seen == _triangles(xyz, faces)  # none lost at a tile's or a chunk's seam
     # the drive goes along +x: each tile begins about 3 m after the one before
     assert np.allclose(np.diff(starts), 3.0, atol=0.5)
+    # cut otherwise, the earlier run's tiles are kept and named
+    assert _mesh(short_drive, out, "--tile-m", "4") == 0
+    said = capsys.readouterr().out
+    assert "earlier run with other tiles are still there, not replaced: t_003.ply\n" in said
+    assert (tmp_path / "t_003.ply").exists() and not out.exists()
 
 
 def test_outputs_marked_refused_and_forced(

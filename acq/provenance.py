@@ -1,6 +1,7 @@
 """Which files acq wrote. Every image, cloud and JSON report acq writes carries a mark (a
 PNG text chunk, a JPEG comment, a PLY header comment, the LAS header's generating
-software, an E57 scan's sensor software version, a ``"software"`` key), so a later run
+software, an E57 scan's sensor software version, a glTF's ``asset.generator``, an OBJ's
+first comment, a ``"software"`` key), so a later run
 may replace its own product while a file of anyone else is kept (the rule of
 :mod:`acq.cli.output_files`).
 """
@@ -27,6 +28,7 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_TEXT = b"Software\x00" + SOFTWARE.encode()
 _JPEG_COMMENT = b"\xff\xfe" + (2 + len(SOFTWARE)).to_bytes(2, "big") + SOFTWARE.encode()
 _JSON_KEY = re.compile(rb'\A\s*\{\s*"software"\s*:\s*"acq[ "]')
+_GLB_MARK = re.compile(rb'"asset":\{[^}]*"generator":"acq ')
 _E57_MARK = re.compile(rb"<sensorSoftwareVersion[^>]*>(<!\[CDATA\[)?acq ")
 _E57_XML_BYTES = 16 * 2**20  # a larger XML section is not one acq wrote
 
@@ -85,6 +87,10 @@ def made_by_acq(path: str | os.PathLike[str]) -> bool:
         return b"\ncomment acq " in header
     if head.startswith(b"LASF"):
         return head[58:90].startswith(b"acq ")  # the header's generating software
+    if head.startswith(b"glTF"):  # the JSON chunk follows the 20 bytes of headers
+        return _GLB_MARK.search(head[20:]) is not None
+    if head.startswith(b"# acq "):  # an OBJ: its first comment
+        return True
     if head.startswith(b"ASTM-E57"):
         return _E57_MARK.search(_e57_xml(path, head)) is not None
     return _JSON_KEY.match(head) is not None

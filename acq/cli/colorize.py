@@ -73,29 +73,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "exposure and white balance are evened out, per camera and frame, from points seen "
         "in several frames and by several cameras",
     )  # fmt: skip
-    col.add_argument(
-        "--frame", choices=("world", "laser"),
-        help="world: placed with the trajectory (default when there is one); laser: each "
-        "point in the scanner frame at its own time",
-    )  # fmt: skip
+    add_placing_options(
+        col, "into the LAS/LAZ/COPC header as WKT 1 (E57: coordinateMetadata)", "clouds"
+    )
     col.add_argument(
         "--view", choices=VIEWS, default="nearest",
         help="nearest (default): the frame nearest in time; best: the neighbour frame that "
         "sees the point nearest its axis, not hidden by nearer laser points",
-    )  # fmt: skip
-    col.add_argument(
-        "--trajectory", type=Path, metavar="CSV",
-        help=f"{TRAJECTORY_HELP}; laser_to_vehicle from CALIB is the lever arm and boresight "
-        "(default: the log's CAN odometry, fused with its GNSS fixes)",
-    )  # fmt: skip
-    col.add_argument(
-        "--crs", metavar="EPSG:CODE",
-        help="projected coordinate reference system of the output (e.g. EPSG:25831), written "
-        "into the LAS/LAZ/COPC header as WKT 1 (E57: coordinateMetadata): the GNSS "
-        "fixes (or --trajectory's latitudes and longitudes) are projected into it. Only "
-        "where it is true: refused (exit 2) for points in the laser frame and for a local "
-        "trajectory (CAN odometry alone, dead reckoning); without --crs such clouds are "
-        "written in their local frame",
     )  # fmt: skip
     col.add_argument(
         "--window", type=integer(0, 50), default=3, metavar="N",
@@ -143,26 +127,60 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.set_defaults(handler=run, stops_cleanly=True)
 
 
+def add_placing_options(
+    parser: argparse.ArgumentParser, crs_written: str, products: str, laser_note: str = ""
+) -> None:
+    """``--frame``, ``--trajectory`` and ``--crs``: how points are placed, the same for
+    every command that places them; ``crs_written``: where the CRS goes in the output
+    ("into the LAS header"), ``products``: what is written in a local frame without it
+    ("clouds"), ``laser_note``: added to --frame laser's help."""
+    parser.add_argument(
+        "--frame", choices=("world", "laser"),
+        help="world: placed with the trajectory (default when there is one); laser: each "
+        f"point in the scanner frame at its own time{laser_note}",
+    )  # fmt: skip
+    parser.add_argument(
+        "--trajectory", type=Path, metavar="CSV",
+        help=f"{TRAJECTORY_HELP}; laser_to_vehicle from CALIB is the lever arm and boresight "
+        "(default: the log's CAN odometry, fused with its GNSS fixes)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--crs", metavar="EPSG:CODE",
+        help="projected coordinate reference system of the output (e.g. EPSG:25831), written "
+        f"{crs_written}: the GNSS fixes (or --trajectory's latitudes and longitudes) are "
+        "projected into it. Only where it is true: refused (exit 2) for points in the laser "
+        "frame and for a local trajectory (CAN odometry alone, dead reckoning); without "
+        f"--crs such {products} are written in their local frame",
+    )  # fmt: skip
+
+
+def check_crs_option(crs: str | None, frame: str | None) -> None:
+    """InputError unless ``--crs`` (if given) is a projected CRS and ``--frame`` is not
+    laser (the trajectory's own CRS is checked once it is read)."""
+    if not crs:
+        return
+    import pyproj
+
+    try:
+        found = pyproj.CRS.from_user_input(crs)
+    except pyproj.exceptions.CRSError as e:
+        raise InputError(f"--crs {crs}: {e}") from None
+    if not found.is_projected:
+        raise InputError(f"--crs {crs}: not a projected CRS (metres), as the cloud's is")
+    if frame == "laser":
+        raise InputError(
+            f"--crs {crs}: the points would be in the laser frame (--frame laser); "
+            "--crs needs --frame world and a georeferenced trajectory"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     from acq.camera import calibfile
     from acq.cloud import colorize, views
     from acq.cloud.writer import format_of
 
     format_of(args.output, "-o")
-    if args.crs:
-        import pyproj
-
-        try:
-            crs = pyproj.CRS.from_user_input(args.crs)
-        except pyproj.exceptions.CRSError as e:
-            raise InputError(f"--crs {args.crs}: {e}") from None
-        if not crs.is_projected:
-            raise InputError(f"--crs {args.crs}: not a projected CRS (metres), as the cloud's is")
-        if args.frame == "laser":
-            raise InputError(
-                f"--crs {args.crs}: the points would be in the laser frame (--frame laser); "
-                "--crs needs --frame world and a georeferenced trajectory"
-            )
+    check_crs_option(args.crs, args.frame)
     options = views.Options(
         view=args.view,
         motion_compensation=not args.no_motion_compensation,

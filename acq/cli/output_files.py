@@ -68,6 +68,7 @@ _MAGIC: dict[bytes, str] = {
     b"ply\n": "ply",
     b"ply\r\n": "ply",
     b"LASF": "las",
+    b"glTF": "glb",
     b"%PDF": "pdf",
     b"PK\x03\x04": "zip",
     b"\x1f\x8b": "gzip",
@@ -82,6 +83,7 @@ _NAMES = {
     "webp": "a WebP image",
     "ply": "a PLY cloud",
     "las": "a LAS cloud",
+    "glb": "a glTF model",
     "pdf": "a PDF",
     "zip": "a zip archive",
     "gzip": "a gzip file",
@@ -91,6 +93,7 @@ _NAMES = {
     "yaml": "a YAML file",
     "image": "an image",
     "cloud": "a point cloud",
+    "mesh": "a mesh",
     "json": "a JSON file",
 }
 # the kinds an output of each kind may replace ("text" and "data": no known format)
@@ -99,6 +102,7 @@ _REPLACES: dict[str, frozenset[str]] = {
     "image": frozenset({"png", "jpeg", "bmp", "tiff", "webp", "text", "data"}),
     "cloud": frozenset({"ply", "las", "text", "data"}),
     "json": frozenset({"text"}),
+    "mesh": frozenset({"ply", "glb", "text"}),
     "mcap": frozenset({"mcap", "data"}),
 }
 _PRECIOUS = frozenset({"yaml"})  # replaced only with --force, with a backup
@@ -126,7 +130,7 @@ def kind_of(path: Path) -> str:
 class Output:
     """A file a command writes: the option naming it (``-o``), its path, and its kind
     (``yaml``: a calibration or configuration, replaced only with --force; ``image``,
-    ``json``, ``cloud``: products, replaced when acq wrote them; ``mcap``: never
+    ``json``, ``cloud``, ``mesh``: products, replaced when acq wrote them; ``mcap``: never
     replaced). ``update``: the command reads
     the existing file and writes it back changed (``calibrate fisheye -o``): no --force
     needed, the old one is kept as NAME.bak all the same. ``in_place_of``: the input

@@ -44,6 +44,7 @@ __all__ = [
     "cloud_of",
     "colour_chunk",
     "frames_used",
+    "laser_positions",
     "place",
     "plan",
     "start_chunk",
@@ -266,15 +267,13 @@ class ChunkColouring:
             stamp[sel] = f.frame_ns[frame[sel]]
             session_frame[sel] = np.searchsorted(cj.frame_old, stamp[sel])
         t_choose = time.perf_counter()
-        l2v = job.laser_to_vehicle
         xyz = pts.P_world if job.frame_world else pts.P_laser
         # the laser's position at each core scan's point 0 (the track; scans with a pose)
         core_scans = np.flatnonzero(self.core_scan)
         origin = np.zeros((core_scans.size, 3))
         if job.frame_world and core_scans.size:
             ok = job.trajectory.covers(self.scan_ns[core_scans])
-            Rs, ts = job.trajectory.pose_at(self.scan_ns[core_scans][ok])
-            origin = np.einsum("nij,j->ni", Rs, l2v.translation) + ts
+            origin = laser_positions(job, self.scan_ns[core_scans][ok])
         # scan indices global to the session: the chunk's scans come after the earlier ones
         first_scan = int(np.searchsorted(job.scan_new, chunk.start_ns)) if job.scan_new.size else 0
         local = np.cumsum(self.core_scan) - 1
@@ -330,6 +329,13 @@ class ChunkColouring:
                 else None
             ),
         )
+
+
+def laser_positions(job: Job, scan_ns: np.ndarray) -> np.ndarray:
+    """The laser's position (n,3) m in the world frame at the (new) stamps ``scan_ns``
+    (n,), which the job's trajectory must cover."""
+    Rs, ts = job.trajectory.pose_at(scan_ns)
+    return np.asarray(np.einsum("nij,j->ni", Rs, job.laser_to_vehicle.translation) + ts)
 
 
 def plan(scan_ns: np.ndarray, chunk_s: float) -> list[Chunk]:

@@ -102,6 +102,7 @@ __all__ = [
     "plan",
     "prepare",
     "run",
+    "run_chunks",
 ]
 
 # logs up to this size are read once, images included: about twice that in memory, and
@@ -138,7 +139,7 @@ def _odd_size_note(
     )
 
 
-def _run_chunks(
+def run_chunks(
     job: Job,
     chunks: list[Chunk],
     workers: int,
@@ -476,7 +477,7 @@ def run(
             results.append(r)
 
     try:
-        _run_chunks(job, chunks, workers, dask, progress, emit, index if once else None)
+        run_chunks(job, chunks, workers, dask, progress, emit, index if once else None)
         t_colour = time.perf_counter()
         size = out.close()
     except BaseException:

@@ -1,5 +1,6 @@
 """Coloured clouds as binary PLY: x y z, colour, UTC time, scan index, intensity, coloured,
-source camera and frame.
+source camera and frame (:class:`PlyStream`); facets with per-vertex colour
+(:func:`write_mesh`).
 
 The property names and types are those every common reader keeps: CloudCompare imports a
 vertex property as a scalar field only when its name holds ``scalar`` (or is ``intensity``)
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acq.atomic_write import discard, release, temporary_beside
+from acq.atomic_write import atomic, discard, release, temporary_beside
 
 PLY_DTYPE = np.dtype(
     [
@@ -119,3 +120,46 @@ class PlyStream:
             pass
         finally:
             discard(self._tmp)
+
+
+MESH_VERTEX_DTYPE = np.dtype(
+    [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
+)
+# a face: its vertex count (3) and their indices, as PLY's list property stores it
+_MESH_FACE_DTYPE = np.dtype([("n", "u1"), ("vertex_indices", "<i4", (3,))])
+
+
+def write_mesh(
+    path: str | os.PathLike[str], xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray,
+    comments: Sequence[str] = (),
+) -> int:  # fmt: skip
+    """A binary little-endian PLY of triangles: ``vertex`` x y z (double, m: a projected
+    CRS's coordinates keep their millimetres), red green blue (uchar) from ``xyz``
+    (V,3) and ``rgb`` (V,3) uint8; ``face`` vertex_indices (uchar count, int indices)
+    from ``faces`` (F,3). ``comments``: header lines (the first should carry acq's mark,
+    ``acq ...``). Written whole or not at all; the file's size in bytes."""
+    if not all(c.isprintable() for c in comments):  # a line break ends the header
+        raise ValueError(f"a PLY comment is one line of printable text: {list(comments)}")
+    v = np.empty(xyz.shape[0], dtype=MESH_VERTEX_DTYPE)
+    v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    v["red"], v["green"], v["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    f = np.empty(faces.shape[0], dtype=_MESH_FACE_DTYPE)
+    f["n"] = 3
+    f["vertex_indices"] = faces
+    names = MESH_VERTEX_DTYPE.names or ()
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        *(f"comment {c}" for c in comments),
+        f"element vertex {v.size}",
+        *(f"property {_PLY_TYPES[MESH_VERTEX_DTYPE[k].str]} {k}" for k in names),
+        f"element face {f.size}",
+        "property list uchar int vertex_indices",
+        "end_header",
+    ]
+    path = Path(path)
+    with atomic(path) as tmp, open(tmp, "wb") as out:
+        out.write(("\n".join(header) + "\n").encode())
+        v.tofile(out)
+        f.tofile(out)
+    return path.stat().st_size

@@ -89,9 +89,10 @@ def _readme_scripts() -> list[list[str]]:
 def test_every_script_the_readme_names_answers_help(script: list[str], tmp_path: Path) -> None:
     """Each answers --help with its usage, writing nothing (a script that took --help for
     its output folder once made one named so)."""
-    path = str(REPO / script[0]) if script[0].endswith(".py") else script[0]
+    *options, target = script  # ["-m", MODULE] or [bench/NAME.py]
+    path = str(REPO / target) if target.endswith(".py") else target
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    run = subprocess.run([sys.executable, *script[:-1], path, "--help"], cwd=tmp_path, env=env,
+    run = subprocess.run([sys.executable, *options, path, "--help"], cwd=tmp_path, env=env,
                          capture_output=True, text=True, timeout=120)  # fmt: skip
     assert run.returncode == 0 and run.stdout.startswith("usage:"), run.stderr
     assert not list(tmp_path.iterdir())

@@ -46,6 +46,7 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ("record",): [],
     ("replay",): ["x.mcap"],
     ("colorize",): ["x.mcap", "--calib", "c.yaml", "-o", "x.ply"],
+    ("mesh",): ["x.mcap", "--calib", "c.yaml", "-o", "m.glb"],
     ("calibrate", "fisheye"): ["i.png", "--fov", "185", "-o", "c.yaml"],
     ("calibrate", "extrinsic"): [
         "x.mcap",

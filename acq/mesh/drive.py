@@ -1,0 +1,271 @@
+"""`acq mesh`: a drive's facets with per-vertex colour, in tiles along the track.
+
+The points are placed and coloured by `acq colorize`'s pipeline (:func:`acq.cloud.job.prepare`,
+the chunks of :mod:`acq.cloud.chunks` run by :func:`acq.cloud.colorize.run_chunks`); each
+chunk's points, with the last scan of the chunk before it (so that no facet between two
+chunks is lost, and none is made twice), are joined into triangles by
+:func:`acq.mesh.grid_facets`. A facet belongs to the tile of its first scan: tiles of
+``tile_m`` metres along the laser's track, the last one holding the rest (a rest shorter
+than a quarter of a tile joins the tile before it); each tile is written as soon as the
+chunks have passed its end (:mod:`acq.mesh.files`), with the vertices its facets use.
+
+Metres; times host monotonic ns.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from acq.camera.calibfile import Calibration
+from acq.cloud.chunks import Chunk, ChunkResult, laser_positions, plan
+from acq.cloud.colorize import CHUNK_S, READ_ONCE_BYTES, run_chunks
+from acq.cloud.job import Job, prepare
+from acq.cloud.report import Report
+from acq.disk_space import full_disk_error
+from acq.errors import InputValueError
+from acq.log.drive_log import DriveLog
+from acq.log.inputs import session_files
+from acq.mesh import files
+from acq.mesh.organized import FacetRules, grid_facets
+from acq.motion import Trajectory
+
+__all__ = ["MeshJob", "MeshReport", "prepare_mesh", "tile_names", "tiles_of"]
+
+
+@dataclass
+class MeshReport:
+    """What `acq mesh` did: the files written, its counts and the pipeline's notes."""
+
+    output: str
+    files: list[str] = field(default_factory=list)
+    vertices: int = 0
+    facets: int = 0
+    points: int = 0
+    coloured: int = 0
+    scans: int = 0
+    track_m: float = 0.0
+    frame: str = "world"
+    trajectory: str = ""
+    bytes: int = 0
+    seconds: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        share = self.coloured / self.points if self.points else 0.0
+        out = [
+            f"{self.facets:,} facets on {self.vertices:,} vertices from {self.points:,} "
+            f"points of {self.scans:,} scans ({100 * share:.1f} % of the points coloured), "
+            f"{self.track_m:.1f} m of track",
+            f"frame: {self.frame}; trajectory: {self.trajectory or 'none'}",
+            f"wrote {len(self.files)} file(s), {self.bytes / 1e6:.1f} MB in "
+            f"{self.seconds:.1f} s: " + ", ".join(self.files),
+        ]
+        return out + [f"note: {n}" for n in self.notes]
+
+
+def tiles_of(track_m: np.ndarray, tile_m: float) -> np.ndarray:
+    """The tile (S,) int of each scan, from its distance ``track_m`` (S,) m along the
+    track (nondecreasing): tiles of ``tile_m``, the last one holding the rest, a rest
+    shorter than a quarter of a tile joined to the tile before it."""
+    total = float(track_m[-1]) if track_m.size else 0.0
+    n = max(1, math.ceil(total / tile_m - 0.25))
+    return np.minimum(np.floor(track_m / tile_m).astype(np.int64), n - 1)
+
+
+def tile_names(output: Path, tiles: int) -> list[Path]:
+    """The files of ``tiles`` tiles: ``output`` itself for one, else OUT_000.SUFFIX,
+    OUT_001.SUFFIX... beside it."""
+    if tiles <= 1:
+        return [output]
+    width = max(3, len(str(tiles - 1)))
+    return [output.with_name(f"{output.stem}_{k:0{width}d}{output.suffix}") for k in range(tiles)]
+
+
+@dataclass
+class MeshJob:
+    """A drive read and planned (:func:`prepare_mesh`): its colouring job, chunks, each
+    session scan's sensor position and tile, and the files it will write."""
+
+    job: Job
+    index: DriveLog
+    chunks: list[Chunk]
+    origin: np.ndarray  # (S,3) m, the laser at each session scan's point 0
+    tile: np.ndarray  # (S,) int
+    paths: list[Path]
+    rules: FacetRules
+    once: bool
+    report: MeshReport
+    comments: list[str]
+
+    def run(self, progress: bool = False) -> MeshReport:
+        """Colour the chunks, join them into facets and write the tiles; OSError naming
+        the file that cannot be written (a full disk: DiskFullError)."""
+        t0 = time.perf_counter()
+        tiles = _Tiles(self)
+        run_chunks(self.job, self.chunks, 1, None, progress, tiles.add,
+                   self.index if self.once else None)  # fmt: skip
+        tiles.finish()
+        rep = self.report
+        if not rep.files:
+            raise InputValueError(
+                f"LOG {self.job.files[0]}: no two neighbouring laser returns to join into a "
+                "facet; nothing written"
+            )
+        stale = _other_tiles(Path(rep.output), self.paths)
+        if stale:
+            rep.notes.append(
+                "files of an earlier run with other tiles are still there, not replaced: "
+                + ", ".join(p.name for p in stale[:3])
+                + (f" and {len(stale) - 3} more" if len(stale) > 3 else "")
+            )
+        rep.seconds += time.perf_counter() - t0
+        return rep
+
+
+def _other_tiles(output: Path, written: Sequence[Path]) -> list[Path]:
+    """The files beside ``output`` named as itself or as its tiles (OUT_000...) that acq
+    wrote and this run did not: an earlier run's, cut otherwise."""
+    from acq.provenance import made_by_acq
+
+    found = [output, *output.parent.glob(f"{output.stem}_*{output.suffix}")]
+    tiles = [p for p in found if p == output or p.stem[len(output.stem) + 1 :].isdigit()]
+    return sorted(p for p in tiles if p not in written and p.is_file() and made_by_acq(p))
+
+
+def prepare_mesh(
+    logs: Sequence[Path],
+    calib: Calibration,
+    output: Path,
+    *,
+    camera: str | Sequence[str] | None = None,
+    frame: str | None = None,
+    trajectory: Path | Trajectory | None = None,
+    crs: str | None = None,
+    rules: FacetRules | None = None,
+    tile_m: float = 50.0,
+    chunk_s: float | None = None,
+) -> MeshJob:
+    """Read ``logs`` and plan the mesh (:class:`MeshJob`; its ``paths``: the files it
+    will write, for the caller to check before :meth:`MeshJob.run`); options as `acq
+    colorize` takes them; ``rules``: default
+    :class:`FacetRules`; ``chunk_s``: default colorize's. InputError for bad input, named."""
+    t0 = time.perf_counter()
+    files.format_of(output)
+    logs = session_files(logs)
+    once = sum(f.stat().st_size for f in logs if f.is_file()) <= READ_ONCE_BYTES
+    cloud = Report(output=str(output))
+    job, index = prepare(
+        logs, calib, cloud, camera=camera, frame=frame, trajectory=trajectory, jpegs=once,
+        threads=os.cpu_count() or 1, crs=crs,
+    )  # fmt: skip
+    if index.n_scans == 0:
+        raise InputValueError(f"LOG {logs[0]}: no laser scans; nothing to join into facets")
+    scan_new = np.sort(job.scan_new)
+    origin = np.zeros((scan_new.size, 3))
+    track = np.zeros(scan_new.size)
+    if job.frame_world:
+        ok = job.trajectory.covers(scan_new)
+        if ok.any():
+            origin[ok] = laser_positions(job, scan_new[ok])
+            steps = np.linalg.norm(np.diff(origin[ok], axis=0), axis=1)
+            along = np.concatenate([[0.0], np.cumsum(steps)])
+            # scans without a pose have no points: the distance of the scan before them
+            track = np.interp(np.arange(scan_new.size), np.flatnonzero(ok), along)
+    tile = tiles_of(track, tile_m)
+    report = MeshReport(
+        output=str(output), scans=int(scan_new.size), track_m=float(track[-1]),
+        frame=cloud.frame, trajectory=cloud.trajectory, notes=list(cloud.notes),
+        seconds=time.perf_counter() - t0,
+    )  # fmt: skip
+    if not job.frame_world:
+        report.notes.append("--frame laser: no track, one file whatever --tile-m")
+    comments = [f"frame {cloud.frame}", *([f"crs {crs}"] if crs else [])]
+    return MeshJob(
+        job, index, plan(scan_new, chunk_s or CHUNK_S), origin, tile,
+        tile_names(output, int(tile[-1]) + 1), rules or FacetRules(), once, report, comments,
+    )  # fmt: skip
+
+
+class _Tiles:
+    """The vertices and facets not yet written, chunk by chunk: vertices numbered in
+    the session from 0 (``base``: the number of the first one held), facets by tile."""
+
+    def __init__(self, mj: MeshJob) -> None:
+        self.mj = mj
+        self.base = 0
+        self.xyz = np.zeros((0, 3))
+        self.rgb = np.zeros((0, 3), np.uint8)
+        self.scan = np.zeros(0, np.int64)
+        self.step = np.zeros(0, np.int64)
+        self.faces = np.zeros((0, 3), np.int64)  # session vertex numbers
+        self.next_tile = 0  # the first tile not written
+
+    def add(self, r: ChunkResult) -> None:
+        mj, rep = self.mj, self.mj.report
+        rep.points += int(r.scan.size)
+        rep.coloured += int(np.count_nonzero(r.coloured))
+        # the held scans' last one joins this chunk's first
+        last = self.scan[-1] if self.scan.size else -1
+        carry = np.flatnonzero(self.scan == last)
+        scan = np.concatenate([self.scan[carry], r.scan.astype(np.int64)])
+        step = np.concatenate([self.step[carry], r.step.astype(np.int64)])
+        xyz = np.concatenate([self.xyz[carry], r.xyz])
+        tri = grid_facets(scan, step, xyz, mj.origin[scan], mj.rules)
+        tri = tri[(tri >= carry.size).any(axis=1)]  # one made with the last chunk already
+        ids = np.concatenate(
+            [self.base + carry, self.base + self.scan.size + np.arange(r.scan.size)]
+        )
+        self.faces = np.concatenate([self.faces, ids[tri]])
+        self.xyz = np.concatenate([self.xyz, r.xyz])
+        self.rgb = np.concatenate([self.rgb, r.rgb])
+        self.scan = np.concatenate([self.scan, r.scan.astype(np.int64)])
+        self.step = np.concatenate([self.step, r.step.astype(np.int64)])
+        if self.scan.size:  # tiles whose last scan is before the held last one are whole
+            self._write_until(int(mj.tile[self.scan[-1]]))
+
+    def finish(self) -> None:
+        self._write_until(len(self.mj.paths))
+
+    def _write_until(self, end: int) -> None:
+        """Write the tiles before ``end`` and drop what only they used."""
+        mj, rep = self.mj, self.mj.report
+        if end <= self.next_tile:
+            return
+        first_scan = self.scan[self.faces.min(axis=1) - self.base] if self.faces.size else None
+        face_tile = mj.tile[first_scan] if first_scan is not None else np.zeros(0, np.int64)
+        for t in range(self.next_tile, end):
+            mine = self.faces[face_tile == t]
+            if not mine.size:
+                rep.notes.append(f"{mj.paths[t].name}: no facets in that stretch; not written")
+                continue
+            used, tri = np.unique(mine, return_inverse=True)
+            at = used - self.base
+            path = mj.paths[t]
+            try:
+                rep.bytes += files.write(path, self.xyz[at], self.rgb[at], tri.reshape(-1, 3),
+                                         mj.comments)  # fmt: skip
+            except Exception as e:
+                full = full_disk_error(path, e)
+                if full is None:
+                    raise
+                raise full from e
+            rep.files.append(str(path))
+            rep.vertices += int(used.size)
+            rep.facets += int(mine.shape[0])
+        self.faces = self.faces[face_tile >= end]
+        self.next_tile = end
+        # a later tile's facets start at its own first scan: what is before is done
+        if end < len(mj.paths):
+            keep = mj.tile[self.scan] >= end
+            keep |= self.scan == self.scan[-1]
+            drop = int(np.argmax(keep)) if keep.any() else self.scan.size
+            self.base += drop
+            self.xyz, self.rgb = self.xyz[drop:], self.rgb[drop:]
+            self.scan, self.step = self.scan[drop:], self.step[drop:]

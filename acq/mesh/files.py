@@ -1,0 +1,109 @@
+"""A mesh's file, by its suffix (:func:`write`): binary PLY, glTF 2.0 binary (``.glb``)
+or OBJ, each with per-vertex colour and acq's mark (:mod:`acq.provenance`), written whole
+or not at all (a temporary beside it, renamed).
+
+- PLY: x y z double (m), red green blue uchar, faces; the mark a header comment.
+- glb (trimesh, ``process=False``: the vertices in the order given): positions float32
+  relative to the file's first vertex, that offset and the turn from the world's z up to
+  glTF's +y up in the node's matrix (JSON doubles: a CRS's coordinates keep their
+  millimetres); COLOR_0 per vertex; the mark ``asset.generator``, the comments in
+  ``asset.extras.acq``.
+- OBJ: ``v x y z r g b`` (the vertex-colour extension that Blender, MeshLab,
+  CloudCompare and trimesh read; colours 0..1), 1-based ``f a b c``; the mark and the
+  comments ``#`` lines at the top. No .mtl: there is no texture yet.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from acq.atomic_write import atomic
+from acq.cloud import ply
+from acq.errors import InputValueError
+from acq.provenance import SOFTWARE
+
+__all__ = ["SUFFIXES", "Y_UP", "format_of", "write"]
+
+SUFFIXES = (".ply", ".glb", ".obj")
+# the world's (x, y, z), z up, as glTF's (x, y, z), +y up
+Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+
+
+def format_of(output: Path, option: str = "-o") -> str:
+    """The format ``output``'s suffix names ("ply", "glb", "obj"); InputValueError naming
+    ``option`` and the accepted suffixes for any other."""
+    suffix = output.suffix.lower()
+    if suffix not in SUFFIXES:
+        raise InputValueError(
+            f"{option} {output}: unknown mesh format {suffix or '(no suffix)'}; expected a "
+            f"{', '.join(SUFFIXES)} file"
+        )
+    return suffix[1:]
+
+
+def write(
+    path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray,
+    comments: Sequence[str] = (),
+) -> int:  # fmt: skip
+    """Write the triangles ``faces`` (F,3) int of the vertices ``xyz`` (V,3) m coloured
+    ``rgb`` (V,3) uint8 to ``path`` in the format of its suffix, marked as acq's, with
+    ``comments`` (one line each); the file's size in bytes."""
+    kind = format_of(path)
+    lines = [f"{SOFTWARE} facets: x y z metres", *comments]
+    if kind == "ply":
+        return ply.write_mesh(path, xyz, rgb, faces, lines)
+    if kind == "glb":
+        return _write_glb(path, xyz, rgb, faces, lines)
+    return _write_obj(path, xyz, rgb, faces, lines)
+
+
+def _write_glb(
+    path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray, lines: Sequence[str]
+) -> int:
+    import trimesh
+
+    offset = xyz[0].copy() if len(xyz) else np.zeros(3)
+    mesh = trimesh.Trimesh(
+        vertices=xyz - offset, faces=faces, vertex_colors=rgb, process=False, validate=False
+    )
+    node = np.eye(4)
+    node[:3, :3] = Y_UP
+    node[:3, 3] = Y_UP @ offset
+    scene = trimesh.Scene()
+    scene.add_geometry(mesh, node_name="facets", geom_name="facets", transform=node)
+
+    def mark(tree: dict[str, Any]) -> None:
+        tree["asset"]["generator"] = SOFTWARE
+        tree["asset"]["extras"] = {"acq": list(lines)}
+
+    export: Any = trimesh.exchange.gltf.export_glb  # trimesh has no annotations
+    data: bytes = export(scene, tree_postprocessor=mark)
+    with atomic(path) as tmp:
+        tmp.write_bytes(data)
+    return path.stat().st_size
+
+
+def _write_obj(
+    path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray, lines: Sequence[str]
+) -> int:
+    if not all(c.isprintable() for c in lines):  # a line break would end the comment
+        raise ValueError(f"an OBJ comment is one line of printable text: {list(lines)}")
+    with atomic(path) as tmp, open(tmp, "w", encoding="ascii") as out:
+        out.write("".join(f"# {c}\n" for c in lines))
+        # four decimals: every colour byte comes back as round(255 * c)
+        _rows(out, "v %.4f %.4f %.4f %.4f %.4f %.4f\n", np.hstack([xyz, rgb / 255.0]))
+        _rows(out, "f %d %d %d\n", np.asarray(faces, dtype=np.int64) + 1)
+    return os.path.getsize(path)
+
+
+def _rows(out: TextIO, line: str, values: np.ndarray, block: int = 65536) -> None:
+    """Each row of ``values`` as ``line`` formats it, a block of rows at a time (one
+    string formatting per block: three times numpy's savetxt, which formats row by row)."""
+    for k in range(0, values.shape[0], block):
+        part = values[k : k + block]
+        out.write((line * part.shape[0]) % tuple(part.ravel().tolist()))

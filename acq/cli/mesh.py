@@ -49,7 +49,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         m,
         "as a comment (PLY, OBJ) or in asset.extras (glb)",
         "meshes",
-        laser_note=" (one file, no tiles)",
+        laser_note=" (refused: a moving rig's profiles lie on top of each other there)",
     )
     m.add_argument(
         "--tile-m", type=real(1, 1e6, what="metres"), default=50.0, metavar="M",

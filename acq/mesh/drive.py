@@ -167,6 +167,16 @@ def prepare_mesh(
     )  # fmt: skip
     if index.n_scans == 0:
         raise InputValueError(f"LOG {logs[0]}: no laser scans; nothing to join into facets")
+    if not job.frame_world:
+        # a moving rig's profiles lie on top of each other in the laser frame: its grid
+        # joins nothing that is a surface
+        raise InputValueError(
+            "--frame laser: facets join neighbouring profiles where the rig placed them; "
+            "use --frame world"
+            if job.trajectory is not None
+            else "facets need the rig's motion: CAN odometry or GNSS fixes in the log, or "
+            "--trajectory CSV"
+        )
     scan_new = np.sort(job.scan_new)
     origin = np.zeros((scan_new.size, 3))
     track = np.zeros(scan_new.size)
@@ -184,8 +194,6 @@ def prepare_mesh(
         frame=cloud.frame, trajectory=cloud.trajectory, notes=list(cloud.notes),
         seconds=time.perf_counter() - t0,
     )  # fmt: skip
-    if not job.frame_world:
-        report.notes.append("--frame laser: no track, one file whatever --tile-m")
     comments = [f"frame {cloud.frame}", *([f"crs {crs}"] if crs else [])]
     return MeshJob(
         job, index, plan(scan_new, chunk_s or CHUNK_S), origin, tile,

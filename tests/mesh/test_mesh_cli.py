@@ -193,17 +193,16 @@ def test_bad_inputs_are_one_line_and_exit_2(
     assert not (tmp_path / "e.glb").exists()
 
 
-def test_laser_frame_is_one_file_and_progress_shows_a_bar(
+def test_the_laser_frame_is_refused_and_progress_shows_a_bar(
     short_drive: Drive, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "l.ply"
-    assert _mesh(short_drive, out, "--frame", "laser", "--tile-m", "3", "--progress") == 0
-    assert sorted(tmp_path.iterdir()) == [out]  # no track in the laser frame: no tiles
-    captured = capsys.readouterr()
-    assert "colouring" in captured.err and "scan" in captured.err
-    assert "--frame laser: no track, one file whatever --tile-m" in captured.out
-    xyz, _, faces = _ply(out)
-    assert faces.shape[0] > 1.5 * xyz.shape[0]
+    assert _mesh(short_drive, out, "--frame", "laser") == 2
+    err = capsys.readouterr().err
+    assert "--frame laser: facets join neighbouring profiles" in err and err.count("\n") == 1
+    assert not out.exists()
+    assert _mesh(short_drive, out, "--progress") == 0
+    assert "colouring" in capsys.readouterr().err
 
 
 def test_a_full_disk_at_a_tile_is_one_line_exit_3(

@@ -261,13 +261,15 @@ def test_in_process_frames_and_clock(camera_args: dict[str, object]) -> None:
 
 def test_render_and_encode_keep_25_hz(camera_args: dict[str, object]) -> None:
     cam = SimCamera(**camera_args)  # type: ignore[arg-type]
+    # this thread's CPU time (the rendering and encoding run on it): what a frame costs
+    # whatever else the machine runs; on a loaded machine its wall time only stretches
     durations = []
     for _ in range(12):
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         cam.next_frame()
-        durations.append(time.perf_counter() - t0)
+        durations.append(time.thread_time() - t0)
     median = statistics.median(durations)
-    print(f"render+encode 780x582: median {median * 1e3:.1f} ms per frame")
+    print(f"render+encode 780x582: median {median * 1e3:.1f} ms of CPU per frame")
     assert median < 1 / 25
 
 

@@ -17,7 +17,6 @@ than ``NEAR_M`` (or behind the camera) are not drawn: the meshes are of small fa
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numba
@@ -129,10 +128,11 @@ def _raster(uvz, faces, near, depth, face, weights):  # type: ignore[no-untyped-
         area = (ub - ua) * (vc - va) - (vb - va) * (uc - ua)
         if not abs(area) > 1e-12:
             continue
-        x0 = max(0, math.ceil(min(ua, ub, uc)))
-        x1 = min(W - 1, math.floor(max(ua, ub, uc)))
-        y0 = max(0, math.ceil(min(va, vb, vc)))
-        y1 = min(H - 1, math.floor(max(va, vb, vc)))
+        # clamped as floats: a corner just past the near plane projects far off-screen
+        x0 = int(max(0.0, np.ceil(min(ua, ub, uc))))
+        x1 = int(min(W - 1.0, np.floor(max(ua, ub, uc))))
+        y0 = int(max(0.0, np.ceil(min(va, vb, vc))))
+        y1 = int(min(H - 1.0, np.floor(max(va, vb, vc))))
         ia, ib, ic = 1.0 / za, 1.0 / zb, 1.0 / zc
         for y in range(y0, y1 + 1):
             for x in range(x0, x1 + 1):
@@ -196,10 +196,10 @@ def _splat(uvz, half, near, depth, index):  # type: ignore[no-untyped-def]
             continue
         u, v = uvz[i, 0], uvz[i, 1]
         h = half[i]
-        x0 = max(0, math.ceil(u - h))
-        x1 = min(W - 1, math.floor(u + h))
-        y0 = max(0, math.ceil(v - h))
-        y1 = min(H - 1, math.floor(v + h))
+        x0 = int(max(0.0, np.ceil(u - h)))
+        x1 = int(min(W - 1.0, np.floor(u + h)))
+        y0 = int(max(0.0, np.ceil(v - h)))
+        y1 = int(min(H - 1.0, np.floor(v + h)))
         for y in range(y0, y1 + 1):
             for x in range(x0, x1 + 1):
                 if z < depth[y, x]:

@@ -126,3 +126,20 @@ def test_look_at_and_rays_agree_with_the_projection() -> None:
     assert np.allclose(back[:, 0], x.ravel()) and np.allclose(back[:, 1], y.ravel())
     with pytest.raises(ValueError, match="along"):
         look_at(eye, eye + np.array([0, 0, 2.0]))
+
+
+def test_a_corner_just_past_the_near_plane_far_off_screen_is_clamped() -> None:
+    """A corner 6 cm ahead and far to the side projects 1e20 px away: the facet's part in
+    the image is still drawn (no integer overflow, no loop over its whole extent)."""
+    v = view()
+    xyz = np.array([[-0.3, -0.31, 2.0], [1e17, 0.0, 0.06], [-0.3, 0.31, 2.0]])  # rows 0-15
+    _, mask = render_mesh(v, xyz, np.array([[0, 1, 2]]), RGB)
+    uv = v.pixels(xyz)[:, :2]
+    y, x = np.mgrid[0:64, 0:64].astype(float)
+
+    def edge(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
+
+    e = [edge(uv[0], uv[1]), edge(uv[1], uv[2]), edge(uv[2], uv[0])]
+    inside = np.all([s >= 0 for s in e], axis=0) | np.all([s <= 0 for s in e], axis=0)
+    assert inside.sum() == 16 * 64 and np.array_equal(mask, inside)

@@ -537,17 +537,19 @@ def test_a_file_of_the_demos_names_not_as_it_left_it_is_never_overwritten(
     record_files(out, demo.OUT_MARK, "acq demo's", demo.FILES)
     claim_folder(out, demo.OUT_MARK, "acq demo's", demo.FILES)  # its own: replaced
     (out / "demo.mcap").write_bytes(b"\x89MCAP0\r\n the user's drive")  # put there since
+    (out / "mesh.glb").write_bytes(b"glTF the user's model")  # put there since
     st = (out / "calib.yaml").stat()
     (out / "calib.yaml").write_text("mine: edited")  # changed since
     os.utime(out / "calib.yaml", ns=(st.st_atime_ns, st.st_mtime_ns))  # even at its mtime
-    with pytest.raises(InputError, match=r"--out .*calib\.yaml, demo\.mcap"):
+    with pytest.raises(InputError, match=r"--out .*calib\.yaml, demo\.mcap, mesh\.glb"):
         claim_folder(out, demo.OUT_MARK, "acq demo's", demo.FILES)
     capsys.readouterr()
     assert acq_main(["demo", "--out", str(out), "--seconds", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "calib.yaml, demo.mcap" in err[0]
+    assert len(err) == 1 and "calib.yaml, demo.mcap, mesh.glb" in err[0]
     assert (out / "calib.yaml").read_text() == "mine: edited"
     assert (out / "demo.mcap").read_bytes().endswith(b"the user's drive")
+    assert (out / "mesh.glb").read_bytes().endswith(b"the user's model")
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        [demo.OUT_MARK, "calib.yaml", "cloud.ply", "demo.mcap"]
+        [demo.OUT_MARK, "calib.yaml", "cloud.ply", "demo.mcap", "mesh.glb"]
     )

@@ -12,7 +12,10 @@ sync, CAN odometry, MCAP writer) records them for ``seconds`` into ``DIR/demo.mc
 (``/laser/scan``, ``/left/image/compressed``, ``/right/image/compressed``,
 ``/vehicle/odometry``, ``/vehicle/can``...); the log is then coloured with the rig's
 true calibration (``DIR/calib.yaml``) into ``DIR/cloud.ply`` and pictured in
-``DIR/preview.png``.
+``DIR/preview.png``; its facets are joined as `acq mesh` joins them into ``DIR/mesh.glb``
+(per-vertex colour, one file), which is read back and rendered, with the cloud, from
+three viewpoints along the drive beside the true street (:mod:`acq.sim.mesh_views`) into
+``DIR/mesh_views.png``, the summary giving how close each comes to the truth.
 
 The demo colours through the pipeline of ``acq colorize``
 (:func:`acq.cloud.colorize.run`: offline re-timing, chunks, views, the PLY writer) with
@@ -46,6 +49,8 @@ from acq.cloud import colorize
 from acq.errors import AcqError, InputError
 from acq.log import LogInfo, drive_log
 from acq.log import info as log_info
+from acq.mesh.drive import MeshReport, prepare_mesh
+from acq.provenance import write_image
 from acq.record import config as configfile
 from acq.record.recorder import Recorder, RecorderError
 from acq.record.sdnotify import Notifier
@@ -61,6 +66,7 @@ from acq.sim.demo_rig import (
     true_calibration,
 )
 from acq.sim.demo_truth import check_log, check_odometry
+from acq.sim.mesh_views import ViewsResult, compare, picture, read_mesh, street_views
 from acq.sim.out_folder import claim_folder, record_files
 
 __all__ = ["MAX_SECONDS", "OUT_MARK", "DemoResult", "run"]
@@ -80,7 +86,11 @@ STOP_AHEAD_S = 0.005  # the recorder is stopped this long before a scan is due (
 DRIFT_RESOLVED_PPM = 20.0  # a drift interval this wide or narrower is shown as a figure
 MAX_SECONDS = 170.0  # the simulated drive loops over its 1 km street every 180 s
 OUT_MARK = ".acq-demo"  # in a folder the demo wrote: it may write there again
-FILES = ("demo.mcap", "cloud.ply", "preview.png", "calib.yaml", "config.yaml")
+FILES = (
+    "demo.mcap", "cloud.ply", "preview.png", "mesh.glb", "mesh_views.png", "calib.yaml",
+    "config.yaml",
+)  # fmt: skip
+VIEWS_AT = (0.35, 0.5, 0.65)  # the mesh's three viewpoints, as shares of the drive's time
 
 
 @dataclass
@@ -96,6 +106,8 @@ class DemoResult:
     # CPU s: this process while recording (recorder, scanner, car), each camera's process
     cpu_s: dict[str, float] = field(default_factory=dict)
     colour_agreement: tuple[float, float] = (math.nan, math.nan)  # strict, within a pixel
+    mesh: MeshReport | None = None  # what the mesh step wrote
+    views: ViewsResult | None = None  # the mesh and the cloud from three viewpoints
 
 
 class _Clock:
@@ -254,6 +266,13 @@ def _summary(
         f"  cloud     {pc.size:,} points, {int(pc.coloured.sum()):,} coloured "
         f"({100 * pc.coloured_share:.1f} %) from {pc.frames_used} of {source} {pc.frames} frames"
     )
+    if result.mesh is not None and result.views is not None:
+        v = result.views
+        lines.append(
+            f"  mesh      {result.mesh.facets:,} facets on {result.mesh.vertices:,} vertices; "
+            f"from {len(v.names)} viewpoints beside the true street, where it is visible "
+            f"and covered: mesh {v.mesh.text()}; cloud {v.cloud.text()}"
+        )
     lines.append("  files     " + ", ".join(
         f"{p} ({_size(p)})" if i == 0 else f"{p.name} ({_size(p)})"
         for i, p in enumerate(result.files.values())
@@ -268,6 +287,17 @@ def _summary(
     if notes:
         lines.append("  notes     " + "; ".join(notes))
     return lines
+
+
+def _views(rig: SimRig, scan_ns: np.ndarray, glb: Path, pc: cloud.Cloud) -> ViewsResult:
+    """The mesh read back from ``glb`` and the cloud ``pc`` from three viewpoints along
+    the recorded drive (its scans' host times ``scan_ns``), beside the true street."""
+    origin_ns = round(rig.t_origin * 1e9)
+    t0, t1 = ((int(scan_ns[k]) - origin_ns) * 1e-9 % rig.loop_s for k in (0, -1))
+    source = rig.source
+    views = street_views(source.trajectory, [t0 + f * (t1 - t0) for f in VIEWS_AT])
+    between_scans_m = source.trajectory.speed * source.rig.scan_period  # the splat's size
+    return compare(source.street, views, read_mesh(glb), (pc.xyz, pc.rgb), between_scans_m)
 
 
 def run(
@@ -385,6 +415,17 @@ def _make(result: DemoResult, seconds: float, progress: Callable[[str], None]) -
     cloud.preview_png(png_path, pc, title=title)
     result.steps_s["write"] = clock.lap()
     clock.say(f"wrote {png_path}")
+    glb_path, views_path = out / "mesh.glb", out / "mesh_views.png"
+    result.mesh = prepare_mesh(
+        [mcap_path], calibfile.load(calib_path), glb_path, camera=COLOUR_CAMERA,
+        trajectory=truth, tile_m=math.inf,
+    ).run()  # fmt: skip
+    result.views = _views(rig, log.scan_ns, glb_path, pc)
+    title = (f"acq demo: {result.mesh.facets:,} facets (vertex colours) and the cloud, "
+             "beside the true street")  # fmt: skip
+    write_image(views_path, picture(result.views, title)[:, :, ::-1])
+    result.steps_s["mesh"] = clock.lap()
+    clock.say(f"wrote {glb_path} ({_size(glb_path)}) and {views_path}")
 
     info = log_info(mcap_path)
     truth_lines, result.colour_agreement = check_log(
@@ -397,6 +438,8 @@ def _make(result: DemoResult, seconds: float, progress: Callable[[str], None]) -
         "log": mcap_path,
         "cloud": ply_path,
         "preview": png_path,
+        "mesh": glb_path,
+        "mesh views": views_path,
         "calib": calib_path,
         "config": config_path,
     }

@@ -18,7 +18,9 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
+import pygltflib
 import pytest
+import trimesh
 import yaml
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
@@ -28,6 +30,7 @@ from acq.camera import calibfile
 from acq.cli import main as acq_main
 from acq.cloud import colorize
 from acq.log import drive_log, info
+from acq.mesh.files import Y_UP
 from acq.sim.demo import COLOUR_CAMERA
 from acq.sim.demo_rig import CAMERAS, demo_rig
 from acq.sim.demo_truth import COLOUR_TOLERANCE, colour_check
@@ -77,7 +80,15 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
 def test_exit_code_files_and_time(demo: Demo) -> None:
     out, code, took, _, _ = demo
     assert code == 0
-    for name in ("demo.mcap", "cloud.ply", "preview.png", "calib.yaml", "config.yaml"):
+    for name in (
+        "demo.mcap",
+        "cloud.ply",
+        "preview.png",
+        "mesh.glb",
+        "mesh_views.png",
+        "calib.yaml",
+        "config.yaml",
+    ):
         assert (out / name).is_file(), name
     assert not (out / ".recording").exists()
     assert took < 60.0  # the cameras render their frames first: 10-30 s on a busy machine
@@ -360,6 +371,42 @@ def test_preview_is_a_picture_of_the_street(demo: Demo) -> None:
     assert (spread > 30).mean() > 0.05  # colour, not only grey points on black
 
 
+def test_mesh_and_its_views_beside_the_truth(demo: Demo) -> None:
+    """mesh.glb as trimesh and pygltflib read it: the cloud's points joined into facets,
+    in the cloud's frame; mesh_views.png: three rows of truth, mesh and cloud, with the
+    figures the summary prints."""
+    out, code, _, _, printed = demo
+    assert code == 0
+    gl = pygltflib.GLTF2().load(str(out / "mesh.glb"))
+    assert gl.asset.generator.startswith("acq ")
+    assert gl.meshes[0].primitives[0].attributes.COLOR_0 is not None
+    g = trimesh.load_scene(out / "mesh.glb").to_geometry()  # glTF's +y up
+    xyz = np.asarray(g.vertices) @ Y_UP
+    v = PlyData.read(str(out / "cloud.ply"))["vertex"].data
+    cloud_xyz = np.stack([v["x"], v["y"], v["z"]], axis=1)
+    assert 0.5 * len(cloud_xyz) < len(xyz) <= len(cloud_xyz)
+    assert np.abs(xyz.min(axis=0) - cloud_xyz.min(axis=0)).max() < 0.5
+    assert np.abs(xyz.max(axis=0) - cloud_xyz.max(axis=0)).max() < 0.5
+    row = re.search(
+        r"mesh +([\d,]+) facets on ([\d,]+) vertices; from 3 viewpoints .*: mesh ([\d.]+) % "
+        r"within 24/255, ([\d.]+) dB, covers (\d+) %; cloud ([\d.]+) % within 24/255",
+        printed,
+    )
+    assert row, printed
+    facets, vertices = (int(x.replace(",", "")) for x in row.groups()[:2])
+    assert (facets, vertices) == (len(g.faces), len(xyz))
+    within, psnr, covers, cloud_within = map(float, row.groups()[2:])
+    # 3 s of drive, three views: the surfaces the laser saw come out close to the truth
+    assert within >= 70 and psnr >= 14 and covers >= 40 and cloud_within >= 60
+    img = cv2.imread(str(out / "mesh_views.png"), cv2.IMREAD_COLOR)
+    assert img is not None and img.shape == (20 + 3 * (16 + 240), 3 * 320, 3)
+    for r in range(3):
+        top = 20 + r * 256 + 16
+        truth, mesh = img[top : top + 240, :320], img[top : top + 240, 320:640]
+        assert (truth.max(axis=2) > 0).mean() > 0.99  # the ray caster covers every pixel
+        assert 0.2 < (mesh.max(axis=2) > 0).mean()  # the mesh where the laser saw
+
+
 def test_colorize_places_the_demo_log_with_its_can_odometry(demo: Demo, tmp_path: Path) -> None:
     """`acq colorize` on the demo's log: the points placed by dead reckoning of the
     recorded CAN odometry (the world frame is its first pose) and coloured with motion
@@ -490,17 +537,19 @@ def test_a_file_of_the_demos_names_not_as_it_left_it_is_never_overwritten(
     record_files(out, demo.OUT_MARK, "acq demo's", demo.FILES)
     claim_folder(out, demo.OUT_MARK, "acq demo's", demo.FILES)  # its own: replaced
     (out / "demo.mcap").write_bytes(b"\x89MCAP0\r\n the user's drive")  # put there since
+    (out / "mesh.glb").write_bytes(b"glTF the user's model")  # put there since
     st = (out / "calib.yaml").stat()
     (out / "calib.yaml").write_text("mine: edited")  # changed since
     os.utime(out / "calib.yaml", ns=(st.st_atime_ns, st.st_mtime_ns))  # even at its mtime
-    with pytest.raises(InputError, match=r"--out .*calib\.yaml, demo\.mcap"):
+    with pytest.raises(InputError, match=r"--out .*calib\.yaml, demo\.mcap, mesh\.glb"):
         claim_folder(out, demo.OUT_MARK, "acq demo's", demo.FILES)
     capsys.readouterr()
     assert acq_main(["demo", "--out", str(out), "--seconds", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "calib.yaml, demo.mcap" in err[0]
+    assert len(err) == 1 and "calib.yaml, demo.mcap, mesh.glb" in err[0]
     assert (out / "calib.yaml").read_text() == "mine: edited"
     assert (out / "demo.mcap").read_bytes().endswith(b"the user's drive")
+    assert (out / "mesh.glb").read_bytes().endswith(b"the user's model")
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        [demo.OUT_MARK, "calib.yaml", "cloud.ply", "demo.mcap"]
+        [demo.OUT_MARK, "calib.yaml", "cloud.ply", "demo.mcap", "mesh.glb"]
     )

@@ -1,0 +1,202 @@
+"""The drive's mesh and cloud seen from virtual viewpoints along the street, beside the truth.
+
+Three viewpoints at three places along the drive (:func:`street_views`): the left
+facades and the right facades seen from the road at 1.5 m, and an oblique view from 5 m
+up, 5 m behind, looking ahead over the left side of the street. From each, the mesh is
+rasterised (:func:`acq.mesh.render.render_mesh`, per-vertex colours), the cloud splatted
+(:func:`acq.mesh.render.splat`) and the TRUE street ray-cast (:func:`acq.sim.raycast.cast`,
+the simulator's own surface colours) through the same pinhole. :func:`likeness` compares
+a render with the truth where the street is visible (the truth hits a surface, not the
+sky) and the render covers it: the share of those pixels within ``TOLERANCE`` (0-255) in
+every channel, and the PSNR (dB). :func:`picture` lays the views out side by side.
+
+Metres in the street's frame (x along the street, y left, z up); seconds of the
+simulator's clock; images RGB uint8.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from acq.camera.camera_models import Pinhole
+from acq.mesh.files import Y_UP
+from acq.mesh.render import View, look_at, render_mesh, splat
+from acq.sim.raycast import cast
+from acq.sim.world import Material, Street, Trajectory
+
+__all__ = [
+    "TOLERANCE",
+    "Likeness",
+    "ViewsResult",
+    "compare",
+    "likeness",
+    "picture",
+    "read_mesh",
+    "street_views",
+    "truth_image",
+]
+
+TOLERANCE = 24  # a pixel agrees when every channel is within this of the truth (0-255)
+EYE_M = 1.5  # the facade views' height above the road, m
+WIDTH, HEIGHT, FOV_DEG = 320, 240, 75.0  # each view's size (px) and horizontal field
+
+
+@dataclass(frozen=True)
+class Likeness:
+    """A render against the truth: ``street`` pixels where the truth hits a surface,
+    ``covered`` the share of them the render covers, ``within`` the share of those
+    covered that agree within ``TOLERANCE`` in every channel, ``psnr_db`` over them."""
+
+    street: int
+    covered: float
+    within: float
+    psnr_db: float
+
+    def text(self) -> str:
+        return (
+            f"{100 * self.within:.1f} % within {TOLERANCE}/255, {self.psnr_db:.1f} dB, "
+            f"covers {100 * self.covered:.0f} %"
+        )
+
+
+def street_views(
+    trajectory: Trajectory, times_s: Sequence[float], width: int = WIDTH, height: int = HEIGHT,
+    fov_deg: float = FOV_DEG,
+) -> dict[str, View]:  # fmt: skip
+    """Three views (module docstring) at the vehicle's places at ``times_s`` (three s):
+    ``left`` at the first, ``right`` at the second, ``oblique`` at the third."""
+    if len(times_s) != 3:
+        raise ValueError(f"three times, one a view: got {len(times_s)}")
+    f = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
+    camera = Pinhole(width, height, f, f, (width - 1) / 2, (height - 1) / 2)
+    R, p = trajectory.poses(np.asarray(times_s, np.float64))
+    views: dict[str, View] = {}
+    for name, Rk, pk in zip(("left", "right", "oblique"), R, p, strict=True):
+        ahead = np.array([Rk[0, 0], Rk[1, 0], 0.0])
+        ahead /= np.linalg.norm(ahead)
+        left = np.array([-ahead[1], ahead[0], 0.0])
+        road = np.array([pk[0], pk[1], 0.0])
+        up = np.array([0.0, 0.0, 1.0])
+        eye = road + EYE_M * up
+        if name == "oblique":
+            pose = look_at(road - 5.0 * ahead + 5.0 * up, road + 10.0 * ahead + 4.0 * left)
+        else:
+            pose = look_at(eye, eye + (10.0 if name == "left" else -10.0) * left)
+        views[name] = View(camera, pose)
+    return views
+
+
+def truth_image(street: Street, view: View) -> tuple[np.ndarray, np.ndarray]:
+    """The true street through ``view``: (H,W,3) uint8 RGB and (H,W) bool where a ray
+    hits a surface (not the sky)."""
+    origin, dirs = view.rays()
+    hit = cast(street, origin, dirs)
+    H, W = view.shape
+    seen = np.isfinite(hit.distance) & (hit.material != Material.SKY)
+    rgb = hit.colour[:, ::-1].reshape(H, W, 3)
+    return np.ascontiguousarray(rgb), seen.reshape(H, W)
+
+
+def likeness(
+    render: np.ndarray, covered: np.ndarray, truth: np.ndarray, street: np.ndarray
+) -> Likeness:
+    """``render`` (H,W,3) uint8 with ``covered`` (H,W) bool against ``truth`` (H,W,3)
+    where ``street`` (H,W) bool (:class:`Likeness`; NaN shares where there is nothing to
+    compare, PSNR +inf for identical pixels)."""
+    both = covered & street
+    n = int(street.sum())
+    k = int(both.sum())
+    if k == 0:
+        return Likeness(n, 0.0 if n else math.nan, math.nan, math.nan)
+    d = render[both].astype(np.int32) - truth[both].astype(np.int32)
+    within = float((np.abs(d) <= TOLERANCE).all(axis=1).mean())
+    mse = float(np.mean(d.astype(np.float64) ** 2))
+    psnr = math.inf if mse == 0 else 10.0 * math.log10(255.0**2 / mse)
+    return Likeness(n, k / n, within, psnr)
+
+
+@dataclass(frozen=True)
+class ViewsResult:
+    """Per view (in order): its name, the truth, the mesh's and the cloud's renders, and
+    each render's likeness to the truth; ``mesh`` and ``cloud`` over all views pooled."""
+
+    names: list[str]
+    images: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # truth, mesh, cloud (RGB)
+    per_view: list[tuple[Likeness, Likeness]]  # mesh, cloud
+    mesh: Likeness
+    cloud: Likeness
+
+
+def compare(
+    street: Street,
+    views: dict[str, View],
+    mesh: tuple[np.ndarray, np.ndarray, np.ndarray],
+    cloud: tuple[np.ndarray, np.ndarray],
+    splat_m: float,
+) -> ViewsResult:
+    """Render ``mesh`` (vertices (V,3) m, faces (F,3), RGB (V,3) uint8) and splat ``cloud``
+    (points (N,3) m, RGB (N,3) uint8; squares of ``splat_m`` m) from each view; compare
+    both with the truth."""
+    images, per_view = [], []
+    pooled: dict[str, list[np.ndarray]] = {"truth": [], "street": [], "mesh": [], "mesh_in": [],
+                                           "cloud": [], "cloud_in": []}  # fmt: skip
+    for view in views.values():
+        truth, seen = truth_image(street, view)
+        m_img, m_in = render_mesh(view, *mesh)
+        c_img, c_in = splat(view, cloud[0], cloud[1], splat_m)
+        images.append((truth, m_img, c_img))
+        per_view.append((likeness(m_img, m_in, truth, seen), likeness(c_img, c_in, truth, seen)))
+        for key, a in zip(pooled, (truth, seen, m_img, m_in, c_img, c_in), strict=True):
+            pooled[key].append(a)
+    cat = {k: np.concatenate(v) for k, v in pooled.items()}
+    return ViewsResult(
+        list(views), images, per_view,
+        likeness(cat["mesh"], cat["mesh_in"], cat["truth"], cat["street"]),
+        likeness(cat["cloud"], cat["cloud_in"], cat["truth"], cat["street"]),
+    )  # fmt: skip
+
+
+def picture(result: ViewsResult, title: str) -> np.ndarray:
+    """(H,W,3) uint8 RGB: a row per view (truth, mesh, cloud), each panel captioned with
+    its figures, ``title`` on top."""
+    band = 16
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.36
+
+    def captioned(img: np.ndarray, text: str) -> np.ndarray:
+        top = np.full((band, img.shape[1], 3), 255, np.uint8)
+        cv2.putText(top, text, (3, band - 5), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
+        return np.vstack([top, img])
+
+    rows = []
+    for name, (truth, m_img, c_img), (m, c) in zip(
+        result.names, result.images, result.per_view, strict=True
+    ):
+        rows.append(np.hstack([
+            captioned(truth, f"{name}: the true street"),
+            captioned(m_img, f"mesh: {m.text()}"),
+            captioned(c_img, f"cloud: {c.text()}"),
+        ]))  # fmt: skip
+    body = np.vstack(rows)
+    head = np.full((band + 4, body.shape[1], 3), 255, np.uint8)
+    cv2.putText(head, title, (3, band - 1), font, scale + 0.06, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.vstack([head, body])
+
+
+def read_mesh(glb: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A ``.glb`` of `acq mesh` read back through trimesh: vertices (V,3) m in the world
+    frame (the node's matrix applied, glTF's +y up turned back to z up), faces (F,3) and
+    vertex colours (V,3) uint8 RGB."""
+    import trimesh
+    from trimesh.visual import ColorVisuals
+
+    g = trimesh.load_scene(glb).to_geometry()
+    if not isinstance(g, trimesh.Trimesh) or not isinstance(g.visual, ColorVisuals):
+        raise ValueError(f"{glb}: not a triangle mesh with vertex colours")
+    rgb = np.asarray(g.visual.vertex_colors)[:, :3]
+    return np.asarray(g.vertices) @ Y_UP, np.asarray(g.faces), np.ascontiguousarray(rgb)

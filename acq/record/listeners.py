@@ -44,7 +44,12 @@ class LogRecord:
 
 
 class Listener(ABC):
-    """Takes the log's records, on its own thread (one :class:`Feed` per listener)."""
+    """Takes the log's records, on its own thread (one :class:`Feed` per listener).
+    :meth:`backlog` says how many records wait for it (its feed sets it)."""
+
+    def backlog(self) -> int:
+        """Records queued for this listener, not yet taken (0 without a feed)."""
+        return 0
 
     @abstractmethod
     def on_record(self, record: LogRecord) -> None:
@@ -72,6 +77,7 @@ class Feed:
         self._thread = threading.Thread(
             target=self._run, name=f"listener {type(listener).__name__}", daemon=True
         )
+        listener.backlog = self.qsize  # type: ignore[method-assign]
         self._thread.start()
 
     def put(self, record: LogRecord) -> bool:

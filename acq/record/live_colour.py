@@ -64,6 +64,10 @@ log = logging.getLogger("acq.record")
 LIVE_OPTIONS = views.Options(view="nearest", balance=False)  # what a scan alone allows
 WAIT_S = 0.3  # s a scan waits after its last point for the frames (and poses) after it
 MAX_WAITING = 12  # scans waiting at most (0.3 s at 40 Hz); older ones are skipped
+# records queued for the colourer beyond which it skips ready scans rather than colour
+# them (about 0.25 s of the simulated rig's records): the frames and poses behind them
+# are taken at once, and its queue never fills (it would lose those)
+BEHIND_RECORDS = 64
 FRAMES_KEPT_S = 1.0  # s of each camera's frames kept before the newest
 # s past the newest vehicle sample the poses extrapolate its motion: a trajectory rebuilt
 # 0.2 s ago covers the scan that just ended (a car's motion changes little in that time)
@@ -247,6 +251,9 @@ class LiveColourer(Listener):
             if not everything and not self._ready(scan, end_ns):
                 return
             self._waiting.popleft()
+            if not everything and self.backlog() > BEHIND_RECORDS:
+                self.skipped += 1  # behind: this scan's colour would come too late
+                continue
             try:
                 self._colour(scan, end_ns, increment, offset)
             except Exception as e:  # one scan lost, never the listener
@@ -355,11 +362,13 @@ class _LogOutput:
         self.registered = False
         self.skipped = 0
 
-    def put(self, record: LogRecord) -> None:
+    def put(self, record: LogRecord) -> bool:
+        """Queue ``record`` for the writer; False (counted) when the outbox is half full."""
         if self.outbox.qsize() * 2 >= self.outbox.queue.maxsize:
             self.skipped += 1
-            return
+            return False
         self.outbox.put(self, record)  # type: ignore[arg-type]
+        return True
 
     def write(self, writer: LogWriter, record: LogRecord) -> None:
         """On the writer's thread: the record at its log time (on the host clock)."""
@@ -395,9 +404,9 @@ def attach(recorder: Recorder, settings: ColourSettings) -> LiveColourer | None:
     to_log = _LogOutput(recorder.outbox) if settings.log else None
 
     def emit(record: LogRecord) -> None:
-        if record.topic == coloured_topic(scanner) and to_log is not None:
-            to_log.put(record)  # the server, if any, has it from the log
-        elif server is not None:
+        if record.topic == coloured_topic(scanner) and to_log is not None and to_log.put(record):
+            return  # the server, if any, has it from the log
+        if server is not None:
             server.put(record)
 
     poses = None

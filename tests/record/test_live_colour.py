@@ -192,3 +192,32 @@ def test_with_odometry_the_swath_is_the_street_placed_in_the_odometry_frame(
     [first], [last] = tfs[0].transforms, tfs[-1].transforms
     assert (last.parent_frame_id, last.child_frame_id) == ("odometry", "vehicle")
     assert last.translation.x - first.translation.x == pytest.approx(20 / 3.6 * 2, abs=1.0)
+
+
+def test_a_colourer_with_records_queued_behind_it_skips_scans_and_takes_the_frames(
+    short_drive: tuple[DriveTruth, Path],
+) -> None:
+    """Far behind (its feed's queue long), it skips the ready scans, counted, and keeps
+    taking frames; caught up, it colours again."""
+    truth, calib_path = short_drive
+    records, offset = _records(truth.files[0])
+    increment = read_log(truth.files[0], returns=False, jpegs=False).time_increment
+    out: list[LogRecord] = []
+    colourer = LiveColourer(
+        calibfile.load(calib_path), "laser", emit=out.append,
+        time_increment_s=lambda: increment, utc_offset_ns=lambda: offset,
+        options=views.Options(view="nearest", balance=False, motion_compensation=False),
+    )  # fmt: skip
+    queued = [100]
+    colourer.backlog = lambda: queued[0]  # type: ignore[method-assign]
+    half = len(records) // 2
+    for record in records[:half]:
+        colourer.on_record(record)
+    assert colourer.coloured == 0 and colourer.skipped > 20
+    assert all(c.frames for c in colourer.cameras.values())  # the frames still taken
+    queued[0] = 0
+    for record in records[half:]:
+        colourer.on_record(record)
+    assert colourer.coloured > 20
+    scans = sum(r.topic == "/laser/scan" for r in records)
+    assert colourer.coloured + colourer.skipped + len(colourer._waiting) == scans

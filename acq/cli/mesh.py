@@ -9,9 +9,11 @@ from pathlib import Path
 from acq.cli import output_files
 from acq.cli.camera_option import add_camera_option
 from acq.cli.colorize import CHUNK_S, add_placing_options, check_crs_option
-from acq.cli.option_types import real
+from acq.cli.option_types import integer, real
 from acq.cli.output_files import Output
+from acq.errors import InputValueError
 
+TEXELS = 8  # texels a side of an atlas cell, by default: see the README's "Facets"
 HELP = "facets of a drive's laser profiles, coloured from its cameras (glTF, OBJ or PLY)"
 
 
@@ -75,6 +77,18 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help=f"seconds of scans per chunk, {CHUNK_S.range_text()} (default 15), as `acq "
         "colorize --chunk`; the facets are the same for any value",
     )  # fmt: skip
+    m.add_argument(
+        "--texture", action="store_true",
+        help="texture the facets (.glb only): each facet takes the frame most of its vertices "
+        "were coloured from and its texels are resampled from that fisheye frame, balanced as "
+        "the vertex colours are, into one JPEG atlas per tile (a vertex per facet corner: "
+        "files about 3 times larger, and slower; off by default)",
+    )  # fmt: skip
+    m.add_argument(
+        "--texels", type=integer(4, 64, what="texels"), default=None, metavar="N",
+        help="with --texture: texels a side of an atlas cell, which holds two facets "
+        f"(default {TEXELS}: about the camera's own pixels on a facet at 20 km/h)",
+    )  # fmt: skip
     m.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     m.set_defaults(handler=run, stops_cleanly=True)
 
@@ -88,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
     from acq.mesh.files import format_of
 
     format_of(args.output, "-o")
+    if args.texels is not None and not args.texture:
+        raise InputValueError("--texels: only with --texture")
     check_crs_option(args.crs, args.frame)
     rules = FacetRules(max_grazing_deg=args.max_grazing_deg)
     if args.edge_a_m is not None:
@@ -102,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     mj = prepare_mesh(
         args.logs, calib, args.output, camera=args.camera, frame=args.frame,
         trajectory=args.trajectory, crs=args.crs, rules=rules, tile_m=args.tile_m,
-        chunk_s=args.chunk,
+        chunk_s=args.chunk, texels=(args.texels or TEXELS) if args.texture else None,
     )  # fmt: skip
     if mj.paths != [args.output]:  # the tiles' files, now that the track's length is known
         outputs = [Output("-o", p, "mesh") for p in mj.paths]

@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from acq.atomic_write import atomic
 from acq.cloud import ply
 from acq.errors import InputValueError
 from acq.provenance import SOFTWARE
+
+if TYPE_CHECKING:
+    from acq.mesh.texture import Atlas
 
 __all__ = ["SUFFIXES", "Y_UP", "format_of", "write"]
 
@@ -48,29 +51,44 @@ def format_of(output: Path, option: str = "-o") -> str:
 
 def write(
     path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray,
-    comments: Sequence[str] = (),
+    comments: Sequence[str] = (), texture: Atlas | None = None,
 ) -> int:  # fmt: skip
     """Write the triangles ``faces`` (F,3) int of the vertices ``xyz`` (V,3) m coloured
     ``rgb`` (V,3) uint8 to ``path`` in the format of its suffix, marked as acq's, with
-    ``comments`` (one line each); the file's size in bytes."""
+    ``comments`` (one line each); the file's size in bytes. ``texture`` (a glb only):
+    the facets' atlas, instead of the vertex colours."""
     kind = format_of(path)
     lines = [f"{SOFTWARE} facets: x y z metres", *comments]
+    if texture is not None and kind != "glb":
+        raise ValueError(f"{path}: textures are written to .glb files only")
     if kind == "ply":
         return ply.write_mesh(path, xyz, rgb, faces, lines)
     if kind == "glb":
-        return _write_glb(path, xyz, rgb, faces, lines)
+        return _write_glb(path, xyz, rgb, faces, lines, texture)
     return _write_obj(path, xyz, rgb, faces, lines)
 
 
 def _write_glb(
-    path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray, lines: Sequence[str]
-) -> int:
+    path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray, lines: Sequence[str],
+    texture: Atlas | None,
+) -> int:  # fmt: skip
     import trimesh
 
     offset = xyz[0].copy() if len(xyz) else np.zeros(3)
-    mesh = trimesh.Trimesh(
-        vertices=xyz - offset, faces=faces, vertex_colors=rgb, process=False, validate=False
-    )
+    if texture is None:
+        mesh = trimesh.Trimesh(
+            vertices=xyz - offset, faces=faces, vertex_colors=rgb, process=False, validate=False
+        )
+    else:
+        # a vertex per facet corner: each facet has its own place in the atlas (and
+        # glTF multiplies COLOR_0 into the texture: no vertex colours)
+        corners = np.arange(faces.size).reshape(-1, 3)
+        textured: Any = trimesh.visual.TextureVisuals  # trimesh has no annotations
+        visual = textured(uv=texture.uv.reshape(-1, 2), image=_jpeg_image(texture.image))
+        mesh = trimesh.Trimesh(
+            vertices=(xyz - offset)[faces].reshape(-1, 3), faces=corners, visual=visual,
+            process=False, validate=False,
+        )  # fmt: skip
     node = np.eye(4)
     node[:3, :3] = Y_UP
     node[:3, 3] = Y_UP @ offset
@@ -86,6 +104,16 @@ def _write_glb(
     with atomic(path) as tmp:
         tmp.write_bytes(data)
     return path.stat().st_size
+
+
+def _jpeg_image(rgb: np.ndarray) -> Any:
+    """``rgb`` (H,W,3) uint8 as a PIL image that trimesh embeds as a JPEG (it keeps a
+    JPEG a JPEG, anything else becomes PNG: 3-5 times the bytes for a photograph)."""
+    from PIL import Image
+
+    image = Image.fromarray(rgb)
+    image.format = "JPEG"
+    return image
 
 
 def _write_obj(

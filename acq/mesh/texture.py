@@ -39,6 +39,7 @@ from acq.time.sync import on_laser_clock
 __all__ = ["Atlas", "build_atlas", "cell_corners", "corner_pixels", "facet_views"]
 
 _ROWS = 4096  # facets resampled per cv2.remap call (its maps stay small)
+_TEXEL = np.dtype((np.void, 3))  # a texel's three bytes as one item
 
 # the images of camera c's session frames (sorted), in that order; None: not decoded
 FrameImages = Callable[[int, np.ndarray], Iterator[np.ndarray | None]]
@@ -106,71 +107,93 @@ def _half_texels(texels: int) -> list[tuple[np.ndarray, np.ndarray]]:
     return [(x[upper], y[upper]), (x[~upper], y[~upper])]
 
 
+def _level_tables(gains: Gains | None, camera: int, frames: np.ndarray) -> np.ndarray | None:
+    """(M,1,256,3) uint8: for each of ``camera``'s ``frames`` (M,), each BGR level's
+    balanced level (exactly :meth:`Gains.apply`'s), as cv2.LUT takes it; None: no gains."""
+    if gains is None:
+        return None
+    ramp = np.tile(np.repeat(np.arange(256, dtype=np.uint8)[:, None], 3, axis=1), (frames.size, 1))
+    rgb = gains.apply(camera, ramp, np.repeat(frames, 256))
+    return np.ascontiguousarray(rgb.reshape(frames.size, 1, 256, 3)[..., ::-1])
+
+
 @dataclass(frozen=True)
 class Atlas:
-    """A tile's texture: ``image`` (H,W,3) uint8 RGB; ``uv`` (F,3,2) float32 each facet
-    corner's texture coordinates; ``textured`` (F,) bool: facets sampled from a frame
-    (the others filled with their vertices' mean colour)."""
+    """A tile's texture: ``image`` (H,W,3) uint8 RGB, cells of ``texels`` a side, row by
+    row; ``uv`` (F,3,2) float32 each facet corner's texture coordinates; ``textured``
+    (F,) bool: facets sampled from a frame (the others filled with their vertices' mean
+    colour)."""
 
     image: np.ndarray
     uv: np.ndarray
     textured: np.ndarray
+    slot: np.ndarray  # (F,) int64: each facet's cell (slot // 2, row by row) and half
 
 
 def build_atlas(
     corner_px: np.ndarray, view_cam: np.ndarray, view_frame: np.ndarray,
     images: FrameImages, gains: Gains | None, fill: np.ndarray, texels: int,
 ) -> Atlas:  # fmt: skip
-    """The atlas of F facets: facet i in cell i // 2 (upper-left half for even i),
-    sampled from the frame ``view_frame`` of camera ``view_cam`` (F,) at its corners'
-    pixels ``corner_px`` (F,3,2) (:func:`corner_pixels`), each frame's image asked once
-    from ``images``, balanced by ``gains`` (per camera, rows by session frame; None:
-    as they are); a facet without a view or pixels is filled with ``fill`` (F,3) uint8."""
+    """The atlas of F facets, each in a half cell (:attr:`Atlas.slot`), sampled from the
+    frame ``view_frame`` of camera ``view_cam`` (F,) at its corners' pixels
+    ``corner_px`` (F,3,2) (:func:`corner_pixels`), each frame's image asked once from
+    ``images``, balanced by ``gains`` (per camera, rows by session frame; None: as they
+    are); a facet without a view or pixels is filled with ``fill`` (F,3) uint8."""
     if texels < 4:
         raise ValueError(f"a cell of {texels} texels: at least 4 expected")
     n_facets = corner_px.shape[0]
     cells = max(1, (n_facets + 1) // 2)
     cols = math.ceil(math.sqrt(cells))
     rows = math.ceil(cells / cols)
-    image = np.zeros((rows * texels, cols * texels, 3), dtype=np.uint8)
+    bgr = np.zeros((rows * texels, cols * texels, 3), dtype=np.uint8)  # as the frames are
     corners = cell_corners(texels)
     halves = _half_texels(texels)
     # the affine map of a half's texels (x, y, 1) to the frame: corner_px^T @ inv(Q)
-    q_inv = [np.linalg.inv(np.vstack([c.T, np.ones(3)])) for c in corners]
-    facet = np.arange(n_facets)
-    cy, cx = np.divmod(facet // 2, cols)
+    q_inv = [np.linalg.inv(np.vstack([c.T, np.ones(3)])).astype(np.float32) for c in corners]
+    halves_f = [(xs.astype(np.float32), ys.astype(np.float32)) for xs, ys in halves]
     textured = (view_cam >= 0) & np.isfinite(corner_px).all(axis=(1, 2))
     done = np.zeros(n_facets, dtype=bool)
     use = np.flatnonzero(textured)
     order = use[np.lexsort((view_frame[use], view_cam[use]))]
+    # places in the order sampled: a frame's facets fill neighbouring cells (the atlas
+    # written in order, and a smoother image to compress)
+    slot = np.empty(n_facets, dtype=np.int64)
+    slot[np.r_[order, np.flatnonzero(~textured)]] = np.arange(n_facets)
+    half_of = slot % 2
+    cy, cx = np.divmod(slot // 2, cols)
+    flat = bgr.reshape(-1).view(_TEXEL)  # a texel a item: one index a texel
+    width = bgr.shape[1]
+    cell_at = (cy * texels) * width + cx * texels  # each facet's cell's first texel in flat
+    at_half = [ys * width + xs for xs, ys in halves]
     for c in np.unique(view_cam[order]).tolist():
         mine = order[view_cam[order] == c]
         frames, first = np.unique(view_frame[mine], return_index=True)
         ends = np.r_[first[1:], mine.size]
-        for f, lo, hi, img in zip(frames.tolist(), first, ends, images(c, frames), strict=True):
+        luts = _level_tables(gains, c, frames)
+        for j, (lo, hi, img) in enumerate(zip(first, ends, images(c, frames), strict=True)):
             if img is None:
                 continue
-            for h, (xs, ys) in enumerate(halves):
+            for h, (xs, ys) in enumerate(halves_f):
                 fs = mine[lo:hi]
-                fs = fs[fs % 2 == h]
+                fs = fs[half_of[fs] == h]
                 for k in range(0, fs.size, _ROWS):
                     part = fs[k : k + _ROWS]
-                    M = np.einsum("fci,cj->fij", corner_px[part].astype(np.float64), q_inv[h])
+                    M = np.einsum("fci,cj->fij", corner_px[part], q_inv[h]).astype(np.float32)
                     mx = M[:, 0, 0:1] * xs + M[:, 0, 1:2] * ys + M[:, 0, 2:3]
                     my = M[:, 1, 0:1] * xs + M[:, 1, 1:2] * ys + M[:, 1, 2:3]
-                    got = cv2.remap(img, mx.astype(np.float32), my.astype(np.float32),
-                                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
-                    rgb = got[..., ::-1].reshape(-1, 3)
-                    if gains is not None:
-                        rgb = gains.apply(c, rgb, np.full(rgb.shape[0], f, dtype=np.int64))
-                    rr = cy[part, None] * texels + ys
-                    cc = cx[part, None] * texels + xs
-                    image[rr, cc] = rgb.reshape(part.size, xs.size, 3)
+                    got = cv2.remap(img, mx, my, cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+                    if luts is not None:
+                        got = cv2.LUT(got, luts[j])
+                    flat[cell_at[part, None] + at_half[h]] = (
+                        got.reshape(-1).view(_TEXEL).reshape(part.size, -1)
+                    )
                     done[part] = True
     for h, (xs, ys) in enumerate(halves):
-        rest = np.flatnonzero(~done & (facet % 2 == h))
-        image[cy[rest, None] * texels + ys, cx[rest, None] * texels + xs] = fill[rest, None]
+        rest = np.flatnonzero(~done & (half_of == h))
+        bgr[cy[rest, None] * texels + ys, cx[rest, None] * texels + xs] = fill[rest, None, ::-1]
+    image = np.ascontiguousarray(bgr[..., ::-1])
     origin = np.stack([cx * texels, cy * texels], axis=1)[:, None, :].astype(np.float64)
-    at = origin + corners[facet % 2] + 0.5  # pixel edges: the first texel spans 0..1
+    at = origin + corners[half_of] + 0.5  # pixel edges: the first texel spans 0..1
     uv = np.stack([at[..., 0] / image.shape[1], 1.0 - at[..., 1] / image.shape[0]], axis=-1)
-    return Atlas(image, uv.astype(np.float32), done)
+    return Atlas(image, uv.astype(np.float32), done, slot)

@@ -84,12 +84,15 @@ def test_atlas_texels_are_the_frame_at_the_facets_pixels_and_cells_do_not_mix() 
     atlas = texture.build_atlas(px, view_cam, view_frame, images, gains, fill, T)
     assert images.asked == [(0, [0, 1])]  # type: ignore[attr-defined]  # each frame once
     assert atlas.textured.tolist() == [True, False, True, False]
+    # places in the order sampled (by camera, frame), then those filled
+    assert atlas.slot.tolist() == [0, 2, 1, 3]
     assert atlas.image.shape == (T, 2 * T, 3)  # two cells side by side
     corners = texture.cell_corners(T)
     for f, gain in ((0, np.ones(3)), (2, np.array([2, 1, 0.5]))):
-        cx, cy = (f // 2) % 2, (f // 2) // 2
-        q = corners[f % 2]
-        half = texture._half_texels(T)[f % 2]
+        s = atlas.slot[f]
+        cx, cy = (s // 2) % 2, (s // 2) // 2
+        q = corners[s % 2]
+        half = texture._half_texels(T)[s % 2]
         for x, y in zip(*half, strict=True):
             # barycentric coordinates of the texel in the cell's triangle, the same in the frame
             A = np.vstack([q.T, np.ones(3)])
@@ -106,15 +109,17 @@ def test_atlas_texels_are_the_frame_at_the_facets_pixels_and_cells_do_not_mix() 
             assert np.abs(got - want_rgb).max() <= 1.51, (f, x, y, got, want_rgb)
     # the facets without a texture hold their fill colour, every texel of their half
     for f in (1, 3):
-        cx, cy = (f // 2) % 2, (f // 2) // 2
-        xs, ys = texture._half_texels(T)[f % 2]
+        s = atlas.slot[f]
+        cx, cy = (s // 2) % 2, (s // 2) // 2
+        xs, ys = texture._half_texels(T)[s % 2]
         assert (atlas.image[cy * T + ys, cx * T + xs] == fill[f]).all()
     # every corner's texture coordinate in its own cell, on a texel of its own half
     at = np.stack([atlas.uv[..., 0] * 2 * T, (1 - atlas.uv[..., 1]) * T], axis=-1) - 0.5
     for f in range(4):
-        cx, cy = (f // 2) % 2, (f // 2) // 2
+        s = atlas.slot[f]
+        cx, cy = (s // 2) % 2, (s // 2) // 2
         local = at[f] - [cx * T, cy * T]
-        assert np.allclose(local, corners[f % 2], atol=1e-4)
+        assert np.allclose(local, corners[s % 2], atol=1e-4)
     # bilinear filtering at any point of a triangle reads its own half only: the upper
     # left's texels have x + y < T, its points x + y <= T - 2; the lower right's >= T, T + 1
     assert corners[0].sum(axis=1).max() == T - 2 and corners[1].sum(axis=1).min() == T + 1
@@ -209,9 +214,10 @@ def test_texels_are_the_decoded_frames_pixels_at_the_facets_projection(
     for f in rng.choice(np.flatnonzero(atlas.textured), 300, replace=False):
         frame = decode_jpeg(jpegs[int(view_frame[f])])
         assert frame is not None
-        cx, cy = (f // 2) % cols, (f // 2) // cols
-        q = texture.cell_corners(T)[f % 2]
-        xs, ys = texture._half_texels(T)[f % 2]
+        s = atlas.slot[f]
+        cx, cy = (s // 2) % cols, (s // 2) // cols
+        q = texture.cell_corners(T)[s % 2]
+        xs, ys = texture._half_texels(T)[s % 2]
         k = rng.integers(xs.size)
         w = np.linalg.solve(np.vstack([q.T, np.ones(3)]), [xs[k], ys[k], 1.0])
         u, v = w @ px[f].astype(np.float64)  # the texel's point in the frame
@@ -273,8 +279,9 @@ def test_glb_has_its_texture_and_each_facets_uvs_lie_in_its_cell(
     assert (uv >= 0).all() and (uv <= 1).all()
     h, w = cap.atlas.image.shape[:2]
     cols = w // T
-    f = np.arange(uv.shape[0])
-    cx, cy = (f // 2) % cols, (f // 2) // cols
+    s = cap.atlas.slot
+    assert np.array_equal(np.sort(s), np.arange(s.size))  # a half cell each, none shared
+    cx, cy = (s // 2) % cols, (s // 2) // cols
     x, y = uv[..., 0] * w, (1 - uv[..., 1]) * h
     inside = (x > (cx * T)[:, None]) & (x < ((cx + 1) * T)[:, None])
     inside &= (y > (cy * T)[:, None]) & (y < ((cy + 1) * T)[:, None])

@@ -194,8 +194,8 @@ def _session_images(short_drive: Drive, camera: str) -> tuple[np.ndarray, list[b
 def test_texels_are_the_decoded_frames_pixels_at_the_facets_projection(
     textured: tuple[Path, Captured], short_drive: Drive
 ) -> None:
-    _, cap = textured
-    px, view_cam, view_frame, gains, _fill, texels = cap.args
+    out, cap = textured
+    px, view_cam, view_frame, gains, fill, texels = cap.args
     atlas = cap.atlas
     assert texels == T
     seen = np.isfinite(px).all(axis=(1, 2))
@@ -234,6 +234,16 @@ def test_texels_are_the_decoded_frames_pixels_at_the_facets_projection(
         assert np.abs(got - want).max() <= 2.0, (f, got, want)
         checked += 1
     assert checked == 300
+    # end to end, read back from the glb: the texture at each facet's middle is the
+    # colour of its vertices, balanced alike (they were sampled at its corners)
+    mesh = next(iter(trimesh.load(str(out)).geometry.values()))
+    mid = mesh.visual.uv.reshape(-1, 3, 2).mean(axis=1)
+    stored = np.asarray(mesh.visual.material.baseColorTexture.convert("RGB"))
+    h, w = stored.shape[:2]
+    x = np.clip((mid[:, 0] * w).astype(int), 0, w - 1)
+    y = np.clip(((1 - mid[:, 1]) * h).astype(int), 0, h - 1)
+    diff = np.abs(stored[y, x].astype(int) - fill.astype(int))[atlas.textured]
+    assert np.median(diff) <= 6, np.percentile(diff, [50, 90])
 
 
 def test_corners_are_where_the_colouring_saw_them(textured: tuple[Path, Captured]) -> None:

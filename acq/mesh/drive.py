@@ -1,4 +1,4 @@
-"""`acq mesh`: a drive's facets with per-vertex colour, in tiles along the track.
+"""`acq mesh`: a drive's facets with per-vertex colour or textured, in tiles along the track.
 
 The points are placed and coloured by `acq colorize`'s pipeline (:func:`acq.cloud.job.prepare`,
 the chunks of :mod:`acq.cloud.chunks` run by :func:`acq.cloud.colorize.run_chunks`); each
@@ -7,7 +7,10 @@ chunks is lost, and none is made twice), are joined into triangles by
 :func:`acq.mesh.grid_facets`. A facet belongs to the tile of its first scan: tiles of
 ``tile_m`` metres along the laser's track, the last one holding the rest (a rest shorter
 than a quarter of a tile joins the tile before it); each tile is written as soon as the
-chunks have passed its end (:mod:`acq.mesh.files`), with the vertices its facets use.
+chunks have passed its end (:mod:`acq.mesh.files`), with the vertices its facets use;
+with a texture (``texels``), with its atlas (:mod:`acq.mesh.texture`): the vertices keep
+their frame and pixel (the job's ``want_uv``), the frames' gains are kept by session
+frame, and a tile's frames are decoded once each when it is written.
 
 Metres; times host monotonic ns.
 """

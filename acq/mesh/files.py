@@ -7,10 +7,11 @@ or not at all (a temporary beside it, renamed).
   relative to the file's first vertex, that offset and the turn from the world's z up to
   glTF's +y up in the node's matrix (JSON doubles: a CRS's coordinates keep their
   millimetres); COLOR_0 per vertex; the mark ``asset.generator``, the comments in
-  ``asset.extras.acq``.
+  ``asset.extras.acq``. Textured (:class:`acq.mesh.texture.Atlas`): a vertex per facet
+  corner with its TEXCOORD_0, the atlas a JPEG baseColorTexture, no COLOR_0.
 - OBJ: ``v x y z r g b`` (the vertex-colour extension that Blender, MeshLab,
   CloudCompare and trimesh read; colours 0..1), 1-based ``f a b c``; the mark and the
-  comments ``#`` lines at the top. No .mtl: there is no texture yet.
+  comments ``#`` lines at the top. No .mtl: textures go to glb only for now.
 """
 
 from __future__ import annotations

@@ -293,6 +293,14 @@ class _Tiles:
             at = used - self.base
             tri = tri.reshape(-1, 3)
             path = mj.paths[t]
+            if mj.texels is not None:
+                h, w = texture.atlas_shape(tri.shape[0], mj.texels)
+                if max(h, w) > texture.MAX_SIDE:
+                    raise InputValueError(
+                        f"--texture: {path.name}: {tri.shape[0]:,} facets need an atlas of "
+                        f"{w:,} x {h:,} texels, over the {texture.MAX_SIDE:,} a side that "
+                        "viewers take; use a shorter --tile-m or fewer --texels"
+                    )
             atlas = self._atlas(at, tri) if mj.texels is not None else None
             try:
                 rep.bytes += files.write(path, self.xyz[at], self.rgb[at], tri, mj.comments,

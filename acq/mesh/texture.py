@@ -36,8 +36,19 @@ from acq.cloud.views import camera_poses
 from acq.geometry.transforms import Rigid
 from acq.time.sync import on_laser_clock
 
-__all__ = ["Atlas", "build_atlas", "cell_corners", "corner_pixels", "facet_views"]
+__all__ = [
+    "MAX_SIDE",
+    "Atlas",
+    "atlas_shape",
+    "build_atlas",
+    "cell_corners",
+    "corner_pixels",
+    "facet_views",
+]
 
+# the largest texture side viewers take (WebGL's MAX_TEXTURE_SIZE on desktops; JPEG's
+# own limit is 65,535)
+MAX_SIDE = 16384
 _ROWS = 4096  # facets resampled per cv2.remap call (its maps stay small)
 _TEXEL = np.dtype((np.void, 3))  # a texel's three bytes as one item
 
@@ -92,6 +103,14 @@ def corner_pixels(
     return px
 
 
+def atlas_shape(n_facets: int, texels: int) -> tuple[int, int]:
+    """(height, width) texels of the atlas of ``n_facets``: two a cell of ``texels`` a
+    side, the cells as near a square as whole rows make it."""
+    cells = max(1, (n_facets + 1) // 2)
+    cols = math.ceil(math.sqrt(cells))
+    return math.ceil(cells / cols) * texels, cols * texels
+
+
 def cell_corners(texels: int) -> np.ndarray:
     """(2,3,2) float64: a cell's two triangles' corners (x, y) texels from the cell's
     first texel's centre (the upper-left one, then the lower-right one); one texel
@@ -142,10 +161,8 @@ def build_atlas(
     if texels < 4:
         raise ValueError(f"a cell of {texels} texels: at least 4 expected")
     n_facets = corner_px.shape[0]
-    cells = max(1, (n_facets + 1) // 2)
-    cols = math.ceil(math.sqrt(cells))
-    rows = math.ceil(cells / cols)
-    bgr = np.zeros((rows * texels, cols * texels, 3), dtype=np.uint8)  # as the frames are
+    bgr = np.zeros((*atlas_shape(n_facets, texels), 3), dtype=np.uint8)  # as the frames are
+    cols = bgr.shape[1] // texels
     corners = cell_corners(texels)
     halves = _half_texels(texels)
     # the affine map of a half's texels (x, y, 1) to the frame: corner_px^T @ inv(Q)

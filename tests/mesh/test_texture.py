@@ -345,3 +345,18 @@ def test_texture_options_refused_in_one_line(
     err = capsys.readouterr().err
     assert expect in err and err.count("\n") == 1 and err.startswith("acq mesh"), err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_atlas_too_large_for_viewers_is_refused_in_one_line(
+    short_drive: Drive, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:  # fmt: skip
+    """(The limit lowered: the short drive's one tile needs over 3,000 texels a side at 16.)"""
+    monkeypatch.setattr(texture, "MAX_SIDE", 2048)
+    truth, calib = short_drive
+    out = tmp_path / "m.glb"
+    assert acq_main(["mesh", *map(str, truth.files), "--calib", str(calib), "-o", str(out),
+                     "--texture", "--texels", "16"]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "--texture: m.glb: " in err and "use a shorter --tile-m" in err, err
+    assert err.count("\n") == 1 and list(tmp_path.iterdir()) == []

@@ -84,7 +84,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="texture the facets (.glb only): each facet takes the frame most of its vertices "
         "were coloured from and its texels are resampled from that fisheye frame, balanced as "
         "the vertex colours are, into one JPEG atlas per tile (a vertex per facet corner: "
-        "files about 3.7 times larger, 2.4 times the time; off by default)",
+        "files about 3.7 times larger, 2.4-2.8 times the time; off by default)",
     )  # fmt: skip
     m.add_argument(
         "--texels", type=integer(4, 64, what="texels"), default=None, metavar="N",

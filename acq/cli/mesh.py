@@ -27,7 +27,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "returns of a profile and of the next profile), each vertex placed and coloured "
         "as `acq colorize` places and colours the point (every camera of CALIB, the best "
         "view of each point, exposure and white balance evened out). A vertex carries its "
-        "point's colour; with --texture (.glb) each facet is textured from the fisheye "
+        "point's colour; with --texture (.glb, .obj) each facet is textured from the fisheye "
         "frame its vertices were coloured from. Long drives are split into "
         "tiles along the track (--tile-m), each a file of its own. OUT replaces what acq "
         "wrote before; an input, a file of another kind or anyone else's is refused "
@@ -40,10 +40,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "-o", "--output", type=Path, required=True, metavar="OUT",
         help="the format from the suffix: OUT.glb (glTF 2.0 binary, +y up as glTF has it: "
         "the world's z up turned, the first vertex's coordinates in the node's matrix), "
-        "OUT.obj (vertex colours as 'v x y z r g b', no .mtl) or OUT.ply (binary, x y z "
-        "double, red green blue); a drive longer than one tile gives OUT_000.SUFFIX, "
-        "OUT_001.SUFFIX... beside OUT, in the order driven (an earlier run's files cut otherwise "
-        "are kept, and named)",
+        "OUT.obj (vertex colours as 'v x y z r g b'; with --texture its OUT.mtl and "
+        "OUT.jpg) or OUT.ply (binary, x y z double, red green blue); a drive longer than "
+        "one tile gives OUT_000.SUFFIX, OUT_001.SUFFIX... beside OUT, in the order driven "
+        "(an earlier run's files cut otherwise are kept, and named)",
     )  # fmt: skip
     add_camera_option(
         m, "colour from this camera (each vertex takes the camera whose view of its point "
@@ -81,10 +81,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )  # fmt: skip
     m.add_argument(
         "--texture", action="store_true",
-        help="texture the facets (.glb only): each facet takes the frame most of its vertices "
-        "were coloured from and its texels are resampled from that fisheye frame, balanced as "
-        "the vertex colours are, into one JPEG atlas per tile (a vertex per facet corner: "
-        "files about 3.7 times larger, 2.4-2.8 times the time; off by default)",
+        help="texture the facets (.glb, or .obj with OUT.mtl and OUT.jpg beside it): each "
+        "facet takes the frame most of its vertices were coloured from and its texels are "
+        "resampled from that fisheye frame, balanced as the vertex colours are, into one "
+        "JPEG atlas per tile (a glb has a vertex per facet corner: files about 3.7 times "
+        "larger, 2.4-2.8 times the time; off by default)",
     )  # fmt: skip
     m.add_argument(
         "--texels", type=integer(4, 64, what="texels"), default=None, metavar="N",
@@ -101,9 +102,9 @@ def run(args: argparse.Namespace) -> int:
     from acq.camera import calibfile
     from acq.mesh import FacetRules
     from acq.mesh.drive import prepare_mesh
-    from acq.mesh.files import format_of
+    from acq.mesh.files import format_of, texture_files
 
-    format_of(args.output, "-o")
+    textured_obj = format_of(args.output, "-o") == "obj" and args.texture
     if args.texels is not None and not args.texture:
         raise InputValueError("--texels: only with --texture")
     check_crs_option(args.crs, args.frame)
@@ -122,8 +123,15 @@ def run(args: argparse.Namespace) -> int:
         trajectory=args.trajectory, crs=args.crs, rules=rules, tile_m=args.tile_m,
         chunk_s=args.chunk, texels=(args.texels or TEXELS) if args.texture else None,
     )  # fmt: skip
-    if mj.paths != [args.output]:  # the tiles' files, now that the track's length is known
+    if mj.paths != [args.output] or textured_obj:  # now that the tiles are known
         outputs = [Output("-o", p, "mesh") for p in mj.paths]
+        if textured_obj:
+            outputs += [
+                o
+                for p in mj.paths
+                for mtl, jpg in [texture_files(p)]
+                for o in (Output("-o", mtl, "mesh"), Output("-o", jpg, "image"))
+            ]
         output_files.check(inputs, outputs, force=args.force)
     report = mj.run(progress=args.progress or sys.stderr.isatty())
     print("\n".join(report.lines()))

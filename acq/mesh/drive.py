@@ -175,10 +175,10 @@ def prepare_mesh(
     (:mod:`acq.mesh.texture`, a glb only) with cells of that many texels a side.
     InputError for bad input, named."""
     t0 = time.perf_counter()
-    if files.format_of(output) != "glb" and texels is not None:
+    if files.format_of(output) == "ply" and texels is not None:
         raise InputValueError(
-            f"--texture: -o {output}: textures are written to .glb files only (OBJ with "
-            "its .mtl and image is not made yet; PLY holds vertex colours)"
+            f"--texture: -o {output}: a PLY file holds vertex colours, not a texture; use "
+            ".glb or .obj"
         )
     logs = session_files(logs)
     once = sum(f.stat().st_size for f in logs if f.is_file()) <= READ_ONCE_BYTES

@@ -328,8 +328,7 @@ def test_frames_read_from_the_log_per_tile_give_the_same_atlas(
 @pytest.mark.parametrize(
     ("suffix", "argv", "expect"),
     [
-        (".ply", ["--texture"], "--texture: -o "),
-        (".obj", ["--texture"], "textures are written to .glb files only"),
+        (".ply", ["--texture"], "a PLY file holds vertex colours, not a texture"),
         (".glb", ["--texels", "8"], "--texels: only with --texture"),
         (".glb", ["--texture", "--texels", "3"], "--texels: expected texels in [4, 64]"),
     ],
@@ -360,3 +359,43 @@ def test_an_atlas_too_large_for_viewers_is_refused_in_one_line(
     err = capsys.readouterr().err
     assert "--texture: m.glb: " in err and "use a shorter --tile-m" in err, err
     assert err.count("\n") == 1 and list(tmp_path.iterdir()) == []
+
+
+def test_obj_with_its_mtl_and_jpeg_reads_back_as_the_glb(
+    textured: tuple[Path, Captured], short_drive: Drive, tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    glb, cap = textured
+    truth, calib = short_drive
+    out = tmp_path / "t.obj"
+    argv = ["mesh", *map(str, truth.files), "--calib", str(calib), "-o", str(out), "--texture",
+            "--texels", str(T)]  # fmt: skip
+    assert acq_main(argv) == 0
+    capsys.readouterr()
+    mtl, jpg = tmp_path / "t.mtl", tmp_path / "t.jpg"
+    assert all(made_by_acq(p) for p in (out, mtl, jpg))
+    assert f"map_Kd {jpg.name}" in mtl.read_text()
+    obj = trimesh.load(str(out), process=False)
+    assert isinstance(obj.visual, trimesh.visual.TextureVisuals)
+    image = np.asarray(obj.visual.material.image.convert("RGB")).astype(np.int16)
+    assert image.shape == cap.atlas.image.shape
+    assert np.abs(image - cap.atlas.image).mean() < 3  # JPEG's loss only
+    glb_mesh = next(iter(trimesh.load(str(glb)).geometry.values()))
+    uv_obj = obj.visual.uv[obj.faces]
+    assert uv_obj.shape[0] == cap.tri.shape[0]
+    assert np.abs(uv_obj - glb_mesh.visual.uv.reshape(-1, 3, 2)).max() < 1e-6
+    # its positions shared: one "v" line a vertex, one "vt" a facet corner
+    text = out.read_text()
+    assert text.count("\nvt ") == 3 * cap.tri.shape[0]
+    assert text.count("\nv ") == np.unique(cap.tri).size
+    # a JPEG of someone else's where the texture would go: refused, kept, nothing written
+    other = tmp_path / "o"
+    other.mkdir()
+    foreign = other / "t.jpg"
+    foreign.write_bytes(jpg.read_bytes()[:2] + jpg.read_bytes()[2:].replace(b"acq ", b"xyz ", 1))
+    assert not made_by_acq(foreign)
+    argv[argv.index(str(out))] = str(other / "t.obj")
+    assert acq_main(argv) == 2
+    err = capsys.readouterr().err
+    assert "t.jpg" in err and "not written by acq" in err and err.count("\n") == 1, err
+    assert sorted(p.name for p in other.iterdir()) == ["t.jpg"]

@@ -140,7 +140,9 @@ class Captured:
     uv: np.ndarray
 
 
-def _run(short_drive: Drive, out: Path, monkeypatch: pytest.MonkeyPatch) -> Captured:
+def _run(
+    short_drive: Drive, out: Path, monkeypatch: pytest.MonkeyPatch, chunk_s: float | None = None
+) -> Captured:
     """acq mesh --texture of the short drive through the library, observing (not
     replacing) the atlas it builds and the frames it asks for."""
     truth, calib_path = short_drive
@@ -171,7 +173,7 @@ def _run(short_drive: Drive, out: Path, monkeypatch: pytest.MonkeyPatch) -> Capt
     monkeypatch.setattr(texture, "build_atlas", build_atlas)
     monkeypatch.setattr(texture, "facet_views", facet_views)
     monkeypatch.setattr(texture, "corner_pixels", corner_pixels)
-    mj = prepare_mesh(truth.files, calibfile.load(calib_path), out, texels=T)
+    mj = prepare_mesh(truth.files, calibfile.load(calib_path), out, texels=T, chunk_s=chunk_s)
     mj.run()
     return Captured(seen["job"], seen["args"], seen["atlas"], seen["asked"], seen["xyz"],
                     seen["tri"], seen["camera"], seen["frame"], seen["uv"])  # fmt: skip
@@ -399,3 +401,32 @@ def test_obj_with_its_mtl_and_jpeg_reads_back_as_the_glb(
     err = capsys.readouterr().err
     assert "t.jpg" in err and "not written by acq" in err and err.count("\n") == 1, err
     assert sorted(p.name for p in other.iterdir()) == ["t.jpg"]
+
+
+def test_chunks_give_the_same_facets_and_texture(
+    textured: tuple[Path, Captured], short_drive: Drive, tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:  # fmt: skip
+    """In chunks of 1 s, each with its own colour balance, kept by session frame: the
+    same views, and texels that differ only by the chunks' balance."""
+    _, cap = textured
+    again = _run(short_drive, tmp_path / "c.glb", monkeypatch, chunk_s=1.0)
+
+    def by_facet(c: Captured) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(facets, views, texel at each facet's middle) in the order of their vertices."""
+        tri = np.sort(c.tri, axis=1)
+        order = np.lexsort(tri.T[::-1])
+        mid = c.atlas.uv.mean(axis=1)
+        h, w = c.atlas.image.shape[:2]
+        x = (mid[:, 0] * w).astype(int)
+        y = ((1 - mid[:, 1]) * h).astype(int)
+        views = np.stack([c.args[1], c.args[2]], axis=1)
+        return tri[order], views[order], c.atlas.image[y, x][order].astype(int)
+
+    tri, views, texel = by_facet(cap)
+    tri_c, views_c, texel_c = by_facet(again)
+    assert np.array_equal(tri_c, tri) and np.array_equal(views_c, views)
+    gains = again.args[3]
+    assert gains is not None and np.count_nonzero(gains.log_gain[0]) > 0
+    diff = np.abs(texel_c - texel)
+    assert np.median(diff) <= 2 and diff.mean() < 4, (np.median(diff), diff.mean())

@@ -186,35 +186,28 @@ def textured(short_drive: Drive, tmp_path_factory: pytest.TempPathFactory) -> tu
         return out, _run(short_drive, out, mp)
 
 
-def _session_images(short_drive: Drive, camera: str) -> tuple[np.ndarray, list[bytes]]:
-    log = read_log(list(short_drive[0].files), cameras=[camera])
+def _session_images_of(files: list[Path], camera: str) -> tuple[np.ndarray, list[bytes]]:
+    """Camera ``camera``'s frames' stamps and bytes, in the order of their stamps."""
+    log = read_log(list(files), cameras=[camera])
     frames = log.cameras[camera]
     order = np.argsort(frames.frame_ns, kind="stable")
     return frames.frame_ns[order], [frames.jpegs[int(k)] for k in order]
 
 
-def test_texels_are_the_decoded_frames_pixels_at_the_facets_projection(
-    textured: tuple[Path, Captured], short_drive: Drive
-) -> None:
-    out, cap = textured
-    px, view_cam, view_frame, gains, fill, texels = cap.args
+def _texels_checked(cap: Captured, files: list[Path], n: int) -> dict[int, int]:
+    """Check ``n`` texels of textured facets, one each (the facets drawn at random), against
+    the frame decoded here, bilinearly sampled at the texel's point in the facet's
+    projection, balanced by the frame's gains: within 2 levels. The texels checked, by
+    camera."""
+    px, view_cam, view_frame, gains = cap.args[:4]
     atlas = cap.atlas
-    assert texels == T
-    seen = np.isfinite(px).all(axis=(1, 2))
-    assert np.array_equal(atlas.textured, (view_cam >= 0) & seen)
-    assert atlas.textured[view_cam >= 0].mean() > 0.95  # the camera sees one side only
-    # each frame asked once; as many as the facets' distinct views
-    pairs = [(c, f) for c, frames in cap.asked for f in frames]
-    assert len(pairs) == len(set(pairs))
-    used = view_cam >= 0
-    assert set(pairs) == set(zip(view_cam[used].tolist(), view_frame[used].tolist(), strict=True))
-    name = cap.job.cameras[0].name
-    _, jpegs = _session_images(short_drive, name)
+    jpegs = {c: _session_images_of(files, cj.name)[1] for c, cj in enumerate(cap.job.cameras)}
     cols = atlas.image.shape[1] // T
     rng = np.random.default_rng(3)
-    checked = 0
-    for f in rng.choice(np.flatnonzero(atlas.textured), 300, replace=False):
-        frame = decode_jpeg(jpegs[int(view_frame[f])])
+    checked: dict[int, int] = {}
+    for f in rng.choice(np.flatnonzero(atlas.textured), n, replace=False):
+        c = int(view_cam[f])
+        frame = decode_jpeg(jpegs[c][int(view_frame[f])])
         assert frame is not None
         s = atlas.slot[f]
         cx, cy = (s // 2) % cols, (s // 2) // cols
@@ -231,11 +224,29 @@ def test_texels_are_the_decoded_frames_pixels_at_the_facets_projection(
         bgr = (1 - b) * ((1 - a) * patch[0, 0] + a * patch[0, 1]) + b * (
             (1 - a) * patch[1, 0] + a * patch[1, 1]
         )
-        want = np.clip(bgr[::-1] * np.exp(-gains.log_gain[0][view_frame[f]]), 0, 255)
+        want = np.clip(bgr[::-1] * np.exp(-gains.log_gain[c][view_frame[f]]), 0, 255)
         got = atlas.image[cy * T + ys[k], cx * T + xs[k]].astype(np.float64)
         assert np.abs(got - want).max() <= 2.0, (f, got, want)
-        checked += 1
-    assert checked == 300
+        checked[c] = checked.get(c, 0) + 1
+    return checked
+
+
+def test_texels_are_the_decoded_frames_pixels_at_the_facets_projection(
+    textured: tuple[Path, Captured], short_drive: Drive
+) -> None:
+    out, cap = textured
+    px, view_cam, view_frame, _, fill, texels = cap.args
+    atlas = cap.atlas
+    assert texels == T
+    seen = np.isfinite(px).all(axis=(1, 2))
+    assert np.array_equal(atlas.textured, (view_cam >= 0) & seen)
+    assert atlas.textured[view_cam >= 0].mean() > 0.95  # the camera sees one side only
+    # each frame asked once; as many as the facets' distinct views
+    pairs = [(c, f) for c, frames in cap.asked for f in frames]
+    assert len(pairs) == len(set(pairs))
+    used = view_cam >= 0
+    assert set(pairs) == set(zip(view_cam[used].tolist(), view_frame[used].tolist(), strict=True))
+    assert _texels_checked(cap, short_drive[0].files, 300) == {0: 300}
     # end to end, read back from the glb: the texture at each facet's middle is the
     # colour of its vertices, balanced alike (they were sampled at its corners)
     mesh = next(iter(trimesh.load(str(out)).geometry.values()))
@@ -430,3 +441,21 @@ def test_chunks_give_the_same_facets_and_texture(
     assert gains is not None and np.count_nonzero(gains.log_gain[0]) > 0
     diff = np.abs(texel_c - texel)
     assert np.median(diff) <= 2 and diff.mean() < 4, (np.median(diff), diff.mean())
+
+
+def test_two_cameras_each_texture_their_facets(
+    tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from acq.sim.drive_log import write_drive_log
+    from acq.sim.world import default_rig
+
+    d = tmp_path_factory.mktemp("two")
+    truth = write_drive_log(d, 0.6, rig=default_rig(cameras=2))
+    calib = d / "calib.yaml"
+    calibfile.save(truth.calibration, calib)
+    cap = _run((truth, calib), d / "t.glb", monkeypatch)
+    view_cam = cap.args[1]
+    assert set(np.unique(view_cam).tolist()) == {0, 1}
+    assert cap.atlas.textured[view_cam >= 0].mean() > 0.95
+    checked = _texels_checked(cap, truth.files, 200)
+    assert checked.get(0, 0) > 20 and checked.get(1, 0) > 20, checked

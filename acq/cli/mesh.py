@@ -1,5 +1,5 @@
 """`acq mesh`: a drive's facets with per-vertex colour (PLY, glTF binary or OBJ), or
-textured (glTF binary)."""
+textured (glTF binary or OBJ)."""
 
 from __future__ import annotations
 

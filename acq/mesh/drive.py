@@ -54,7 +54,7 @@ class MeshReport:
     facets: int = 0
     points: int = 0
     coloured: int = 0
-    textured: int = 0  # facets with a texture sampled from a frame
+    textured: int | None = None  # facets with a texture sampled from a frame (None: none made)
     scans: int = 0
     track_m: float = 0.0
     frame: str = "world"
@@ -75,7 +75,7 @@ class MeshReport:
                     f"{self.textured:,} facets textured from a frame, the others filled with "
                     "their vertices' colour"
                 ]
-                if self.textured
+                if self.textured is not None
                 else []
             ),
             f"wrote {len(self.files)} file(s), {self.bytes / 1e6:.1f} MB in "
@@ -172,7 +172,7 @@ def prepare_mesh(
     will write, for the caller to check before :meth:`MeshJob.run`); options as `acq
     colorize` takes them; ``rules``: default
     :class:`FacetRules`; ``chunk_s``: default colorize's; ``texels``: texture the facets
-    (:mod:`acq.mesh.texture`, a glb only) with cells of that many texels a side.
+    (:mod:`acq.mesh.texture`; glb or OBJ) with cells of that many texels a side.
     InputError for bad input, named."""
     t0 = time.perf_counter()
     if files.format_of(output) == "ply" and texels is not None:
@@ -349,7 +349,7 @@ class _Tiles:
         fill = self.rgb[at][tri].mean(axis=1).round().astype(np.uint8)
         atlas = texture.build_atlas(px, view_cam, view_frame, self._images, self.gains, fill,
                                     mj.texels)  # fmt: skip
-        mj.report.textured += int(np.count_nonzero(atlas.textured))
+        mj.report.textured = (mj.report.textured or 0) + int(np.count_nonzero(atlas.textured))
         return atlas
 
     def _images(self, camera: int, frames: np.ndarray) -> Iterator[np.ndarray | None]:

@@ -5,8 +5,9 @@ fisheye frames (:func:`build_atlas`).
 The view is the simple form of the paper's view selection: a facet takes the frame
 (camera, frame) its vertices were coloured from, which the colouring chose per point for
 occlusion, angle to the axis and nearness in time; where the three disagree, the
-majority (neighbouring facets then mostly share a view: few seams). Resolution on the
-surface, and a smoothness (Potts) term between neighbours, are not weighed yet.
+majority. Resolution on the surface, and a smoothness (Potts) term between neighbours,
+are not weighed yet: on the simulated drive a third of the edges between facets join two
+views (the nearest frame changes every scan or two).
 
 The atlas is a grid of square cells of ``texels`` x ``texels``, two facets a cell: the
 upper-left and the lower-right triangle, each corner on a texel's centre and a texel

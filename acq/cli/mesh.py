@@ -82,7 +82,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     m.add_argument(
         "--texture", action="store_true",
         help="texture the facets (.glb, or .obj with OUT.mtl and OUT.jpg beside it): each "
-        "facet takes the frame most of its vertices were coloured from and its texels are "
+        "facet takes a frame its vertices were coloured from (most of them, and its "
+        "neighbours: fewer seams) and its texels are "
         "resampled from that fisheye frame, balanced as the vertex colours are, into one "
         "JPEG atlas per tile (a glb has a vertex per facet corner: files about 3.7 times "
         "larger, 2.4-2.8 times the time; off by default)",

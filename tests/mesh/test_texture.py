@@ -56,11 +56,43 @@ def test_facet_views_take_the_agreeing_or_the_majority_frame() -> None:
     camera = np.array([0, 0, 0, 1, NO_CAMERA, 1], dtype=np.uint8)
     frame = np.array([5, 5, 6, 5, -1, 5], dtype=np.int64)
     faces = np.array([[0, 1, 0], [0, 1, 2], [2, 3, 0], [4, 4, 3], [4, 4, 4], [3, 5, 0]])
-    cam, fr = texture.facet_views(camera, frame, faces)
+    cam, fr = texture.facet_views(camera, frame, faces, smooth=0)
     # all three agree; two of three; none agree (the first vertex's); two without a view
     # (the one with); none with a view; two of three across cameras
     assert cam.tolist() == [0, 0, 0, 1, -1, 1]
     assert fr.tolist() == [5, 5, 6, 5, -1, 5]
+
+
+def test_a_facet_takes_its_neighbours_view_when_one_of_its_vertices_has_it() -> None:
+    """Four cells between two profiles: the upper facets 1 and 2 have two vertices of
+    frame 2 and one of frame 1, the others two of frame 1. The lower facet between them
+    (a vertex of frame 2, and both its neighbours) joins them: two edges between views
+    instead of four."""
+    #  0---1---2---3---4     scan s:   frames 1 2 2 2 1 (vertices 0..4)
+    #  |  /|  /|  /|  /|
+    #  5---6---7---8---9     scan s+1: frames 1 1 1 1 1 (vertices 5..9)
+    frame = np.array([1, 2, 2, 2, 1, 1, 1, 1, 1, 1])
+    camera = np.zeros(10, dtype=np.uint8)
+    upper = np.array([[k, k + 1, k + 5] for k in range(4)])
+    lower = np.array([[k + 1, k + 6, k + 5] for k in range(4)])
+    faces = np.concatenate([upper, lower])
+
+    def seams(view: np.ndarray) -> int:
+        a, b = texture._neighbours(faces)
+        return int(np.count_nonzero(view[a] != view[b]))
+
+    plain = texture.facet_views(camera, frame, faces, smooth=0)[1]
+    smooth = texture.facet_views(camera, frame, faces)[1]
+    assert plain.tolist() == [1, 2, 2, 1, 1, 1, 1, 1]
+    assert smooth.tolist() == [1, 2, 2, 1, 1, 2, 1, 1]
+    assert (seams(plain), seams(smooth)) == (4, 2)
+    # the same whatever the facets' order
+    shuffled = np.random.default_rng(1).permutation(8)
+    again = texture.facet_views(camera, frame, faces[shuffled])[1]
+    assert np.array_equal(again, smooth[shuffled])
+    # a view none of its vertices has is never taken
+    lone = texture.facet_views(camera, np.array([2, 2, 2, 1, 1, 1, 1, 1, 1, 1]), faces[[0]])[1]
+    assert lone.tolist() == [2]
 
 
 def test_atlas_texels_are_the_frame_at_the_facets_pixels_and_cells_do_not_mix() -> None:

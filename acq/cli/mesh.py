@@ -1,4 +1,5 @@
-"""`acq mesh`: a drive's facets with per-vertex colour (PLY, glTF binary or OBJ)."""
+"""`acq mesh`: a drive's facets with per-vertex colour (PLY, glTF binary or OBJ), or
+textured (glTF binary or OBJ)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,11 @@ from pathlib import Path
 from acq.cli import output_files
 from acq.cli.camera_option import add_camera_option
 from acq.cli.colorize import CHUNK_S, add_placing_options, check_crs_option
-from acq.cli.option_types import real
+from acq.cli.option_types import integer, real
 from acq.cli.output_files import Output
+from acq.errors import InputValueError
 
+TEXELS = 8  # texels a side of an atlas cell, by default: see the README's "Facets"
 HELP = "facets of a drive's laser profiles, coloured from its cameras (glTF, OBJ or PLY)"
 
 
@@ -24,7 +27,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "returns of a profile and of the next profile), each vertex placed and coloured "
         "as `acq colorize` places and colours the point (every camera of CALIB, the best "
         "view of each point, exposure and white balance evened out). A vertex carries its "
-        "point's colour; facet textures are not made yet. Long drives are split into "
+        "point's colour; with --texture (.glb, .obj) each facet is textured from the fisheye "
+        "frame its vertices were coloured from. Long drives are split into "
         "tiles along the track (--tile-m), each a file of its own. OUT replaces what acq "
         "wrote before; an input, a file of another kind or anyone else's is refused "
         "(--force replaces the last). Exit status: 0 written, 2 bad input, 3 the disk "
@@ -36,10 +40,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "-o", "--output", type=Path, required=True, metavar="OUT",
         help="the format from the suffix: OUT.glb (glTF 2.0 binary, +y up as glTF has it: "
         "the world's z up turned, the first vertex's coordinates in the node's matrix), "
-        "OUT.obj (vertex colours as 'v x y z r g b', no .mtl) or OUT.ply (binary, x y z "
-        "double, red green blue); a drive longer than one tile gives OUT_000.SUFFIX, "
-        "OUT_001.SUFFIX... beside OUT, in the order driven (an earlier run's files cut otherwise "
-        "are kept, and named)",
+        "OUT.obj (vertex colours as 'v x y z r g b'; with --texture its OUT.mtl and "
+        "OUT.jpg) or OUT.ply (binary, x y z double, red green blue); a drive longer than "
+        "one tile gives OUT_000.SUFFIX, OUT_001.SUFFIX... beside OUT, in the order driven "
+        "(an earlier run's files cut otherwise are kept, and named)",
     )  # fmt: skip
     add_camera_option(
         m, "colour from this camera (each vertex takes the camera whose view of its point "
@@ -75,6 +79,20 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help=f"seconds of scans per chunk, {CHUNK_S.range_text()} (default 15), as `acq "
         "colorize --chunk`; the facets are the same for any value",
     )  # fmt: skip
+    m.add_argument(
+        "--texture", action="store_true",
+        help="texture the facets (.glb, or .obj with OUT.mtl and OUT.jpg beside it): each "
+        "facet takes a frame its vertices were coloured from (most of them, and its "
+        "neighbours: fewer seams) and its texels are "
+        "resampled from that fisheye frame, balanced as the vertex colours are, into one "
+        "JPEG atlas per tile (a glb has a vertex per facet corner: files about 3.7 times "
+        "larger, 2.4-2.8 times the time; off by default)",
+    )  # fmt: skip
+    m.add_argument(
+        "--texels", type=integer(4, 64, what="texels"), default=None, metavar="N",
+        help="with --texture: texels a side of an atlas cell, which holds two facets "
+        f"(default {TEXELS}: about the camera's own pixels on a facet at 20 km/h)",
+    )  # fmt: skip
     m.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     m.set_defaults(handler=run, stops_cleanly=True)
 
@@ -85,9 +103,11 @@ def run(args: argparse.Namespace) -> int:
     from acq.camera import calibfile
     from acq.mesh import FacetRules
     from acq.mesh.drive import prepare_mesh
-    from acq.mesh.files import format_of
+    from acq.mesh.files import format_of, texture_files
 
-    format_of(args.output, "-o")
+    textured_obj = format_of(args.output, "-o") == "obj" and args.texture
+    if args.texels is not None and not args.texture:
+        raise InputValueError("--texels: only with --texture")
     check_crs_option(args.crs, args.frame)
     rules = FacetRules(max_grazing_deg=args.max_grazing_deg)
     if args.edge_a_m is not None:
@@ -102,10 +122,17 @@ def run(args: argparse.Namespace) -> int:
     mj = prepare_mesh(
         args.logs, calib, args.output, camera=args.camera, frame=args.frame,
         trajectory=args.trajectory, crs=args.crs, rules=rules, tile_m=args.tile_m,
-        chunk_s=args.chunk,
+        chunk_s=args.chunk, texels=(args.texels or TEXELS) if args.texture else None,
     )  # fmt: skip
-    if mj.paths != [args.output]:  # the tiles' files, now that the track's length is known
+    if mj.paths != [args.output] or textured_obj:  # now that the tiles are known
         outputs = [Output("-o", p, "mesh") for p in mj.paths]
+        if textured_obj:
+            outputs += [
+                o
+                for p in mj.paths
+                for mtl, jpg in [texture_files(p)]
+                for o in (Output("-o", mtl, "mesh"), Output("-o", jpg, "image"))
+            ]
         output_files.check(inputs, outputs, force=args.force)
     report = mj.run(progress=args.progress or sys.stderr.isatty())
     print("\n".join(report.lines()))

@@ -100,6 +100,8 @@ class ChunkResult:
     gains: balance.Gains | None = None  # the colour balance applied (None: off)
     # with want_uv, per camera: its own (rgb, balanced rgb, coloured) of every point
     samples: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+    # per camera, the session index of each of the chunk's frames (``gains``' rows)
+    session_frames: list[np.ndarray] = field(default_factory=list)
 
 
 def _margin_ns(job: Job) -> int:
@@ -320,6 +322,10 @@ class ChunkColouring:
                 if col.failed.size
             },
             gains=merged.gains,
+            session_frames=[
+                np.searchsorted(cj.frame_old, f.frame_ns)
+                for cj, f in zip(job.cameras, frames, strict=True)
+            ],
             samples=(
                 {
                     cj.name: (cols[c].rgb[core], merged.rgbs[c][core], cols[c].coloured[core])

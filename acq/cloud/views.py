@@ -47,6 +47,7 @@ __all__ = [
     "Frame",
     "Options",
     "Pairs",
+    "camera_poses",
     "odd_sized",
     "point_size",
     "start_colouring",
@@ -181,20 +182,26 @@ class _Rig:
         return world_to_laser(P_world, R, t, self.v2l)
 
     def camera_poses(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The camera's rotations (M,3,3) and positions (M,3) m in the points' frame at
-        ``t_ns`` (M,): the world as the rig stood then (the laser without motion
-        compensation)."""
-        c2l = self.cam.camera_to_laser
-        if self.pose_at is None:
-            return np.broadcast_to(c2l.rotation, (t_ns.size, 3, 3)), np.broadcast_to(
-                c2l.translation, (t_ns.size, 3)
-            )
-        c2v = self.l2v @ c2l
-        R, t = self.pose_at(np.asarray(t_ns, dtype=np.int64))
-        return R @ c2v.rotation, np.einsum("nij,j->ni", R, c2v.translation) + t
+        return camera_poses(self.cam, self.l2v, self.pose_at, t_ns)
 
     def camera(self, P_laser: np.ndarray) -> np.ndarray:
         return self.cam.camera_to_laser.inverse().apply(P_laser)
+
+
+def camera_poses(
+    cam: CameraCalib, laser_to_vehicle: Rigid, pose_at: PoseFn | None, t_ns: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's rotations (M,3,3) and positions (M,3) m in the points' frame at
+    ``t_ns`` (M,) (laser clock): the world as the rig stood then (``pose_at`` the
+    vehicle's poses), or the laser frame without motion compensation (``pose_at`` None)."""
+    c2l = cam.camera_to_laser
+    if pose_at is None:
+        return np.broadcast_to(c2l.rotation, (t_ns.size, 3, 3)), np.broadcast_to(
+            c2l.translation, (t_ns.size, 3)
+        )
+    c2v = laser_to_vehicle @ c2l
+    R, t = pose_at(np.asarray(t_ns, dtype=np.int64))
+    return R @ c2v.rotation, np.einsum("nij,j->ni", R, c2v.translation) + t
 
 
 def _theta(P_cam: np.ndarray) -> npt.NDArray[np.float64]:

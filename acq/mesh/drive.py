@@ -1,4 +1,4 @@
-"""`acq mesh`: a drive's facets with per-vertex colour, in tiles along the track.
+"""`acq mesh`: a drive's facets with per-vertex colour or textured, in tiles along the track.
 
 The points are placed and coloured by `acq colorize`'s pipeline (:func:`acq.cloud.job.prepare`,
 the chunks of :mod:`acq.cloud.chunks` run by :func:`acq.cloud.colorize.run_chunks`); each
@@ -7,7 +7,10 @@ chunks is lost, and none is made twice), are joined into triangles by
 :func:`acq.mesh.grid_facets`. A facet belongs to the tile of its first scan: tiles of
 ``tile_m`` metres along the laser's track, the last one holding the rest (a rest shorter
 than a quarter of a tile joins the tile before it); each tile is written as soon as the
-chunks have passed its end (:mod:`acq.mesh.files`), with the vertices its facets use.
+chunks have passed its end (:mod:`acq.mesh.files`), with the vertices its facets use;
+with a texture (``texels``), with its atlas (:mod:`acq.mesh.texture`): the vertices keep
+their frame and pixel (the job's ``want_uv``), the frames' gains are kept by session
+frame, and a tile's frames are decoded once each when it is written.
 
 Metres; times host monotonic ns.
 """
@@ -17,22 +20,24 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from acq.camera.calibfile import Calibration
+from acq.camera.jpeg import decoded_frames
+from acq.cloud.balance import Gains
 from acq.cloud.chunks import Chunk, ChunkResult, laser_positions, plan
 from acq.cloud.colorize import CHUNK_S, READ_ONCE_BYTES, run_chunks
 from acq.cloud.job import Job, prepare
 from acq.cloud.report import Report
 from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
-from acq.log.drive_log import DriveLog
+from acq.log.drive_log import DriveLog, read_log
 from acq.log.inputs import session_files
-from acq.mesh import files
+from acq.mesh import files, texture
 from acq.mesh.organized import FacetRules, grid_facets
 from acq.motion import Trajectory
 
@@ -49,6 +54,7 @@ class MeshReport:
     facets: int = 0
     points: int = 0
     coloured: int = 0
+    textured: int | None = None  # facets with a texture sampled from a frame (None: none made)
     scans: int = 0
     track_m: float = 0.0
     frame: str = "world"
@@ -64,6 +70,14 @@ class MeshReport:
             f"points of {self.scans:,} scans ({100 * share:.1f} % of the points coloured), "
             f"{self.track_m:.1f} m of track",
             f"frame: {self.frame}; trajectory: {self.trajectory or 'none'}",
+            *(
+                [
+                    f"{self.textured:,} facets textured from a frame, the others filled with "
+                    "their vertices' colour"
+                ]
+                if self.textured is not None
+                else []
+            ),
             f"wrote {len(self.files)} file(s), {self.bytes / 1e6:.1f} MB in "
             f"{self.seconds:.1f} s: " + ", ".join(self.files),
         ]
@@ -103,6 +117,7 @@ class MeshJob:
     once: bool
     report: MeshReport
     comments: list[str]
+    texels: int | None = None  # texels a side of an atlas cell; None: vertex colours
 
     def run(self, progress: bool = False) -> MeshReport:
         """Colour the chunks, join them into facets and write the tiles; OSError naming
@@ -151,13 +166,20 @@ def prepare_mesh(
     rules: FacetRules | None = None,
     tile_m: float = 50.0,
     chunk_s: float | None = None,
+    texels: int | None = None,
 ) -> MeshJob:
     """Read ``logs`` and plan the mesh (:class:`MeshJob`; its ``paths``: the files it
     will write, for the caller to check before :meth:`MeshJob.run`); options as `acq
     colorize` takes them; ``rules``: default
-    :class:`FacetRules`; ``chunk_s``: default colorize's. InputError for bad input, named."""
+    :class:`FacetRules`; ``chunk_s``: default colorize's; ``texels``: texture the facets
+    (:mod:`acq.mesh.texture`; glb or OBJ) with cells of that many texels a side.
+    InputError for bad input, named."""
     t0 = time.perf_counter()
-    files.format_of(output)
+    if files.format_of(output) == "ply" and texels is not None:
+        raise InputValueError(
+            f"--texture: -o {output}: a PLY file holds vertex colours, not a texture; use "
+            ".glb or .obj"
+        )
     logs = session_files(logs)
     once = sum(f.stat().st_size for f in logs if f.is_file()) <= READ_ONCE_BYTES
     cloud = Report(output=str(output))
@@ -167,6 +189,8 @@ def prepare_mesh(
     )  # fmt: skip
     if index.n_scans == 0:
         raise InputValueError(f"LOG {logs[0]}: no laser scans; nothing to join into facets")
+    if texels is not None:
+        job = replace(job, want_uv=True)  # each vertex's pixel in its frame
     if not job.frame_world:
         # a moving rig's profiles lie on top of each other in the laser frame: its grid
         # joins nothing that is a surface
@@ -198,6 +222,7 @@ def prepare_mesh(
     return MeshJob(
         job, index, plan(scan_new, chunk_s or CHUNK_S), origin, tile,
         tile_names(output, int(tile[-1]) + 1), rules or FacetRules(), once, report, comments,
+        texels,
     )  # fmt: skip
 
 
@@ -214,6 +239,11 @@ class _Tiles:
         self.step = np.zeros(0, np.int64)
         self.faces = np.zeros((0, 3), np.int64)  # session vertex numbers
         self.next_tile = 0  # the first tile not written
+        # with a texture: each vertex's view and pixel in it, each frame's colour gains
+        self.camera = np.zeros(0, np.uint8)
+        self.frame = np.zeros(0, np.int64)
+        self.uv = np.zeros((0, 2), np.float32)
+        self.gains: Gains | None = None
 
     def add(self, r: ChunkResult) -> None:
         mj, rep = self.mj, self.mj.report
@@ -235,6 +265,12 @@ class _Tiles:
         self.rgb = np.concatenate([self.rgb, r.rgb])
         self.scan = np.concatenate([self.scan, r.scan.astype(np.int64)])
         self.step = np.concatenate([self.step, r.step.astype(np.int64)])
+        if mj.texels is not None:
+            assert r.uv is not None  # the job wants them
+            self.camera = np.concatenate([self.camera, r.camera])
+            self.frame = np.concatenate([self.frame, r.frame.astype(np.int64)])
+            self.uv = np.concatenate([self.uv, r.uv])
+            self._add_gains(r)
         if self.scan.size:  # tiles whose last scan is before the held last one are whole
             self._write_until(int(mj.tile[self.scan[-1]]))
 
@@ -255,10 +291,20 @@ class _Tiles:
                 continue
             used, tri = np.unique(mine, return_inverse=True)
             at = used - self.base
+            tri = tri.reshape(-1, 3)
             path = mj.paths[t]
+            if mj.texels is not None:
+                h, w = texture.atlas_shape(tri.shape[0], mj.texels)
+                if max(h, w) > texture.MAX_SIDE:
+                    raise InputValueError(
+                        f"--texture: {path.name}: {tri.shape[0]:,} facets need an atlas of "
+                        f"{w:,} x {h:,} texels, over the {texture.MAX_SIDE:,} a side that "
+                        "viewers take; use a shorter --tile-m or fewer --texels"
+                    )
+            atlas = self._atlas(at, tri) if mj.texels is not None else None
             try:
-                rep.bytes += files.write(path, self.xyz[at], self.rgb[at], tri.reshape(-1, 3),
-                                         mj.comments)  # fmt: skip
+                rep.bytes += files.write(path, self.xyz[at], self.rgb[at], tri, mj.comments,
+                                         atlas)  # fmt: skip
             except Exception as e:
                 full = full_disk_error(path, e)
                 if full is None:
@@ -277,3 +323,50 @@ class _Tiles:
             self.base += drop
             self.xyz, self.rgb = self.xyz[drop:], self.rgb[drop:]
             self.scan, self.step = self.scan[drop:], self.step[drop:]
+            if mj.texels is not None:
+                self.camera, self.frame = self.camera[drop:], self.frame[drop:]
+                self.uv = self.uv[drop:]
+
+    def _add_gains(self, r: ChunkResult) -> None:
+        """Keep the chunk's gains by session frame (a frame two chunks share: the later's)."""
+        if r.gains is None:
+            return
+        if self.gains is None:
+            self.gains = Gains([np.zeros((c.frame_old.size, 3)) for c in self.mj.job.cameras], 0, 0)
+        for table, rows, g in zip(self.gains.log_gain, r.session_frames, r.gains.log_gain,
+                                  strict=True):  # fmt: skip
+            if g.size:
+                table[rows] = g
+
+    def _atlas(self, at: np.ndarray, tri: np.ndarray) -> texture.Atlas:
+        """The atlas of the facets ``tri`` (F,3) of the held vertices ``at``."""
+        mj = self.mj
+        assert mj.texels is not None
+        camera, frame = self.camera[at], self.frame[at]
+        view_cam, view_frame = texture.facet_views(camera, frame, tri)
+        px = texture.corner_pixels(mj.job, self.xyz[at], camera, frame, self.uv[at], tri,
+                                   view_cam, view_frame)  # fmt: skip
+        fill = self.rgb[at][tri].mean(axis=1).round().astype(np.uint8)
+        atlas = texture.build_atlas(px, view_cam, view_frame, self._images, self.gains, fill,
+                                    mj.texels)  # fmt: skip
+        mj.report.textured = (mj.report.textured or 0) + int(np.count_nonzero(atlas.textured))
+        return atlas
+
+    def _images(self, camera: int, frames: np.ndarray) -> Iterator[np.ndarray | None]:
+        """Camera ``camera``'s session ``frames`` (sorted), decoded in order."""
+        mj = self.mj
+        cj = mj.job.cameras[camera]
+        stamps = cj.frame_old[frames]
+        if mj.once:
+            held = mj.index.cameras[cj.name]
+        else:  # read the part of the log with those frames (receipt times: a second wider)
+            part = read_log(
+                list(mj.job.files), laser=mj.job.laser, cameras=[cj.name], returns=False,
+                start_ns=int(stamps[0]) - 2 * 10**9, end_ns=int(stamps[-1]) + 2 * 10**9,
+            )  # fmt: skip
+            held = part.cameras[cj.name]
+        order = np.argsort(held.frame_ns, kind="stable")
+        k = np.clip(np.searchsorted(held.frame_ns[order], stamps), 0, max(0, order.size - 1))
+        found = held.frame_ns[order][k] == stamps if order.size else np.zeros(0, bool)
+        jpegs = [held.jpegs[int(order[j])] if ok else b"" for j, ok in zip(k, found, strict=True)]
+        return decoded_frames(jpegs, np.arange(len(jpegs)), mj.job.threads)

@@ -7,10 +7,13 @@ or not at all (a temporary beside it, renamed).
   relative to the file's first vertex, that offset and the turn from the world's z up to
   glTF's +y up in the node's matrix (JSON doubles: a CRS's coordinates keep their
   millimetres); COLOR_0 per vertex; the mark ``asset.generator``, the comments in
-  ``asset.extras.acq``.
+  ``asset.extras.acq``. Textured (:class:`acq.mesh.texture.Atlas`): a vertex per facet
+  corner with its TEXCOORD_0, the atlas a JPEG baseColorTexture, no COLOR_0.
 - OBJ: ``v x y z r g b`` (the vertex-colour extension that Blender, MeshLab,
   CloudCompare and trimesh read; colours 0..1), 1-based ``f a b c``; the mark and the
-  comments ``#`` lines at the top. No .mtl: there is no texture yet.
+  comments ``#`` lines at the top. Textured: ``v x y z``, ``vt u v`` per facet corner,
+  ``f a/i b/j c/k``, with ``mtllib OUT.mtl`` (marked as the OBJ) naming ``OUT.jpg`` (a
+  JPEG comment its mark).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
@@ -27,7 +30,10 @@ from acq.cloud import ply
 from acq.errors import InputValueError
 from acq.provenance import SOFTWARE
 
-__all__ = ["SUFFIXES", "Y_UP", "format_of", "write"]
+if TYPE_CHECKING:
+    from acq.mesh.texture import Atlas
+
+__all__ = ["SUFFIXES", "Y_UP", "format_of", "texture_files", "write"]
 
 SUFFIXES = (".ply", ".glb", ".obj")
 # the world's (x, y, z), z up, as glTF's (x, y, z), +y up
@@ -48,29 +54,52 @@ def format_of(output: Path, option: str = "-o") -> str:
 
 def write(
     path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray,
-    comments: Sequence[str] = (),
+    comments: Sequence[str] = (), texture: Atlas | None = None,
 ) -> int:  # fmt: skip
     """Write the triangles ``faces`` (F,3) int of the vertices ``xyz`` (V,3) m coloured
     ``rgb`` (V,3) uint8 to ``path`` in the format of its suffix, marked as acq's, with
-    ``comments`` (one line each); the file's size in bytes."""
+    ``comments`` (one line each); the bytes written. ``texture`` (glb or OBJ): the
+    facets' atlas instead of the vertex colours (an OBJ's in OUT.mtl and OUT.jpg
+    beside it, :func:`texture_files`)."""
     kind = format_of(path)
     lines = [f"{SOFTWARE} facets: x y z metres", *comments]
+    if texture is not None and kind == "ply":
+        raise ValueError(f"{path}: a PLY file holds vertex colours, not a texture")
     if kind == "ply":
         return ply.write_mesh(path, xyz, rgb, faces, lines)
     if kind == "glb":
-        return _write_glb(path, xyz, rgb, faces, lines)
-    return _write_obj(path, xyz, rgb, faces, lines)
+        return _write_glb(path, xyz, rgb, faces, lines, texture)
+    if texture is None:
+        return _write_obj(path, xyz, rgb, faces, lines)
+    return _write_textured_obj(path, xyz, faces, lines, texture)
+
+
+def texture_files(path: Path) -> tuple[Path, Path]:
+    """The material (.mtl) and the image (.jpg) beside a textured OBJ ``path``."""
+    return path.with_suffix(".mtl"), path.with_suffix(".jpg")
 
 
 def _write_glb(
-    path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray, lines: Sequence[str]
-) -> int:
+    path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray, lines: Sequence[str],
+    texture: Atlas | None,
+) -> int:  # fmt: skip
     import trimesh
 
     offset = xyz[0].copy() if len(xyz) else np.zeros(3)
-    mesh = trimesh.Trimesh(
-        vertices=xyz - offset, faces=faces, vertex_colors=rgb, process=False, validate=False
-    )
+    if texture is None:
+        mesh = trimesh.Trimesh(
+            vertices=xyz - offset, faces=faces, vertex_colors=rgb, process=False, validate=False
+        )
+    else:
+        # a vertex per facet corner: each facet has its own place in the atlas (and
+        # glTF multiplies COLOR_0 into the texture: no vertex colours)
+        corners = np.arange(faces.size).reshape(-1, 3)
+        textured: Any = trimesh.visual.TextureVisuals  # trimesh has no annotations
+        visual = textured(uv=texture.uv.reshape(-1, 2), image=_jpeg_image(texture.image))
+        mesh = trimesh.Trimesh(
+            vertices=(xyz - offset)[faces].reshape(-1, 3), faces=corners, visual=visual,
+            process=False, validate=False,
+        )  # fmt: skip
     node = np.eye(4)
     node[:3, :3] = Y_UP
     node[:3, 3] = Y_UP @ offset
@@ -88,6 +117,16 @@ def _write_glb(
     return path.stat().st_size
 
 
+def _jpeg_image(rgb: np.ndarray) -> Any:
+    """``rgb`` (H,W,3) uint8 as a PIL image that trimesh embeds as a JPEG (it keeps a
+    JPEG a JPEG, anything else becomes PNG: 3-5 times the bytes for a photograph)."""
+    from PIL import Image
+
+    image = Image.fromarray(rgb)
+    image.format = "JPEG"
+    return image
+
+
 def _write_obj(
     path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray, lines: Sequence[str]
 ) -> int:
@@ -99,6 +138,31 @@ def _write_obj(
         _rows(out, "v %.4f %.4f %.4f %.4f %.4f %.4f\n", np.hstack([xyz, rgb / 255.0]))
         _rows(out, "f %d %d %d\n", np.asarray(faces, dtype=np.int64) + 1)
     return os.path.getsize(path)
+
+
+def _write_textured_obj(
+    path: Path, xyz: np.ndarray, faces: np.ndarray, lines: Sequence[str], texture: Atlas
+) -> int:
+    """The OBJ (its vertices shared, a texture coordinate per facet corner), then its
+    .mtl and .jpg beside it, written first: an OBJ never names a missing file."""
+    from acq.provenance import write_image
+
+    if not all(c.isprintable() for c in lines):
+        raise ValueError(f"an OBJ comment is one line of printable text: {list(lines)}")
+    mtl, jpg = texture_files(path)
+    write_image(jpg, np.ascontiguousarray(texture.image[..., ::-1]))
+    with atomic(mtl) as tmp, open(tmp, "w", encoding="utf-8") as out:
+        out.write(f"# {lines[0]}\nnewmtl facets\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\n"
+                  f"illum 1\nmap_Kd {jpg.name}\n")  # fmt: skip
+    with atomic(path) as tmp, open(tmp, "w", encoding="utf-8") as out:
+        out.write("".join(f"# {c}\n" for c in lines))
+        out.write(f"mtllib {mtl.name}\nusemtl facets\n")
+        _rows(out, "v %.4f %.4f %.4f\n", xyz)
+        _rows(out, "vt %.7f %.7f\n", texture.uv.reshape(-1, 2).astype(np.float64))
+        corner = np.arange(faces.size, dtype=np.int64).reshape(-1, 3) + 1
+        both = np.stack([np.asarray(faces, dtype=np.int64) + 1, corner], axis=2)
+        _rows(out, "f %d/%d %d/%d %d/%d\n", both.reshape(-1, 6))
+    return sum(os.path.getsize(p) for p in (path, mtl, jpg))
 
 
 def _rows(out: TextIO, line: str, values: np.ndarray, block: int = 65536) -> None:

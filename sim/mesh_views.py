@@ -29,6 +29,7 @@ import numpy as np
 from acq.camera.camera_models import Pinhole
 from acq.mesh.files import Y_UP
 from acq.mesh.render import View, look_at, render_mesh, render_textured, splat
+from acq.mesh.texture import MAX_SIDE
 from acq.sim.raycast import cast
 from acq.sim.world import Material, Street, Trajectory
 
@@ -239,9 +240,17 @@ def read_textured_mesh(glb: Path) -> TexturedMesh:
     """A ``.glb`` of `acq mesh --texture` read back through trimesh (as :func:`read_mesh`):
     its TEXCOORD_0 (trimesh turns glTF's v down to v up) and its embedded base colour
     texture."""
+    from PIL import Image
     from trimesh.visual import TextureVisuals
 
-    g = _triangles(glb)
+    # Pillow warns of (and past twice its limit refuses) images over 89 Mpx; an atlas
+    # of acq mesh may be up to MAX_SIDE a side
+    limit = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = max(limit or 0, MAX_SIDE**2)
+    try:
+        g = _triangles(glb)
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
     visual = g.visual
     texture = getattr(getattr(visual, "material", None), "baseColorTexture", None)
     if not isinstance(visual, TextureVisuals) or visual.uv is None or texture is None:

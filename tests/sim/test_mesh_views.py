@@ -150,3 +150,19 @@ def test_a_textured_glb_reads_back_upright_and_renders_as_the_truth(tmp_path: Pa
     files.write(tmp_path / "plain.glb", *plain[:1], plain[2], faces)
     with pytest.raises(ValueError, match="texture"):
         read_textured_mesh(tmp_path / "plain.glb")
+
+
+@pytest.mark.filterwarnings("error")
+def test_an_atlas_over_pillows_89_megapixels_reads_without_a_warning(tmp_path: Path) -> None:
+    """acq mesh writes atlases up to MAX_SIDE a side; Pillow would warn past 89 Mpx."""
+    from PIL import Image
+
+    side = 9600  # 92 Mpx, one colour: a small JPEG
+    corners = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0, 1]])
+    atlas = Atlas(np.full((side, side, 3), 90, np.uint8), np.zeros((1, 3, 2), np.float32),
+                  np.ones(1, bool), np.zeros(1, np.int64))  # fmt: skip
+    files.write(tmp_path / "big.glb", corners, np.zeros((3, 3), np.uint8), np.array([[0, 1, 2]]),
+                texture=atlas)  # fmt: skip
+    limit = Image.MAX_IMAGE_PIXELS
+    mesh = read_textured_mesh(tmp_path / "big.glb")
+    assert mesh.image.shape == (side, side, 3) and Image.MAX_IMAGE_PIXELS == limit

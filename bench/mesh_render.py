@@ -17,9 +17,15 @@ the spacing between profiles, 0.14 m at 20 km/h), the truth ray-cast. One JSON l
 view and pooled over the three: ``street_px`` (pixels where the truth hits a surface),
 ``covered`` (the share of them the render covers), ``within_24`` (of those covered, the
 share within 24/255 in every channel; target >= 90 % for the mesh) and ``psnr_db``; and
-the times of each step. ``--picture PNG`` saves the views beside the truth.
+the times of each step. ``--picture PNG`` saves the views beside the truth (a PNG of 256 colours).
+``--texture`` also meshes the drive textured (as `acq mesh --texture`, cells of the
+default texels) into a second ``.glb``, reads it back with its texture, renders it from
+the same views (:func:`acq.mesh.render.render_textured`) and reports it as ``textured``
+beside the vertex-coloured mesh and the cloud (per view and pooled; in the picture a
+panel per view).
 
-Run as a script: ``python bench/mesh_render.py [--seconds S] [--work DIR] [--picture PNG]``.
+Run as a script:
+``python bench/mesh_render.py [--seconds S] [--work DIR] [--texture] [--picture PNG]``.
 """
 
 from __future__ import annotations
@@ -33,8 +39,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
+from PIL import Image
 
 
 def main() -> None:
@@ -44,13 +50,18 @@ def main() -> None:
         "--work", type=Path, default=None, help="folder for the drive (default: a temporary one)"
     )
     ap.add_argument("--picture", type=Path, default=None, help="PNG of the views and the truth")
+    ap.add_argument(
+        "--texture", action="store_true",
+        help="also the textured mesh (acq mesh --texture), rendered and compared beside the others",
+    )  # fmt: skip
     args = ap.parse_args()
+    from acq.cli.mesh import TEXELS
     from acq.cloud import PLY_DTYPE
     from acq.cloud.colorize import run as colorize
     from acq.mesh.drive import prepare_mesh
     from acq.motion import Trajectory
     from acq.sim.drive_log import write_drive_log
-    from acq.sim.mesh_views import compare, picture, read_mesh, street_views
+    from acq.sim.mesh_views import compare, picture, read_mesh, read_textured_mesh, street_views
     from acq.sim.world import default_rig
 
     row: dict[str, Any] = {"bench": "mesh_render", "seconds": args.seconds}
@@ -70,6 +81,13 @@ def main() -> None:
                           tile_m=math.inf)  # fmt: skip
         rep = mj.run()
         times["mesh"] = time.perf_counter() - t0
+        if args.texture:
+            t0 = time.perf_counter()
+            textured_glb = work / "textured.glb"
+            tj = prepare_mesh(truth.files, truth.calibration, textured_glb,
+                              trajectory=trajectory, tile_m=math.inf, texels=TEXELS)  # fmt: skip
+            trep = tj.run()
+            times["mesh_texture"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         ply = work / "cloud.ply"
         colorize(truth.files, truth.calibration, ply, trajectory=trajectory)
@@ -77,6 +95,9 @@ def main() -> None:
 
         t0 = time.perf_counter()
         mesh = read_mesh(glb)
+        textured = read_textured_mesh(textured_glb) if args.texture else None
+        if args.texture:
+            row["glb_bytes"] = {"mesh": glb.stat().st_size, "textured": textured_glb.stat().st_size}
         data = ply.read_bytes()
         v = np.frombuffer(data, PLY_DTYPE, offset=data.index(b"end_header\n") + 11)
         cloud = (np.stack([v["x"], v["y"], v["z"]], axis=1),
@@ -86,11 +107,14 @@ def main() -> None:
         t0 = time.perf_counter()
         views = street_views(truth.trajectory, [f * args.seconds for f in (0.35, 0.5, 0.65)])
         splat_m = truth.config["speed_kmh"] / 3.6 * truth.rig.scan_period
-        result = compare(truth.street, views, mesh, cloud, splat_m)
+        result = compare(truth.street, views, mesh, cloud, splat_m, textured=textured)
         times["render_and_compare"] = time.perf_counter() - t0
 
     row["facets"], row["vertices"], row["points"] = rep.facets, rep.vertices, cloud[0].shape[0]
     row["splat_m"] = round(splat_m, 3)
+    if textured is not None:
+        row["texels"], row["textured_facets"] = TEXELS, trep.textured
+        row["atlas_px"] = list(textured.image.shape[:2])
 
     def figures(lk: Any) -> dict[str, Any]:
         return {"street_px": lk.street, "covered": round(lk.covered, 4),
@@ -100,14 +124,22 @@ def main() -> None:
         name: {"mesh": figures(m), "cloud": figures(c)}
         for name, (m, c) in zip(result.names, result.per_view, strict=True)
     }
+    for name, (_, t) in zip(result.names, result.textured_views, strict=False):
+        row["views"][name]["textured"] = figures(t)
     row["mesh"], row["cloud"] = figures(result.mesh), figures(result.cloud)
+    if result.textured is not None:
+        row["textured"] = figures(result.textured)
     row["seconds_per_step"] = {k: round(s, 2) for k, s in times.items()}
     row["load_average"] = round(os.getloadavg()[0], 2)
     if args.picture is not None:
         title = (f"acq mesh (vertex colours) and acq colorize, {args.seconds:g} s drive, beside "
                  f"the true street: mesh {result.mesh.text()}")  # fmt: skip
-        cv2.imwrite(str(args.picture), picture(result, title)[:, :, ::-1],
-                    [cv2.IMWRITE_PNG_COMPRESSION, 9])  # fmt: skip
+        if result.textured is not None:
+            title = (f"acq mesh (vertex colours, then --texture) and acq colorize, "
+                     f"{args.seconds:g} s drive, beside the true street: textured "
+                     f"{result.textured.text()}")  # fmt: skip
+        # a palette of 256 colours: a third of the bytes of full colour, for the README
+        Image.fromarray(picture(result, title)).quantize(256).save(args.picture, optimize=True)
     print(json.dumps(row))
 
 

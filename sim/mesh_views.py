@@ -3,7 +3,8 @@
 Three viewpoints at three places along the drive (:func:`street_views`): the left
 facades and the right facades seen from the road at 1.5 m, and an oblique view from 5 m
 up, 5 m behind, looking ahead over the left side of the street. From each, the mesh is
-rasterised (:func:`acq.mesh.render.render_mesh`, per-vertex colours), the cloud splatted
+rasterised (:func:`acq.mesh.render.render_mesh`, per-vertex colours; a textured mesh
+of `acq mesh --texture` with :func:`acq.mesh.render.render_textured`), the cloud splatted
 (:func:`acq.mesh.render.splat`) and the TRUE street ray-cast (:func:`acq.sim.raycast.cast`,
 the simulator's own surface colours) through the same pinhole. :func:`likeness` compares
 a render with the truth where the street is visible (the truth hits a surface, not the
@@ -18,26 +19,30 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from acq.camera.camera_models import Pinhole
 from acq.mesh.files import Y_UP
-from acq.mesh.render import View, look_at, render_mesh, splat
+from acq.mesh.render import View, look_at, render_mesh, render_textured, splat
+from acq.mesh.texture import MAX_SIDE
 from acq.sim.raycast import cast
 from acq.sim.world import Material, Street, Trajectory
 
 __all__ = [
     "TOLERANCE",
     "Likeness",
+    "TexturedMesh",
     "ViewsResult",
     "compare",
     "likeness",
     "picture",
     "read_mesh",
+    "read_textured_mesh",
     "street_views",
     "truth_image",
 ]
@@ -122,15 +127,30 @@ def likeness(
 
 
 @dataclass(frozen=True)
+class TexturedMesh:
+    """A textured mesh: vertices ``xyz`` (V,3) m, ``faces`` (F,3), each facet corner's
+    texture coordinates ``uv`` (F,3,2) (v up) in ``image`` (h,w,3) uint8 RGB."""
+
+    xyz: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    image: np.ndarray
+
+
+@dataclass(frozen=True)
 class ViewsResult:
     """Per view (in order): its name, the truth, the mesh's and the cloud's renders, and
-    each render's likeness to the truth; ``mesh`` and ``cloud`` over all views pooled."""
+    each render's likeness to the truth; ``mesh`` and ``cloud`` over all views pooled;
+    with a textured mesh, its render per view and likeness in ``textured_views`` (else
+    empty) and pooled in ``textured``."""
 
     names: list[str]
     images: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # truth, mesh, cloud (RGB)
     per_view: list[tuple[Likeness, Likeness]]  # mesh, cloud
     mesh: Likeness
     cloud: Likeness
+    textured_views: list[tuple[np.ndarray, Likeness]] = field(default_factory=list)
+    textured: Likeness | None = None
 
 
 def compare(
@@ -139,32 +159,43 @@ def compare(
     mesh: tuple[np.ndarray, np.ndarray, np.ndarray],
     cloud: tuple[np.ndarray, np.ndarray],
     splat_m: float,
+    textured: TexturedMesh | None = None,
 ) -> ViewsResult:
     """Render ``mesh`` (vertices (V,3) m, faces (F,3), RGB (V,3) uint8) and splat ``cloud``
-    (points (N,3) m, RGB (N,3) uint8; squares of ``splat_m`` m) from each view; compare
-    both with the truth."""
-    images, per_view = [], []
+    (points (N,3) m, RGB (N,3) uint8; squares of ``splat_m`` m) from each view, and the
+    ``textured`` mesh if given; compare each with the truth."""
+    images, per_view, textured_views = [], [], []
     pooled: dict[str, list[np.ndarray]] = {"truth": [], "street": [], "mesh": [], "mesh_in": [],
-                                           "cloud": [], "cloud_in": []}  # fmt: skip
+                                           "cloud": [], "cloud_in": [], "tex": [],
+                                           "tex_in": []}  # fmt: skip
     for view in views.values():
         truth, seen = truth_image(street, view)
         m_img, m_in = render_mesh(view, *mesh)
         c_img, c_in = splat(view, cloud[0], cloud[1], splat_m)
         images.append((truth, m_img, c_img))
         per_view.append((likeness(m_img, m_in, truth, seen), likeness(c_img, c_in, truth, seen)))
-        for key, a in zip(pooled, (truth, seen, m_img, m_in, c_img, c_in), strict=True):
+        drawn = [truth, seen, m_img, m_in, c_img, c_in]
+        if textured is not None:
+            t = textured
+            t_img, t_in = render_textured(view, t.xyz, t.faces, t.uv, t.image)
+            textured_views.append((t_img, likeness(t_img, t_in, truth, seen)))
+            drawn += [t_img, t_in]
+        for key, a in zip(pooled, drawn, strict=False):
             pooled[key].append(a)
-    cat = {k: np.concatenate(v) for k, v in pooled.items()}
+    cat = {k: np.concatenate(v) for k, v in pooled.items() if v}
     return ViewsResult(
         list(views), images, per_view,
         likeness(cat["mesh"], cat["mesh_in"], cat["truth"], cat["street"]),
         likeness(cat["cloud"], cat["cloud_in"], cat["truth"], cat["street"]),
+        textured_views,
+        None if textured is None
+        else likeness(cat["tex"], cat["tex_in"], cat["truth"], cat["street"]),
     )  # fmt: skip
 
 
 def picture(result: ViewsResult, title: str) -> np.ndarray:
-    """(H,W,3) uint8 RGB: a row per view (truth, mesh, cloud), each panel captioned with
-    its figures, ``title`` on top."""
+    """(H,W,3) uint8 RGB: a row per view (truth, mesh, cloud, and the textured mesh if
+    ``result`` has it), each panel captioned with its figures, ``title`` on top."""
     band = 16
     font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.36
 
@@ -174,14 +205,18 @@ def picture(result: ViewsResult, title: str) -> np.ndarray:
         return np.vstack([top, img])
 
     rows = []
-    for name, (truth, m_img, c_img), (m, c) in zip(
-        result.names, result.images, result.per_view, strict=True
+    for k, (name, (truth, m_img, c_img), (m, c)) in enumerate(
+        zip(result.names, result.images, result.per_view, strict=True)
     ):
-        rows.append(np.hstack([
+        panels = [
             captioned(truth, f"{name}: the true street"),
             captioned(m_img, f"mesh: {m.text()}"),
             captioned(c_img, f"cloud: {c.text()}"),
-        ]))  # fmt: skip
+        ]
+        if result.textured_views:
+            t_img, t = result.textured_views[k]
+            panels.insert(2, captioned(t_img, f"textured: {t.text()}"))
+        rows.append(np.hstack(panels))
     body = np.vstack(rows)
     head = np.full((band + 4, body.shape[1], 3), 255, np.uint8)
     cv2.putText(head, title, (3, band - 1), font, scale + 0.06, (0, 0, 0), 1, cv2.LINE_AA)
@@ -192,11 +227,45 @@ def read_mesh(glb: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A ``.glb`` of `acq mesh` read back through trimesh: vertices (V,3) m in the world
     frame (the node's matrix applied, glTF's +y up turned back to z up), faces (F,3) and
     vertex colours (V,3) uint8 RGB."""
-    import trimesh
     from trimesh.visual import ColorVisuals
 
-    g = trimesh.load_scene(glb).to_geometry()
-    if not isinstance(g, trimesh.Trimesh) or not isinstance(g.visual, ColorVisuals):
+    g = _triangles(glb)
+    if not isinstance(g.visual, ColorVisuals):
         raise ValueError(f"{glb}: not a triangle mesh with vertex colours")
     rgb = np.asarray(g.visual.vertex_colors)[:, :3]
     return np.asarray(g.vertices) @ Y_UP, np.asarray(g.faces), np.ascontiguousarray(rgb)
+
+
+def read_textured_mesh(glb: Path) -> TexturedMesh:
+    """A ``.glb`` of `acq mesh --texture` read back through trimesh (as :func:`read_mesh`):
+    its TEXCOORD_0 (trimesh turns glTF's v down to v up) and its embedded base colour
+    texture."""
+    from PIL import Image
+    from trimesh.visual import TextureVisuals
+
+    # Pillow warns of (and past twice its limit refuses) images over 89 Mpx; an atlas
+    # of acq mesh may be up to MAX_SIDE a side
+    limit = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = max(limit or 0, MAX_SIDE**2)
+    try:
+        g = _triangles(glb)
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+    visual = g.visual
+    texture = getattr(getattr(visual, "material", None), "baseColorTexture", None)
+    if not isinstance(visual, TextureVisuals) or visual.uv is None or texture is None:
+        raise ValueError(f"{glb}: not a triangle mesh with a texture")
+    faces = np.asarray(g.faces)
+    uv = np.asarray(visual.uv, np.float32)[faces]
+    image = np.ascontiguousarray(np.asarray(texture.convert("RGB"), np.uint8))
+    return TexturedMesh(np.asarray(g.vertices) @ Y_UP, faces, uv, image)
+
+
+def _triangles(glb: Path) -> Any:
+    """The one triangle mesh of ``glb`` (trimesh), its node's matrix applied."""
+    import trimesh
+
+    g = trimesh.load_scene(glb).to_geometry()
+    if not isinstance(g, trimesh.Trimesh):
+        raise ValueError(f"{glb}: not a triangle mesh")
+    return g

@@ -4,8 +4,8 @@
 facets, no back-face culling: a street is seen from both sides) and keeps per pixel the
 nearest facet and its perspective-correct barycentric weights (a visibility buffer);
 shading is a separate step on those weights: :func:`vertex_colours` interpolates
-per-vertex colours. A textured mesh (UV per corner and an image) is shaded from the same
-buffer by interpolating its corners' UV with the same weights and sampling the image.
+per-vertex colours; :func:`texture_colours` interpolates a textured mesh's texture
+coordinates per facet corner with the same weights and samples its image (bilinear).
 :func:`splat` draws a coloured cloud into the same camera: each point a square whose side
 is ``size_m`` metres at its depth (at least one pixel), z-buffered.
 
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numba
 import numpy as np
 
@@ -32,7 +33,9 @@ __all__ = [
     "look_at",
     "rasterise",
     "render_mesh",
+    "render_textured",
     "splat",
+    "texture_colours",
     "vertex_colours",
 ]
 
@@ -183,6 +186,37 @@ def render_mesh(
     uint8 image (black where empty) and (H,W) bool mask of covered pixels."""
     raster = rasterise(view, xyz, faces)
     return vertex_colours(raster, faces, rgb), raster.mask
+
+
+def texture_colours(raster: Raster, uv: np.ndarray, image: np.ndarray) -> np.ndarray:
+    """(H,W,3) uint8: the texture ``image`` (h,w,3) uint8 sampled (bilinear, edges
+    replicated) at each pixel's texture coordinates, its facet's corners' ``uv`` (F,3,2)
+    interpolated; black where no facet. Texture coordinates in [0, 1] from the image's
+    bottom-left corner (v up, as OBJ and trimesh have them; glTF's v runs down)."""
+    H, W = raster.face.shape
+    hit = raster.mask
+    at = np.einsum("kj,kjc->kc", raster.weights[hit], np.asarray(uv, np.float32)[raster.face[hit]])
+    h, w = image.shape[:2]
+    # texture coordinates measure from the image's edges, remap's pixels from texel centres
+    mx = np.full((H, W), -1.0, np.float32)
+    my = np.full((H, W), -1.0, np.float32)
+    mx[hit] = at[:, 0] * w - 0.5
+    my[hit] = (1.0 - at[:, 1]) * h - 0.5
+    got = cv2.remap(np.ascontiguousarray(image), mx, my, cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+    got[~hit] = 0
+    out: np.ndarray = got
+    return out
+
+
+def render_textured(
+    view: View, xyz: np.ndarray, faces: np.ndarray, uv: np.ndarray, image: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh textured with ``image`` at its facet corners' ``uv`` (F,3,2)
+    (:func:`texture_colours`) as ``view`` sees it: (H,W,3) uint8 image (black where empty)
+    and (H,W) bool mask of covered pixels."""
+    raster = rasterise(view, xyz, faces)
+    return texture_colours(raster, uv, image), raster.mask
 
 
 @numba.njit(cache=True, error_model="numpy")

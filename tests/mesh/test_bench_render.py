@@ -1,4 +1,5 @@
-"""bench/mesh_render.py end to end on a 3 s two-camera drive: its JSON line and picture."""
+"""bench/mesh_render.py end to end on a 3 s two-camera drive, with the textured mesh: its
+JSON line and picture."""
 
 from __future__ import annotations
 
@@ -16,11 +17,12 @@ from tests.bench_scripts import load
 bench = load("mesh_render")
 
 
-def test_the_mesh_and_the_cloud_are_judged_from_three_views(
+def test_the_mesh_the_textured_mesh_and_the_cloud_are_judged_from_three_views(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     png = tmp_path / "views.png"
-    argv = ["mesh_render.py", "--seconds", "3", "--work", str(tmp_path), "--picture", str(png)]
+    argv = ["mesh_render.py", "--seconds", "3", "--work", str(tmp_path), "--picture", str(png),
+            "--texture"]  # fmt: skip
     monkeypatch.setattr(sys, "argv", argv)
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
@@ -28,10 +30,14 @@ def test_the_mesh_and_the_cloud_are_judged_from_three_views(
     row = json.loads(out.getvalue())
     assert list(row["views"]) == ["left", "right", "oblique"]
     assert row["facets"] > 0 and row["points"] >= row["vertices"] > 0
-    for kind in ("mesh", "cloud"):
+    assert row["textured_facets"] == row["facets"] and row["texels"] == 8
+    assert row["glb_bytes"]["textured"] > row["glb_bytes"]["mesh"] > 0
+    for kind in ("mesh", "textured", "cloud"):
         fig = row[kind]
         assert fig["street_px"] == sum(v[kind]["street_px"] for v in row["views"].values())
         # the laser saw the facades beside the drive: they come out close to the truth
         assert fig["covered"] > 0.4 and fig["within_24"] > 0.6 and fig["psnr_db"] > 14
     img = cv2.imread(str(png))
-    assert img is not None and img.shape[1] == 3 * 320
+    assert img is not None and img.shape[1] == 4 * 320  # truth, mesh, textured, cloud
+    # the same facets: the textured mesh covers what the vertex-coloured one does
+    assert row["textured"]["covered"] == row["mesh"]["covered"]

@@ -7,7 +7,7 @@ import pytest
 
 from acq.camera.camera_models import Pinhole
 from acq.geometry.transforms import Rigid
-from acq.mesh.render import View, look_at, rasterise, render_mesh, splat
+from acq.mesh.render import View, look_at, rasterise, render_mesh, render_textured, splat
 
 RGB = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255]], np.uint8)
 
@@ -143,3 +143,27 @@ def test_a_corner_just_past_the_near_plane_far_off_screen_is_clamped() -> None:
     e = [edge(uv[0], uv[1]), edge(uv[1], uv[2]), edge(uv[2], uv[0])]
     inside = np.all([s >= 0 for s in e], axis=0) | np.all([s <= 0 for s in e], axis=0)
     assert inside.sum() == 16 * 64 and np.array_equal(mask, inside)
+
+
+def test_a_textured_quad_shows_its_texels_where_they_lie_upright() -> None:
+    """A 4 x 4 texel image on a quad spanning pixels 10..50 (edges) facing the camera:
+    each texel's centre falls on a pixel centre, which shows that texel exactly; the
+    texture's first row (v = 1 at the top, v up) is at the top of the picture."""
+    v = view()
+    texels = np.arange(48, dtype=np.uint8).reshape(4, 4, 3) * 5  # 16 distinct colours
+    edges = np.array([[10.0, 10.0], [50.0, 10.0], [50.0, 50.0], [10.0, 50.0]])  # px, screen
+    xyz = at_pixels(v, edges, np.full(4, 3.0))
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    corner_uv = np.array([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]], np.float32)
+    img, mask = render_textured(v, xyz, faces, corner_uv[faces], texels)
+    for row in range(4):
+        for col in range(4):
+            y, x = 15 + 10 * row, 15 + 10 * col  # the centre of texel (row, col)
+            assert mask[y, x] and (img[y, x] == texels[row, col]).all(), (row, col)
+    assert not mask[5, 5] and (img[~mask] == 0).all()
+    # between two texels' centres: their mean (bilinear)
+    mixed = (texels[0, 0].astype(float) + texels[0, 1]) / 2
+    assert np.abs(img[15, 20] - mixed).max() <= 1.0
+    # the same quad upside down in the texture shows the last row on top
+    flipped, _ = render_textured(v, xyz, faces, (corner_uv * [1, -1] + [0, 1])[faces], texels)
+    assert (flipped[15, 15] == texels[3, 0]).all()

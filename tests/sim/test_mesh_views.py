@@ -3,13 +3,25 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
+import pygltflib
 import pytest
 
 from acq.camera.camera_models import Pinhole
+from acq.mesh import files
 from acq.mesh.render import View, look_at
-from acq.sim.mesh_views import compare, likeness, street_views, truth_image
+from acq.mesh.texture import Atlas
+from acq.sim.mesh_views import (
+    compare,
+    likeness,
+    picture,
+    read_mesh,
+    read_textured_mesh,
+    street_views,
+    truth_image,
+)
 from acq.sim.world import Street, Trajectory, solid_quad
 
 BGR = (40, 160, 220)  # the quad's colour as the simulator holds it
@@ -95,3 +107,62 @@ def test_street_views_look_at_both_sides_and_obliquely_ahead() -> None:
             assert axis == pytest.approx([0.0, 1.0 if name == "left" else -1.0, 0.0], abs=1e-9)
     with pytest.raises(ValueError, match="three"):
         street_views(traj, [1.0, 2.0])
+
+
+def test_a_textured_glb_reads_back_upright_and_renders_as_the_truth(tmp_path: Path) -> None:
+    """The quad written by acq.mesh.files as a textured glb whose atlas holds the quad's
+    colour in its upper half and half of it in its lower half, the quad's corners on the
+    upper half: read back, rendered, it matches the truth (v read upside down would show
+    the lower half)."""
+    street, view, corners = _quad_scene()
+    image = np.zeros((32, 32, 3), np.uint8)  # halves on JPEG's 16-px blocks: no ringing
+    image[:16], image[16:] = RGB, RGB // 2
+    faces = np.array([[0, 1, 3], [0, 3, 2]])
+    corner_uv = np.array([[0.1, 0.6], [0.9, 0.6], [0.1, 0.95], [0.9, 0.95]], np.float32)  # v up
+    atlas = Atlas(image, corner_uv[faces], np.ones(2, bool), np.arange(2))
+    glb = tmp_path / "quad.glb"
+    files.write(glb, corners, np.zeros((4, 3), np.uint8), faces, texture=atlas)
+
+    mesh = read_textured_mesh(glb)
+    assert np.allclose(mesh.xyz[mesh.faces], corners[faces], atol=1e-5)
+    assert np.allclose(mesh.uv, corner_uv[faces], atol=1e-6)
+    assert np.abs(mesh.image[4].astype(int) - RGB).max() <= 6  # JPEG
+    # glTF itself holds v down, from the image's top: 1 - v
+    gltf = pygltflib.GLTF2.load(glb)
+    acc = gltf.accessors[gltf.meshes[0].primitives[0].attributes.TEXCOORD_0]
+    view_ = gltf.bufferViews[acc.bufferView]
+    raw = gltf.binary_blob()[view_.byteOffset + (acc.byteOffset or 0) :][: acc.count * 8]
+    stored = np.frombuffer(raw, np.float32).reshape(-1, 2)
+    assert np.allclose(stored[:, 1], 1.0 - corner_uv[faces].reshape(-1, 2)[:, 1], atol=1e-6)
+
+    plain = (corners, faces, np.tile(RGB, (4, 1)))
+    cloud = (corners, np.tile(RGB, (4, 1)))
+    r = compare(street, {"v": view}, plain, cloud, 0.05, textured=mesh)
+    assert r.textured is not None and r.textured == r.textured_views[0][1]
+    assert r.textured.within == 1.0 and r.textured.covered == pytest.approx(r.mesh.covered)
+    quad = r.images[0][1].any(axis=2)  # the vertex-coloured quad's pixels
+    assert np.abs(r.textured_views[0][0][quad].astype(int) - RGB).max() <= 6
+    # the picture gets a panel more per view
+    assert picture(r, "t").shape[1] == 4 * view.shape[1]
+    assert picture(compare(street, {"v": view}, plain, cloud, 0.05), "t").shape[1] == 3 * 160
+    with pytest.raises(ValueError, match="vertex colours"):
+        read_mesh(glb)
+    files.write(tmp_path / "plain.glb", *plain[:1], plain[2], faces)
+    with pytest.raises(ValueError, match="texture"):
+        read_textured_mesh(tmp_path / "plain.glb")
+
+
+@pytest.mark.filterwarnings("error")
+def test_an_atlas_over_pillows_89_megapixels_reads_without_a_warning(tmp_path: Path) -> None:
+    """acq mesh writes atlases up to MAX_SIDE a side; Pillow would warn past 89 Mpx."""
+    from PIL import Image
+
+    side = 9600  # 92 Mpx, one colour: a small JPEG
+    corners = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0, 1]])
+    atlas = Atlas(np.full((side, side, 3), 90, np.uint8), np.zeros((1, 3, 2), np.float32),
+                  np.ones(1, bool), np.zeros(1, np.int64))  # fmt: skip
+    files.write(tmp_path / "big.glb", corners, np.zeros((3, 3), np.uint8), np.array([[0, 1, 2]]),
+                texture=atlas)  # fmt: skip
+    limit = Image.MAX_IMAGE_PIXELS
+    mesh = read_textured_mesh(tmp_path / "big.glb")
+    assert mesh.image.shape == (side, side, 3) and Image.MAX_IMAGE_PIXELS == limit

@@ -4,7 +4,7 @@ removed, the output as it was) and the command ends with one line and the shell'
 status for the signal (128 + its number).
 
 The signals are those that end `acq record` cleanly (SIGTERM, SIGHUP, SIGINT and every
-other whose default action ends the process: :func:`acq.record.stop_signals.finishing_signals`);
+other whose default action ends the process: :func:`acq.stop_signals.finishing_signals`);
 SIGKILL cannot be caught: what it leaves is removed by the next run
 (:func:`acq.atomic_write.remove_stale`).
 """
@@ -16,7 +16,7 @@ import signal
 from collections.abc import Iterator
 from types import FrameType
 
-from acq.record.stop_signals import finishing_signals, handling, signal_name
+from acq.stop_signals import finishing_signals, handling, signal_name
 
 __all__ = ["Stopped", "shield_resource_tracker", "stopping"]
 

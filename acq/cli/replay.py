@@ -16,7 +16,7 @@ from acq.cli.exposure import warn_if_exposed
 from acq.cli.option_types import real
 from acq.cli.output_files import Output
 from acq.errors import InputError
-from acq.record.stop_signals import handling, signal_name
+from acq.stop_signals import handling, signal_name
 
 if TYPE_CHECKING:
     from acq.sim.replay import Replay

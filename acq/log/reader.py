@@ -74,7 +74,7 @@ from acq.log.mcap_records import (
 from acq.log.rosbag_source import acq_records, is_bag, laser_channels
 from acq.log.schema_match import mismatch
 from acq.log.skipped_chunks import Skipped, quiet
-from acq.log.stamp_shift import shift_stamps
+from acq.log.stamp_shift import stamps_to_host
 from acq.log.timebase import TimeBase
 
 __all__ = [
@@ -285,9 +285,8 @@ class LogReader:
             why = f"garbled payloads (DecodeError: {e or 'no reason given'})"
             self._why.setdefault(channel.topic, (_schema_name(schema), why))
             return None
-        offset = self.time_base.utc_offset_ns
-        if offset and schema is not None and schema.name.startswith("foxglove."):
-            shift_stamps(decoded, -offset)
+        if schema is not None:
+            stamps_to_host(decoded, schema.name, self.time_base.utc_offset_ns)
         return decoded
 
     def decoded(

@@ -8,7 +8,7 @@ from typing import cast
 from google.protobuf.descriptor import Descriptor, FieldDescriptor
 from google.protobuf.message import Message as Protobuf
 
-__all__ = ["shift_stamps"]
+__all__ = ["shift_stamps", "stamps_to_host"]
 
 _TIMESTAMP = "google.protobuf.Timestamp"
 # by message type (its descriptor: two files may hold two versions of one schema)
@@ -49,3 +49,10 @@ def shift_stamps(msg: Protobuf, delta_ns: int) -> None:
                 item.FromNanoseconds(item.ToNanoseconds() + delta_ns)
             else:
                 shift_stamps(item, delta_ns)
+
+
+def stamps_to_host(msg: Protobuf, schema_name: str, utc_offset_ns: int) -> None:
+    """A message of a log whose clock is host monotonic + ``utc_offset_ns``, its stamps
+    taken back to host ns: a Foxglove message's (``acq.*`` messages keep host ns)."""
+    if utc_offset_ns and schema_name.startswith("foxglove."):
+        shift_stamps(msg, -utc_offset_ns)

@@ -37,7 +37,7 @@ from acq.geometry.transforms import Rigid
 from acq.log import schemas
 from acq.log.cloud_message import point_cloud
 from acq.log.drive_log import ScanMessage, scan_message, stamp_ns
-from acq.log.stamp_shift import shift_stamps
+from acq.log.stamp_shift import stamps_to_host
 from acq.log.vehicle_log import FIX_TOPIC, ODOMETRY_TOPIC
 from acq.log.writer import LogWriter
 from acq.motion import RollingTrajectory, Trajectory
@@ -211,8 +211,7 @@ class LiveColourer(Listener):
             msg = schemas.decode(record.schema.name, record.data)
         except Exception:
             return None
-        if offset and record.schema.name.startswith("foxglove."):
-            shift_stamps(msg, -offset)
+        stamps_to_host(msg, record.schema.name, offset)
         return msg
 
     # --- colouring -----------------------------------------------------------------------
@@ -277,7 +276,9 @@ class LiveColourer(Listener):
                     camera.name, camera.cam, stamps, images, camera.offset_ns, traj
                 )
             )
-        options = self.options if traj is not None else _without_motion(self.options)
+        options = (
+            self.options if traj is not None else replace(self.options, motion_compensation=False)
+        )
         pts, merged = scan_colouring.colour_scans(
             scan.ranges[None, :], np.array([scan.stamp_ns], dtype=np.int64), beams, cameras,
             traj, self.l2v, options, pool=self._pool,
@@ -329,10 +330,6 @@ class LiveColourer(Listener):
         are (a drive's last scans have none after them)."""
         self._colour_ready(self.utc_offset_ns(), everything=True)
         self._pool.shutdown(wait=False, cancel_futures=True)
-
-
-def _without_motion(options: views.Options) -> views.Options:
-    return replace(options, motion_compensation=False)
 
 
 # --- in the recorder -------------------------------------------------------------------
@@ -409,7 +406,8 @@ def attach(recorder: Recorder, settings: ColourSettings) -> LiveColourer | None:
         if server is not None:
             server.put(record)
 
-    poses = None
+    poses: RollingTrajectory | None = None
+    topics: tuple[str, ...] = ()
     if recorder.config.can is not None or recorder.config.gnss is not None:
         # with wheel odometry, it alone: exact over the milliseconds between a point and
         # its frame, and a rebuild of dead reckoning costs little (a fusion with the
@@ -418,7 +416,7 @@ def attach(recorder: Recorder, settings: ColourSettings) -> LiveColourer | None:
         poses = RollingTrajectory(window_s=POSE_WINDOW_S, rebuild_s=POSE_REBUILD_S)
     colourer = LiveColourer(
         calib, scanner, emit=emit, time_increment_s=time_increment, utc_offset_ns=utc_offset,
-        poses=poses, pose_topics=topics if poses is not None else (),
+        poses=poses, pose_topics=topics,
         swath=Swath(settings.swath_s) if server is not None else None,
     )  # fmt: skip
     recorder.listeners.add(colourer)

@@ -42,7 +42,7 @@ exits 1 when a device recorded nothing, unless the configuration marks it option
 Every signal that would end the process finishes the file first (SIGTERM, SIGINT, and
 SIGHUP too: a dropped ssh link ends the recording with its file whole rather than leave
 it unattended), but SIGKILL, the faults and the watchdog's SIGABRT
-(:mod:`acq.record.stop_signals` says why).
+(:mod:`acq.stop_signals` says why).
 
 Exit codes: 0 stopped (signal or ``--duration``), 1 runtime failure (a required device
 absent, a device that recorded nothing), 2 bad configuration, 3 disk below its reserve
@@ -80,7 +80,7 @@ from acq.record.config import CanConfig, Config, dump, optional_devices, require
 from acq.record.device_loop import DeviceState, Outbox, Queued, finite, run_device
 from acq.record.listeners import Listener, Listeners, LogRecord
 from acq.record.sdnotify import JournalFormatter, Notifier, use_journal_format
-from acq.record.stop_signals import finishing
+from acq.stop_signals import finishing
 from acq.time.absent import Absent
 from acq.time.host_clock import NO_GNSS, GnssTime, HostClockPoller, gnss_time
 from acq.time.host_clock_summary import HostClockTally
@@ -566,7 +566,7 @@ def record(
     colouring: ColourSettings | None = None,
 ) -> int:
     """Run a :class:`Recorder` with every signal that would end the process finishing the
-    file (SIGTERM, SIGINT, SIGHUP...: :mod:`acq.record.stop_signals`); the exit code.
+    file (SIGTERM, SIGINT, SIGHUP...: :mod:`acq.stop_signals`); the exit code.
     ``colouring``: colour the scans live (:mod:`acq.record.live_colour`)."""
     recorder = Recorder(
         config,

@@ -1,5 +1,7 @@
-"""The paper's reprojection figure for facet vertices: each corner of a textured facet
-against its true pixel in the frame the facet is textured from.
+"""The paper's reprojection figure for facet vertices, on the simulated drive.
+
+Each corner of a textured facet against its true pixel in the frame the facet is
+textured from.
 
 Data: the drive of ``bench/colorize_cameras.py`` — ``--seconds`` (60) of the synthetic
 street at 20 km/h with the two-camera rig (``default_rig(cameras=2)``), every camera's
@@ -154,34 +156,43 @@ def measure(
     return Corners.join(parts), info
 
 
+def run(work: Path, seconds: float) -> None:
+    """The drive and its calibration (made in ``work`` unless kept there), the four
+    variants measured; the JSON lines printed."""
+    work.mkdir(parents=True, exist_ok=True)
+    truth = drive(work, seconds, 2)
+    calib_path = work / "calibration2" / "calib.yaml"
+    if not calib_path.exists():
+        calib_path = calibrate(work / "calibration2", truth.rig)
+    names = list(truth.camera_names)
+    calibrations = {"calibrated": calibfile.load(calib_path), "true": true_calibration(truth)}
+    trajectories = {"odometry": None, "true_trajectory": truth.host_trajectory()}
+    results: dict[str, dict[str, Any]] = {}
+    for cal_name, cal in calibrations.items():
+        for traj_name, traj in trajectories.items():
+            variant = f"{cal_name}_{traj_name}"
+            corners, info = measure(truth, cal, traj, work / f"{variant}.glb")
+            results[variant] = summary(corners, names)
+            print(json.dumps({"bench": "mesh_reprojection", "variant": variant,
+                              "seconds": seconds, **info, **results[variant]}),
+                  flush=True)  # fmt: skip
+    head = results["calibrated_odometry"]["all"]
+    print(json.dumps({"bench": "targets", "variant": "calibrated_odometry",
+                      "mean_px": head["mean_px"], "mean_ok": head["mean_px"] <= 0.3,
+                      "std_px": head["std_px"], "std_ok": head["std_px"] <= 0.3}))  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--work", type=Path, help="keep the logs here (default: a temporary folder)")
+    ap.add_argument("--seconds", type=float, default=60.0, help="the drive's length, s")
+    ap.add_argument(
+        "--work", type=Path,
+        help="keep the drive, its calibration and the meshes here, and reuse them in a later "
+        "run (default: a temporary folder)",
+    )  # fmt: skip
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        work = args.work or Path(tmp)
-        work.mkdir(parents=True, exist_ok=True)
-        truth = drive(work, args.seconds, 2)
-        calib_path = work / "calibration2" / "calib.yaml"
-        if not calib_path.exists():
-            calib_path = calibrate(work / "calibration2", truth.rig)
-        names = list(truth.camera_names)
-        calibrations = {"calibrated": calibfile.load(calib_path), "true": true_calibration(truth)}
-        trajectories = {"odometry": None, "true_trajectory": truth.host_trajectory()}
-        results: dict[str, dict[str, Any]] = {}
-        for cal_name, cal in calibrations.items():
-            for traj_name, traj in trajectories.items():
-                variant = f"{cal_name}_{traj_name}"
-                corners, info = measure(truth, cal, traj, work / f"{variant}.glb")
-                results[variant] = summary(corners, names)
-                print(json.dumps({"bench": "mesh_reprojection", "variant": variant,
-                                  "seconds": args.seconds, **info, **results[variant]}),
-                      flush=True)  # fmt: skip
-        head = results["calibrated_odometry"]["all"]
-        print(json.dumps({"bench": "targets", "variant": "calibrated_odometry",
-                          "mean_px": head["mean_px"], "mean_ok": head["mean_px"] <= 0.3,
-                          "std_px": head["std_px"], "std_ok": head["std_px"] <= 0.3}))  # fmt: skip
+        run(args.work or Path(tmp), args.seconds)
 
 
 if __name__ == "__main__":

@@ -270,7 +270,22 @@ def speed(files: list[Path], calib: Path, out: Path, repeat: int = 3) -> dict[st
     }
 
 
-def _drive(work: Path, seconds: float, cameras: int, seed: int = 0) -> DriveTruth:
+def true_calibration(truth: DriveTruth) -> Calibration:
+    """The truth as a calibration: each camera's lens and pose, and its latency error
+    (true minus configured) as its time offset."""
+    return Calibration(
+        cameras={
+            n: replace(c, time_offset_s=truth.cameras[n].latency_true_s
+                       - truth.cameras[n].latency_configured_s)
+            for n, c in truth.calibration.cameras.items()
+        },
+        laser_to_vehicle=truth.rig.laser_to_vehicle,
+    )  # fmt: skip
+
+
+def drive(work: Path, seconds: float, cameras: int, seed: int = 0) -> DriveTruth:
+    """The drive of ``cameras`` cameras (``seconds``, the pattern at 60 m, every camera's
+    latency configured as CONFIGURED_LATENCY_S) in ``work``, or the one kept there."""
     cached = work / f"truth_{seconds:g}s_{cameras}.pickle"
     if cached.exists():
         truth: DriveTruth = pickle.loads(cached.read_bytes())
@@ -292,7 +307,7 @@ def main() -> None:
         work = args.work or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
-        truth = _drive(work, args.seconds, 2)
+        truth = drive(work, args.seconds, 2)
         _line("simulation", seconds=args.seconds, cameras=list(truth.camera_names),
               wall_s=round(time.perf_counter() - t0, 1), scans=int(truth.scan_t0_s.size),
               frames={n: int(c.frame_t_s.size) for n, c in truth.cameras.items()})  # fmt: skip
@@ -302,15 +317,7 @@ def main() -> None:
         calib = calibfile.load(calib_path)
         names = list(truth.camera_names)
         summary: dict[str, Any] = {}
-        # the truth: each camera's pose and lens, and its latency error as the time offset
-        known = Calibration(
-            cameras={
-                n: replace(c, time_offset_s=truth.cameras[n].latency_true_s
-                           - truth.cameras[n].latency_configured_s)
-                for n, c in truth.calibration.cameras.items()
-            },
-            laser_to_vehicle=truth.rig.laser_to_vehicle,
-        )  # fmt: skip
+        known = true_calibration(truth)
         variants = [
             ("nearest", calib, Options()),
             ("best", calib, Options(view="best")),
@@ -328,7 +335,7 @@ def main() -> None:
             }
             _line("variant", variant=name, **summary[name])
         # seams: the three-camera rig (the rear camera sees both sides)
-        seam_truth = _drive(work, args.seam_seconds, 3, seed=2)
+        seam_truth = drive(work, args.seam_seconds, 3, seed=2)
         seam_calib_path = work / "calibration3" / "calib.yaml"
         if not seam_calib_path.exists():
             seam_calib_path = calibrate(work / "calibration3", seam_truth.rig, seed=10)

@@ -59,7 +59,6 @@ def main() -> None:
     from acq.cloud import PLY_DTYPE
     from acq.cloud.colorize import run as colorize
     from acq.mesh.drive import prepare_mesh
-    from acq.motion import Trajectory
     from acq.sim.drive_log import write_drive_log
     from acq.sim.mesh_views import compare, picture, read_mesh, read_textured_mesh, street_views
     from acq.sim.world import default_rig
@@ -71,9 +70,7 @@ def main() -> None:
         t0 = time.perf_counter()
         truth = write_drive_log(work / "drive", args.seconds, rig=default_rig(cameras=2))
         times["drive_log"] = time.perf_counter() - t0
-        t_s = np.arange(-1.0, args.seconds + 1.0, 1e-3)
-        R, p = truth.trajectory.poses(t_s)
-        trajectory = Trajectory(truth.start_ns + np.rint(t_s * 1e9).astype(np.int64), R, p)
+        trajectory = truth.host_trajectory()
 
         t0 = time.perf_counter()
         glb = work / "mesh.glb"

@@ -48,6 +48,7 @@ from acq.camera.calibfile import Calibration, CameraCalib
 from acq.geometry.geodesy import WorldFrame
 from acq.log import schemas
 from acq.log.writer import LogWriter
+from acq.motion import Trajectory as MotionTrajectory
 from acq.records import Fix, Frame, Odometry, Scan
 from acq.sim.board_log import SIM_TIME_BASE
 from acq.sim.nmea_device import DEFAULT_ORIGIN
@@ -126,6 +127,14 @@ class DriveTruth:
         steps = self.rig.time_increment * np.arange(self.points.shape[1])
         times: np.ndarray = self.scan_t0_s[:, None] + steps[None, :]
         return times
+
+    def host_trajectory(self, step_s: float = 1e-3) -> MotionTrajectory:
+        """The true trajectory as `acq colorize --trajectory` takes it: vehicle poses
+        every ``step_s`` s on the host clock (ns), from a second before the drive to a
+        second after."""
+        t_s = np.arange(-1.0, self.config["seconds"] + 1.0, step_s)
+        R, p = self.trajectory.poses(t_s)
+        return MotionTrajectory(self.start_ns + np.rint(t_s * 1e9).astype(np.int64), R, p)
 
     def true_pixels(
         self,

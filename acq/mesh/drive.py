@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -41,7 +41,7 @@ from acq.mesh import files, texture
 from acq.mesh.organized import FacetRules, grid_facets
 from acq.motion import Trajectory
 
-__all__ = ["MeshJob", "MeshReport", "prepare_mesh", "tile_names", "tiles_of"]
+__all__ = ["MeshJob", "MeshReport", "TileViews", "prepare_mesh", "tile_names", "tiles_of"]
 
 
 @dataclass
@@ -102,6 +102,24 @@ def tile_names(output: Path, tiles: int) -> list[Path]:
     return [output.with_name(f"{output.stem}_{k:0{width}d}{output.suffix}") for k in range(tiles)]
 
 
+@dataclass(frozen=True)
+class TileViews:
+    """A textured tile's facets as :class:`MeshJob` textures them, for checks against a
+    truth: per vertex its session ``scan`` and ``step`` (V,) int64 and the view it was
+    coloured from, ``camera`` (V,) uint8 (``NO_CAMERA``: none) and session ``frame``
+    (V,) int64; ``faces`` (F,3) into them; each facet's view ``view_cam``, ``view_frame``
+    (F,) (-1: none) and its corners' pixels in it ``corner_px`` (F,3,2) px (NaN: none)."""
+
+    scan: np.ndarray
+    step: np.ndarray
+    camera: np.ndarray
+    frame: np.ndarray
+    faces: np.ndarray
+    view_cam: np.ndarray
+    view_frame: np.ndarray
+    corner_px: np.ndarray
+
+
 @dataclass
 class MeshJob:
     """A drive read and planned (:func:`prepare_mesh`): its colouring job, chunks, each
@@ -118,6 +136,7 @@ class MeshJob:
     report: MeshReport
     comments: list[str]
     texels: int | None = None  # texels a side of an atlas cell; None: vertex colours
+    on_views: Callable[[TileViews], None] | None = None  # given each textured tile's views
 
     def run(self, progress: bool = False) -> MeshReport:
         """Colour the chunks, join them into facets and write the tiles; OSError naming
@@ -346,11 +365,21 @@ class _Tiles:
         view_cam, view_frame = texture.facet_views(camera, frame, tri)
         px = texture.corner_pixels(mj.job, self.xyz[at], camera, frame, self.uv[at], tri,
                                    view_cam, view_frame)  # fmt: skip
+        self._tell(at, tri, view_cam, view_frame, px)
         fill = self.rgb[at][tri].mean(axis=1).round().astype(np.uint8)
         atlas = texture.build_atlas(px, view_cam, view_frame, self._images, self.gains, fill,
                                     mj.texels)  # fmt: skip
         mj.report.textured = (mj.report.textured or 0) + int(np.count_nonzero(atlas.textured))
         return atlas
+
+    def _tell(
+        self, at: np.ndarray, tri: np.ndarray, view_cam: np.ndarray, view_frame: np.ndarray,
+        px: np.ndarray,
+    ) -> None:  # fmt: skip
+        """Give :attr:`MeshJob.on_views` (if any) the tile's facets, views and pixels."""
+        if self.mj.on_views is not None:
+            self.mj.on_views(TileViews(self.scan[at], self.step[at], self.camera[at],
+                                       self.frame[at], tri, view_cam, view_frame, px))  # fmt: skip
 
     def _images(self, camera: int, frames: np.ndarray) -> Iterator[np.ndarray | None]:
         """Camera ``camera``'s session ``frames`` (sorted), decoded in order."""

@@ -252,3 +252,13 @@ def test_main_writes_the_drive_and_every_cameras_calibration(
     assert list(calibfile.load(tmp_path / "calib.yaml").cameras) == ["left", "right"]
     assert len(list(tmp_path.glob("drive_*.mcap"))) == 1
     assert "left+right" in capsys.readouterr().out
+
+
+def test_host_trajectory_is_the_true_one_on_the_host_clock(one: DriveTruth) -> None:
+    traj = one.host_trajectory()
+    t_s = np.array([-0.9, 0.0, 0.1234567, 0.3, 1.4])  # a second either side of the drive
+    R, p = traj.pose_at(one.start_ns + np.rint(t_s * 1e9).astype(np.int64))
+    R0, p0 = one.trajectory.poses(t_s)
+    assert np.abs(p - p0).max() < 1e-5
+    assert np.abs(R - R0).max() < 1e-5
+    assert not traj.covers([one.start_ns - 2 * 10**9]).any()

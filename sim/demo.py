@@ -13,9 +13,11 @@ sync, CAN odometry, MCAP writer) records them for ``seconds`` into ``DIR/demo.mc
 ``/vehicle/odometry``, ``/vehicle/can``...); the log is then coloured with the rig's
 true calibration (``DIR/calib.yaml``) into ``DIR/cloud.ply`` and pictured in
 ``DIR/preview.png``; its facets are joined as `acq mesh` joins them into ``DIR/mesh.glb``
-(per-vertex colour, one file), which is read back and rendered, with the cloud, from
-three viewpoints along the drive beside the true street (:mod:`acq.sim.mesh_views`) into
-``DIR/mesh_views.png``, the summary giving how close each comes to the truth.
+(per-vertex colour, one file) and, textured from the fisheye frames as `acq mesh
+--texture` does, into ``DIR/mesh_textured.glb``; both are read back and rendered, with
+the cloud, from three viewpoints along the drive beside the true street
+(:mod:`acq.sim.mesh_views`) into ``DIR/mesh_views.png``, the summary giving how close
+each comes to the truth.
 
 The demo colours through the pipeline of ``acq colorize``
 (:func:`acq.cloud.colorize.run`: offline re-timing, chunks, views, the PLY writer) with
@@ -45,6 +47,7 @@ import yaml
 
 from acq import cloud
 from acq.camera import calibfile
+from acq.cli.mesh import TEXELS
 from acq.cloud import colorize
 from acq.errors import AcqError, InputError
 from acq.log import LogInfo, drive_log
@@ -66,7 +69,14 @@ from acq.sim.demo_rig import (
     true_calibration,
 )
 from acq.sim.demo_truth import check_log, check_odometry
-from acq.sim.mesh_views import ViewsResult, compare, picture, read_mesh, street_views
+from acq.sim.mesh_views import (
+    ViewsResult,
+    compare,
+    picture,
+    read_mesh,
+    read_textured_mesh,
+    street_views,
+)
 from acq.sim.out_folder import claim_folder, record_files
 
 __all__ = ["MAX_SECONDS", "OUT_MARK", "DemoResult", "run"]
@@ -87,8 +97,8 @@ DRIFT_RESOLVED_PPM = 20.0  # a drift interval this wide or narrower is shown as 
 MAX_SECONDS = 170.0  # the simulated drive loops over its 1 km street every 180 s
 OUT_MARK = ".acq-demo"  # in a folder the demo wrote: it may write there again
 FILES = (
-    "demo.mcap", "cloud.ply", "preview.png", "mesh.glb", "mesh_views.png", "calib.yaml",
-    "config.yaml",
+    "demo.mcap", "cloud.ply", "preview.png", "mesh.glb", "mesh_textured.glb",
+    "mesh_views.png", "calib.yaml", "config.yaml",
 )  # fmt: skip
 VIEWS_AT = (0.35, 0.5, 0.65)  # the mesh's three viewpoints, as shares of the drive's time
 
@@ -107,6 +117,7 @@ class DemoResult:
     cpu_s: dict[str, float] = field(default_factory=dict)
     colour_agreement: tuple[float, float] = (math.nan, math.nan)  # strict, within a pixel
     mesh: MeshReport | None = None  # what the mesh step wrote
+    textured: MeshReport | None = None  # what the textured mesh step wrote
     views: ViewsResult | None = None  # the mesh and the cloud from three viewpoints
 
 
@@ -273,6 +284,12 @@ def _summary(
             f"from {len(v.names)} viewpoints beside the true street, where it is visible "
             f"and covered: mesh {v.mesh.text()}; cloud {v.cloud.text()}"
         )
+    if result.textured is not None and result.views is not None and result.views.textured:
+        lines.append(
+            f"  textured  {result.textured.textured or 0:,} of {result.textured.facets:,} "
+            f"facets textured from a frame; from the same viewpoints: "
+            f"{result.views.textured.text()}"
+        )
     lines.append("  files     " + ", ".join(
         f"{p} ({_size(p)})" if i == 0 else f"{p.name} ({_size(p)})"
         for i, p in enumerate(result.files.values())
@@ -289,15 +306,19 @@ def _summary(
     return lines
 
 
-def _views(rig: SimRig, scan_ns: np.ndarray, glb: Path, pc: cloud.Cloud) -> ViewsResult:
-    """The mesh read back from ``glb`` and the cloud ``pc`` from three viewpoints along
-    the recorded drive (its scans' host times ``scan_ns``), beside the true street."""
+def _views(
+    rig: SimRig, scan_ns: np.ndarray, glb: Path, textured_glb: Path, pc: cloud.Cloud
+) -> ViewsResult:
+    """The mesh read back from ``glb``, the textured mesh from ``textured_glb`` and the
+    cloud ``pc`` from three viewpoints along the recorded drive (its scans' host times
+    ``scan_ns``), beside the true street."""
     origin_ns = round(rig.t_origin * 1e9)
     t0, t1 = ((int(scan_ns[k]) - origin_ns) * 1e-9 % rig.loop_s for k in (0, -1))
     source = rig.source
     views = street_views(source.trajectory, [t0 + f * (t1 - t0) for f in VIEWS_AT])
     between_scans_m = source.trajectory.speed * source.rig.scan_period  # the splat's size
-    return compare(source.street, views, read_mesh(glb), (pc.xyz, pc.rgb), between_scans_m)
+    return compare(source.street, views, read_mesh(glb), (pc.xyz, pc.rgb), between_scans_m,
+                   textured=read_textured_mesh(textured_glb))  # fmt: skip
 
 
 def run(
@@ -416,16 +437,24 @@ def _make(result: DemoResult, seconds: float, progress: Callable[[str], None]) -
     result.steps_s["write"] = clock.lap()
     clock.say(f"wrote {png_path}")
     glb_path, views_path = out / "mesh.glb", out / "mesh_views.png"
+    textured_path = out / "mesh_textured.glb"
+    calib = calibfile.load(calib_path)
     result.mesh = prepare_mesh(
-        [mcap_path], calibfile.load(calib_path), glb_path, camera=COLOUR_CAMERA,
-        trajectory=truth, tile_m=math.inf,
+        [mcap_path], calib, glb_path, camera=COLOUR_CAMERA, trajectory=truth, tile_m=math.inf,
     ).run()  # fmt: skip
-    result.views = _views(rig, log.scan_ns, glb_path, pc)
-    title = (f"acq demo: {result.mesh.facets:,} facets (vertex colours) and the cloud, "
-             "beside the true street")  # fmt: skip
+    result.textured = prepare_mesh(
+        [mcap_path], calib, textured_path, camera=COLOUR_CAMERA, trajectory=truth,
+        tile_m=math.inf, texels=TEXELS,
+    ).run()  # fmt: skip
+    result.views = _views(rig, log.scan_ns, glb_path, textured_path, pc)
+    title = (f"acq demo: {result.mesh.facets:,} facets (vertex colours, textured) and the "
+             "cloud, beside the true street")  # fmt: skip
     write_image(views_path, picture(result.views, title)[:, :, ::-1])
     result.steps_s["mesh"] = clock.lap()
-    clock.say(f"wrote {glb_path} ({_size(glb_path)}) and {views_path}")
+    clock.say(
+        f"wrote {glb_path} ({_size(glb_path)}), {textured_path} ({_size(textured_path)}) "
+        f"and {views_path}"
+    )
 
     info = log_info(mcap_path)
     truth_lines, result.colour_agreement = check_log(
@@ -439,6 +468,7 @@ def _make(result: DemoResult, seconds: float, progress: Callable[[str], None]) -
         "cloud": ply_path,
         "preview": png_path,
         "mesh": glb_path,
+        "textured mesh": textured_path,
         "mesh views": views_path,
         "calib": calib_path,
         "config": config_path,

@@ -93,6 +93,14 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="with --texture: texels a side of an atlas cell, which holds two facets "
         f"(default {TEXELS}: about the camera's own pixels on a facet at 20 km/h)",
     )  # fmt: skip
+    m.add_argument(
+        "--simplify", type=real(0, 0.5, lo_open=True, what="metres"), default=None,
+        metavar="M",
+        help="merge near-coplanar facets while the surface moves by at most about M metres "
+        "(e.g. 0.02): a flat road or facade keeps a few large facets, edges and steps stay; "
+        "each tile's border is kept, so tiles still meet; vertex colours only (a merged "
+        "facet's colour is its corners': detail painted on a flat surface is lost)",
+    )  # fmt: skip
     m.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     m.set_defaults(handler=run, stops_cleanly=True)
 
@@ -123,6 +131,7 @@ def run(args: argparse.Namespace) -> int:
         args.logs, calib, args.output, camera=args.camera, frame=args.frame,
         trajectory=args.trajectory, crs=args.crs, rules=rules, tile_m=args.tile_m,
         chunk_s=args.chunk, texels=(args.texels or TEXELS) if args.texture else None,
+        simplify_m=args.simplify,
     )  # fmt: skip
     if mj.paths != [args.output] or textured_obj:  # now that the tiles are known
         outputs = [Output("-o", p, "mesh") for p in mj.paths]

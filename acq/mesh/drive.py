@@ -37,7 +37,7 @@ from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
 from acq.log.inputs import session_files
-from acq.mesh import files, texture
+from acq.mesh import files, simplify, texture
 from acq.mesh.organized import FacetRules, grid_facets
 from acq.motion import Trajectory
 
@@ -55,6 +55,7 @@ class MeshReport:
     points: int = 0
     coloured: int = 0
     textured: int | None = None  # facets with a texture sampled from a frame (None: none made)
+    joined: int | None = None  # facets joined before --simplify merged them (None: not asked)
     scans: int = 0
     track_m: float = 0.0
     frame: str = "world"
@@ -70,6 +71,14 @@ class MeshReport:
             f"points of {self.scans:,} scans ({100 * share:.1f} % of the points coloured), "
             f"{self.track_m:.1f} m of track",
             f"frame: {self.frame}; trajectory: {self.trajectory or 'none'}",
+            *(
+                [
+                    f"simplified from {self.joined:,} facets ("
+                    f"{100 * self.facets / max(1, self.joined):.1f} % kept)"
+                ]
+                if self.joined is not None
+                else []
+            ),
             *(
                 [
                     f"{self.textured:,} facets textured from a frame, the others filled with "
@@ -137,6 +146,7 @@ class MeshJob:
     comments: list[str]
     texels: int | None = None  # texels a side of an atlas cell; None: vertex colours
     on_views: Callable[[TileViews], None] | None = None  # given each textured tile's views
+    simplify_m: float | None = None  # merge near-coplanar facets within this, m; None: not
 
     def run(self, progress: bool = False) -> MeshReport:
         """Colour the chunks, join them into facets and write the tiles; OSError naming
@@ -186,18 +196,28 @@ def prepare_mesh(
     tile_m: float = 50.0,
     chunk_s: float | None = None,
     texels: int | None = None,
+    simplify_m: float | None = None,
 ) -> MeshJob:
     """Read ``logs`` and plan the mesh (:class:`MeshJob`; its ``paths``: the files it
     will write, for the caller to check before :meth:`MeshJob.run`); options as `acq
     colorize` takes them; ``rules``: default
     :class:`FacetRules`; ``chunk_s``: default colorize's; ``texels``: texture the facets
-    (:mod:`acq.mesh.texture`; glb or OBJ) with cells of that many texels a side.
+    (:mod:`acq.mesh.texture`; glb or OBJ) with cells of that many texels a side;
+    ``simplify_m``: merge near-coplanar facets of each tile while the surface moves by
+    at most about that many metres (:mod:`acq.mesh.simplify`; vertex colours only).
     InputError for bad input, named."""
     t0 = time.perf_counter()
     if files.format_of(output) == "ply" and texels is not None:
         raise InputValueError(
             f"--texture: -o {output}: a PLY file holds vertex colours, not a texture; use "
             ".glb or .obj"
+        )
+    if simplify_m is not None and not 0 < simplify_m < math.inf:
+        raise InputValueError(f"--simplify {simplify_m}: expected metres above 0")
+    if simplify_m is not None and texels is not None:
+        raise InputValueError(
+            "--simplify: not with --texture (a merged facet would span several frames' "
+            "texels); simplify a mesh with vertex colours"
         )
     logs = session_files(logs)
     once = sum(f.stat().st_size for f in logs if f.is_file()) <= READ_ONCE_BYTES
@@ -238,10 +258,12 @@ def prepare_mesh(
         seconds=time.perf_counter() - t0,
     )  # fmt: skip
     comments = [f"frame {cloud.frame}", *([f"crs {crs}"] if crs else [])]
+    if simplify_m is not None:
+        comments.append(f"near-coplanar facets merged within {simplify_m:g} m")
     return MeshJob(
         job, index, plan(scan_new, chunk_s or CHUNK_S), origin, tile,
         tile_names(output, int(tile[-1]) + 1), rules or FacetRules(), once, report, comments,
-        texels,
+        texels, simplify_m,
     )  # fmt: skip
 
 
@@ -321,17 +343,20 @@ class _Tiles:
                         "viewers take; use a shorter --tile-m or fewer --texels"
                     )
             atlas = self._atlas(at, tri) if mj.texels is not None else None
+            xyz, rgb = self.xyz[at], self.rgb[at]
+            if mj.simplify_m is not None:
+                rep.joined = (rep.joined or 0) + tri.shape[0]
+                xyz, rgb, tri = simplify.simplify(xyz, rgb, tri, mj.simplify_m)
             try:
-                rep.bytes += files.write(path, self.xyz[at], self.rgb[at], tri, mj.comments,
-                                         atlas)  # fmt: skip
+                rep.bytes += files.write(path, xyz, rgb, tri, mj.comments, atlas)
             except Exception as e:
                 full = full_disk_error(path, e)
                 if full is None:
                     raise
                 raise full from e
             rep.files.append(str(path))
-            rep.vertices += int(used.size)
-            rep.facets += int(mine.shape[0])
+            rep.vertices += int(xyz.shape[0])
+            rep.facets += int(tri.shape[0])
         self.faces = self.faces[face_tile >= end]
         self.next_tile = end
         # a later tile's facets start at its own first scan: what is before is done

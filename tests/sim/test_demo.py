@@ -34,6 +34,7 @@ from acq.mesh.files import Y_UP
 from acq.sim.demo import COLOUR_CAMERA
 from acq.sim.demo_rig import CAMERAS, demo_rig
 from acq.sim.demo_truth import COLOUR_TOLERANCE, colour_check
+from acq.sim.mesh_views import read_textured_mesh
 
 # drives simulated devices in real time: run alone (`make test`)
 pytestmark = pytest.mark.realtime
@@ -85,6 +86,7 @@ def test_exit_code_files_and_time(demo: Demo) -> None:
         "cloud.ply",
         "preview.png",
         "mesh.glb",
+        "mesh_textured.glb",
         "mesh_views.png",
         "calib.yaml",
         "config.yaml",
@@ -373,8 +375,9 @@ def test_preview_is_a_picture_of_the_street(demo: Demo) -> None:
 
 def test_mesh_and_its_views_beside_the_truth(demo: Demo) -> None:
     """mesh.glb as trimesh and pygltflib read it: the cloud's points joined into facets,
-    in the cloud's frame; mesh_views.png: three rows of truth, mesh and cloud, with the
-    figures the summary prints."""
+    in the cloud's frame; mesh_textured.glb the same facets with a JPEG texture;
+    mesh_views.png: three rows of truth, mesh, textured mesh and cloud, with the figures
+    the summary prints."""
     out, code, _, _, printed = demo
     assert code == 0
     gl = pygltflib.GLTF2().load(str(out / "mesh.glb"))
@@ -398,13 +401,30 @@ def test_mesh_and_its_views_beside_the_truth(demo: Demo) -> None:
     within, psnr, covers, cloud_within = map(float, row.groups()[2:])
     # 3 s of drive, three views: the surfaces the laser saw come out close to the truth
     assert within >= 70 and psnr >= 14 and covers >= 40 and cloud_within >= 60
+    textured = read_textured_mesh(out / "mesh_textured.glb")
+    assert textured.faces.shape[0] == facets  # the same facets, a vertex per corner
+    tl = pygltflib.GLTF2().load(str(out / "mesh_textured.glb"))
+    assert tl.asset.generator.startswith("acq ") and tl.images[0].mimeType == "image/jpeg"
+    assert tl.meshes[0].primitives[0].attributes.TEXCOORD_0 is not None
+    t_row = re.search(
+        r"textured +([\d,]+) of ([\d,]+) facets textured from a frame; from the same "
+        r"viewpoints: ([\d.]+) % within 24/255, ([\d.]+) dB, covers (\d+) %",
+        printed,
+    )
+    assert t_row, printed
+    assert int(t_row[2].replace(",", "")) == facets
+    assert int(t_row[1].replace(",", "")) > 0.9 * facets
+    # the texture resamples the frames themselves: at least as close as vertex colours
+    assert float(t_row[3]) >= within - 5 and float(t_row[5]) == covers
     img = cv2.imread(str(out / "mesh_views.png"), cv2.IMREAD_COLOR)
-    assert img is not None and img.shape == (20 + 3 * (16 + 240), 3 * 320, 3)
+    assert img is not None and img.shape == (20 + 3 * (16 + 240), 4 * 320, 3)
     for r in range(3):
         top = 20 + r * 256 + 16
         truth, mesh = img[top : top + 240, :320], img[top : top + 240, 320:640]
         assert (truth.max(axis=2) > 0).mean() > 0.99  # the ray caster covers every pixel
         assert 0.2 < (mesh.max(axis=2) > 0).mean()  # the mesh where the laser saw
+        tex = img[top : top + 240, 640:960]  # the textured mesh covers what the mesh does
+        assert abs((tex.max(axis=2) > 0).mean() - (mesh.max(axis=2) > 0).mean()) < 0.01
 
 
 def test_colorize_places_the_demo_log_with_its_can_odometry(demo: Demo, tmp_path: Path) -> None:

@@ -31,7 +31,7 @@ import numba
 import numpy as np
 
 from acq.camera import projection
-from acq.camera.occlusion import occlusion_depths, visible
+from acq.camera.occlusion import MAX_SPLAT_CELLS, occlusion_depths, visible
 from acq.cloud.job import Job
 from acq.cloud.views import camera_poses
 from acq.geometry.transforms import Rigid
@@ -254,6 +254,7 @@ def candidate_costs(
     t_f = time_ns[faces].mean(axis=1)
     opts = job.options
     pose_at = job.trajectory.pose_at if job.trajectory is not None else None
+    at_origin = Rigid.identity()  # the points are given in the camera's frame
     for c, cj in enumerate(job.cameras):
         used = np.unique(frame[(camera == c) & (frame >= 0)])
         if used.size == 0:
@@ -267,7 +268,7 @@ def candidate_costs(
         else:
             r0[:] = 0
         order = np.argsort(r0, kind="stable")
-        context = np.array([-1e9, 1e9]) * weights.context_s
+        context = np.array([-1, 1], dtype=np.int64) * round(weights.context_s * 1e9)
         r0_sorted = r0[order]
         Rs, ts = camera_poses(cj.cam, job.laser_to_vehicle, pose_at, t_frame)
         model = cj.cam.model
@@ -280,20 +281,28 @@ def candidate_costs(
                 continue
             slot = c * per_cam + (r - r0[fs] + W)
             keys[fs, slot] = (c << 32) | int(used[r])
-            # the depth buffer of the laser points scanned around the frame's time
-            o_lo, o_hi = np.searchsorted(occluders.time_ns, t_frame[r] + context)
-            P_o = (occluders.xyz[o_lo:o_hi] - ts[r]) @ Rs[r]
-            uv_o, ok_o = projection.project(P_o, model, Rigid.identity())
-            zbuf = occlusion_depths(
-                uv_o[ok_o], np.linalg.norm(P_o[ok_o], axis=1), occluders.size_m[o_lo:o_hi][ok_o],
-                f_px, (model.height, model.width), opts.cell_px,
-            )  # fmt: skip
             # the facets' vertices: a run of scans (vertices and facets in time order)
             corner = faces[fs]
             v_lo = int(corner.min())
             P = (xyz[v_lo : int(corner.max()) + 1] - ts[r]) @ Rs[r]
-            uv, ok = projection.project(P, model, Rigid.identity())
-            seen = ok & visible(zbuf, uv, np.linalg.norm(P, axis=1), opts.cell_px,
+            uv, ok = projection.project(P, model, at_origin)
+            if not ok.any():
+                continue
+            # the depth buffer of the laser points scanned around the frame's time, over
+            # the cells of the vertices' pixels (and as far as a point's splat reaches)
+            cell = opts.cell_px
+            lo_px = (np.floor(uv[ok].min(axis=0) / cell) - MAX_SPLAT_CELLS) * cell
+            hi_px = (np.floor(uv[ok].max(axis=0) / cell) + MAX_SPLAT_CELLS + 1) * cell
+            o_lo, o_hi = np.searchsorted(occluders.time_ns, t_frame[r] + context)
+            P_o = (occluders.xyz[o_lo:o_hi] - ts[r]) @ Rs[r]
+            uv_o, ok_o = projection.project(P_o, model, at_origin)
+            ok_o &= ((uv_o >= lo_px) & (uv_o < hi_px)).all(axis=1)
+            box = (int(hi_px[1] - lo_px[1]), int(hi_px[0] - lo_px[0]))
+            zbuf = occlusion_depths(
+                uv_o[ok_o] - lo_px, np.linalg.norm(P_o[ok_o], axis=1),
+                occluders.size_m[o_lo:o_hi][ok_o], f_px, box, cell,
+            )  # fmt: skip
+            seen = ok & visible(zbuf, uv - lo_px, np.linalg.norm(P, axis=1), cell,
                                 opts.margin_m, opts.margin_rel)  # fmt: skip
             got = np.empty(fs.size)
             _facet_costs(corner - v_lo, uv, seen, P, np.abs(t_f[fs] - t_frame[r]) * 1e-9,

@@ -261,6 +261,23 @@ def test_texels_are_the_decoded_frames_pixels_at_the_facets_projection(
     assert np.median(diff) <= 6, np.percentile(diff, [50, 90])
 
 
+def test_views_join_fewer_seams_than_the_vertices_own(textured: tuple[Path, Captured]) -> None:
+    """On the short drive the views chosen (view_selection) leave fewer edges between two
+    views than the frames most of each facet's vertices were coloured from."""
+    _, cap = textured
+    view_cam, view_frame = cap.args[1:3]
+    own_cam, own_frame = texture.facet_views(cap.camera, cap.frame, cap.tri)
+    a, b = view_selection.neighbours(cap.tri)
+
+    def seams(cam: np.ndarray, frame: np.ndarray) -> float:
+        key = (cam << 32) | frame
+        return float(np.mean(key[a] != key[b]))
+
+    chosen, own = seams(view_cam, view_frame), seams(own_cam, own_frame)
+    assert chosen < 0.5 * own, (chosen, own)  # 4.7 % and 13.4 % when written
+    assert 0.1 < np.mean((view_cam != own_cam) | (view_frame != own_frame)) < 0.5
+
+
 def test_corners_are_where_the_colouring_saw_them(textured: tuple[Path, Captured]) -> None:
     """A corner coloured from its facet's frame keeps the colouring's pixel; the others
     are projected as the colouring projects: forced to project every vertex into its own

@@ -7,7 +7,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["occlusion_depths", "visible"]
+__all__ = ["MAX_SPLAT_CELLS", "occlusion_depths", "visible"]
+
+MAX_SPLAT_CELLS = 8  # the farthest a point's square reaches from its own cell, cells
 
 
 @numba.njit(cache=True, nogil=True)
@@ -34,7 +36,9 @@ def occlusion_depths(
     h, w = -(-shape[0] // cell_px), -(-shape[1] // cell_px)
     cu = (uv[:, 0] / cell_px).astype(np.int64)
     cv_ = (uv[:, 1] / cell_px).astype(np.int64)
-    r = np.minimum(np.floor(0.5 * f_px * size_m / np.maximum(depth, 1e-3) / cell_px), 8)
+    r = np.minimum(
+        np.floor(0.5 * f_px * size_m / np.maximum(depth, 1e-3) / cell_px), MAX_SPLAT_CELLS
+    )
     return np.asarray(_splat(cu, cv_, depth.astype(np.float32), r.astype(np.int64), w, h))
 
 

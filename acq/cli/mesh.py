@@ -28,7 +28,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "as `acq colorize` places and colours the point (every camera of CALIB, the best "
         "view of each point, exposure and white balance evened out). A vertex carries its "
         "point's colour; with --texture (.glb, .obj) each facet is textured from the fisheye "
-        "frame its vertices were coloured from. Long drives are split into "
+        "frame that sees it whole and sharpest, its neighbours' where that costs little. "
+        "Long drives are split into "
         "tiles along the track (--tile-m), each a file of its own. OUT replaces what acq "
         "wrote before; an input, a file of another kind or anyone else's is refused "
         "(--force replaces the last). Exit status: 0 written, 2 bad input, 3 the disk "
@@ -82,8 +83,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     m.add_argument(
         "--texture", action="store_true",
         help="texture the facets (.glb, or .obj with OUT.mtl and OUT.jpg beside it): each "
-        "facet takes a frame its vertices were coloured from (most of them, and its "
-        "neighbours: fewer seams) and its texels are "
+        "facet takes, of every camera's frames around its scan time, one where no corner is "
+        "off the sensor or hidden by nearer laser points, weighing its size in pixels, "
+        "nearness in time and angle to the axis against its neighbours' views (fewer "
+        "seams); its texels are "
         "resampled from that fisheye frame, balanced as the vertex colours are, into one "
         "JPEG atlas per tile (a glb has a vertex per facet corner: files about 3.7 times "
         "larger, 2.4-2.8 times the time; off by default)",

@@ -33,11 +33,12 @@ from acq.cloud.chunks import Chunk, ChunkResult, laser_positions, plan
 from acq.cloud.colorize import CHUNK_S, READ_ONCE_BYTES, run_chunks
 from acq.cloud.job import Job, prepare
 from acq.cloud.report import Report
+from acq.cloud.views import point_size
 from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
 from acq.log.inputs import session_files
-from acq.mesh import files, simplify, texture
+from acq.mesh import files, simplify, texture, view_selection
 from acq.mesh.organized import FacetRules, grid_facets
 from acq.motion import Trajectory
 
@@ -387,7 +388,15 @@ class _Tiles:
         mj = self.mj
         assert mj.texels is not None
         camera, frame = self.camera[at], self.frame[at]
-        view_cam, view_frame = texture.facet_views(camera, frame, tri)
+        job = mj.job
+        # every held point may hide a facet (each at its scan's time, as the colouring's)
+        scan_ns = np.sort(job.scan_new)[self.scan]
+        ranges = np.linalg.norm(self.xyz - mj.origin[self.scan], axis=1)
+        size = point_size(ranges, mj.index.angle_increment, job.travel_m)
+        occluders = view_selection.Occluders(self.xyz, scan_ns, size)
+        view_cam, view_frame = view_selection.select_views(
+            job, self.xyz[at], scan_ns[at], tri, camera, frame, occluders
+        )
         px = texture.corner_pixels(mj.job, self.xyz[at], camera, frame, self.uv[at], tri,
                                    view_cam, view_frame)  # fmt: skip
         self._tell(at, tri, view_cam, view_frame, px)

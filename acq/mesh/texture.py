@@ -1,15 +1,7 @@
-"""Facet textures: one view per facet (:func:`facet_views`), its corners' pixels in that
-frame (:func:`corner_pixels`), and an atlas of the facets' texels resampled from the
-fisheye frames (:func:`build_atlas`).
-
-The view is the simple form of the paper's view selection: a facet takes one of the
-frames (camera, frame) its vertices were coloured from, which the colouring chose per
-point for occlusion, angle to the axis and nearness in time: the one most of its
-vertices have, each neighbour of that view counting as a vertex (one pass of iterated
-conditional modes on a Potts model whose data term is the vertices' votes). On the
-simulated drive this brings the edges between facets that join two views from 35 % to
-21 % (the nearest frame changes every scan or two). Resolution on the surface, and
-frames none of the vertices took, are not weighed yet.
+"""Facet textures: the view most of a facet's vertices were coloured from
+(:func:`facet_views`; the view chosen per facet is :mod:`acq.mesh.view_selection`'s), its
+corners' pixels in a facet's view (:func:`corner_pixels`), and an atlas of the facets'
+texels resampled from the fisheye frames (:func:`build_atlas`).
 
 The atlas is a grid of square cells of ``texels`` x ``texels``, two facets a cell: the
 upper-left and the lower-right triangle, each corner on a texel's centre and a texel
@@ -47,12 +39,12 @@ __all__ = [
     "cell_corners",
     "corner_pixels",
     "facet_views",
+    "view_keys",
 ]
 
 # the largest texture side viewers take (WebGL's MAX_TEXTURE_SIZE on desktops; JPEG's
 # own limit is 65,535)
 MAX_SIDE = 16384
-SMOOTH_PASSES = 1  # of facet_views' neighbour term (more change little: README)
 _ROWS = 4096  # facets resampled per cv2.remap call (its maps stay small)
 _TEXEL = np.dtype((np.void, 3))  # a texel's three bytes as one item
 
@@ -60,55 +52,24 @@ _TEXEL = np.dtype((np.void, 3))  # a texel's three bytes as one item
 FrameImages = Callable[[int, np.ndarray], Iterator[np.ndarray | None]]
 
 
-def _view_keys(camera: np.ndarray, frame: np.ndarray) -> np.ndarray:
+def view_keys(camera: np.ndarray, frame: np.ndarray) -> np.ndarray:
     """(V,) int64 camera << 32 | frame of each vertex's view, -1 for none."""
     ok = (camera != NO_CAMERA) & (frame >= 0)
     return np.where(ok, (camera.astype(np.int64) << 32) | frame.astype(np.int64), -1)
 
 
 def facet_views(
-    camera: np.ndarray, frame: np.ndarray, faces: np.ndarray, smooth: int = SMOOTH_PASSES
+    camera: np.ndarray, frame: np.ndarray, faces: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Each facet's view: ((F,) camera index, (F,) session frame), -1 for none, from its
-    vertices' ``camera`` (V,) (``NO_CAMERA`` none) and ``frame`` (V,) (-1 none): of its
-    vertices' views, the one most of them have, each neighbour (a facet across an edge)
-    of the same view counting as one more (``smooth`` passes of a Potts model's
-    iterated conditional modes; 0: the vertices' majority, a tie to the first vertex)."""
-    k = _view_keys(camera, frame)[faces]
+    """Each facet's vertices' view: ((F,) camera index, (F,) session frame), -1 for none,
+    from its vertices' ``camera`` (V,) (``NO_CAMERA`` none) and ``frame`` (V,) (-1 none):
+    the one most of them have, a tie to the first vertex."""
+    k = view_keys(camera, frame)[faces]
     rows = np.arange(k.shape[0])
-    # a tie between views goes to the vertices' majority, then to the first vertex
     votes = np.where(k >= 0, (k[:, :, None] == k[:, None, :]).sum(axis=2), -100.0)
     votes = votes - np.array([0.0, 0.01, 0.02])
     chosen = k[rows, np.argmax(votes, axis=1)]
-    if smooth:
-        a, b = _neighbours(faces)
-        # even facets, then odd ones (by their vertices, whatever the facets' order):
-        # updating all at once, two neighbours can swap views back and forth
-        corners = np.sort(faces, axis=1)
-        half = np.empty(rows.size, dtype=np.int64)
-        half[np.lexsort(corners.T[::-1])] = rows % 2
-        for parity in [0, 1] * smooth:
-            support = np.stack(
-                [
-                    np.bincount(a, weights=chosen[b] == k[a, j], minlength=rows.size)
-                    + np.bincount(b, weights=chosen[a] == k[b, j], minlength=rows.size)
-                    for j in range(3)
-                ],
-                axis=1,
-            )
-            best = k[rows, np.argmax(votes + support, axis=1)]
-            chosen = np.where(half == parity, best, chosen)
     return np.where(chosen >= 0, chosen >> 32, -1), np.where(chosen >= 0, chosen & 0xFFFFFFFF, -1)
-
-
-def _neighbours(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The pairs (a, b) of facets that share an edge (each pair once)."""
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    facet = np.tile(np.arange(faces.shape[0]), 3)
-    key = edges[:, 0] * (int(faces.max(initial=0)) + 1) + edges[:, 1]
-    order = np.argsort(key, kind="stable")
-    same = np.flatnonzero(key[order][1:] == key[order][:-1])
-    return facet[order][same], facet[order][same + 1]
 
 
 def corner_pixels(
@@ -121,7 +82,7 @@ def corner_pixels(
     where the rig stood at the frame's time, in the world frame of ``xyz`` (V,3) m)."""
     px: np.ndarray = uv[faces].astype(np.float32)
     mine = (view_cam >= 0)[:, None]
-    key = _view_keys(camera, frame)[faces]
+    key = view_keys(camera, frame)[faces]
     want = np.where(mine[:, 0], (view_cam << 32) | np.maximum(view_frame, 0), -2)
     odd = mine & (key != want[:, None])
     px[~mine[:, 0]] = np.nan

@@ -1,5 +1,6 @@
-"""acq mesh --texture: one view per facet, its texels resampled from that fisheye frame
-into the tile's atlas, read back from the glb.
+"""acq mesh --texture: one view per facet (chosen as tests/mesh/test_view_selection.py
+checks), its texels resampled from that fisheye frame into the tile's atlas, read back
+from the glb.
 
 The atlas is checked against synthetic frames (a linear gradient, which bilinear
 sampling reproduces exactly) and on the short simulated drive (a real MCAP log) against
@@ -25,7 +26,7 @@ from acq.cli import main as acq_main
 from acq.cloud.balance import Gains
 from acq.cloud.chunks import NO_CAMERA
 from acq.log.drive_log import read_log
-from acq.mesh import drive, texture
+from acq.mesh import drive, texture, view_selection
 from acq.mesh.drive import prepare_mesh
 from acq.mesh.files import Y_UP
 from acq.provenance import made_by_acq
@@ -56,43 +57,11 @@ def test_facet_views_take_the_agreeing_or_the_majority_frame() -> None:
     camera = np.array([0, 0, 0, 1, NO_CAMERA, 1], dtype=np.uint8)
     frame = np.array([5, 5, 6, 5, -1, 5], dtype=np.int64)
     faces = np.array([[0, 1, 0], [0, 1, 2], [2, 3, 0], [4, 4, 3], [4, 4, 4], [3, 5, 0]])
-    cam, fr = texture.facet_views(camera, frame, faces, smooth=0)
+    cam, fr = texture.facet_views(camera, frame, faces)
     # all three agree; two of three; none agree (the first vertex's); two without a view
     # (the one with); none with a view; two of three across cameras
     assert cam.tolist() == [0, 0, 0, 1, -1, 1]
     assert fr.tolist() == [5, 5, 6, 5, -1, 5]
-
-
-def test_a_facet_takes_its_neighbours_view_when_one_of_its_vertices_has_it() -> None:
-    """Four cells between two profiles: the upper facets 1 and 2 have two vertices of
-    frame 2 and one of frame 1, the others two of frame 1. The lower facet between them
-    (a vertex of frame 2, and both its neighbours) joins them: two edges between views
-    instead of four."""
-    #  0---1---2---3---4     scan s:   frames 1 2 2 2 1 (vertices 0..4)
-    #  |  /|  /|  /|  /|
-    #  5---6---7---8---9     scan s+1: frames 1 1 1 1 1 (vertices 5..9)
-    frame = np.array([1, 2, 2, 2, 1, 1, 1, 1, 1, 1])
-    camera = np.zeros(10, dtype=np.uint8)
-    upper = np.array([[k, k + 1, k + 5] for k in range(4)])
-    lower = np.array([[k + 1, k + 6, k + 5] for k in range(4)])
-    faces = np.concatenate([upper, lower])
-
-    def seams(view: np.ndarray) -> int:
-        a, b = texture._neighbours(faces)
-        return int(np.count_nonzero(view[a] != view[b]))
-
-    plain = texture.facet_views(camera, frame, faces, smooth=0)[1]
-    smooth = texture.facet_views(camera, frame, faces)[1]
-    assert plain.tolist() == [1, 2, 2, 1, 1, 1, 1, 1]
-    assert smooth.tolist() == [1, 2, 2, 1, 1, 2, 1, 1]
-    assert (seams(plain), seams(smooth)) == (4, 2)
-    # the same whatever the facets' order
-    shuffled = np.random.default_rng(1).permutation(8)
-    again = texture.facet_views(camera, frame, faces[shuffled])[1]
-    assert np.array_equal(again, smooth[shuffled])
-    # a view none of its vertices has is never taken
-    lone = texture.facet_views(camera, np.array([2, 2, 2, 1, 1, 1, 1, 1, 1, 1]), faces[[0]])[1]
-    assert lone.tolist() == [2]
 
 
 def test_atlas_texels_are_the_frame_at_the_facets_pixels_and_cells_do_not_mix() -> None:
@@ -179,11 +148,12 @@ def _run(
     replacing) the atlas it builds and the frames it asks for."""
     truth, calib_path = short_drive
     seen: dict[str, Any] = {"asked": []}
-    build, views = texture.build_atlas, texture.facet_views
+    build, views = texture.build_atlas, view_selection.select_views
 
-    def facet_views(camera: np.ndarray, frame: np.ndarray, tri: np.ndarray) -> Any:
+    def select_views(job: Any, xyz: np.ndarray, time_ns: np.ndarray, tri: np.ndarray,
+                     camera: np.ndarray, frame: np.ndarray, *rest: Any) -> Any:  # fmt: skip
         seen.update(camera=camera, frame=frame, tri=tri)
-        return views(camera, frame, tri)
+        return views(job, xyz, time_ns, tri, camera, frame, *rest)
 
     def build_atlas(px: np.ndarray, vc: np.ndarray, vf: np.ndarray, images: Any,
                     *rest: Any) -> texture.Atlas:  # fmt: skip
@@ -203,7 +173,7 @@ def _run(
         return corner(job, xyz, camera, frame, uv, *rest)
 
     monkeypatch.setattr(texture, "build_atlas", build_atlas)
-    monkeypatch.setattr(texture, "facet_views", facet_views)
+    monkeypatch.setattr(view_selection, "select_views", select_views)
     monkeypatch.setattr(texture, "corner_pixels", corner_pixels)
     mj = prepare_mesh(truth.files, calibfile.load(calib_path), out, texels=T, chunk_s=chunk_s)
     mj.run()
@@ -291,6 +261,23 @@ def test_texels_are_the_decoded_frames_pixels_at_the_facets_projection(
     assert np.median(diff) <= 6, np.percentile(diff, [50, 90])
 
 
+def test_views_join_fewer_seams_than_the_vertices_own(textured: tuple[Path, Captured]) -> None:
+    """On the short drive the views chosen (view_selection) leave fewer edges between two
+    views than the frames most of each facet's vertices were coloured from."""
+    _, cap = textured
+    view_cam, view_frame = cap.args[1:3]
+    own_cam, own_frame = texture.facet_views(cap.camera, cap.frame, cap.tri)
+    a, b = view_selection.neighbours(cap.tri)
+
+    def seams(cam: np.ndarray, frame: np.ndarray) -> float:
+        key = (cam << 32) | frame
+        return float(np.mean(key[a] != key[b]))
+
+    chosen, own = seams(view_cam, view_frame), seams(own_cam, own_frame)
+    assert chosen < 0.5 * own, (chosen, own)  # 4.7 % and 13.4 % when written
+    assert 0.1 < np.mean((view_cam != own_cam) | (view_frame != own_frame)) < 0.5
+
+
 def test_corners_are_where_the_colouring_saw_them(textured: tuple[Path, Captured]) -> None:
     """A corner coloured from its facet's frame keeps the colouring's pixel; the others
     are projected as the colouring projects: forced to project every vertex into its own
@@ -301,7 +288,8 @@ def test_corners_are_where_the_colouring_saw_them(textured: tuple[Path, Captured
     own = (key[cap.tri] == ((view_cam << 32) | view_frame)[:, None]) & (view_cam >= 0)[:, None]
     assert np.array_equal(px[own], cap.uv[cap.tri][own])
     projected = 1 - own[view_cam >= 0].mean()
-    assert 0.01 < projected < 0.5, projected  # some corners projected
+    # some corners projected: a facet's view need not be any of its vertices'
+    assert 0.01 < projected < 0.9, projected
     ok = (cap.camera != NO_CAMERA) & (cap.frame >= 0)
     v = np.flatnonzero(ok)
     faces = v[:, None].repeat(3, axis=1)  # a "facet" per vertex, in its own frame

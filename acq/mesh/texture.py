@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -175,15 +176,20 @@ def _level_tables(gains: Gains | None, camera: int, frames: np.ndarray) -> np.nd
 
 @dataclass(frozen=True)
 class Atlas:
-    """A tile's texture: ``image`` (H,W,3) uint8 RGB, cells of ``texels`` a side, row by
-    row; ``uv`` (F,3,2) float32 each facet corner's texture coordinates; ``textured``
-    (F,) bool: facets sampled from a frame (the others filled with their vertices' mean
-    colour)."""
+    """A tile's texture: ``bgr`` (H,W,3) uint8 (as the frames and the JPEG encoder have
+    it; :attr:`image` RGB), cells of ``texels`` a side, row by row; ``uv`` (F,3,2)
+    float32 each facet corner's texture coordinates; ``textured`` (F,) bool: facets
+    sampled from a frame (the others filled with their vertices' mean colour)."""
 
-    image: np.ndarray
+    bgr: np.ndarray
     uv: np.ndarray
     textured: np.ndarray
     slot: np.ndarray  # (F,) int64: each facet's cell (slot // 2, row by row) and half
+
+    @cached_property
+    def image(self) -> np.ndarray:
+        """(H,W,3) uint8 RGB (made when first asked)."""
+        return np.ascontiguousarray(self.bgr[..., ::-1])
 
 
 def build_atlas(
@@ -246,8 +252,7 @@ def build_atlas(
     for h, (xs, ys) in enumerate(halves):
         rest = np.flatnonzero(~done & (half_of == h))
         bgr[cy[rest, None] * texels + ys, cx[rest, None] * texels + xs] = fill[rest, None, ::-1]
-    image = np.ascontiguousarray(bgr[..., ::-1])
     origin = np.stack([cx * texels, cy * texels], axis=1)[:, None, :].astype(np.float64)
     at = origin + corners[half_of] + 0.5  # pixel edges: the first texel spans 0..1
-    uv = np.stack([at[..., 0] / image.shape[1], 1.0 - at[..., 1] / image.shape[0]], axis=-1)
-    return Atlas(image, uv.astype(np.float32), done, slot)
+    uv = np.stack([at[..., 0] / bgr.shape[1], 1.0 - at[..., 1] / bgr.shape[0]], axis=-1)
+    return Atlas(bgr, uv.astype(np.float32), done, slot)

@@ -28,7 +28,7 @@ from acq.log.drive_log import read_log
 from acq.mesh import drive, texture
 from acq.mesh.drive import prepare_mesh
 from acq.mesh.files import Y_UP
-from acq.provenance import made_by_acq
+from acq.provenance import SOFTWARE, made_by_acq
 from acq.sim.drive_log import DriveTruth
 
 Drive = tuple[DriveTruth, Path]
@@ -321,8 +321,15 @@ def test_glb_has_its_texture_and_each_facets_uvs_lie_in_its_cell(
     pbr = g.materials[g.meshes[0].primitives[0].material].pbrMetallicRoughness
     assert pbr.baseColorTexture.index == 0
     assert g.meshes[0].primitives[0].attributes.COLOR_0 is None  # it would tint the texture
+    # matte and untinted (glTF's default material is a metal)
+    assert pbr.metallicFactor == 0 and pbr.roughnessFactor == 1
+    assert pbr.baseColorFactor in (None, [1.0, 1.0, 1.0, 1.0])
+    # a vertex per facet corner, drawn in order: no index buffer
+    assert g.meshes[0].primitives[0].indices is None
+    assert g.accessors[g.meshes[0].primitives[0].attributes.POSITION].count == cap.tri.size
     blob = g.binary_blob()
     view = g.bufferViews[g.images[0].bufferView]
+    assert SOFTWARE.encode() in blob[view.byteOffset : view.byteOffset + 64]  # marked
     jpeg = Image.open(io.BytesIO(blob[view.byteOffset : view.byteOffset + view.byteLength]))
     stored = np.asarray(jpeg.convert("RGB")).astype(np.int16)
     assert stored.shape == cap.atlas.image.shape

@@ -91,7 +91,7 @@ def _write_glb(
     if texture is None:
         rgba = np.hstack([rgb, np.full((len(rgb), 1), 255, np.uint8)])
         attributes = gl.Attributes(
-            POSITION=parts.positions(xyz - offset),
+            POSITION=parts.positions(xyz - offset, None),
             COLOR_0=parts.accessor(rgba, gl.UNSIGNED_BYTE, gl.VEC4, normalized=True),
         )
         indices = parts.accessor(faces.reshape(-1).astype(np.uint32), gl.UNSIGNED_INT, gl.SCALAR)
@@ -103,7 +103,7 @@ def _write_glb(
         uv = texture.uv.reshape(-1, 2).copy()
         uv[:, 1] = 1.0 - uv[:, 1]
         attributes = gl.Attributes(
-            POSITION=parts.positions((xyz - offset)[faces].reshape(-1, 3)),
+            POSITION=parts.positions(xyz - offset, faces),
             TEXCOORD_0=parts.accessor(uv, gl.FLOAT, gl.VEC2),
         )
         primitive = gl.Primitive(attributes=attributes, material=0)
@@ -156,32 +156,31 @@ class _GlbBuffer:
 
     def accessor(
         self, values: np.ndarray, component: int, kind: str, *, normalized: bool = False,
-        bounds: bool = False,
+        bounds: tuple[list[float], list[float]] | None = None,
     ) -> int:  # fmt: skip
-        """An accessor of ``values`` (N,) or (N,k) in a view of their own; ``bounds``:
-        with their min and max (as glTF wants for positions); its number."""
+        """An accessor of ``values`` (N,) or (N,k) in a view of their own, with their
+        ``bounds`` (min, max) when given; its number."""
         import pygltflib as gl
 
-        values = np.ascontiguousarray(values)
-        rows = values.reshape(len(values), -1)
-        lo, hi = (
-            (rows.min(axis=0).tolist(), rows.max(axis=0).tolist())
-            if bounds and len(rows)
-            else (None, None)
-        )
+        lo, hi = bounds or (None, None)
         self.accessors.append(
             gl.Accessor(
-                bufferView=self.view(values.tobytes()), componentType=component, count=len(values),
-                type=kind, normalized=normalized or None, min=lo, max=hi,
+                bufferView=self.view(np.ascontiguousarray(values).tobytes()),
+                componentType=component, count=len(values), type=kind,
+                normalized=normalized or None, min=lo, max=hi,
             )
         )  # fmt: skip
         return len(self.accessors) - 1
 
-    def positions(self, xyz: np.ndarray) -> int:
-        """An accessor of the positions ``xyz`` (N,3) m, as float32."""
+    def positions(self, xyz: np.ndarray, faces: np.ndarray | None) -> int:
+        """An accessor of the positions ``xyz`` (V,3) m as float32 (``faces`` (F,3): a
+        vertex per facet corner), with the min and max glTF wants (the vertices')."""
         import pygltflib as gl
 
-        return self.accessor(xyz.astype(np.float32), gl.FLOAT, gl.VEC3, bounds=True)
+        v = xyz.astype(np.float32)
+        bounds = (v.min(axis=0).tolist(), v.max(axis=0).tolist()) if len(v) else None
+        corners = v if faces is None else v[faces].reshape(-1, 3)
+        return self.accessor(corners, gl.FLOAT, gl.VEC3, bounds=bounds)
 
     def blob(self) -> bytes:
         return b"".join(self.chunks)

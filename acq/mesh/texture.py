@@ -226,29 +226,45 @@ def build_atlas(
     cell_at = (cy * texels) * width + cx * texels  # each facet's cell's first texel in flat
     at_half = [ys * width + xs for xs, ys in halves]
     for c in np.unique(view_cam[order]).tolist():
+        # the camera's facets by frame, then half: each frame's halves are runs
         mine = order[view_cam[order] == c]
+        mine = mine[np.lexsort((half_of[mine], view_frame[mine]))]
+        half = half_of[mine]
+        M = np.empty((mine.size, 2, 3), dtype=np.float32)  # each facet's map, all at once
+        for h in (0, 1):
+            M[half == h] = np.einsum("fci,cj->fij", corner_px[mine[half == h]], q_inv[h])
+        got = [np.empty((int(np.count_nonzero(half == h)), xs.size, 3), np.uint8)
+               for h, (xs, _) in enumerate(halves_f)]  # fmt: skip
+        # each facet's row in its half's got
+        row_of = np.empty(mine.size, dtype=np.int64)
+        for h in (0, 1):
+            row_of[half == h] = np.arange(np.count_nonzero(half == h))
         frames, first = np.unique(view_frame[mine], return_index=True)
         ends = np.r_[first[1:], mine.size]
+        mids = first + np.add.reduceat((half == 0).astype(np.int64), first) if first.size else first
         luts = _level_tables(gains, c, frames)
-        for j, (lo, hi, img) in enumerate(zip(first, ends, images(c, frames), strict=True)):
-            if img is None:
+        for j, (lo, mid, hi, img) in enumerate(zip(first, mids, ends, images(c, frames),
+                                                  strict=True)):  # fmt: skip
+            if img is None:  # its facets' rows of got are not used: they are filled
                 continue
-            for h, (xs, ys) in enumerate(halves_f):
-                fs = mine[lo:hi]
-                fs = fs[half_of[fs] == h]
-                for k in range(0, fs.size, _ROWS):
-                    part = fs[k : k + _ROWS]
-                    M = np.einsum("fci,cj->fij", corner_px[part], q_inv[h]).astype(np.float32)
-                    mx = M[:, 0, 0:1] * xs + M[:, 0, 1:2] * ys + M[:, 0, 2:3]
-                    my = M[:, 1, 0:1] * xs + M[:, 1, 1:2] * ys + M[:, 1, 2:3]
-                    got = cv2.remap(img, mx, my, cv2.INTER_LINEAR,
-                                    borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+            done[mine[lo:hi]] = True
+            for h, (a, b) in enumerate([(lo, mid), (mid, hi)]):
+                xs, ys = halves_f[h]
+                for k in range(a, b, _ROWS):
+                    m = M[k : min(k + _ROWS, b)]
+                    mx = m[:, 0, 0:1] * xs + m[:, 0, 1:2] * ys + m[:, 0, 2:3]
+                    my = m[:, 1, 0:1] * xs + m[:, 1, 1:2] * ys + m[:, 1, 2:3]
+                    part = cv2.remap(img, mx, my, cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
                     if luts is not None:
-                        got = cv2.LUT(got, luts[j])
-                    flat[cell_at[part, None] + at_half[h]] = (
-                        got.reshape(-1).view(_TEXEL).reshape(part.size, -1)
-                    )
-                    done[part] = True
+                        part = cv2.LUT(part, luts[j])
+                    row = row_of[k]
+                    got[h][row : row + part.shape[0]] = part
+        for h in (0, 1):
+            fs = mine[half == h]
+            flat[cell_at[fs, None] + at_half[h]] = (
+                got[h].reshape(-1).view(_TEXEL).reshape(fs.size, at_half[h].size)
+            )
     for h, (xs, ys) in enumerate(halves):
         rest = np.flatnonzero(~done & (half_of == h))
         bgr[cy[rest, None] * texels + ys, cx[rest, None] * texels + xs] = fill[rest, None, ::-1]

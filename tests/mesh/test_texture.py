@@ -157,6 +157,43 @@ def test_atlas_texels_are_the_frame_at_the_facets_pixels_and_cells_do_not_mix() 
     assert corners[0].sum(axis=1).max() == T - 2 and corners[1].sum(axis=1).min() == T + 1
 
 
+def test_atlas_is_the_same_however_many_facets_a_remap_takes_and_a_lost_frame_is_filled(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Many facets of both halves in three frames, the middle one not decoding: the
+    atlas sampled a facet per cv2.remap call is the one sampled a frame's half at a
+    time; the lost frame's facets hold their fill, the others their frame's texels."""
+    rng = np.random.default_rng(3)
+    n = 301
+    base = rng.uniform([5, 5], [150, 110], (n, 1, 2))
+    px = (base + rng.uniform(-4, 4, (n, 3, 2))).astype(np.float32)
+    view_cam = np.zeros(n, dtype=np.int64)
+    view_frame = rng.integers(0, 3, n)
+    fill = rng.integers(0, 256, (n, 3), dtype=np.uint8)
+    img = _gradient()
+    gains = Gains([np.log(np.array([[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.5, 1.0, 0.8]]))], 0, 0)
+    whole = texture.build_atlas(px, view_cam, view_frame, _frames(img, None, img[::-1].copy()),
+                                gains, fill, T)  # fmt: skip
+    monkeypatch.setattr(texture, "_ROWS", 1)
+    one = texture.build_atlas(px, view_cam, view_frame, _frames(img, None, img[::-1].copy()),
+                              gains, fill, T)  # fmt: skip
+    assert np.array_equal(one.bgr, whole.bgr) and np.array_equal(one.uv, whole.uv)
+    assert whole.textured.tolist() == (view_frame != 1).tolist()
+    cols = whole.bgr.shape[1] // T
+    frames = _frames(img, None, img[::-1].copy())
+    for f in range(n):  # each facet's texels as an atlas of that facet alone has them
+        s = whole.slot[f]
+        xs, ys = texture._half_texels(T)[s % 2]
+        texels = whole.bgr[(s // 2) // cols * T + ys, (s // 2) % cols * T + xs]
+        k = [f] * (1 + s % 2)  # the facet (twice for the lower right half: the second)
+        alone = texture.build_atlas(px[k], view_cam[k], view_frame[k], frames, gains,
+                                    fill[k], T)  # fmt: skip
+        assert alone.slot[-1] == s % 2
+        assert np.array_equal(texels, alone.bgr[ys, xs]), f
+        if view_frame[f] == 1:
+            assert (texels == fill[f, ::-1]).all()
+
+
 @dataclass
 class Captured:
     """What acq mesh --texture gave build_atlas for the short drive, and what it made."""

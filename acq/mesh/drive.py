@@ -33,6 +33,7 @@ from acq.cloud.chunks import Chunk, ChunkResult, laser_positions, plan
 from acq.cloud.colorize import CHUNK_S, READ_ONCE_BYTES, run_chunks
 from acq.cloud.job import Job, prepare
 from acq.cloud.report import Report
+from acq.cloud.views import Crop
 from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
@@ -190,7 +191,8 @@ def prepare_mesh(
     if index.n_scans == 0:
         raise InputValueError(f"LOG {logs[0]}: no laser scans; nothing to join into facets")
     if texels is not None:
-        job = replace(job, want_uv=True)  # each vertex's pixel in its frame
+        # each vertex's pixel in its frame, and the frames' parts around them
+        job = replace(job, want_uv=True, want_crops=True)
     if not job.frame_world:
         # a moving rig's profiles lie on top of each other in the laser frame: its grid
         # joins nothing that is a surface
@@ -244,6 +246,8 @@ class _Tiles:
         self.frame = np.zeros(0, np.int64)
         self.uv = np.zeros((0, 2), np.float32)
         self.gains: Gains | None = None
+        # the colouring's crops of decoded frames, per camera by session frame
+        self.crops: list[dict[int, Crop]] = [{} for _ in mj.job.cameras]
 
     def add(self, r: ChunkResult) -> None:
         mj, rep = self.mj, self.mj.report
@@ -271,6 +275,8 @@ class _Tiles:
             self.frame = np.concatenate([self.frame, r.frame.astype(np.int64)])
             self.uv = np.concatenate([self.uv, r.uv])
             self._add_gains(r)
+            for held, crops in zip(self.crops, r.crops, strict=True):
+                held.update(crops)
         if self.scan.size:  # tiles whose last scan is before the held last one are whole
             self._write_until(int(mj.tile[self.scan[-1]]))
 
@@ -326,6 +332,7 @@ class _Tiles:
             if mj.texels is not None:
                 self.camera, self.frame = self.camera[drop:], self.frame[drop:]
                 self.uv = self.uv[drop:]
+                self._drop_crops()
 
     def _add_gains(self, r: ChunkResult) -> None:
         """Keep the chunk's gains by session frame (a frame two chunks share: the later's)."""
@@ -347,10 +354,70 @@ class _Tiles:
         px = texture.corner_pixels(mj.job, self.xyz[at], camera, frame, self.uv[at], tri,
                                    view_cam, view_frame)  # fmt: skip
         fill = self.rgb[at][tri].mean(axis=1).round().astype(np.uint8)
-        atlas = texture.build_atlas(px, view_cam, view_frame, self._images, self.gains, fill,
-                                    mj.texels)  # fmt: skip
+        atlas = texture.build_atlas(px, view_cam, view_frame,
+                                    self._images_for(px, view_cam, view_frame), self.gains,
+                                    fill, mj.texels)  # fmt: skip
         mj.report.textured = (mj.report.textured or 0) + int(np.count_nonzero(atlas.textured))
         return atlas
+
+    def _drop_crops(self) -> None:
+        """Drop the crops of the frames before those the held vertices were coloured
+        from (the tiles after are made of later scans)."""
+        for c, crops in enumerate(self.crops):
+            mine = self.frame[(self.camera == c) & (self.frame >= 0)]
+            first = int(mine.min()) if mine.size else None
+            for f in [f for f in crops if first is None or f < first]:
+                del crops[f]
+
+    def _images_for(
+        self, px: np.ndarray, view_cam: np.ndarray, view_frame: np.ndarray
+    ) -> texture.FrameImages:
+        """The frames of the facets whose corners are at ``px`` (F,3,2) in their view
+        (``view_cam``, ``view_frame`` (F,)), as :func:`texture.build_atlas` asks for them:
+        the crop the colouring kept of a frame when it holds every pixel the facets'
+        texels are sampled from (in a buffer of the frame's size, valid until the next
+        one is asked for), else the frame decoded again (:meth:`_images`)."""
+        assert self.mj.texels is not None
+        ok = (view_cam >= 0) & np.isfinite(px).all(axis=(1, 2))
+        lo, hi = px[ok].min(axis=1), px[ok].max(axis=1)
+        # a half cell's texels reach past its triangle by a texel (1/(texels - 3) of it
+        # at most), and bilinear sampling a pixel beyond
+        pad = (hi - lo).max(axis=1, keepdims=True) / (self.mj.texels - 3) + 2
+        keys, at = np.unique((view_cam[ok] << 32) | view_frame[ok], return_inverse=True)
+        need_lo = np.full((keys.size, 2), np.inf)
+        need_hi = np.full((keys.size, 2), -np.inf)
+        np.minimum.at(need_lo, at, lo - pad)
+        np.maximum.at(need_hi, at, hi + pad)
+
+        def held(camera: int, frame: int, row: int) -> Crop | None:
+            crop = self.crops[camera].get(frame)
+            if crop is None:
+                return None
+            w, h = crop.size  # beyond the frame, BORDER_REPLICATE reads its edge
+            x0, y0 = np.clip(np.floor(need_lo[row]).astype(int), 0, [w - 1, h - 1])
+            x1, y1 = np.clip(np.ceil(need_hi[row]).astype(int) + 1, 1, [w, h])
+            return crop if crop.holds(int(x0), int(y0), int(x1), int(y1)) else None
+
+        def images(camera: int, frames: np.ndarray) -> Iterator[np.ndarray | None]:
+            rows = np.searchsorted(keys, (camera << 32) | frames)
+            crops = [
+                held(camera, f, r) for f, r in zip(frames.tolist(), rows.tolist(), strict=True)
+            ]
+            again = frames[[c is None for c in crops]]
+            decoded = self._images(camera, again) if again.size else iter(())
+            buffer = np.zeros((0, 0, 3), np.uint8)
+            for crop in crops:
+                if crop is None:
+                    yield next(decoded)
+                    continue
+                w, h = crop.size
+                if buffer.shape[:2] != (h, w):
+                    buffer = np.empty((h, w, 3), np.uint8)
+                ch, cw = crop.pixels.shape[:2]
+                buffer[crop.y0 : crop.y0 + ch, crop.x0 : crop.x0 + cw] = crop.pixels
+                yield buffer
+
+        return images
 
     def _images(self, camera: int, frames: np.ndarray) -> Iterator[np.ndarray | None]:
         """Camera ``camera``'s session ``frames`` (sorted), decoded in order."""

@@ -19,11 +19,12 @@ import trimesh
 from PIL import Image
 from plyfile import PlyData
 
-from acq.camera import calibfile
+from acq.camera import calibfile, jpeg
 from acq.camera.jpeg import decode_jpeg
 from acq.cli import main as acq_main
 from acq.cloud.balance import Gains
 from acq.cloud.chunks import NO_CAMERA
+from acq.cloud.views import Crop
 from acq.log.drive_log import read_log
 from acq.mesh import drive, texture
 from acq.mesh.drive import prepare_mesh
@@ -412,6 +413,32 @@ def test_frames_read_from_the_log_per_tile_give_the_same_atlas(
     monkeypatch.setattr(drive, "READ_ONCE_BYTES", 0)
     again = _run(short_drive, tmp_path / "big.glb", monkeypatch)
     assert np.array_equal(again.atlas.image, cap.atlas.image)
+
+
+def test_frames_are_decoded_once_the_atlas_sampling_what_the_colouring_kept(
+    short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The colouring keeps each frame's pixels around its points (views.Crop); the atlas
+    samples those, decoding again only a frame whose kept part misses a pixel its facets
+    need: the same atlas as with every frame decoded again."""
+    decodes: list[int] = []
+    real = jpeg.decode_jpeg
+
+    def counted(data: bytes) -> np.ndarray | None:
+        decodes.append(len(data))
+        return real(data)
+
+    monkeypatch.setattr(jpeg, "decode_jpeg", counted)  # the atlas's decoder (the colouring's
+    # decodes into its thread's buffer, without it)
+    kept = _run(short_drive, tmp_path / "kept.glb", monkeypatch)
+    asked = sum(len(frames) for _, frames in kept.asked)
+    assert asked > 20 and len(decodes) <= asked // 20, (len(decodes), asked)
+    decodes.clear()
+    monkeypatch.setattr(Crop, "holds", lambda self, *pixels: False)
+    again = _run(short_drive, tmp_path / "again.glb", monkeypatch)
+    assert len(decodes) == asked  # each frame the facets use, decoded again
+    assert np.array_equal(again.atlas.bgr, kept.atlas.bgr)
+    assert np.array_equal(again.atlas.uv, kept.atlas.uv)
 
 
 @pytest.mark.parametrize(

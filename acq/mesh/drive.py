@@ -378,16 +378,18 @@ class _Tiles:
         texels are sampled from (in a buffer of the frame's size, valid until the next
         one is asked for), else the frame decoded again (:meth:`_images`)."""
         assert self.mj.texels is not None
-        ok = (view_cam >= 0) & np.isfinite(px).all(axis=(1, 2))
-        lo, hi = px[ok].min(axis=1), px[ok].max(axis=1)
+        ok = np.flatnonzero((view_cam >= 0) & np.isfinite(px).all(axis=(1, 2)))
+        key = (view_cam[ok] << 32) | view_frame[ok]
+        by_view = np.argsort(key, kind="stable")
+        keys, first = np.unique(key[by_view], return_index=True)
+        p = px[ok[by_view]]
+        lo = np.minimum(np.minimum(p[:, 0], p[:, 1]), p[:, 2])
+        hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
         # a half cell's texels reach past its triangle by a texel (1/(texels - 3) of it
         # at most), and bilinear sampling a pixel beyond
         pad = (hi - lo).max(axis=1, keepdims=True) / (self.mj.texels - 3) + 2
-        keys, at = np.unique((view_cam[ok] << 32) | view_frame[ok], return_inverse=True)
-        need_lo = np.full((keys.size, 2), np.inf)
-        need_hi = np.full((keys.size, 2), -np.inf)
-        np.minimum.at(need_lo, at, lo - pad)
-        np.maximum.at(need_hi, at, hi + pad)
+        need_lo = np.minimum.reduceat(lo - pad, first) if ok.size else lo
+        need_hi = np.maximum.reduceat(hi + pad, first) if ok.size else hi
 
         def held(camera: int, frame: int, row: int) -> Crop | None:
             crop = self.crops[camera].get(frame)

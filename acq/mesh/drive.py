@@ -7,10 +7,12 @@ chunks is lost, and none is made twice), are joined into triangles by
 :func:`acq.mesh.grid_facets`. A facet belongs to the tile of its first scan: tiles of
 ``tile_m`` metres along the laser's track, the last one holding the rest (a rest shorter
 than a quarter of a tile joins the tile before it); each tile is written as soon as the
-chunks have passed its end (:mod:`acq.mesh.files`), with the vertices its facets use;
+chunks have passed its end (:mod:`acq.mesh.files`; its file on a writer thread while
+the next tile is made), with the vertices its facets use;
 with a texture (``texels``), with its atlas (:mod:`acq.mesh.texture`): the vertices keep
 their frame and pixel (the job's ``want_uv``), the frames' gains are kept by session
-frame, and a tile's frames are decoded once each when it is written.
+frame, and a tile's texels are sampled from the parts of the frames the colouring kept
+(:class:`acq.cloud.views.Crop`; a frame whose part misses a pixel is decoded again).
 
 Metres; times host monotonic ns.
 """
@@ -21,6 +23,7 @@ import math
 import os
 import time
 from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -125,9 +128,12 @@ class MeshJob:
         the file that cannot be written (a full disk: DiskFullError)."""
         t0 = time.perf_counter()
         tiles = _Tiles(self)
-        run_chunks(self.job, self.chunks, 1, None, progress, tiles.add,
-                   self.index if self.once else None)  # fmt: skip
-        tiles.finish()
+        try:
+            run_chunks(self.job, self.chunks, 1, None, progress, tiles.add,
+                       self.index if self.once else None)  # fmt: skip
+            tiles.finish()
+        finally:
+            tiles.close()
         rep = self.report
         if not rep.files:
             raise InputValueError(
@@ -248,6 +254,9 @@ class _Tiles:
         self.gains: Gains | None = None
         # the colouring's crops of decoded frames, per camera by session frame
         self.crops: list[dict[int, Crop]] = [{} for _ in mj.job.cameras]
+        # the tile being written on the writer thread: its path, facets, vertices
+        self._writer: ThreadPoolExecutor | None = None
+        self._pending: tuple[Path, int, int, Future[int]] | None = None
 
     def add(self, r: ChunkResult) -> None:
         mj, rep = self.mj, self.mj.report
@@ -282,6 +291,41 @@ class _Tiles:
 
     def finish(self) -> None:
         self._write_until(len(self.mj.paths))
+        self._collect()
+
+    def close(self) -> None:
+        """Wait for the tile being written, if any (on an error: its outcome unasked)."""
+        if self._writer is not None:
+            self._writer.shutdown(wait=True)
+
+    def _write(self, path: Path, xyz: np.ndarray, rgb: np.ndarray, tri: np.ndarray,
+               atlas: texture.Atlas | None) -> None:  # fmt: skip
+        """Write a tile on the writer thread (its JPEG encoded and its file written while
+        the next tile is made), once the tile before it is written."""
+        self._collect()
+        if self._writer is None:
+            self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="acq-mesh-write")
+        task = self._writer.submit(files.write, path, xyz, rgb, tri, self.mj.comments, atlas)
+        self._pending = (path, tri.shape[0], xyz.shape[0], task)
+
+    def _collect(self) -> None:
+        """Wait for the tile being written; its file and counts into the report (a full
+        disk: DiskFullError naming it)."""
+        if self._pending is None:
+            return
+        path, n_facets, n_vertices, task = self._pending
+        self._pending = None
+        rep = self.mj.report
+        try:
+            rep.bytes += task.result()
+        except Exception as e:
+            full = full_disk_error(path, e)
+            if full is None:
+                raise
+            raise full from e
+        rep.files.append(str(path))
+        rep.vertices += n_vertices
+        rep.facets += n_facets
 
     def _write_until(self, end: int) -> None:
         """Write the tiles before ``end`` and drop what only they used."""
@@ -308,17 +352,7 @@ class _Tiles:
                         "viewers take; use a shorter --tile-m or fewer --texels"
                     )
             atlas = self._atlas(at, tri) if mj.texels is not None else None
-            try:
-                rep.bytes += files.write(path, self.xyz[at], self.rgb[at], tri, mj.comments,
-                                         atlas)  # fmt: skip
-            except Exception as e:
-                full = full_disk_error(path, e)
-                if full is None:
-                    raise
-                raise full from e
-            rep.files.append(str(path))
-            rep.vertices += int(used.size)
-            rep.facets += int(mine.shape[0])
+            self._write(path, self.xyz[at], self.rgb[at], tri, atlas)
         self.faces = self.faces[face_tile >= end]
         self.next_tile = end
         # a later tile's facets start at its own first scan: what is before is done

@@ -205,6 +205,40 @@ def test_the_laser_frame_is_refused_and_progress_shows_a_bar(
     assert "colouring" in capsys.readouterr().err
 
 
+def test_a_tile_is_written_while_the_next_one_is_made(
+    short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A tile's file is written on the writer thread: the first one's write waits, here,
+    for the second tile's atlas to begin (it would wait in vain on the main thread)."""
+    import threading
+
+    from acq.mesh import files, texture
+
+    real_write, real_build = files.write, texture.build_atlas
+    second_begun, threads = threading.Event(), []
+    atlases: list[int] = []
+
+    def write(path: Path, *args: object, **kwargs: object) -> int:
+        threads.append(threading.current_thread().name)
+        if len(threads) == 1:
+            second_begun.wait(timeout=10)
+        return real_write(path, *args, **kwargs)  # type: ignore[arg-type]
+
+    def build_atlas(*args: object) -> texture.Atlas:
+        atlases.append(1)
+        if len(atlases) == 2:
+            second_begun.set()
+        return real_build(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(files, "write", write)
+    monkeypatch.setattr(texture, "build_atlas", build_atlas)
+    out = tmp_path / "t.glb"
+    assert _mesh(short_drive, out, "--tile-m", "3", "--texture") == 0
+    assert second_begun.is_set() and len(threads) == len(atlases) >= 3
+    assert all(t.startswith("acq-mesh-write") for t in threads)
+    assert sorted(p.name for p in tmp_path.iterdir())[:2] == ["t_000.glb", "t_001.glb"]
+
+
 def test_a_full_disk_at_a_tile_is_one_line_exit_3(
     short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],

@@ -7,8 +7,8 @@ chunks is lost, and none is made twice), are joined into triangles by
 :func:`acq.mesh.grid_facets`. A facet belongs to the tile of its first scan: tiles of
 ``tile_m`` metres along the laser's track, the last one holding the rest (a rest shorter
 than a quarter of a tile joins the tile before it); each tile is written as soon as the
-chunks have passed its end (:mod:`acq.mesh.files`; its file on a writer thread while
-the next tile is made), with the vertices its facets use;
+chunks have passed its end (:mod:`acq.mesh.files`; its atlas made and its file written
+on a writer thread while the next chunks are joined), with the vertices its facets use;
 with a texture (``texels``), with its atlas (:mod:`acq.mesh.texture`): the vertices keep
 their frame and pixel (the job's ``want_uv``), the frames' gains are kept by session
 frame, and a tile's texels are sampled from the parts of the frames the colouring kept
@@ -19,6 +19,7 @@ Metres; times host monotonic ns.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import time
@@ -298,15 +299,25 @@ class _Tiles:
         if self._writer is not None:
             self._writer.shutdown(wait=True)
 
-    def _write(self, path: Path, xyz: np.ndarray, rgb: np.ndarray, tri: np.ndarray,
-               atlas: texture.Atlas | None) -> None:  # fmt: skip
-        """Write a tile on the writer thread (its JPEG encoded and its file written while
-        the next tile is made), once the tile before it is written."""
+    def _write(self, path: Path, at: np.ndarray, tri: np.ndarray) -> None:
+        """Make the tile of the facets ``tri`` of the held vertices ``at`` (its atlas) and
+        write it on the writer thread, while this one goes on with the next chunks; once
+        the tile before it is written."""
         self._collect()
         if self._writer is None:
             self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="acq-mesh-write")
-        task = self._writer.submit(files.write, path, xyz, rgb, tri, self.mj.comments, atlas)
-        self._pending = (path, tri.shape[0], xyz.shape[0], task)
+        # what the tile needs as it is now: the held arrays are replaced, not changed in
+        # place, as chunks come; the gains and crops are changed in place
+        held = copy.copy(self)
+        held.crops = [dict(c) for c in self.crops]
+        if self.gains is not None:
+            held.gains = replace(self.gains, log_gain=[g.copy() for g in self.gains.log_gain])
+
+        def make() -> int:
+            atlas = held._atlas(at, tri) if self.mj.texels is not None else None
+            return files.write(path, held.xyz[at], held.rgb[at], tri, self.mj.comments, atlas)
+
+        self._pending = (path, tri.shape[0], at.size, self._writer.submit(make))
 
     def _collect(self) -> None:
         """Wait for the tile being written; its file and counts into the report (a full
@@ -351,8 +362,7 @@ class _Tiles:
                         f"{w:,} x {h:,} texels, over the {texture.MAX_SIDE:,} a side that "
                         "viewers take; use a shorter --tile-m or fewer --texels"
                     )
-            atlas = self._atlas(at, tri) if mj.texels is not None else None
-            self._write(path, self.xyz[at], self.rgb[at], tri, atlas)
+            self._write(path, at, tri)
         self.faces = self.faces[face_tile >= end]
         self.next_tile = end
         # a later tile's facets start at its own first scan: what is before is done

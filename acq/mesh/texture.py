@@ -57,7 +57,8 @@ SMOOTH_PASSES = 1  # of facet_views' neighbour term (more change little: README)
 _ROWS = 4096  # facets resampled per cv2.remap call (its maps stay small)
 _TEXEL = np.dtype((np.void, 3))  # a texel's three bytes as one item
 
-# the images of camera c's session frames (sorted), in that order; None: not decoded
+# the images of camera c's session frames (sorted), in that order (each valid until the
+# next is asked for); None: not decoded
 FrameImages = Callable[[int, np.ndarray], Iterator[np.ndarray | None]]
 
 

@@ -8,6 +8,7 @@ may replace its own product while a file of anyone else is kept (the rule of
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import struct
@@ -28,7 +29,6 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_TEXT = b"Software\x00" + SOFTWARE.encode()
 _JPEG_COMMENT = b"\xff\xfe" + (2 + len(SOFTWARE)).to_bytes(2, "big") + SOFTWARE.encode()
 _JSON_KEY = re.compile(rb'\A\s*\{\s*"software"\s*:\s*"acq[ "]')
-_GLB_MARK = re.compile(rb'"asset":\{[^}]*"generator":"acq ')
 _E57_MARK = re.compile(rb"<sensorSoftwareVersion[^>]*>(<!\[CDATA\[)?acq ")
 _E57_XML_BYTES = 16 * 2**20  # a larger XML section is not one acq wrote
 
@@ -74,6 +74,19 @@ def write_image(path: str | os.PathLike[str], image: np.ndarray) -> None:
         discard(tmp)
 
 
+def _glb_generator(head: bytes) -> str:
+    """The ``asset.generator`` of a glb whose first bytes are ``head`` ("" for none, or
+    a JSON chunk that is not whole in them or not JSON)."""
+    (length,) = struct.unpack_from("<I", head, 12) if len(head) >= 20 else (0,)
+    try:
+        tree = json.loads(head[20 : 20 + length]) if 20 + length <= len(head) else None
+    except ValueError:
+        return ""
+    asset = tree.get("asset") if isinstance(tree, dict) else None
+    generator = asset.get("generator") if isinstance(asset, dict) else None
+    return generator if isinstance(generator, str) else ""
+
+
 def made_by_acq(path: str | os.PathLike[str]) -> bool:
     """Whether the existing file ``path`` carries acq's mark (any version of acq)."""
     with open(path, "rb") as f:
@@ -88,7 +101,7 @@ def made_by_acq(path: str | os.PathLike[str]) -> bool:
     if head.startswith(b"LASF"):
         return head[58:90].startswith(b"acq ")  # the header's generating software
     if head.startswith(b"glTF"):  # the JSON chunk follows the 20 bytes of headers
-        return _GLB_MARK.search(head[20:]) is not None
+        return _glb_generator(head).startswith("acq ")
     if head.startswith(b"# acq "):  # an OBJ: its first comment
         return True
     if head.startswith(b"ASTM-E57"):

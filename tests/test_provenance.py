@@ -63,6 +63,33 @@ def test_reports_and_other_files(tmp_path: Path) -> None:
         assert not made_by_acq(other), data
 
 
+def test_a_glb_is_acqs_by_its_asset_generator_wherever_the_json_puts_it(tmp_path: Path) -> None:
+    import struct
+
+    def glb(tree: dict[str, object]) -> bytes:
+        text = json.dumps(tree, separators=(",", ":")).encode()
+        text += b" " * (-len(text) % 4)
+        return b"glTF" + struct.pack("<II", 2, 28 + len(text)) + struct.pack("<I", len(text)) \
+            + b"JSON" + text + struct.pack("<I", 0) + b"BIN\0"  # fmt: skip
+
+    path = tmp_path / "m.glb"
+    extras_first = {"asset": {"extras": {"acq": ["a } b", "{"]}, "generator": SOFTWARE}}
+    for tree, ours in [
+        (extras_first, True),
+        ({"accessors": [{"count": 1}], "asset": {"version": "2.0", "generator": "acq 9"}}, True),
+        ({"asset": {"generator": "trimesh"}}, False),
+        ({"asset": {"version": "2.0"}}, False),
+        ({"asset": "acq 1"}, False),
+        (["acq "], False),
+    ]:
+        path.write_bytes(glb(tree))  # type: ignore[arg-type]
+        assert made_by_acq(path) is ours, tree
+    whole = glb(extras_first)
+    for data in (whole[:40], whole[:20] + b"not json" + whole[28:], whole[:12]):
+        path.write_bytes(data)  # a JSON chunk cut short, or not JSON
+        assert not made_by_acq(path)
+
+
 def test_an_e57_carries_the_mark_in_its_xml_section(tmp_path: Path) -> None:
     from acq.cloud.e57 import E57Stream
 

@@ -102,6 +102,8 @@ class ChunkResult:
     samples: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
     # per camera, the session index of each of the chunk's frames (``gains``' rows)
     session_frames: list[np.ndarray] = field(default_factory=list)
+    # with want_crops, per camera: the decoded frames' parts around their points, by session frame
+    crops: list[dict[int, views.Crop]] = field(default_factory=list)
 
 
 def _margin_ns(job: Job) -> int:
@@ -217,7 +219,7 @@ def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) 
     ]
     colourings = scan_colouring.start(
         pts, size, cameras, job.trajectory, l2v, job.options, pool=pool, need=core,
-        want_uv=job.want_uv,
+        want_uv=job.want_uv, want_crops=job.want_crops,
     )  # fmt: skip
     odd_size = {
         c.name: {int(log.cameras[c.name].frame_ns[k]): wh for k, wh in c.odd_size.items()}
@@ -288,6 +290,10 @@ class ChunkColouring:
             ]
             or [np.zeros((0, 2), np.int64)]
         )
+        session_frames = [
+            np.searchsorted(cj.frame_old, f.frame_ns)
+            for cj, f in zip(job.cameras, frames, strict=True)
+        ]
         return ChunkResult(
             index=chunk.index,
             xyz=xyz[core],
@@ -322,9 +328,10 @@ class ChunkColouring:
                 if col.failed.size
             },
             gains=merged.gains,
-            session_frames=[
-                np.searchsorted(cj.frame_old, f.frame_ns)
-                for cj, f in zip(job.cameras, frames, strict=True)
+            session_frames=session_frames,
+            crops=[
+                {int(rows[j]): crop for j, crop in col.crops.items()}
+                for rows, col in zip(session_frames, cols, strict=True)
             ],
             samples=(
                 {

@@ -67,6 +67,9 @@ class Job:
     frame_world: bool
     travel_m: float  # the rig's travel between two scans (m), for the points' size
     want_uv: bool = False  # keep each point's pixel and frame (for accuracy checks)
+    # with want_uv: keep each decoded frame's part around its points (views.Crop), for
+    # acq mesh --texture to sample without decoding the frame again
+    want_crops: bool = False
     threads: int = 1  # JPEG decoding threads per chunk
 
     def with_offsets(self, offsets_ns: dict[str, int]) -> Job:

@@ -152,11 +152,13 @@ def start(
     pts: Placed, size_m: np.ndarray, cameras: Sequence[CameraFrames],
     poses: PoseSource | None, laser_to_vehicle: Rigid, options: views.Options, *,
     pool: Executor, need: np.ndarray | None = None, want_uv: bool = False,
+    want_crops: bool = False,
 ) -> list[views.Colouring]:  # fmt: skip
     """Colour ``pts`` from every camera of ``cameras`` (frames queued on ``pool``, not
     waited for): in the world, sent back to where the rig stood at each frame's time,
     when there are ``poses`` and ``options`` compensate motion; ``need`` the points to
-    colour (default all; the others only hide points in ``best``'s depth buffers)."""
+    colour (default all; the others only hide points in ``best``'s depth buffers);
+    ``want_uv``, ``want_crops``: as :func:`views.start_colouring` takes them."""
     compensate = poses is not None and options.motion_compensation
     pose_at = poses.pose_at if poses is not None else None
     return [
@@ -172,6 +174,7 @@ def start(
             options,
             pool=pool,
             want_uv=want_uv,
+            want_crops=want_crops,
             frame_ok=c.usable,
             need=need,
         )

@@ -44,10 +44,12 @@ __all__ = [
     "VIEWS",
     "Coloured",
     "Colouring",
+    "Crop",
     "Frame",
     "Options",
     "Pairs",
     "camera_poses",
+    "crop_around",
     "odd_sized",
     "point_size",
     "start_colouring",
@@ -85,6 +87,10 @@ class Options:
             raise ValueError("window >= 0, max_dt_s > 0 and cell_px >= 1 expected")
 
 
+# with want_crops, each frame's pixels around the points it coloured are kept (a Crop), this
+# many pixels beyond them: the facets of `acq mesh --texture` between those points and
+# their neighbours are sampled there without decoding the frame again
+CROP_MARGIN_PX = 32
 PAIR_EVERY = 16  # one point in this many is also sampled in other frames, for balancing
 PAIR_OFFSETS = (1, 8, 30)  # those frames: this many frames from the point's own
 
@@ -129,9 +135,42 @@ class Coloured:
     depth: np.ndarray | None = None
     pairs: Pairs = field(default_factory=Pairs.none)
     failed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    crops: dict[int, Crop] = field(default_factory=dict)  # by frame (want_crops only)
 
 
 Frame = bytes | np.ndarray  # a JPEG, or its image decoded (H,W,3) BGR uint8
+
+
+@dataclass(frozen=True)
+class Crop:
+    """Part of a decoded frame: ``pixels`` (h,w,3) BGR uint8 whose first is the frame's
+    pixel (``x0``, ``y0``); ``size`` (width, height) px: the whole frame's."""
+
+    x0: int
+    y0: int
+    pixels: np.ndarray
+    size: tuple[int, int]
+
+    def holds(self, x0: int, y0: int, x1: int, y1: int) -> bool:
+        """Whether the frame's pixels [x0, x1) x [y0, y1) are all in the crop."""
+        h, w = self.pixels.shape[:2]
+        return self.x0 <= x0 and self.y0 <= y0 and x1 <= self.x0 + w and y1 <= self.y0 + h
+
+
+def crop_around(image: np.ndarray, uv: np.ndarray, margin: int = CROP_MARGIN_PX) -> Crop | None:
+    """The part of ``image`` (H,W,3) around the pixels ``uv`` (N,2) px (NaN ignored),
+    ``margin`` px beyond them (a copy); None when there are none."""
+    ok = np.isfinite(uv).all(axis=1)
+    if not ok.any():
+        return None
+    h, w = image.shape[:2]
+    lo = np.floor(uv[ok].min(axis=0)).astype(int) - margin
+    hi = np.ceil(uv[ok].max(axis=0)).astype(int) + margin + 1
+    x0, y0 = max(0, int(lo[0])), max(0, int(lo[1]))
+    x1, y1 = min(w, int(hi[0])), min(h, int(hi[1]))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return Crop(x0, y0, image[y0:y1, x0:x1].copy(), (w, h))
 
 
 def odd_sized(jpegs: Sequence[Frame], model: CameraModel) -> dict[int, tuple[int, int]]:
@@ -237,15 +276,17 @@ class Colouring:
         self.pair_P = np.ascontiguousarray(self.P[self.pair_point])
         self.pair_bgr = np.zeros((self.pair_point.size, 3), dtype=np.uint8)
         self.pair_ok = np.zeros(self.pair_point.size, dtype=bool)
+        self.crops: dict[int, Crop] = {}  # with want_crops: by frame, around its points
 
     def colour_frame(
         self, jpeg: Frame, idx: np.ndarray, R: np.ndarray, t: np.ndarray,
-        pairs: np.ndarray | None = None,
+        pairs: np.ndarray | None = None, frame: int | None = None,
     ) -> bool:  # fmt: skip
         """Decode one frame (unless given decoded) and colour its points ``idx`` (the
         camera at rotation ``R`` and position ``t`` in the points' frame) and its
         ``pairs`` (indices into the pair arrays); False when it does not decode or is not
-        of the camera model's size."""
+        of the camera model's size. ``frame``: its index, to keep its crop under (with
+        want_crops)."""
         image = jpeg if isinstance(jpeg, np.ndarray) else decode_jpeg_transient(jpeg)
         if image is None or image.shape[:2] != (self.model.height, self.model.width):
             return False
@@ -254,6 +295,10 @@ class Colouring:
             bilinear=self.bilinear,
         )  # fmt: skip
         projection.depth_and_angle(self.P, idx, (R, t), self.depth, self.theta)
+        if self.uv is not None and frame is not None:
+            crop = crop_around(image, self.uv[idx])
+            if crop is not None:
+                self.crops[frame] = crop
         if pairs is not None and pairs.size:
             projection.colour_into(
                 self.pair_P, pairs, self.model, (R, t), image, self.pair_bgr, self.pair_ok,
@@ -274,14 +319,16 @@ class Colouring:
         theta = np.where(coloured, self.theta, np.nan).astype(np.float32)
         depth = np.where(coloured, self.depth, np.nan).astype(np.float32)
         pair_frame = self.pair_frame
+        crops = self.crops
         if self.frame_map is not None:
             frame = np.where(frame >= 0, self.frame_map[np.maximum(frame, 0)], -1)
             pair_frame = self.frame_map[pair_frame]
             bad = self.frame_map[bad]
+            crops = {int(self.frame_map[j]): c for j, c in crops.items()}
         pairs = Pairs(self.pair_point, pair_frame, self.pair_bgr[:, ::-1], self.pair_ok)
         return Coloured(
             self.bgr[:, ::-1], coloured, frame, dt.astype(np.float32), theta, self.hidden,
-            used_n, failed, self.uv, depth, pairs, bad,
+            used_n, failed, self.uv, depth, pairs, bad, crops,
         )  # fmt: skip
 
 
@@ -300,6 +347,7 @@ def start_colouring(
     want_uv: bool = False,
     frame_ok: np.ndarray | None = None,
     need: np.ndarray | None = None,
+    want_crops: bool = False,
 ) -> Colouring:
     """Colour points ``P`` (N,3) m measured at ``time_ns`` (N,) host ns, sorted by time:
     in the world when ``pose_at`` is given and motion is compensated, else in the laser
@@ -309,7 +357,9 @@ def start_colouring(
     (for the depth buffers);
     ``frame_ok`` (M,) bool: frames that may be used (e.g. those the trajectory covers);
     ``need`` (N,) bool: the points to colour (default all; the others only hide points
-    in ``best``'s depth buffers).
+    in ``best``'s depth buffers); ``want_uv``: each point's pixel; with it,
+    ``want_crops``: each frame's part around its points' pixels (:class:`Crop`,
+    :data:`CROP_MARGIN_PX` beyond them).
 
     The frames go on ``pool`` (first come, first served), one task each, and are not
     waited for: the caller goes on (placing the next points, writing the last ones)
@@ -324,6 +374,7 @@ def start_colouring(
         sub = start_colouring(
             P, time_ns, size_m, frame_ns[keep], [jpegs[int(k)] for k in keep], cam,
             laser_to_vehicle, pose_at, options, pool=pool, want_uv=want_uv, need=need,
+            want_crops=want_crops,
         )  # fmt: skip
         sub.frame_map = keep
         return sub
@@ -353,8 +404,9 @@ def start_colouring(
     none = np.zeros(0, np.int64)
     for k, j in enumerate(frames.tolist()):
         task = pool.submit(
-            out.colour_frame, jpegs[j], points.get(j, none), Rs[k], ts[k], again.get(j)
-        )
+            out.colour_frame, jpegs[j], points.get(j, none), Rs[k], ts[k], again.get(j),
+            j if want_uv and want_crops else None,
+        )  # fmt: skip
         out.futures.append(task)
         out.future_frames.append(j)
     return out

@@ -7,20 +7,24 @@ chunks is lost, and none is made twice), are joined into triangles by
 :func:`acq.mesh.grid_facets`. A facet belongs to the tile of its first scan: tiles of
 ``tile_m`` metres along the laser's track, the last one holding the rest (a rest shorter
 than a quarter of a tile joins the tile before it); each tile is written as soon as the
-chunks have passed its end (:mod:`acq.mesh.files`), with the vertices its facets use;
+chunks have passed its end (:mod:`acq.mesh.files`; its atlas made and its file written
+on a writer thread while the next chunks are joined), with the vertices its facets use;
 with a texture (``texels``), with its atlas (:mod:`acq.mesh.texture`): the vertices keep
 their frame and pixel (the job's ``want_uv``), the frames' gains are kept by session
-frame, and a tile's frames are decoded once each when it is written.
+frame, and a tile's texels are sampled from the parts of the frames the colouring kept
+(:class:`acq.cloud.views.Crop`; a frame whose part misses a pixel is decoded again).
 
 Metres; times host monotonic ns.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import time
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -33,7 +37,7 @@ from acq.cloud.chunks import Chunk, ChunkResult, laser_positions, plan
 from acq.cloud.colorize import CHUNK_S, READ_ONCE_BYTES, run_chunks
 from acq.cloud.job import Job, prepare
 from acq.cloud.report import Report
-from acq.cloud.views import point_size
+from acq.cloud.views import Crop, point_size
 from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
@@ -154,9 +158,12 @@ class MeshJob:
         the file that cannot be written (a full disk: DiskFullError)."""
         t0 = time.perf_counter()
         tiles = _Tiles(self)
-        run_chunks(self.job, self.chunks, 1, None, progress, tiles.add,
-                   self.index if self.once else None)  # fmt: skip
-        tiles.finish()
+        try:
+            run_chunks(self.job, self.chunks, 1, None, progress, tiles.add,
+                       self.index if self.once else None)  # fmt: skip
+            tiles.finish()
+        finally:
+            tiles.close()
         rep = self.report
         if not rep.files:
             raise InputValueError(
@@ -230,7 +237,8 @@ def prepare_mesh(
     if index.n_scans == 0:
         raise InputValueError(f"LOG {logs[0]}: no laser scans; nothing to join into facets")
     if texels is not None:
-        job = replace(job, want_uv=True)  # each vertex's pixel in its frame
+        # each vertex's pixel in its frame, and the frames' parts around them
+        job = replace(job, want_uv=True, want_crops=True)
     if not job.frame_world:
         # a moving rig's profiles lie on top of each other in the laser frame: its grid
         # joins nothing that is a surface
@@ -286,6 +294,11 @@ class _Tiles:
         self.frame = np.zeros(0, np.int64)
         self.uv = np.zeros((0, 2), np.float32)
         self.gains: Gains | None = None
+        # the colouring's crops of decoded frames, per camera by session frame
+        self.crops: list[dict[int, Crop]] = [{} for _ in mj.job.cameras]
+        # the tile being written on the writer thread: its path, facets before simplifying
+        self._writer: ThreadPoolExecutor | None = None
+        self._pending: tuple[Path, int, Future[tuple[int, int, int]]] | None = None
 
     def add(self, r: ChunkResult) -> None:
         mj, rep = self.mj, self.mj.report
@@ -313,11 +326,67 @@ class _Tiles:
             self.frame = np.concatenate([self.frame, r.frame.astype(np.int64)])
             self.uv = np.concatenate([self.uv, r.uv])
             self._add_gains(r)
+            for held, crops in zip(self.crops, r.crops, strict=True):
+                held.update(crops)
         if self.scan.size:  # tiles whose last scan is before the held last one are whole
             self._write_until(int(mj.tile[self.scan[-1]]))
 
     def finish(self) -> None:
         self._write_until(len(self.mj.paths))
+        self._collect()
+
+    def close(self) -> None:
+        """Wait for the tile being written, if any (on an error: its outcome unasked)."""
+        if self._writer is not None:
+            self._writer.shutdown(wait=True)
+
+    def _write(self, path: Path, at: np.ndarray, tri: np.ndarray) -> None:
+        """Make the tile of the facets ``tri`` of the held vertices ``at`` (its atlas) and
+        write it on the writer thread, while this one goes on with the next chunks; once
+        the tile before it is written."""
+        self._collect()
+        if self._writer is None:
+            self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="acq-mesh-write")
+        # what the tile needs as it is now: the held arrays are replaced, not changed in
+        # place, as chunks come; the gains and crops are changed in place
+        held = copy.copy(self)
+        held.crops = [dict(c) for c in self.crops]
+        if self.gains is not None:
+            held.gains = replace(self.gains, log_gain=[g.copy() for g in self.gains.log_gain])
+
+        def make() -> tuple[int, int, int]:
+            """The tile written: (bytes, vertices, facets) of its file."""
+            mj = self.mj
+            atlas = held._atlas(at, tri) if mj.texels is not None else None
+            xyz, rgb, faces = held.xyz[at], held.rgb[at], tri
+            if mj.simplify_m is not None:
+                xyz, rgb, faces = simplify.simplify(xyz, rgb, faces, mj.simplify_m)
+            size = files.write(path, xyz, rgb, faces, mj.comments, atlas)
+            return size, xyz.shape[0], faces.shape[0]
+
+        self._pending = (path, tri.shape[0], self._writer.submit(make))
+
+    def _collect(self) -> None:
+        """Wait for the tile being written; its file and counts into the report (a full
+        disk: DiskFullError naming it)."""
+        if self._pending is None:
+            return
+        path, joined, task = self._pending
+        self._pending = None
+        rep = self.mj.report
+        try:
+            size, n_vertices, n_facets = task.result()
+        except Exception as e:
+            full = full_disk_error(path, e)
+            if full is None:
+                raise
+            raise full from e
+        rep.bytes += size
+        rep.files.append(str(path))
+        rep.vertices += n_vertices
+        rep.facets += n_facets
+        if self.mj.simplify_m is not None:
+            rep.joined = (rep.joined or 0) + joined
 
     def _write_until(self, end: int) -> None:
         """Write the tiles before ``end`` and drop what only they used."""
@@ -343,21 +412,7 @@ class _Tiles:
                         f"{w:,} x {h:,} texels, over the {texture.MAX_SIDE:,} a side that "
                         "viewers take; use a shorter --tile-m or fewer --texels"
                     )
-            atlas = self._atlas(at, tri) if mj.texels is not None else None
-            xyz, rgb = self.xyz[at], self.rgb[at]
-            if mj.simplify_m is not None:
-                rep.joined = (rep.joined or 0) + tri.shape[0]
-                xyz, rgb, tri = simplify.simplify(xyz, rgb, tri, mj.simplify_m)
-            try:
-                rep.bytes += files.write(path, xyz, rgb, tri, mj.comments, atlas)
-            except Exception as e:
-                full = full_disk_error(path, e)
-                if full is None:
-                    raise
-                raise full from e
-            rep.files.append(str(path))
-            rep.vertices += int(xyz.shape[0])
-            rep.facets += int(tri.shape[0])
+            self._write(path, at, tri)
         self.faces = self.faces[face_tile >= end]
         self.next_tile = end
         # a later tile's facets start at its own first scan: what is before is done
@@ -371,6 +426,7 @@ class _Tiles:
             if mj.texels is not None:
                 self.camera, self.frame = self.camera[drop:], self.frame[drop:]
                 self.uv = self.uv[drop:]
+                self._drop_crops()
 
     def _add_gains(self, r: ChunkResult) -> None:
         """Keep the chunk's gains by session frame (a frame two chunks share: the later's)."""
@@ -401,8 +457,9 @@ class _Tiles:
                                    view_cam, view_frame)  # fmt: skip
         self._tell(at, tri, view_cam, view_frame, px)
         fill = self.rgb[at][tri].mean(axis=1).round().astype(np.uint8)
-        atlas = texture.build_atlas(px, view_cam, view_frame, self._images, self.gains, fill,
-                                    mj.texels)  # fmt: skip
+        atlas = texture.build_atlas(px, view_cam, view_frame,
+                                    self._images_for(px, view_cam, view_frame), self.gains,
+                                    fill, mj.texels)  # fmt: skip
         mj.report.textured = (mj.report.textured or 0) + int(np.count_nonzero(atlas.textured))
         return atlas
 
@@ -414,6 +471,67 @@ class _Tiles:
         if self.mj.on_views is not None:
             self.mj.on_views(TileViews(self.scan[at], self.step[at], self.camera[at],
                                        self.frame[at], tri, view_cam, view_frame, px))  # fmt: skip
+
+    def _drop_crops(self) -> None:
+        """Drop the crops of the frames before those the held vertices were coloured
+        from (the tiles after are made of later scans)."""
+        for c, crops in enumerate(self.crops):
+            mine = self.frame[(self.camera == c) & (self.frame >= 0)]
+            first = int(mine.min()) if mine.size else None
+            for f in [f for f in crops if first is None or f < first]:
+                del crops[f]
+
+    def _images_for(
+        self, px: np.ndarray, view_cam: np.ndarray, view_frame: np.ndarray
+    ) -> texture.FrameImages:
+        """The frames of the facets whose corners are at ``px`` (F,3,2) in their view
+        (``view_cam``, ``view_frame`` (F,)), as :func:`texture.build_atlas` asks for them:
+        the crop the colouring kept of a frame when it holds every pixel the facets'
+        texels are sampled from (in a buffer of the frame's size, valid until the next
+        one is asked for), else the frame decoded again (:meth:`_images`)."""
+        assert self.mj.texels is not None
+        ok = np.flatnonzero((view_cam >= 0) & np.isfinite(px).all(axis=(1, 2)))
+        key = (view_cam[ok] << 32) | view_frame[ok]
+        by_view = np.argsort(key, kind="stable")
+        keys, first = np.unique(key[by_view], return_index=True)
+        p = px[ok[by_view]]
+        lo = np.minimum(np.minimum(p[:, 0], p[:, 1]), p[:, 2])
+        hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
+        # a half cell's texels reach past its triangle by a texel (1/(texels - 3) of it
+        # at most), and bilinear sampling a pixel beyond
+        pad = (hi - lo).max(axis=1, keepdims=True) / (self.mj.texels - 3) + 2
+        need_lo = np.minimum.reduceat(lo - pad, first) if ok.size else lo
+        need_hi = np.maximum.reduceat(hi + pad, first) if ok.size else hi
+
+        def held(camera: int, frame: int, row: int) -> Crop | None:
+            crop = self.crops[camera].get(frame)
+            if crop is None:
+                return None
+            w, h = crop.size  # beyond the frame, BORDER_REPLICATE reads its edge
+            x0, y0 = np.clip(np.floor(need_lo[row]).astype(int), 0, [w - 1, h - 1])
+            x1, y1 = np.clip(np.ceil(need_hi[row]).astype(int) + 1, 1, [w, h])
+            return crop if crop.holds(int(x0), int(y0), int(x1), int(y1)) else None
+
+        def images(camera: int, frames: np.ndarray) -> Iterator[np.ndarray | None]:
+            rows = np.searchsorted(keys, (camera << 32) | frames)
+            crops = [
+                held(camera, f, r) for f, r in zip(frames.tolist(), rows.tolist(), strict=True)
+            ]
+            again = frames[[c is None for c in crops]]
+            decoded = self._images(camera, again) if again.size else iter(())
+            buffer = np.zeros((0, 0, 3), np.uint8)
+            for crop in crops:
+                if crop is None:
+                    yield next(decoded)
+                    continue
+                w, h = crop.size
+                if buffer.shape[:2] != (h, w):
+                    buffer = np.empty((h, w, 3), np.uint8)
+                ch, cw = crop.pixels.shape[:2]
+                buffer[crop.y0 : crop.y0 + ch, crop.x0 : crop.x0 + cw] = crop.pixels
+                yield buffer
+
+        return images
 
     def _images(self, camera: int, frames: np.ndarray) -> Iterator[np.ndarray | None]:
         """Camera ``camera``'s session ``frames`` (sorted), decoded in order."""

@@ -28,7 +28,7 @@ import numpy as np
 from acq.atomic_write import atomic
 from acq.cloud import ply
 from acq.errors import InputValueError
-from acq.provenance import SOFTWARE
+from acq.provenance import SOFTWARE, marked_image
 
 if TYPE_CHECKING:
     from acq.mesh.texture import Atlas
@@ -36,6 +36,7 @@ if TYPE_CHECKING:
 __all__ = ["SUFFIXES", "Y_UP", "format_of", "texture_files", "write"]
 
 SUFFIXES = (".ply", ".glb", ".obj")
+GLB_JPEG_QUALITY = 75  # a glb's atlas: Pillow's default, as the glb had it through trimesh
 # the world's (x, y, z), z up, as glTF's (x, y, z), +y up
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
@@ -83,48 +84,116 @@ def _write_glb(
     path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray, lines: Sequence[str],
     texture: Atlas | None,
 ) -> int:  # fmt: skip
-    import trimesh
+    import pygltflib as gl
 
     offset = xyz[0].copy() if len(xyz) else np.zeros(3)
+    parts = _GlbBuffer()
     if texture is None:
-        mesh = trimesh.Trimesh(
-            vertices=xyz - offset, faces=faces, vertex_colors=rgb, process=False, validate=False
+        rgba = np.hstack([rgb, np.full((len(rgb), 1), 255, np.uint8)])
+        attributes = gl.Attributes(
+            POSITION=parts.positions(xyz - offset, None),
+            COLOR_0=parts.accessor(rgba, gl.UNSIGNED_BYTE, gl.VEC4, normalized=True),
         )
+        indices = parts.accessor(faces.reshape(-1).astype(np.uint32), gl.UNSIGNED_INT, gl.SCALAR)
+        primitive = gl.Primitive(attributes=attributes, indices=indices)
+        extra: dict[str, Any] = {}
     else:
-        # a vertex per facet corner: each facet has its own place in the atlas (and
-        # glTF multiplies COLOR_0 into the texture: no vertex colours)
-        corners = np.arange(faces.size).reshape(-1, 3)
-        textured: Any = trimesh.visual.TextureVisuals  # trimesh has no annotations
-        visual = textured(uv=texture.uv.reshape(-1, 2), image=_jpeg_image(texture.image))
-        mesh = trimesh.Trimesh(
-            vertices=(xyz - offset)[faces].reshape(-1, 3), faces=corners, visual=visual,
-            process=False, validate=False,
-        )  # fmt: skip
+        # a vertex per facet corner, in order (no indices): each facet has its own place
+        # in the atlas; glTF's v runs down; no COLOR_0 (glTF multiplies it into the texture)
+        uv = texture.uv.reshape(-1, 2).copy()
+        uv[:, 1] = 1.0 - uv[:, 1]
+        attributes = gl.Attributes(
+            POSITION=parts.positions(xyz - offset, faces),
+            TEXCOORD_0=parts.accessor(uv, gl.FLOAT, gl.VEC2),
+        )
+        primitive = gl.Primitive(attributes=attributes, material=0)
+        image = gl.Image(bufferView=parts.view(_jpeg(texture.bgr)), mimeType="image/jpeg")
+        # matte: glTF's default material is a metal
+        pbr = gl.PbrMetallicRoughness(
+            baseColorTexture=gl.TextureInfo(index=0), metallicFactor=0.0, roughnessFactor=1.0
+        )
+        extra = {
+            "images": [image], "textures": [gl.Texture(source=0)],
+            "materials": [gl.Material(pbrMetallicRoughness=pbr)],
+        }  # fmt: skip
     node = np.eye(4)
     node[:3, :3] = Y_UP
     node[:3, 3] = Y_UP @ offset
-    scene = trimesh.Scene()
-    scene.add_geometry(mesh, node_name="facets", geom_name="facets", transform=node)
-
-    def mark(tree: dict[str, Any]) -> None:
-        tree["asset"]["generator"] = SOFTWARE
-        tree["asset"]["extras"] = {"acq": list(lines)}
-
-    export: Any = trimesh.exchange.gltf.export_glb  # trimesh has no annotations
-    data: bytes = export(scene, tree_postprocessor=mark)
-    with atomic(path) as tmp:
-        tmp.write_bytes(data)
+    glb = gl.GLTF2(
+        asset=gl.Asset(generator=SOFTWARE, version="2.0", extras={"acq": list(lines)}),
+        scene=0, scenes=[gl.Scene(nodes=[0])],
+        nodes=[gl.Node(name="facets", mesh=0, matrix=node.T.reshape(-1).tolist())],
+        meshes=[gl.Mesh(name="facets", primitives=[primitive])],
+        accessors=parts.accessors, bufferViews=parts.views,
+        buffers=[gl.Buffer(byteLength=parts.size)], **extra,
+    )  # fmt: skip
+    glb.set_binary_blob(parts.blob())
+    with atomic(path) as tmp, open(tmp, "wb") as out:
+        for chunk in glb.save_to_bytes():
+            out.write(chunk)
     return path.stat().st_size
 
 
-def _jpeg_image(rgb: np.ndarray) -> Any:
-    """``rgb`` (H,W,3) uint8 as a PIL image that trimesh embeds as a JPEG (it keeps a
-    JPEG a JPEG, anything else becomes PNG: 3-5 times the bytes for a photograph)."""
-    from PIL import Image
+class _GlbBuffer:
+    """A glb's binary chunk being assembled: its buffer views (each on 4 bytes, as glTF
+    wants them) and accessors (pygltflib's)."""
 
-    image = Image.fromarray(rgb)
-    image.format = "JPEG"
-    return image
+    def __init__(self) -> None:
+        self.chunks: list[bytes] = []
+        self.views: list[Any] = []
+        self.accessors: list[Any] = []
+        self.size = 0
+
+    def view(self, data: bytes) -> int:
+        """A buffer view of ``data``; its number."""
+        import pygltflib as gl
+
+        self.views.append(gl.BufferView(buffer=0, byteOffset=self.size, byteLength=len(data)))
+        pad = -len(data) % 4
+        self.chunks += [data, b"\0" * pad]
+        self.size += len(data) + pad
+        return len(self.views) - 1
+
+    def accessor(
+        self, values: np.ndarray, component: int, kind: str, *, normalized: bool = False,
+        bounds: tuple[list[float], list[float]] | None = None,
+    ) -> int:  # fmt: skip
+        """An accessor of ``values`` (N,) or (N,k) in a view of their own, with their
+        ``bounds`` (min, max) when given; its number."""
+        import pygltflib as gl
+
+        lo, hi = bounds or (None, None)
+        self.accessors.append(
+            gl.Accessor(
+                bufferView=self.view(np.ascontiguousarray(values).tobytes()),
+                componentType=component, count=len(values), type=kind,
+                normalized=normalized or None, min=lo, max=hi,
+            )
+        )  # fmt: skip
+        return len(self.accessors) - 1
+
+    def positions(self, xyz: np.ndarray, faces: np.ndarray | None) -> int:
+        """An accessor of the positions ``xyz`` (V,3) m as float32 (``faces`` (F,3): a
+        vertex per facet corner), with the min and max glTF wants (the vertices')."""
+        import pygltflib as gl
+
+        v = xyz.astype(np.float32)
+        bounds = (v.min(axis=0).tolist(), v.max(axis=0).tolist()) if len(v) else None
+        corners = v if faces is None else v[faces].reshape(-1, 3)
+        return self.accessor(corners, gl.FLOAT, gl.VEC3, bounds=bounds)
+
+    def blob(self) -> bytes:
+        return b"".join(self.chunks)
+
+
+def _jpeg(bgr: np.ndarray) -> bytes:
+    """``bgr`` (H,W,3) uint8 as a JPEG marked as acq's (:data:`GLB_JPEG_QUALITY`)."""
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, GLB_JPEG_QUALITY])
+    if not ok:
+        raise ValueError(f"cannot encode an atlas of {bgr.shape} as JPEG")
+    return marked_image(buf.tobytes())
 
 
 def _write_obj(
@@ -150,7 +219,7 @@ def _write_textured_obj(
     if not all(c.isprintable() for c in lines):
         raise ValueError(f"an OBJ comment is one line of printable text: {list(lines)}")
     mtl, jpg = texture_files(path)
-    write_image(jpg, np.ascontiguousarray(texture.image[..., ::-1]))
+    write_image(jpg, texture.bgr)
     with atomic(mtl) as tmp, open(tmp, "w", encoding="utf-8") as out:
         out.write(f"# {lines[0]}\nnewmtl facets\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\n"
                   f"illum 1\nmap_Kd {jpg.name}\n")  # fmt: skip

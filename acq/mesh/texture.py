@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -48,7 +49,8 @@ MAX_SIDE = 16384
 _ROWS = 4096  # facets resampled per cv2.remap call (its maps stay small)
 _TEXEL = np.dtype((np.void, 3))  # a texel's three bytes as one item
 
-# the images of camera c's session frames (sorted), in that order; None: not decoded
+# the images of camera c's session frames (sorted), in that order (each valid until the
+# next is asked for); None: not decoded
 FrameImages = Callable[[int, np.ndarray], Iterator[np.ndarray | None]]
 
 
@@ -136,15 +138,20 @@ def _level_tables(gains: Gains | None, camera: int, frames: np.ndarray) -> np.nd
 
 @dataclass(frozen=True)
 class Atlas:
-    """A tile's texture: ``image`` (H,W,3) uint8 RGB, cells of ``texels`` a side, row by
-    row; ``uv`` (F,3,2) float32 each facet corner's texture coordinates; ``textured``
-    (F,) bool: facets sampled from a frame (the others filled with their vertices' mean
-    colour)."""
+    """A tile's texture: ``bgr`` (H,W,3) uint8 (as the frames and the JPEG encoder have
+    it; :attr:`image` RGB), cells of ``texels`` a side, row by row; ``uv`` (F,3,2)
+    float32 each facet corner's texture coordinates; ``textured`` (F,) bool: facets
+    sampled from a frame (the others filled with their vertices' mean colour)."""
 
-    image: np.ndarray
+    bgr: np.ndarray
     uv: np.ndarray
     textured: np.ndarray
     slot: np.ndarray  # (F,) int64: each facet's cell (slot // 2, row by row) and half
+
+    @cached_property
+    def image(self) -> np.ndarray:
+        """(H,W,3) uint8 RGB (made when first asked)."""
+        return np.ascontiguousarray(self.bgr[..., ::-1])
 
 
 def build_atlas(
@@ -181,34 +188,49 @@ def build_atlas(
     cell_at = (cy * texels) * width + cx * texels  # each facet's cell's first texel in flat
     at_half = [ys * width + xs for xs, ys in halves]
     for c in np.unique(view_cam[order]).tolist():
+        # the camera's facets by frame, then half: each frame's halves are runs
         mine = order[view_cam[order] == c]
+        mine = mine[np.lexsort((half_of[mine], view_frame[mine]))]
+        half = half_of[mine]
+        M = np.empty((mine.size, 2, 3), dtype=np.float32)  # each facet's map, all at once
+        for h in (0, 1):
+            M[half == h] = np.einsum("fci,cj->fij", corner_px[mine[half == h]], q_inv[h])
+        got = [np.empty((int(np.count_nonzero(half == h)), xs.size, 3), np.uint8)
+               for h, (xs, _) in enumerate(halves_f)]  # fmt: skip
+        # each facet's row in its half's got
+        row_of = np.empty(mine.size, dtype=np.int64)
+        for h in (0, 1):
+            row_of[half == h] = np.arange(np.count_nonzero(half == h))
         frames, first = np.unique(view_frame[mine], return_index=True)
         ends = np.r_[first[1:], mine.size]
+        mids = first + np.add.reduceat((half == 0).astype(np.int64), first) if first.size else first
         luts = _level_tables(gains, c, frames)
-        for j, (lo, hi, img) in enumerate(zip(first, ends, images(c, frames), strict=True)):
-            if img is None:
+        for j, (lo, mid, hi, img) in enumerate(zip(first, mids, ends, images(c, frames),
+                                                  strict=True)):  # fmt: skip
+            if img is None:  # its facets' rows of got are not used: they are filled
                 continue
-            for h, (xs, ys) in enumerate(halves_f):
-                fs = mine[lo:hi]
-                fs = fs[half_of[fs] == h]
-                for k in range(0, fs.size, _ROWS):
-                    part = fs[k : k + _ROWS]
-                    M = np.einsum("fci,cj->fij", corner_px[part], q_inv[h]).astype(np.float32)
-                    mx = M[:, 0, 0:1] * xs + M[:, 0, 1:2] * ys + M[:, 0, 2:3]
-                    my = M[:, 1, 0:1] * xs + M[:, 1, 1:2] * ys + M[:, 1, 2:3]
-                    got = cv2.remap(img, mx, my, cv2.INTER_LINEAR,
-                                    borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+            done[mine[lo:hi]] = True
+            for h, (a, b) in enumerate([(lo, mid), (mid, hi)]):
+                xs, ys = halves_f[h]
+                for k in range(a, b, _ROWS):
+                    m = M[k : min(k + _ROWS, b)]
+                    mx = m[:, 0, 0:1] * xs + m[:, 0, 1:2] * ys + m[:, 0, 2:3]
+                    my = m[:, 1, 0:1] * xs + m[:, 1, 1:2] * ys + m[:, 1, 2:3]
+                    part = cv2.remap(img, mx, my, cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
                     if luts is not None:
-                        got = cv2.LUT(got, luts[j])
-                    flat[cell_at[part, None] + at_half[h]] = (
-                        got.reshape(-1).view(_TEXEL).reshape(part.size, -1)
-                    )
-                    done[part] = True
+                        part = cv2.LUT(part, luts[j])
+                    row = row_of[k]
+                    got[h][row : row + part.shape[0]] = part
+        for h in (0, 1):
+            fs = mine[half == h]
+            flat[cell_at[fs, None] + at_half[h]] = (
+                got[h].reshape(-1).view(_TEXEL).reshape(fs.size, at_half[h].size)
+            )
     for h, (xs, ys) in enumerate(halves):
         rest = np.flatnonzero(~done & (half_of == h))
         bgr[cy[rest, None] * texels + ys, cx[rest, None] * texels + xs] = fill[rest, None, ::-1]
-    image = np.ascontiguousarray(bgr[..., ::-1])
     origin = np.stack([cx * texels, cy * texels], axis=1)[:, None, :].astype(np.float64)
     at = origin + corners[half_of] + 0.5  # pixel edges: the first texel spans 0..1
-    uv = np.stack([at[..., 0] / image.shape[1], 1.0 - at[..., 1] / image.shape[0]], axis=-1)
-    return Atlas(image, uv.astype(np.float32), done, slot)
+    uv = np.stack([at[..., 0] / bgr.shape[1], 1.0 - at[..., 1] / bgr.shape[0]], axis=-1)
+    return Atlas(bgr, uv.astype(np.float32), done, slot)

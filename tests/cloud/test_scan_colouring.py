@@ -145,3 +145,21 @@ def test_no_camera_leaves_every_point_uncoloured() -> None:
 def test_frames_too_far_in_time_colour_nothing() -> None:
     _, merged = _colour([2_000_000_000], [_frames(3)], NEAREST)  # 1.9 s after the last
     assert not merged.coloured.any()
+
+
+def test_a_crop_is_the_frame_around_its_points_within_the_frame() -> None:
+    from acq.cloud.views import crop_around
+
+    image = np.arange(60 * 80 * 3, dtype=np.uint32).reshape(60, 80, 3).astype(np.uint8)
+    uv = np.array([[10.2, 20.7], [30.0, 25.5], [np.nan, 1.0]], np.float32)
+    crop = crop_around(image, uv, margin=4)
+    assert crop is not None and (crop.x0, crop.y0, crop.size) == (6, 16, (80, 60))
+    # to ceil(max) + margin, past the pixel: [6, 35) x [16, 31)
+    assert np.array_equal(crop.pixels, image[16:31, 6:35])
+    assert not np.shares_memory(crop.pixels, image)  # the frame's buffer is reused
+    assert crop.holds(6, 16, 35, 31) and crop.holds(7, 17, 30, 20)
+    assert not crop.holds(5, 16, 35, 31) and not crop.holds(6, 15, 35, 31)
+    assert not crop.holds(6, 16, 36, 31) and not crop.holds(6, 16, 35, 32)
+    edge = crop_around(image, np.array([[1.0, 58.5]], np.float32), margin=4)
+    assert edge is not None and (edge.x0, edge.y0) == (0, 54) and edge.pixels.shape[:2] == (6, 6)
+    assert crop_around(image, np.full((2, 2), np.nan, np.float32)) is None

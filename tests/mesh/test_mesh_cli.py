@@ -205,6 +205,51 @@ def test_the_laser_frame_is_refused_and_progress_shows_a_bar(
     assert "colouring" in capsys.readouterr().err
 
 
+def test_a_tile_is_made_and_written_while_the_next_chunk_is_joined(
+    short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A tile's atlas is made and its file written on the writer thread: the first
+    tile's write waits, here, for the second chunk's facets to begin (it would wait in
+    vain on the main thread); the files are those made without waiting."""
+    import threading
+
+    from acq.mesh import drive, files, texture
+
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    argv = ("--tile-m", "3", "--texture", "--chunk", "1")
+    assert _mesh(short_drive, plain / "t.glb", *argv) == 0
+    real_write, real_build, real_grid = files.write, texture.build_atlas, drive.grid_facets
+    second_chunk, writes, builds, grids = threading.Event(), [], [], []
+
+    def write(path: Path, *args: object, **kwargs: object) -> int:
+        writes.append(threading.current_thread().name)
+        if len(writes) == 1:
+            second_chunk.wait(timeout=10)
+        return real_write(path, *args, **kwargs)  # type: ignore[arg-type]
+
+    def build_atlas(*args: object) -> texture.Atlas:
+        builds.append(threading.current_thread().name)
+        return real_build(*args)  # type: ignore[arg-type]
+
+    def grid_facets(*args: object) -> np.ndarray:
+        grids.append(1)
+        if len(grids) == 2:
+            second_chunk.set()
+        return real_grid(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(files, "write", write)
+    monkeypatch.setattr(texture, "build_atlas", build_atlas)
+    monkeypatch.setattr(drive, "grid_facets", grid_facets)
+    out = tmp_path / "t.glb"
+    assert _mesh(short_drive, out, *argv) == 0
+    assert second_chunk.is_set() and len(writes) == len(builds) >= 3
+    assert all(t.startswith("acq-mesh-write") for t in writes + builds)
+    made = sorted(p.name for p in tmp_path.glob("t_*.glb"))
+    assert made == sorted(p.name for p in plain.glob("t_*.glb"))
+    assert all((tmp_path / m).read_bytes() == (plain / m).read_bytes() for m in made)
+
+
 def test_a_full_disk_at_a_tile_is_one_line_exit_3(
     short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],

@@ -20,16 +20,17 @@ import trimesh
 from PIL import Image
 from plyfile import PlyData
 
-from acq.camera import calibfile
+from acq.camera import calibfile, jpeg
 from acq.camera.jpeg import decode_jpeg
 from acq.cli import main as acq_main
 from acq.cloud.balance import Gains
 from acq.cloud.chunks import NO_CAMERA
+from acq.cloud.views import Crop
 from acq.log.drive_log import read_log
 from acq.mesh import drive, texture, view_selection
 from acq.mesh.drive import prepare_mesh
 from acq.mesh.files import Y_UP
-from acq.provenance import made_by_acq
+from acq.provenance import SOFTWARE, made_by_acq
 from acq.sim.drive_log import DriveTruth
 
 Drive = tuple[DriveTruth, Path]
@@ -124,6 +125,43 @@ def test_atlas_texels_are_the_frame_at_the_facets_pixels_and_cells_do_not_mix() 
     # bilinear filtering at any point of a triangle reads its own half only: the upper
     # left's texels have x + y < T, its points x + y <= T - 2; the lower right's >= T, T + 1
     assert corners[0].sum(axis=1).max() == T - 2 and corners[1].sum(axis=1).min() == T + 1
+
+
+def test_atlas_is_the_same_however_many_facets_a_remap_takes_and_a_lost_frame_is_filled(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Many facets of both halves in three frames, the middle one not decoding: the
+    atlas sampled a facet per cv2.remap call is the one sampled a frame's half at a
+    time; the lost frame's facets hold their fill, the others their frame's texels."""
+    rng = np.random.default_rng(3)
+    n = 301
+    base = rng.uniform([5, 5], [150, 110], (n, 1, 2))
+    px = (base + rng.uniform(-4, 4, (n, 3, 2))).astype(np.float32)
+    view_cam = np.zeros(n, dtype=np.int64)
+    view_frame = rng.integers(0, 3, n)
+    fill = rng.integers(0, 256, (n, 3), dtype=np.uint8)
+    img = _gradient()
+    gains = Gains([np.log(np.array([[1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.5, 1.0, 0.8]]))], 0, 0)
+    whole = texture.build_atlas(px, view_cam, view_frame, _frames(img, None, img[::-1].copy()),
+                                gains, fill, T)  # fmt: skip
+    monkeypatch.setattr(texture, "_ROWS", 1)
+    one = texture.build_atlas(px, view_cam, view_frame, _frames(img, None, img[::-1].copy()),
+                              gains, fill, T)  # fmt: skip
+    assert np.array_equal(one.bgr, whole.bgr) and np.array_equal(one.uv, whole.uv)
+    assert whole.textured.tolist() == (view_frame != 1).tolist()
+    cols = whole.bgr.shape[1] // T
+    frames = _frames(img, None, img[::-1].copy())
+    for f in range(n):  # each facet's texels as an atlas of that facet alone has them
+        s = whole.slot[f]
+        xs, ys = texture._half_texels(T)[s % 2]
+        texels = whole.bgr[(s // 2) // cols * T + ys, (s // 2) % cols * T + xs]
+        k = [f] * (1 + s % 2)  # the facet (twice for the lower right half: the second)
+        alone = texture.build_atlas(px[k], view_cam[k], view_frame[k], frames, gains,
+                                    fill[k], T)  # fmt: skip
+        assert alone.slot[-1] == s % 2
+        assert np.array_equal(texels, alone.bgr[ys, xs]), f
+        if view_frame[f] == 1:
+            assert (texels == fill[f, ::-1]).all()
 
 
 @dataclass
@@ -309,8 +347,15 @@ def test_glb_has_its_texture_and_each_facets_uvs_lie_in_its_cell(
     pbr = g.materials[g.meshes[0].primitives[0].material].pbrMetallicRoughness
     assert pbr.baseColorTexture.index == 0
     assert g.meshes[0].primitives[0].attributes.COLOR_0 is None  # it would tint the texture
+    # matte and untinted (glTF's default material is a metal)
+    assert pbr.metallicFactor == 0 and pbr.roughnessFactor == 1
+    assert pbr.baseColorFactor in (None, [1.0, 1.0, 1.0, 1.0])
+    # a vertex per facet corner, drawn in order: no index buffer
+    assert g.meshes[0].primitives[0].indices is None
+    assert g.accessors[g.meshes[0].primitives[0].attributes.POSITION].count == cap.tri.size
     blob = g.binary_blob()
     view = g.bufferViews[g.images[0].bufferView]
+    assert SOFTWARE.encode() in blob[view.byteOffset : view.byteOffset + 64]  # marked
     jpeg = Image.open(io.BytesIO(blob[view.byteOffset : view.byteOffset + view.byteLength]))
     stored = np.asarray(jpeg.convert("RGB")).astype(np.int16)
     assert stored.shape == cap.atlas.image.shape
@@ -356,6 +401,32 @@ def test_frames_read_from_the_log_per_tile_give_the_same_atlas(
     monkeypatch.setattr(drive, "READ_ONCE_BYTES", 0)
     again = _run(short_drive, tmp_path / "big.glb", monkeypatch)
     assert np.array_equal(again.atlas.image, cap.atlas.image)
+
+
+def test_frames_are_decoded_once_the_atlas_sampling_what_the_colouring_kept(
+    short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The colouring keeps each frame's pixels around its points (views.Crop); the atlas
+    samples those, decoding again only a frame whose kept part misses a pixel its facets
+    need: the same atlas as with every frame decoded again."""
+    decodes: list[int] = []
+    real = jpeg.decode_jpeg
+
+    def counted(data: bytes) -> np.ndarray | None:
+        decodes.append(len(data))
+        return real(data)
+
+    monkeypatch.setattr(jpeg, "decode_jpeg", counted)  # the atlas's decoder (the colouring's
+    # decodes into its thread's buffer, without it)
+    kept = _run(short_drive, tmp_path / "kept.glb", monkeypatch)
+    asked = sum(len(frames) for _, frames in kept.asked)
+    assert asked > 20 and len(decodes) <= asked // 20, (len(decodes), asked)
+    decodes.clear()
+    monkeypatch.setattr(Crop, "holds", lambda self, *pixels: False)
+    again = _run(short_drive, tmp_path / "again.glb", monkeypatch)
+    assert len(decodes) == asked  # each frame the facets use, decoded again
+    assert np.array_equal(again.atlas.bgr, kept.atlas.bgr)
+    assert np.array_equal(again.atlas.uv, kept.atlas.uv)
 
 
 @pytest.mark.parametrize(

@@ -119,7 +119,7 @@ def test_a_textured_glb_reads_back_upright_and_renders_as_the_truth(tmp_path: Pa
     image[:16], image[16:] = RGB, RGB // 2
     faces = np.array([[0, 1, 3], [0, 3, 2]])
     corner_uv = np.array([[0.1, 0.6], [0.9, 0.6], [0.1, 0.95], [0.9, 0.95]], np.float32)  # v up
-    atlas = Atlas(image, corner_uv[faces], np.ones(2, bool), np.arange(2))
+    atlas = Atlas(image[..., ::-1].copy(), corner_uv[faces], np.ones(2, bool), np.arange(2))  # BGR
     glb = tmp_path / "quad.glb"
     files.write(glb, corners, np.zeros((4, 3), np.uint8), faces, texture=atlas)
 

@@ -48,6 +48,10 @@ from acq.motion import Trajectory
 
 __all__ = ["MeshJob", "MeshReport", "TileViews", "prepare_mesh", "tile_names", "tiles_of"]
 
+# tiles made (views, atlas) and written at once on their own threads, beside the colouring:
+# two keep both cores busy where one tile's atlas takes longer than the chunks that follow
+WRITERS = 2
+
 
 @dataclass
 class MeshReport:
@@ -272,7 +276,7 @@ def prepare_mesh(
     return MeshJob(
         job, index, plan(scan_new, chunk_s or CHUNK_S), origin, tile,
         tile_names(output, int(tile[-1]) + 1), rules or FacetRules(), once, report, comments,
-        texels, simplify_m,
+        texels, simplify_m=simplify_m,
     )  # fmt: skip
 
 
@@ -296,9 +300,9 @@ class _Tiles:
         self.gains: Gains | None = None
         # the colouring's crops of decoded frames, per camera by session frame
         self.crops: list[dict[int, Crop]] = [{} for _ in mj.job.cameras]
-        # the tile being written on the writer thread: its path, facets before simplifying
+        # the tiles being written on the writer threads: path, facets before simplifying, task
         self._writer: ThreadPoolExecutor | None = None
-        self._pending: tuple[Path, int, Future[tuple[int, int, int]]] | None = None
+        self._pending: list[tuple[Path, int, Future[tuple[int, int, int, int | None]]]] = []
 
     def add(self, r: ChunkResult) -> None:
         mj, rep = self.mj, self.mj.report
@@ -333,7 +337,8 @@ class _Tiles:
 
     def finish(self) -> None:
         self._write_until(len(self.mj.paths))
-        self._collect()
+        while self._pending:
+            self._collect()
 
     def close(self) -> None:
         """Wait for the tile being written, if any (on an error: its outcome unasked)."""
@@ -342,11 +347,13 @@ class _Tiles:
 
     def _write(self, path: Path, at: np.ndarray, tri: np.ndarray) -> None:
         """Make the tile of the facets ``tri`` of the held vertices ``at`` (its atlas) and
-        write it on the writer thread, while this one goes on with the next chunks; once
-        the tile before it is written."""
-        self._collect()
+        write it on a writer thread, while this one goes on with the next chunks; at most
+        ``WRITERS`` tiles in flight (the oldest collected first)."""
+        if len(self._pending) >= WRITERS:
+            self._collect()
         if self._writer is None:
-            self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="acq-mesh-write")
+            self._writer = ThreadPoolExecutor(max_workers=WRITERS,
+                                              thread_name_prefix="acq-mesh-write")  # fmt: skip
         # what the tile needs as it is now: the held arrays are replaced, not changed in
         # place, as chunks come; the gains and crops are changed in place
         held = copy.copy(self)
@@ -354,28 +361,34 @@ class _Tiles:
         if self.gains is not None:
             held.gains = replace(self.gains, log_gain=[g.copy() for g in self.gains.log_gain])
 
-        def make() -> tuple[int, int, int]:
-            """The tile written: (bytes, vertices, facets) of its file."""
+        before = self._pending[-1][2] if self._pending else None
+
+        def make() -> tuple[int, int, int, int | None]:
+            """The tile written: (bytes, vertices, facets, textured facets) of its file
+            (None: no texture); the report is the main thread's. Files are written in
+            order, none after one that failed."""
             mj = self.mj
             atlas = held._atlas(at, tri) if mj.texels is not None else None
             xyz, rgb, faces = held.xyz[at], held.rgb[at], tri
             if mj.simplify_m is not None:
                 xyz, rgb, faces = simplify.simplify(xyz, rgb, faces, mj.simplify_m)
+            if before is not None:
+                before.result()  # raises what the tile before raised: this one not written
             size = files.write(path, xyz, rgb, faces, mj.comments, atlas)
-            return size, xyz.shape[0], faces.shape[0]
+            textured = None if atlas is None else int(np.count_nonzero(atlas.textured))
+            return size, xyz.shape[0], faces.shape[0], textured
 
-        self._pending = (path, tri.shape[0], self._writer.submit(make))
+        self._pending.append((path, tri.shape[0], self._writer.submit(make)))
 
     def _collect(self) -> None:
-        """Wait for the tile being written; its file and counts into the report (a full
-        disk: DiskFullError naming it)."""
-        if self._pending is None:
+        """Wait for the oldest tile being written; its file and counts into the report (a
+        full disk: DiskFullError naming it)."""
+        if not self._pending:
             return
-        path, joined, task = self._pending
-        self._pending = None
+        path, joined, task = self._pending.pop(0)
         rep = self.mj.report
         try:
-            size, n_vertices, n_facets = task.result()
+            size, n_vertices, n_facets, textured = task.result()
         except Exception as e:
             full = full_disk_error(path, e)
             if full is None:
@@ -385,6 +398,8 @@ class _Tiles:
         rep.files.append(str(path))
         rep.vertices += n_vertices
         rep.facets += n_facets
+        if textured is not None:
+            rep.textured = (rep.textured or 0) + textured
         if self.mj.simplify_m is not None:
             rep.joined = (rep.joined or 0) + joined
 
@@ -460,7 +475,6 @@ class _Tiles:
         atlas = texture.build_atlas(px, view_cam, view_frame,
                                     self._images_for(px, view_cam, view_frame), self.gains,
                                     fill, mj.texels)  # fmt: skip
-        mj.report.textured = (mj.report.textured or 0) + int(np.count_nonzero(atlas.textured))
         return atlas
 
     def _tell(

@@ -91,7 +91,7 @@ def test_acq_meshs_own_views_with_the_true_calibration_land_on_the_true_pixels(
         [bench.corner_errors(truth, v, stamps, truth.camera_names) for v in tiles]
     )
     assert got.error.size > 0.9 * 3 * textured
-    assert 0.01 < 1 - got.own.mean() < 0.5  # some corners projected into another frame
+    assert 0.01 < 1 - got.own.mean() < 0.9  # some corners projected into another frame
     for part in (got.own, ~got.own):
         e = got.error[part]
         assert np.median(e) < 0.3 and np.percentile(e, 95) < 1.0, np.percentile(e, [50, 95])

@@ -250,6 +250,51 @@ def test_a_tile_is_made_and_written_while_the_next_chunk_is_joined(
     assert all((tmp_path / m).read_bytes() == (plain / m).read_bytes() for m in made)
 
 
+def test_two_tiles_are_made_at_once_and_the_files_are_one_writers(
+    short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    """With two writer threads the second tile's atlas is made while the first tile is
+    still being written; the files and the report's counts are those of one writer."""
+    import threading
+
+    from acq.mesh import drive, files, texture
+
+    assert drive.WRITERS == 2
+    argv = ("--tile-m", "3", "--texture", "--chunk", "1")
+    monkeypatch.setattr(drive, "WRITERS", 1)
+    one = tmp_path / "one"
+    one.mkdir()
+    assert _mesh(short_drive, one / "t.glb", *argv) == 0
+    said_one = capsys.readouterr().out
+    monkeypatch.setattr(drive, "WRITERS", 2)
+    real_write, real_build = files.write, texture.build_atlas
+    second_build, builds = threading.Event(), []
+
+    def write(path: Path, *args: object, **kwargs: object) -> int:
+        if path.name.endswith("_000.glb"):
+            assert second_build.wait(timeout=20), "the second tile waited for the first"
+        return real_write(path, *args, **kwargs)  # type: ignore[arg-type]
+
+    def build_atlas(*args: object) -> texture.Atlas:
+        builds.append(1)
+        if len(builds) == 2:
+            second_build.set()
+        return real_build(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(files, "write", write)
+    monkeypatch.setattr(texture, "build_atlas", build_atlas)
+    two = tmp_path / "two"
+    two.mkdir()
+    assert _mesh(short_drive, two / "t.glb", *argv) == 0
+    said_two = capsys.readouterr().out
+    made = sorted(p.name for p in two.glob("t_*.glb"))
+    assert len(made) >= 3 and made == sorted(p.name for p in one.glob("t_*.glb"))
+    assert all((one / m).read_bytes() == (two / m).read_bytes() for m in made)
+    counts = [line for line in said_one.splitlines() if "facets" in line]
+    assert counts and counts == [line for line in said_two.splitlines() if "facets" in line]
+
+
 def test_a_full_disk_at_a_tile_is_one_line_exit_3(
     short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],

@@ -17,7 +17,11 @@ the spacing between profiles, 0.14 m at 20 km/h), the truth ray-cast. One JSON l
 view and pooled over the three: ``street_px`` (pixels where the truth hits a surface),
 ``covered`` (the share of them the render covers), ``within_24`` (of those covered, the
 share within 24/255 in every channel; target >= 90 % for the mesh) and ``psnr_db``; and
-the times of each step. ``--picture PNG`` saves the views beside the truth (a PNG of 256 colours).
+the times of each step. ``ceiling``: the truth cast at the fisheyes' resolution at their
+axis (px per radian, the best they see the street), resampled to the view and compared
+with the truth (:func:`acq.sim.mesh_views.resolution_ceiling`): what no texture sampled
+from those frames can pass, per view and pooled. ``--picture PNG`` saves the views beside
+the truth (a PNG of 256 colours).
 ``--texture`` also meshes the drive textured (as `acq mesh --texture`, cells of the
 default texels) into a second ``.glb``, reads it back with its texture, renders it from
 the same views (:func:`acq.mesh.render.render_textured`) and reports it as ``textured``
@@ -60,7 +64,14 @@ def main() -> None:
     from acq.cloud.colorize import run as colorize
     from acq.mesh.drive import prepare_mesh
     from acq.sim.drive_log import write_drive_log
-    from acq.sim.mesh_views import compare, picture, read_mesh, read_textured_mesh, street_views
+    from acq.sim.mesh_views import (
+        compare,
+        picture,
+        read_mesh,
+        read_textured_mesh,
+        resolution_ceiling,
+        street_views,
+    )
     from acq.sim.world import default_rig
 
     row: dict[str, Any] = {"bench": "mesh_render", "seconds": args.seconds}
@@ -106,6 +117,12 @@ def main() -> None:
         splat_m = truth.config["speed_kmh"] / 3.6 * truth.rig.scan_period
         result = compare(truth.street, views, mesh, cloud, splat_m, textured=textured)
         times["render_and_compare"] = time.perf_counter() - t0
+        # the best any texture from these frames can do: the truth seen at the fisheyes'
+        # resolution at their axis (they see less off it), against the truth
+        lens_px_per_rad = max(float(c.lens.fx) for c in truth.rig.cameras)
+        ceiling = {n: resolution_ceiling(truth.street, {n: v}, lens_px_per_rad)
+                   for n, v in views.items()}  # fmt: skip
+        ceiling_all = resolution_ceiling(truth.street, views, lens_px_per_rad)
 
     row["facets"], row["vertices"], row["points"] = rep.facets, rep.vertices, cloud[0].shape[0]
     row["splat_m"] = round(splat_m, 3)
@@ -123,7 +140,10 @@ def main() -> None:
     }
     for name, (_, t) in zip(result.names, result.textured_views, strict=False):
         row["views"][name]["textured"] = figures(t)
+    for name, lk in ceiling.items():
+        row["views"][name]["ceiling"] = figures(lk)
     row["mesh"], row["cloud"] = figures(result.mesh), figures(result.cloud)
+    row["ceiling"] = figures(ceiling_all) | {"lens_px_per_rad": round(lens_px_per_rad, 1)}
     if result.textured is not None:
         row["textured"] = figures(result.textured)
     row["seconds_per_step"] = {k: round(s, 2) for k, s in times.items()}

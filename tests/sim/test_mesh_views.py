@@ -19,6 +19,7 @@ from acq.sim.mesh_views import (
     picture,
     read_mesh,
     read_textured_mesh,
+    resolution_ceiling,
     street_views,
     truth_image,
 )
@@ -166,3 +167,18 @@ def test_an_atlas_over_pillows_89_megapixels_reads_without_a_warning(tmp_path: P
     limit = Image.MAX_IMAGE_PIXELS
     mesh = read_textured_mesh(tmp_path / "big.glb")
     assert mesh.image.shape == (side, side, 3) and Image.MAX_IMAGE_PIXELS == limit
+
+
+def test_the_resolution_ceiling_falls_as_the_street_is_seen_coarser() -> None:
+    """At the view's own resolution the truth is its own ceiling; seen at half of it, the
+    edges between colours blur (the generated street: facades, windows, poles)."""
+    street = Street.generate(0, length_m=80.0, pattern_at=None)
+    traj = Trajectory(speed=20 / 3.6, x0=0.0, y0=1.5, curve_amplitude=0.0)
+    views = street_views(traj, [3.0, 4.0, 5.0], width=160, height=120)
+    f = next(iter(views.values())).camera.fx
+    own = resolution_ceiling(street, views, f)
+    assert own.within == 1.0 and own.covered == 1.0
+    half = resolution_ceiling(street, views, f / 2)
+    quarter = resolution_ceiling(street, views, f / 4)
+    assert 0.5 < quarter.within < half.within < 0.99
+    assert quarter.psnr_db < half.psnr_db

@@ -9,11 +9,16 @@ Metres.
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
 
 __all__ = ["simplify", "surface_distance"]
+
+# pyfqmr keeps the mesh it works on in its C++ library's global state (one per process,
+# whatever the Simplify object): one mesh at a time, set, collapsed and read back
+_ONE_AT_A_TIME = threading.Lock()
 
 
 def simplify(
@@ -36,12 +41,13 @@ def simplify(
     # squared distances their millimetres
     offset = xyz[0].copy()
     local = np.ascontiguousarray(xyz - offset, dtype=np.float64)
-    s = pyfqmr.Simplify()
-    s.setMesh(local, np.ascontiguousarray(faces, dtype=np.int32))
-    # simplify_mesh(lossless=True, preserve_border=True) collapses nothing in pyfqmr
-    # 0.5; simplify_mesh_lossless takes the border flag as it should
-    s.simplify_mesh_lossless(verbose=False, epsilon=tolerance_m**2, preserve_border=True)
-    out, tri, _ = s.getMesh()
+    with _ONE_AT_A_TIME:
+        s = pyfqmr.Simplify()
+        s.setMesh(local, np.ascontiguousarray(faces, dtype=np.int32))
+        # simplify_mesh(lossless=True, preserve_border=True) collapses nothing in pyfqmr
+        # 0.5; simplify_mesh_lossless takes the border flag as it should
+        s.simplify_mesh_lossless(verbose=False, epsilon=tolerance_m**2, preserve_border=True)
+        out, tri, _ = s.getMesh()
     gap, near = cKDTree(local).query(out)
     # a vertex that did not move keeps its coordinates to the bit (a neighbouring tile's
     # border has them too)

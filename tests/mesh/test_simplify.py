@@ -5,6 +5,7 @@ and on the short simulated drive through the command."""
 from __future__ import annotations
 
 import itertools
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -151,3 +152,24 @@ def test_simplify_with_texture_is_refused(
     err = capsys.readouterr().err
     assert "--simplify: not with --texture" in err and err.count("\n") == 1, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_two_threads_simplifying_at_once_give_what_each_gives_alone() -> None:
+    """pyfqmr holds its mesh in global state: tiles simplified on two writer threads
+    must not take each other's mesh."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    meshes = []
+    for k in range(6):
+        xyz, faces = _grid(40 + 7 * k, 30, seed=k)
+        meshes.append((xyz, _colours(xyz), faces))
+    alone = [simplify(*m, 0.01) for m in meshes]
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # the threads take turns between pyfqmr's calls
+    try:
+        with ThreadPoolExecutor(2) as pool:
+            together = list(pool.map(lambda m: simplify(*m, 0.01), meshes * 3))
+    finally:
+        sys.setswitchinterval(switch)
+    for got, want in zip(together, alone * 3, strict=True):
+        assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))

@@ -2,16 +2,21 @@
 ../shared/tools/vendor-clients/hokuyo/ (see its README), run with a bounded wait.
 
 Their Ethernet samples connect to port 10940, fixed in their source (``SAMPLE_PORT``):
-a test serving them listens there, so such tests run one at a time (``realtime``).
+a test serving them listens there, so such tests take :func:`sample_port` first: one at a
+time across the test workers (and any other run of the tests on this machine).
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import selectors
 import signal
 import subprocess
+import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +27,29 @@ from tests.conftest import SHARED
 SAMPLES = SHARED / "tools" / "vendor-clients" / "hokuyo"
 SAMPLE_PORT = 10940
 ETHERNET = ["-e", "127.0.0.1"]
+
+
+@contextmanager
+def sample_port(timeout_s: float = 300.0) -> Iterator[None]:
+    """Hold ``SAMPLE_PORT`` for this process: a lock file beside the machine's other
+    temporary files, waited for up to ``timeout_s`` s (a test on another worker serving
+    the samples)."""
+    path = Path(tempfile.gettempdir()) / f"acq-tests-port-{SAMPLE_PORT}.lock"
+    with open(path, "a") as lock:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError as e:
+                if time.monotonic() > deadline:
+                    held = f"port {SAMPLE_PORT} held by another test for {timeout_s} s"
+                    raise TimeoutError(held) from e
+                time.sleep(0.05)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 def samples() -> Path:

@@ -22,10 +22,25 @@ from acq.sim.replay import Replay
 from acq.sim.scanner_models import MODELS
 from acq.sim.scip_device import ScipDevice
 from acq.sim.transport import PtyDeviceServer, TcpDeviceServer
-from tests.hokuyo_client import ETHERNET, SAMPLE_PORT, run_sample, samples, serial
+from tests.hokuyo_client import (
+    ETHERNET,
+    SAMPLE_PORT,
+    run_sample,
+    sample_port,
+    samples,
+    serial,
+)
 
 # the samples' port is fixed: these tests serve it one at a time
 pytestmark = pytest.mark.realtime
+
+
+@pytest.fixture(autouse=True)
+def _one_test_at_a_time_on_the_sample_port() -> Iterator[None]:
+    """Every test here serves or reads port 10940 (the samples' own): one at a time."""
+    with sample_port():
+        yield
+
 
 hokuyolx = pytest.importorskip("hokuyolx")
 DISTANCE = re.compile(r"^(-?\d+) \[mm\], (?:(\d+) \[1\], )?\((\d+) \[msec\]\)$")

@@ -42,7 +42,7 @@ from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
 from acq.log.inputs import session_files
-from acq.mesh import files, simplify, texture, view_selection
+from acq.mesh import files, seams, simplify, texture, view_selection
 from acq.mesh.organized import FacetRules, grid_facets
 from acq.motion import Trajectory
 
@@ -475,7 +475,7 @@ class _Tiles:
         atlas = texture.build_atlas(px, view_cam, view_frame,
                                     self._images_for(px, view_cam, view_frame), self.gains,
                                     fill, mj.texels)  # fmt: skip
-        return atlas
+        return seams.level_seams(atlas, tri, view_cam, view_frame, mj.texels)
 
     def _tell(
         self, at: np.ndarray, tri: np.ndarray, view_cam: np.ndarray, view_frame: np.ndarray,

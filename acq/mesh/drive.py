@@ -475,7 +475,8 @@ class _Tiles:
         atlas = texture.build_atlas(px, view_cam, view_frame,
                                     self._images_for(px, view_cam, view_frame), self.gains,
                                     fill, mj.texels)  # fmt: skip
-        return seams.level_seams(atlas, tri, view_cam, view_frame, mj.texels)
+        seams.level_seams(atlas, tri, view_cam, view_frame, mj.texels)
+        return atlas
 
     def _tell(
         self, at: np.ndarray, tri: np.ndarray, view_cam: np.ndarray, view_frame: np.ndarray,

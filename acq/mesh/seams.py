@@ -27,17 +27,19 @@ Levels of the atlas (uint8 BGR); texel positions (x, y) from a cell's first texe
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numba
 import numpy as np
 
 from acq.mesh.texture import Atlas, cell_corners, half_texels, view_keys
 from acq.mesh.view_selection import neighbours
 
-__all__ = ["MAX_VIEWS", "level_seams", "seam_colours"]
+__all__ = ["MAX_STEP", "MAX_VIEWS", "level_seams", "seam_colours"]
 
 MAX_VIEWS = 8  # views kept per vertex (a grid vertex has six facets)
+# levels (any channel) beyond which two views' colours at a seam are not levelled: what
+# differs more is another surface in one of them (a facet's edge misplaced by the
+# calibration's or the motion's error, an occlusion missed), not the same one's shading
+MAX_STEP = 20.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -152,16 +154,22 @@ def seam_colours(
 
 
 @numba.njit(cache=True, nogil=True)
-def _corrections(row, table, ends, key_a, key_b, fa, fb):  # type: ignore[no-untyped-def]
+def _corrections(row, table, ends, key_a, key_b, fa, fb, max_step):  # type: ignore[no-untyped-def]
     """(S,max_views,3) float64: the correction of each view at the vertices where
     several meet (``row``, ``table``: :func:`_views_at`): every view's colour moved to
     the mean of the views' there, from the seam edges' ends ``ends`` (E,2) between views
-    ``key_a`` and ``key_b`` (E,) and their colours ``fa``, ``fb`` (E,2,3)."""
+    ``key_a`` and ``key_b`` (E,) and their colours ``fa``, ``fb`` (E,2,3), those that
+    differ by at most ``max_step`` levels in every channel."""
     n, m = table.shape
     g = np.zeros((n, m, 3))  # the sums of each view's colours, then the corrections
     count = np.zeros((n, m))
     for e in range(ends.shape[0]):
         for k in range(2):
+            step = 0.0
+            for ch in range(3):
+                step = max(step, abs(fa[e, k, ch] - fb[e, k, ch]))
+            if step > max_step:
+                continue
             r = row[ends[e, k]]
             for j in range(m):
                 if table[r, j] == key_a[e]:
@@ -198,7 +206,9 @@ def _apply(bgr, slot, texels, faces, key, textured, row, table, g, xs, ys, count
     weights ``bary`` (2,T,3)) in ``bgr``."""
     cols = bgr.shape[1] // texels
     corner = np.zeros((3, 3))
-    for f in range(faces.shape[0]):
+    by_slot = np.empty(slot.size, dtype=np.int64)  # the facets in the atlas's order
+    by_slot[slot] = np.arange(slot.size)
+    for f in by_slot:
         if not textured[f]:
             continue
         big = False
@@ -228,16 +238,21 @@ def _apply(bgr, slot, texels, faces, key, textured, row, table, g, xs, ys, count
 
 
 def level_seams(
-    atlas: Atlas, faces: np.ndarray, view_cam: np.ndarray, view_frame: np.ndarray, texels: int
-) -> Atlas:
-    """``atlas`` (:func:`acq.mesh.texture.build_atlas`'s, of the facets ``faces`` (F,3)
-    in the views ``view_cam``, ``view_frame`` (F,)) with its seams levelled (module
-    docstring), in a new atlas; ``atlas`` itself where there is no seam."""
+    atlas: Atlas,
+    faces: np.ndarray,
+    view_cam: np.ndarray,
+    view_frame: np.ndarray,
+    texels: int,
+    max_step: float = MAX_STEP,
+) -> int:
+    """Level the seams of ``atlas`` (:func:`acq.mesh.texture.build_atlas`'s, of the
+    facets ``faces`` (F,3) in the views ``view_cam``, ``view_frame`` (F,)) in place
+    (module docstring); the number of seam edges levelled (0: the atlas left as it is)."""
     key = view_keys(view_cam, view_frame)
     a, b, ends, fa, fb, views = _seams(atlas, faces, key, texels)
     if a.size == 0:
-        return atlas
-    g = _corrections(*views, ends, key[a], key[b], fa, fb)
+        return 0
+    g = _corrections(*views, ends, key[a], key[b], fa, fb, max_step)
     # each half's texels (x, y), the lower right's padded to the upper left's count,
     # and their barycentric weights in the half's triangle
     halves = half_texels(texels)
@@ -249,7 +264,7 @@ def level_seams(
         np.linalg.solve(np.vstack([cc[h].T, np.ones(3)]), np.vstack([xs[h], ys[h], np.ones(n)])).T
         for h in (0, 1)
     ])  # fmt: skip
-    bgr = atlas.bgr.copy()
     counts = np.array([x.size for x, _ in halves])
-    _apply(bgr, atlas.slot, texels, faces, key, atlas.textured, *views, g, xs, ys, counts, bary)
-    return replace(atlas, bgr=bgr)
+    _apply(atlas.bgr, atlas.slot, texels, faces, key, atlas.textured, *views, g, xs, ys, counts,
+           bary)  # fmt: skip
+    return int(a.size)

@@ -9,7 +9,7 @@ the frames decoded here on their own; the glb through pygltflib and trimesh."""
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -200,8 +200,9 @@ def _run(
             return images(c, frames)
 
         seen["args"] = (px, vc, vf, *rest)
-        seen["atlas"] = build(px, vc, vf, counted, *rest)
-        return seen["atlas"]
+        atlas = build(px, vc, vf, counted, *rest)
+        seen["atlas"] = replace(atlas, bgr=atlas.bgr.copy())  # as sampled: seams levelled after
+        return atlas
 
     corner = texture.corner_pixels
 

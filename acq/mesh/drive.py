@@ -12,7 +12,8 @@ on a writer thread while the next chunks are joined), with the vertices its face
 with a texture (``texels``), with its atlas (:mod:`acq.mesh.texture`): the vertices keep
 their frame and pixel (the job's ``want_uv``), the frames' gains are kept by session
 frame, and a tile's texels are sampled from the parts of the frames the colouring kept
-(:class:`acq.cloud.views.Crop`; a frame whose part misses a pixel is decoded again).
+(:class:`acq.cloud.views.Crop`; a frame whose part misses a pixel is decoded again), its
+seams between views levelled (:mod:`acq.mesh.seams`).
 
 Metres; times host monotonic ns.
 """

@@ -246,8 +246,9 @@ def level_seams(
     max_step: float = MAX_STEP,
 ) -> int:
     """Level the seams of ``atlas`` (:func:`acq.mesh.texture.build_atlas`'s, of the
-    facets ``faces`` (F,3) in the views ``view_cam``, ``view_frame`` (F,)) in place
-    (module docstring); the number of seam edges levelled (0: the atlas left as it is)."""
+    facets ``faces`` (F,3) in the views ``view_cam``, ``view_frame`` (F,)) in place, its
+    :attr:`~acq.mesh.texture.Atlas.image` not yet made (module docstring); the number of
+    seam edges found (0: the atlas left as it is)."""
     key = view_keys(view_cam, view_frame)
     a, b, ends, fa, fb, views = _seams(atlas, faces, key, texels)
     if a.size == 0:

@@ -12,7 +12,8 @@ on a writer thread while the next chunks are joined), with the vertices its face
 with a texture (``texels``), with its atlas (:mod:`acq.mesh.texture`): the vertices keep
 their frame and pixel (the job's ``want_uv``), the frames' gains are kept by session
 frame, and a tile's texels are sampled from the parts of the frames the colouring kept
-(:class:`acq.cloud.views.Crop`; a frame whose part misses a pixel is decoded again).
+(:class:`acq.cloud.views.Crop`; a frame whose part misses a pixel is decoded again), its
+seams between views levelled (:mod:`acq.mesh.seams`).
 
 Metres; times host monotonic ns.
 """
@@ -42,7 +43,7 @@ from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
 from acq.log.drive_log import DriveLog, read_log
 from acq.log.inputs import session_files
-from acq.mesh import files, simplify, texture, view_selection
+from acq.mesh import files, seams, simplify, texture, view_selection
 from acq.mesh.organized import FacetRules, grid_facets
 from acq.motion import Trajectory
 
@@ -475,6 +476,7 @@ class _Tiles:
         atlas = texture.build_atlas(px, view_cam, view_frame,
                                     self._images_for(px, view_cam, view_frame), self.gains,
                                     fill, mj.texels)  # fmt: skip
+        seams.level_seams(atlas, tri, view_cam, view_frame, mj.texels)
         return atlas
 
     def _tell(

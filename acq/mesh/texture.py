@@ -40,6 +40,7 @@ __all__ = [
     "cell_corners",
     "corner_pixels",
     "facet_views",
+    "half_texels",
     "view_keys",
 ]
 
@@ -119,7 +120,7 @@ def cell_corners(texels: int) -> np.ndarray:
     return np.array([[[0, 0], [n - 1, 0], [0, n - 1]], [[n, n], [2, n], [n, 2]]], dtype=np.float64)
 
 
-def _half_texels(texels: int) -> list[tuple[np.ndarray, np.ndarray]]:
+def half_texels(texels: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """(x, y) of the texels of each half of a cell: x + y < texels, and the rest."""
     y, x = np.mgrid[0:texels, 0:texels]
     upper = (x + y) < texels
@@ -169,7 +170,7 @@ def build_atlas(
     bgr = np.zeros((*atlas_shape(n_facets, texels), 3), dtype=np.uint8)  # as the frames are
     cols = bgr.shape[1] // texels
     corners = cell_corners(texels)
-    halves = _half_texels(texels)
+    halves = half_texels(texels)
     # the affine map of a half's texels (x, y, 1) to the frame: corner_px^T @ inv(Q)
     q_inv = [np.linalg.inv(np.vstack([c.T, np.ones(3)])).astype(np.float32) for c in corners]
     halves_f = [(xs.astype(np.float32), ys.astype(np.float32)) for xs, ys in halves]

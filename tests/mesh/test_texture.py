@@ -9,7 +9,7 @@ the frames decoded here on their own; the glb through pygltflib and trimesh."""
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -94,7 +94,7 @@ def test_atlas_texels_are_the_frame_at_the_facets_pixels_and_cells_do_not_mix() 
         s = atlas.slot[f]
         cx, cy = (s // 2) % 2, (s // 2) // 2
         q = corners[s % 2]
-        half = texture._half_texels(T)[s % 2]
+        half = texture.half_texels(T)[s % 2]
         for x, y in zip(*half, strict=True):
             # barycentric coordinates of the texel in the cell's triangle, the same in the frame
             A = np.vstack([q.T, np.ones(3)])
@@ -113,7 +113,7 @@ def test_atlas_texels_are_the_frame_at_the_facets_pixels_and_cells_do_not_mix() 
     for f in (1, 3):
         s = atlas.slot[f]
         cx, cy = (s // 2) % 2, (s // 2) // 2
-        xs, ys = texture._half_texels(T)[s % 2]
+        xs, ys = texture.half_texels(T)[s % 2]
         assert (atlas.image[cy * T + ys, cx * T + xs] == fill[f]).all()
     # every corner's texture coordinate in its own cell, on a texel of its own half
     at = np.stack([atlas.uv[..., 0] * 2 * T, (1 - atlas.uv[..., 1]) * T], axis=-1) - 0.5
@@ -153,7 +153,7 @@ def test_atlas_is_the_same_however_many_facets_a_remap_takes_and_a_lost_frame_is
     frames = _frames(img, None, img[::-1].copy())
     for f in range(n):  # each facet's texels as an atlas of that facet alone has them
         s = whole.slot[f]
-        xs, ys = texture._half_texels(T)[s % 2]
+        xs, ys = texture.half_texels(T)[s % 2]
         texels = whole.bgr[(s // 2) // cols * T + ys, (s // 2) % cols * T + xs]
         k = [f] * (1 + s % 2)  # the facet (twice for the lower right half: the second)
         alone = texture.build_atlas(px[k], view_cam[k], view_frame[k], frames, gains,
@@ -200,8 +200,9 @@ def _run(
             return images(c, frames)
 
         seen["args"] = (px, vc, vf, *rest)
-        seen["atlas"] = build(px, vc, vf, counted, *rest)
-        return seen["atlas"]
+        atlas = build(px, vc, vf, counted, *rest)
+        seen["atlas"] = replace(atlas, bgr=atlas.bgr.copy())  # as sampled: seams levelled after
+        return atlas
 
     corner = texture.corner_pixels
 
@@ -252,7 +253,7 @@ def _texels_checked(cap: Captured, files: list[Path], n: int) -> dict[int, int]:
         s = atlas.slot[f]
         cx, cy = (s // 2) % cols, (s // 2) // cols
         q = texture.cell_corners(T)[s % 2]
-        xs, ys = texture._half_texels(T)[s % 2]
+        xs, ys = texture.half_texels(T)[s % 2]
         k = rng.integers(xs.size)
         w = np.linalg.solve(np.vstack([q.T, np.ones(3)]), [xs[k], ys[k], 1.0])
         u, v = w @ px[f].astype(np.float64)  # the texel's point in the frame

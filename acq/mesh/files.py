@@ -36,7 +36,8 @@ if TYPE_CHECKING:
 __all__ = ["SUFFIXES", "Y_UP", "format_of", "texture_files", "write"]
 
 SUFFIXES = (".ply", ".glb", ".obj")
-GLB_JPEG_QUALITY = 75  # a glb's atlas: Pillow's default, as the glb had it through trimesh
+# a glb's atlas, as the OBJ's (at 75: 0.5 points less like the truth, 8 % smaller)
+GLB_JPEG_QUALITY = 95
 # the world's (x, y, z), z up, as glTF's (x, y, z), +y up
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 
@@ -112,8 +113,12 @@ def _write_glb(
         pbr = gl.PbrMetallicRoughness(
             baseColorTexture=gl.TextureInfo(index=0), metallicFactor=0.0, roughnessFactor=1.0
         )
+        # no mipmaps: a coarser level would mix each facet's texels with its neighbours'
+        # in the atlas (another place on the street)
+        sampler = gl.Sampler(magFilter=gl.LINEAR, minFilter=gl.LINEAR,
+                             wrapS=gl.CLAMP_TO_EDGE, wrapT=gl.CLAMP_TO_EDGE)  # fmt: skip
         extra = {
-            "images": [image], "textures": [gl.Texture(source=0)],
+            "images": [image], "samplers": [sampler], "textures": [gl.Texture(source=0, sampler=0)],
             "materials": [gl.Material(pbrMetallicRoughness=pbr)],
         }  # fmt: skip
     node = np.eye(4)

@@ -345,6 +345,10 @@ def test_glb_has_its_texture_and_each_facets_uvs_lie_in_its_cell(
     assert made_by_acq(out)
     g = pygltflib.GLTF2().load(str(out))
     assert g.images[0].mimeType == "image/jpeg"
+    # sampled without mipmaps: a coarser level would mix neighbouring facets' cells
+    sampler = g.samplers[g.textures[0].sampler]
+    assert (sampler.minFilter, sampler.magFilter) == (pygltflib.LINEAR, pygltflib.LINEAR)
+    assert (sampler.wrapS, sampler.wrapT) == (pygltflib.CLAMP_TO_EDGE, pygltflib.CLAMP_TO_EDGE)
     pbr = g.materials[g.meshes[0].primitives[0].material].pbrMetallicRoughness
     assert pbr.baseColorTexture.index == 0
     assert g.meshes[0].primitives[0].attributes.COLOR_0 is None  # it would tint the texture

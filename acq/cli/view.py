@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import sys
 import threading
 from pathlib import Path
 
+from acq.cli.exposure import is_loopback
 from acq.cli.option_types import integer
 from acq.errors import InputError
 
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
     from acq.view import AddressError, ViewServer
 
-    if not _loopback(args.host):
+    if not is_loopback(args.host):
         print(
             f"acq view: warning: --host {args.host}: the files are served to the network, "
             "without authentication",
@@ -76,13 +76,3 @@ def run(args: argparse.Namespace) -> int:
     finally:
         server.stop()
     return 0
-
-
-def _loopback(host: str) -> bool:
-    """Whether ``host`` names this machine only (a loopback address, or localhost)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False

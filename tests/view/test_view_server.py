@@ -149,6 +149,14 @@ def test_a_folder_stands_for_its_viewable_files(tmp_path: Path) -> None:
         assert [x["url"] for x in server.listing()] == ["/data/0/a.glb", "/data/1/b.ply"]
 
 
+def test_a_name_that_needs_quoting_is_served(tmp_path: Path) -> None:
+    path = mesh(tmp_path / "tile 7#b?é.ply")
+    with ViewServer([path]) as server:
+        (layer,) = server.listing()
+        assert layer["url"] == "/data/0/tile%207%23b%3F%C3%A9.ply"
+        assert _get(server.url.rstrip("/") + layer["url"])[2] == path.read_bytes()
+
+
 def _refusal(tmp_path: Path, name: str, data: bytes) -> str:
     path = tmp_path / name
     path.write_bytes(data)

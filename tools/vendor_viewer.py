@@ -37,15 +37,17 @@ ENTRIES = (
 BARE = {"three": "build/three.module.js"}
 
 
-def pack(version: str, into: Path) -> tuple[Path, str]:
-    """The npm tarball of three@``version`` unpacked in ``into``; its folder and integrity."""
+def pack(spec: str, version: str, into: Path) -> tuple[Path, str]:
+    """The npm tarball of ``spec`` (``three@VERSION``, or a local package folder or
+    tarball) unpacked in ``into``; its folder and integrity. SystemExit unless it is
+    three ``version``."""
     done = subprocess.run(
-        ["npm", "pack", f"{PACKAGE}@{version}", "--json", "--pack-destination", str(into)],
+        ["npm", "pack", spec, "--json", "--pack-destination", str(into)],
         check=True, capture_output=True, text=True,
     )  # fmt: skip
     info = json.loads(done.stdout)[0]
-    if info["version"] != version:
-        raise SystemExit(f"npm gave {PACKAGE} {info['version']}, not {version}")
+    if (info["name"], info["version"]) != (PACKAGE, version):
+        raise SystemExit(f"npm gave {info['name']} {info['version']}, not {PACKAGE} {version}")
     with tarfile.open(into / info["filename"]) as tar:
         tar.extractall(into, filter="data")
     return into / "package", info["integrity"]
@@ -77,27 +79,37 @@ def closure(root: Path) -> list[str]:
     return sorted(seen)
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--version", default=VERSION, help=f"three's npm version ({VERSION})")
-    args = parser.parse_args()
+    parser.add_argument(
+        "--package", metavar="SPEC",
+        help="what npm packs (default three@VERSION from the registry; a folder or tarball "
+        "of the package packs offline)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--out", type=Path, default=VENDOR, help=f"the folder replaced (default {VENDOR})"
+    )
+    args = parser.parse_args(argv)
+    out: Path = args.out
     with tempfile.TemporaryDirectory() as tmp:
-        root, integrity = pack(args.version, Path(tmp))
+        spec = args.package or f"{PACKAGE}@{args.version}"
+        root, integrity = pack(spec, args.version, Path(tmp))
         files = [*closure(root), "LICENSE"]
-        shutil.rmtree(VENDOR, ignore_errors=True)
+        shutil.rmtree(out, ignore_errors=True)
         listed = []
         for path in files:
-            target = VENDOR / PACKAGE / path
+            target = out / PACKAGE / path
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(root / path, target)
             digest = hashlib.sha256(target.read_bytes()).hexdigest()
             listed.append({"path": f"{PACKAGE}/{path}", "sha256": digest})
     record = {
         "package": PACKAGE, "version": args.version, "integrity": integrity,
-        "source": f"npm pack {PACKAGE}@{args.version}", "files": listed,
+        "source": f"npm pack {spec}", "files": listed,
     }  # fmt: skip
-    (VENDOR / "VENDORED.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
-    print(f"vendored {PACKAGE} {args.version}: {len(listed)} files in {VENDOR}", file=sys.stderr)
+    (out / "VENDORED.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    print(f"vendored {PACKAGE} {args.version}: {len(listed)} files in {out}", file=sys.stderr)
     return 0
 
 

@@ -1,5 +1,4 @@
-"""Whether a served address reaches beyond this machine, and the warning when a simulated or
-replayed device is served on every network interface."""
+"""A warning when a simulated or replayed device is served on every network interface."""
 
 from __future__ import annotations
 
@@ -8,7 +7,7 @@ import socket
 import sys
 from urllib.parse import urlsplit
 
-__all__ = ["every_interface", "is_loopback", "warn_if_exposed"]
+__all__ = ["every_interface", "warn_if_exposed"]
 
 
 def every_interface(address: str) -> bool:
@@ -26,16 +25,6 @@ def every_interface(address: str) -> bool:
     except (socket.gaierror, UnicodeError):
         return False
     return any(ipaddress.ip_address(str(a[4][0]).split("%")[0]).is_unspecified for a in found)
-
-
-def is_loopback(host: str) -> bool:
-    """Whether ``host`` is a loopback address or ``localhost`` (no name is looked up)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def warn_if_exposed(prog: str, option: str, address: str | None) -> None:

@@ -137,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
         calib = calibfile.load(args.calib)
     server = None
     if args.live is not None:
-        from acq.cli.exposure import every_interface, is_loopback, warn_if_exposed
+        from acq.addresses import is_loopback
+        from acq.cli.exposure import every_interface, warn_if_exposed
         from acq.record import live
 
         try:

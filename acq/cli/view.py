@@ -7,7 +7,7 @@ import sys
 import threading
 from pathlib import Path
 
-from acq.cli.exposure import is_loopback
+from acq.addresses import is_loopback
 from acq.cli.option_types import integer
 from acq.errors import InputError
 

@@ -18,6 +18,7 @@ from types import TracebackType
 from typing import Any, Literal
 from urllib.parse import quote, unquote, urlsplit
 
+from acq.addresses import is_loopback
 from acq.errors import InputError
 from acq.view import static
 from acq.view.layers import Layer, layers_of
@@ -140,7 +141,9 @@ class _Handler(BaseHTTPRequestHandler):
     def _answer(self, body: bool) -> None:
         path = unquote(urlsplit(self.path).path)
         view = self.server.view
-        if path in ("/", "/index.html"):
+        if not _host_allowed(view.host, self.headers.get("Host")):
+            self.send_error(HTTPStatus.FORBIDDEN, "a loopback server answers loopback names only")
+        elif path in ("/", "/index.html"):
             self._file(static.PAGE / "index.html", body)
         elif path.startswith("/static/"):
             found = static.page_file(path.removeprefix("/static/"))
@@ -184,6 +187,19 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _not_found(self) -> None:
         self.send_error(HTTPStatus.NOT_FOUND, "not a file acq view serves")
+
+
+def _host_allowed(served: str, header: str | None) -> bool:
+    """Whether a request naming ``header`` as its Host may be answered by a server on
+    ``served``: on loopback, only a loopback name (a web page whose own name was made to
+    point at 127.0.0.1, DNS rebinding, reads nothing); any on another address."""
+    if header is None or not is_loopback(served):
+        return True
+    try:
+        name = urlsplit(f"//{header}").hostname
+    except ValueError:
+        return False
+    return name is not None and is_loopback(name)
 
 
 def _layer_file(view: ViewServer, path: str) -> Path | None:

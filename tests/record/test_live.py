@@ -259,7 +259,7 @@ def test_a_live_server_off_loopback_is_a_warning(
 
 
 def test_which_hosts_are_loopback() -> None:
-    from acq.cli.exposure import is_loopback
+    from acq.addresses import is_loopback
     from acq.record.live import parse_address
 
     assert [is_loopback(h) for h in ("127.0.0.1", "127.1.2.3", "::1", "localhost")] == [True] * 4

@@ -27,12 +27,12 @@ def _get(url: str) -> tuple[int, str, bytes]:
         return e.code, e.headers["Content-Type"], e.read()
 
 
-def _raw_get(server: ViewServer, path: str) -> int:
+def _raw_get(server: ViewServer, path: str, headers: dict[str, str] | None = None) -> int:
     """The status of a GET of ``path`` sent as it is (urllib would normalise ``..``)."""
     host, port = server.url.removeprefix("http://").rstrip("/").rsplit(":", 1)
     conn = http.client.HTTPConnection(host, int(port), timeout=10)
     try:
-        conn.request("GET", path)
+        conn.request("GET", path, headers=headers or {})
         response = conn.getresponse()
         response.read()
         return response.status
@@ -90,6 +90,18 @@ def test_nothing_else_is_served(served: tuple[ViewServer, list[Path]], tmp_path:
         "//etc/passwd", "/static//etc/passwd",
     ]:  # fmt: skip
         assert _raw_get(server, path) == 404, path
+
+
+def test_only_loopback_names_are_answered_on_loopback(
+    served: tuple[ViewServer, list[Path]],
+) -> None:
+    server, _ = served
+    port = server.url.rstrip("/").rsplit(":", 1)[1]
+    for host in (f"127.0.0.1:{port}", f"localhost:{port}", f"[::1]:{port}", "127.0.0.1"):
+        assert _raw_get(server, "/api/layers", {"Host": host}) == 200, host
+    # a page of another site whose name was made to resolve to 127.0.0.1 (DNS rebinding)
+    for host in (f"attacker.example:{port}", "192.168.1.20", "[::1", ""):
+        assert _raw_get(server, "/data/0/cloud.ply", {"Host": host}) == 403, host
 
 
 def test_vendored_files_match_their_record_and_every_import_is_served(

@@ -47,6 +47,7 @@ from acq.cli import (
     replay,
     sim,
     status,
+    view,
 )
 from acq.cli.standard_streams import reopen_closed
 from acq.credentials import RedactingFilter, redact
@@ -69,6 +70,7 @@ COMMANDS: dict[str, ModuleType] = {
     "replay": replay,
     "colorize": colorize,
     "mesh": mesh,
+    "view": view,
     "export": export,
     "calibrate": calibrate,
     "analyze": analyze,

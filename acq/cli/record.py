@@ -137,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
         calib = calibfile.load(args.calib)
     server = None
     if args.live is not None:
+        from acq.addresses import is_loopback
         from acq.cli.exposure import every_interface, warn_if_exposed
         from acq.record import live
 
@@ -145,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         except InputValueError as e:
             raise InputValueError(f"--live: {e}") from None
         warn_if_exposed("acq record", "--live", args.live)
-        if not live.is_loopback(host) and not every_interface(args.live):
+        if not is_loopback(host) and not every_interface(args.live):
             print(
                 f"acq record: warning: --live {args.live}: not loopback; the live server "
                 "is reachable from the network, without authentication",

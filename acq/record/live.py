@@ -16,7 +16,6 @@ which hands records to this listener through its own bounded queue.
 
 from __future__ import annotations
 
-import ipaddress
 import logging
 import threading
 
@@ -32,7 +31,6 @@ __all__ = [
     "IMAGE_SCHEMAS",
     "LiveServer",
     "LiveServerError",
-    "is_loopback",
     "parse_address",
 ]
 
@@ -56,16 +54,6 @@ def parse_address(address: str) -> tuple[str, int]:
     if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
         raise InputValueError(f"{address!r}: expected HOST:PORT, e.g. 127.0.0.1:8765")
     return host, int(port)
-
-
-def is_loopback(host: str) -> bool:
-    """Whether ``host`` is a loopback address or ``localhost`` (no name is looked up)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 class _Subscriptions(ServerListener):

@@ -29,6 +29,7 @@ from acq.cli import (
     replay,
     sim,
     sim_logs,
+    view,
 )
 from acq.cli.main import build_parser
 from acq.cli.option_types import Number
@@ -60,6 +61,7 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ("calibrate", "time-offset"): ["x.mcap", "--calib", "c.yaml", "-o", "o.yaml"],
     ("analyze", "sensitivity"): ["x.mcap", "--calib", "c.yaml"],
     ("status",): [],
+    ("view",): ["x.ply"],
 }
 
 
@@ -106,6 +108,7 @@ def _no_run(monkeypatch: pytest.MonkeyPatch) -> list[str]:
         sim: ["run_render", "run_scanner", "run_camera", "run_rig"], sim_logs: ["run_log"],
         calibrate_fisheye: ["run_fisheye"], calibrate_extrinsic: ["run_extrinsic"],
         calibrate_time_offset: ["run_time_offset"], calibrate_validate: ["run_validate"],
+        view: ["run"],
     }  # fmt: skip
     for module, names in handlers.items():
         for name in names:
@@ -140,6 +143,8 @@ def _no_run(monkeypatch: pytest.MonkeyPatch) -> list[str]:
         (("demo",), "--seconds", "nan"),
         (("sim", "log"), "--seconds", "nan"),
         (("sim", "log"), "--cameras", "3"),
+        (("view",), "--port", "nan"),
+        (("view",), "--port", "65536"),
     ],
 )
 def test_a_bad_value_is_one_line_and_exit_2(

@@ -259,7 +259,8 @@ def test_a_live_server_off_loopback_is_a_warning(
 
 
 def test_which_hosts_are_loopback() -> None:
-    from acq.record.live import is_loopback, parse_address
+    from acq.addresses import is_loopback
+    from acq.record.live import parse_address
 
     assert [is_loopback(h) for h in ("127.0.0.1", "127.1.2.3", "::1", "localhost")] == [True] * 4
     assert [is_loopback(h) for h in ("0.0.0.0", "192.168.1.20", "::", "rig.local")] == [False] * 4

@@ -44,7 +44,7 @@ step "acq --version, every command's --help"
 "$acq" --version
 for cmd in demo "sim render" "sim scanner" "sim camera" "sim rig" "probe scanner" "probe camera" record \
     info status replay colorize "calibrate fisheye" "calibrate extrinsic" "calibrate time-offset" \
-    "calibrate validate" "analyze sensitivity" devices "export ros2"; do
+    "calibrate validate" "analyze sensitivity" devices "export ros2" view; do
   # shellcheck disable=SC2086
   "$acq" $cmd --help > /dev/null || { echo "wheel smoke: acq $cmd --help failed" >&2; exit 1; }
 done
@@ -52,6 +52,26 @@ done
 step "acq demo --seconds 2"
 "$acq" demo --seconds 2 --out demo > demo.txt || { cat demo.txt; exit 1; }
 [ -s demo/demo.mcap ] && [ -s demo/cloud.ply ] && [ -s demo/preview.png ]
+
+step "acq view serves the demo's cloud, its page and every vendored library"
+"$acq" view demo/cloud.ply > view.log 2>&1 &
+pids+=($!)
+url=
+for _ in $(seq 1 300); do
+  url=$(sed -n 's/^serving .* at \(http[^ ]*\) .*/\1/p' view.log)
+  [ -n "$url" ] && break
+  sleep 0.1
+done
+[ -n "$url" ] || { echo "wheel smoke: acq view did not start" >&2; cat view.log >&2; exit 1; }
+"$work/venv/bin/python" - "$url" <<'EOF'
+import hashlib, json, sys, urllib.request
+url = sys.argv[1]
+get = lambda path: urllib.request.urlopen(url + path, timeout=10).read()
+assert b"/static/viewer.js" in get("") and get("static/viewer.js")
+assert json.loads(get("api/layers"))[0]["name"] == "cloud.ply"
+for f in json.loads(get("static/vendor/VENDORED.json"))["files"]:
+    assert hashlib.sha256(get("static/vendor/" + f["path"])).hexdigest() == f["sha256"], f
+EOF
 
 step "acq colorize on the demo's log"
 "$acq" colorize demo/demo.mcap --calib demo/calib.yaml --camera left -o drive.las --no-preview \

@@ -1,0 +1,78 @@
+"""`acq view`: clouds and meshes in the browser, from a local server (no network)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+from pathlib import Path
+
+from acq.addresses import is_loopback
+from acq.cli.option_types import integer
+from acq.errors import InputError
+
+HELP = "see clouds and meshes in a web browser, served from this machine (offline)"
+DEFAULT_HOST = "127.0.0.1"
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    v = sub.add_parser(
+        "view",
+        help=HELP,
+        description="Serve a web page that draws each PATH as a layer: a .ply cloud as "
+        "points in its colours (as `acq colorize` writes it), a .ply or .glb mesh (as `acq "
+        "mesh` writes it) as coloured or textured facets. A folder stands for the .ply and "
+        ".glb files in it. Every file is checked before the server starts. The page and "
+        "its libraries (three.js) come with acq: no network is needed. In the page: drag "
+        "to orbit, right-drag to pan, the wheel to zoom; a box per layer hides it; a slider "
+        "sets the points' size. Prints the page's URL and serves until Ctrl-C. Exit status: "
+        "0 stopped by Ctrl-C, 2 a bad file or option (the port in use among them).",
+    )
+    v.add_argument(
+        "paths", nargs="+", type=Path, metavar="PATH", help=".ply or .glb files, or folders"
+    )
+    v.add_argument(
+        "--host", default=DEFAULT_HOST,
+        help=f"address to serve on (default {DEFAULT_HOST}: this machine only); another "
+        "makes the files readable from the network without authentication (a warning says so)",
+    )  # fmt: skip
+    v.add_argument(
+        "--port",
+        type=integer(0, 65535, what="a port"),
+        default=0,
+        help="TCP port to serve on, [0, 65535] (default 0: a free one, printed)",
+    )
+    v.add_argument(
+        "--open", action="store_true",
+        help="open the page in the system's web browser (where there is one)",
+    )  # fmt: skip
+    v.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import webbrowser
+
+    from acq.view import AddressError, ViewServer
+
+    if not is_loopback(args.host):
+        print(
+            f"acq view: warning: --host {args.host}: the files are served to the network, "
+            "without authentication",
+            file=sys.stderr, flush=True,
+        )  # fmt: skip
+    server = ViewServer(args.paths, host=args.host, port=args.port)
+    try:
+        server.start()
+    except AddressError as e:  # named as the command line names it
+        raise InputError(f"--{e.about} {e.value}: {e.reason}") from None
+    try:
+        n = len(server.layers)
+        print(f"serving {n} layer{'s' * (n != 1)} at {server.url} (Ctrl-C to stop)", flush=True)
+        if args.open and not webbrowser.open(server.url):
+            print(f"acq view: no web browser found: open {server.url}", file=sys.stderr)
+        threading.Event().wait()
+    except KeyboardInterrupt:  # the way to stop it: not a failure
+        pass
+    finally:
+        server.stop()
+    return 0

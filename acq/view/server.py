@@ -1,0 +1,213 @@
+"""The HTTP server of `acq view`: the page (``/``), its files and vendored libraries
+(``/static/...``), the list of layers (``/api/layers``) and each layer's bytes
+(``/data/<k>/<name>``), on a thread of its own; nothing else is reachable."""
+
+from __future__ import annotations
+
+import errno
+import json
+import shutil
+import socket
+import sys
+import threading
+from collections.abc import Sequence
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Literal
+from urllib.parse import quote, unquote, urlsplit
+
+from acq.addresses import is_loopback
+from acq.errors import InputError
+from acq.view import static
+from acq.view.layers import Layer, layers_of
+
+__all__ = ["AddressError", "ViewServer"]
+
+_CHUNK = 1 << 20  # bytes copied to the socket at a time
+
+
+class AddressError(InputError):
+    """The server cannot listen where it was asked: ``about`` "host" (no address of this
+    machine) or "port" (in use, or privileged); ``reason`` says why."""
+
+    def __init__(self, about: Literal["host", "port"], value: object, reason: str) -> None:
+        super().__init__(f"{about} {value}: {reason}")
+        self.about, self.value, self.reason = about, value, reason
+
+
+class ViewServer:
+    """Serves the layers of ``paths`` (checked on construction: InputError naming a bad
+    one) on ``host``:``port`` (0: a free port) while the context is open; ``url`` is
+    ``http://HOST:PORT/``."""
+
+    def __init__(self, paths: Sequence[Path], host: str = "127.0.0.1", port: int = 0) -> None:
+        self.layers = layers_of(paths)
+        self.host, self.port = host, port
+        self._httpd: _Server | None = None
+        self._thread: threading.Thread | None = None
+
+    @property
+    def url(self) -> str:
+        if self._httpd is None:
+            raise RuntimeError("the server is not started")
+        host = self.host if ":" not in self.host else f"[{self.host}]"
+        return f"http://{host}:{self._httpd.server_address[1]}/"
+
+    def listing(self) -> list[dict[str, Any]]:
+        """What ``/api/layers`` answers: each layer's name, kind, URL, bytes and count."""
+        return [
+            {
+                "name": layer.name,
+                "kind": layer.kind,
+                "url": _data_url(k, layer),
+                "bytes": layer.size,
+                "count": layer.count,
+            }
+            for k, layer in enumerate(self.layers)
+        ]
+
+    def __enter__(self) -> ViewServer:
+        self.start()
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, value: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:  # fmt: skip
+        self.stop()
+
+    def start(self) -> None:
+        """Listen and serve on a thread; AddressError when it cannot listen there."""
+        try:
+            family = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)[0][0]
+        except (socket.gaierror, UnicodeError) as e:
+            raise AddressError("host", self.host, f"not a host name or address ({e})") from None
+        server_class = type("_Server", (_Server,), {"address_family": family})
+        try:
+            self._httpd = server_class((self.host, self.port), _Handler)
+        except OSError as e:
+            if e.errno == errno.EADDRNOTAVAIL:
+                raise AddressError("host", self.host, "not an address of this machine") from None
+            why = {
+                errno.EADDRINUSE: f"in use on {self.host} (another server listens there)",
+                errno.EACCES: "not permitted (a port under 1024 needs privileges)",
+            }.get(e.errno or 0, e.strerror or str(e))
+            raise AddressError("port", self.port, why) from None
+        self._httpd.view = self
+        self._thread = threading.Thread(
+            target=self._httpd.serve_forever, name="acq-view", daemon=True
+        )
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop listening and close the socket (a transfer under way is cut)."""
+        if self._httpd is not None:
+            self._httpd.shutdown()
+            self._httpd.server_close()
+        if self._thread is not None:
+            self._thread.join()
+        self._httpd = self._thread = None
+
+
+def _data_url(k: int, layer: Layer) -> str:
+    return f"/data/{k}/{quote(layer.name)}"
+
+
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+    view: ViewServer
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        # a browser that closes its connection mid-answer is no error of ours
+        if not isinstance(sys.exc_info()[1], ConnectionError):
+            super().handle_error(request, client_address)
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server: _Server
+    protocol_version = "HTTP/1.1"
+
+    def log_message(self, format: str, *args: Any) -> None:
+        pass  # the page's requests are not the user's business
+
+    def do_HEAD(self) -> None:
+        self._answer(body=False)
+
+    def do_GET(self) -> None:
+        self._answer(body=True)
+
+    def _answer(self, body: bool) -> None:
+        path = unquote(urlsplit(self.path).path)
+        view = self.server.view
+        if not _host_allowed(view.host, self.headers.get("Host")):
+            self.send_error(HTTPStatus.FORBIDDEN, "a loopback server answers loopback names only")
+        elif path in ("/", "/index.html"):
+            self._file(static.PAGE / "index.html", body)
+        elif path.startswith("/static/"):
+            found = static.page_file(path.removeprefix("/static/"))
+            self._file(found, body)
+        elif path == "/api/layers":
+            data = json.dumps(view.listing()).encode()
+            self._send(data, "application/json", body)
+        elif path.startswith("/data/"):
+            self._file(_layer_file(view, path), body)
+        else:
+            self._not_found()
+
+    def _file(self, path: Path | None, body: bool) -> None:
+        if path is None:
+            self._not_found()
+            return
+        try:
+            f = open(path, "rb")  # closed by the with below
+        except OSError:  # a layer removed since the server started
+            self._not_found()
+            return
+        with f:
+            size = f.seek(0, 2)
+            f.seek(0)
+            self.send_response(HTTPStatus.OK)
+            self.send_header("Content-Type", static.content_type(path))
+            self.send_header("Content-Length", str(size))
+            self.send_header("Cache-Control", "no-cache")
+            self.end_headers()
+            if body:
+                shutil.copyfileobj(f, self.wfile, _CHUNK)
+
+    def _send(self, data: bytes, kind: str, body: bool) -> None:
+        self.send_response(HTTPStatus.OK)
+        self.send_header("Content-Type", kind)
+        self.send_header("Content-Length", str(len(data)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        if body:
+            self.wfile.write(data)
+
+    def _not_found(self) -> None:
+        self.send_error(HTTPStatus.NOT_FOUND, "not a file acq view serves")
+
+
+def _host_allowed(served: str, header: str | None) -> bool:
+    """Whether a request naming ``header`` as its Host may be answered by a server on
+    ``served``: on loopback, only a loopback name (a web page whose own name was made to
+    point at 127.0.0.1, DNS rebinding, reads nothing); any on another address."""
+    if header is None or not is_loopback(served):
+        return True
+    try:
+        name = urlsplit(f"//{header}").hostname
+    except ValueError:
+        return False
+    return name is not None and is_loopback(name)
+
+
+def _layer_file(view: ViewServer, path: str) -> Path | None:
+    """The file of ``/data/<k>/<name>``: layer k's, when ``name`` is its name."""
+    parts = path.split("/")
+    if len(parts) != 4 or not parts[2].isdigit():
+        return None
+    k = int(parts[2])
+    if k >= len(view.layers) or parts[3] != view.layers[k].name:
+        return None
+    return view.layers[k].path

@@ -1,0 +1,35 @@
+"""Small clouds and meshes as acq writes them, for the tests of `acq view`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from acq.cloud.ply import PlyStream
+from acq.mesh import files
+
+# a unit square's two triangles, one corner raised, each corner its own colour
+XYZ = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 1]], float)
+RGB = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 0]], np.uint8)
+FACES = np.array([[0, 1, 2], [1, 3, 2]])
+
+
+def cloud(path: Path, n: int = 500, seed: int = 0) -> Path:
+    """A PLY cloud of ``n`` points as `acq colorize` writes it (every column)."""
+    rng = np.random.default_rng(seed)
+    out = PlyStream(path, ["frame world"], ["left"])
+    out.write(
+        rng.uniform(-5, 5, (n, 3)), rng.integers(0, 256, (n, 3), dtype=np.uint8),
+        np.sort(rng.uniform(0, 10, n)), rng.uniform(0, 1, n).astype(np.float32),
+        np.arange(n, dtype=np.int32) // 50, np.ones(n, bool), np.zeros(n, np.uint8),
+        np.arange(n, dtype=np.int32),
+    )  # fmt: skip
+    out.close()
+    return path
+
+
+def mesh(path: Path, offset: float = 0.0) -> Path:
+    """A mesh of two triangles as `acq mesh` writes it (.ply or .glb by the suffix)."""
+    files.write(path, XYZ + offset, RGB, FACES)
+    return path

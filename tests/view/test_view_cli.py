@@ -1,0 +1,110 @@
+"""`acq view` on the command line: it serves until Ctrl-C (exit 0), opens the browser
+when asked, and refuses a bad file or option in one line with exit status 2."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from acq.cli import main
+from tests.view.layer_files import cloud, mesh
+
+
+def _refused(capsys: pytest.CaptureFixture[str], argv: list[str], *named: str) -> str:
+    """Runs `acq view ARGV`, expecting exit status 2 and one line naming ``named``."""
+    assert main(["view", *argv]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("acq view: "), captured.err
+    assert all(n in lines[0] for n in named), lines[0]
+    assert captured.out == ""
+    return lines[0]
+
+
+def test_bad_files_are_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = cloud(tmp_path / "good.ply")
+    _refused(capsys, [str(good), str(tmp_path / "gone.glb")], "gone.glb", "No such file")
+    (tmp_path / "empty").mkdir()
+    _refused(capsys, [str(tmp_path / "empty")], "empty: a folder with no .ply or .glb")
+    short = tmp_path / "short.ply"
+    short.write_bytes(good.read_bytes()[:-100])
+    _refused(capsys, [str(short)], "short.ply", "PLY")
+    garbage = tmp_path / "garbage.glb"
+    garbage.write_bytes(os.urandom(300))
+    _refused(capsys, [str(garbage)], "garbage.glb", "glTF")
+    short_glb = tmp_path / "short.glb"
+    short_glb.write_bytes(mesh(tmp_path / "m.glb").read_bytes()[:-1])
+    _refused(capsys, [str(short_glb)], "short.glb", "bytes")
+    # nothing written beside the inputs
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["good.ply", "empty", "short.ply", "garbage.glb", "short.glb", "m.glb"]
+    )
+
+
+@pytest.mark.parametrize("port", ["nan", "-1", "65536", "1e3", "99999999999999999999", "x"])
+def test_bad_ports_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], port: str
+) -> None:
+    _refused(capsys, [str(cloud(tmp_path / "c.ply", n=5)), "--port", port], "--port", port)
+
+
+def test_a_port_in_use_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        line = _refused(capsys, [str(cloud(tmp_path / "c.ply", n=5)), "--port", str(port)])
+    assert line == f"acq view: --port {port}: in use on 127.0.0.1 (another server listens there)"
+
+
+def test_another_host_is_warned_of_and_a_foreign_address_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = str(cloud(tmp_path / "c.ply", n=5))
+    # 192.0.2.1 (TEST-NET-1, RFC 5737) is no address of this machine
+    assert main(["view", path, "--host", "192.0.2.1"]) == 2
+    warning, refusal = capsys.readouterr().err.splitlines()
+    assert warning.startswith("acq view: warning: --host 192.0.2.1: the files are served")
+    assert refusal == "acq view: --host 192.0.2.1: not an address of this machine"
+    _refused(capsys, [path, "--host", "::1", "--port", "-5"], "--port")  # no warning for ::1
+
+
+def test_serves_until_ctrl_c_and_opens_the_browser(tmp_path: Path) -> None:
+    path = cloud(tmp_path / "c.ply", n=50)
+    # the "browser": a command that writes down the URL it is given (webbrowser's BROWSER)
+    opened = tmp_path / "opened.txt"
+    browser = tmp_path / "browser.sh"
+    browser.write_text(f'#!/bin/sh\necho "$1" > {opened}\n')
+    browser.chmod(0o755)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", "view", str(path), "--open"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=os.environ | {"BROWSER": f"{browser} %s"},
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("serving 1 layer at http://127.0.0.1:"), line
+        url = line.split(" at ")[1].split()[0]
+        with urllib.request.urlopen(f"{url}api/layers", timeout=10) as r:
+            assert json.loads(r.read())[0]["name"] == "c.ply"
+        deadline = time.monotonic() + 20
+        while not opened.exists() and time.monotonic() < deadline:  # the browser runs apart
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0 and err == "" and out == ""
+    assert opened.read_text().strip() == url

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import os
+import signal
 import socket
 import threading
 import time
@@ -72,6 +73,21 @@ setTimeout(() => { window.flag = 42; }, 300);
 
 QUIET_PAGE = "<!doctype html><html><body><p>nothing to say</p></body></html>\n"
 
+# ES modules through an import map, as the viewer's page loads three.js: a module that is
+# there, then one the map points at but the server does not have
+MODULE_PAGE = """<!doctype html>
+<html><head><script type="importmap">
+{"imports": {"lib": "/static/lib.js", "gone": "/static/gone.js"}}
+</script></head><body><script type="module">
+import { answer } from "lib";
+window.answer = answer;
+</script><script type="module">
+import "gone";
+window.unreachable = true;
+</script></body></html>
+"""
+LIB_MODULE = "export const answer = 42;\n"
+
 
 class _QuietHandler(SimpleHTTPRequestHandler):
     def log_message(self, format: str, *args: Any) -> None:
@@ -83,8 +99,10 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """The pages above served from a folder by Python's HTTP server; its base URL."""
     root = tmp_path_factory.mktemp("pages")
     pages = {"webgl": WEBGL_PAGE, "console": CONSOLE_PAGE, "late": LATE_PAGE}
-    for name, text in {**pages, "quiet": QUIET_PAGE}.items():
+    for name, text in {**pages, "quiet": QUIET_PAGE, "modules": MODULE_PAGE}.items():
         (root / f"{name}.html").write_text(text)
+    (root / "static").mkdir()
+    (root / "static" / "lib.js").write_text(LIB_MODULE)
     handler = functools.partial(_QuietHandler, directory=str(root))
     server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
@@ -127,6 +145,16 @@ def test_console_errors_exceptions_and_failed_requests_are_seen(
     failed = [m for m in browser.errors if m.source == "log"]
     assert len(failed) == 1 and "404" in failed[0].text and "/missing.js" in failed[0].text
     assert len(browser.errors) == 4  # console.error, two exceptions, the 404
+
+
+def test_es_modules_load_through_an_import_map_and_a_missing_one_is_an_error(
+    browser: Browser, site: str
+) -> None:
+    browser.open(site + "modules.html")
+    assert browser.wait_for("window.answer") == 42
+    assert browser.evaluate("window.unreachable") is None
+    errors = browser.errors
+    assert len(errors) == 1 and "404" in errors[0].text and "/static/gone.js" in errors[0].text
 
 
 def test_open_forgets_the_console_of_the_page_before(browser: Browser, site: str) -> None:
@@ -196,6 +224,17 @@ def test_close_ends_chromium_and_its_helpers_and_removes_its_profile() -> None:
         assert len(_processes_naming(str(folder))) >= 2  # the browser and its helpers
     assert not folder.exists()
     assert _processes_naming(str(folder)) == []
+
+
+def test_a_chromium_that_died_is_reported_with_its_stderr() -> None:
+    with Browser(320, 200, binary=chromium_or_skip()) as b:
+        assert b.pid is not None
+        os.killpg(b.pid, signal.SIGKILL)  # the browser we started, and its helpers
+        with pytest.raises(BrowserError, match="chromium closed the connection; its stderr"):
+            for _ in range(100):  # the connection's end is seen within a few calls
+                b.evaluate("1")
+                time.sleep(0.01)
+    assert not b.folder.exists()
 
 
 def test_an_absent_chromium_skips_saying_why_but_fails_on_ci(

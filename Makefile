@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 SHELL := /bin/bash
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow interop lint typecheck smoke compile bench clean chrony
+.PHONY: demo test test-slow interop lint typecheck smoke compile bench clean chrony chromium
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -54,10 +54,18 @@ chrony:
 	  { apt-get install -y -qq chrony || { apt-get update -qq && apt-get install -y -qq chrony; }; } \
 	  >/dev/null 2>&1 ) || echo "chrony not installed: the tests that run chronyd skip"
 
+# the page tests drive Debian's chromium headless (tests/browser.py), installed the same way;
+# without it they skip, saying why (on CI, env CI=true, they fail instead)
+chromium:
+	@test -x /usr/bin/chromium || \
+	( test "$$(id -u)" -eq 0 && export DEBIAN_FRONTEND=noninteractive && \
+	  { apt-get install -y -qq chromium || { apt-get update -qq && apt-get install -y -qq chromium; }; } \
+	  >/dev/null 2>&1 ) || echo "chromium not installed: the page tests skip (fail where CI=true)"
+
 # ruff first; then the real-time tests two at a time, with mypy and the wheel's smoke
 # beside them at nice 19 (the real-time tests mostly wait on their devices, and must hold
 # on a busy machine anyway); then the rest on both cores.
-test: $(STAMP) compile chrony
+test: $(STAMP) compile chrony chromium
 	$(BIN)/ruff format --check $(RUFF_PATHS)
 	$(BIN)/ruff check $(RUFF_PATHS)
 	@nice -n 19 $(MAKE) --no-print-directory typecheck > .mypy.out 2>&1 & mypy=$$!; \

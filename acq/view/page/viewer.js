@@ -36,6 +36,10 @@ function toFloat32(geometry) {
     }
     geometry.setAttribute(name, new THREE.BufferAttribute(out, attribute.itemSize, attribute.normalized));
   }
+  // the loader's bounds were of the doubles: culled and framed by them, a cloud far from
+  // the origin (a CRS's coordinates) was never drawn
+  geometry.computeBoundingBox();
+  geometry.computeBoundingSphere();
   return origin;
 }
 

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from acq.camera.camera_models import Pinhole
-from acq.mesh.files import Y_UP
+from acq.mesh.files import Y_UP, glb_colours
 from acq.mesh.render import View, look_at, render_mesh, render_textured, splat
 from acq.mesh.texture import MAX_SIDE
 from acq.sim.raycast import cast
@@ -250,14 +250,13 @@ def picture(result: ViewsResult, title: str) -> np.ndarray:
 def read_mesh(glb: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A ``.glb`` of `acq mesh` read back through trimesh: vertices (V,3) m in the world
     frame (the node's matrix applied, glTF's +y up turned back to z up), faces (F,3) and
-    vertex colours (V,3) uint8 RGB."""
-    from trimesh.visual import ColorVisuals
-
+    vertex colours (V,3) uint8 sRGB (its linear COLOR_0 through
+    :func:`acq.mesh.files.glb_colours`: trimesh takes it as it is)."""
     g = _triangles(glb)
-    if not isinstance(g.visual, ColorVisuals):
-        raise ValueError(f"{glb}: not a triangle mesh with vertex colours")
-    rgb = np.asarray(g.visual.vertex_colors)[:, :3]
-    return np.asarray(g.vertices) @ Y_UP, np.asarray(g.faces), np.ascontiguousarray(rgb)
+    rgb = glb_colours(glb)
+    if len(rgb) != len(g.vertices):
+        raise ValueError(f"{glb}: {len(rgb)} vertex colours for {len(g.vertices)} vertices")
+    return np.asarray(g.vertices) @ Y_UP, np.asarray(g.faces), rgb
 
 
 def read_textured_mesh(glb: Path) -> TexturedMesh:

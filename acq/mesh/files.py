@@ -3,10 +3,11 @@ or OBJ, each with per-vertex colour and acq's mark (:mod:`acq.provenance`), writ
 or not at all (a temporary beside it, renamed).
 
 - PLY: x y z double (m), red green blue uchar, faces; the mark a header comment.
-- glb (trimesh, ``process=False``: the vertices in the order given): positions float32
-  relative to the file's first vertex, that offset and the turn from the world's z up to
-  glTF's +y up in the node's matrix (JSON doubles: a CRS's coordinates keep their
-  millimetres); COLOR_0 per vertex; the mark ``asset.generator``, the comments in
+- glb (pygltflib, the vertices in the order given): positions float32 relative to the
+  file's first vertex, that offset and the turn from the world's z up to glTF's +y up in
+  the node's matrix (JSON doubles: a CRS's coordinates keep their millimetres); COLOR_0
+  per vertex, linear as glTF defines it (:func:`gltf_colours`; 16 bits: sRGB's 8 come
+  back exactly, :func:`glb_colours`); the mark ``asset.generator``, the comments in
   ``asset.extras.acq``. Textured (:class:`acq.mesh.texture.Atlas`): a vertex per facet
   corner with its TEXCOORD_0, the atlas a JPEG baseColorTexture, no COLOR_0.
 - OBJ: ``v x y z r g b`` (the vertex-colour extension that Blender, MeshLab,
@@ -33,7 +34,16 @@ from acq.provenance import SOFTWARE, marked_image
 if TYPE_CHECKING:
     from acq.mesh.texture import Atlas
 
-__all__ = ["SUFFIXES", "Y_UP", "format_of", "texture_files", "write"]
+__all__ = [
+    "SUFFIXES",
+    "Y_UP",
+    "format_of",
+    "glb_colours",
+    "gltf_colours",
+    "srgb_of_gltf",
+    "texture_files",
+    "write",
+]
 
 SUFFIXES = (".ply", ".glb", ".obj")
 # a glb's atlas, as the OBJ's (at 75: 0.5 points less like the truth, 8 % smaller)
@@ -76,6 +86,44 @@ def write(
     return _write_textured_obj(path, xyz, faces, lines, texture)
 
 
+def gltf_colours(rgb: np.ndarray) -> np.ndarray:
+    """(V,4) uint16: sRGB colours ``rgb`` (V,3) uint8 as glTF's COLOR_0 holds them, linear
+    (normalised to 0..65535), opaque: a viewer shows the colours given, not paler ones."""
+    c = np.asarray(rgb, np.float64) / 255.0
+    linear = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    out = np.full((len(c), 4), 65535, np.uint16)
+    out[:, :3] = np.round(linear * 65535.0)
+    return out
+
+
+def srgb_of_gltf(values: np.ndarray) -> np.ndarray:
+    """(V,3) uint8 sRGB of COLOR_0 ``values`` (V,3|4) uint16 normalised linear: the
+    inverse of :func:`gltf_colours`, exact on what it wrote."""
+    c = np.asarray(values, np.float64)[:, :3] / 65535.0
+    s = np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
+    out: np.ndarray = np.clip(np.round(s * 255.0), 0, 255).astype(np.uint8)
+    return out
+
+
+def glb_colours(path: Path) -> np.ndarray:
+    """(V,3) uint8 sRGB: the vertex colours (COLOR_0) of the one mesh of a glb that acq
+    wrote (uint16 normalised, linear); ValueError if it has none or another kind."""
+    import pygltflib as gl
+
+    g = gl.GLTF2().load(str(path))
+    k = g.meshes[0].primitives[0].attributes.COLOR_0
+    if k is None:
+        raise ValueError(f"{path}: no vertex colours (COLOR_0)")
+    acc = g.accessors[k]
+    if acc.componentType != gl.UNSIGNED_SHORT or acc.type not in (gl.VEC3, gl.VEC4):
+        raise ValueError(f"{path}: COLOR_0 not of 16-bit normalised values")
+    view = g.bufferViews[acc.bufferView]
+    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+    width = 3 if acc.type == gl.VEC3 else 4
+    raw = np.frombuffer(g.binary_blob(), np.uint16, acc.count * width, start)
+    return srgb_of_gltf(raw.reshape(acc.count, width))
+
+
 def texture_files(path: Path) -> tuple[Path, Path]:
     """The material (.mtl) and the image (.jpg) beside a textured OBJ ``path``."""
     return path.with_suffix(".mtl"), path.with_suffix(".jpg")
@@ -90,10 +138,9 @@ def _write_glb(
     offset = xyz[0].copy() if len(xyz) else np.zeros(3)
     parts = _GlbBuffer()
     if texture is None:
-        rgba = np.hstack([rgb, np.full((len(rgb), 1), 255, np.uint8)])
         attributes = gl.Attributes(
             POSITION=parts.positions(xyz - offset, None),
-            COLOR_0=parts.accessor(rgba, gl.UNSIGNED_BYTE, gl.VEC4, normalized=True),
+            COLOR_0=parts.accessor(gltf_colours(rgb), gl.UNSIGNED_SHORT, gl.VEC4, normalized=True),
         )
         indices = parts.accessor(faces.reshape(-1).astype(np.uint32), gl.UNSIGNED_INT, gl.SCALAR)
         primitive = gl.Primitive(attributes=attributes, indices=indices)

@@ -14,6 +14,7 @@ import trimesh
 from plyfile import PlyData
 
 from acq.cli import main as acq_main
+from acq.mesh import files
 from acq.mesh.files import Y_UP
 from acq.provenance import made_by_acq
 from acq.sim.drive_log import DriveTruth
@@ -72,6 +73,18 @@ def test_vertices_have_the_coloured_clouds_colours(
     assert (np.ptp(c["scalar_scan"][k][faces], axis=1) == 1).all()
 
 
+def test_glb_colours_are_linear_as_gltf_has_them_and_come_back_exactly() -> None:
+    """glTF's COLOR_0 is linear: sRGB 128 is 21.6 % of full scale (55.4 % would show paler
+    in every viewer); 16 bits give every one of sRGB's 256 levels back."""
+    levels = np.arange(256, dtype=np.uint8)
+    rgb = np.stack([levels, levels[::-1], np.full(256, 128, np.uint8)], axis=1)
+    values = files.gltf_colours(rgb)
+    assert values.dtype == np.uint16 and (values[:, 3] == 65535).all()
+    assert values[128, 0] / 65535 == pytest.approx(0.2158605, abs=1e-5)
+    assert (values[0, :1] == 0).all() and values[255, 0] == 65535
+    assert np.array_equal(files.srgb_of_gltf(values), rgb)
+
+
 def test_glb_and_obj_read_back_as_the_ply(whole: Path, short_drive: Drive, tmp_path: Path) -> None:
     xyz, rgb, faces = _ply(whole)
     glb, obj = tmp_path / "m.glb", tmp_path / "m.obj"
@@ -80,7 +93,7 @@ def test_glb_and_obj_read_back_as_the_ply(whole: Path, short_drive: Drive, tmp_p
     g = trimesh.load(glb).to_geometry()  # the node's matrix applied: glTF's +y up
     assert np.abs(g.vertices @ Y_UP - xyz).max() < 1e-3  # float32 about the first vertex
     assert np.array_equal(g.faces, faces)
-    assert np.array_equal(g.visual.vertex_colors[:, :3], rgb)
+    assert np.array_equal(files.glb_colours(glb), rgb)  # linear in the file, as glTF has it
     gl = pygltflib.GLTF2().load(str(glb))
     assert gl.asset.version == "2.0" and gl.asset.generator.startswith("acq ")
     prim = gl.meshes[0].primitives[0]

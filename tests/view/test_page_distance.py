@@ -21,6 +21,7 @@ EAST = np.array([1_000_000.0, 5_000_000.0, 0.0])  # the quad's corner, m
 A = EAST + np.array([1.5, -0.5, 0.0])
 B = EAST + np.array([9.5, -3.5, 0.0])
 CM = 0.01
+MARKER = (255, 212, 0)  # the markers' colour (RGB)
 
 
 def _quad(path: Path) -> Path:
@@ -55,6 +56,12 @@ def _click_at(browser: Browser, xyz: np.ndarray, shift_px: float = 0.0) -> None:
     browser.click(x + shift_px, y)
 
 
+def _marker_share(image: np.ndarray, x: float, y: float) -> float:
+    """The share of the 5 x 5 pixels about (x, y) in the markers' colour."""
+    block = image[round(y) - 2 : round(y) + 3, round(x) - 2 : round(x) + 3].astype(np.int32)
+    return float((np.abs(block - MARKER) <= 8).all(axis=2).mean())
+
+
 def _readout(browser: Browser) -> str:
     return str(browser.evaluate("document.getElementById('measured').textContent"))
 
@@ -70,6 +77,13 @@ def test_two_clicks_on_a_mesh_far_east_give_the_distance_and_the_file_s_coordina
         _click_at(browser, B)
         measured = browser.wait_for("window.acqMeasured?.distance && window.acqMeasured")
         shown = _readout(browser)
+        pixels = [browser.evaluate(f"window.acqProject({p.tolist()})") for p in (A, B)]
+        marked = browser.screenshot()
+        browser.evaluate("window.dispatchEvent(new KeyboardEvent('keydown', {key: 'Escape'}))")
+        cleared = browser.screenshot()
+    # the markers on the screen where the points are drawn, gone once cleared
+    for x, y in pixels:
+        assert _marker_share(marked, x, y) > 0.5 and _marker_share(cleared, x, y) == 0
     assert len(one["points"]) == 1 and one["distance"] is None
     a, b = np.array(measured["points"])
     assert np.abs(a - A).max() < CM and np.abs(b - B).max() < CM, (a - A, b - B)

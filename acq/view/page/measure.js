@@ -70,7 +70,6 @@ export function measureTool(scene, camera, canvas, objects, render) {
   const toggle = document.getElementById('measure');
   const readout = document.getElementById('measured');
   const markers = new THREE.Group();
-  markers.renderOrder = 1;
   scene.add(markers);
   let points = [];
   window.acqMeasured = null;
@@ -89,11 +88,14 @@ export function measureTool(scene, camera, canvas, objects, render) {
       const dots = new THREE.Points(geometry, new THREE.PointsMaterial({
         color: MARKER, size: 10, sizeAttenuation: false, depthTest: false,
       }));
+      dots.renderOrder = 1; // after the layers, over them (no depth test)
       markers.add(dots);
       if (points.length === 2) {
-        markers.add(new THREE.Line(geometry.clone(), new THREE.LineBasicMaterial({
+        const line = new THREE.Line(geometry.clone(), new THREE.LineBasicMaterial({
           color: MARKER, depthTest: false,
-        })));
+        }));
+        line.renderOrder = 1;
+        markers.add(line);
       }
     }
     const distance = points.length === 2 ? points[0].distanceTo(points[1]) : null;

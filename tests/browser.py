@@ -219,6 +219,23 @@ class Browser:
                 )
             time.sleep(interval_s)
 
+    def click(self, x: float, y: float) -> None:
+        """A left click of the mouse at (x, y) CSS pixels from the page's top-left corner
+        (fractions kept): moved there, pressed and released, as a user's click."""
+        self.drag(x, y, x, y)
+
+    def drag(self, x0: float, y0: float, x1: float, y1: float, steps: int = 5) -> None:
+        """The left button pressed at (x0, y0) CSS pixels, the mouse moved in ``steps``
+        equal steps to (x1, y1) and released there (none when the two are one place)."""
+        left = {"button": "left", "clickCount": 1}
+        self._call("Input.dispatchMouseEvent", type="mouseMoved", x=x0, y=y0)
+        self._call("Input.dispatchMouseEvent", type="mousePressed", x=x0, y=y0, **left)
+        if (x0, y0) != (x1, y1):
+            for k in range(1, steps + 1):
+                x, y = x0 + (x1 - x0) * k / steps, y0 + (y1 - y0) * k / steps
+                self._call("Input.dispatchMouseEvent", type="mouseMoved", x=x, y=y, buttons=1)
+        self._call("Input.dispatchMouseEvent", type="mouseReleased", x=x1, y=y1, **left)
+
     def screenshot(self) -> np.ndarray:
         """What the page shows: an (height, width, 3) uint8 RGB image."""
         answer = self._call("Page.captureScreenshot", format="png")

@@ -71,6 +71,16 @@ setTimeout(() => { window.flag = 42; }, 300);
 </script></body></html>
 """
 
+# every click's kind, place and button, as the page's events saw them
+CLICK_PAGE = """<!doctype html>
+<html><body style="margin: 0; height: 100vh"><script>
+window.clicks = [];
+for (const kind of ["pointerdown", "pointermove", "pointerup", "click"]) {
+  addEventListener(kind, (e) => clicks.push([e.type, e.clientX, e.clientY, e.button]));
+}
+</script></body></html>
+"""
+
 QUIET_PAGE = "<!doctype html><html><body><p>nothing to say</p></body></html>\n"
 
 # ES modules through an import map, as the viewer's page loads three.js: a module that is
@@ -98,7 +108,7 @@ class _QuietHandler(SimpleHTTPRequestHandler):
 def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """The pages above served from a folder by Python's HTTP server; its base URL."""
     root = tmp_path_factory.mktemp("pages")
-    pages = {"webgl": WEBGL_PAGE, "console": CONSOLE_PAGE, "late": LATE_PAGE}
+    pages = {"webgl": WEBGL_PAGE, "console": CONSOLE_PAGE, "late": LATE_PAGE, "click": CLICK_PAGE}
     for name, text in {**pages, "quiet": QUIET_PAGE, "modules": MODULE_PAGE}.items():
         (root / f"{name}.html").write_text(text)
     (root / "static").mkdir()
@@ -155,6 +165,36 @@ def test_es_modules_load_through_an_import_map_and_a_missing_one_is_an_error(
     assert browser.evaluate("window.unreachable") is None
     errors = browser.errors
     assert len(errors) == 1 and "404" in errors[0].text and "/static/gone.js" in errors[0].text
+
+
+def test_click_gives_the_page_a_left_click_where_it_is_told(browser: Browser, site: str) -> None:
+    browser.open(site + "click.html")
+    browser.click(123.25, 456.5)
+    browser.click(7, 8)
+    clicks = browser.wait_for("clicks.length === 8 && clicks.filter((c) => c[0] !== 'pointermove')")
+    # a pointer event's place keeps its fractions (a click event's are cut off); the
+    # primary button is 0
+    assert clicks[:3] == [
+        ["pointerdown", 123.25, 456.5, 0],
+        ["pointerup", 123.25, 456.5, 0],
+        ["click", 123, 456, 0],
+    ]
+    assert [c[0] for c in clicks[3:]] == ["pointerdown", "pointerup", "click"]
+    assert all(c[1:] == [7, 8, 0] for c in clicks[3:])
+    assert browser.errors == []
+
+
+def test_drag_presses_moves_and_releases_where_it_is_told(browser: Browser, site: str) -> None:
+    browser.open(site + "click.html")
+    browser.drag(100, 100, 200, 150, steps=4)
+    events = browser.wait_for("clicks.some((c) => c[0] === 'pointerup') && clicks")
+    kinds = [e[0] for e in events]
+    assert kinds[0] == "pointermove" and kinds[1] == "pointerdown"  # moved there first
+    assert events[1][1:] == [100, 100, 0]
+    moves = [e[1:3] for e in events[2:] if e[0] == "pointermove"]
+    assert moves == [[125, 112.5], [150, 125], [175, 137.5], [200, 150]]
+    assert events[-1][0] in ("pointerup", "click") and ["pointerup", 200, 150, 0] in events
+    assert browser.errors == []
 
 
 def test_open_forgets_the_console_of_the_page_before(browser: Browser, site: str) -> None:

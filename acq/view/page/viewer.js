@@ -4,6 +4,7 @@ import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { PLYLoader } from 'three/addons/loaders/PLYLoader.js';
+import { measureTool } from './measure.js';
 
 const message = document.getElementById('message');
 const sizeInput = document.getElementById('point-size');
@@ -158,6 +159,7 @@ async function main() {
   const box = new THREE.Box3().setFromObject(scene);
   if (box.isEmpty()) throw new Error('the layers hold nothing to draw');
   frame(box, camera, controls);
+  measureTool(scene, camera, renderer.domElement, objects, render);
   render();
   message.textContent = '';
   // the frame rendered above is on the screen at the next animation frame

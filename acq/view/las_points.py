@@ -23,7 +23,7 @@ SUFFIXES = (".las", ".laz")  # a COPC file (.copc.laz) is a LAZ file
 MAGIC = b"ACQPTS1\0"
 HEADER = struct.Struct("<8sQQdddII")  # 56 bytes: float32 offsets after it stay aligned
 HAS_COLOUR = 1
-_CHUNK_POINTS = 1 << 20  # points decoded at a time
+_CHUNK_POINTS = 1 << 18  # points decoded at a time (~12 MB of records)
 
 
 def check(path: Path) -> int:
@@ -54,12 +54,12 @@ def check(path: Path) -> int:
     return count
 
 
-def shown(data: bytes) -> int:
+def shown(data: bytes | bytearray) -> int:
     """The points a payload holds (its header's)."""
     return int(HEADER.unpack_from(data)[1])
 
 
-def payload(path: Path, max_points: int) -> bytes:
+def payload(path: Path, max_points: int) -> bytearray:
     """The page's binary of the LAS/LAZ file ``path`` (see the module): every point, or
     for a cloud over ``max_points`` points the ``max_points`` of index ``j * count //
     max_points`` (evenly spread along the file, the same each time); InputError naming the
@@ -71,7 +71,9 @@ def payload(path: Path, max_points: int) -> bytes:
             count = int(reader.header.point_count)
             has_colour = {"red", "green", "blue"} <= set(reader.header.point_format.dimension_names)
             m = min(count, max_points)
-            xyz = np.empty((m, 3), np.float32)
+            # the payload's bytes, filled in place: no copy of it is made
+            data = bytearray(HEADER.size + 15 * m)
+            xyz = np.frombuffer(data, np.float32, 3 * m, HEADER.size).reshape(m, 3)
             rgb16 = np.zeros((m, 3), np.uint16)
             origin: np.ndarray | None = None
             start = 0
@@ -98,8 +100,10 @@ def payload(path: Path, max_points: int) -> bytes:
         raise InputError(f"{path}: truncated: its header says {count} points, it holds {start}")
     if not np.isfinite(xyz).all():
         raise InputError(f"{path}: points too far apart for 32-bit floats (its scales or offsets)")
-    head = HEADER.pack(MAGIC, m, count, *origin.tolist(), HAS_COLOUR if has_colour else 0, 0)
-    return head + xyz.tobytes() + _rgb8(rgb16).tobytes()
+    flags = HAS_COLOUR if has_colour else 0
+    HEADER.pack_into(data, 0, MAGIC, m, count, *origin.tolist(), flags, 0)
+    np.frombuffer(data, np.uint8, 3 * m, HEADER.size + 12 * m)[:] = _rgb8(rgb16).ravel()
+    return data
 
 
 def _rgb8(rgb16: np.ndarray) -> np.ndarray:

@@ -196,7 +196,9 @@ class _Handler(BaseHTTPRequestHandler):
             if body:
                 shutil.copyfileobj(f, self.wfile, _CHUNK)
 
-    def _send(self, data: bytes, kind: str, body: bool, cache: str = "no-store") -> None:
+    def _send(
+        self, data: bytes | bytearray, kind: str, body: bool, cache: str = "no-store"
+    ) -> None:
         self.send_response(HTTPStatus.OK)
         self.send_header("Content-Type", kind)
         self.send_header("Content-Length", str(len(data)))

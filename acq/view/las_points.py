@@ -66,6 +66,9 @@ def payload(path: Path, max_points: int) -> bytearray:
     file when its points cannot be decoded or are fewer than its header says."""
     import laspy
 
+    if max_points < 1:
+        raise ValueError(f"max_points {max_points}: at least 1")
+
     try:
         with laspy.open(path, laz_backend=_backend()) as reader:
             count = int(reader.header.point_count)

@@ -66,6 +66,8 @@ def test_a_cloud_over_the_limit_is_an_evenly_spread_subset(tmp_path: Path) -> No
     assert np.abs(got - xyz[index]).max() < 0.0006
     with ViewServer([path], max_points=10_000) as server:
         assert server.listing()[0]["shown"] == 10_000
+    with pytest.raises(ValueError, match="max_points 0"):
+        ViewServer([path], max_points=0)
 
 
 def test_a_cloud_of_several_chunks_keeps_its_order(

@@ -10,6 +10,7 @@ from pathlib import Path
 from acq.addresses import is_loopback
 from acq.cli.option_types import integer
 from acq.errors import InputError
+from acq.view.server import DEFAULT_MAX_POINTS
 
 HELP = "see clouds and meshes in a web browser, served from this machine (offline)"
 DEFAULT_HOST = "127.0.0.1"
@@ -19,18 +20,29 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     v = sub.add_parser(
         "view",
         help=HELP,
-        description="Serve a web page that draws each PATH as a layer: a .ply cloud as "
-        "points in its colours (as `acq colorize` writes it), a .ply or .glb mesh (as `acq "
-        "mesh` writes it) as coloured or textured facets. A folder stands for the .ply and "
-        ".glb files in it. Every file is checked before the server starts. The page and "
-        "its libraries (three.js) come with acq: no network is needed. In the page: drag "
-        "to orbit, right-drag to pan, the wheel to zoom; a box per layer hides it; a slider "
-        "sets the points' size. Prints the page's URL and serves until Ctrl-C. Exit status: "
+        description="Serve a web page that draws each PATH as a layer: a .ply, .las, .laz "
+        "or .copc.laz cloud as points in their colours (as `acq colorize` writes them), a "
+        ".ply or .glb mesh (as `acq mesh` writes it) as coloured or textured facets. A "
+        "folder stands for the .ply, .glb, .las and .laz files in it. Every file is "
+        "checked before the server starts. The page and its libraries (three.js) come "
+        "with acq: no network is needed. In the page: drag to orbit, right-drag to pan, the "
+        "wheel to zoom; a box per layer hides it; a slider sets the points' size. Prints "
+        "the page's URL and serves until Ctrl-C. Exit status: "
         "0 stopped by Ctrl-C, 2 a bad file or option (the port in use among them).",
     )
     v.add_argument(
-        "paths", nargs="+", type=Path, metavar="PATH", help=".ply or .glb files, or folders"
-    )
+        "paths", nargs="+", type=Path, metavar="PATH",
+        help=".ply, .glb, .las, .laz or .copc.laz files, or folders",
+    )  # fmt: skip
+    v.add_argument(
+        "--max-points", type=integer(1, 2**62, what="a count of points"),
+        default=DEFAULT_MAX_POINTS, metavar="N",
+        help="most points of a LAS/LAZ/COPC cloud sent to the page (default "
+        f"{DEFAULT_MAX_POINTS:,}: a laptop's browser draws about a million points "
+        "smoothly and slows around 5-10 million); a larger cloud is shown by N of its "
+        "points evenly spread through the file, and its layer says so (e.g. '2,000,000 of "
+        "10,000,000 points')",
+    )  # fmt: skip
     v.add_argument(
         "--host", default=DEFAULT_HOST,
         help=f"address to serve on (default {DEFAULT_HOST}: this machine only); another "
@@ -60,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
             "without authentication",
             file=sys.stderr, flush=True,
         )  # fmt: skip
-    server = ViewServer(args.paths, host=args.host, port=args.port)
+    server = ViewServer(args.paths, host=args.host, port=args.port, max_points=args.max_points)
     try:
         server.start()
     except AddressError as e:  # named as the command line names it

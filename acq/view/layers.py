@@ -1,6 +1,6 @@
 """What `acq view` shows: a layer is one file (a ``.ply`` cloud or mesh, a ``.glb``
-mesh), checked whole before it is served so that the page never gets a file it cannot
-draw; a folder stands for the viewable files in it."""
+mesh, a ``.las``/``.laz``/``.copc.laz`` cloud), checked before it is served so that the
+page never gets a file it cannot draw; a folder stands for the viewable files in it."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ import numpy as np
 
 from acq.errors import InputError
 
-__all__ = ["SUFFIXES", "Layer", "layer_of", "layers_of"]
+__all__ = ["SUFFIXES", "Layer", "first_line", "layer_of", "layers_of"]
 
-SUFFIXES = (".ply", ".glb")
+SUFFIXES = (".ply", ".glb", ".las", ".laz")  # .copc.laz among the .laz
 _GLB_MAGIC, _GLB_JSON, _GLB_BIN = b"glTF", 0x4E4F534A, 0x004E4942
 
 
@@ -37,15 +37,16 @@ class Layer:
 
 
 def layers_of(paths: Sequence[Path]) -> list[Layer]:
-    """The layers of ``paths`` (files, or folders standing for their .ply and .glb files,
-    by name), in order; InputError naming the first path that is missing, unreadable,
-    malformed or a folder with nothing to view."""
+    """The layers of ``paths`` (files, or folders standing for their files of
+    :data:`SUFFIXES`, by name), in order; InputError naming the first path that is
+    missing, unreadable, malformed or a folder with nothing to view."""
     layers: list[Layer] = []
     for path in paths:
         if path.is_dir():
             found = sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES)
             if not found:
-                raise InputError(f"{path}: a folder with no {' or '.join(SUFFIXES)} file in it")
+                shown = f"{', '.join(SUFFIXES[:-1])} or {SUFFIXES[-1]}"
+                raise InputError(f"{path}: a folder with no {shown} file in it")
             layers += [layer_of(p) for p in found]
         else:
             layers.append(layer_of(path))
@@ -54,6 +55,8 @@ def layers_of(paths: Sequence[Path]) -> list[Layer]:
 
 def layer_of(path: Path) -> Layer:
     """The layer of the file ``path``, checked; InputError naming it otherwise."""
+    from acq.view import las_points
+
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
         raise InputError(f"{path}: not a file acq view shows (expected {', '.join(SUFFIXES)})")
@@ -63,6 +66,8 @@ def layer_of(path: Path) -> Layer:
             raise InputError(f"{path}: not a file")
         if suffix == ".ply":
             kind, count = _ply(path)
+        elif suffix in las_points.SUFFIXES:
+            kind, count = "cloud", las_points.check(path)
         else:
             kind, count = _glb(path, size)
     except OSError as e:
@@ -81,7 +86,7 @@ def _ply(path: Path) -> tuple[Literal["cloud", "mesh"], int]:
         except PlyParseError:
             data = PlyData.read(str(path))
     except (PlyParseError, ValueError, UnicodeDecodeError, IndexError, struct.error) as e:
-        raise InputError(f"{path}: not a readable PLY file ({_first_line(e)})") from None
+        raise InputError(f"{path}: not a readable PLY file ({first_line(e)})") from None
     if "vertex" not in data:
         raise InputError(f"{path}: a PLY file without a vertex element")
     vertex = data["vertex"].data
@@ -125,7 +130,7 @@ def _glb(path: Path, size: int) -> tuple[Literal["cloud", "mesh"], int]:
         gltf: dict[str, Any] = json.loads(text)
         count = _glb_vertices(gltf, bin_length)
     except (ValueError, KeyError, TypeError, IndexError) as e:
-        raise InputError(f"{path}: a malformed glTF JSON chunk ({_first_line(e)})") from None
+        raise InputError(f"{path}: a malformed glTF JSON chunk ({first_line(e)})") from None
     if count == 0:
         raise InputError(f"{path}: a glTF binary with no mesh vertex")
     return "mesh", count
@@ -146,5 +151,6 @@ def _glb_vertices(gltf: dict[str, Any], bin_length: int) -> int:
     )
 
 
-def _first_line(e: Exception) -> str:
+def first_line(e: BaseException) -> str:
+    """An exception's message's first line (its type's name when it has none)."""
     return str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__

@@ -20,12 +20,15 @@ from urllib.parse import quote, unquote, urlsplit
 
 from acq.addresses import is_loopback
 from acq.errors import InputError
-from acq.view import static
+from acq.view import las_points, static
 from acq.view.layers import Layer, layers_of
 
-__all__ = ["AddressError", "ViewServer"]
+__all__ = ["DEFAULT_MAX_POINTS", "POINTS_NAME", "AddressError", "ViewServer"]
 
 _CHUNK = 1 << 20  # bytes copied to the socket at a time
+# a laptop's browser draws about a million points well and slows around 5-10 M
+DEFAULT_MAX_POINTS = 2_000_000
+POINTS_NAME = "points.bin"  # a LAS/LAZ layer's URL name: its points packed for the page
 
 
 class AddressError(InputError):
@@ -40,10 +43,19 @@ class AddressError(InputError):
 class ViewServer:
     """Serves the layers of ``paths`` (checked on construction: InputError naming a bad
     one) on ``host``:``port`` (0: a free port) while the context is open; ``url`` is
-    ``http://HOST:PORT/``."""
+    ``http://HOST:PORT/``. A LAS/LAZ/COPC cloud is decoded here, once, into the page's
+    binary (:mod:`acq.view.las_points`), at most ``max_points`` of its points."""
 
-    def __init__(self, paths: Sequence[Path], host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(
+        self, paths: Sequence[Path], host: str = "127.0.0.1", port: int = 0,
+        max_points: int = DEFAULT_MAX_POINTS,
+    ) -> None:  # fmt: skip
         self.layers = layers_of(paths)
+        self.points = {
+            k: las_points.payload(layer.path, max_points)
+            for k, layer in enumerate(self.layers)
+            if layer.path.suffix.lower() in las_points.SUFFIXES
+        }
         self.host, self.port = host, port
         self._httpd: _Server | None = None
         self._thread: threading.Thread | None = None
@@ -56,17 +68,23 @@ class ViewServer:
         return f"http://{host}:{self._httpd.server_address[1]}/"
 
     def listing(self) -> list[dict[str, Any]]:
-        """What ``/api/layers`` answers: each layer's name, kind, URL, bytes and count."""
+        """What ``/api/layers`` answers: each layer's name, kind, URL, bytes and count, and
+        ``shown``, the points or vertices the page gets (fewer than ``count`` for a cloud
+        subsampled to ``max_points``)."""
         return [
             {
                 "name": layer.name,
                 "kind": layer.kind,
-                "url": _data_url(k, layer),
+                "url": self._data_url(k, layer),
                 "bytes": layer.size,
                 "count": layer.count,
+                "shown": las_points.shown(self.points[k]) if k in self.points else layer.count,
             }
             for k, layer in enumerate(self.layers)
         ]
+
+    def _data_url(self, k: int, layer: Layer) -> str:
+        return f"/data/{k}/{POINTS_NAME if k in self.points else quote(layer.name)}"
 
     def __enter__(self) -> ViewServer:
         self.start()
@@ -111,10 +129,6 @@ class ViewServer:
         self._httpd = self._thread = None
 
 
-def _data_url(k: int, layer: Layer) -> str:
-    return f"/data/{k}/{quote(layer.name)}"
-
-
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     view: ViewServer
@@ -152,7 +166,13 @@ class _Handler(BaseHTTPRequestHandler):
             data = json.dumps(view.listing()).encode()
             self._send(data, "application/json", body)
         elif path.startswith("/data/"):
-            self._file(_layer_file(view, path), body)
+            k = _layer_index(view, path)
+            if k is None:
+                self._not_found()
+            elif k in view.points:
+                self._send(view.points[k], "application/octet-stream", body, "no-cache")
+            else:
+                self._file(view.layers[k].path, body)
         else:
             self._not_found()
 
@@ -176,14 +196,18 @@ class _Handler(BaseHTTPRequestHandler):
             if body:
                 shutil.copyfileobj(f, self.wfile, _CHUNK)
 
-    def _send(self, data: bytes, kind: str, body: bool) -> None:
+    def _send(
+        self, data: bytes | bytearray, kind: str, body: bool, cache: str = "no-store"
+    ) -> None:
         self.send_response(HTTPStatus.OK)
         self.send_header("Content-Type", kind)
         self.send_header("Content-Length", str(len(data)))
-        self.send_header("Cache-Control", "no-store")
+        self.send_header("Cache-Control", cache)
         self.end_headers()
         if body:
-            self.wfile.write(data)
+            view = memoryview(data)
+            for start in range(0, len(data), _CHUNK):
+                self.wfile.write(view[start : start + _CHUNK])
 
     def _not_found(self) -> None:
         self.send_error(HTTPStatus.NOT_FOUND, "not a file acq view serves")
@@ -202,12 +226,14 @@ def _host_allowed(served: str, header: str | None) -> bool:
     return name is not None and is_loopback(name)
 
 
-def _layer_file(view: ViewServer, path: str) -> Path | None:
-    """The file of ``/data/<k>/<name>``: layer k's, when ``name`` is its name."""
+def _layer_index(view: ViewServer, path: str) -> int | None:
+    """The layer k of ``/data/<k>/<name>``, when ``name`` is its URL's (its file's name,
+    or :data:`POINTS_NAME` for a LAS/LAZ cloud)."""
     parts = path.split("/")
     if len(parts) != 4 or not parts[2].isdigit():
         return None
     k = int(parts[2])
-    if k >= len(view.layers) or parts[3] != view.layers[k].name:
+    if k >= len(view.layers):
         return None
-    return view.layers[k].path
+    expected = POINTS_NAME if k in view.points else view.layers[k].name
+    return k if parts[3] == expected else None

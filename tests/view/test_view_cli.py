@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from acq.cli import main
-from tests.view.layer_files import cloud, mesh
+from tests.view.layer_files import cloud, las_cloud, mesh
 
 
 def _refused(capsys: pytest.CaptureFixture[str], argv: list[str], *named: str) -> str:
@@ -36,7 +36,7 @@ def test_bad_files_are_refused_in_one_line(
     good = cloud(tmp_path / "good.ply")
     _refused(capsys, [str(good), str(tmp_path / "gone.glb")], "gone.glb", "No such file")
     (tmp_path / "empty").mkdir()
-    _refused(capsys, [str(tmp_path / "empty")], "empty: a folder with no .ply or .glb")
+    _refused(capsys, [str(tmp_path / "empty")], "empty: a folder with no .ply, .glb, .las")
     short = tmp_path / "short.ply"
     short.write_bytes(good.read_bytes()[:-100])
     _refused(capsys, [str(short)], "short.ply", "PLY")
@@ -50,6 +50,21 @@ def test_bad_files_are_refused_in_one_line(
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         ["good.ply", "empty", "short.ply", "garbage.glb", "short.glb", "m.glb"]
     )
+
+
+def test_bad_las_files_and_max_points_are_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    laz, _, _ = las_cloud(tmp_path / "good.laz", n=20_000)
+    cut = tmp_path / "cut.laz"
+    cut.write_bytes(laz.read_bytes()[: laz.stat().st_size // 2])
+    _refused(capsys, [str(laz), str(cut)], "cut.laz", "cannot be read")
+    garbage = tmp_path / "garbage.las"
+    garbage.write_bytes(os.urandom(400))
+    _refused(capsys, [str(garbage)], "garbage.las", "LAS")
+    for bad in ("0", "-5", "1.5", "x"):
+        _refused(capsys, [str(laz), "--max-points", bad], "--max-points", bad)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.laz", "garbage.las", "good.laz"]
 
 
 @pytest.mark.parametrize("port", ["nan", "-1", "65536", "1e3", "99999999999999999999", "x"])

@@ -192,7 +192,7 @@ def test_malformed_files_are_refused_naming_them(tmp_path: Path) -> None:
     # a JSON chunk that is no JSON, its lengths kept right
     n = int.from_bytes(good_glb[12:16], "little")
     assert "JSON" in _refusal(tmp_path, "json.glb", good_glb[:20] + b"{" * n + good_glb[20 + n :])
-    assert "not a file acq view shows" in _refusal(tmp_path, "cloud.las", b"LASF")
+    assert "not a file acq view shows" in _refusal(tmp_path, "cloud.xyz", b"0 0 0")
 
 
 def test_non_finite_points_are_refused(tmp_path: Path) -> None:
@@ -210,5 +210,5 @@ def test_missing_and_empty_folders_are_refused(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"gone\.ply: No such file"):
         ViewServer([tmp_path / "gone.ply"])
     (tmp_path / "d").mkdir()
-    with pytest.raises(InputError, match=r"d: a folder with no \.ply or \.glb file"):
+    with pytest.raises(InputError, match=r"d: a folder with no \.ply, \.glb, \.las or \.laz file"):
         ViewServer([tmp_path / "d"])

@@ -82,11 +82,44 @@ function gltfObject(gltf) {
   return root;
 }
 
+// a LAS/LAZ/COPC cloud as the server packs it (acq/view/las_points.py): a 56-byte header
+// (magic, points served, points in the file, the origin's x y z as doubles, flags), then
+// float32 x y z offsets from the origin and uint8 sRGB r g b of each point
+const SRGB_TO_LINEAR = Float32Array.from(
+  { length: 256 }, (_, c) => new THREE.Color().setRGB(c / 255, 0, 0, THREE.SRGBColorSpace).r);
+async function packedPointsObject(url, pointSize) {
+  const response = await fetch(url);
+  if (!response.ok) throw new Error(`HTTP ${response.status}`);
+  const buffer = await response.arrayBuffer();
+  const head = new DataView(buffer);
+  const magic = new TextDecoder().decode(new Uint8Array(buffer, 0, Math.min(8, buffer.byteLength)));
+  if (buffer.byteLength < 56 || magic !== 'ACQPTS1\0') throw new Error('not acq view\'s points');
+  const n = Number(head.getBigUint64(8, true));
+  if (buffer.byteLength !== 56 + 15 * n) throw new Error(`${buffer.byteLength} bytes for ${n} points`);
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(buffer, 56, 3 * n), 3));
+  const coloured = (head.getUint32(48, true) & 1) === 1;
+  if (coloured) {  // three.js takes vertex colours as linear: the sRGB bytes converted
+    const rgb = new Uint8Array(buffer, 56 + 12 * n, 3 * n);
+    geometry.setAttribute('color', new THREE.BufferAttribute(Float32Array.from(rgb, (c) => SRGB_TO_LINEAR[c]), 3));
+  }
+  geometry.computeBoundingBox();
+  geometry.computeBoundingSphere();
+  const material = new THREE.PointsMaterial({
+    size: pointSize, sizeAttenuation: false, vertexColors: coloured,
+    color: coloured ? 0xffffff : 0xd0d0d0,
+  });
+  const object = new THREE.Points(geometry, material);
+  object.position.set(head.getFloat64(24, true), head.getFloat64(32, true), head.getFloat64(40, true));
+  return object;
+}
+
 async function loadLayer(layer, pointSize) {
   try {
     if (layer.url.toLowerCase().endsWith('.glb')) {
       return gltfObject(await new GLTFLoader().loadAsync(layer.url));
     }
+    if (layer.url.endsWith('/points.bin')) return await packedPointsObject(layer.url, pointSize);
     return plyObject(await new PLYLoader().loadAsync(layer.url), layer.kind, pointSize);
   } catch (error) {
     throw new Error(`${layer.name}: ${error?.message ?? error}`);
@@ -102,7 +135,8 @@ function layerToggle(layer, object, render) {
   const count = document.createElement('span');
   count.className = 'count';
   const unit = layer.kind === 'cloud' ? 'points' : 'vertices';
-  count.textContent = ` ${layer.kind}, ${layer.count.toLocaleString('en')} ${unit}`;
+  const shown = layer.shown < layer.count ? `${layer.shown.toLocaleString('en')} of ` : '';
+  count.textContent = ` ${layer.kind}, ${shown}${layer.count.toLocaleString('en')} ${unit}`;
   label.append(box, ` ${layer.name}`, count);
   document.getElementById('layers').append(label);
 }

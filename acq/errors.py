@@ -7,7 +7,7 @@ Libraries raise these (or their own subclasses, defined where they are raised);
 
 from __future__ import annotations
 
-__all__ = ["AcqError", "DiskFullError", "InputError", "InputValueError"]
+__all__ = ["AcqError", "DiskFullError", "InputError", "InputValueError", "first_line"]
 
 
 class AcqError(Exception):
@@ -28,3 +28,9 @@ class DiskFullError(AcqError):
     """An output that did not fit on its disk (no space left, a quota or a file size
     limit reached): exit status 3, as `acq record` at its disk reserve; the message names
     the output and the disk (:func:`acq.disk_space.full_disk_error`)."""
+
+
+def first_line(e: BaseException) -> str:
+    """An exception's message's first line (its type's name when it has none): what a
+    library's error says inside one of acq's one-line messages."""
+    return str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__

@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acq.errors import InputError
-from acq.view.layers import first_line
+from acq.errors import InputError, first_line
 
 __all__ = ["HEADER", "MAGIC", "SUFFIXES", "check", "payload", "shown"]
 

@@ -13,9 +13,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from acq.errors import InputError
+from acq.errors import InputError, first_line
+from acq.view import las_points
 
-__all__ = ["SUFFIXES", "Layer", "first_line", "layer_of", "layers_of"]
+__all__ = ["SUFFIXES", "Layer", "layer_of", "layers_of"]
 
 SUFFIXES = (".ply", ".glb", ".las", ".laz")  # .copc.laz among the .laz
 _GLB_MAGIC, _GLB_JSON, _GLB_BIN = b"glTF", 0x4E4F534A, 0x004E4942
@@ -55,7 +56,6 @@ def layers_of(paths: Sequence[Path]) -> list[Layer]:
 
 def layer_of(path: Path) -> Layer:
     """The layer of the file ``path``, checked; InputError naming it otherwise."""
-    from acq.view import las_points
 
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
@@ -149,8 +149,3 @@ def _glb_vertices(gltf: dict[str, Any], bin_length: int) -> int:
         for mesh in gltf.get("meshes", [])
         for p in mesh["primitives"]
     )
-
-
-def first_line(e: BaseException) -> str:
-    """An exception's message's first line (its type's name when it has none)."""
-    return str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__

@@ -120,9 +120,7 @@ def main() -> None:
         # the best any texture from these frames can do: the truth seen at the fisheyes'
         # resolution at their axis (they see less off it), against the truth
         lens_px_per_rad = max(float(c.lens.fx) for c in truth.rig.cameras)
-        ceiling = {n: resolution_ceiling(truth.street, {n: v}, lens_px_per_rad)
-                   for n, v in views.items()}  # fmt: skip
-        ceiling_all = resolution_ceiling(truth.street, views, lens_px_per_rad)
+        ceiling, ceiling_all = resolution_ceiling(truth.street, views, lens_px_per_rad)
 
     row["facets"], row["vertices"], row["points"] = rep.facets, rep.vertices, cloud[0].shape[0]
     row["splat_m"] = round(splat_m, 3)

@@ -194,15 +194,17 @@ def compare(
     )  # fmt: skip
 
 
-def resolution_ceiling(street: Street, views: dict[str, View], px_per_rad: float) -> Likeness:
+def resolution_ceiling(
+    street: Street, views: dict[str, View], px_per_rad: float
+) -> tuple[dict[str, Likeness], Likeness]:
     """What a texture seen at ``px_per_rad`` (a camera's resolution on the surface, px per
     radian at its axis) can reach at best: per view the TRUE street cast at that
     resolution (the view's pose and field, its size scaled), resampled bilinearly to the
-    view's size and compared with the truth at the view's own (pooled over ``views``):
-    what is lost at edges between colours by seeing them coarser, whatever the texture's
-    geometry, view or colours."""
-    got, truth_px, street_px = [], [], []
-    for view in views.values():
+    view's size and compared with the truth at the view's own; (per view by name, pooled
+    over ``views``): what is lost at edges between colours by seeing them coarser,
+    whatever the texture's geometry, view or colours."""
+    got, truth_px, street_px, each = [], [], [], {}
+    for name, view in views.items():
         cam = view.camera
         s = px_per_rad / cam.fx
         W, H = max(2, round(cam.width * s)), max(2, round(cam.height * s))
@@ -210,11 +212,14 @@ def resolution_ceiling(street: Street, views: dict[str, View], px_per_rad: float
         coarse_cam = Pinhole(width=W, height=H, fx=fx, fy=fy, cx=(W - 1) / 2, cy=(H - 1) / 2)
         coarse, _ = truth_image(street, View(coarse_cam, view.world_to_camera))
         truth, seen = truth_image(street, view)
-        got.append(cv2.resize(coarse, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR))
+        up = cv2.resize(coarse, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
+        each[name] = likeness(up, np.ones_like(seen), truth, seen)
+        got.append(up)
         truth_px.append(truth)
         street_px.append(seen)
     every = np.concatenate(street_px)
-    return likeness(np.concatenate(got), np.ones_like(every), np.concatenate(truth_px), every)
+    pooled = likeness(np.concatenate(got), np.ones_like(every), np.concatenate(truth_px), every)
+    return each, pooled
 
 
 def picture(result: ViewsResult, title: str) -> np.ndarray:

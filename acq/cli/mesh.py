@@ -88,8 +88,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "nearness in time and angle to the axis against its neighbours' views (fewer "
         "seams); its texels are "
         "resampled from that fisheye frame, balanced as the vertex colours are, into one "
-        "JPEG atlas per tile (a glb has a vertex per facet corner: files about 3.7 times "
-        "larger, 2.4-2.8 times the time; off by default)",
+        "JPEG atlas per tile (a glb has a vertex per facet corner: files about 3 times "
+        "larger, about 2.4 times the time; off by default)",
     )  # fmt: skip
     m.add_argument(
         "--texels", type=integer(4, 64, what="texels"), default=None, metavar="N",

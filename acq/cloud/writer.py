@@ -21,6 +21,7 @@ from acq.cloud.ply import PlyStream
 from acq.cloud.report import Report
 from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
+from acq.output_suffix import suffix_format
 from acq.time.utc import utc_seconds
 
 __all__ = ["FORMATS", "CloudWriter", "format_of"]
@@ -31,15 +32,8 @@ FORMATS = (".ply", ".las", ".laz", ".copc.laz", ".e57")
 def format_of(output: Path, option: str = "-o") -> str:
     """The format ``output``'s suffix names ("ply", "las", "laz", "copc", "e57");
     InputValueError naming ``option`` and the accepted suffixes for any other."""
-    if output.name.lower().endswith(".copc.laz"):
-        return "copc"
-    suffix = output.suffix.lower()
-    if suffix not in FORMATS:
-        raise InputValueError(
-            f"{option} {output}: unknown cloud format {suffix or '(no suffix)'}; "
-            f"expected a {', '.join(FORMATS)} file"
-        )
-    return suffix[1:]
+    kind = suffix_format(output, FORMATS, "cloud", option)
+    return "copc" if kind == "copc.laz" else kind
 
 
 @contextmanager

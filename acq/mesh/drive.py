@@ -342,7 +342,7 @@ class _Tiles:
             self._collect()
 
     def close(self) -> None:
-        """Wait for the tile being written, if any (on an error: its outcome unasked)."""
+        """Wait for the tiles being written, if any (on an error: their outcome unasked)."""
         if self._writer is not None:
             self._writer.shutdown(wait=True)
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from acq.atomic_write import atomic
 from acq.cloud import ply
-from acq.errors import InputValueError
+from acq.output_suffix import suffix_format
 from acq.provenance import SOFTWARE, marked_image
 
 if TYPE_CHECKING:
@@ -55,13 +55,7 @@ Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 def format_of(output: Path, option: str = "-o") -> str:
     """The format ``output``'s suffix names ("ply", "glb", "obj"); InputValueError naming
     ``option`` and the accepted suffixes for any other."""
-    suffix = output.suffix.lower()
-    if suffix not in SUFFIXES:
-        raise InputValueError(
-            f"{option} {output}: unknown mesh format {suffix or '(no suffix)'}; expected a "
-            f"{', '.join(SUFFIXES)} file"
-        )
-    return suffix[1:]
+    return suffix_format(output, SUFFIXES, "mesh", option)
 
 
 def write(

@@ -176,9 +176,10 @@ def test_the_resolution_ceiling_falls_as_the_street_is_seen_coarser() -> None:
     traj = Trajectory(speed=20 / 3.6, x0=0.0, y0=1.5, curve_amplitude=0.0)
     views = street_views(traj, [3.0, 4.0, 5.0], width=160, height=120)
     f = next(iter(views.values())).camera.fx
-    own = resolution_ceiling(street, views, f)
+    own = resolution_ceiling(street, views, f)[1]
     assert own.within == 1.0 and own.covered == 1.0
-    half = resolution_ceiling(street, views, f / 2)
-    quarter = resolution_ceiling(street, views, f / 4)
+    each, half = resolution_ceiling(street, views, f / 2)
+    quarter = resolution_ceiling(street, views, f / 4)[1]
     assert 0.5 < quarter.within < half.within < 0.99
     assert quarter.psnr_db < half.psnr_db
+    assert list(each) == list(views) and all(lk.within < 1.0 for lk in each.values())

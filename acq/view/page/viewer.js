@@ -55,14 +55,19 @@ function plyObject(geometry, kind, pointSize) {
     });
     object = new THREE.Mesh(geometry, material);
   } else {
-    const material = new THREE.PointsMaterial({
-      size: pointSize, sizeAttenuation: false, vertexColors: coloured,
-      color: coloured ? 0xffffff : 0xd0d0d0,
-    });
-    object = new THREE.Points(geometry, material);
+    object = pointsObject(geometry, coloured, pointSize);
   }
   object.position.copy(origin);
   return object;
+}
+
+// a cloud: each point a square of pointSize pixels in its colour (grey without colours)
+function pointsObject(geometry, coloured, pointSize) {
+  const material = new THREE.PointsMaterial({
+    size: pointSize, sizeAttenuation: false, vertexColors: coloured,
+    color: coloured ? 0xffffff : 0xd0d0d0,
+  });
+  return new THREE.Points(geometry, material);
 }
 
 // a glTF scene in acq's frame (glTF is +y up: turned back to z up), its facets unlit so that
@@ -105,11 +110,7 @@ async function packedPointsObject(url, pointSize) {
   }
   geometry.computeBoundingBox();
   geometry.computeBoundingSphere();
-  const material = new THREE.PointsMaterial({
-    size: pointSize, sizeAttenuation: false, vertexColors: coloured,
-    color: coloured ? 0xffffff : 0xd0d0d0,
-  });
-  const object = new THREE.Points(geometry, material);
+  const object = pointsObject(geometry, coloured, pointSize);
   object.position.set(head.getFloat64(24, true), head.getFloat64(32, true), head.getFloat64(40, true));
   return object;
 }

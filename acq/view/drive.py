@@ -97,7 +97,13 @@ class Drive:
         self.calib: Calibration | None = None
         self.job: Job | None = None
         self._cache = cache if cache is not None else cache_dir()
-        light = read_log(self.files, jpegs=False, returns=False, vehicle=True)
+        try:
+            light = read_log(self.files, jpegs=False, returns=False, vehicle=True)
+        except InputError as e:  # some of the reader's messages do not name the log
+            text = str(e)
+            raise InputError(
+                text if str(self.files[0]) in text else f"{self.files[0]}: {text}"
+            ) from None
         self.clock = light.clock
         self.span_ns = (int(light.scan_ns.min()), int(light.scan_ns.max()))
         self.camera_names = light.camera_names

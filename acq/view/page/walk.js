@@ -2,7 +2,8 @@
 // vehicle frame puts on the ground: about a standing person's eyes), looking along the
 // direction of travel; the arrow keys or W/S move it along the drive at the speed set, a
 // slider puts it anywhere on it; the button again goes back to orbiting where it was.
-// window.acqWalk holds {at (m along the path), length, eye [x, y, z]} while walking, else null.
+// window.acqWalk holds {at (m along the path), length, eye [x, y, z], looking (the unit view
+// direction)} while walking, else null.
 import * as THREE from 'three';
 
 export const EYE_M = 1.7;
@@ -54,7 +55,8 @@ export function walkTool(camera, controls, paths, render) {
     camera.position.copy(eye);
     camera.lookAt(ahead);
     slider.value = String(walk.at);
-    window.acqWalk = { at: walk.at, length: total, eye: eye.toArray() };
+    const looking = camera.getWorldDirection(new THREE.Vector3()).toArray();
+    window.acqWalk = { at: walk.at, length: total, eye: eye.toArray(), looking };
     render();
   }
 

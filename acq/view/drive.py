@@ -98,7 +98,9 @@ class Drive:
         self.job: Job | None = None
         self._cache = cache if cache is not None else cache_dir()
         try:
-            light = read_log(self.files, jpegs=False, returns=False, vehicle=True)
+            # no camera's frames ("" is how the reader names a log's lack of one): their
+            # names only, whatever their number
+            light = read_log(self.files, cameras=[""], jpegs=False, returns=False, vehicle=True)
         except InputError as e:  # some of the reader's messages do not name the log
             text = str(e)
             raise InputError(

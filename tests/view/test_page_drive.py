@@ -49,7 +49,13 @@ def test_the_drive_is_drawn_with_its_path_frustums_and_cloud(
         shown = browser.screenshot()
         assert browser.errors == [], browser.console
         # the frustums' pixels in their camera's colour, the white path, the street
-        assert _share(shown, FRUSTUM, tolerance=10) > 0.001
+        assert _share(shown, FRUSTUM, tolerance=10) > 0.0003
+        # ... and where the frustums are: by their apexes, the camera's poses
+        poses = server.drives[0].frustums()[0]["p"]
+        at = np.array([browser.evaluate(f"window.acqProject({p})") for p in poses])
+        ys, xs = np.nonzero((np.abs(shown.astype(int) - FRUSTUM) <= 10).all(axis=2))
+        near = np.hypot(xs[:, None] - at[:, 0], ys[:, None] - at[:, 1]).min(axis=1)
+        assert (near < 30).mean() > 0.95
         assert _share(shown, (255, 255, 255), tolerance=10) > 0.0002
         browser.evaluate("document.querySelector('#layers input').click()")  # hidden
         time.sleep(0.2)

@@ -6,8 +6,8 @@
 // for the walk mode.
 import * as THREE from 'three';
 
-const FRUSTUM_M = 0.8; // a frustum's depth along the optical axis
-const FRUSTUM_HALF = 0.5; // its base's half height at that depth (the width by the image's aspect)
+const FRUSTUM_M = 0.6; // a frustum's depth along the optical axis
+const FRUSTUM_HALF = 0.35; // its base's half height at that depth (the width by the image's aspect)
 const PATH_COLOUR = 0xffffff;
 const POLL_MS = 500;
 

@@ -142,7 +142,7 @@ function layerToggle(layer, object, render) {
   box.addEventListener('change', () => { object.visible = box.checked; render(); });
   const count = document.createElement('span');
   count.className = 'count';
-  const unit = { cloud: 'points', mesh: 'vertices', drive: 'log files' }[layer.kind];
+  const unit = { cloud: 'points', mesh: 'vertices', drive: layer.count === 1 ? 'log file' : 'log files' }[layer.kind];
   const shown = layer.shown < layer.count ? `${layer.shown.toLocaleString('en')} of ` : '';
   count.textContent = ` ${layer.kind}, ${shown}${layer.count.toLocaleString('en')} ${unit}`;
   label.append(box, ` ${layer.name}`, count);

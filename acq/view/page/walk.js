@@ -1,5 +1,5 @@
-// Walk mode: the eye on a drive's trajectory, EYE_M above the vehicle's origin (which acq's
-// vehicle frame puts on the ground: about a standing person's eyes), looking along the
+// Walk mode: the eye on a drive's trajectory, EYE_M above the vehicle's origin (which a
+// vehicle frame usually puts on the ground: about a standing person's eyes), looking along the
 // direction of travel; the arrow keys or W/S move it along the drive at the speed set, a
 // slider puts it anywhere on it; the button again goes back to orbiting where it was.
 // window.acqWalk holds {at (m along the path), length, eye [x, y, z], looking (the unit view

@@ -177,8 +177,11 @@ def test_a_cloud_coloured_in_the_background_comes_into_the_page(
     with ViewServer([bare.log]) as server:
         _open(browser, server, cloud=False)
         status = browser.wait_for(
-            "document.getElementById('drives').textContent.includes('no calibration') && "
+            "document.getElementById('drives').textContent.includes('no cloud beside') && "
             "document.getElementById('drives').textContent"
         )
         assert "no cloud beside the log, and no calibration to colour one" in status
+        assert (
+            "no calibration (calib.yaml beside the log, or --calib): the trajectory alone" in status
+        )
         assert browser.errors == [], browser.console

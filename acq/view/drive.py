@@ -8,8 +8,10 @@ cloud. Times host monotonic ns unless ``_s``; metres."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
+import struct
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -147,6 +149,10 @@ class Drive:
 
     # the layer's data ----------------------------------------------------------------
 
+    @functools.cached_property
+    def _layer(self) -> dict[str, Any]:
+        return {"path": self.path().tolist(), "frustums": self.frustums()}
+
     def path(self) -> np.ndarray:
         """The vehicle's origin along the drive, (N,3) m in the world frame, a vertex
         every :data:`TRAJECTORY_STEP_M`; empty without a trajectory."""
@@ -200,8 +206,7 @@ class Drive:
             "files": [f.name for f in self.files],
             "calib": None if self.calib_path is None else str(self.calib_path),
             "frame": frame,
-            "path": self.path().tolist(),
-            "frustums": self.frustums(),
+            **self._layer,  # computed once: the page polls while the cloud is made
             "cloud": self.cloud_state(),
             "notes": self.notes,
         }
@@ -309,7 +314,7 @@ class _ChunkCounter(list[Any]):
 def _ply_time_span(path: Path) -> tuple[float, float] | None:
     """The UTC times (s) of the first and last points of a cloud `acq colorize` wrote as
     PLY; None for any other file (or one that cannot be read)."""
-    from plyfile import PlyData
+    from plyfile import PlyData, PlyParseError
 
     try:
         with open(path, "rb") as f:
@@ -319,5 +324,5 @@ def _ply_time_span(path: Path) -> tuple[float, float] | None:
         if len(vertex) == 0 or "scalar_time" not in (vertex.dtype.names or ()):
             return None
         return float(vertex["scalar_time"][0]), float(vertex["scalar_time"][-1])
-    except Exception:  # not an acq cloud after all: not this drive's
-        return None
+    except (OSError, ValueError, KeyError, IndexError, struct.error, PlyParseError):
+        return None  # not an acq cloud after all: not this drive's

@@ -23,7 +23,7 @@ from typing import Any, Literal
 from urllib.parse import parse_qs, quote, unquote, urlsplit
 
 from acq.addresses import is_loopback
-from acq.errors import InputError
+from acq.errors import InputError, first_line
 from acq.view import las_points, static
 from acq.view.drive import Drive
 from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
@@ -271,8 +271,8 @@ class _Handler(BaseHTTPRequestHandler):
             self._json(self.server.view.frame_of(k, point), 200, body)
         except FrameError as e:
             self._json({"error": str(e)}, e.status, body)
-        except InputError as e:  # a cloud or log that cannot be read (since)
-            self._json({"error": str(e)}, 409, body)
+        except (InputError, OSError, ValueError) as e:  # a cloud or log unreadable (since)
+            self._json({"error": first_line(e)}, 409, body)
 
     def _drive(self, k: int, rest: list[str], body: bool) -> None:
         """A drive's routes (``rest`` the URL's parts after ``/data/<k>/``)."""
@@ -287,6 +287,9 @@ class _Handler(BaseHTTPRequestHandler):
                 jpeg = frame_jpeg(drive, rest[1], int(rest[2].removesuffix(".jpg")))
             except FrameError as e:
                 self.send_error(e.status, str(e))
+                return
+            except (InputError, OSError) as e:  # the log unreadable since the start
+                self.send_error(HTTPStatus.CONFLICT, first_line(e))
                 return
             self._send(jpeg, "image/jpeg", body, "max-age=3600")
         else:

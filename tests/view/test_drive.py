@@ -172,6 +172,9 @@ def test_a_cloud_layer_s_points_map_to_its_rows_by_the_subset_rule(
         # the drive's own cloud (cloud.ply beside its log) answers for itself
         status, answer = _json(f"{server.url}api/frame?layer=1&point=0")
         assert status == 200 and answer["log"] == 1 and answer["row"] == 0
+        las.unlink()  # a cloud gone since the start: said, naming it
+        status, answer = _json(f"{server.url}api/frame?layer=0&point=1")
+        assert status == 409 and "cloud.las" in answer["error"], answer
 
 
 def test_a_drive_without_a_cloud_beside_it_is_coloured_into_the_cache(

@@ -260,3 +260,19 @@ def test_hostile_logs_and_calibrations_are_refused_in_one_line(
         ViewServer([tmp_path / "gone.mcap"])
     # nothing written beside the inputs
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap", "other.yaml"]
+
+
+def test_a_folder_s_cloud_is_its_drive_s_cloud_sent_once(drive: ColouredDrive) -> None:
+    """The folder `acq colorize` wrote into: its cloud a layer of its own, which the drive
+    names as its cloud (not sent twice) and whose points' frames come from the drive."""
+    with ViewServer([drive.folder]) as server:
+        layers = server.listing()
+        assert [(x["name"], x["kind"], x["log"]) for x in layers] == [
+            ("cloud.ply", "cloud", 1), (drive.log.name, "drive", None),
+        ]  # fmt: skip
+        status, data = _json(f"{server.url}data/1/drive.json")
+        assert data["cloud"]["layer"] == 0 and "url" not in data["cloud"]
+        row = int(np.flatnonzero(drive.frame >= 0)[100])
+        status, answer = _json(f"{server.url}api/frame?layer=0&point={row}")
+        assert status == 200 and answer["log"] == 1 and answer["frame"] == drive.frame[row]
+        assert answer["url"] == f"/data/1/frame/camera/{answer['frame']}.jpg"

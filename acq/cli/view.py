@@ -1,4 +1,4 @@
-"""`acq view`: clouds and meshes in the browser, from a local server (no network)."""
+"""`acq view`: clouds, meshes and drives in the browser, from a local server (no network)."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     v.add_argument(
         "paths", nargs="+", type=Path, metavar="PATH",
-        help=".ply, .glb, .las, .laz or .copc.laz files, or folders",
+        help=".ply, .glb, .las, .laz, .copc.laz or .mcap files, or folders",
     )  # fmt: skip
     v.add_argument(
         "--max-points", type=integer(1, 2**62, what="a count of points"),

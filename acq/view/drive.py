@@ -25,7 +25,7 @@ from acq.camera.calibfile import Calibration
 from acq.cloud.job import Job, prepare
 from acq.cloud.report import Report
 from acq.cloud.views import camera_poses
-from acq.errors import InputError, first_line
+from acq.errors import AcqError, InputError, first_line
 from acq.log.drive_log import DriveLog, read_log
 from acq.log.inputs import session_files
 from acq.motion import Trajectory
@@ -288,8 +288,11 @@ class Drive:
         try:
             out.parent.mkdir(parents=True, exist_ok=True)
             colorize.run(self.files, self.calib, out, results=counter)
-        except (InputError, OSError, ValueError) as e:
+        except (AcqError, OSError, ValueError) as e:  # a full disk among them
             self._set(_CloudState("failed", message=f"colouring the cloud: {first_line(e)}"))
+        except BaseException as e:  # a fault of ours: the page is told, the traceback kept
+            self._set(_CloudState("failed", message=f"colouring the cloud failed: {e!r}"))
+            raise
         else:
             self._set(_CloudState("ready", out, progress=1.0))
 

@@ -202,6 +202,21 @@ def test_a_drive_without_a_cloud_beside_it_is_coloured_into_the_cache(
     assert again.cloud_state()["status"] == "ready" and again.cloud() == cached
 
 
+def test_a_cloud_that_cannot_be_made_is_said_in_the_page_s_data(
+    short_drive: tuple[DriveTruth, Path], tmp_path: Path
+) -> None:
+    bare = coloured_drive(short_drive, tmp_path / "bare", cloud_name=None)
+    cache = tmp_path / "cache"
+    cache.write_text("a file where the cache folder would be")
+    with ViewServer([bare.log], cache=cache) as server:
+        server.drives[0].wait(60)
+        status, data = _json(f"{server.url}data/0/drive.json")
+    assert status == 200 and data["cloud"]["status"] == "failed"
+    assert data["cloud"]["message"].startswith("colouring the cloud: ")
+    assert str(cache) in data["cloud"]["message"]
+    assert "url" not in data["cloud"]
+
+
 def test_no_calibration_shows_the_path_alone_and_says_why(
     drive: ColouredDrive, tmp_path: Path
 ) -> None:

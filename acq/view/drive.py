@@ -16,7 +16,7 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -48,6 +48,7 @@ FRUSTUM_STEP_M = 2.0  # one frustum per camera every this many metres of its tra
 TRAJECTORY_STEP_M = 0.2  # the trajectory's polyline keeps a vertex every this many metres
 # each camera's frustums in its own colour (sRGB), in the calibration's order
 CAMERA_COLOURS = ("#ff4fd8", "#2fd3ff", "#ffe23a", "#7dff5a", "#ff8a2f", "#b48cff")
+_T = TypeVar("_T")
 _SPAN_SLACK_S = 1.0  # a cloud's first/last point may lie this far outside the log's span
 
 
@@ -99,15 +100,11 @@ class Drive:
         self.calib: Calibration | None = None
         self.job: Job | None = None
         self._cache = cache if cache is not None else cache_dir()
-        try:
-            # no camera's frames ("" is how the reader names a log's lack of one): their
-            # names only, whatever their number
-            light = read_log(self.files, cameras=[""], jpegs=False, returns=False, vehicle=True)
-        except InputError as e:  # some of the reader's messages do not name the log
-            text = str(e)
-            raise InputError(
-                text if str(self.files[0]) in text else f"{self.files[0]}: {text}"
-            ) from None
+        # no camera's frames ("" is how the reader names a log's lack of one): their names
+        # only, whatever their number
+        light = self._named(
+            lambda: read_log(self.files, cameras=[""], jpegs=False, returns=False, vehicle=True)
+        )
         self.clock = light.clock
         self.span_ns = (int(light.scan_ns.min()), int(light.scan_ns.max()))
         self.camera_names = light.camera_names
@@ -118,13 +115,13 @@ class Drive:
             )
             self.trajectory = self._trajectory_of(light)
         else:
-            self.calib = calibfile.load(self.calib_path)  # CalibFileError names it
-            if not light.camera_names:
-                self.notes.append("the log has no camera frames: no camera frustums")
+            self.calib = loaded = calibfile.load(self.calib_path)  # CalibFileError names it
             if light.camera_names:
                 report = Report(output="")
-                self.job, _ = prepare(self.files, self.calib, report)
+                self.job, _ = self._named(lambda: prepare(self.files, loaded, report))
                 self.notes += [n for n in report.notes if "no trajectory" not in n]
+            else:
+                self.notes.append("the log has no camera frames: no camera frustums")
             self.trajectory = self.job.trajectory if self.job else self._trajectory_of(light)
         if self.trajectory is None:
             self.notes.append(
@@ -135,11 +132,23 @@ class Drive:
         self._state = self._first_state()
         self._thread: threading.Thread | None = None
 
+    def _named(self, read: Callable[[], _T]) -> _T:
+        """``read()``, its InputError or ValueError (odometry or fixes the trajectory
+        cannot use) an InputError naming the log (some of the reader's do not)."""
+        try:
+            return read()
+        except (InputError, ValueError) as e:
+            text = first_line(e)
+            raise InputError(
+                text if str(self.files[0]) in text else f"{self.files[0]}: {text}"
+            ) from None
+
     def _trajectory_of(self, light: DriveLog) -> Trajectory | None:
         """The trajectory `acq colorize` would make from the log's vehicle data."""
-        if light.vehicle is None:
+        vehicle = light.vehicle
+        if vehicle is None:
             return None
-        chosen = trajectory_from_vehicle(light.vehicle)
+        chosen = self._named(lambda: trajectory_from_vehicle(vehicle))
         self.notes += chosen.notes
         return chosen.trajectory
 

@@ -16,6 +16,7 @@ from acq.sim.drive_log import DriveTruth
 from acq.view.drive import CAMERA_COLOURS
 from acq.view.server import ViewServer
 from tests.browser import Browser
+from tests.log_rewrite import mcap_copy
 from tests.view.drive_files import ColouredDrive, coloured_drive
 from tests.view.test_page import BACKGROUND, READY, _share
 
@@ -185,3 +186,22 @@ def test_a_cloud_coloured_in_the_background_comes_into_the_page(
             "no calibration (calib.yaml beside the log, or --calib): the trajectory alone" in status
         )
         assert browser.errors == [], browser.console
+
+
+def test_a_drive_without_odometry_shows_its_cloud_when_it_is_coloured(
+    browser: Browser, drive: ColouredDrive, tmp_path: Path
+) -> None:
+    """No trajectory: nothing to draw at first (no path, no frustums), the page says why,
+    then frames the cloud the server colours in the laser frame."""
+    log = tmp_path / "no_odometry.mcap"
+    mcap_copy(drive.log, log, keep=lambda topic: "odometry" not in topic)
+    with ViewServer([log], calib=drive.calib, cache=tmp_path / "cache") as server:
+        _open(browser, server, cloud=False)
+        status = browser.evaluate("document.getElementById('drives').textContent")
+        assert "no trajectory (the log has no CAN odometry or GNSS fixes)" in status
+        browser.wait_for("window.acqDriveCloud?.[0]", timeout_s=60)
+        time.sleep(0.2)
+        shown = browser.screenshot()
+        assert browser.errors == [], browser.console
+    # the cloud (the rig's profiles, piled in the laser frame) framed right of the panel
+    assert 1 - _share(shown[:, 320:], BACKGROUND, tolerance=4) > 0.005

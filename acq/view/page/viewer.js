@@ -186,7 +186,17 @@ async function main() {
   });
 
   const pointSize = Number(sizeInput.value);
-  const objects = await Promise.all(layers.map((layer, k) => loadLayer(layer, k, pointSize, render)));
+  // a drive may have nothing to draw until the server has coloured its cloud: the view is
+  // then framed on its origin, and on the cloud when it comes
+  let framedOnNothing = false;
+  const drawn = () => {
+    if (framedOnNothing) {
+      framedOnNothing = false;
+      frame(new THREE.Box3().setFromObject(scene), camera, controls);
+    }
+    render();
+  };
+  const objects = await Promise.all(layers.map((layer, k) => loadLayer(layer, k, pointSize, drawn)));
   objects.forEach((object, k) => {
     object.name = layers[k].name;
     if (layers[k].log !== null && layers[k].log !== undefined) object.userData.frameLayer = k;
@@ -200,7 +210,11 @@ async function main() {
   });
 
   const box = new THREE.Box3().setFromObject(scene);
-  if (box.isEmpty()) throw new Error('the layers hold nothing to draw');
+  if (box.isEmpty()) {
+    if (!layers.some((layer) => layer.kind === 'drive')) throw new Error('the layers hold nothing to draw');
+    box.setFromCenterAndSize(new THREE.Vector3(), new THREE.Vector3(20, 20, 20));
+    framedOnNothing = true;
+  }
   frame(box, camera, controls);
   measureTool(scene, camera, renderer.domElement, objects, render);
   frameTool(camera, renderer.domElement, objects);

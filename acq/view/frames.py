@@ -69,7 +69,7 @@ def _ply_row(path: Path, row: int) -> PointRow:
     names = vertex.dtype.names or ()
     if not {"scalar_camera", "scalar_frame"} <= set(names):
         raise FrameError(f"{path.name}: its points do not say which camera coloured them", 409)
-    cameras = _named(c.split(" ", 2)[1:] for c in data.comments if c.startswith("camera "))
+    cameras = _camera_names(c.split(" ", 2)[1:] for c in data.comments if c.startswith("camera "))
     v = vertex[row]
     world = "frame laser" not in data.comments
     return _row(row, (v["x"], v["y"], v["z"]), int(v["scalar_camera"]), int(v["scalar_frame"]),
@@ -87,14 +87,14 @@ def _las_row(path: Path, row: int) -> PointRow:
             raise FrameError(f"{path.name}: its points do not say which camera coloured them", 409)
         vlr = next((v for v in reader.header.vlrs if (v.user_id, v.record_id) == ("acq", 1)), None)
         text = vlr.record_data.decode("ascii", "replace") if vlr is not None else ""
-        cameras = _named(line.split(" ", 1) for line in text.splitlines())
+        cameras = _camera_names(line.split(" ", 1) for line in text.splitlines())
         reader.seek(row)
         p = reader.read_points(1)
     xyz = (float(p.x[0]), float(p.y[0]), float(p.z[0]))
     return _row(row, xyz, int(p["camera"][0]), int(p["frame"][0]), cameras, True, path)
 
 
-def _named(pairs: Iterable[list[str]]) -> dict[int, str]:
+def _camera_names(pairs: Iterable[list[str]]) -> dict[int, str]:
     """Camera index -> name from ``[index, name]`` text pairs (malformed ones skipped)."""
     return {int(p[0]): p[1] for p in pairs if len(p) == 2 and p[0].isdigit()}
 

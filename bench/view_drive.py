@@ -59,6 +59,13 @@ def run_once(browser: Browser, log: Path, cache: Path) -> dict[str, Any]:
     }
 
 
+def demo_log(work: Path) -> Path:
+    """The demo's drive, made by `acq demo` in ``work``/demo."""
+    subprocess.run([sys.executable, "-m", "acq.cli", "demo", "--out", str(work / "demo")],
+                   check=True, stdout=subprocess.DEVNULL)  # fmt: skip
+    return work / "demo" / "demo.mcap"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("log", nargs="?", type=Path, help="a .mcap log, calib.yaml beside it")
@@ -66,11 +73,7 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        log = args.log
-        if log is None:
-            subprocess.run([sys.executable, "-m", "acq.cli", "demo", "--out", str(work / "demo")],
-                           check=True, stdout=subprocess.DEVNULL)  # fmt: skip
-            log = work / "demo" / "demo.mcap"
+        log = args.log or demo_log(work)
         bare = work / "bare"
         bare.mkdir()
         shutil.copy2(log, bare)

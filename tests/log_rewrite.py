@@ -106,12 +106,13 @@ def mcap_copy(
     schema_data: Callable[[Schema], bytes] = lambda s: s.data,
     metadata: Callable[[str, dict[str, str]], dict[str, str] | None] = lambda _n, m: m,
     extra: Callable[[Writer], None] = lambda _w: None,
+    keep: Callable[[str], bool] = lambda _t: True,
 ) -> dict[str, int]:
     """``src`` copied to ``dst`` with mcap's writer (metadata, schemas, channels, messages),
     payloads, schemas and metadata records through the given functions (``metadata``
     gives None: the record left out, as ``mcap filter`` does without
-    ``--include-metadata``), then ``extra`` given the writer to add its own; the messages
-    per topic."""
+    ``--include-metadata``), then ``extra`` given the writer to add its own; messages of
+    topics ``keep`` refuses left out (their channels stay); the messages per topic."""
     counts: dict[str, int] = {}
     with src.open("rb") as f, dst.open("wb") as g:
         reader = make_reader(f)
@@ -134,6 +135,8 @@ def mcap_copy(
             for c in summary.channels.values()
         }
         for _s, channel, m in reader.iter_messages(log_time_order=False):
+            if not keep(channel.topic):
+                continue
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
             data = payload(channel.topic, m.data)
             w.add_message(channel_ids[channel.id], m.log_time, data, m.publish_time, m.sequence)

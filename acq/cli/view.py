@@ -1,4 +1,4 @@
-"""`acq view`: clouds and meshes in the browser, from a local server (no network)."""
+"""`acq view`: clouds, meshes and drives in the browser, from a local server (no network)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from acq.cli.option_types import integer
 from acq.errors import InputError
 from acq.view.server import DEFAULT_MAX_POINTS
 
-HELP = "see clouds and meshes in a web browser, served from this machine (offline)"
+HELP = "see clouds, meshes and drives in a web browser, served from this machine (offline)"
 DEFAULT_HOST = "127.0.0.1"
 
 
@@ -22,17 +22,24 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help=HELP,
         description="Serve a web page that draws each PATH as a layer: a .ply, .las, .laz "
         "or .copc.laz cloud as points in their colours (as `acq colorize` writes them), a "
-        ".ply or .glb mesh (as `acq mesh` writes it) as coloured or textured facets. A "
-        "folder stands for the .ply, .glb, .las and .laz files in it. Every file is "
+        ".ply or .glb mesh (as `acq mesh` writes it) as coloured or textured facets, a "
+        "drive's .mcap log (or a session's split files) as its trajectory, a frustum per "
+        "camera pose every 2 m and its coloured cloud: the cloud `acq colorize` wrote beside "
+        "the log (a .ply in its folder whose first and last points' times lie within the "
+        "log's), else one coloured here in the background (kept in ~/.cache/acq/view). A "
+        "folder stands for the .ply, .glb, .las, .laz and .mcap files in it. Every file is "
         "checked before the server starts. The page and its libraries (three.js) come "
         "with acq: no network is needed. In the page: drag to orbit, right-drag to pan, the "
-        "wheel to zoom; a box per layer hides it; a slider sets the points' size. Prints "
+        "wheel to zoom; a box per layer hides it; a slider sets the points' size; 'show "
+        "frame' and a click on a point show the camera frame it was coloured from, the "
+        "point ringed; 'walk' puts the eye on the trajectory (arrow keys or W/S move along "
+        "it). Prints "
         "the page's URL and serves until Ctrl-C. Exit status: "
         "0 stopped by Ctrl-C, 2 a bad file or option (the port in use among them).",
     )
     v.add_argument(
         "paths", nargs="+", type=Path, metavar="PATH",
-        help=".ply, .glb, .las, .laz or .copc.laz files, or folders",
+        help=".ply, .glb, .las, .laz, .copc.laz or .mcap files, or folders",
     )  # fmt: skip
     v.add_argument(
         "--max-points", type=integer(1, 2**62, what="a count of points"),
@@ -42,6 +49,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "smoothly and slows around 5-10 million); a larger cloud is shown by N of its "
         "points evenly spread through the file, and its layer says so (e.g. '2,000,000 of "
         "10,000,000 points')",
+    )  # fmt: skip
+    v.add_argument(
+        "--calib", type=Path, metavar="CALIB",
+        help="the calibration of the .mcap drives (default: calib.yaml beside the log); "
+        "without one a drive shows its trajectory only",
     )  # fmt: skip
     v.add_argument(
         "--host", default=DEFAULT_HOST,
@@ -72,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
             "without authentication",
             file=sys.stderr, flush=True,
         )  # fmt: skip
-    server = ViewServer(args.paths, host=args.host, port=args.port, max_points=args.max_points)
+    server = ViewServer(args.paths, host=args.host, port=args.port, max_points=args.max_points,
+                        calib=args.calib)  # fmt: skip
     try:
         server.start()
     except AddressError as e:  # named as the command line names it

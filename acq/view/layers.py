@@ -1,6 +1,7 @@
 """What `acq view` shows: a layer is one file (a ``.ply`` cloud or mesh, a ``.glb``
-mesh, a ``.las``/``.laz``/``.copc.laz`` cloud), checked before it is served so that the
-page never gets a file it cannot draw; a folder stands for the viewable files in it."""
+mesh, a ``.las``/``.laz``/``.copc.laz`` cloud) or one drive (a session's ``.mcap`` logs,
+read by :mod:`acq.view.drive`), checked before it is served so that the page never gets a
+file it cannot draw; a folder stands for the viewable files in it."""
 
 from __future__ import annotations
 
@@ -18,19 +19,21 @@ from acq.view import las_points
 
 __all__ = ["SUFFIXES", "Layer", "layer_of", "layers_of"]
 
-SUFFIXES = (".ply", ".glb", ".las", ".laz")  # .copc.laz among the .laz
+SUFFIXES = (".ply", ".glb", ".las", ".laz", ".mcap")  # .copc.laz among the .laz
 _GLB_MAGIC, _GLB_JSON, _GLB_BIN = b"glTF", 0x4E4F534A, 0x004E4942
 
 
 @dataclass(frozen=True)
 class Layer:
     """A file the page draws: ``kind`` "cloud" (points) or "mesh" (triangles), ``count``
-    its vertices (a cloud's points), ``size`` its bytes."""
+    its vertices (a cloud's points), ``size`` its bytes; or a "drive": the ``files`` of
+    one session's logs (``path`` the first), ``count`` of them."""
 
     path: Path
-    kind: Literal["cloud", "mesh"]
+    kind: Literal["cloud", "mesh", "drive"]
     count: int
     size: int
+    files: tuple[Path, ...] = ()
 
     @property
     def name(self) -> str:
@@ -40,18 +43,45 @@ class Layer:
 def layers_of(paths: Sequence[Path]) -> list[Layer]:
     """The layers of ``paths`` (files, or folders standing for their files of
     :data:`SUFFIXES`, by name), in order; InputError naming the first path that is
-    missing, unreadable, malformed or a folder with nothing to view."""
-    layers: list[Layer] = []
+    missing, unreadable, malformed or a folder with nothing to view. The ``.mcap`` logs
+    among them make one "drive" layer per session (:func:`acq.log.inputs.sessions`), in
+    the place of the session's first file; their contents are checked by
+    :class:`acq.view.drive.Drive`."""
+    layers: list[Layer | list[Path]] = []
+    logs: list[Path] = []
     for path in paths:
         if path.is_dir():
             found = sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES)
             if not found:
                 shown = f"{', '.join(SUFFIXES[:-1])} or {SUFFIXES[-1]}"
                 raise InputError(f"{path}: a folder with no {shown} file in it")
-            layers += [layer_of(p) for p in found]
         else:
-            layers.append(layer_of(path))
-    return layers
+            found = [path]
+        for p in found:
+            if p.suffix.lower() == ".mcap":
+                if not logs:
+                    layers.append(logs)  # the drives' place among the layers
+                logs.append(p)
+            else:
+                layers.append(layer_of(p))
+    return [
+        drive for item in layers for drive in (_drives(item) if isinstance(item, list) else [item])
+    ]
+
+
+def _drives(logs: list[Path]) -> list[Layer]:
+    """A "drive" layer per session of the logs ``logs``."""
+    from acq.log.inputs import sessions
+
+    for path in logs:
+        if not path.is_file():
+            raise InputError(f"{path}: {'not a file' if path.exists() else 'no such file'}")
+    found = sessions(logs, option="PATH")
+    sizes = [sum(f.stat().st_size for f in s.files) for s in found]
+    return [
+        Layer(s.files[0], "drive", len(s.files), size, tuple(s.files))
+        for s, size in zip(found, sizes, strict=True)
+    ]
 
 
 def layer_of(path: Path) -> Layer:
@@ -64,6 +94,8 @@ def layer_of(path: Path) -> Layer:
         size = path.stat().st_size
         if not path.is_file():
             raise InputError(f"{path}: not a file")
+        if suffix == ".mcap":
+            return _drives([path])[0]
         if suffix == ".ply":
             kind, count = _ply(path)
         elif suffix in las_points.SUFFIXES:

@@ -1,6 +1,10 @@
 """The HTTP server of `acq view`: the page (``/``), its files and vendored libraries
 (``/static/...``), the list of layers (``/api/layers``) and each layer's bytes
-(``/data/<k>/<name>``), on a thread of its own; nothing else is reachable."""
+(``/data/<k>/<name>``), on a thread of its own; nothing else is reachable. A drive's
+layer (:mod:`acq.view.drive`) serves ``/data/<k>/drive.json``, its cloud
+``/data/<k>/cloud.ply`` and its frames ``/data/<k>/frame/<camera>/<frame>.jpg``;
+``/api/frame?layer=K&point=I`` answers which frame a cloud's point was coloured from
+(:mod:`acq.view.frames`)."""
 
 from __future__ import annotations
 
@@ -16,11 +20,13 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal
-from urllib.parse import quote, unquote, urlsplit
+from urllib.parse import parse_qs, quote, unquote, urlsplit
 
 from acq.addresses import is_loopback
-from acq.errors import InputError
+from acq.errors import InputError, first_line
 from acq.view import las_points, static
+from acq.view.drive import Drive
+from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
 from acq.view.layers import Layer, layers_of
 
 __all__ = ["DEFAULT_MAX_POINTS", "POINTS_NAME", "AddressError", "ViewServer"]
@@ -29,6 +35,7 @@ _CHUNK = 1 << 20  # bytes copied to the socket at a time
 # a laptop's browser draws about a million points well and slows around 5-10 M
 DEFAULT_MAX_POINTS = 2_000_000
 POINTS_NAME = "points.bin"  # a LAS/LAZ layer's URL name: its points packed for the page
+DRIVE_NAME, DRIVE_CLOUD = "drive.json", "cloud.ply"  # a drive's URL names
 
 
 class AddressError(InputError):
@@ -44,11 +51,15 @@ class ViewServer:
     """Serves the layers of ``paths`` (checked on construction: InputError naming a bad
     one) on ``host``:``port`` (0: a free port) while the context is open; ``url`` is
     ``http://HOST:PORT/``. A LAS/LAZ/COPC cloud is decoded here, once, into the page's
-    binary (:mod:`acq.view.las_points`), at most ``max_points`` of its points."""
+    binary (:mod:`acq.view.las_points`), at most ``max_points`` of its points. A drive
+    is read here (:class:`acq.view.drive.Drive`, with ``calib``, its cloud made in
+    ``cache`` when none lies beside it); a cloud layer's log is the drive it was found
+    beside, else the only drive given."""
 
     def __init__(
         self, paths: Sequence[Path], host: str = "127.0.0.1", port: int = 0,
-        max_points: int = DEFAULT_MAX_POINTS,
+        max_points: int = DEFAULT_MAX_POINTS, calib: Path | None = None,
+        cache: Path | None = None,
     ) -> None:  # fmt: skip
         self.layers = layers_of(paths)
         self.points = {
@@ -56,6 +67,13 @@ class ViewServer:
             for k, layer in enumerate(self.layers)
             if layer.path.suffix.lower() in las_points.SUFFIXES
         }
+        self.drives = {
+            k: Drive(layer.files, calib, cache)
+            for k, layer in enumerate(self.layers)
+            if layer.kind == "drive"
+        }
+        if calib is not None and not self.drives:
+            raise InputError(f"--calib {calib}: no .mcap log to use it with")
         self.host, self.port = host, port
         self._httpd: _Server | None = None
         self._thread: threading.Thread | None = None
@@ -70,7 +88,8 @@ class ViewServer:
     def listing(self) -> list[dict[str, Any]]:
         """What ``/api/layers`` answers: each layer's name, kind, URL, bytes and count, and
         ``shown``, the points or vertices the page gets (fewer than ``count`` for a cloud
-        subsampled to ``max_points``)."""
+        subsampled to ``max_points``); ``log``, for a cloud, the drive layer whose log it
+        was coloured from (None: none known)."""
         return [
             {
                 "name": layer.name,
@@ -78,12 +97,70 @@ class ViewServer:
                 "url": self._data_url(k, layer),
                 "bytes": layer.size,
                 "count": layer.count,
-                "shown": las_points.shown(self.points[k]) if k in self.points else layer.count,
+                "shown": self.shown(k),
+                "log": self.log_of(k) if layer.kind == "cloud" else None,
             }
             for k, layer in enumerate(self.layers)
         ]
 
+    def shown(self, k: int) -> int:
+        """The points or vertices of layer ``k`` the page gets."""
+        return las_points.shown(self.points[k]) if k in self.points else self.layers[k].count
+
+    def log_of(self, k: int) -> int | None:
+        """The drive layer whose cloud the cloud layer ``k`` is (found beside its log),
+        else the only drive layer; None when there is none, or several."""
+        path = self.layers[k].path.resolve()
+        for d, drive in self.drives.items():
+            found = drive.cloud()
+            if found is not None and found.resolve() == path:
+                return d
+        return next(iter(self.drives)) if len(self.drives) == 1 else None
+
+    def drive_data(self, k: int) -> dict[str, Any]:
+        """``/data/<k>/drive.json``: the drive's data (:meth:`Drive.data`), its cloud's
+        URL once there is one, or the cloud layer that is its cloud (not sent twice)."""
+        data = self.drives[k].data()
+        cloud = self.drives[k].cloud()
+        if cloud is not None:
+            same = [
+                j for j, layer in enumerate(self.layers) if layer.path.resolve() == cloud.resolve()
+            ]
+            data["cloud"] |= {"layer": same[0]} if same else {"url": f"/data/{k}/{DRIVE_CLOUD}"}
+        return data
+
+    def frame_of(self, k: int, point: int) -> dict[str, Any]:
+        """``/api/frame``: the frame point ``point`` (the page's index) of the cloud layer
+        or drive ``k`` was coloured from (:func:`acq.view.frames.point_frame`), its JPEG's
+        URL; FrameError (with its HTTP status) otherwise."""
+        if not 0 <= k < len(self.layers):
+            raise FrameError(f"no layer {k}")
+        if k in self.drives:
+            d, cloud = k, self.drives[k].cloud()
+            if cloud is None:
+                raise FrameError(f"{self.layers[k].name}: no cloud (yet)")
+            count = shown = 1  # the drive's cloud goes to the page whole
+        elif self.layers[k].kind == "cloud":
+            found = self.log_of(k)
+            if found is None:
+                raise FrameError(
+                    f"{self.layers[k].name}: no log to show its frames from (give its .mcap "
+                    "after it)",
+                    409,
+                )
+            d, cloud, count, shown = found, self.layers[k].path, self.layers[k].count, self.shown(k)
+        else:
+            raise FrameError(f"{self.layers[k].name}: a {self.layers[k].kind}, not a cloud", 400)
+        if point < 0 or (k not in self.drives and point >= shown):
+            raise FrameError(f"{self.layers[k].name}: no point {point} (the page has {shown})")
+        answer = point_frame(self.drives[d], point_row(cloud, point * count // shown))
+        if answer["camera"] is not None:
+            answer["url"] = f"/data/{d}/frame/{quote(answer['camera'])}/{answer['frame']}.jpg"
+        return {"layer": k, "point": point, "log": d} | answer
+
     def _data_url(self, k: int, layer: Layer) -> str:
+        if k in self.drives:
+            return f"/data/{k}/{DRIVE_NAME}"
         return f"/data/{k}/{POINTS_NAME if k in self.points else quote(layer.name)}"
 
     def __enter__(self) -> ViewServer:
@@ -97,7 +174,8 @@ class ViewServer:
         self.stop()
 
     def start(self) -> None:
-        """Listen and serve on a thread; AddressError when it cannot listen there."""
+        """Listen and serve on a thread, and start making the drives' clouds that are to
+        be made; AddressError when it cannot listen there."""
         try:
             family = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)[0][0]
         except (socket.gaierror, UnicodeError) as e:
@@ -118,6 +196,8 @@ class ViewServer:
             target=self._httpd.serve_forever, name="acq-view", daemon=True
         )
         self._thread.start()
+        for drive in self.drives.values():
+            drive.start()
 
     def stop(self) -> None:
         """Stop listening and close the socket (a transfer under way is cut)."""
@@ -165,6 +245,10 @@ class _Handler(BaseHTTPRequestHandler):
         elif path == "/api/layers":
             data = json.dumps(view.listing()).encode()
             self._send(data, "application/json", body)
+        elif path == "/api/frame":
+            self._frame(body)
+        elif (route := _drive_route(view, path)) is not None:
+            self._drive(*route, body)
         elif path.startswith("/data/"):
             k = _layer_index(view, path)
             if k is None:
@@ -175,6 +259,44 @@ class _Handler(BaseHTTPRequestHandler):
                 self._file(view.layers[k].path, body)
         else:
             self._not_found()
+
+    def _frame(self, body: bool) -> None:
+        query = parse_qs(urlsplit(self.path).query)
+        try:
+            k, point = (int(query[key][0]) for key in ("layer", "point"))
+        except (KeyError, ValueError):
+            self._json({"error": "expected /api/frame?layer=K&point=I (integers)"}, 400, body)
+            return
+        try:
+            self._json(self.server.view.frame_of(k, point), 200, body)
+        except FrameError as e:
+            self._json({"error": str(e)}, e.status, body)
+        except (InputError, OSError, ValueError) as e:  # a cloud or log unreadable (since)
+            self._json({"error": first_line(e)}, 409, body)
+
+    def _drive(self, k: int, rest: list[str], body: bool) -> None:
+        """A drive's routes (``rest`` the URL's parts after ``/data/<k>/``)."""
+        view = self.server.view
+        drive = view.drives[k]
+        if rest == [DRIVE_NAME]:
+            self._json(view.drive_data(k), 200, body)
+        elif rest == [DRIVE_CLOUD]:
+            self._file(drive.cloud(), body)
+        elif len(rest) == 3 and rest[0] == "frame" and rest[2].removesuffix(".jpg").isdigit():
+            try:
+                jpeg = frame_jpeg(drive, rest[1], int(rest[2].removesuffix(".jpg")))
+            except FrameError as e:
+                self.send_error(e.status, str(e))
+                return
+            except (InputError, OSError) as e:  # the log unreadable since the start
+                self.send_error(HTTPStatus.CONFLICT, first_line(e))
+                return
+            self._send(jpeg, "image/jpeg", body, "max-age=3600")
+        else:
+            self._not_found()
+
+    def _json(self, data: Any, status: int, body: bool) -> None:
+        self._send(json.dumps(data).encode(), "application/json", body, status=status)
 
     def _file(self, path: Path | None, body: bool) -> None:
         if path is None:
@@ -197,9 +319,10 @@ class _Handler(BaseHTTPRequestHandler):
                 shutil.copyfileobj(f, self.wfile, _CHUNK)
 
     def _send(
-        self, data: bytes | bytearray, kind: str, body: bool, cache: str = "no-store"
-    ) -> None:
-        self.send_response(HTTPStatus.OK)
+        self, data: bytes | bytearray, kind: str, body: bool, cache: str = "no-store",
+        status: int = HTTPStatus.OK,
+    ) -> None:  # fmt: skip
+        self.send_response(status)
         self.send_header("Content-Type", kind)
         self.send_header("Content-Length", str(len(data)))
         self.send_header("Cache-Control", cache)
@@ -224,6 +347,14 @@ def _host_allowed(served: str, header: str | None) -> bool:
     except ValueError:
         return False
     return name is not None and is_loopback(name)
+
+
+def _drive_route(view: ViewServer, path: str) -> tuple[int, list[str]] | None:
+    """(k, the parts after it) of a ``/data/<k>/...`` URL whose layer k is a drive."""
+    parts = path.split("/")
+    if len(parts) < 4 or not parts[2].isdigit() or int(parts[2]) not in view.drives:
+        return None
+    return int(parts[2]), parts[3:]
 
 
 def _layer_index(view: ViewServer, path: str) -> int | None:

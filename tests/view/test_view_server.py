@@ -210,5 +210,7 @@ def test_missing_and_empty_folders_are_refused(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"gone\.ply: No such file"):
         ViewServer([tmp_path / "gone.ply"])
     (tmp_path / "d").mkdir()
-    with pytest.raises(InputError, match=r"d: a folder with no \.ply, \.glb, \.las or \.laz file"):
+    with pytest.raises(
+        InputError, match=r"d: a folder with no \.ply, \.glb, \.las, \.laz or \.mcap file"
+    ):
         ViewServer([tmp_path / "d"])

@@ -24,6 +24,12 @@ function shown(object) {
 // top-left corner): a facet exactly where the ray meets it, a cloud's own point within
 // PICK_PX pixels of the ray at its depth; the nearest to the eye, or null
 export function pick(x, y, canvas, camera, objects) {
+  return pickHit(x, y, canvas, camera, objects)?.point ?? null;
+}
+
+// as pick, the hit whole: {point (world), object (the Points or Mesh), index (a cloud's
+// point index in its geometry, else null)}, or null
+export function pickHit(x, y, canvas, camera, objects) {
   const rect = canvas.getBoundingClientRect();
   const ndc = new THREE.Vector2((x / rect.width) * 2 - 1, 1 - (y / rect.height) * 2);
   const raycaster = new THREE.Raycaster();
@@ -49,9 +55,11 @@ export function pick(x, y, canvas, camera, objects) {
     } else if (!hit.object.isMesh) {
       continue;
     }
-    if (best === null || hit.distance < best.distance) best = { point, distance: hit.distance };
+    if (best === null || hit.distance < best.distance) {
+      best = { point, distance: hit.distance, object: hit.object, index: hit.object.isPoints ? hit.index : null };
+    }
   }
-  return best === null ? null : best.point;
+  return best;
 }
 
 // the pixel (CSS, from the page's top-left corner) where the world point xyz is drawn

@@ -5,6 +5,9 @@ import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { PLYLoader } from 'three/addons/loaders/PLYLoader.js';
 import { measureTool } from './measure.js';
+import { driveObject } from './drive.js';
+import { frameTool } from './frame.js';
+import { walkTool } from './walk.js';
 
 const message = document.getElementById('message');
 const sizeInput = document.getElementById('point-size');
@@ -115,8 +118,12 @@ async function packedPointsObject(url, pointSize) {
   return object;
 }
 
-async function loadLayer(layer, pointSize) {
+async function loadLayer(layer, k, pointSize, render) {
   try {
+    if (layer.kind === 'drive') {
+      const loadCloud = async (url) => plyObject(await new PLYLoader().loadAsync(url), 'cloud', Number(sizeInput.value));
+      return await driveObject(layer, k, { render, loadCloud });
+    }
     if (layer.url.toLowerCase().endsWith('.glb')) {
       return gltfObject(await new GLTFLoader().loadAsync(layer.url));
     }
@@ -135,7 +142,7 @@ function layerToggle(layer, object, render) {
   box.addEventListener('change', () => { object.visible = box.checked; render(); });
   const count = document.createElement('span');
   count.className = 'count';
-  const unit = layer.kind === 'cloud' ? 'points' : 'vertices';
+  const unit = { cloud: 'points', mesh: 'vertices', drive: layer.count === 1 ? 'log file' : 'log files' }[layer.kind];
   const shown = layer.shown < layer.count ? `${layer.shown.toLocaleString('en')} of ` : '';
   count.textContent = ` ${layer.kind}, ${shown}${layer.count.toLocaleString('en')} ${unit}`;
   label.append(box, ` ${layer.name}`, count);
@@ -179,22 +186,40 @@ async function main() {
   });
 
   const pointSize = Number(sizeInput.value);
-  const objects = await Promise.all(layers.map((layer) => loadLayer(layer, pointSize)));
+  // a drive may have nothing to draw until the server has coloured its cloud: the view is
+  // then framed on its origin, and on the cloud when it comes
+  let framedOnNothing = false;
+  const drawn = () => {
+    if (framedOnNothing) {
+      framedOnNothing = false;
+      frame(new THREE.Box3().setFromObject(scene), camera, controls);
+    }
+    render();
+  };
+  const objects = await Promise.all(layers.map((layer, k) => loadLayer(layer, k, pointSize, drawn)));
   objects.forEach((object, k) => {
     object.name = layers[k].name;
+    if (layers[k].log !== null && layers[k].log !== undefined) object.userData.frameLayer = k;
     scene.add(object);
     layerToggle(layers[k], object, render);
   });
   sizeInput.addEventListener('input', () => {
     sizeOutput.textContent = `${sizeInput.value} px`;
-    for (const object of objects) if (object.isPoints) object.material.size = Number(sizeInput.value);
+    for (const object of objects) object.traverse((o) => { if (o.isPoints) o.material.size = Number(sizeInput.value); });
     render();
   });
 
   const box = new THREE.Box3().setFromObject(scene);
-  if (box.isEmpty()) throw new Error('the layers hold nothing to draw');
+  if (box.isEmpty()) {
+    if (!layers.some((layer) => layer.kind === 'drive')) throw new Error('the layers hold nothing to draw');
+    box.setFromCenterAndSize(new THREE.Vector3(), new THREE.Vector3(20, 20, 20));
+    framedOnNothing = true;
+  }
   frame(box, camera, controls);
   measureTool(scene, camera, renderer.domElement, objects, render);
+  frameTool(camera, renderer.domElement, objects);
+  const paths = () => objects.filter((o) => o.visible && o.userData.path).map((o) => o.userData.path);
+  walkTool(camera, controls, paths, render);
   render();
   message.textContent = '';
   // the frame rendered above is on the screen at the next animation frame

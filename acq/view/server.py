@@ -21,6 +21,7 @@ from urllib.parse import quote, unquote, urlsplit
 from acq.addresses import is_loopback
 from acq.errors import InputError
 from acq.view import las_points, static
+from acq.view.crs import crs_of
 from acq.view.layers import Layer, layers_of
 
 __all__ = ["DEFAULT_MAX_POINTS", "POINTS_NAME", "AddressError", "ViewServer"]
@@ -51,6 +52,7 @@ class ViewServer:
         max_points: int = DEFAULT_MAX_POINTS,
     ) -> None:  # fmt: skip
         self.layers = layers_of(paths)
+        self.crs = [crs_of(layer.path) for layer in self.layers]
         self.points = {
             k: las_points.payload(layer.path, max_points)
             for k, layer in enumerate(self.layers)
@@ -70,7 +72,7 @@ class ViewServer:
     def listing(self) -> list[dict[str, Any]]:
         """What ``/api/layers`` answers: each layer's name, kind, URL, bytes and count, and
         ``shown``, the points or vertices the page gets (fewer than ``count`` for a cloud
-        subsampled to ``max_points``)."""
+        subsampled to ``max_points``), and ``crs``, its file's (:func:`acq.view.crs.crs_of`)."""
         return [
             {
                 "name": layer.name,
@@ -79,6 +81,7 @@ class ViewServer:
                 "bytes": layer.size,
                 "count": layer.count,
                 "shown": las_points.shown(self.points[k]) if k in self.points else layer.count,
+                "crs": self.crs[k],
             }
             for k, layer in enumerate(self.layers)
         ]

@@ -4,7 +4,10 @@ import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { PLYLoader } from 'three/addons/loaders/PLYLoader.js';
+import { georeferenced, showCrs } from './crs.js';
 import { measureTool } from './measure.js';
+import { orbitHooks } from './orbit.js';
+import { overlays } from './overlays.js';
 
 const message = document.getElementById('message');
 const sizeInput = document.getElementById('point-size');
@@ -194,7 +197,10 @@ async function main() {
   const box = new THREE.Box3().setFromObject(scene);
   if (box.isEmpty()) throw new Error('the layers hold nothing to draw');
   frame(box, camera, controls);
-  measureTool(scene, camera, renderer.domElement, objects, render);
+  measureTool(scene, camera, renderer.domElement, objects, layers, render);
+  showCrs(layers, document.getElementById('crs'));
+  if (georeferenced(layers)) overlays(camera, controls, renderer.domElement);
+  orbitHooks(camera, controls);
   render();
   message.textContent = '';
   // the frame rendered above is on the screen at the next animation frame

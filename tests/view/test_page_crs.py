@@ -7,33 +7,38 @@ neither."""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from acq.cloud.las import LasStream
 from acq.view.server import ViewServer
 from tests.browser import Browser
+from tests.view.layer_files import las_cloud
 from tests.view.test_page import BACKGROUND, READY, WALL, _wall
-from tests.view.test_page_distance import _click_at, _grid, _readout
+from tests.view.test_page_distance import EAST, _click_at, _readout
 
 LIGHT = (0xE8, 0xEA, 0xED)  # the overlays' colour
 
 
 def _las_grid(path: Path, crs: str | None) -> tuple[Path, np.ndarray]:
-    """The 5 x 3 wall of points of test_page_distance, written by acq's LasStream with
-    ``crs`` (as `acq colorize --crs` does)."""
-    _, xyz = _grid(path.with_suffix(".ply"))
-    path.with_suffix(".ply").unlink()
-    n = len(xyz)
-    out = LasStream(path, crs=crs, cameras=["left"])
-    out.write(
-        xyz, np.full((n, 3), 200, np.uint8), np.linspace(0, 1, n), np.ones(n, np.float32),
-        np.zeros(n, np.int32), np.ones(n, bool), np.zeros(n, np.uint8), np.zeros(n, np.int32),
-    )  # fmt: skip
-    out.close()
+    """A wall of 5 x 3 points 2 m apart 1,000 km east, as `acq colorize --crs` writes
+    it to LAS (``crs`` None: as in its local frame)."""
+    x, z = np.meshgrid(np.arange(5) * 2.0, np.arange(3) * 2.0)
+    xyz = np.stack([x.ravel(), np.zeros(x.size), z.ravel()], axis=1) + EAST
+    path, xyz, _ = las_cloud(path, xyz=xyz, crs=crs, rgb=(200, 200, 200))
     return path, xyz
+
+
+@contextmanager
+def _projected(browser: Browser, tmp_path: Path) -> Iterator[None]:
+    """The page open on the wall of :func:`_las_grid` in EPSG:25831."""
+    path, _ = _las_grid(tmp_path / "wall.las", "EPSG:25831")
+    with ViewServer([path]) as server:
+        _open(browser, server)
+        yield
 
 
 def _open(browser: Browser, server: ViewServer) -> None:
@@ -80,22 +85,33 @@ def test_layers_that_disagree_on_their_crs_are_named_and_each_point_keeps_its_ow
     utm31, xyz = _las_grid(tmp_path / "utm31.las", "EPSG:25831")
     utm32, _ = _las_grid(tmp_path / "utm32.las", "EPSG:25832")
     local, _ = _las_grid(tmp_path / "local.las", None)
-    with ViewServer([utm31, utm32, local]) as server:
+    bad = tmp_path / "bad.las"  # its WKT's first keyword misspelt: no CRS pyproj can read
+    bad.write_bytes(utm31.read_bytes().replace(b"PROJCS[", b"PROJXX[", 1))
+    with ViewServer([utm31, utm32, local, bad]) as server:
         _open(browser, server)
         panel = _crs_panel(browser)
-        # only the local layer shown: its points are labelled as in its local frame
-        browser.evaluate("[...document.querySelectorAll('#layers input')].slice(0, 2)"
-                         ".forEach((box) => box.click())")  # fmt: skip
+        # only the local layer shown, then only the one whose CRS cannot be read: each
+        # point labelled as in its own file
+        browser.evaluate("[...document.querySelectorAll('#layers input')]"
+                         ".filter((_, k) => k !== 2).forEach((box) => box.click())")  # fmt: skip
         browser.evaluate("document.getElementById('measure').click()")
         _click_at(browser, xyz[6], shift_px=2)
-        label = browser.wait_for("window.acqMeasured?.labels[0]")
-    assert panel == [
+        local_label = browser.wait_for("window.acqMeasured?.labels[0]")
+        browser.evaluate("[...document.querySelectorAll('#layers input')]"
+                         ".filter((_, k) => k >= 2).forEach((box) => box.click())")  # fmt: skip
+        browser.evaluate("window.dispatchEvent(new KeyboardEvent('keydown', {key: 'Escape'}))")
+        _click_at(browser, xyz[6], shift_px=2)
+        bad_label = browser.wait_for("window.acqMeasured?.labels[0]")
+    assert panel[:2] == [
         ("the layers disagree on their CRS: utm31.las EPSG:25831, utm32.las EPSG:25832; "
          "each point is given in its own layer's", "warning"),
         ("no CRS in local.las: drawn in its own coordinates", ""),
     ]  # fmt: skip
+    assert len(panel) == 3 and panel[2][1] == "warning"
+    assert panel[2][0].startswith("bad.las: its CRS cannot be read (") and "PROJXX" in panel[2][0]
     p = xyz[6]
-    assert label == f"local frame x {p[0]:.3f} y {p[1]:.3f} z {p[2]:.3f}"
+    assert local_label == f"local frame x {p[0]:.3f} y {p[1]:.3f} z {p[2]:.3f}"
+    assert bad_label == f"unread CRS x {p[0]:.3f} y {p[1]:.3f} z {p[2]:.3f}"
     assert browser.errors == [], browser.console
 
 
@@ -136,9 +152,7 @@ def _turned(a: float, b: float) -> float:
 def test_a_projected_view_has_a_scale_bar_and_a_north_arrow_a_local_one_neither(
     browser: Browser, tmp_path: Path
 ) -> None:
-    path, _ = _las_grid(tmp_path / "wall.las", "EPSG:25831")
-    with ViewServer([path]) as server:
-        _open(browser, server)
+    with _projected(browser, tmp_path):
         drawn = _overlays(browser)
         image = browser.screenshot()
         rect = browser.evaluate("document.querySelector('#scale-bar .bar')"
@@ -168,9 +182,7 @@ def test_a_projected_view_has_a_scale_bar_and_a_north_arrow_a_local_one_neither(
 def test_the_north_arrow_turns_with_the_view_and_points_to_grid_north(
     browser: Browser, tmp_path: Path
 ) -> None:
-    path, _ = _las_grid(tmp_path / "wall.las", "EPSG:25831")
-    with ViewServer([path]) as server:
-        _open(browser, server)
+    with _projected(browser, tmp_path):
         first = _overlays(browser)
         browser.evaluate("window.acqTurn(90)")
         turned = _overlays(browser)
@@ -193,9 +205,7 @@ def test_the_north_arrow_turns_with_the_view_and_points_to_grid_north(
 def test_the_scale_bar_is_its_label_at_the_view_s_scale_and_follows_the_zoom(
     browser: Browser, tmp_path: Path
 ) -> None:
-    path, _ = _las_grid(tmp_path / "wall.las", "EPSG:25831")
-    with ViewServer([path]) as server:
-        _open(browser, server)
+    with _projected(browser, tmp_path):
         browser.evaluate("window.acqTurn(-45)")  # looking due north: east is the screen's x
         seen = []
         for _ in range(3):

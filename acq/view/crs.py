@@ -73,11 +73,11 @@ def _las_crs(path: Path) -> Any:
     """A LAS/LAZ file's pyproj CRS (WKT preferred over GeoTIFF keys), None without one."""
     import laspy
 
-    with laspy.open(path) as reader:
-        try:
+    try:
+        with laspy.open(path) as reader:
             return reader.header.parse_crs(prefer_wkt=True)
-        except laspy.LaspyException as e:
-            raise ValueError(first_line(e)) from None
+    except laspy.LaspyException as e:
+        raise ValueError(first_line(e)) from None
 
 
 def _ply_crs_text(path: Path) -> str | None:

@@ -57,6 +57,7 @@ export function overlays(camera, controls, canvas) {
     const forward = camera.getWorldDirection(new THREE.Vector3());
     const depth = controls.target.clone().sub(camera.position).dot(forward);
     const perPixel = metresPerPixel(camera, depth, canvas.getBoundingClientRect().height);
+    if (!(perPixel > 0 && Number.isFinite(perPixel))) return; // a canvas of no height
     const metres = roundLength(MAX_BAR_PX * perPixel);
     const px = metres / perPixel;
     line.style.width = `${px}px`;

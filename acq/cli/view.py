@@ -26,7 +26,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "folder stands for the .ply, .glb, .las and .laz files in it. Every file is "
         "checked before the server starts. The page and its libraries (three.js) come "
         "with acq: no network is needed. In the page: drag to orbit, right-drag to pan, the "
-        "wheel to zoom; a box per layer hides it; a slider sets the points' size. Prints "
+        "wheel to zoom; a box per layer hides it; a slider sets the points' size; the "
+        "measure box gives a distance and its points in the file's CRS (a LAS/LAZ/COPC "
+        "file's, or a PLY's 'crs' comment), and a view in a projected CRS has a scale bar "
+        "and a north arrow (a CRS not in metres is refused). Prints "
         "the page's URL and serves until Ctrl-C. Exit status: "
         "0 stopped by Ctrl-C, 2 a bad file or option (the port in use among them).",
     )

@@ -33,7 +33,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "wheel to zoom; a box per layer hides it; a slider sets the points' size; 'show "
         "frame' and a click on a point show the camera frame it was coloured from, the "
         "point ringed; 'walk' puts the eye on the trajectory (arrow keys or W/S move along "
-        "it). Prints "
+        "it); the measure box gives a distance and its points in the file's CRS (a "
+        "LAS/LAZ/COPC file's, or a PLY's 'crs' comment), and a view in a projected CRS has "
+        "a scale bar and a north arrow (a CRS not in metres is refused). Prints "
         "the page's URL and serves until Ctrl-C. Exit status: "
         "0 stopped by Ctrl-C, 2 a bad file or option (the port in use among them).",
     )

@@ -27,6 +27,7 @@ from acq.errors import InputError, first_line
 from acq.view import las_points, static
 from acq.view.drive import Drive
 from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
+from acq.view.crs import crs_of
 from acq.view.layers import Layer, layers_of
 
 __all__ = ["DEFAULT_MAX_POINTS", "POINTS_NAME", "AddressError", "ViewServer"]
@@ -62,6 +63,7 @@ class ViewServer:
         cache: Path | None = None,
     ) -> None:  # fmt: skip
         self.layers = layers_of(paths)
+        self.crs = [crs_of(layer.path) for layer in self.layers]
         self.points = {
             k: las_points.payload(layer.path, max_points)
             for k, layer in enumerate(self.layers)
@@ -89,7 +91,8 @@ class ViewServer:
         """What ``/api/layers`` answers: each layer's name, kind, URL, bytes and count, and
         ``shown``, the points or vertices the page gets (fewer than ``count`` for a cloud
         subsampled to ``max_points``); ``log``, for a cloud, the drive layer whose log it
-        was coloured from (None: none known)."""
+        was coloured from (None: none known); ``crs``, its file's
+        (:func:`acq.view.crs.crs_of`)."""
         return [
             {
                 "name": layer.name,
@@ -99,6 +102,7 @@ class ViewServer:
                 "count": layer.count,
                 "shown": self.shown(k),
                 "log": self.log_of(k) if layer.kind == "cloud" else None,
+                "crs": self.crs[k],
             }
             for k, layer in enumerate(self.layers)
         ]

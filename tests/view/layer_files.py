@@ -41,21 +41,25 @@ def las_cloud(
     seed: int = 0,
     at: tuple[float, float, float] = (0, 0, 0),
     rgb: tuple[int, int, int] | None = None,
+    xyz: np.ndarray | None = None,
+    crs: str | None = "EPSG:25831",
 ) -> tuple[Path, np.ndarray, np.ndarray]:
     """A LAS, LAZ or COPC cloud (by the suffix: .las, .laz, .copc.laz) of ``n`` points
-    within 5 m of ``at`` as `acq colorize` writes it, all of colour ``rgb`` or random;
-    the path, the points' xyz (m) and rgb as written."""
+    within 5 m of ``at`` (or of the points ``xyz``, m) in ``crs`` as `acq colorize` writes
+    it, all of colour ``rgb`` or random; the path, the points' xyz (m) and rgb as written."""
     from acq.cloud.copc import CopcStream
     from acq.cloud.las import LasStream
 
     rng = np.random.default_rng(seed)
-    xyz = rng.uniform(-5, 5, (n, 3)) + np.array(at, float)
+    if xyz is None:
+        xyz = rng.uniform(-5, 5, (n, 3)) + np.array(at, float)
+    n = len(xyz)
     colours = (
         np.tile(np.array(rgb, np.uint8), (n, 1)) if rgb is not None
         else rng.integers(0, 256, (n, 3), dtype=np.uint8)
     )  # fmt: skip
     stream = CopcStream if path.name.endswith(".copc.laz") else LasStream
-    out = stream(path, crs="EPSG:25831", cameras=["left"])
+    out = stream(path, crs=crs, cameras=["left"])
     out.write(
         xyz, colours, np.sort(rng.uniform(0, 10, n)), rng.uniform(0, 1, n).astype(np.float32),
         np.arange(n, dtype=np.int32) // 50, np.ones(n, bool), np.zeros(n, np.uint8),

@@ -91,7 +91,7 @@ def test_two_clicks_on_a_mesh_far_east_give_the_distance_and_the_file_s_coordina
     assert abs(measured["distance"] - truth) < CM
     # the panel: the distance to the millimetre, each point in the file's frame
     assert f"distance {measured['distance']:.3f} m" in shown
-    assert f"A: {a[0]:.3f}, {a[1]:.3f}, {a[2]:.3f}" in shown
+    assert f"A: local frame x {a[0]:.3f} y {a[1]:.3f} z {a[2]:.3f}" in shown
     assert shown.count("1000") == 2 and browser.errors == [], (shown, browser.console)
 
 

@@ -22,7 +22,7 @@ function offsets(xyz, origin) {
   return out;
 }
 
-// one camera's frustums: their edges as lines and their bases as filled quads, never picked
+// one camera's frustums: their edges as lines and their bases as see-through quads, never picked
 function frustums(camera, origin) {
   const aspect = camera.size[0] / camera.size[1];
   const corners = [[-1, -1], [1, -1], [1, 1], [-1, 1]].map(
@@ -42,7 +42,10 @@ function frustums(camera, origin) {
     new THREE.LineBasicMaterial({ color: colour }));
   const bases = new THREE.Mesh(
     new THREE.BufferGeometry().setAttribute('position', new THREE.BufferAttribute(offsets(faces, origin), 3)),
-    new THREE.MeshBasicMaterial({ color: colour, side: THREE.DoubleSide }));
+    // see-through, so that they mark the poses without hiding the street behind them
+    new THREE.MeshBasicMaterial({
+      color: colour, side: THREE.DoubleSide, transparent: true, opacity: 0.25, depthWrite: false,
+    }));
   const group = new THREE.Group();
   group.name = `frustums ${camera.camera}`;
   group.add(lines, bases);

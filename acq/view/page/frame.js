@@ -3,7 +3,7 @@
 // in the page's cloud) and shows that camera frame with the point ringed at its pixel, the
 // camera, the frame's time and the pixel. window.acqFrame holds the server's answer (with
 // `ring`, the ring's centre in page pixels) or {error}.
-import { pickHit } from './measure.js';
+import { pick } from './measure.js';
 
 const DRAG_PX = 4; // a press and release further apart than this is an orbit, not a click
 
@@ -64,7 +64,7 @@ export function frameTool(camera, canvas, objects) {
     if (!toggle.checked || down === null || e.button !== 0) return;
     if (Math.hypot(e.clientX - down[0], e.clientY - down[1]) > DRAG_PX) return;
     const rect = canvas.getBoundingClientRect();
-    const hit = pickHit(e.clientX - rect.left, e.clientY - rect.top, canvas, camera, objects);
+    const hit = pick(e.clientX - rect.left, e.clientY - rect.top, canvas, camera, objects);
     if (hit === null) return; // the background
     const layer = hit.object.userData.frameLayer;
     if (hit.index === null || layer === undefined) {

@@ -1,9 +1,10 @@
 // The distance tool of acq view: in measure mode two clicks on drawn points or facets place
 // two markers joined by a line, and the panel gives their distance in metres and both points
-// in the file's frame. The scene's world coordinates are the files' (each layer's offset is
+// in their file's CRS (crs.js), or its local frame. The scene's world coordinates are the files' (each layer's offset is
 // its object's position, a double; a glb's node matrix is in the scene graph), so a hit's
 // world point is the file's point.
 import * as THREE from 'three';
+import { pointLabel } from './crs.js';
 
 const PICK_PX = 6; // a click picks a cloud's point within this many pixels of it
 const DRAG_PX = 4; // a press and release further apart than this is an orbit, not a click
@@ -11,7 +12,7 @@ const MARKER = 0xffd400;
 
 // metres per pixel at distance `depth` m along the view of a perspective camera drawn
 // `height` pixels high
-function metresPerPixel(camera, depth, height) {
+export function metresPerPixel(camera, depth, height) {
   return (2 * depth * Math.tan(THREE.MathUtils.degToRad(camera.fov) / 2)) / height;
 }
 
@@ -22,14 +23,9 @@ function shown(object) {
 
 // the drawn point or facet under the pixel (x, y) of the canvas (CSS pixels from its
 // top-left corner): a facet exactly where the ray meets it, a cloud's own point within
-// PICK_PX pixels of the ray at its depth; the nearest to the eye, or null
+// PICK_PX pixels of the ray at its depth; the nearest to the eye: {point (world), object
+// (the Points or Mesh hit), index (a cloud's point index in its geometry, else null)}, or null
 export function pick(x, y, canvas, camera, objects) {
-  return pickHit(x, y, canvas, camera, objects)?.point ?? null;
-}
-
-// as pick, the hit whole: {point (world), object (the Points or Mesh), index (a cloud's
-// point index in its geometry, else null)}, or null
-export function pickHit(x, y, canvas, camera, objects) {
   const rect = canvas.getBoundingClientRect();
   const ndc = new THREE.Vector2((x / rect.width) * 2 - 1, 1 - (y / rect.height) * 2);
   const raycaster = new THREE.Raycaster();
@@ -69,17 +65,26 @@ export function project(xyz, canvas, camera) {
   return [rect.left + ((v.x + 1) / 2) * rect.width, rect.top + ((1 - v.y) / 2) * rect.height];
 }
 
-const fixed3 = (p) => `${p.x.toFixed(3)}, ${p.y.toFixed(3)}, ${p.z.toFixed(3)}`;
+// the CRS of the layer (of /api/layers, in the order of `objects`) that drew `object`
+function crsOf(object, objects, layers) {
+  for (let o = object; o; o = o.parent) {
+    const k = objects.indexOf(o);
+    if (k >= 0) return layers[k].crs;
+  }
+  return null;
+}
 
 // the measure toggle, its readout and its markers: `scene` gets the markers, `objects` are
-// the layers it picks from, render() redraws; window.acqMeasured holds the measurement
-// ({points: [[x, y, z], ...], distance: m or null}, null when cleared)
-export function measureTool(scene, camera, canvas, objects, render) {
+// the layers it picks from (`layers` their entries of /api/layers), render() redraws;
+// window.acqMeasured holds the measurement ({points: [[x, y, z], ...], labels: each point
+// in its layer's CRS, distance: m or null}, null when cleared)
+export function measureTool(scene, camera, canvas, objects, layers, render) {
   const toggle = document.getElementById('measure');
   const readout = document.getElementById('measured');
   const markers = new THREE.Group();
   scene.add(markers);
   let points = [];
+  let labels = [];
   window.acqMeasured = null;
 
   function draw() {
@@ -108,10 +113,10 @@ export function measureTool(scene, camera, canvas, objects, render) {
     }
     const distance = points.length === 2 ? points[0].distanceTo(points[1]) : null;
     window.acqMeasured = points.length === 0 ? null
-      : { points: points.map((p) => p.toArray()), distance };
+      : { points: points.map((p) => p.toArray()), labels, distance };
     const lines = [];
     if (distance !== null) lines.push(`distance ${distance.toFixed(3)} m`);
-    points.forEach((p, k) => lines.push(`${'AB'[k]}: ${fixed3(p)}`));
+    labels.forEach((label, k) => lines.push(`${'AB'[k]}: ${label}`));
     if (toggle.checked && points.length < 2) lines.push(`click point ${'AB'[points.length]}`);
     readout.textContent = lines.join('\n');
     render();
@@ -119,6 +124,7 @@ export function measureTool(scene, camera, canvas, objects, render) {
 
   function clear() {
     points = [];
+    labels = [];
     draw();
   }
 
@@ -129,9 +135,11 @@ export function measureTool(scene, camera, canvas, objects, render) {
     if (!toggle.checked || down === null || e.button !== 0) return;
     if (Math.hypot(e.clientX - down[0], e.clientY - down[1]) > DRAG_PX) return;
     const rect = canvas.getBoundingClientRect();
-    const point = pick(e.clientX - rect.left, e.clientY - rect.top, canvas, camera, objects);
-    if (point === null) return; // the background: nothing to measure
-    points = points.length === 2 ? [point] : [...points, point];
+    const hit = pick(e.clientX - rect.left, e.clientY - rect.top, canvas, camera, objects);
+    if (hit === null) return; // the background: nothing to measure
+    const label = pointLabel(hit.point.toArray(), crsOf(hit.object, objects, layers));
+    points = points.length === 2 ? [hit.point] : [...points, hit.point];
+    labels = labels.length === 2 ? [label] : [...labels, label];
     draw();
   });
   toggle.addEventListener('change', clear);

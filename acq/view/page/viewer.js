@@ -4,10 +4,13 @@ import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { PLYLoader } from 'three/addons/loaders/PLYLoader.js';
+import { georeferenced, showCrs } from './crs.js';
 import { measureTool } from './measure.js';
 import { driveObject } from './drive.js';
 import { frameTool } from './frame.js';
 import { walkTool } from './walk.js';
+import { orbitHooks } from './orbit.js';
+import { overlays } from './overlays.js';
 
 const message = document.getElementById('message');
 const sizeInput = document.getElementById('point-size');
@@ -216,10 +219,13 @@ async function main() {
     framedOnNothing = true;
   }
   frame(box, camera, controls);
-  measureTool(scene, camera, renderer.domElement, objects, render);
   frameTool(camera, renderer.domElement, objects);
   const paths = () => objects.filter((o) => o.visible && o.userData.path).map((o) => o.userData.path);
   walkTool(camera, controls, paths, render);
+  measureTool(scene, camera, renderer.domElement, objects, layers, render);
+  showCrs(layers, document.getElementById('crs'));
+  if (georeferenced(layers)) overlays(camera, controls, renderer.domElement);
+  orbitHooks(camera, controls);
   render();
   message.textContent = '';
   // the frame rendered above is on the screen at the next animation frame

@@ -25,9 +25,9 @@ from urllib.parse import parse_qs, quote, unquote, urlsplit
 from acq.addresses import is_loopback
 from acq.errors import InputError, first_line
 from acq.view import las_points, static
+from acq.view.crs import crs_of
 from acq.view.drive import Drive
 from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
-from acq.view.crs import crs_of
 from acq.view.layers import Layer, layers_of
 
 __all__ = ["DEFAULT_MAX_POINTS", "POINTS_NAME", "AddressError", "ViewServer"]

@@ -37,7 +37,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     v.add_argument(
         "--max-points", type=integer(1, 2**62, what="a count of points"),
         default=DEFAULT_MAX_POINTS, metavar="N",
-        help="most points of a LAS/LAZ/COPC cloud sent to the page (default "
+        help="most points of a cloud sent to the page (default "
         f"{DEFAULT_MAX_POINTS:,}: a laptop's browser draws about a million points "
         "smoothly and slows around 5-10 million); a larger cloud is shown by N of its "
         "points evenly spread through the file, and its layer says so (e.g. '2,000,000 of "
@@ -72,7 +72,10 @@ def run(args: argparse.Namespace) -> int:
             "without authentication",
             file=sys.stderr, flush=True,
         )  # fmt: skip
-    server = ViewServer(args.paths, host=args.host, port=args.port, max_points=args.max_points)
+    server = ViewServer(
+        args.paths, host=args.host, port=args.port, max_points=args.max_points,
+        on_error=lambda line: print(f"acq view: {line}", file=sys.stderr, flush=True),
+    )  # fmt: skip
     try:
         server.start()
     except AddressError as e:  # named as the command line names it

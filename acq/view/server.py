@@ -10,7 +10,7 @@ import shutil
 import socket
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -19,16 +19,18 @@ from typing import Any, Literal
 from urllib.parse import quote, unquote, urlsplit
 
 from acq.addresses import is_loopback
-from acq.errors import InputError
-from acq.view import las_points, static
+from acq.errors import InputError, first_line
+from acq.view import static
 from acq.view.layers import Layer, layers_of
+from acq.view.points_payload import payload
 
 __all__ = ["DEFAULT_MAX_POINTS", "POINTS_NAME", "AddressError", "ViewServer"]
 
 _CHUNK = 1 << 20  # bytes copied to the socket at a time
 # a laptop's browser draws about a million points well and slows around 5-10 M
 DEFAULT_MAX_POINTS = 2_000_000
-POINTS_NAME = "points.bin"  # a LAS/LAZ layer's URL name: its points packed for the page
+POINTS_NAME = "points.bin"  # a cloud layer's URL name: its points packed for the page
+_POLL_S = 2.0  # how long a request for points still decoding waits before a 503
 
 
 class AddressError(InputError):
@@ -43,19 +45,24 @@ class AddressError(InputError):
 class ViewServer:
     """Serves the layers of ``paths`` (checked on construction: InputError naming a bad
     one) on ``host``:``port`` (0: a free port) while the context is open; ``url`` is
-    ``http://HOST:PORT/``. A LAS/LAZ/COPC cloud is decoded here, once, into the page's
-    binary (:mod:`acq.view.las_points`), at most ``max_points`` of its points."""
+    ``http://HOST:PORT/``. Each cloud is packed into the page's binary
+    (:mod:`acq.view.points_payload`), at most ``max_points`` of its points, once, on a
+    thread started with the server: its URL answers 503 until then; a cloud whose points
+    turn out unreadable answers 422 with the one-line reason, also given to ``on_error``."""
 
     def __init__(
         self, paths: Sequence[Path], host: str = "127.0.0.1", port: int = 0,
-        max_points: int = DEFAULT_MAX_POINTS,
+        max_points: int = DEFAULT_MAX_POINTS, on_error: Callable[[str], None] | None = None,
     ) -> None:  # fmt: skip
+        if max_points < 1:
+            raise ValueError(f"max_points {max_points}: at least 1")
         self.layers = layers_of(paths)
+        self.max_points = max_points
         self.points = {
-            k: las_points.payload(layer.path, max_points)
-            for k, layer in enumerate(self.layers)
-            if layer.path.suffix.lower() in las_points.SUFFIXES
+            k: _Packing() for k, layer in enumerate(self.layers) if layer.kind == "cloud"
         }
+        self._on_error = on_error
+        self._packer: threading.Thread | None = None
         self.host, self.port = host, port
         self._httpd: _Server | None = None
         self._thread: threading.Thread | None = None
@@ -78,7 +85,7 @@ class ViewServer:
                 "url": self._data_url(k, layer),
                 "bytes": layer.size,
                 "count": layer.count,
-                "shown": las_points.shown(self.points[k]) if k in self.points else layer.count,
+                "shown": min(layer.count, self.max_points) if k in self.points else layer.count,
             }
             for k, layer in enumerate(self.layers)
         ]
@@ -118,6 +125,27 @@ class ViewServer:
             target=self._httpd.serve_forever, name="acq-view", daemon=True
         )
         self._thread.start()
+        if self._packer is None:
+            self._packer = threading.Thread(target=self._pack, name="acq-view-pack", daemon=True)
+            self._packer.start()
+
+    def _pack(self) -> None:
+        """Pack each cloud's points in turn; its reason when they cannot be read."""
+        for k, packing in self.points.items():
+            path = self.layers[k].path
+            try:
+                packing.data = payload(path, self.max_points)
+            except InputError as e:
+                packing.error = str(e)
+            except Exception as e:  # never a page left waiting: said, whatever it was
+                packing.error = f"{path}: its points cannot be read ({first_line(e)})"
+            packing.done.set()
+            if packing.error is not None and self._on_error is not None:
+                self._on_error(packing.error)
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Whether every cloud is packed (or failed) within ``timeout`` seconds."""
+        return all(p.done.wait(timeout) for p in self.points.values())
 
     def stop(self) -> None:
         """Stop listening and close the socket (a transfer under way is cut)."""
@@ -127,6 +155,15 @@ class ViewServer:
         if self._thread is not None:
             self._thread.join()
         self._httpd = self._thread = None
+
+
+class _Packing:
+    """A cloud's payload in the making: ``data`` once ``done``, or ``error`` (one line)."""
+
+    def __init__(self) -> None:
+        self.done = threading.Event()
+        self.data: bytearray | None = None
+        self.error: str | None = None
 
 
 class _Server(ThreadingHTTPServer):
@@ -170,7 +207,7 @@ class _Handler(BaseHTTPRequestHandler):
             if k is None:
                 self._not_found()
             elif k in view.points:
-                self._send(view.points[k], "application/octet-stream", body, "no-cache")
+                self._points(view.points[k], view.layers[k].name, body)
             else:
                 self._file(view.layers[k].path, body)
         else:
@@ -209,6 +246,29 @@ class _Handler(BaseHTTPRequestHandler):
             for start in range(0, len(data), _CHUNK):
                 self.wfile.write(view[start : start + _CHUNK])
 
+    def _points(self, packing: _Packing, name: str, body: bool) -> None:
+        """A cloud's payload; 503 while it is packed (after a wait, so that it comes as
+        soon as it is ready), 422 and the reason when its points could not be read."""
+        if not packing.done.wait(_POLL_S):
+            self.send_response(HTTPStatus.SERVICE_UNAVAILABLE)
+            self.send_header("Retry-After", "0")  # the next request waits again
+            self._text(f"decoding {name}", body)
+        elif packing.data is not None:
+            self._send(packing.data, "application/octet-stream", body, "no-cache")
+        else:
+            self.send_response(HTTPStatus.UNPROCESSABLE_ENTITY)
+            self._text(packing.error or "", body)
+
+    def _text(self, text: str, body: bool) -> None:
+        """The rest of an answer whose status is sent: ``text`` as its body."""
+        data = text.encode()
+        self.send_header("Content-Type", "text/plain; charset=utf-8")
+        self.send_header("Content-Length", str(len(data)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        if body:
+            self.wfile.write(data)
+
     def _not_found(self) -> None:
         self.send_error(HTTPStatus.NOT_FOUND, "not a file acq view serves")
 
@@ -228,7 +288,7 @@ def _host_allowed(served: str, header: str | None) -> bool:
 
 def _layer_index(view: ViewServer, path: str) -> int | None:
     """The layer k of ``/data/<k>/<name>``, when ``name`` is its URL's (its file's name,
-    or :data:`POINTS_NAME` for a LAS/LAZ cloud)."""
+    or :data:`POINTS_NAME` for a cloud)."""
     parts = path.split("/")
     if len(parts) != 4 or not parts[2].isdigit():
         return None

@@ -1,10 +1,13 @@
 // acq view: every layer the server lists (/api/layers), drawn with three.js in acq's world
-// frame (z up, metres): clouds as points in their own colours, meshes unlit in theirs.
+// frame (z up, metres): clouds as points in their own colours (or a colour mode's), meshes
+// unlit in theirs.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { PLYLoader } from 'three/addons/loaders/PLYLoader.js';
+import { colourModes } from './colour_modes.js';
 import { measureTool } from './measure.js';
+import { parsePoints } from './points.js';
 
 const message = document.getElementById('message');
 const sizeInput = document.getElementById('point-size');
@@ -44,30 +47,16 @@ function toFloat32(geometry) {
   return origin;
 }
 
-// a PLY as points (a cloud) or triangles (a mesh), coloured by its vertices where it has colours
-function plyObject(geometry, kind, pointSize) {
+// a PLY mesh's triangles, coloured by its vertices where it has colours
+function plyMesh(geometry) {
   const origin = toFloat32(geometry);
   const coloured = geometry.hasAttribute('color');
-  let object;
-  if (kind === 'mesh') {
-    const material = new THREE.MeshBasicMaterial({
-      vertexColors: coloured, color: coloured ? 0xffffff : 0xb0b0b0, side: THREE.DoubleSide,
-    });
-    object = new THREE.Mesh(geometry, material);
-  } else {
-    object = pointsObject(geometry, coloured, pointSize);
-  }
+  const material = new THREE.MeshBasicMaterial({
+    vertexColors: coloured, color: coloured ? 0xffffff : 0xb0b0b0, side: THREE.DoubleSide,
+  });
+  const object = new THREE.Mesh(geometry, material);
   object.position.copy(origin);
   return object;
-}
-
-// a cloud: each point a square of pointSize pixels in its colour (grey without colours)
-function pointsObject(geometry, coloured, pointSize) {
-  const material = new THREE.PointsMaterial({
-    size: pointSize, sizeAttenuation: false, vertexColors: coloured,
-    color: coloured ? 0xffffff : 0xd0d0d0,
-  });
-  return new THREE.Points(geometry, material);
 }
 
 // a glTF scene in acq's frame (glTF is +y up: turned back to z up), its facets unlit so that
@@ -87,31 +76,44 @@ function gltfObject(gltf) {
   return root;
 }
 
-// a LAS/LAZ/COPC cloud as the server packs it (acq/view/las_points.py): a 56-byte header
-// (magic, points served, points in the file, the origin's x y z as doubles, flags), then
-// float32 x y z offsets from the origin and uint8 sRGB r g b of each point
-const SRGB_TO_LINEAR = Float32Array.from(
-  { length: 256 }, (_, c) => new THREE.Color().setRGB(c / 255, 0, 0, THREE.SRGBColorSpace).r);
-async function packedPointsObject(url, pointSize) {
-  const response = await fetch(url);
-  if (!response.ok) throw new Error(`HTTP ${response.status}`);
-  const buffer = await response.arrayBuffer();
-  const head = new DataView(buffer);
-  const magic = new TextDecoder().decode(new Uint8Array(buffer, 0, Math.min(8, buffer.byteLength)));
-  if (buffer.byteLength < 56 || magic !== 'ACQPTS1\0') throw new Error('not acq view\'s points');
-  const n = Number(head.getBigUint64(8, true));
-  if (buffer.byteLength !== 56 + 15 * n) throw new Error(`${buffer.byteLength} bytes for ${n} points`);
-  const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(buffer, 56, 3 * n), 3));
-  const coloured = (head.getUint32(48, true) & 1) === 1;
-  if (coloured) {  // three.js takes vertex colours as linear: the sRGB bytes converted
-    const rgb = new Uint8Array(buffer, 56 + 12 * n, 3 * n);
-    geometry.setAttribute('color', new THREE.BufferAttribute(Float32Array.from(rgb, (c) => SRGB_TO_LINEAR[c]), 3));
+// the names of the clouds the server is still decoding, said in the page while it waits
+const decoding = new Set();
+function sayDecoding() {
+  if (decoding.size) message.textContent = `decoding ${[...decoding].join(', ')}…`;
+  else if (message.textContent.startsWith('decoding')) message.textContent = 'loading…';
+}
+
+// a cloud's payload (points.js) once the server has decoded it: it answers 503 until then
+async function fetchPoints(layer) {
+  for (;;) {
+    const response = await fetch(layer.url);
+    if (response.status === 503) {
+      decoding.add(layer.name);
+      sayDecoding();
+      const wait = Number(response.headers.get('Retry-After') ?? 1);
+      await new Promise((resolve) => { setTimeout(resolve, 1000 * wait); });
+      continue;
+    }
+    decoding.delete(layer.name);
+    sayDecoding();
+    // the server's reason names the file
+    if (response.status === 422) throw new Error(await response.text());
+    if (!response.ok) throw new Error(`HTTP ${response.status}`);
+    return response.arrayBuffer();
   }
+}
+
+// a cloud as points, each a square of pointSize pixels; colour_modes.js gives their colours
+// from the attributes kept in its geometry's userData.points
+function cloudObject(points, pointSize) {
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(points.positions, 3));
+  geometry.userData.points = points;
   geometry.computeBoundingBox();
   geometry.computeBoundingSphere();
-  const object = pointsObject(geometry, coloured, pointSize);
-  object.position.set(head.getFloat64(24, true), head.getFloat64(32, true), head.getFloat64(40, true));
+  const material = new THREE.PointsMaterial({ size: pointSize, sizeAttenuation: false });
+  const object = new THREE.Points(geometry, material);
+  object.position.set(...points.origin);
   return object;
 }
 
@@ -120,10 +122,11 @@ async function loadLayer(layer, pointSize) {
     if (layer.url.toLowerCase().endsWith('.glb')) {
       return gltfObject(await new GLTFLoader().loadAsync(layer.url));
     }
-    if (layer.url.endsWith('/points.bin')) return await packedPointsObject(layer.url, pointSize);
-    return plyObject(await new PLYLoader().loadAsync(layer.url), layer.kind, pointSize);
+    if (layer.kind === 'cloud') return cloudObject(parsePoints(await fetchPoints(layer)), pointSize);
+    return plyMesh(await new PLYLoader().loadAsync(layer.url));
   } catch (error) {
-    throw new Error(`${layer.name}: ${error?.message ?? error}`);
+    const text = error?.message ?? String(error);
+    throw new Error(text.includes(layer.name) ? text : `${layer.name}: ${text}`);
   }
 }
 
@@ -190,6 +193,10 @@ async function main() {
     for (const object of objects) if (object.isPoints) object.material.size = Number(sizeInput.value);
     render();
   });
+
+  const clouds = objects.map((root, k) => ({ name: layers[k].name, root }))
+    .filter((_, k) => layers[k].kind === 'cloud');
+  colourModes(document.getElementById('colour-mode'), document.getElementById('legend'), clouds, render);
 
   const box = new THREE.Box3().setFromObject(scene);
   if (box.isEmpty()) throw new Error('the layers hold nothing to draw');

@@ -30,7 +30,7 @@ _CHUNK = 1 << 20  # bytes copied to the socket at a time
 # a laptop's browser draws about a million points well and slows around 5-10 M
 DEFAULT_MAX_POINTS = 2_000_000
 POINTS_NAME = "points.bin"  # a cloud layer's URL name: its points packed for the page
-_POLL_S = 2.0  # how long a request for points still decoding waits before a 503
+_POLL_S = 2.0  # how long a request for points still decoding waits before a 202
 
 
 class AddressError(InputError):
@@ -47,8 +47,9 @@ class ViewServer:
     one) on ``host``:``port`` (0: a free port) while the context is open; ``url`` is
     ``http://HOST:PORT/``. Each cloud is packed into the page's binary
     (:mod:`acq.view.points_payload`), at most ``max_points`` of its points, once, on a
-    thread started with the server: its URL answers 503 until then; a cloud whose points
-    turn out unreadable answers 422 with the one-line reason, also given to ``on_error``."""
+    thread started with the server: its URL answers 202 (Accepted, Retry-After) until
+    then; a cloud whose points turn out unreadable answers 422 with the one-line reason,
+    also given to ``on_error``."""
 
     def __init__(
         self, paths: Sequence[Path], host: str = "127.0.0.1", port: int = 0,
@@ -247,10 +248,11 @@ class _Handler(BaseHTTPRequestHandler):
                 self.wfile.write(view[start : start + _CHUNK])
 
     def _points(self, packing: _Packing, name: str, body: bool) -> None:
-        """A cloud's payload; 503 while it is packed (after a wait, so that it comes as
-        soon as it is ready), 422 and the reason when its points could not be read."""
+        """A cloud's payload; 202 (Accepted: a browser logs a 503 as an error) while it is
+        packed, after a wait so that it comes as soon as it is ready; 422 and the reason
+        when its points could not be read."""
         if not packing.done.wait(_POLL_S):
-            self.send_response(HTTPStatus.SERVICE_UNAVAILABLE)
+            self.send_response(HTTPStatus.ACCEPTED)
             self.send_header("Retry-After", "0")  # the next request waits again
             self._text(f"decoding {name}", body)
         elif packing.data is not None:

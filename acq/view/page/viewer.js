@@ -83,11 +83,11 @@ function sayDecoding() {
   else if (message.textContent.startsWith('decoding')) message.textContent = 'loading…';
 }
 
-// a cloud's payload (points.js) once the server has decoded it: it answers 503 until then
+// a cloud's payload (points.js) once the server has decoded it: it answers 202 until then
 async function fetchPoints(layer) {
   for (;;) {
     const response = await fetch(layer.url);
-    if (response.status === 503) {
+    if (response.status === 202) {
       decoding.add(layer.name);
       sayDecoding();
       const wait = Number(response.headers.get('Retry-After') ?? 1);

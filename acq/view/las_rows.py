@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from acq.cloud.las import CAMERAS_VLR
 from acq.errors import InputError, first_line
 from acq.time.gpstime import utc_from_adjusted_standard_time
 from acq.view.points_payload import camera_names
@@ -121,6 +120,8 @@ class LasRows:
 def cameras(vlrs: list[object]) -> list[str]:
     """The cameras' names in the VLR ``acq 1`` (lines ``<index> <name>``), by index; a
     name missing from it ``camera <index>``; none without that VLR."""
+    from acq.cloud.las import CAMERAS_VLR  # here: acq.cloud's package imports numba (~100 MB)
+
     user, record, _ = CAMERAS_VLR
     for vlr in vlrs:
         if getattr(vlr, "user_id", None) == user and getattr(vlr, "record_id", None) == record:

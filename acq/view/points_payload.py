@@ -79,10 +79,13 @@ class Rows(Protocol):
 
 def rows_of(path: Path) -> Rows:
     """The reader of the cloud file ``path`` by its suffix (:data:`CLOUD_SUFFIXES`)."""
-    from acq.view.las_rows import LasRows
-    from acq.view.ply_rows import PlyRows
+    if path.suffix.lower() == ".ply":
+        from acq.view.ply_rows import PlyRows
 
-    return PlyRows(path) if path.suffix.lower() == ".ply" else LasRows(path)
+        return PlyRows(path)
+    from acq.view.las_rows import LasRows
+
+    return LasRows(path)
 
 
 def subset(start: int, stop: int, max_points: int) -> np.ndarray:

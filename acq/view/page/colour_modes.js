@@ -40,7 +40,7 @@ const SRGB_TO_LINEAR = Float32Array.from(
   { length: 256 }, (_, c) => new THREE.Color().setRGB(c / 255, 0, 0, THREE.SRGBColorSpace).r);
 const css = (rgb) => `rgb(${rgb.join(', ')})`;
 
-const state = { mode: 'rgb', layers: [], legend: null, render: () => {} };
+const state = { mode: 'rgb', layers: [], legend: null };
 
 // the Points objects of a layer's root (the root itself, or its children added later)
 function pointsOf(root) {
@@ -78,12 +78,29 @@ function range(layer, attribute, low = 0, high = 1) {
 }
 
 // the sRGB bytes of a ramp's stops at u in [0, 1], interpolated
-function ramp(stops, u, out, at) {
-  const x = Math.min(Math.max(Number.isFinite(u) ? u : 0, 0), 1) * (stops.length - 1);
+function ramp(stops, u) {
+  const x = u * (stops.length - 1);
   const k = Math.min(Math.floor(x), stops.length - 2);
   const f = x - k;
-  for (let c = 0; c < 3; c += 1) out[at + c] = Math.round(stops[k][c] + (stops[k + 1][c] - stops[k][c]) * f);
+  return [0, 1, 2].map((c) => Math.round(stops[k][c] + (stops[k + 1][c] - stops[k][c]) * f));
 }
+
+// colours (sRGB bytes) as a table of linear floats, three per colour: what three.js takes
+function table(colours) {
+  const t = new Float32Array(3 * colours.length);
+  colours.forEach((rgb, k) => { for (let c = 0; c < 3; c += 1) t[3 * k + c] = SRGB_TO_LINEAR[rgb[c]]; });
+  return t;
+}
+const STEPS = 255; // a ramp's colours: STEPS + 1 of them, from its stops
+const rampTable = (stops) => table(Array.from({ length: STEPS + 1 }, (_, k) => ramp(stops, k / STEPS)));
+const TABLES = {
+  intensity: rampTable(GREYS),
+  time: rampTable(VIRIDIS),
+  scan: table(SCAN_COLOURS),
+  // camera k's colour at k; 255 (none) grey
+  camera: table(Array.from({ length: 256 }, (_, k) => (k === 255 ? GREY : CAMERA_COLOURS[k % CAMERA_COLOURS.length]))),
+  coloured: table([NOT_COLOURED, COLOURED]),
+};
 
 // the layer's statistics the mode needs, computed once per mode switch or new object
 function statistics(layer, mode) {
@@ -100,45 +117,59 @@ function statistics(layer, mode) {
   return null;
 }
 
-// sRGB bytes of each point of one Points object in `mode`, or null to show its own colours
-function colours(points, mode, stats) {
+// the linear colours of each point of one Points object in `mode` into `out` (3 per point)
+function colours(points, mode, stats, out) {
   const n = points.count;
   const a = points.attributes;
-  const out = new Uint8Array(3 * n);
-  const fill = (rgb) => { for (let i = 0; i < 3 * n; i += 1) out[i] = rgb[i % 3]; };
-  const set = (i, rgb) => { out[3 * i] = rgb[0]; out[3 * i + 1] = rgb[1]; out[3 * i + 2] = rgb[2]; };
+  const fill = (rgb) => { const [r, g, b] = table([rgb]); for (let i = 0; i < 3 * n; i += 3) { out[i] = r; out[i + 1] = g; out[i + 2] = b; } };
+  // each point's entry of a table, from its index in it
+  const pick = (t, index) => {
+    for (let i = 0; i < n; i += 1) {
+      const k = 3 * index(i);
+      out[3 * i] = t[k]; out[3 * i + 1] = t[k + 1]; out[3 * i + 2] = t[k + 2];
+    }
+  };
+  // a value's step on a ramp from lo to hi: 0 below (and NaN), STEPS above
+  const step = (lo, hi, fallback) => {
+    if (!(hi > lo)) return () => fallback;
+    const scale = STEPS / (hi - lo);
+    return (v) => { const x = (v - lo) * scale + 0.5; return x > 0 ? (x < STEPS ? x | 0 : STEPS) : 0; };
+  };
   if (mode === 'rgb') {
     if (!a.rgb) fill(NO_RGB);
-    else out.set(a.rgb);
+    else for (let i = 0; i < 3 * n; i += 1) out[i] = SRGB_TO_LINEAR[a.rgb[i]];
   } else if (!(MODES.find((m) => m.id === mode).needs in a)) {
     fill(GREY);
   } else if (mode === 'intensity') {
-    const [lo, hi] = stats;
-    for (let i = 0; i < n; i += 1) ramp(GREYS, hi > lo ? (a.intensity[i] - lo) / (hi - lo) : 1, out, 3 * i);
+    const at = step(stats[0], stats[1], STEPS);
+    pick(TABLES.intensity, (i) => at(a.intensity[i]));
   } else if (mode === 'time') {
-    const [lo, hi] = stats;
-    const offset = points.time0 - lo;
-    for (let i = 0; i < n; i += 1) ramp(VIRIDIS, hi > lo ? (a.time[i] + offset) / (hi - lo) : 0, out, 3 * i);
+    const at = step(stats[0] - points.time0, stats[1] - points.time0, 0);
+    pick(TABLES.time, (i) => at(a.time[i]));
   } else if (mode === 'scan') {
-    for (let i = 0; i < n; i += 1) set(i, SCAN_COLOURS[a.scan[i] % SCAN_COLOURS.length]);
+    pick(TABLES.scan, (i) => a.scan[i] % SCAN_COLOURS.length);
   } else if (mode === 'camera') {
-    for (let i = 0; i < n; i += 1) {
-      set(i, a.camera[i] === 255 ? GREY : CAMERA_COLOURS[a.camera[i] % CAMERA_COLOURS.length]);
-    }
+    pick(TABLES.camera, (i) => a.camera[i]);
   } else if (mode === 'coloured') {
-    for (let i = 0; i < n; i += 1) set(i, a.coloured[i] ? COLOURED : NOT_COLOURED);
+    pick(TABLES.coloured, (i) => (a.coloured[i] ? 1 : 0));
   }
-  return out;
 }
 
 function recolour(object, mode, stats) {
-  const rgb = colours(object.geometry.userData.points, mode, stats);
-  // three.js takes vertex colours as linear: the sRGB bytes converted
-  const linear = Float32Array.from(rgb, (c) => SRGB_TO_LINEAR[c]);
-  object.geometry.setAttribute('color', new THREE.BufferAttribute(linear, 3));
-  object.material.vertexColors = true;
-  object.material.color.set(0xffffff);
-  object.material.needsUpdate = true;
+  const { geometry } = object;
+  const n = geometry.userData.points.count;
+  let colour = geometry.getAttribute('color');
+  if (!colour || colour.array.length !== 3 * n) {
+    colour = new THREE.BufferAttribute(new Float32Array(3 * n), 3);
+    geometry.setAttribute('color', colour);
+  }
+  colours(geometry.userData.points, mode, stats, colour.array);
+  colour.needsUpdate = true;
+  if (!object.material.vertexColors) {
+    object.material.vertexColors = true;
+    object.material.color.set(0xffffff);
+    object.material.needsUpdate = true;
+  }
 }
 
 function layerOf(object) {
@@ -151,14 +182,14 @@ function layerOf(object) {
 
 // colour one Points object of a layer (one added to a layer's root after the mode was
 // chosen, e.g. a finer level of detail) in the mode shown; the layer's ramps are taken
-// again over all its points, so its other objects are recoloured with it
+// again over all its points, so its other objects are recoloured with it. The caller
+// renders (once for all the objects it adds).
 export function applyColourMode(object) {
   const layer = layerOf(object);
   if (!layer) return;
   layer.stats = statistics(layer, state.mode);
   for (const o of pointsOf(layer.root)) recolour(o, state.mode, layer.stats);
   legend();
-  state.render();
 }
 
 function swatch(rgb, text) {
@@ -222,13 +253,13 @@ function show(mode) {
     for (const object of pointsOf(layer.root)) recolour(object, mode, layer.stats);
   }
   legend();
-  state.render();
 }
 
 // the select `control` of the modes over `layers` ([{name, root}]: each cloud layer's
-// object), the legend drawn into `legendBox`; a mode no layer has is disabled
+// object), the legend drawn into `legendBox`; a mode no layer has is disabled. The layers
+// are coloured by their RGB here, drawn by the caller; `render` draws after each change.
 export function colourModes(control, legendBox, layers, render) {
-  Object.assign(state, { layers, legend: legendBox, render });
+  Object.assign(state, { layers, legend: legendBox });
   control.replaceChildren(...MODES.map((m) => {
     const option = new Option(m.label, m.id);
     option.disabled = m.needs !== null && !layers.some((layer) => has(layer, m.needs));
@@ -236,6 +267,6 @@ export function colourModes(control, legendBox, layers, render) {
   }));
   control.disabled = layers.length === 0;
   control.value = 'rgb';
-  control.addEventListener('change', () => show(control.value));
+  control.addEventListener('change', () => { show(control.value); render(); });
   if (layers.length) show('rgb');
 }

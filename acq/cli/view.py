@@ -24,9 +24,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "or .copc.laz cloud as points in their colours (as `acq colorize` writes them), a "
         ".ply or .glb mesh (as `acq mesh` writes it) as coloured or textured facets. A "
         "folder stands for the .ply, .glb, .las and .laz files in it. Every file is "
-        "checked before the server starts. The page and its libraries (three.js) come "
+        "checked before the server starts; clouds are decoded once it serves (the page says "
+        "'decoding NAME…'), a cloud whose points then prove unreadable said in one line on "
+        "stderr and on the page. The page and its libraries (three.js) come "
         "with acq: no network is needed. In the page: drag to orbit, right-drag to pan, the "
-        "wheel to zoom; a box per layer hides it; a slider sets the points' size. Prints "
+        "wheel to zoom; a box per layer hides it; a slider sets the points' size; a select "
+        "colours the clouds by RGB, intensity, time, scan, source camera or coloured-or-not, "
+        "with a legend. Prints "
         "the page's URL and serves until Ctrl-C. Exit status: "
         "0 stopped by Ctrl-C, 2 a bad file or option (the port in use among them).",
     )

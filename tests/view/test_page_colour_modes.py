@@ -141,3 +141,41 @@ def test_a_cloud_of_x_y_z_only_has_rgb_alone_and_says_so(browser: Browser, tmp_p
         image = _select(browser, "rgb")
     assert len(_columns(image, (208, 208, 208))) > 1000  # NO_RGB of colour_modes.js
     assert len(_columns(image, BACKGROUND)) > 0.2 * image.shape[0] * image.shape[1]
+
+
+# a second Points object of the layer's points added to its object, as a finer level of
+# detail is: coloured in the mode shown by applyColourMode, and by each mode chosen after
+ADD_CHILD = """(async () => {
+  const { parsePoints, pointsObject } = await import('/static/points.js');
+  const { applyColourMode } = await import('/static/colour_modes.js');
+  const root = window.acqScene.getObjectByName('halves.ply');
+  const buffer = await (await fetch('/data/0/points.bin')).arrayBuffer();
+  const child = pointsObject(parsePoints(buffer), 2);
+  child.position.set(0, 0, 0);  // its origin is its parent's
+  root.add(child);
+  applyColourMode(child);
+  window.acqChild = child;
+})()"""
+SAME = """(() => {
+  const a = window.acqScene.getObjectByName('halves.ply').geometry.getAttribute('color').array;
+  const b = window.acqChild.geometry.getAttribute('color').array;
+  return a.length === b.length && a.every((v, i) => v === b[i]) && [b[0], b[1], b[2]];
+})()"""
+
+
+def test_a_points_object_added_to_a_layer_takes_its_colour_mode(
+    browser: Browser, tmp_path: Path
+) -> None:
+    with ViewServer([_halves(tmp_path / "halves.ply")]) as server:
+        browser.open(server.url)
+        browser.wait_for(READY, timeout_s=60)
+        _select(browser, "coloured")
+        browser.evaluate(ADD_CHILD)
+        coloured = browser.evaluate(SAME)
+        _select(browser, "camera")
+        camera = browser.evaluate(SAME)
+        assert browser.errors == [], browser.console
+    assert coloured and camera and coloured != camera, (coloured, camera)
+    # the left half's first point: the coloured colour (46, 204, 64) in linear terms, then
+    # camera 0's (78, 121, 167): green over red, then blue over red
+    assert coloured[1] > coloured[0] and camera[2] > camera[0], (coloured, camera)

@@ -89,6 +89,22 @@ def test_a_range_of_rows_is_subset_by_the_pages_rule(
         assert np.abs(got["time"].astype(np.float64) + got["time0"] - a["time"][rows]).max() < 5e-5
 
 
+@pytest.mark.parametrize("name", ["c.las", "c.laz", "c.copc.laz"])
+def test_a_range_of_rows_is_those_rows_of_the_whole(
+    tmp_path: Path, name: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a LAZ's rows reached by seeking (a COPC file's are in its octree's order)
+    monkeypatch.setattr("acq.view.las_rows._CHUNK_POINTS", 500)
+    path = _write(tmp_path / name, _attributes(4000))
+    whole = unpack(payload(path, 4000))
+    for start, stop, cap in [(2500, 4000, 1500), (1234, 3210, 300)]:
+        part = unpack(payload(path, cap, start, stop))
+        rows = subset(start, stop, cap)
+        assert np.abs(part["xyz"] - whole["xyz"][rows]).max() < 1e-6
+        for column in ("rgb", "scan", "intensity", "coloured", "camera"):
+            assert (part[column] == whole[column][rows]).all(), column
+
+
 def test_the_subset_rule() -> None:
     rows = subset(100, 10_100, 3000)
     assert (rows == 100 + np.arange(3000) * 10_000 // 3000).all()

@@ -69,7 +69,10 @@ function range(layer, attribute, low = 0, high = 1) {
   }
   if (low === 0 && high === 1) {
     let [lo, hi] = [Infinity, -Infinity];
-    for (let i = 0; i < n; i += 1) { lo = Math.min(lo, all[i]); hi = Math.max(hi, all[i]); }
+    for (let i = 0; i < n; i += 1) {  // comparisons, which a NaN fails: it is no bound
+      if (all[i] < lo) lo = all[i];
+      if (all[i] > hi) hi = all[i];
+    }
     return [lo, hi];
   }
   all.sort();

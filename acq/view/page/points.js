@@ -1,6 +1,7 @@
 // A cloud's points as the server packs them (acq/view/points_payload.py), parsed into typed
 // arrays over the received buffer (no copy): positions as float32 offsets from an origin
-// (doubles), and the attributes the file has.
+// (doubles), and the attributes the file has; and drawn as a three.js Points object.
+import * as THREE from 'three';
 
 const MAGIC = 'ACQPTS2\0';
 export const HEADER_BYTES = 80;
@@ -51,4 +52,19 @@ export function parsePoints(buffer) {
     at += Type.BYTES_PER_ELEMENT * width * count;
   }
   return { count, rows, start, stop, origin, time0, cameras, positions, attributes };
+}
+
+// the parsed points as a three.js Points object at their origin, each a square of pointSize
+// pixels; colour_modes.js gives their colours from the attributes kept in its geometry's
+// userData.points (applyColourMode for one added to a layer later)
+export function pointsObject(points, pointSize) {
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(points.positions, 3));
+  geometry.userData.points = points;
+  geometry.computeBoundingBox();
+  geometry.computeBoundingSphere();
+  const material = new THREE.PointsMaterial({ size: pointSize, sizeAttenuation: false });
+  const object = new THREE.Points(geometry, material);
+  object.position.set(...points.origin);
+  return object;
 }

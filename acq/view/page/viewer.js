@@ -7,7 +7,7 @@ import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { PLYLoader } from 'three/addons/loaders/PLYLoader.js';
 import { colourModes } from './colour_modes.js';
 import { measureTool } from './measure.js';
-import { parsePoints } from './points.js';
+import { parsePoints, pointsObject } from './points.js';
 
 const message = document.getElementById('message');
 const sizeInput = document.getElementById('point-size');
@@ -103,26 +103,12 @@ async function fetchPoints(layer) {
   }
 }
 
-// a cloud as points, each a square of pointSize pixels; colour_modes.js gives their colours
-// from the attributes kept in its geometry's userData.points
-function cloudObject(points, pointSize) {
-  const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute('position', new THREE.BufferAttribute(points.positions, 3));
-  geometry.userData.points = points;
-  geometry.computeBoundingBox();
-  geometry.computeBoundingSphere();
-  const material = new THREE.PointsMaterial({ size: pointSize, sizeAttenuation: false });
-  const object = new THREE.Points(geometry, material);
-  object.position.set(...points.origin);
-  return object;
-}
-
 async function loadLayer(layer, pointSize) {
   try {
     if (layer.url.toLowerCase().endsWith('.glb')) {
       return gltfObject(await new GLTFLoader().loadAsync(layer.url));
     }
-    if (layer.kind === 'cloud') return cloudObject(parsePoints(await fetchPoints(layer)), pointSize);
+    if (layer.kind === 'cloud') return pointsObject(parsePoints(await fetchPoints(layer)), pointSize);
     return plyMesh(await new PLYLoader().loadAsync(layer.url));
   } catch (error) {
     const text = error?.message ?? String(error);
@@ -202,6 +188,7 @@ async function main() {
   if (box.isEmpty()) throw new Error('the layers hold nothing to draw');
   frame(box, camera, controls);
   measureTool(scene, camera, renderer.domElement, objects, render);
+  window.acqScene = scene; // each layer's object by its name, for the tests and the console
   render();
   message.textContent = '';
   // the frame rendered above is on the screen at the next animation frame

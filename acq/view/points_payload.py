@@ -161,9 +161,12 @@ def _pack(path: Path, rows: Rows, max_points: int, start: int, stop: int) -> byt
                         out[c.name][lo:hi] = values
         first = end
     if first != stop:
-        raise InputError(f"{path}: truncated: its header says {stop} points, it holds {first}")
+        raise InputError(
+            f"{path}: truncated: its header says {rows.count} points, they end at row {first}"
+        )
     if not np.isfinite(xyz).all():
-        raise InputError(f"{path}: points too far apart for 32-bit floats (its scales or offsets)")
+        why = " (its scales or offsets)" if path.suffix.lower() != ".ply" else ""
+        raise InputError(f"{path}: points too far apart for 32-bit floats{why}")
     if rgb16 is not None:
         out["rgb"][:] = _rgb8(rgb16)
     flags = sum(c.flag for c in columns)

@@ -10,6 +10,7 @@ import shutil
 import socket
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -138,7 +139,9 @@ class ViewServer:
                 packing.data = payload(path, self.max_points)
             except InputError as e:
                 packing.error = str(e)
-            except Exception as e:  # never a page left waiting: said, whatever it was
+            # never a page left waiting: said, whatever it was (a Rust decoder's panic
+            # comes as a BaseException)
+            except BaseException as e:
                 packing.error = f"{path}: its points cannot be read ({first_line(e)})"
             packing.done.set()
             if packing.error is not None and self._on_error is not None:
@@ -146,7 +149,11 @@ class ViewServer:
 
     def wait(self, timeout: float | None = None) -> bool:
         """Whether every cloud is packed (or failed) within ``timeout`` seconds."""
-        return all(p.done.wait(timeout) for p in self.points.values())
+        end = None if timeout is None else time.monotonic() + timeout
+        return all(
+            p.done.wait(None if end is None else max(0.0, end - time.monotonic()))
+            for p in self.points.values()
+        )
 
     def stop(self) -> None:
         """Stop listening and close the socket (a transfer under way is cut)."""

@@ -28,9 +28,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "the log (a .ply in its folder whose first and last points' times lie within the "
         "log's), else one coloured here in the background (kept in ~/.cache/acq/view). A "
         "folder stands for the .ply, .glb, .las, .laz and .mcap files in it. Every file is "
-        "checked before the server starts. The page and its libraries (three.js) come "
+        "checked before the server starts; clouds are decoded once it serves (the page says "
+        "'decoding NAME…'), a cloud whose points then prove unreadable said in one line on "
+        "stderr and on the page. The page and its libraries (three.js) come "
         "with acq: no network is needed. In the page: drag to orbit, right-drag to pan, the "
-        "wheel to zoom; a box per layer hides it; a slider sets the points' size; 'show "
+        "wheel to zoom; a box per layer hides it; a slider sets the points' size; a select "
+        "colours the clouds by RGB, intensity, time, scan, source camera or coloured-or-not, "
+        "with a legend; 'show "
         "frame' and a click on a point show the camera frame it was coloured from, the "
         "point ringed; 'walk' puts the eye on the trajectory (arrow keys or W/S move along "
         "it); the measure box gives a distance and its points in the file's CRS (a "
@@ -46,7 +50,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     v.add_argument(
         "--max-points", type=integer(1, 2**62, what="a count of points"),
         default=DEFAULT_MAX_POINTS, metavar="N",
-        help="most points of a LAS/LAZ/COPC cloud sent to the page (default "
+        help="most points of a cloud sent to the page (default "
         f"{DEFAULT_MAX_POINTS:,}: a laptop's browser draws about a million points "
         "smoothly and slows around 5-10 million); a larger cloud is shown by N of its "
         "points evenly spread through the file, and its layer says so (e.g. '2,000,000 of "
@@ -86,8 +90,11 @@ def run(args: argparse.Namespace) -> int:
             "without authentication",
             file=sys.stderr, flush=True,
         )  # fmt: skip
-    server = ViewServer(args.paths, host=args.host, port=args.port, max_points=args.max_points,
-                        calib=args.calib)  # fmt: skip
+    server = ViewServer(
+        args.paths, host=args.host, port=args.port, max_points=args.max_points,
+        calib=args.calib,
+        on_error=lambda line: print(f"acq view: {line}", file=sys.stderr, flush=True),
+    )  # fmt: skip
     try:
         server.start()
     except AddressError as e:  # named as the command line names it

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 from acq.errors import InputError, first_line
-from acq.view import las_points
+from acq.view import las_rows
 
 __all__ = ["FileCrs", "crs_of"]
 
@@ -39,7 +39,7 @@ def crs_of(path: Path) -> FileCrs | None:
 
     suffix = path.suffix.lower()
     try:
-        if suffix in las_points.SUFFIXES:
+        if suffix in las_rows.SUFFIXES:
             crs = _las_crs(path)
         elif suffix == ".ply":
             text = _ply_crs_text(path)

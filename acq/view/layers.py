@@ -15,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from acq.errors import InputError, first_line
-from acq.view import las_points
+from acq.view import las_rows
 
 __all__ = ["SUFFIXES", "Layer", "layer_of", "layers_of"]
 
@@ -98,8 +98,8 @@ def layer_of(path: Path) -> Layer:
             return _drives([path])[0]
         if suffix == ".ply":
             kind, count = _ply(path)
-        elif suffix in las_points.SUFFIXES:
-            kind, count = "cloud", las_points.check(path)
+        elif suffix in las_rows.SUFFIXES:
+            kind, count = "cloud", las_rows.check(path)
         else:
             kind, count = _glb(path, size)
     except OSError as e:

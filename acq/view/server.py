@@ -14,7 +14,8 @@ import shutil
 import socket
 import sys
 import threading
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -24,19 +25,21 @@ from urllib.parse import parse_qs, quote, unquote, urlsplit
 
 from acq.addresses import is_loopback
 from acq.errors import InputError, first_line
-from acq.view import las_points, static
+from acq.view import static
 from acq.view.crs import crs_of
 from acq.view.drive import Drive
 from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
 from acq.view.layers import Layer, layers_of
+from acq.view.points_payload import payload, rows_and_shown
 
 __all__ = ["DEFAULT_MAX_POINTS", "POINTS_NAME", "AddressError", "ViewServer"]
 
 _CHUNK = 1 << 20  # bytes copied to the socket at a time
 # a laptop's browser draws about a million points well and slows around 5-10 M
 DEFAULT_MAX_POINTS = 2_000_000
-POINTS_NAME = "points.bin"  # a LAS/LAZ layer's URL name: its points packed for the page
-DRIVE_NAME, DRIVE_CLOUD = "drive.json", "cloud.ply"  # a drive's URL names
+POINTS_NAME = "points.bin"  # a cloud layer's URL name: its points packed for the page
+DRIVE_NAME, DRIVE_CLOUD = "drive.json", "cloud.bin"  # a drive's URL names (its cloud packed)
+_POLL_S = 2.0  # how long a request for points still decoding waits before a 202
 
 
 class AddressError(InputError):
@@ -51,23 +54,26 @@ class AddressError(InputError):
 class ViewServer:
     """Serves the layers of ``paths`` (checked on construction: InputError naming a bad
     one) on ``host``:``port`` (0: a free port) while the context is open; ``url`` is
-    ``http://HOST:PORT/``. A LAS/LAZ/COPC cloud is decoded here, once, into the page's
-    binary (:mod:`acq.view.las_points`), at most ``max_points`` of its points. A drive
-    is read here (:class:`acq.view.drive.Drive`, with ``calib``, its cloud made in
-    ``cache`` when none lies beside it); a cloud layer's log is the drive it was found
-    beside, else the only drive given."""
+    ``http://HOST:PORT/``. Each cloud is packed into the page's binary
+    (:mod:`acq.view.points_payload`), at most ``max_points`` of its points, once, on a
+    thread started with the server: its URL answers 202 (Accepted, Retry-After) until
+    then; a cloud whose points turn out unreadable answers 422 with the one-line reason,
+    also given to ``on_error``. A drive is read here (:class:`acq.view.drive.Drive`, with
+    ``calib``, its cloud made in ``cache`` when none lies beside it); a cloud layer's log
+    is the drive it was found beside, else the only drive given."""
 
     def __init__(
         self, paths: Sequence[Path], host: str = "127.0.0.1", port: int = 0,
         max_points: int = DEFAULT_MAX_POINTS, calib: Path | None = None,
-        cache: Path | None = None,
+        cache: Path | None = None, on_error: Callable[[str], None] | None = None,
     ) -> None:  # fmt: skip
+        if max_points < 1:
+            raise ValueError(f"max_points {max_points}: at least 1")
         self.layers = layers_of(paths)
         self.crs = [crs_of(layer.path) for layer in self.layers]
+        self.max_points = max_points
         self.points = {
-            k: las_points.payload(layer.path, max_points)
-            for k, layer in enumerate(self.layers)
-            if layer.path.suffix.lower() in las_points.SUFFIXES
+            k: _Packing() for k, layer in enumerate(self.layers) if layer.kind == "cloud"
         }
         self.drives = {
             k: Drive(layer.files, calib, cache)
@@ -76,6 +82,10 @@ class ViewServer:
         }
         if calib is not None and not self.drives:
             raise InputError(f"--calib {calib}: no .mcap log to use it with")
+        self._on_error = on_error
+        self._packer: threading.Thread | None = None
+        self._drive_points: dict[tuple[int, Path], bytearray] = {}
+        self._drive_lock = threading.Lock()
         self.host, self.port = host, port
         self._httpd: _Server | None = None
         self._thread: threading.Thread | None = None
@@ -109,7 +119,8 @@ class ViewServer:
 
     def shown(self, k: int) -> int:
         """The points or vertices of layer ``k`` the page gets."""
-        return las_points.shown(self.points[k]) if k in self.points else self.layers[k].count
+        count = self.layers[k].count
+        return min(count, self.max_points) if k in self.points else count
 
     def log_of(self, k: int) -> int | None:
         """The drive layer whose cloud the cloud layer ``k`` is (found beside its log),
@@ -133,6 +144,18 @@ class ViewServer:
             data["cloud"] |= {"layer": same[0]} if same else {"url": f"/data/{k}/{DRIVE_CLOUD}"}
         return data
 
+    def drive_points(self, k: int) -> bytearray | None:
+        """The page's binary of drive ``k``'s cloud (at most ``max_points`` points, packed
+        once per file), None while it has none; InputError when it cannot be read."""
+        cloud = self.drives[k].cloud()
+        if cloud is None:
+            return None
+        with self._drive_lock:
+            key = (k, cloud)
+            if key not in self._drive_points:
+                self._drive_points[key] = payload(cloud, self.max_points)
+            return self._drive_points[key]
+
     def frame_of(self, k: int, point: int) -> dict[str, Any]:
         """``/api/frame``: the frame point ``point`` (the page's index) of the cloud layer
         or drive ``k`` was coloured from (:func:`acq.view.frames.point_frame`), its JPEG's
@@ -143,7 +166,8 @@ class ViewServer:
             d, cloud = k, self.drives[k].cloud()
             if cloud is None:
                 raise FrameError(f"{self.layers[k].name}: no cloud (yet)")
-            count = shown = 1  # the drive's cloud goes to the page whole
+            packed = self.drive_points(k)
+            count, shown = (1, 1) if packed is None else rows_and_shown(packed)
         elif self.layers[k].kind == "cloud":
             found = self.log_of(k)
             if found is None:
@@ -155,7 +179,7 @@ class ViewServer:
             d, cloud, count, shown = found, self.layers[k].path, self.layers[k].count, self.shown(k)
         else:
             raise FrameError(f"{self.layers[k].name}: a {self.layers[k].kind}, not a cloud", 400)
-        if point < 0 or (k not in self.drives and point >= shown):
+        if not 0 <= point < shown:
             raise FrameError(f"{self.layers[k].name}: no point {point} (the page has {shown})")
         answer = point_frame(self.drives[d], point_row(cloud, point * count // shown))
         if answer["camera"] is not None:
@@ -202,6 +226,33 @@ class ViewServer:
         self._thread.start()
         for drive in self.drives.values():
             drive.start()
+        if self._packer is None:
+            self._packer = threading.Thread(target=self._pack, name="acq-view-pack", daemon=True)
+            self._packer.start()
+
+    def _pack(self) -> None:
+        """Pack each cloud's points in turn; its reason when they cannot be read."""
+        for k, packing in self.points.items():
+            path = self.layers[k].path
+            try:
+                packing.data = payload(path, self.max_points)
+            except InputError as e:
+                packing.error = str(e)
+            # never a page left waiting: said, whatever it was (a Rust decoder's panic
+            # comes as a BaseException)
+            except BaseException as e:
+                packing.error = f"{path}: its points cannot be read ({first_line(e)})"
+            packing.done.set()
+            if packing.error is not None and self._on_error is not None:
+                self._on_error(packing.error)
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Whether every cloud is packed (or failed) within ``timeout`` seconds."""
+        end = None if timeout is None else time.monotonic() + timeout
+        return all(
+            p.done.wait(None if end is None else max(0.0, end - time.monotonic()))
+            for p in self.points.values()
+        )
 
     def stop(self) -> None:
         """Stop listening and close the socket (a transfer under way is cut)."""
@@ -211,6 +262,15 @@ class ViewServer:
         if self._thread is not None:
             self._thread.join()
         self._httpd = self._thread = None
+
+
+class _Packing:
+    """A cloud's payload in the making: ``data`` once ``done``, or ``error`` (one line)."""
+
+    def __init__(self) -> None:
+        self.done = threading.Event()
+        self.data: bytearray | None = None
+        self.error: str | None = None
 
 
 class _Server(ThreadingHTTPServer):
@@ -258,7 +318,7 @@ class _Handler(BaseHTTPRequestHandler):
             if k is None:
                 self._not_found()
             elif k in view.points:
-                self._send(view.points[k], "application/octet-stream", body, "no-cache")
+                self._points(view.points[k], view.layers[k].name, body)
             else:
                 self._file(view.layers[k].path, body)
         else:
@@ -285,7 +345,16 @@ class _Handler(BaseHTTPRequestHandler):
         if rest == [DRIVE_NAME]:
             self._json(view.drive_data(k), 200, body)
         elif rest == [DRIVE_CLOUD]:
-            self._file(drive.cloud(), body)
+            try:
+                data = view.drive_points(k)
+            except InputError as e:  # the cloud unreadable, or gone since it was found
+                self.send_response(HTTPStatus.UNPROCESSABLE_ENTITY)
+                self._text(str(e), body)
+                return
+            if data is None:
+                self._not_found()
+            else:
+                self._send(data, "application/octet-stream", body, "no-cache")
         elif len(rest) == 3 and rest[0] == "frame" and rest[2].removesuffix(".jpg").isdigit():
             try:
                 jpeg = frame_jpeg(drive, rest[1], int(rest[2].removesuffix(".jpg")))
@@ -336,6 +405,30 @@ class _Handler(BaseHTTPRequestHandler):
             for start in range(0, len(data), _CHUNK):
                 self.wfile.write(view[start : start + _CHUNK])
 
+    def _points(self, packing: _Packing, name: str, body: bool) -> None:
+        """A cloud's payload; 202 (Accepted: a browser logs a 503 as an error) while it is
+        packed, after a wait so that it comes as soon as it is ready; 422 and the reason
+        when its points could not be read."""
+        if not packing.done.wait(_POLL_S):
+            self.send_response(HTTPStatus.ACCEPTED)
+            self.send_header("Retry-After", "0")  # the next request waits again
+            self._text(f"decoding {name}", body)
+        elif packing.data is not None:
+            self._send(packing.data, "application/octet-stream", body, "no-cache")
+        else:
+            self.send_response(HTTPStatus.UNPROCESSABLE_ENTITY)
+            self._text(packing.error or "", body)
+
+    def _text(self, text: str, body: bool) -> None:
+        """The rest of an answer whose status is sent: ``text`` as its body."""
+        data = text.encode()
+        self.send_header("Content-Type", "text/plain; charset=utf-8")
+        self.send_header("Content-Length", str(len(data)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        if body:
+            self.wfile.write(data)
+
     def _not_found(self) -> None:
         self.send_error(HTTPStatus.NOT_FOUND, "not a file acq view serves")
 
@@ -363,7 +456,7 @@ def _drive_route(view: ViewServer, path: str) -> tuple[int, list[str]] | None:
 
 def _layer_index(view: ViewServer, path: str) -> int | None:
     """The layer k of ``/data/<k>/<name>``, when ``name`` is its URL's (its file's name,
-    or :data:`POINTS_NAME` for a LAS/LAZ cloud)."""
+    or :data:`POINTS_NAME` for a cloud)."""
     parts = path.split("/")
     if len(parts) != 4 or not parts[2].isdigit():
         return None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -67,3 +68,33 @@ def las_cloud(
     )  # fmt: skip
     out.close()
     return path, xyz, colours
+
+
+def unpack(data: bytes | bytearray) -> dict[str, Any]:
+    """A payload of acq.view.points_payload read back (its layout written out again, from
+    its documentation, as the page's parser reads it): the header's fields, "names" (the
+    cameras'), "xyz" (float64, the origin added) and each column it flags."""
+    from acq.view.points_payload import HEADER, MAGIC
+
+    magic, m, rows, start, stop, ox, oy, oz, time0, flags, length = HEADER.unpack_from(data)
+    assert magic == MAGIC
+    at = HEADER.size + -(-length // 4) * 4
+    out: dict[str, Any] = {
+        "shown": m, "rows": rows, "start": start, "stop": stop, "origin": (ox, oy, oz),
+        "time0": time0, "flags": flags,
+        "names": bytes(data[HEADER.size : HEADER.size + length]).decode().split("\n")
+        if length else [],
+    }  # fmt: skip
+    offsets = np.frombuffer(data, np.float32, 3 * m, at).reshape(m, 3)
+    out["xyz"] = offsets.astype(np.float64) + np.array([ox, oy, oz])
+    at += 12 * m
+    for name, flag, kind, width in [
+        ("time", 2, np.float32, 1), ("scan", 4, np.uint32, 1), ("intensity", 8, np.float32, 1),
+        ("rgb", 1, np.uint8, 3), ("coloured", 16, np.uint8, 1), ("camera", 32, np.uint8, 1),
+    ]:  # fmt: skip
+        if flags & flag:
+            values = np.frombuffer(data, kind, width * m, at)
+            out[name] = values.reshape(m, 3) if width == 3 else values
+            at += values.nbytes
+    assert at == len(data), f"{len(data)} bytes, {at} expected"
+    return out

@@ -24,7 +24,8 @@ from acq.geometry.transforms import Rigid
 from acq.sim.drive_log import DriveTruth
 from acq.view.drive import FRUSTUM_STEP_M, TRAJECTORY_STEP_M, Drive
 from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
-from acq.view.server import ViewServer
+from acq.view.points_payload import payload
+from acq.view.server import DEFAULT_MAX_POINTS, ViewServer
 from tests.log_rewrite import mcap_copy
 from tests.view.drive_files import ColouredDrive, coloured_drive
 
@@ -116,9 +117,10 @@ def test_the_routes_over_http(drive: ColouredDrive) -> None:
         status, layers = _json(f"{url}api/layers")
         assert [(x["kind"], x["url"]) for x in layers] == [("drive", "/data/0/drive.json")]
         status, data = _json(f"{url}data/0/drive.json")
-        assert data["cloud"]["status"] == "found" and data["cloud"]["url"] == "/data/0/cloud.ply"
+        assert data["cloud"]["status"] == "found" and data["cloud"]["url"] == "/data/0/cloud.bin"
         assert data["frame"] == "odometry" and len(data["frustums"][0]["p"]) >= 5
-        assert _get(f"{url}data/0/cloud.ply")[1] == drive.cloud.read_bytes()
+        # the cloud packed for the page as a cloud layer is (every point: under the limit)
+        assert _get(f"{url}data/0/cloud.bin")[1] == payload(drive.cloud, DEFAULT_MAX_POINTS)
         row = int(np.flatnonzero(drive.frame >= 0)[500])
         status, answer = _json(f"{url}api/frame?layer=0&point={row}")
         assert status == 200 and answer["frame"] == drive.frame[row]
@@ -191,12 +193,14 @@ def test_a_drive_without_a_cloud_beside_it_is_coloured_into_the_cache(
             and data["cloud"]["status"] == "ready"
             and data["cloud"]["progress"] == 1.0
         )
-        made = _get(f"{server.url}data/0/cloud.ply")[1]
+        served = _get(f"{server.url}data/0/cloud.bin")[1]
+    (cached,) = cache.iterdir()
+    assert served == payload(cached, DEFAULT_MAX_POINTS)
+    made = cached.read_bytes()
     assert drive.cloud is not None
     # the same cloud `acq colorize` makes (its header's room and comments aside)
     body = made[made.index(b"end_header\n") :]
     assert body == drive.cloud.read_bytes()[drive.cloud.read_bytes().index(b"end_header\n") :]
-    (cached,) = cache.iterdir()
     assert sorted(p.name for p in bare.folder.iterdir()) == sorted([bare.log.name, "calib.yaml"])
     again = Drive([bare.log], cache=cache)
     assert again.cloud_state()["status"] == "ready" and again.cloud() == cached

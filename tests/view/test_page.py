@@ -89,7 +89,7 @@ def test_a_hidden_layer_leaves_the_other(browser: Browser, tmp_path: Path) -> No
 def test_a_layer_gone_after_the_start_is_named_on_the_page(
     browser: Browser, tmp_path: Path
 ) -> None:
-    gone = _wall(tmp_path / "gone.ply", WALL)
+    gone = _road(tmp_path / "gone.ply", ROAD)  # a mesh: served from its file when asked
     with ViewServer([gone]) as server:
         gone.unlink()
         browser.open(server.url)

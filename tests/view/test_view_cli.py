@@ -56,15 +56,12 @@ def test_bad_las_files_and_max_points_are_refused_in_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     laz, _, _ = las_cloud(tmp_path / "good.laz", n=20_000)
-    cut = tmp_path / "cut.laz"
-    cut.write_bytes(laz.read_bytes()[: laz.stat().st_size // 2])
-    _refused(capsys, [str(laz), str(cut)], "cut.laz", "cannot be read")
     garbage = tmp_path / "garbage.las"
     garbage.write_bytes(os.urandom(400))
     _refused(capsys, [str(garbage)], "garbage.las", "LAS")
     for bad in ("0", "-5", "1.5", "x"):
         _refused(capsys, [str(laz), "--max-points", bad], "--max-points", bad)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.laz", "garbage.las", "good.laz"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["garbage.las", "good.laz"]
 
 
 @pytest.mark.parametrize("port", ["nan", "-1", "65536", "1e3", "99999999999999999999", "x"])
@@ -123,3 +120,23 @@ def test_serves_until_ctrl_c_and_opens_the_browser(tmp_path: Path) -> None:
         proc.kill()
     assert proc.returncode == 0 and err == "" and out == ""
     assert opened.read_text().strip() == url
+
+
+def test_points_found_bad_after_the_url_is_printed_are_said_in_one_line(tmp_path: Path) -> None:
+    laz, _, _ = las_cloud(tmp_path / "good.laz", n=20_000)
+    cut = tmp_path / "cut.laz"  # its header whole: refused only when its points are decoded
+    cut.write_bytes(laz.read_bytes()[: laz.stat().st_size // 2])
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", "view", str(laz), str(cut)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None and proc.stderr is not None
+        assert proc.stdout.readline().startswith("serving 2 layers at http://127.0.0.1:")
+        said = proc.stderr.readline()  # while it keeps serving the good one
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        proc.kill()
+    assert said.startswith(f"acq view: {cut}: its points cannot be read ("), said
+    assert proc.returncode == 0 and err == "" and out == ""

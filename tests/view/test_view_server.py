@@ -10,12 +10,14 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+import numpy as np
 import pytest
+from plyfile import PlyData
 
 from acq.errors import InputError
 from acq.view import ViewServer
 from acq.view.static import VENDOR, import_map, module_imports, resolve_import
-from tests.view.layer_files import cloud, mesh
+from tests.view.layer_files import cloud, mesh, unpack
 
 
 def _get(url: str) -> tuple[int, str, bytes]:
@@ -75,7 +77,15 @@ def test_layers_listed_and_served_byte_for_byte(served: tuple[ViewServer, list[P
     for layer, path in zip(layers, paths, strict=True):
         assert layer["bytes"] == path.stat().st_size
         status, kind, body = _get(server.url.rstrip("/") + layer["url"])
-        assert status == 200 and body == path.read_bytes(), layer["url"]
+        if layer["kind"] == "mesh":
+            assert status == 200 and body == path.read_bytes(), layer["url"]
+    # a cloud comes as its points packed (acq.view.points_payload)
+    assert layers[0]["url"] == "/data/0/points.bin"
+    status, kind, body = _get(server.url.rstrip("/") + layers[0]["url"])
+    assert status == 200 and kind == "application/octet-stream"
+    vertex = PlyData.read(str(paths[0]))["vertex"]
+    xyz = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1)
+    assert np.abs(unpack(body)["xyz"] - xyz).max() < 1e-5
     assert _get(server.url.rstrip("/") + layers[1]["url"])[1] == "model/gltf-binary"
 
 
@@ -158,7 +168,7 @@ def test_a_folder_stands_for_its_viewable_files(tmp_path: Path) -> None:
     (tmp_path / "notes.txt").write_text("not a layer")
     with ViewServer([tmp_path]) as server:
         assert [x["name"] for x in server.listing()] == ["a.glb", "b.ply"]
-        assert [x["url"] for x in server.listing()] == ["/data/0/a.glb", "/data/1/b.ply"]
+        assert [x["url"] for x in server.listing()] == ["/data/0/a.glb", "/data/1/points.bin"]
 
 
 def test_a_name_that_needs_quoting_is_served(tmp_path: Path) -> None:

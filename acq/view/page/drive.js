@@ -59,7 +59,8 @@ function say(status, text, error = false) {
 }
 
 // the drive of `layer` (its index k) as a group; `ctx`: render(), loadCloud(url) -> a cloud
-// object (Promise); the cloud is added to the group when it comes, marked for the frame tool
+// object (Promise), onCloud(object) once it is in the group; the cloud is added to the
+// group when it comes, marked for the frame tool
 export async function driveObject(layer, k, ctx) {
   const response = await fetch(layer.url);
   if (!response.ok) throw new Error(`HTTP ${response.status}`);
@@ -92,6 +93,7 @@ export async function driveObject(layer, k, ctx) {
     object.userData.frameLayer = k;
     object.name = cloud.file;
     group.add(object);
+    ctx.onCloud?.(object);
     window.acqDriveCloud[k] = cloud.file;
     say(status, [...notes, `${layer.name}: cloud ${cloud.file}`].join('\n'));
     ctx.render();

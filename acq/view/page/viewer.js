@@ -1,16 +1,19 @@
 // acq view: every layer the server lists (/api/layers), drawn with three.js in acq's world
-// frame (z up, metres): clouds as points in their own colours, meshes unlit in theirs.
+// frame (z up, metres): clouds as points in their own colours (or a colour mode's), meshes
+// unlit in theirs.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { PLYLoader } from 'three/addons/loaders/PLYLoader.js';
 import { georeferenced, showCrs } from './crs.js';
-import { measureTool } from './measure.js';
 import { driveObject } from './drive.js';
 import { frameTool } from './frame.js';
 import { walkTool } from './walk.js';
 import { orbitHooks } from './orbit.js';
 import { overlays } from './overlays.js';
+import { applyColourMode, colourModes } from './colour_modes.js';
+import { measureTool } from './measure.js';
+import { parsePoints, pointsObject } from './points.js';
 
 const message = document.getElementById('message');
 const sizeInput = document.getElementById('point-size');
@@ -50,30 +53,16 @@ function toFloat32(geometry) {
   return origin;
 }
 
-// a PLY as points (a cloud) or triangles (a mesh), coloured by its vertices where it has colours
-function plyObject(geometry, kind, pointSize) {
+// a PLY mesh's triangles, coloured by its vertices where it has colours
+function plyMesh(geometry) {
   const origin = toFloat32(geometry);
   const coloured = geometry.hasAttribute('color');
-  let object;
-  if (kind === 'mesh') {
-    const material = new THREE.MeshBasicMaterial({
-      vertexColors: coloured, color: coloured ? 0xffffff : 0xb0b0b0, side: THREE.DoubleSide,
-    });
-    object = new THREE.Mesh(geometry, material);
-  } else {
-    object = pointsObject(geometry, coloured, pointSize);
-  }
+  const material = new THREE.MeshBasicMaterial({
+    vertexColors: coloured, color: coloured ? 0xffffff : 0xb0b0b0, side: THREE.DoubleSide,
+  });
+  const object = new THREE.Mesh(geometry, material);
   object.position.copy(origin);
   return object;
-}
-
-// a cloud: each point a square of pointSize pixels in its colour (grey without colours)
-function pointsObject(geometry, coloured, pointSize) {
-  const material = new THREE.PointsMaterial({
-    size: pointSize, sizeAttenuation: false, vertexColors: coloured,
-    color: coloured ? 0xffffff : 0xd0d0d0,
-  });
-  return new THREE.Points(geometry, material);
 }
 
 // a glTF scene in acq's frame (glTF is +y up: turned back to z up), its facets unlit so that
@@ -93,47 +82,48 @@ function gltfObject(gltf) {
   return root;
 }
 
-// a LAS/LAZ/COPC cloud as the server packs it (acq/view/las_points.py): a 56-byte header
-// (magic, points served, points in the file, the origin's x y z as doubles, flags), then
-// float32 x y z offsets from the origin and uint8 sRGB r g b of each point
-const SRGB_TO_LINEAR = Float32Array.from(
-  { length: 256 }, (_, c) => new THREE.Color().setRGB(c / 255, 0, 0, THREE.SRGBColorSpace).r);
-async function packedPointsObject(url, pointSize) {
-  const response = await fetch(url);
-  if (!response.ok) throw new Error(`HTTP ${response.status}`);
-  const buffer = await response.arrayBuffer();
-  const head = new DataView(buffer);
-  const magic = new TextDecoder().decode(new Uint8Array(buffer, 0, Math.min(8, buffer.byteLength)));
-  if (buffer.byteLength < 56 || magic !== 'ACQPTS1\0') throw new Error('not acq view\'s points');
-  const n = Number(head.getBigUint64(8, true));
-  if (buffer.byteLength !== 56 + 15 * n) throw new Error(`${buffer.byteLength} bytes for ${n} points`);
-  const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(buffer, 56, 3 * n), 3));
-  const coloured = (head.getUint32(48, true) & 1) === 1;
-  if (coloured) {  // three.js takes vertex colours as linear: the sRGB bytes converted
-    const rgb = new Uint8Array(buffer, 56 + 12 * n, 3 * n);
-    geometry.setAttribute('color', new THREE.BufferAttribute(Float32Array.from(rgb, (c) => SRGB_TO_LINEAR[c]), 3));
+// the names of the clouds the server is still decoding, said in the page while it waits
+const decoding = new Set();
+function sayDecoding() {
+  if (decoding.size) message.textContent = `decoding ${[...decoding].join(', ')}…`;
+  else if (message.textContent.startsWith('decoding')) message.textContent = 'loading…';
+}
+
+// a cloud's payload (points.js) once the server has decoded it: it answers 202 until then
+async function fetchPoints(layer) {
+  for (;;) {
+    const response = await fetch(layer.url);
+    if (response.status === 202) {
+      decoding.add(layer.name);
+      sayDecoding();
+      const wait = Number(response.headers.get('Retry-After') ?? 1);
+      await new Promise((resolve) => { setTimeout(resolve, 1000 * wait); });
+      continue;
+    }
+    decoding.delete(layer.name);
+    sayDecoding();
+    // the server's reason names the file
+    if (response.status === 422) throw new Error(await response.text());
+    if (!response.ok) throw new Error(`HTTP ${response.status}`);
+    return response.arrayBuffer();
   }
-  geometry.computeBoundingBox();
-  geometry.computeBoundingSphere();
-  const object = pointsObject(geometry, coloured, pointSize);
-  object.position.set(head.getFloat64(24, true), head.getFloat64(32, true), head.getFloat64(40, true));
-  return object;
 }
 
 async function loadLayer(layer, k, pointSize, render) {
   try {
     if (layer.kind === 'drive') {
-      const loadCloud = async (url) => plyObject(await new PLYLoader().loadAsync(url), 'cloud', Number(sizeInput.value));
-      return await driveObject(layer, k, { render, loadCloud });
+      const loadCloud = async (url) => pointsObject(
+        parsePoints(await fetchPoints({ name: layer.name, url })), Number(sizeInput.value));
+      return await driveObject(layer, k, { render, loadCloud, onCloud: applyColourMode });
     }
     if (layer.url.toLowerCase().endsWith('.glb')) {
       return gltfObject(await new GLTFLoader().loadAsync(layer.url));
     }
-    if (layer.url.endsWith('/points.bin')) return await packedPointsObject(layer.url, pointSize);
-    return plyObject(await new PLYLoader().loadAsync(layer.url), layer.kind, pointSize);
+    if (layer.kind === 'cloud') return pointsObject(parsePoints(await fetchPoints(layer)), pointSize);
+    return plyMesh(await new PLYLoader().loadAsync(layer.url));
   } catch (error) {
-    throw new Error(`${layer.name}: ${error?.message ?? error}`);
+    const text = error?.message ?? String(error);
+    throw new Error(text.includes(layer.name) ? text : `${layer.name}: ${text}`);
   }
 }
 
@@ -212,6 +202,10 @@ async function main() {
     render();
   });
 
+  const clouds = objects.map((root, k) => ({ name: layers[k].name, root }))
+    .filter((_, k) => layers[k].kind === 'cloud' || layers[k].kind === 'drive');
+  colourModes(document.getElementById('colour-mode'), document.getElementById('legend'), clouds, render);
+
   const box = new THREE.Box3().setFromObject(scene);
   if (box.isEmpty()) {
     if (!layers.some((layer) => layer.kind === 'drive')) throw new Error('the layers hold nothing to draw');
@@ -226,6 +220,7 @@ async function main() {
   showCrs(layers, document.getElementById('crs'));
   if (georeferenced(layers)) overlays(camera, controls, renderer.domElement);
   orbitHooks(camera, controls);
+  window.acqScene = scene; // each layer's object by its name, for the tests and the console
   render();
   message.textContent = '';
   // the frame rendered above is on the screen at the next animation frame

@@ -1,0 +1,204 @@
+"""A cloud's points as the page gets them: one packed binary for every cloud kind (PLY,
+LAS, LAZ, COPC), the file's rows (or an evenly spread subset of them) read in chunks so
+that memory stays bounded by the subset, not the file.
+
+The payload, little-endian: the header (:data:`HEADER`, 80 bytes): the 8-byte magic
+``ACQPTS2\\0``, uint64 points served ``m``, rows in the file, first row ``start`` and end
+row ``stop`` of the range served, float64 x y z of the origin (metres, the file's CRS),
+float64 time of the first point served (the file's seconds: PLY UTC, LAS GPS time),
+uint32 flags (which arrays follow: :data:`FLAGS`), uint32 length of the camera names;
+the camera names (UTF-8, one per line, in index order), zero-padded to 4 bytes; then
+float32 x y z of each point as offsets from the origin (m), and the arrays the flags
+name, in :data:`COLUMNS` order: float32 time from the first (s), uint32 scan index,
+float32 intensity, uint8 sRGB r g b, uint8 coloured (0/1), uint8 source camera (the
+index of its name, 255 none). The page's point ``j`` is the file's row
+``start + j * (stop - start) // m``."""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from acq.errors import InputError
+
+__all__ = [
+    "COLUMNS", "FLAGS", "HEADER", "MAGIC", "Column", "Rows", "camera_names", "payload",
+    "rows_and_shown", "rows_of", "shown", "subset",
+]  # fmt: skip
+
+MAGIC = b"ACQPTS2\0"
+# magic, served, rows, start, stop, origin x y z, first time, flags, names' bytes: 80 bytes,
+# so that the arrays after it stay aligned to 4
+HEADER = struct.Struct("<8sQQQQddddII")
+
+
+@dataclass(frozen=True)
+class Column:
+    """A point attribute the payload may carry: its ``name`` in a reader's chunks, its
+    flag bit, its type in the payload and its values per point."""
+
+    name: str
+    flag: int
+    dtype: type[np.generic]
+    width: int = 1
+
+
+# in the payload's order: the 4-byte arrays first, so that each stays aligned
+COLUMNS = (
+    Column("time", 2, np.float32),
+    Column("scan", 4, np.uint32),
+    Column("intensity", 8, np.float32),
+    Column("rgb", 1, np.uint8, 3),
+    Column("coloured", 16, np.uint8),
+    Column("camera", 32, np.uint8),
+)
+FLAGS = {c.name: c.flag for c in COLUMNS}
+
+
+class Rows(Protocol):
+    """A cloud file's points, read by row: ``count`` rows, ``columns`` the names of
+    :data:`COLUMNS` it holds, ``cameras`` the names of its cameras (index order)."""
+
+    count: int
+    columns: frozenset[str]
+    cameras: list[str]
+
+    def read(self, start: int, stop: int) -> Iterator[dict[str, np.ndarray]]:
+        """Rows [start, stop) in consecutive chunks: "xyz" (n,3) float64 m and the
+        columns it holds ("rgb" (n,3) uint8, or uint16 for LAS's 16 bits; the others
+        (n,)); InputError naming the file when they cannot be read."""
+        ...
+
+    def close(self) -> None: ...
+
+
+def rows_of(path: Path) -> Rows:
+    """The reader of the cloud file ``path`` by its suffix (:data:`CLOUD_SUFFIXES`)."""
+    if path.suffix.lower() == ".ply":
+        from acq.view.ply_rows import PlyRows
+
+        return PlyRows(path)
+    from acq.view.las_rows import LasRows
+
+    return LasRows(path)
+
+
+def subset(start: int, stop: int, max_points: int) -> np.ndarray:
+    """The rows the page gets of rows [start, stop): all of them, or ``max_points`` of
+    them evenly spread, ``start + j * n // m`` for the page's point j (int64)."""
+    n = stop - start
+    m = min(n, max_points)
+    return start + np.arange(m, dtype=np.int64) * n // m
+
+
+def shown(data: bytes | bytearray) -> int:
+    """The points a payload holds (its header's)."""
+    return int(HEADER.unpack_from(data)[1])
+
+
+def rows_and_shown(data: bytes | bytearray) -> tuple[int, int]:
+    """A payload's rows in the range it stands for and the points it holds: the page's
+    point j is row ``start + j * rows // shown``."""
+    _, m, _, start, stop, *_ = HEADER.unpack_from(data)
+    return int(stop - start), int(m)
+
+
+def payload(path: Path, max_points: int, start: int = 0, stop: int | None = None) -> bytearray:
+    """The page's binary (see the module) of the rows [start, stop) of the cloud file
+    ``path`` (a checked layer's: :mod:`acq.view.layers`): every one, or ``max_points`` of
+    them evenly spread (:func:`subset`); InputError naming the file when its points
+    cannot be read, are fewer than its header says or are too far apart for float32."""
+    if max_points < 1:
+        raise ValueError(f"max_points {max_points}: at least 1")
+    rows = rows_of(path)
+    try:
+        stop = rows.count if stop is None else stop
+        if not 0 <= start < stop <= rows.count:
+            raise ValueError(f"rows [{start}, {stop}) of a file of {rows.count}")
+        return _pack(path, rows, max_points, start, stop)
+    finally:
+        rows.close()
+
+
+def _pack(path: Path, rows: Rows, max_points: int, start: int, stop: int) -> bytearray:
+    """The payload of ``rows`` [start, stop), filled in place (no copy of it is made)."""
+    n = stop - start
+    m = min(n, max_points)
+    columns = [c for c in COLUMNS if c.name in rows.columns]
+    names = "\n".join(rows.cameras).encode() if "camera" in rows.columns else b""
+    at = HEADER.size + -(-len(names) // 4) * 4
+    data = bytearray(at + 12 * m + sum(c.width * np.dtype(c.dtype).itemsize * m for c in columns))
+    data[HEADER.size : HEADER.size + len(names)] = names
+    xyz = np.frombuffer(data, np.float32, 3 * m, at).reshape(m, 3)
+    at += 12 * m
+    out: dict[str, np.ndarray] = {}
+    for c in columns:
+        view = np.frombuffer(data, c.dtype, c.width * m, at)
+        out[c.name] = view.reshape(m, c.width) if c.width > 1 else view
+        at += c.width * np.dtype(c.dtype).itemsize * m
+    rgb16 = np.zeros((m, 3), np.uint16) if "rgb" in out else None
+    origin = np.zeros(3)
+    t0 = 0.0
+    first = start
+    for chunk in rows.read(start, stop):
+        end = first + len(chunk["xyz"])
+        # the subset's points j whose rows start + j * n // m fall in [first, end)
+        lo, hi = -(-(first - start) * m // n), min(-(-(end - start) * m // n), m)
+        pick = start + np.arange(lo, hi, dtype=np.int64) * n // m - first
+        if len(pick):
+            points = np.asarray(chunk["xyz"], np.float64)[pick]
+            if lo == 0:
+                origin = points[0].copy()
+                if "time" in out:
+                    t0 = float(chunk["time"][pick[0]])
+            with np.errstate(over="ignore", invalid="ignore"):  # checked below
+                xyz[lo:hi] = points - origin
+                for c in columns:
+                    values = np.asarray(chunk[c.name])[pick]
+                    if c.name == "time":
+                        out["time"][lo:hi] = values - t0
+                    elif c.name == "rgb" and rgb16 is not None:
+                        rgb16[lo:hi] = values
+                    else:
+                        out[c.name][lo:hi] = values
+        first = end
+    if first != stop:
+        raise InputError(
+            f"{path}: truncated: its header says {rows.count} points, they end at row {first}"
+        )
+    if not np.isfinite(xyz).all():
+        why = " (its scales or offsets)" if path.suffix.lower() != ".ply" else ""
+        raise InputError(f"{path}: points too far apart for 32-bit floats{why}")
+    if rgb16 is not None:
+        out["rgb"][:] = _rgb8(rgb16)
+    flags = sum(c.flag for c in columns)
+    HEADER.pack_into(
+        data, 0, MAGIC, m, rows.count, start, stop, *origin.tolist(), t0, flags, len(names)
+    )
+    return data
+
+
+def camera_names(lines: list[str]) -> list[str]:
+    """The cameras' names by index from lines ``<index> <name>`` (others ignored; a
+    name missing ``camera <index>``), as acq writes them in a PLY's comments and a LAS
+    file's VLR."""
+    found: dict[int, str] = {}
+    for line in lines:
+        index, _, name = line.strip().partition(" ")
+        if index.isdigit() and int(index) < 255 and name:
+            found[int(index)] = name
+    return [found.get(k, f"camera {k}") for k in range(max(found, default=-1) + 1)]
+
+
+def _rgb8(rgb16: np.ndarray) -> np.ndarray:
+    """16-bit colours (LAS's) as 8 bits: rounded from c * 257 (as acq and the LAS
+    specification scale them); colours all under 256 (8-bit values, a PLY's or a LAS
+    file's that kept them) taken as they are."""
+    if rgb16.size and int(rgb16.max()) < 256:
+        return rgb16.astype(np.uint8)
+    return ((rgb16.astype(np.uint32) + 128) // 257).astype(np.uint8)

@@ -1,6 +1,8 @@
 """The HTTP server of `acq view`: the page (``/``), its files and vendored libraries
 (``/static/...``), the list of layers (``/api/layers``) and each layer's bytes
-(``/data/<k>/<name>``), on a thread of its own; nothing else is reachable."""
+(``/data/<k>/<name>``), a subsampled cloud's chunks (``/data/<k>/lod.json``,
+``/data/<k>/chunk/<c>.bin``: :mod:`acq.view.lod`), on a thread of its own; nothing else
+is reachable."""
 
 from __future__ import annotations
 
@@ -20,15 +22,16 @@ from urllib.parse import quote, unquote, urlsplit
 
 from acq.addresses import is_loopback
 from acq.errors import InputError
-from acq.view import las_points, static
+from acq.view import las_points, lod, static
 from acq.view.layers import Layer, layers_of
 
-__all__ = ["DEFAULT_MAX_POINTS", "POINTS_NAME", "AddressError", "ViewServer"]
+__all__ = ["DEFAULT_MAX_POINTS", "LOD_NAME", "POINTS_NAME", "AddressError", "ViewServer"]
 
 _CHUNK = 1 << 20  # bytes copied to the socket at a time
 # a laptop's browser draws about a million points well and slows around 5-10 M
 DEFAULT_MAX_POINTS = 2_000_000
 POINTS_NAME = "points.bin"  # a LAS/LAZ layer's URL name: its points packed for the page
+LOD_NAME = "lod.json"  # a subsampled LAS/LAZ layer's chunks, each at chunk/<c>.bin
 
 
 class AddressError(InputError):
@@ -44,17 +47,24 @@ class ViewServer:
     """Serves the layers of ``paths`` (checked on construction: InputError naming a bad
     one) on ``host``:``port`` (0: a free port) while the context is open; ``url`` is
     ``http://HOST:PORT/``. A LAS/LAZ/COPC cloud is decoded here, once, into the page's
-    binary (:mod:`acq.view.las_points`), at most ``max_points`` of its points."""
+    binary (:mod:`acq.view.las_points`), at most ``max_points`` of its points; one over
+    that is also cut into chunks (:mod:`acq.view.lod`, runs of ``run_points`` rows unless
+    it is COPC) decoded when the page asks for one."""
 
     def __init__(
         self, paths: Sequence[Path], host: str = "127.0.0.1", port: int = 0,
-        max_points: int = DEFAULT_MAX_POINTS,
+        max_points: int = DEFAULT_MAX_POINTS, run_points: int = lod.RUN_POINTS,
     ) -> None:  # fmt: skip
         self.layers = layers_of(paths)
         self.points = {
             k: las_points.payload(layer.path, max_points)
             for k, layer in enumerate(self.layers)
             if layer.path.suffix.lower() in las_points.SUFFIXES
+        }
+        self.chunks = {
+            k: lod.chunks(self.layers[k].path, self.layers[k].count, data, run_points)
+            for k, data in self.points.items()
+            if las_points.shown(data) < self.layers[k].count
         }
         self.host, self.port = host, port
         self._httpd: _Server | None = None
@@ -70,7 +80,7 @@ class ViewServer:
     def listing(self) -> list[dict[str, Any]]:
         """What ``/api/layers`` answers: each layer's name, kind, URL, bytes and count, and
         ``shown``, the points or vertices the page gets (fewer than ``count`` for a cloud
-        subsampled to ``max_points``)."""
+        subsampled to ``max_points``, which has ``lod`` too: its chunks' URL)."""
         return [
             {
                 "name": layer.name,
@@ -80,8 +90,15 @@ class ViewServer:
                 "count": layer.count,
                 "shown": las_points.shown(self.points[k]) if k in self.points else layer.count,
             }
+            | ({"lod": f"/data/{k}/{LOD_NAME}"} if k in self.chunks else {})
             for k, layer in enumerate(self.layers)
         ]
+
+    def chunk(self, k: int, c: int) -> bytearray:
+        """The page's binary of chunk ``c`` of layer ``k``: its rows, at most
+        :data:`acq.view.lod.CHUNK_CAP` of them (evenly spread beyond)."""
+        found = self.chunks[k][c]
+        return las_points.payload(self.layers[k].path, lod.CHUNK_CAP, found.start, found.stop)
 
     def _data_url(self, k: int, layer: Layer) -> str:
         return f"/data/{k}/{POINTS_NAME if k in self.points else quote(layer.name)}"
@@ -166,15 +183,30 @@ class _Handler(BaseHTTPRequestHandler):
             data = json.dumps(view.listing()).encode()
             self._send(data, "application/json", body)
         elif path.startswith("/data/"):
-            k = _layer_index(view, path)
-            if k is None:
-                self._not_found()
-            elif k in view.points:
-                self._send(view.points[k], "application/octet-stream", body, "no-cache")
-            else:
-                self._file(view.layers[k].path, body)
+            self._data(view, path, body)
         else:
             self._not_found()
+
+    def _data(self, view: ViewServer, path: str, body: bool) -> None:
+        found = _data_route(view, path)
+        if found is None:
+            self._not_found()
+            return
+        k, c = found
+        if c == "lod":
+            data = json.dumps(lod.index(view.chunks[k])).encode()
+            self._send(data, "application/json", body, "no-cache")
+        elif isinstance(c, int):
+            try:
+                chunk = view.chunk(k, c)
+            except InputError as e:  # the file changed since the server started
+                self.send_error(HTTPStatus.INTERNAL_SERVER_ERROR, "a chunk unread", str(e))
+                return
+            self._send(chunk, "application/octet-stream", body, "no-cache")
+        elif k in view.points:
+            self._send(view.points[k], "application/octet-stream", body, "no-cache")
+        else:
+            self._file(view.layers[k].path, body)
 
     def _file(self, path: Path | None, body: bool) -> None:
         if path is None:
@@ -226,14 +258,25 @@ def _host_allowed(served: str, header: str | None) -> bool:
     return name is not None and is_loopback(name)
 
 
-def _layer_index(view: ViewServer, path: str) -> int | None:
-    """The layer k of ``/data/<k>/<name>``, when ``name`` is its URL's (its file's name,
-    or :data:`POINTS_NAME` for a LAS/LAZ cloud)."""
+def _data_route(view: ViewServer, path: str) -> tuple[int, int | str | None] | None:
+    """What ``path`` names below /data/: (k, None) for layer k's own URL (its file's
+    name, or :data:`POINTS_NAME` for a LAS/LAZ cloud), (k, "lod") for its chunks' index,
+    (k, c) for its chunk c (``chunk/<c>.bin``); None for anything else."""
     parts = path.split("/")
-    if len(parts) != 4 or not parts[2].isdigit():
+    k = _number(parts[2]) if len(parts) in (4, 5) else None
+    if k is None or k >= len(view.layers):
         return None
-    k = int(parts[2])
-    if k >= len(view.layers):
+    if len(parts) == 5:
+        c = _number(parts[4].removesuffix(".bin")) if parts[4].endswith(".bin") else None
+        if k in view.chunks and parts[3] == "chunk" and c is not None:
+            return (k, c) if c < len(view.chunks[k]) else None
         return None
+    if parts[3] == LOD_NAME:
+        return (k, "lod") if k in view.chunks else None
     expected = POINTS_NAME if k in view.points else view.layers[k].name
-    return k if parts[3] == expected else None
+    return (k, None) if parts[3] == expected else None
+
+
+def _number(text: str) -> int | None:
+    """The number ``text`` writes in ASCII decimal digits, or None."""
+    return int(text) if text.isascii() and text.isdigit() else None

@@ -4,7 +4,9 @@ import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { PLYLoader } from 'three/addons/loaders/PLYLoader.js';
+import { levelOfDetail, lodBudget } from './lod.js';
 import { measureTool } from './measure.js';
+import { parsePoints, pointsGeometry } from './points.js';
 
 const message = document.getElementById('message');
 const sizeInput = document.getElementById('point-size');
@@ -87,31 +89,13 @@ function gltfObject(gltf) {
   return root;
 }
 
-// a LAS/LAZ/COPC cloud as the server packs it (acq/view/las_points.py): a 56-byte header
-// (magic, points served, points in the file, the origin's x y z as doubles, flags), then
-// float32 x y z offsets from the origin and uint8 sRGB r g b of each point
-const SRGB_TO_LINEAR = Float32Array.from(
-  { length: 256 }, (_, c) => new THREE.Color().setRGB(c / 255, 0, 0, THREE.SRGBColorSpace).r);
+// a LAS/LAZ/COPC cloud as the server packs it (points.js)
 async function packedPointsObject(url, pointSize) {
   const response = await fetch(url);
   if (!response.ok) throw new Error(`HTTP ${response.status}`);
-  const buffer = await response.arrayBuffer();
-  const head = new DataView(buffer);
-  const magic = new TextDecoder().decode(new Uint8Array(buffer, 0, Math.min(8, buffer.byteLength)));
-  if (buffer.byteLength < 56 || magic !== 'ACQPTS1\0') throw new Error('not acq view\'s points');
-  const n = Number(head.getBigUint64(8, true));
-  if (buffer.byteLength !== 56 + 15 * n) throw new Error(`${buffer.byteLength} bytes for ${n} points`);
-  const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(buffer, 56, 3 * n), 3));
-  const coloured = (head.getUint32(48, true) & 1) === 1;
-  if (coloured) {  // three.js takes vertex colours as linear: the sRGB bytes converted
-    const rgb = new Uint8Array(buffer, 56 + 12 * n, 3 * n);
-    geometry.setAttribute('color', new THREE.BufferAttribute(Float32Array.from(rgb, (c) => SRGB_TO_LINEAR[c]), 3));
-  }
-  geometry.computeBoundingBox();
-  geometry.computeBoundingSphere();
-  const object = pointsObject(geometry, coloured, pointSize);
-  object.position.set(head.getFloat64(24, true), head.getFloat64(32, true), head.getFloat64(40, true));
+  const points = parsePoints(await response.arrayBuffer());
+  const object = pointsObject(pointsGeometry(points), points.colours !== null, pointSize);
+  object.position.copy(points.origin);
   return object;
 }
 
@@ -157,6 +141,7 @@ function frame(box, camera, controls) {
 }
 
 async function main() {
+  const budget = lodBudget(window.location.search);
   const layers = await listLayers();
   message.textContent = `loading ${layers.length} layer${layers.length === 1 ? '' : 's'}…`;
   const renderer = new THREE.WebGLRenderer({ antialias: true });
@@ -197,8 +182,14 @@ async function main() {
   measureTool(scene, camera, renderer.domElement, objects, render);
   render();
   message.textContent = '';
-  // the frame rendered above is on the screen at the next animation frame
-  requestAnimationFrame(() => { window.acqReady = true; });
+  // the frame rendered above is on the screen at the next animation frame; finer points after it
+  requestAnimationFrame(() => {
+    window.acqReady = true;
+    levelOfDetail({
+      layers: layers.map((layer, k) => ({ layer, object: objects[k] })).filter(({ layer }) => layer.lod),
+      camera, controls, renderer, render, budget, say: (text) => { message.textContent = text; },
+    }).catch((error) => window.acqFail(error?.message ?? String(error)));
+  });
 }
 
 main().catch((error) => window.acqFail(error?.message ?? String(error)));

@@ -5,12 +5,13 @@ that the page loads at full density as the view closes in on them.
 A COPC file's chunks are its octree's nodes: each node's points are one LAZ chunk, the
 nodes' chunks follow one another in the file, so the nodes taken in the order of their
 byte offsets hold consecutive rows (the first node rows [0, n0), the next [n0, n0 + n1),
-...); their boxes are the nodes' cubes and their levels the octree's (0 the root), read
-from the hierarchy alone. Any other file is cut into runs of consecutive rows: acq writes
-its clouds in time order, so that a run is a stretch of the drive. A run's box is that of
-its rows in the coarse subset already decoded (the subset is spread evenly along the
-file: the box of the run's rows within the subset's spacing), so the file is not decoded
-twice at start-up, and nothing but the chunks' bounds is kept."""
+...); their boxes are the nodes' cubes within the file's bounds (its header's), their
+levels the octree's (0 the root), all read from the hierarchy alone. Any other file is
+cut into runs of consecutive rows: acq writes its clouds in time order, so that a run is
+a stretch of the drive. A run's box is that of its rows in the coarse subset already
+decoded (the subset is spread evenly along the file: the box of the run's rows within
+the subset's spacing), so the file is not decoded twice at start-up, and nothing but the
+chunks' bounds is kept."""
 
 from __future__ import annotations
 
@@ -69,8 +70,16 @@ def copc_chunks(path: Path) -> list[Chunk] | None:
             if not vlrs or not isinstance(vlrs[0], CopcInfoVlr):
                 return None
             count = int(f.header.point_count)
+            # a header's bounds may be those of the points before their rounding
+            step = np.abs(np.asarray(f.header.scales))
+            mins, maxs = np.asarray(f.header.mins) - step, np.asarray(f.header.maxs) + step
+            if not (np.isfinite(mins).all() and np.isfinite(maxs).all()):
+                mins, maxs = np.full(3, -np.inf), np.full(3, np.inf)  # the cubes alone
         with CopcReader.open(path) as reader:
-            nodes = load_octree_for_query(reader.source, reader.copc_info, reader.root_page)
+            info = reader.copc_info
+            if not (np.isfinite(info.center).all() and 0 < info.halfsize < np.inf):
+                raise InputError(f"{path}: its COPC octree's centre or half size is no number")
+            nodes = load_octree_for_query(reader.source, info, reader.root_page)
     except (laspy.LaspyException, ValueError, EOFError, OSError, KeyError) as e:
         raise InputError(f"{path}: its COPC hierarchy cannot be read ({first_line(e)})") from None
     nodes = sorted((n for n in nodes if n.point_count > 0), key=lambda n: n.offset)
@@ -84,8 +93,8 @@ def copc_chunks(path: Path) -> list[Chunk] | None:
         Chunk(
             int(end - n.point_count),
             int(end),
-            _xyz(n.bounds.mins),
-            _xyz(n.bounds.maxs),
+            _xyz(np.maximum(n.bounds.mins, mins)),
+            _xyz(np.minimum(n.bounds.maxs, maxs)),
             int(n.key.level),
         )
         for n, end in zip(nodes, ends, strict=True)

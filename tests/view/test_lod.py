@@ -93,7 +93,7 @@ def test_copc_chunks_are_its_octree_nodes(tmp_path: Path) -> None:
             assert np.abs(mine[a] - want[b]).max() < 1e-6
 
 
-def test_a_las_file_is_not_copc_and_a_lying_hierarchy_is_refused(tmp_path: Path) -> None:
+def test_a_las_file_is_not_copc_and_a_lying_copc_file_is_refused(tmp_path: Path) -> None:
     las, _, _ = las_cloud(tmp_path / "c.las", n=100)
     assert lod.copc_chunks(las) is None
     path, _, _ = las_cloud(tmp_path / "c.copc.laz", n=1000)
@@ -107,6 +107,14 @@ def test_a_las_file_is_not_copc_and_a_lying_hierarchy_is_refused(tmp_path: Path)
     assert str(e.value) == (
         f"{lying}: its COPC hierarchy's nodes hold 1000 points, its header says 1001"
     )
+    # the COPC info VLR's record (after the 375-byte header and a 54-byte VLR header):
+    # the octree's centre x y z, then its half size, doubles
+    data = bytearray(path.read_bytes())
+    struct.pack_into("<d", data, 375 + 54 + 24, float("nan"))
+    lying.write_bytes(bytes(data))
+    with pytest.raises(InputError) as e:
+        lod.copc_chunks(lying)
+    assert str(e.value) == f"{lying}: its COPC octree's centre or half size is no number"
 
 
 @pytest.mark.parametrize("name", ["c.las", "c.laz", "c.copc.laz"])

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from acq.cloud.copc import CopcStream
 from acq.view.server import ViewServer
 from tests.browser import Browser
 from tests.view.test_page import BACKGROUND, READY, WALL
@@ -17,17 +18,32 @@ from tests.view.test_page import BACKGROUND, READY, WALL
 SETTLED = "window.acqLod !== undefined && window.acqLod.idle && window.acqLod.updates > {n}"
 
 
+def _street(n: int) -> np.ndarray:
+    """``n`` points along a 200 m street (x 0-200 m, y -4-4 m, z 0-4 m) in time order."""
+    rng = np.random.default_rng(3)
+    x = np.sort(rng.uniform(0, 200, n))
+    return np.stack([x, rng.uniform(-4, 4, n), rng.uniform(0, 4, n)], axis=1)
+
+
 def _drive(path: Path, n: int = 200_000) -> Path:
-    """A LAZ cloud of ``n`` points along a 200 m street (x 0-200 m, y -4-4 m, z 0-4 m)
-    in time order, as acq writes a drive's, every point of colour WALL."""
+    """A LAZ cloud of the street's ``n`` points (:func:`_street`), every point of colour
+    WALL; COPC as `acq colorize` writes it for a name ending .copc.laz."""
     import laspy
 
-    rng = np.random.default_rng(3)
+    xyz = _street(n)
+    if path.name.endswith(".copc.laz"):
+        out = CopcStream(path, cameras=["left"])
+        out.write(
+            xyz, np.tile(np.array(WALL, np.uint8), (n, 1)), np.linspace(0, 10, n),
+            np.ones(n, np.float32), np.zeros(n, np.int32), np.ones(n, bool),
+            np.zeros(n, np.uint8), np.zeros(n, np.int32),
+        )  # fmt: skip
+        out.close()
+        return path
     header = laspy.LasHeader(point_format=7, version="1.4")
     header.scales, header.offsets = np.array([0.001] * 3), np.zeros(3)
     las = laspy.LasData(header)
-    las.x = np.sort(rng.uniform(0, 200, n))
-    las.y, las.z = rng.uniform(-4, 4, n), rng.uniform(0, 4, n)
+    las.x, las.y, las.z = xyz.T
     las.red, las.green, las.blue = (np.full(n, c * 257, np.uint16) for c in WALL)
     las.write(path)
     return path
@@ -96,6 +112,27 @@ def test_over_the_budget_the_chunk_out_of_view_is_dropped(browser: Browser, tmp_
         assert browser.errors == [], browser.console
     assert (first, then) == (["0/0"], ["0/9"])
     assert (points, requests) == (15_000, 2)
+
+
+def test_a_copc_cloud_loads_the_octree_nodes_of_the_end_in_view(
+    browser: Browser, tmp_path: Path
+) -> None:
+    path = _drive(tmp_path / "drive.copc.laz", n=200_000)
+    with ViewServer([path], max_points=10_000) as server:
+        # room for the subset, the root (50,000) and two of eight ~19,000-point nodes
+        _open(browser, server.url + "?budget=100000")
+        overview = browser.evaluate("window.acqLod.loaded")
+        _look_at_the_start(browser)
+        loaded = [
+            server.chunks[0][int(k.split("/")[1])] for k in browser.evaluate("window.acqLod.loaded")
+        ]
+        assert browser.errors == [], browser.console
+    # the whole street in view: the root and the two nodes largest on the screen, which
+    # the view onto the start leaves for two of its own
+    assert len(overview) == 3 and "0/0" in overview
+    assert [c.level for c in loaded].count(0) == 1 and len(loaded) == 3, loaded
+    # level 1 halves the 200 m street: none of the far half's nodes
+    assert all(c.lo[0] < 99 for c in loaded), f"a node of the far half: {loaded}"
 
 
 def test_a_budget_that_is_no_number_is_named(browser: Browser, tmp_path: Path) -> None:

@@ -5,6 +5,7 @@ density and none of the far end's, and more points are drawn there."""
 from __future__ import annotations
 
 import json
+import re
 import urllib.request
 from pathlib import Path
 
@@ -89,6 +90,12 @@ def test_closing_in_on_one_end_loads_its_chunks_only(browser: Browser, tmp_path:
             "({...window.acqLod, loaded: window.acqLod.loaded, look: undefined})"
         )
         fine = _drawn(browser.screenshot())
+        # the point-size slider sets the chunks' size with the subset's
+        browser.evaluate(
+            "(() => { const s = document.getElementById('point-size'); s.value = 5;"
+            " s.dispatchEvent(new Event('input')); })()"
+        )
+        sizes = browser.evaluate("window.acqLod.pointSizes")
         assert browser.errors == [], browser.console
     assert overview == 0, "the whole street framed: no chunk is large enough on the screen"
     loaded = [int(key.split("/")[1]) for key in stats["loaded"]]
@@ -98,6 +105,7 @@ def test_closing_in_on_one_end_loads_its_chunks_only(browser: Browser, tmp_path:
     assert stats["points"] == 10_000 + 20_000 * len(loaded)
     assert stats["requests"] == len(loaded) and stats["bytes"] == len(loaded) * (56 + 15 * 20_000)
     assert fine > 1.5 * coarse, (coarse, fine)
+    assert sizes == [5] * len(loaded)
 
 
 def test_over_the_budget_the_chunk_out_of_view_is_dropped(browser: Browser, tmp_path: Path) -> None:
@@ -133,6 +141,22 @@ def test_a_copc_cloud_loads_the_octree_nodes_of_the_end_in_view(
     assert [c.level for c in loaded].count(0) == 1 and len(loaded) == 3, loaded
     # level 1 halves the 200 m street: none of the far half's nodes
     assert all(c.lo[0] < 99 for c in loaded), f"a node of the far half: {loaded}"
+
+
+def test_a_chunk_that_cannot_be_read_is_said_on_the_page(browser: Browser, tmp_path: Path) -> None:
+    path = _drive(tmp_path / "drive.las", n=40_000)
+    with ViewServer([path], max_points=2000, run_points=4000) as server:
+        _open(browser, server.url)  # the whole street: no chunk loaded
+        path.write_bytes(path.read_bytes()[:-36_000])  # 1,000 points (36 bytes each) gone
+        _look_at_the_start(browser, x=195)
+        failed, shown = browser.evaluate(
+            "[window.acqLod.failed, document.getElementById('message').textContent]"
+        )
+    assert failed >= 1 and re.fullmatch(
+        r"drive\.las: its finer points /data/0/chunk/[89]\.bin could not be loaded \(HTTP 500\)",
+        shown,
+    ), (failed, shown)
+    assert browser.evaluate("window.acqError ?? null") is None  # the page goes on
 
 
 def test_a_budget_that_is_no_number_is_named(browser: Browser, tmp_path: Path) -> None:

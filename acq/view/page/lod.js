@@ -28,8 +28,9 @@ export function lodBudget(search) {
 // Starts the level of detail of `layers` ([{layer, object}]: a listed layer with `lod`, its
 // subset's Points); `onChunk(object, layerObject)`, when given, is called on each chunk's
 // Points once added to its layer's object (sharing its material, so the point-size slider
-// holds). window.acqLod gives the figures (chunks and points loaded, requests, bytes, ...)
-// and `look(position, target)`, to set the view from a test.
+// holds). window.acqLod gives the figures (chunks and points loaded, requests, bytes, ...),
+// the loaded chunks ("k/c") and their point sizes, and `look(position, target)`, to set the
+// view from a test.
 export async function levelOfDetail({ layers, camera, controls, renderer, render, budget, say, onChunk = null }) {
   const all = [];
   let timer = null;
@@ -37,6 +38,7 @@ export async function levelOfDetail({ layers, camera, controls, renderer, render
   const stats = {
     chunks: 0, points: 0, requests: 0, bytes: 0, failed: 0, inFlight: 0, updates: 0, idle: false,
     get loaded() { return all.filter((c) => c.state === 'loaded').map((c) => c.key); },
+    get pointSizes() { return all.filter((c) => c.state === 'loaded').map((c) => c.points.material.size); },
     look(position, target) {
       camera.position.set(...position);
       controls.target.set(...target);

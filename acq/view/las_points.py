@@ -3,9 +3,10 @@ spread subset of them) packed once into a compact binary the page draws without 
 parser, read in chunks so that memory stays bounded by the subset, not the file.
 
 The payload, little-endian: the 8-byte magic ``ACQPTS1\\0``, uint64 points served, uint64
-points in the file, float64 x y z of the origin (metres, the file's CRS), uint32 flags (bit
-0: the points have colours), uint32 zero; then float32 x y z of each point as offsets from
-the origin (m) and uint8 r g b of each (sRGB, LAS's 16 bits scaled to 8)."""
+points they stand for (the file's, or a range of its rows'), float64 x y z of the origin
+(metres, the file's CRS), uint32 flags (bit 0: the points have colours), uint32 zero; then
+float32 x y z of each point as offsets from the origin (m) and uint8 r g b of each (sRGB,
+LAS's 16 bits scaled to 8)."""
 
 from __future__ import annotations
 

@@ -96,6 +96,9 @@ def test_closing_in_on_one_end_loads_its_chunks_only(browser: Browser, tmp_path:
             " s.dispatchEvent(new Event('input')); })()"
         )
         sizes = browser.evaluate("window.acqLod.pointSizes")
+        # the layer's box hides its chunks with its subset
+        browser.evaluate("document.querySelector('#layers input').click()")
+        hidden = _drawn(browser.screenshot())
         assert browser.errors == [], browser.console
     assert overview == 0, "the whole street framed: no chunk is large enough on the screen"
     loaded = [int(key.split("/")[1]) for key in stats["loaded"]]
@@ -106,6 +109,7 @@ def test_closing_in_on_one_end_loads_its_chunks_only(browser: Browser, tmp_path:
     assert stats["requests"] == len(loaded) and stats["bytes"] == len(loaded) * (56 + 15 * 20_000)
     assert fine > 1.5 * coarse, (coarse, fine)
     assert sizes == [5] * len(loaded)
+    assert hidden == 0
 
 
 def test_over_the_budget_the_chunk_out_of_view_is_dropped(browser: Browser, tmp_path: Path) -> None:

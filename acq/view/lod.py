@@ -15,6 +15,7 @@ chunks' bounds is kept."""
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -62,7 +63,7 @@ def copc_chunks(path: Path) -> list[Chunk] | None:
     InputError naming it when its hierarchy cannot be read or does not account for every
     point of its header."""
     import laspy
-    from laspy.copc import CopcInfoVlr, CopcReader, load_octree_for_query
+    from laspy.copc import Bounds, CopcInfoVlr, CopcReader
 
     try:
         with laspy.open(path) as f:
@@ -79,26 +80,42 @@ def copc_chunks(path: Path) -> list[Chunk] | None:
             info = reader.copc_info
             if not (np.isfinite(info.center).all() and 0 < info.halfsize < np.inf):
                 raise InputError(f"{path}: its COPC octree's centre or half size is no number")
-            nodes = load_octree_for_query(reader.source, info, reader.root_page)
-    except (laspy.LaspyException, ValueError, EOFError, OSError, KeyError) as e:
+            nodes = _entries(reader.source, reader.root_page)
+    except (laspy.LaspyException, ValueError, EOFError, OSError, struct.error) as e:
         raise InputError(f"{path}: its COPC hierarchy cannot be read ({first_line(e)})") from None
-    nodes = sorted((n for n in nodes if n.point_count > 0), key=lambda n: n.offset)
+    nodes = sorted(nodes, key=lambda n: n.offset)
     ends = np.cumsum([n.point_count for n in nodes], dtype=np.int64)
     if not len(nodes) or int(ends[-1]) != count:
         held = int(ends[-1]) if len(nodes) else 0
         raise InputError(
             f"{path}: its COPC hierarchy's nodes hold {held} points, its header says {count}"
         )
-    return [
-        Chunk(
-            int(end - n.point_count),
-            int(end),
-            _xyz(np.maximum(n.bounds.mins, mins)),
-            _xyz(np.minimum(n.bounds.maxs, maxs)),
-            int(n.key.level),
-        )
-        for n, end in zip(nodes, ends, strict=True)
-    ]
+    root = Bounds(info.center - info.halfsize, info.center + info.halfsize)
+    chunks = []
+    for n, end in zip(nodes, ends, strict=True):
+        cube = n.key.bounds(root)
+        lo, hi = np.maximum(cube.mins, mins), np.minimum(cube.maxs, maxs)
+        chunks.append(Chunk(int(end - n.point_count), int(end), _xyz(lo), _xyz(hi), n.key.level))
+    return chunks
+
+
+def _entries(source: Any, root: Any) -> list[Any]:
+    """The entries of a COPC hierarchy that hold points (laspy's ``Entry``), its pages
+    read from ``source`` from the ``root`` page on, each page once (a page that names
+    itself or an earlier one does not loop)."""
+    from laspy.copc import HierarchyPage
+
+    entries, pages, seen = dict(root.entries), list(root.entries.values()), set()
+    while pages:
+        entry = pages.pop()
+        if entry.point_count != -1 or entry.offset in seen:
+            continue
+        seen.add(entry.offset)
+        source.seek(entry.offset)
+        page = HierarchyPage.from_bytes(source.read(max(entry.byte_size, 0)))
+        entries.update(page.entries)
+        pages += page.entries.values()
+    return [e for e in entries.values() if e.point_count > 0]
 
 
 def runs(coarse: bytes | bytearray, count: int, rows: int = RUN_POINTS) -> list[Chunk]:

@@ -115,6 +115,21 @@ def test_a_las_file_is_not_copc_and_a_lying_copc_file_is_refused(tmp_path: Path)
     with pytest.raises(InputError) as e:
         lod.copc_chunks(lying)
     assert str(e.value) == f"{lying}: its COPC octree's centre or half size is no number"
+    # a hierarchy page that names itself as a node's page: refused, not read forever
+    import laspy
+
+    with laspy.CopcReader.open(path) as reader:
+        at, size = reader.copc_info.hierarchy_root_offset, reader.copc_info.hierarchy_root_size
+    data = bytearray(path.read_bytes())
+    # the root page's first entry (the root node's): its key's 16 bytes, then its offset,
+    # byte size and point count, -1 for a page
+    struct.pack_into("<Qii", data, at + 16, at, size, -1)
+    lying.write_bytes(bytes(data))
+    with pytest.raises(InputError) as e:
+        lod.copc_chunks(lying)
+    assert (
+        str(e.value) == f"{lying}: its COPC hierarchy's nodes hold 0 points, its header says 1000"
+    )
 
 
 @pytest.mark.parametrize("name", ["c.las", "c.laz", "c.copc.laz"])

@@ -64,6 +64,15 @@ export async function levelOfDetail({ layers, camera, controls, renderer, render
     }));
   }
 
+  // one frame drawn for the chunks that arrive before the next one (each frame of millions
+  // of points is costly in a software renderer)
+  let drawing = false;
+  function redraw() {
+    if (drawing) return;
+    drawing = true;
+    requestAnimationFrame(() => { drawing = false; render(); });
+  }
+
   function schedule(ms) {
     clearTimeout(timer);
     stats.idle = false;
@@ -132,7 +141,7 @@ export async function levelOfDetail({ layers, camera, controls, renderer, render
       stats.chunks += 1;
       stats.points += chunk.count;
       onChunk?.(chunk.points, chunk.object);
-      render();
+      redraw();
     } catch (error) {
       chunk.state = 'failed';  // not asked again
       stats.failed += 1;

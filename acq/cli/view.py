@@ -10,6 +10,7 @@ from pathlib import Path
 from acq.addresses import is_loopback
 from acq.cli.option_types import integer
 from acq.errors import InputError
+from acq.view.lod import RUN_POINTS
 from acq.view.server import DEFAULT_MAX_POINTS
 
 HELP = "see clouds, meshes and drives in a web browser, served from this machine (offline)"
@@ -50,11 +51,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     v.add_argument(
         "--max-points", type=integer(1, 2**62, what="a count of points"),
         default=DEFAULT_MAX_POINTS, metavar="N",
-        help="most points of a cloud sent to the page (default "
+        help="most points of a cloud sent to the page at first (default "
         f"{DEFAULT_MAX_POINTS:,}: a laptop's browser draws about a million points "
         "smoothly and slows around 5-10 million); a larger cloud is shown by N of its "
         "points evenly spread through the file, and its layer says so (e.g. '2,000,000 of "
-        "10,000,000 points')",
+        "10,000,000 points'); then, as the view closes in, the page loads the points there "
+        f"in full (a COPC file's octree nodes, another file's runs of {RUN_POINTS:,} points), "
+        "6,000,000 points drawn at most (the page's URL's ?budget=N sets another)",
     )  # fmt: skip
     v.add_argument(
         "--calib", type=Path, metavar="CALIB",

@@ -1,6 +1,7 @@
 """LAS, LAZ and COPC clouds read for the page (:mod:`acq.view.points_payload`): the file's
 header checked up front, then its rows decoded in chunks from a seek (lazrs reaches a
-LAZ row through the file's chunk table), with the attributes acq writes (GPS time, as
+LAZ row through the file's chunk table; a COPC file's chunks, of varying sizes, decoded
+alone), with the attributes acq writes (GPS time, as
 UTC s where it is Adjusted Standard GPS time; intensity; the extra bytes ``scan_index``,
 ``coloured`` and ``camera`` of :mod:`acq.cloud.las`) and the cameras' names (its VLR
 ``acq 1``)."""
@@ -11,7 +12,7 @@ import logging
 import struct
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,6 +29,7 @@ SUFFIXES = (".las", ".laz")  # a COPC file (.copc.laz) is a LAZ file
 # laspy logs the errors it raises too: acq says them once, in its own line
 logging.getLogger("laspy").setLevel(logging.CRITICAL)
 _CHUNK_POINTS = 1 << 18  # points decoded at a time (~12 MB of records)
+_VARIABLE = 0xFFFFFFFF  # a LAZ chunk size that says the chunks vary in size (COPC's)
 # the payload's columns by the LAS dimension holding them
 _DIMENSIONS = {
     "time": "gps_time", "scan": "scan_index", "intensity": "intensity", "coloured": "coloured",
@@ -89,17 +91,51 @@ class LasRows:
         import laspy
 
         try:
-            if start:
-                self._reader.seek(start)
-            at = start
-            while at < stop:
-                chunk = self._reader.read_points(min(_CHUNK_POINTS, stop - at))
-                if len(chunk) == 0:
-                    return  # fewer than the header says: the caller names it
-                at += len(chunk)
+            for chunk in self._records(start, stop):
                 yield self._columns(chunk)
         except (laspy.LaspyException, ValueError, EOFError, OSError, RuntimeError) as e:
             raise InputError(f"{self.path}: its points cannot be read ({first_line(e)})") from None
+
+    def _records(self, start: int, stop: int) -> Iterator[Any]:
+        """laspy's points of rows [start, stop), a chunk of them at a time (fewer rows in
+        all when the file is cut: the caller names it)."""
+        import laspy
+        import lazrs
+
+        reader, header = self._reader, self._reader.header
+        laszip = header.vlrs.get("LasZipVlr")
+        if start and laszip and lazrs.LazVlr(laszip[0].record_data).chunk_size() == _VARIABLE:
+            # variable-size LAZ chunks (COPC's octree nodes): lazrs's seek reads wrong
+            # points in them, so the chunks that hold the rows are found in the chunk table
+            # and decoded alone, as laspy's COPC reader decodes a node
+            record_data = laszip[0].record_data
+            with open(self.path, "rb") as f:
+                f.seek(header.offset_to_point_data)
+                table = lazrs.read_chunk_table(f, lazrs.LazVlr(record_data))
+                offset, first = header.offset_to_point_data + 8, 0
+                for points, size in table:
+                    if first + points > start and first < stop:
+                        f.seek(offset)
+                        out = np.zeros(points * header.point_format.size, np.uint8)
+                        lazrs.decompress_points_with_chunk_table(
+                            f.read(size), record_data, out, [(points, size)]
+                        )
+                        record = laspy.PackedPointRecord.from_buffer(out, header.point_format)
+                        scaled = laspy.ScaleAwarePointRecord(
+                            record.array, record.point_format, header.scales, header.offsets
+                        )
+                        yield scaled[max(start - first, 0) : stop - first]
+                    offset, first = offset + size, first + points
+            return
+        if start:
+            reader.seek(start)  # a fixed chunk size: the chunk found by the row's number
+        at = start
+        while at < stop:
+            chunk = reader.read_points(min(_CHUNK_POINTS, stop - at))
+            if len(chunk) == 0:
+                return
+            at += len(chunk)
+            yield chunk
 
     def _columns(self, chunk: laspy.ScaleAwarePointRecord) -> dict[str, np.ndarray]:
         get = chunk.__getitem__

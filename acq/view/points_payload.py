@@ -28,7 +28,7 @@ from acq.errors import InputError
 
 __all__ = [
     "COLUMNS", "FLAGS", "HEADER", "MAGIC", "Column", "Rows", "camera_names", "payload",
-    "rows_and_shown", "rows_of", "shown", "subset",
+    "positions", "rows_and_shown", "rows_of", "shown", "subset",
 ]  # fmt: skip
 
 MAGIC = b"ACQPTS2\0"
@@ -99,6 +99,15 @@ def subset(start: int, stop: int, max_points: int) -> np.ndarray:
 def shown(data: bytes | bytearray) -> int:
     """The points a payload holds (its header's)."""
     return int(HEADER.unpack_from(data)[1])
+
+
+def positions(data: bytes | bytearray) -> tuple[int, np.ndarray, np.ndarray]:
+    """A payload's rows in the range it stands for, its origin (3,) float64 m and its
+    points' offsets from it (m, 3) float32 (a view of ``data``)."""
+    _, m, _, start, stop, ox, oy, oz, _, _, names = HEADER.unpack_from(data)
+    at = HEADER.size + -(-names // 4) * 4
+    offsets = np.frombuffer(data, np.float32, 3 * m, at).reshape(m, 3)
+    return int(stop - start), np.array([ox, oy, oz]), offsets
 
 
 def rows_and_shown(data: bytes | bytearray) -> tuple[int, int]:

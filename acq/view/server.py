@@ -1,10 +1,11 @@
 """The HTTP server of `acq view`: the page (``/``), its files and vendored libraries
 (``/static/...``), the list of layers (``/api/layers``) and each layer's bytes
-(``/data/<k>/<name>``), on a thread of its own; nothing else is reachable. A drive's
-layer (:mod:`acq.view.drive`) serves ``/data/<k>/drive.json``, its cloud
-``/data/<k>/cloud.ply`` and its frames ``/data/<k>/frame/<camera>/<frame>.jpg``;
-``/api/frame?layer=K&point=I`` answers which frame a cloud's point was coloured from
-(:mod:`acq.view.frames`)."""
+(``/data/<k>/<name>``), on a thread of its own; nothing else is reachable. A cloud over
+``max_points`` also serves its chunks (``/data/<k>/lod.json``, ``/data/<k>/chunk/<c>.bin``:
+:mod:`acq.view.lod`). A drive's layer (:mod:`acq.view.drive`) serves
+``/data/<k>/drive.json``, its cloud ``/data/<k>/cloud.bin`` and its frames
+``/data/<k>/frame/<camera>/<frame>.jpg``; ``/api/frame?layer=K&point=I`` answers which
+frame a cloud's point was coloured from (:mod:`acq.view.frames`)."""
 
 from __future__ import annotations
 
@@ -25,19 +26,20 @@ from urllib.parse import parse_qs, quote, unquote, urlsplit
 
 from acq.addresses import is_loopback
 from acq.errors import InputError, first_line
-from acq.view import static
+from acq.view import lod, static
 from acq.view.crs import crs_of
 from acq.view.drive import Drive
 from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
 from acq.view.layers import Layer, layers_of
 from acq.view.points_payload import payload, rows_and_shown
 
-__all__ = ["DEFAULT_MAX_POINTS", "POINTS_NAME", "AddressError", "ViewServer"]
+__all__ = ["DEFAULT_MAX_POINTS", "LOD_NAME", "POINTS_NAME", "AddressError", "ViewServer"]
 
 _CHUNK = 1 << 20  # bytes copied to the socket at a time
 # a laptop's browser draws about a million points well and slows around 5-10 M
 DEFAULT_MAX_POINTS = 2_000_000
 POINTS_NAME = "points.bin"  # a cloud layer's URL name: its points packed for the page
+LOD_NAME = "lod.json"  # a subsampled cloud's chunks, each at chunk/<c>.bin
 DRIVE_NAME, DRIVE_CLOUD = "drive.json", "cloud.bin"  # a drive's URL names (its cloud packed)
 _POLL_S = 2.0  # how long a request for points still decoding waits before a 202
 
@@ -58,7 +60,9 @@ class ViewServer:
     (:mod:`acq.view.points_payload`), at most ``max_points`` of its points, once, on a
     thread started with the server: its URL answers 202 (Accepted, Retry-After) until
     then; a cloud whose points turn out unreadable answers 422 with the one-line reason,
-    also given to ``on_error``. A drive is read here (:class:`acq.view.drive.Drive`, with
+    also given to ``on_error``. One over ``max_points`` is also cut into chunks
+    (:mod:`acq.view.lod`, runs of ``run_points`` rows unless it is COPC) decoded when the
+    page asks for one. A drive is read here (:class:`acq.view.drive.Drive`, with
     ``calib``, its cloud made in ``cache`` when none lies beside it); a cloud layer's log
     is the drive it was found beside, else the only drive given."""
 
@@ -66,6 +70,7 @@ class ViewServer:
         self, paths: Sequence[Path], host: str = "127.0.0.1", port: int = 0,
         max_points: int = DEFAULT_MAX_POINTS, calib: Path | None = None,
         cache: Path | None = None, on_error: Callable[[str], None] | None = None,
+        run_points: int = lod.RUN_POINTS,
     ) -> None:  # fmt: skip
         if max_points < 1:
             raise ValueError(f"max_points {max_points}: at least 1")
@@ -86,6 +91,11 @@ class ViewServer:
         self._packer: threading.Thread | None = None
         self._drive_points: dict[tuple[int, Path], bytearray] = {}
         self._drive_lock = threading.Lock()
+        # the clouds over max_points: their chunks, found once their subset is packed
+        self.chunks: dict[int, list[lod.Chunk]] = {
+            k: [] for k in self.points if self.layers[k].count > max_points
+        }
+        self._run_points = run_points
         self.host, self.port = host, port
         self._httpd: _Server | None = None
         self._thread: threading.Thread | None = None
@@ -100,9 +110,9 @@ class ViewServer:
     def listing(self) -> list[dict[str, Any]]:
         """What ``/api/layers`` answers: each layer's name, kind, URL, bytes and count, and
         ``shown``, the points or vertices the page gets (fewer than ``count`` for a cloud
-        subsampled to ``max_points``); ``log``, for a cloud, the drive layer whose log it
-        was coloured from (None: none known); ``crs``, its file's
-        (:func:`acq.view.crs.crs_of`)."""
+        subsampled to ``max_points``, which has ``lod`` too: its chunks' URL); ``log``, for
+        a cloud, the drive layer whose log it was coloured from (None: none known); ``crs``,
+        its file's (:func:`acq.view.crs.crs_of`)."""
         return [
             {
                 "name": layer.name,
@@ -114,6 +124,7 @@ class ViewServer:
                 "log": self.log_of(k) if layer.kind == "cloud" else None,
                 "crs": self.crs[k],
             }
+            | ({"lod": f"/data/{k}/{LOD_NAME}"} if k in self.chunks else {})
             for k, layer in enumerate(self.layers)
         ]
 
@@ -186,6 +197,12 @@ class ViewServer:
             answer["url"] = f"/data/{d}/frame/{quote(answer['camera'])}/{answer['frame']}.jpg"
         return {"layer": k, "point": point, "log": d} | answer
 
+    def chunk(self, k: int, c: int) -> bytearray:
+        """The page's binary of chunk ``c`` of layer ``k``: its rows, at most
+        :data:`acq.view.lod.CHUNK_CAP` of them (evenly spread beyond)."""
+        found = self.chunks[k][c]
+        return payload(self.layers[k].path, lod.CHUNK_CAP, found.start, found.stop)
+
     def _data_url(self, k: int, layer: Layer) -> str:
         if k in self.drives:
             return f"/data/{k}/{DRIVE_NAME}"
@@ -236,6 +253,10 @@ class ViewServer:
             path = self.layers[k].path
             try:
                 packing.data = payload(path, self.max_points)
+                if k in self.chunks:
+                    self.chunks[k] = lod.chunks(
+                        path, self.layers[k].count, packing.data, self._run_points
+                    )
             except InputError as e:
                 packing.error = str(e)
             # never a page left waiting: said, whatever it was (a Rust decoder's panic
@@ -314,15 +335,34 @@ class _Handler(BaseHTTPRequestHandler):
         elif (route := _drive_route(view, path)) is not None:
             self._drive(*route, body)
         elif path.startswith("/data/"):
-            k = _layer_index(view, path)
-            if k is None:
-                self._not_found()
-            elif k in view.points:
-                self._points(view.points[k], view.layers[k].name, body)
-            else:
-                self._file(view.layers[k].path, body)
+            self._data(view, path, body)
         else:
             self._not_found()
+
+    def _data(self, view: ViewServer, path: str, body: bool) -> None:
+        found = _data_route(view, path)
+        if found is None:
+            self._not_found()
+            return
+        k, c = found
+        if c is None and k not in view.points:
+            self._file(view.layers[k].path, body)
+        elif not self._packed(view.points[k], view.layers[k].name, body):
+            return  # a 202 or 422 said
+        elif c is None:
+            self._send(view.points[k].data or b"", "application/octet-stream", body, "no-cache")
+        elif c == "lod":
+            data = json.dumps(lod.index(view.chunks[k])).encode()
+            self._send(data, "application/json", body, "no-cache")
+        elif isinstance(c, str) or c >= len(view.chunks[k]):
+            self._not_found()
+        else:
+            try:
+                chunk = view.chunk(k, c)
+            except InputError as e:  # the file changed since the server started
+                self.send_error(HTTPStatus.INTERNAL_SERVER_ERROR, "a chunk unread", str(e))
+                return
+            self._send(chunk, "application/octet-stream", body, "no-cache")
 
     def _frame(self, body: bool) -> None:
         query = parse_qs(urlsplit(self.path).query)
@@ -405,19 +445,20 @@ class _Handler(BaseHTTPRequestHandler):
             for start in range(0, len(data), _CHUNK):
                 self.wfile.write(view[start : start + _CHUNK])
 
-    def _points(self, packing: _Packing, name: str, body: bool) -> None:
-        """A cloud's payload; 202 (Accepted: a browser logs a 503 as an error) while it is
-        packed, after a wait so that it comes as soon as it is ready; 422 and the reason
+    def _packed(self, packing: _Packing, name: str, body: bool) -> bool:
+        """Whether a cloud is packed; if not, 202 said (Accepted: a browser logs a 503 as an
+        error) after a wait, so that it comes as soon as it is ready, or 422 and the reason
         when its points could not be read."""
         if not packing.done.wait(_POLL_S):
             self.send_response(HTTPStatus.ACCEPTED)
             self.send_header("Retry-After", "0")  # the next request waits again
             self._text(f"decoding {name}", body)
-        elif packing.data is not None:
-            self._send(packing.data, "application/octet-stream", body, "no-cache")
-        else:
+            return False
+        if packing.data is None:
             self.send_response(HTTPStatus.UNPROCESSABLE_ENTITY)
             self._text(packing.error or "", body)
+            return False
+        return True
 
     def _text(self, text: str, body: bool) -> None:
         """The rest of an answer whose status is sent: ``text`` as its body."""
@@ -454,14 +495,25 @@ def _drive_route(view: ViewServer, path: str) -> tuple[int, list[str]] | None:
     return int(parts[2]), parts[3:]
 
 
-def _layer_index(view: ViewServer, path: str) -> int | None:
-    """The layer k of ``/data/<k>/<name>``, when ``name`` is its URL's (its file's name,
-    or :data:`POINTS_NAME` for a cloud)."""
+def _data_route(view: ViewServer, path: str) -> tuple[int, int | str | None] | None:
+    """What ``path`` names below /data/: (k, None) for layer k's own URL (its file's
+    name, or :data:`POINTS_NAME` for a cloud), (k, "lod") for its chunks' index, (k, c)
+    for its chunk c (``chunk/<c>.bin``); None for anything else."""
     parts = path.split("/")
-    if len(parts) != 4 or not parts[2].isdigit():
+    k = _number(parts[2]) if len(parts) in (4, 5) else None
+    if k is None or k >= len(view.layers):
         return None
-    k = int(parts[2])
-    if k >= len(view.layers):
+    if len(parts) == 5:
+        c = _number(parts[4].removesuffix(".bin")) if parts[4].endswith(".bin") else None
+        if k in view.chunks and parts[3] == "chunk" and c is not None:
+            return k, c  # its number checked once the chunks are known
         return None
+    if parts[3] == LOD_NAME:
+        return (k, "lod") if k in view.chunks else None
     expected = POINTS_NAME if k in view.points else view.layers[k].name
-    return k if parts[3] == expected else None
+    return (k, None) if parts[3] == expected else None
+
+
+def _number(text: str) -> int | None:
+    """The number ``text`` writes in ASCII decimal digits, or None."""
+    return int(text) if text.isascii() and text.isdigit() else None

@@ -54,17 +54,23 @@ export function parsePoints(buffer) {
   return { count, rows, start, stop, origin, time0, cameras, positions, attributes };
 }
 
-// the parsed points as a three.js Points object at their origin, each a square of pointSize
-// pixels; colour_modes.js gives their colours from the attributes kept in its geometry's
-// userData.points (applyColourMode for one added to a layer later)
-export function pointsObject(points, pointSize) {
+// the parsed points as a geometry about their origin, the points kept in its userData
+// (colour_modes.js colours them from there)
+export function pointsGeometry(points) {
   const geometry = new THREE.BufferGeometry();
   geometry.setAttribute('position', new THREE.BufferAttribute(points.positions, 3));
   geometry.userData.points = points;
   geometry.computeBoundingBox();
   geometry.computeBoundingSphere();
+  return geometry;
+}
+
+// the parsed points as a three.js Points object at their origin, each a square of pointSize
+// pixels; colour_modes.js gives their colours from the attributes kept in its geometry's
+// userData.points (applyColourMode for one added to a layer later)
+export function pointsObject(points, pointSize) {
   const material = new THREE.PointsMaterial({ size: pointSize, sizeAttenuation: false });
-  const object = new THREE.Points(geometry, material);
+  const object = new THREE.Points(pointsGeometry(points), material);
   object.position.set(...points.origin);
   return object;
 }

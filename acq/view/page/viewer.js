@@ -12,6 +12,7 @@ import { walkTool } from './walk.js';
 import { orbitHooks } from './orbit.js';
 import { overlays } from './overlays.js';
 import { applyColourMode, colourModes } from './colour_modes.js';
+import { levelOfDetail, lodBudget } from './lod.js';
 import { measureTool } from './measure.js';
 import { parsePoints, pointsObject } from './points.js';
 
@@ -157,6 +158,7 @@ function frame(box, camera, controls) {
 }
 
 async function main() {
+  const budget = lodBudget(window.location.search);
   const layers = await listLayers();
   message.textContent = `loading ${layers.length} layer${layers.length === 1 ? '' : 's'}…`;
   const renderer = new THREE.WebGLRenderer({ antialias: true });
@@ -223,8 +225,15 @@ async function main() {
   window.acqScene = scene; // each layer's object by its name, for the tests and the console
   render();
   message.textContent = '';
-  // the frame rendered above is on the screen at the next animation frame
-  requestAnimationFrame(() => { window.acqReady = true; });
+  // the frame rendered above is on the screen at the next animation frame; finer points after it
+  requestAnimationFrame(() => {
+    window.acqReady = true;
+    levelOfDetail({
+      layers: layers.map((layer, k) => ({ layer, object: objects[k] })).filter(({ layer }) => layer.lod),
+      camera, controls, renderer, render, budget, say: (text) => { message.textContent = text; },
+      onChunk: applyColourMode,
+    }).catch((error) => window.acqFail(error?.message ?? String(error)));
+  });
 }
 
 main().catch((error) => window.acqFail(error?.message ?? String(error)));

@@ -9,7 +9,6 @@ Times host monotonic ns unless ``_s``; metres; pixels from the image's top-left 
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,11 +20,11 @@ from acq.errors import InputError, first_line
 from acq.geometry.transforms import Rigid
 from acq.log.drive_log import read_log
 from acq.time.utc import utc_seconds
+from acq.view.cloud_rows import NO_CAMERA, rows_of
 from acq.view.drive import Drive
 
 __all__ = ["NO_CAMERA", "FrameError", "PointRow", "frame_jpeg", "point_frame", "point_row"]
 
-NO_CAMERA = 255  # a point no camera coloured (its camera index)
 _FRAME_WINDOW_NS = (2 * 10**9, 5 * 10**9)  # log time read before/after a frame's stamp
 
 
@@ -54,66 +53,24 @@ class PointRow:
 def point_row(path: Path, row: int) -> PointRow:
     """Row ``row`` of the cloud ``path`` (PLY as `acq colorize` writes it, LAS/LAZ/COPC);
     FrameError for a row outside the file or a cloud without source cameras."""
-    if path.suffix.lower() == ".ply":
-        return _ply_row(path, row)
-    return _las_row(path, row)
-
-
-def _ply_row(path: Path, row: int) -> PointRow:
-    from plyfile import PlyData
-
-    data = PlyData.read(str(path), mmap=True)
-    vertex = data["vertex"].data
-    if not 0 <= row < len(vertex):
-        raise FrameError(f"{path.name}: no point {row} (it has {len(vertex)})")
-    names = vertex.dtype.names or ()
-    if not {"scalar_camera", "scalar_frame"} <= set(names):
-        raise FrameError(f"{path.name}: its points do not say which camera coloured them", 409)
-    cameras = _camera_names(c.split(" ", 2)[1:] for c in data.comments if c.startswith("camera "))
-    v = vertex[row]
-    world = "frame laser" not in data.comments
-    return _row(row, (v["x"], v["y"], v["z"]), int(v["scalar_camera"]), int(v["scalar_frame"]),
-                cameras, world, path)  # fmt: skip
-
-
-def _las_row(path: Path, row: int) -> PointRow:
-    import laspy
-
-    with laspy.open(path) as reader:
-        count = int(reader.header.point_count)
-        if not 0 <= row < count:
-            raise FrameError(f"{path.name}: no point {row} (it has {count})")
-        if not {"camera", "frame"} <= set(reader.header.point_format.dimension_names):
+    rows = rows_of(path)
+    try:
+        if not 0 <= row < rows.count:
+            raise FrameError(f"{path.name}: no point {row} (it has {rows.count})")
+        if not {"camera", "frame"} <= rows.columns:
             raise FrameError(f"{path.name}: its points do not say which camera coloured them", 409)
-        vlr = next((v for v in reader.header.vlrs if (v.user_id, v.record_id) == ("acq", 1)), None)
-        text = vlr.record_data.decode("ascii", "replace") if vlr is not None else ""
-        cameras = _camera_names(line.split(" ", 1) for line in text.splitlines())
-        reader.seek(row)
-        p = reader.read_points(1)
-    xyz = (float(p.x[0]), float(p.y[0]), float(p.z[0]))
-    return _row(row, xyz, int(p["camera"][0]), int(p["frame"][0]), cameras, True, path)
-
-
-def _camera_names(pairs: Iterable[list[str]]) -> dict[int, str]:
-    """Camera index -> name from ``[index, name]`` text pairs (malformed ones skipped)."""
-    return {int(p[0]): p[1] for p in pairs if len(p) == 2 and p[0].isdigit()}
-
-
-def _row(
-    row: int, xyz: Any, camera: int, frame: int, cameras: dict[int, str], world: bool, path: Path
-) -> PointRow:
+        point = next(rows.read(row, row + 1))
+    finally:
+        rows.close()
+    x, y, z = (float(v) for v in point["xyz"][0])
+    camera, frame = int(point["camera"][0]), int(point["frame"][0])
     if camera == NO_CAMERA or frame < 0:
-        return PointRow(row, _xyz(xyz), None, -1, world)
-    if camera not in cameras:
+        return PointRow(row, (x, y, z), None, -1, rows.world)
+    if camera >= len(rows.cameras):
         raise FrameError(
             f"{path.name}: point {row}'s camera {camera} is not named in the file", 409
         )
-    return PointRow(row, _xyz(xyz), cameras[camera], frame, world)
-
-
-def _xyz(xyz: Any) -> tuple[float, float, float]:
-    x, y, z = (float(v) for v in xyz)
-    return x, y, z
+    return PointRow(row, (x, y, z), rows.cameras[camera], frame, rows.world)
 
 
 def point_frame(drive: Drive, point: PointRow) -> dict[str, Any]:

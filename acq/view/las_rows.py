@@ -18,7 +18,7 @@ import numpy as np
 
 from acq.errors import InputError, first_line
 from acq.time.gpstime import utc_from_adjusted_standard_time
-from acq.view.points_payload import camera_names
+from acq.view.camera_names import camera_names
 
 if TYPE_CHECKING:
     import laspy
@@ -33,7 +33,7 @@ _VARIABLE = 0xFFFFFFFF  # a LAZ chunk size that says the chunks vary in size (CO
 # the payload's columns by the LAS dimension holding them
 _DIMENSIONS = {
     "time": "gps_time", "scan": "scan_index", "intensity": "intensity", "coloured": "coloured",
-    "camera": "camera",
+    "camera": "camera", "frame": "frame",
 }  # fmt: skip
 
 
@@ -67,7 +67,7 @@ def check(path: Path) -> int:
 
 class LasRows:
     """The rows of the LAS/LAZ/COPC file ``path`` (checked: :func:`check`), open until
-    :meth:`close` (see :class:`acq.view.points_payload.Rows`)."""
+    :meth:`close` (see :class:`acq.view.cloud_rows.Rows`)."""
 
     def __init__(self, path: Path) -> None:
         import laspy
@@ -85,6 +85,7 @@ class LasRows:
             [k for k, d in _DIMENSIONS.items() if d in names] + ["rgb"] * self._rgb
         )
         self.cameras = cameras(header.vlrs)
+        self.world = True  # a LAS file says nothing of it: taken as the world frame
         self._utc = header.global_encoding.gps_time_type == laspy.header.GpsTimeType.STANDARD
 
     def read(self, start: int, stop: int) -> Iterator[dict[str, np.ndarray]]:

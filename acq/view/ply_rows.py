@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from acq.errors import InputError, first_line
-from acq.view.points_payload import camera_names
+from acq.view.camera_names import camera_names
 
 __all__ = ["PlyRows"]
 
@@ -25,12 +25,13 @@ _PROPERTIES = {
     "intensity": ("intensity", "scalar_intensity"),
     "coloured": ("scalar_coloured", "coloured"),
     "camera": ("scalar_camera", "camera"),
+    "frame": ("scalar_frame", "frame"),
 }
 
 
 class PlyRows:
     """The vertices of the PLY cloud ``path`` (a checked layer's:
-    :mod:`acq.view.layers`), see :class:`acq.view.points_payload.Rows`."""
+    :mod:`acq.view.layers`), see :class:`acq.view.cloud_rows.Rows`."""
 
     def __init__(self, path: Path) -> None:
         from plyfile import PlyData, PlyParseError
@@ -60,6 +61,7 @@ class PlyRows:
         self.cameras = camera_names(
             [c.removeprefix("camera ") for c in data.comments if c.startswith("camera ")]
         )
+        self.world = "frame laser" not in data.comments
 
     def read(self, start: int, stop: int) -> Iterator[dict[str, np.ndarray]]:
         for at in range(start, stop, _CHUNK_POINTS):

@@ -17,18 +17,17 @@ index of its name, 255 none). The page's point ``j`` is the file's row
 from __future__ import annotations
 
 import struct
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 
 from acq.errors import InputError
+from acq.view.cloud_rows import Rows, rows_of
 
 __all__ = [
-    "COLUMNS", "FLAGS", "HEADER", "MAGIC", "Column", "Rows", "camera_names", "payload",
-    "positions", "rows_and_shown", "rows_of", "shown", "subset",
+    "COLUMNS", "FLAGS", "HEADER", "MAGIC", "Column", "payload", "positions", "rows_and_shown",
+    "shown", "subset",
 ]  # fmt: skip
 
 MAGIC = b"ACQPTS2\0"
@@ -58,34 +57,6 @@ COLUMNS = (
     Column("camera", 32, np.uint8),
 )
 FLAGS = {c.name: c.flag for c in COLUMNS}
-
-
-class Rows(Protocol):
-    """A cloud file's points, read by row: ``count`` rows, ``columns`` the names of
-    :data:`COLUMNS` it holds, ``cameras`` the names of its cameras (index order)."""
-
-    count: int
-    columns: frozenset[str]
-    cameras: list[str]
-
-    def read(self, start: int, stop: int) -> Iterator[dict[str, np.ndarray]]:
-        """Rows [start, stop) in consecutive chunks: "xyz" (n,3) float64 m and the
-        columns it holds ("rgb" (n,3) uint8, or uint16 for LAS's 16 bits; the others
-        (n,)); InputError naming the file when they cannot be read."""
-        ...
-
-    def close(self) -> None: ...
-
-
-def rows_of(path: Path) -> Rows:
-    """The reader of the cloud file ``path`` by its suffix (:data:`CLOUD_SUFFIXES`)."""
-    if path.suffix.lower() == ".ply":
-        from acq.view.ply_rows import PlyRows
-
-        return PlyRows(path)
-    from acq.view.las_rows import LasRows
-
-    return LasRows(path)
 
 
 def subset(start: int, stop: int, max_points: int) -> np.ndarray:
@@ -190,18 +161,6 @@ def _pack(path: Path, rows: Rows, max_points: int, start: int, stop: int) -> byt
         data, 0, MAGIC, m, rows.count, start, stop, *origin.tolist(), t0, flags, len(names)
     )
     return data
-
-
-def camera_names(lines: list[str]) -> list[str]:
-    """The cameras' names by index from lines ``<index> <name>`` (others ignored; a
-    name missing ``camera <index>``), as acq writes them in a PLY's comments and a LAS
-    file's VLR."""
-    found: dict[int, str] = {}
-    for line in lines:
-        index, _, name = line.strip().partition(" ")
-        if index.isdigit() and int(index) < 255 and name:
-            found[int(index)] = name
-    return [found.get(k, f"camera {k}") for k in range(max(found, default=-1) + 1)]
 
 
 def _rgb8(rgb16: np.ndarray) -> np.ndarray:

@@ -223,6 +223,7 @@ function legend() {
   const mode = MODES.find((m) => m.id === state.mode);
   const line = (...parts) => { const d = document.createElement('div'); d.append(...parts); box.append(d); };
   for (const layer of state.layers) {
+    if (!pointsOf(layer.root).length) continue; // a drive with no cloud (yet, or its own layer)
     const { stats } = layer;
     if (mode.needs && !has(layer, mode.needs)) {
       line(swatch(GREY, `${layer.name}: no ${mode.label}`));

@@ -64,6 +64,10 @@ def test_a_cloud_is_drawn_in_its_own_colours(browser: Browser, tmp_path: Path) -
     assert _share(image, WALL, 4) > 0.05, "the wall's colour is not on the screen"
     assert _share(image, BACKGROUND, 4) > 0.2
     assert browser.evaluate("document.querySelectorAll('#layers input').length") == 1
+    # no drive: no trajectory to walk, no frames to show
+    hidden = "document.getElementById('{}').closest('.control').hidden"
+    assert browser.evaluate(hidden.format("walk")) is True
+    assert browser.evaluate(hidden.format("show-frame")) is True
 
 
 def test_meshes_of_both_kinds_are_drawn_in_their_own_colours(

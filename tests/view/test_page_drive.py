@@ -85,6 +85,10 @@ def test_a_click_shows_the_frame_with_the_point_ringed_at_its_pixel(
     xyz = np.array(PlyData.read(str(drive.cloud))["vertex"].data[["x", "y", "z"]].tolist())
     with ViewServer([drive.log]) as server:
         _open(browser, server)
+        shown = "!document.getElementById('{}').closest('.control').hidden"
+        assert browser.evaluate(shown.format("show-frame")) and browser.evaluate(
+            shown.format("walk")
+        )
         browser.evaluate("document.getElementById('show-frame').click()")
         # a facade point the colouring coloured, drawn clear of the panel
         candidates = np.flatnonzero((drive.frame >= 0) & (xyz[:, 2] > 2.0))

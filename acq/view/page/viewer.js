@@ -215,6 +215,11 @@ async function main() {
     framedOnNothing = true;
   }
   frame(box, camera, controls);
+  // the drive's tools only where there is one: a trajectory to walk, frames to show
+  const drives = layers.some((layer) => layer.kind === 'drive');
+  document.getElementById('walk').closest('.control').hidden = !drives;
+  document.getElementById('show-frame').closest('.control').hidden =
+    !layers.some((layer) => layer.kind === 'drive' || layer.log != null);
   frameTool(camera, renderer.domElement, objects);
   const paths = () => objects.filter((o) => o.visible && o.userData.path).map((o) => o.userData.path);
   walkTool(camera, controls, paths, render);

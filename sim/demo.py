@@ -303,6 +303,8 @@ def _summary(
         "frames rendered first)")  # fmt: skip
     if notes:
         lines.append("  notes     " + "; ".join(notes))
+    folder = next(iter(result.files.values())).parent
+    lines.append(f"  look      acq view {folder}   (its cloud, meshes and drive in a web browser)")
     return lines
 
 

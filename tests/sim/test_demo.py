@@ -79,8 +79,9 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
 
 
 def test_exit_code_files_and_time(demo: Demo) -> None:
-    out, code, took, _, _ = demo
+    out, code, took, _, printed = demo
     assert code == 0
+    assert f"acq view {out}" in printed  # where to look at it next
     for name in (
         "demo.mcap",
         "cloud.ply",

@@ -219,6 +219,12 @@ class Browser:
                 )
             time.sleep(interval_s)
 
+    def block(self, *patterns: str) -> None:
+        """Requests to URLs matching ``patterns`` (``*`` any characters) fail in the
+        browser from now on, as on a network that drops them; none given: none blocked."""
+        self._call("Network.enable")
+        self._call("Network.setBlockedURLs", urls=list(patterns))
+
     def click(self, x: float, y: float) -> None:
         """A left click of the mouse at (x, y) CSS pixels from the page's top-left corner
         (fractions kept): moved there, pressed and released, as a user's click."""

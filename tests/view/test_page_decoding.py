@@ -30,11 +30,11 @@ def held(monkeypatch: pytest.MonkeyPatch) -> Iterator[threading.Event]:
     their 202."""
     gate = threading.Event()
 
-    def slow(path: Path, max_points: int) -> bytearray:
+    def slow(path: Path, max_points: int) -> points_payload.Split:
         gate.wait(60)
-        return points_payload.payload(path, max_points)
+        return points_payload.split_payload(path, max_points)
 
-    monkeypatch.setattr("acq.view.server.payload", slow)
+    monkeypatch.setattr("acq.view.server.split_payload", slow)
     monkeypatch.setattr("acq.view.server._POLL_S", 0.2)
     yield gate
     gate.set()

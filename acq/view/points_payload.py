@@ -122,6 +122,7 @@ def split_payload(path: Path, max_points: int) -> Split:
 def _payload(
     path: Path, max_points: int, start: int, stop: int | None, split: bool
 ) -> list[bytearray]:
+    """:func:`payload`'s checks, then the packing: one buffer, or the two parts."""
     if max_points < 1:
         raise ValueError(f"max_points {max_points}: at least 1")
     rows = rows_of(path)

@@ -219,6 +219,23 @@ class Browser:
                 )
             time.sleep(interval_s)
 
+    def block(self, *patterns: str) -> None:
+        """Requests to URLs matching ``patterns`` (``*`` any characters) fail in the
+        browser from now on, as on a network that drops them; none given: none blocked."""
+        self._call("Network.enable")
+        self._call("Network.setBlockedURLs", urls=list(patterns))
+
+    def throttle(self, mbit_s: float | None, latency_ms: float = 2.0) -> None:
+        """The page's requests received at ``mbit_s`` megabits a second after
+        ``latency_ms`` (a Wi-Fi link's, say), as Chromium's DevTools emulate it; None: at
+        full speed again."""
+        self._call("Network.enable")
+        rate = -1 if mbit_s is None else mbit_s * 1e6 / 8  # bytes/s; -1: no limit
+        self._call(
+            "Network.emulateNetworkConditions", offline=False, latency=latency_ms,
+            downloadThroughput=rate, uploadThroughput=rate,
+        )  # fmt: skip
+
     def click(self, x: float, y: float) -> None:
         """A left click of the mouse at (x, y) CSS pixels from the page's top-left corner
         (fractions kept): moved there, pressed and released, as a user's click."""

@@ -6,13 +6,18 @@ The payload, little-endian: the header (:data:`HEADER`, 80 bytes): the 8-byte ma
 ``ACQPTS2\\0``, uint64 points served ``m``, rows in the file, first row ``start`` and end
 row ``stop`` of the range served, float64 x y z of the origin (metres, the file's CRS),
 float64 time of the first point served (the file's seconds: PLY UTC, LAS GPS time),
-uint32 flags (which arrays follow: :data:`FLAGS`), uint32 length of the camera names;
-the camera names (UTF-8, one per line, in index order), zero-padded to 4 bytes; then
-float32 x y z of each point as offsets from the origin (m), and the arrays the flags
-name, in :data:`COLUMNS` order: float32 time from the first (s), uint32 scan index,
-float32 intensity, uint8 sRGB r g b, uint8 coloured (0/1), uint8 source camera (the
-index of its name, 255 none). The page's point ``j`` is the file's row
-``start + j * (stop - start) // m``."""
+uint32 flags (the attributes the file has: :data:`FLAGS`, and which part this is),
+uint32 length of the camera names; the camera names (UTF-8, one per line, in index
+order), zero-padded to 4 bytes; then the arrays: float32 x y z of each point as offsets
+from the origin (m), and the attributes flagged, in :data:`COLUMNS` order: float32 time
+from the first (s), uint32 scan index, float32 intensity, uint8 sRGB r g b, uint8
+coloured (0/1), uint8 source camera (the index of its name, 255 none). The page's point
+``j`` is the file's row ``start + j * (stop - start) // m``.
+
+A payload may be split in two parts with the same header but for its part flag, so that
+the page's first frame waits only for what it draws: :data:`POINTS_PART` holds the
+positions and sRGB only, :data:`ATTRIBUTES_PART` the other attributes flagged (no
+positions) of the same points."""
 
 from __future__ import annotations
 
@@ -26,8 +31,8 @@ from acq.errors import InputError
 from acq.view.cloud_rows import Rows, rows_of
 
 __all__ = [
-    "COLUMNS", "FLAGS", "HEADER", "MAGIC", "Column", "payload", "positions", "rows_and_shown",
-    "shown", "subset",
+    "ATTRIBUTES_PART", "COLUMNS", "FLAGS", "HEADER", "MAGIC", "POINTS_PART", "Column", "Split",
+    "payload", "positions", "rows_and_shown", "shown", "split_payload", "subset",
 ]  # fmt: skip
 
 MAGIC = b"ACQPTS2\0"
@@ -57,6 +62,17 @@ COLUMNS = (
     Column("camera", 32, np.uint8),
 )
 FLAGS = {c.name: c.flag for c in COLUMNS}
+# the part flags: positions and sRGB only / the other attributes only (of the same points)
+POINTS_PART, ATTRIBUTES_PART = 64, 128
+_DRAWN = ("xyz", "rgb")  # what the points part holds
+
+
+@dataclass(frozen=True)
+class Split:
+    """A payload in its two parts (:data:`POINTS_PART`, :data:`ATTRIBUTES_PART`)."""
+
+    points: bytearray
+    attributes: bytearray
 
 
 def subset(start: int, stop: int, max_points: int) -> np.ndarray:
@@ -93,6 +109,20 @@ def payload(path: Path, max_points: int, start: int = 0, stop: int | None = None
     ``path`` (a checked layer's: :mod:`acq.view.layers`): every one, or ``max_points`` of
     them evenly spread (:func:`subset`); InputError naming the file when its points
     cannot be read, are fewer than its header says or are too far apart for float32."""
+    return _payload(path, max_points, start, stop, split=False)[0]
+
+
+def split_payload(path: Path, max_points: int) -> Split:
+    """The page's binary of the cloud file ``path`` as :func:`payload` makes it, in its
+    two parts, made in the same pass (the memory of one payload and a header)."""
+    points, attributes = _payload(path, max_points, 0, None, split=True)
+    return Split(points, attributes)
+
+
+def _payload(
+    path: Path, max_points: int, start: int, stop: int | None, split: bool
+) -> list[bytearray]:
+    """:func:`payload`'s checks, then the packing: one buffer, or the two parts."""
     if max_points < 1:
         raise ValueError(f"max_points {max_points}: at least 1")
     rows = rows_of(path)
@@ -100,27 +130,40 @@ def payload(path: Path, max_points: int, start: int = 0, stop: int | None = None
         stop = rows.count if stop is None else stop
         if not 0 <= start < stop <= rows.count:
             raise ValueError(f"rows [{start}, {stop}) of a file of {rows.count}")
-        return _pack(path, rows, max_points, start, stop)
+        return _pack(path, rows, max_points, start, stop, split)
     finally:
         rows.close()
 
 
-def _pack(path: Path, rows: Rows, max_points: int, start: int, stop: int) -> bytearray:
-    """The payload of ``rows`` [start, stop), filled in place (no copy of it is made)."""
+def _pack(
+    path: Path, rows: Rows, max_points: int, start: int, stop: int, split: bool
+) -> list[bytearray]:
+    """The payload of ``rows`` [start, stop), whole or in its two parts, filled in place
+    (no copy of it is made)."""
     n = stop - start
     m = min(n, max_points)
     columns = [c for c in COLUMNS if c.name in rows.columns]
     names = "\n".join(rows.cameras).encode() if "camera" in rows.columns else b""
-    at = HEADER.size + -(-len(names) // 4) * 4
-    data = bytearray(at + 12 * m + sum(c.width * np.dtype(c.dtype).itemsize * m for c in columns))
-    data[HEADER.size : HEADER.size + len(names)] = names
-    xyz = np.frombuffer(data, np.float32, 3 * m, at).reshape(m, 3)
-    at += 12 * m
+    # each part's arrays (name, type, values per point), in the payload's order
+    arrays = [("xyz", np.float32, 3)] + [(c.name, c.dtype, c.width) for c in columns]
+    parts = (
+        [[a for a in arrays if a[0] in _DRAWN], [a for a in arrays if a[0] not in _DRAWN]]
+        if split
+        else [arrays]
+    )
+    head = HEADER.size + -(-len(names) // 4) * 4
+    buffers: list[bytearray] = []
     out: dict[str, np.ndarray] = {}
-    for c in columns:
-        view = np.frombuffer(data, c.dtype, c.width * m, at)
-        out[c.name] = view.reshape(m, c.width) if c.width > 1 else view
-        at += c.width * np.dtype(c.dtype).itemsize * m
+    for part in parts:
+        data = bytearray(head + sum(w * np.dtype(t).itemsize * m for _, t, w in part))
+        data[HEADER.size : HEADER.size + len(names)] = names
+        at = head
+        for name, dtype, width in part:
+            view = np.frombuffer(data, dtype, width * m, at)
+            out[name] = view.reshape(m, width) if width > 1 else view
+            at += width * np.dtype(dtype).itemsize * m
+        buffers.append(data)
+    xyz = out["xyz"]
     rgb16 = np.zeros((m, 3), np.uint16) if "rgb" in out else None
     origin = np.zeros(3)
     t0 = 0.0
@@ -157,10 +200,13 @@ def _pack(path: Path, rows: Rows, max_points: int, start: int, stop: int) -> byt
     if rgb16 is not None:
         out["rgb"][:] = _rgb8(rgb16)
     flags = sum(c.flag for c in columns)
-    HEADER.pack_into(
-        data, 0, MAGIC, m, rows.count, start, stop, *origin.tolist(), t0, flags, len(names)
-    )
-    return data
+    kinds = (POINTS_PART, ATTRIBUTES_PART) if split else (0,)
+    for data, kind in zip(buffers, kinds, strict=True):
+        HEADER.pack_into(
+            data, 0, MAGIC, m, rows.count, start, stop, *origin.tolist(), t0, flags | kind,
+            len(names),
+        )  # fmt: skip
+    return buffers
 
 
 def _rgb8(rgb16: np.ndarray) -> np.ndarray:

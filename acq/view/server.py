@@ -1,9 +1,12 @@
 """The HTTP server of `acq view`: the page (``/``), its files and vendored libraries
 (``/static/...``), the list of layers (``/api/layers``) and each layer's bytes
-(``/data/<k>/<name>``), on a thread of its own; nothing else is reachable. A cloud over
+(``/data/<k>/<name>``; a cloud's points ``points.bin`` and their other attributes
+``attributes.bin``, the parts of :func:`acq.view.points_payload.split_payload`), on a
+thread of its own; nothing else is reachable. A cloud over
 ``max_points`` also serves its chunks (``/data/<k>/lod.json``, ``/data/<k>/chunk/<c>.bin``:
 :mod:`acq.view.lod`). A drive's layer (:mod:`acq.view.drive`) serves
-``/data/<k>/drive.json``, its cloud ``/data/<k>/cloud.bin`` and its frames
+``/data/<k>/drive.json``, its cloud ``/data/<k>/cloud.bin`` (its attributes
+``/data/<k>/cloud-attributes.bin``) and its frames
 ``/data/<k>/frame/<camera>/<frame>.jpg``; ``/api/frame?layer=K&point=I`` answers which
 frame a cloud's point was coloured from (:mod:`acq.view.frames`)."""
 
@@ -31,16 +34,21 @@ from acq.view.crs import crs_of
 from acq.view.drive import Drive
 from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
 from acq.view.layers import Layer, layers_of
-from acq.view.points_payload import payload, rows_and_shown
+from acq.view.points_payload import Split, payload, rows_and_shown, split_payload
 
-__all__ = ["DEFAULT_MAX_POINTS", "LOD_NAME", "POINTS_NAME", "AddressError", "ViewServer"]
+__all__ = [
+    "ATTRIBUTES_NAME", "DEFAULT_MAX_POINTS", "LOD_NAME", "POINTS_NAME", "AddressError",
+    "ViewServer",
+]  # fmt: skip
 
 _CHUNK = 1 << 20  # bytes copied to the socket at a time
 # a laptop's browser draws about a million points well and slows around 5-10 M
 DEFAULT_MAX_POINTS = 2_000_000
 POINTS_NAME = "points.bin"  # a cloud layer's URL name: its points packed for the page
+ATTRIBUTES_NAME = "attributes.bin"  # and their attributes (but sRGB), for the colour modes
 LOD_NAME = "lod.json"  # a subsampled cloud's chunks, each at chunk/<c>.bin
-DRIVE_NAME, DRIVE_CLOUD = "drive.json", "cloud.bin"  # a drive's URL names (its cloud packed)
+# a drive's URL names (its cloud packed, its cloud's attributes)
+DRIVE_NAME, DRIVE_CLOUD, DRIVE_ATTRIBUTES = "drive.json", "cloud.bin", "cloud-attributes.bin"
 _POLL_S = 2.0  # how long a request for points still decoding waits before a 202
 
 
@@ -89,7 +97,7 @@ class ViewServer:
             raise InputError(f"--calib {calib}: no .mcap log to use it with")
         self._on_error = on_error
         self._packer: threading.Thread | None = None
-        self._drive_points: dict[tuple[int, Path], bytearray] = {}
+        self._drive_points: dict[tuple[int, Path], Split] = {}
         self._drive_lock = threading.Lock()
         # the clouds over max_points: their chunks, found once their subset is packed
         self.chunks: dict[int, list[lod.Chunk]] = {
@@ -110,7 +118,8 @@ class ViewServer:
     def listing(self) -> list[dict[str, Any]]:
         """What ``/api/layers`` answers: each layer's name, kind, URL, bytes and count, and
         ``shown``, the points or vertices the page gets (fewer than ``count`` for a cloud
-        subsampled to ``max_points``, which has ``lod`` too: its chunks' URL); ``log``, for
+        subsampled to ``max_points``, which has ``lod`` too: its chunks' URL); a cloud's
+        ``attributes``, its attributes' URL (:data:`ATTRIBUTES_NAME`); ``log``, for
         a cloud, the drive layer whose log it was coloured from (None: none known); ``crs``,
         its file's (:func:`acq.view.crs.crs_of`)."""
         return [
@@ -125,6 +134,7 @@ class ViewServer:
                 "crs": self.crs[k],
             }
             | ({"lod": f"/data/{k}/{LOD_NAME}"} if k in self.chunks else {})
+            | ({"attributes": f"/data/{k}/{ATTRIBUTES_NAME}"} if k in self.points else {})
             for k, layer in enumerate(self.layers)
         ]
 
@@ -145,26 +155,32 @@ class ViewServer:
 
     def drive_data(self, k: int) -> dict[str, Any]:
         """``/data/<k>/drive.json``: the drive's data (:meth:`Drive.data`), its cloud's
-        URL once there is one, or the cloud layer that is its cloud (not sent twice)."""
+        URLs once there is one (``url``, its attributes ``attributes``), or the cloud
+        layer that is its cloud (not sent twice)."""
         data = self.drives[k].data()
         cloud = self.drives[k].cloud()
         if cloud is not None:
             same = [
                 j for j, layer in enumerate(self.layers) if layer.path.resolve() == cloud.resolve()
             ]
-            data["cloud"] |= {"layer": same[0]} if same else {"url": f"/data/{k}/{DRIVE_CLOUD}"}
+            urls = {
+                "url": f"/data/{k}/{DRIVE_CLOUD}",
+                "attributes": f"/data/{k}/{DRIVE_ATTRIBUTES}",
+            }
+            data["cloud"] |= {"layer": same[0]} if same else urls
         return data
 
-    def drive_points(self, k: int) -> bytearray | None:
-        """The page's binary of drive ``k``'s cloud (at most ``max_points`` points, packed
-        once per file), None while it has none; InputError when it cannot be read."""
+    def drive_points(self, k: int) -> Split | None:
+        """The page's binary of drive ``k``'s cloud in its two parts (at most
+        ``max_points`` points, packed once per file), None while it has none; InputError
+        when it cannot be read."""
         cloud = self.drives[k].cloud()
         if cloud is None:
             return None
         with self._drive_lock:
             key = (k, cloud)
             if key not in self._drive_points:
-                self._drive_points[key] = payload(cloud, self.max_points)
+                self._drive_points[key] = split_payload(cloud, self.max_points)
             return self._drive_points[key]
 
     def frame_of(self, k: int, point: int) -> dict[str, Any]:
@@ -178,7 +194,7 @@ class ViewServer:
             if cloud is None:
                 raise FrameError(f"{self.layers[k].name}: no cloud (yet)")
             packed = self.drive_points(k)
-            count, shown = (1, 1) if packed is None else rows_and_shown(packed)
+            count, shown = (1, 1) if packed is None else rows_and_shown(packed.points)
         elif self.layers[k].kind == "cloud":
             found = self.log_of(k)
             if found is None:
@@ -252,10 +268,10 @@ class ViewServer:
         for k, packing in self.points.items():
             path = self.layers[k].path
             try:
-                packing.data = payload(path, self.max_points)
+                packing.data = split_payload(path, self.max_points)
                 if k in self.chunks:
                     self.chunks[k] = lod.chunks(
-                        path, self.layers[k].count, packing.data, self._run_points
+                        path, self.layers[k].count, packing.data.points, self._run_points
                     )
             except InputError as e:
                 packing.error = str(e)
@@ -286,11 +302,12 @@ class ViewServer:
 
 
 class _Packing:
-    """A cloud's payload in the making: ``data`` once ``done``, or ``error`` (one line)."""
+    """A cloud's payload in the making: ``data`` (its two parts) once ``done``, or
+    ``error`` (one line)."""
 
     def __init__(self) -> None:
         self.done = threading.Event()
-        self.data: bytearray | None = None
+        self.data: Split | None = None
         self.error: str | None = None
 
 
@@ -349,8 +366,10 @@ class _Handler(BaseHTTPRequestHandler):
             self._file(view.layers[k].path, body)
         elif not self._packed(view.points[k], view.layers[k].name, body):
             return  # a 202 or 422 said
-        elif c is None:
-            self._send(view.points[k].data or b"", "application/octet-stream", body, "no-cache")
+        elif c is None or c == "attributes":
+            packed = view.points[k].data
+            part = b"" if packed is None else packed.points if c is None else packed.attributes
+            self._send(part, "application/octet-stream", body, "no-cache")
         elif c == "lod":
             data = json.dumps(lod.index(view.chunks[k])).encode()
             self._send(data, "application/json", body, "no-cache")
@@ -384,7 +403,7 @@ class _Handler(BaseHTTPRequestHandler):
         drive = view.drives[k]
         if rest == [DRIVE_NAME]:
             self._json(view.drive_data(k), 200, body)
-        elif rest == [DRIVE_CLOUD]:
+        elif rest in ([DRIVE_CLOUD], [DRIVE_ATTRIBUTES]):
             try:
                 data = view.drive_points(k)
             except InputError as e:  # the cloud unreadable, or gone since it was found
@@ -394,7 +413,8 @@ class _Handler(BaseHTTPRequestHandler):
             if data is None:
                 self._not_found()
             else:
-                self._send(data, "application/octet-stream", body, "no-cache")
+                part = data.points if rest == [DRIVE_CLOUD] else data.attributes
+                self._send(part, "application/octet-stream", body, "no-cache")
         elif len(rest) == 3 and rest[0] == "frame" and rest[2].removesuffix(".jpg").isdigit():
             try:
                 jpeg = frame_jpeg(drive, rest[1], int(rest[2].removesuffix(".jpg")))
@@ -497,7 +517,8 @@ def _drive_route(view: ViewServer, path: str) -> tuple[int, list[str]] | None:
 
 def _data_route(view: ViewServer, path: str) -> tuple[int, int | str | None] | None:
     """What ``path`` names below /data/: (k, None) for layer k's own URL (its file's
-    name, or :data:`POINTS_NAME` for a cloud), (k, "lod") for its chunks' index, (k, c)
+    name, or :data:`POINTS_NAME` for a cloud), (k, "attributes") for a cloud's
+    :data:`ATTRIBUTES_NAME`, (k, "lod") for its chunks' index, (k, c)
     for its chunk c (``chunk/<c>.bin``); None for anything else."""
     parts = path.split("/")
     k = _number(parts[2]) if len(parts) in (4, 5) else None
@@ -510,6 +531,8 @@ def _data_route(view: ViewServer, path: str) -> tuple[int, int | str | None] | N
         return None
     if parts[3] == LOD_NAME:
         return (k, "lod") if k in view.chunks else None
+    if parts[3] == ATTRIBUTES_NAME and k in view.points:
+        return k, "attributes"
     expected = POINTS_NAME if k in view.points else view.layers[k].name
     return (k, None) if parts[3] == expected else None
 

@@ -70,29 +70,48 @@ def las_cloud(
     return path, xyz, colours
 
 
-def unpack(data: bytes | bytearray) -> dict[str, Any]:
+def unpack(data: bytes | bytearray, attributes: bytes | bytearray | None = None) -> dict[str, Any]:
     """A payload of acq.view.points_payload read back (its layout written out again, from
-    its documentation, as the page's parser reads it): the header's fields, "names" (the
-    cameras'), "xyz" (float64, the origin added) and each column it flags."""
+    its documentation, as the page's parser reads it): the header's fields ("flags": the
+    columns the file has, "part": its part bits), "names" (the cameras'), "xyz" (float64,
+    the origin added) and each column it holds; with ``attributes``, the attributes part
+    of the same points, whose columns are added (its header checked to be the same)."""
+    out = _unpack(data)
+    if attributes is not None:
+        more = _unpack(attributes)
+        assert (out["part"], more["part"]) == (64, 128), (out["part"], more["part"])
+        same = ("shown", "rows", "start", "stop", "origin", "time0", "flags", "names")
+        assert all(out[key] == more[key] for key in same)
+        out |= {key: value for key, value in more.items() if key not in same}
+        out["part"] = 0
+    return out
+
+
+def _unpack(data: bytes | bytearray) -> dict[str, Any]:
     from acq.view.points_payload import HEADER, MAGIC
 
     magic, m, rows, start, stop, ox, oy, oz, time0, flags, length = HEADER.unpack_from(data)
     assert magic == MAGIC
     at = HEADER.size + -(-length // 4) * 4
+    part = flags & 192
+    assert part in (0, 64, 128) and flags < 256, flags
     out: dict[str, Any] = {
         "shown": m, "rows": rows, "start": start, "stop": stop, "origin": (ox, oy, oz),
-        "time0": time0, "flags": flags,
+        "time0": time0, "flags": flags & 63, "part": part,
         "names": bytes(data[HEADER.size : HEADER.size + length]).decode().split("\n")
         if length else [],
     }  # fmt: skip
-    offsets = np.frombuffer(data, np.float32, 3 * m, at).reshape(m, 3)
-    out["xyz"] = offsets.astype(np.float64) + np.array([ox, oy, oz])
-    at += 12 * m
+    if part != 128:  # the attributes part has no positions
+        offsets = np.frombuffer(data, np.float32, 3 * m, at).reshape(m, 3)
+        out["xyz"] = offsets.astype(np.float64) + np.array([ox, oy, oz])
+        at += 12 * m
     for name, flag, kind, width in [
         ("time", 2, np.float32, 1), ("scan", 4, np.uint32, 1), ("intensity", 8, np.float32, 1),
         ("rgb", 1, np.uint8, 3), ("coloured", 16, np.uint8, 1), ("camera", 32, np.uint8, 1),
     ]:  # fmt: skip
-        if flags & flag:
+        # the points part holds sRGB only, the attributes part all but sRGB
+        held = part == 0 or (part == 64) == (name == "rgb")
+        if flags & flag and held:
             values = np.frombuffer(data, kind, width * m, at)
             out[name] = values.reshape(m, 3) if width == 3 else values
             at += values.nbytes

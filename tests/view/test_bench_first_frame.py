@@ -19,6 +19,9 @@ def test_the_bench_measures_a_real_first_frame(browser: Browser, tmp_path: Path)
     run = bench.first_frame(browser, path)
     assert run["error"] is None and run["file"] == "small.laz"
     assert 0 < run["url_s"] < run["first_frame_s"]
-    # the header, the cameras' names (4-byte aligned), 29 bytes a point with every attribute
-    assert run["points_mb"] == round((80 + 12 + 29 * 20_000) / 1e6, 1)
+    # before the first frame: the header, the cameras' names (4-byte aligned), 15 bytes a
+    # point (positions and sRGB); the other 14 bytes a point when "intensity" is chosen
+    assert run["points_mb"] == round((80 + 12 + 15 * 20_000) / 1e6, 1)
+    assert run["attributes_mb"] == round((80 + 12 + 14 * 20_000) / 1e6, 1)
+    assert 0 < run["intensity_again_s"] and 0 < run["intensity_s"] < 30
     assert run["sent_mb"] > run["points_mb"] and run["server_peak_rss_mb"] > 0

@@ -1,6 +1,7 @@
 """The headless-browser harness (tests/browser.py) on pages of its own, served over HTTP on
 127.0.0.1: WebGL drawn by SwiftShader and seen in a screenshot, the console's errors,
-exceptions and failed requests, waiting for a flag and timing out with the console."""
+exceptions and failed requests, waiting for a flag and timing out with the console, a
+throttled and a blocked request."""
 
 from __future__ import annotations
 
@@ -113,6 +114,7 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         (root / f"{name}.html").write_text(text)
     (root / "static").mkdir()
     (root / "static" / "lib.js").write_text(LIB_MODULE)
+    (root / "mb.bin").write_bytes(bytes(1_000_000))
     handler = functools.partial(_QuietHandler, directory=str(root))
     server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
@@ -203,6 +205,35 @@ def test_open_forgets_the_console_of_the_page_before(browser: Browser, site: str
     browser.open(site + "quiet.html")
     assert browser.console == []
     assert browser.evaluate("document.querySelector('p').textContent") == "nothing to say"
+
+
+# the seconds a fetch of a URL takes, or its error's message
+FETCH = """(async () => {
+  const t0 = performance.now();
+  try { await (await fetch(%r, { cache: 'no-store' })).arrayBuffer(); }
+  catch (error) { return error.message; }
+  return (performance.now() - t0) / 1000;
+})()"""
+
+
+def test_throttle_slows_the_page_s_requests_and_block_fails_them(
+    browser: Browser, site: str
+) -> None:
+    browser.open(site + "quiet.html")
+    url = site + "mb.bin"
+    browser.throttle(4.0)  # 1 MB at 4 Mbit/s: 2 s
+    try:
+        slow = browser.evaluate(FETCH % url)
+    finally:
+        browser.throttle(None)
+    fast = browser.evaluate(FETCH % url)
+    assert slow >= 1.8 and fast < slow / 2, (slow, fast)
+    browser.block("*/mb.bin")
+    try:
+        assert browser.evaluate(FETCH % url) == "Failed to fetch"
+    finally:
+        browser.block()
+    assert not isinstance(browser.evaluate(FETCH % url), str)  # seconds, not an error
 
 
 def test_wait_for_returns_a_flag_set_after_a_timeout(browser: Browser, site: str) -> None:

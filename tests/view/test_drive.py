@@ -24,7 +24,7 @@ from acq.geometry.transforms import Rigid
 from acq.sim.drive_log import DriveTruth
 from acq.view.drive import FRUSTUM_STEP_M, TRAJECTORY_STEP_M, Drive
 from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
-from acq.view.points_payload import payload
+from acq.view.points_payload import split_payload
 from acq.view.server import DEFAULT_MAX_POINTS, ViewServer
 from tests.log_rewrite import mcap_copy
 from tests.view.drive_files import ColouredDrive, coloured_drive
@@ -118,9 +118,13 @@ def test_the_routes_over_http(drive: ColouredDrive) -> None:
         assert [(x["kind"], x["url"]) for x in layers] == [("drive", "/data/0/drive.json")]
         status, data = _json(f"{url}data/0/drive.json")
         assert data["cloud"]["status"] == "found" and data["cloud"]["url"] == "/data/0/cloud.bin"
+        assert data["cloud"]["attributes"] == "/data/0/cloud-attributes.bin"
         assert data["frame"] == "odometry" and len(data["frustums"][0]["p"]) >= 5
-        # the cloud packed for the page as a cloud layer is (every point: under the limit)
-        assert _get(f"{url}data/0/cloud.bin")[1] == payload(drive.cloud, DEFAULT_MAX_POINTS)
+        # the cloud packed for the page as a cloud layer is (every point: under the limit),
+        # its positions and colours first, its other attributes apart
+        split = split_payload(drive.cloud, DEFAULT_MAX_POINTS)
+        assert _get(f"{url}data/0/cloud.bin")[1] == split.points
+        assert _get(f"{url}data/0/cloud-attributes.bin")[1] == split.attributes
         row = int(np.flatnonzero(drive.frame >= 0)[500])
         status, answer = _json(f"{url}api/frame?layer=0&point={row}")
         assert status == 200 and answer["frame"] == drive.frame[row]
@@ -195,7 +199,7 @@ def test_a_drive_without_a_cloud_beside_it_is_coloured_into_the_cache(
         )
         served = _get(f"{server.url}data/0/cloud.bin")[1]
     (cached,) = cache.iterdir()
-    assert served == payload(cached, DEFAULT_MAX_POINTS)
+    assert served == split_payload(cached, DEFAULT_MAX_POINTS).points
     made = cached.read_bytes()
     assert drive.cloud is not None
     # the same cloud `acq colorize` makes (its header's room and comments aside)

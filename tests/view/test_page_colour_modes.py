@@ -21,6 +21,8 @@ FAR = (431_000.0, 4_582_000.0, 12.0)
 UTC0 = 1_764_000_000.0
 # the ramps' ends, as the page's colour_modes.js defines them (sRGB)
 VIRIDIS_ENDS = ((68, 1, 84), (253, 231, 37))
+# how many requests for URLs holding a string the page made (Resource Timing)
+FETCHED = "performance.getEntriesByType('resource').filter((e) => e.name.includes(%r)).length"
 GREY_ENDS = ((64, 64, 64), (255, 255, 255))
 
 
@@ -49,14 +51,22 @@ def _halves(path: Path, n: int = 30_000) -> Path:
 def _select(browser: Browser, mode: str) -> np.ndarray:
     """The screen with the colour mode ``mode`` chosen, the panel hidden (its white text
     is no point's)."""
-    browser.evaluate(
-        f"(() => {{ const c = document.getElementById('colour-mode'); c.value = '{mode}';"
-        " c.dispatchEvent(new Event('change')); })()"
-    )
+    _choose(browser, mode)
+    browser.wait_for(f"window.acqColourMode === '{mode}'", timeout_s=30)
     browser.evaluate("document.getElementById('panel').style.visibility = 'hidden'")
     image = browser.screenshot()
     browser.evaluate("document.getElementById('panel').style.visibility = ''")
     return image
+
+
+def _choose(browser: Browser, mode: str) -> str:
+    """The colour mode ``mode`` chosen as a user does; the select's text right after."""
+    text = browser.evaluate(
+        f"(() => {{ const c = document.getElementById('colour-mode'); c.value = '{mode}';"
+        " c.dispatchEvent(new Event('change')); return c.selectedOptions[0].textContent; })()"
+    )
+    assert isinstance(text, str)
+    return text
 
 
 def _columns(image: np.ndarray, rgb: tuple[int, int, int], tolerance: int = 6) -> np.ndarray:
@@ -95,7 +105,12 @@ def test_each_colour_mode_shows_its_colours_on_the_right_halves(
             [m, False] for m in ("rgb", "intensity", "time", "scan", "camera", "coloured")
         ]
         _left_and_right(_select(browser, "rgb"), WALL, ROAD)
+        # the first frame had positions and colours only: the attributes come when a mode
+        # first needs them (once: the other modes use them as they are)
+        assert _choose(browser, "intensity") == "loading attributes…"
         _left_and_right(_select(browser, "intensity"), *GREY_ENDS)
+        assert browser.evaluate(FETCHED % "attributes.bin") == 1
+        assert browser.evaluate("document.getElementById('colour-mode').disabled") is False
         assert "2nd to 98th percentile" in browser.evaluate(
             "document.getElementById('legend').textContent"
         )
@@ -117,7 +132,32 @@ def test_each_colour_mode_shows_its_colours_on_the_right_halves(
         swatches = _swatches(browser)
         assert [text for text, _ in swatches][:2] == ["0", "1"]
         _left_and_right(image, swatches[0][1], swatches[1][1])
+        assert browser.evaluate(FETCHED % "attributes.bin") == 1
         assert browser.errors == [], browser.console
+
+
+def test_attributes_that_cannot_be_fetched_are_said_in_the_legend(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """The attributes' request fails (blocked in the browser: a network that drops it);
+    the page says which layer's and why, draws it grey and asks again at the next choice."""
+    with ViewServer([_halves(tmp_path / "halves.ply")]) as server:
+        browser.open(server.url)
+        browser.wait_for(READY, timeout_s=60)
+        browser.block("*/attributes.bin")
+        try:
+            image = _select(browser, "intensity")
+            legend = browser.evaluate("document.getElementById('legend').textContent")
+            assert legend == ("halves.ply: its attributes could not be loaded (Failed to fetch)"), (
+                legend
+            )
+            assert browser.evaluate("document.querySelector('#legend .error') !== null")
+            assert len(_columns(image, GREY_ENDS[0])) == 0  # no ramp: grey
+            assert len(_columns(image, (128, 128, 128))) > 300
+        finally:
+            browser.block()
+        _left_and_right(_select(browser, "time"), *VIRIDIS_ENDS)  # asked again, and come
+        assert "could not" not in browser.evaluate("document.getElementById('legend').textContent")
 
 
 def test_a_cloud_of_x_y_z_only_has_rgb_alone_and_says_so(browser: Browser, tmp_path: Path) -> None:
@@ -150,10 +190,10 @@ ADD_CHILD = """(async () => {
   const { applyColourMode } = await import('/static/colour_modes.js');
   const root = window.acqScene.getObjectByName('halves.ply');
   const buffer = await (await fetch('/data/0/points.bin')).arrayBuffer();
-  const child = pointsObject(parsePoints(buffer), 2);
+  const child = pointsObject(parsePoints(buffer), 2, '/data/0/attributes.bin');
   child.position.set(0, 0, 0);  // its origin is its parent's
   root.add(child);
-  applyColourMode(child);
+  await applyColourMode(child);  // its attributes fetched, then coloured
   window.acqChild = child;
 })()"""
 SAME = """(() => {

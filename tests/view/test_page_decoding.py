@@ -30,11 +30,11 @@ def held(monkeypatch: pytest.MonkeyPatch) -> Iterator[threading.Event]:
     their 202."""
     gate = threading.Event()
 
-    def slow(path: Path, max_points: int) -> bytearray:
+    def slow(path: Path, max_points: int) -> points_payload.Split:
         gate.wait(60)
-        return points_payload.payload(path, max_points)
+        return points_payload.split_payload(path, max_points)
 
-    monkeypatch.setattr("acq.view.server.payload", slow)
+    monkeypatch.setattr("acq.view.server.split_payload", slow)
     monkeypatch.setattr("acq.view.server._POLL_S", 0.2)
     yield gate
     gate.set()
@@ -51,11 +51,15 @@ def test_a_cloud_decoding_answers_202_then_its_points(
         with urllib.request.urlopen(url, timeout=10) as r:
             assert r.status == 202 and r.headers["Retry-After"] == "0"
             assert r.read() == b"decoding c.laz"
+        with urllib.request.urlopen(url.replace("points.bin", "attributes.bin"), timeout=10) as r:
+            assert r.status == 202 and r.read() == b"decoding c.laz"  # its attributes alike
         assert not server.wait(0)
         held.set()
         assert server.wait(30)
         with urllib.request.urlopen(url, timeout=10) as r:
-            assert unpack(r.read())["shown"] == 2000
+            points = r.read()
+        with urllib.request.urlopen(url.replace("points.bin", "attributes.bin"), timeout=10) as r:
+            assert unpack(points, r.read())["shown"] == 2000
 
 
 def test_the_page_says_decoding_then_draws_the_cloud(

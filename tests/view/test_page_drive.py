@@ -21,7 +21,11 @@ from tests.view.drive_files import ColouredDrive, coloured_drive
 from tests.view.test_page import BACKGROUND, READY, _share
 
 FRUSTUM = tuple(int(CAMERA_COLOURS[0][k : k + 2], 16) for k in (1, 3, 5))  # the camera's
-RING = (0x00, 0xFF, 0x66)  # the frame panel's ring (viewer.css)
+RING = (0x00, 0xFF, 0x66)
+COLOURED, NOT_COLOURED = (
+    (46, 204, 64),
+    (255, 65, 54),
+)  # colour_modes.js's  # the frame panel's ring (viewer.css)
 UP = np.array([0.0, 0.0, 1.7])  # walk mode's eye above the trajectory (walk.js EYE_M)
 
 
@@ -65,6 +69,35 @@ def test_the_drive_is_drawn_with_its_path_frustums_and_cloud(
         # the cloud went with them (the street drawn over a twentieth of the view and more)
         drawn = _share(hidden, BACKGROUND, tolerance=4) - _share(shown, BACKGROUND, tolerance=4)
         assert drawn > 0.05
+
+
+def test_the_drives_cloud_takes_a_colour_mode_from_its_attributes(
+    browser: Browser, drive: ColouredDrive
+) -> None:
+    """The drive's cloud came with its positions and colours only; "coloured or not"
+    fetches its other attributes (cloud-attributes.bin) and draws its points coloured
+    green, those no frame coloured red."""
+    with ViewServer([drive.log]) as server:
+        _open(browser, server)
+        assert _share(browser.screenshot(), COLOURED, tolerance=6) == 0.0
+        browser.evaluate(
+            "(() => { const c = document.getElementById('colour-mode'); c.value = 'coloured';"
+            " c.dispatchEvent(new Event('change')); })()"
+        )
+        browser.wait_for("window.acqColourMode === 'coloured'", timeout_s=30)
+        browser.evaluate("document.getElementById('panel').style.visibility = 'hidden'")
+        shown = browser.screenshot()
+        fetched = browser.evaluate(
+            "performance.getEntriesByType('resource').map((e) => new URL(e.name).pathname)"
+            ".filter((p) => p.startsWith('/data/0/cloud'))"
+        )
+        assert browser.errors == [], browser.console
+    assert fetched == ["/data/0/cloud.bin", "/data/0/cloud-attributes.bin"]
+    coloured = drive.frame >= 0
+    assert coloured.any()
+    assert _share(shown, COLOURED, tolerance=6) > 0.01
+    if not coloured.all():
+        assert _share(shown, NOT_COLOURED, tolerance=6) > 0
 
 
 def _ring_centre(image: np.ndarray, x: float, y: float) -> tuple[float, float]:

@@ -12,7 +12,7 @@ import pytest
 from acq.cloud.copc import CopcStream
 from acq.cloud.las import LasStream
 from acq.cloud.ply import PlyStream
-from acq.view.points_payload import payload, subset
+from acq.view.points_payload import HEADER, payload, split_payload, subset
 from tests.view.layer_files import unpack
 
 FAR = (431_000.0, 4_582_000.0, 12.0)  # a projected CRS's coordinates (m)
@@ -130,9 +130,13 @@ def test_a_foreign_ply_of_x_y_z_only(tmp_path: Path, encoding: str) -> None:
         "origin",
         "time0",
         "flags",
+        "part",
         "names",
         "xyz",
     }
+    points, attributes = split_payload(path, 20).points, split_payload(path, 20).attributes
+    assert len(points) == 80 + 12 * 20 and len(attributes) == 80  # its header only
+    assert set(unpack(points, attributes)) == set(got)
 
 
 def test_a_las_file_of_another_writer_without_acqs_extra_bytes(tmp_path: Path) -> None:
@@ -149,6 +153,24 @@ def test_a_las_file_of_another_writer_without_acqs_extra_bytes(tmp_path: Path) -
     assert got["flags"] == 1 | 2 | 8 and got["names"] == []
     assert (got["rgb"] == [255, 128, 0]).all() and (got["intensity"] == np.arange(10) * 100).all()
     assert got["time0"] == 1000.0 and (got["time"] == np.arange(10)).all()
+
+
+@pytest.mark.parametrize("name", ["c.ply", "c.laz"])
+def test_the_split_payload_is_the_whole_in_two_parts(tmp_path: Path, name: str) -> None:
+    """The first frame's part holds 15 bytes a point (positions and sRGB) after its header,
+    the attributes part the other 14 of the same points: together, the whole payload."""
+    path = _write(tmp_path / name, _attributes(3000))
+    split = split_payload(path, 2000)
+    names = -(-len("\n".join(CAMERAS)) // 4) * 4
+    assert len(split.points) == HEADER.size + names + 15 * 2000
+    assert len(split.attributes) == HEADER.size + names + 14 * 2000
+    points, whole = unpack(split.points), unpack(payload(path, 2000))
+    assert points["part"] == 64 and points["flags"] == 63  # the attributes the file has
+    assert set(points) == {*whole, "rgb"} - {"time", "scan", "intensity", "coloured", "camera"}
+    got = unpack(split.points, split.attributes)
+    assert got.keys() == whole.keys()
+    for key, value in whole.items():
+        assert np.array_equal(got[key], value), key
 
 
 def test_bad_calls_are_refused(tmp_path: Path) -> None:

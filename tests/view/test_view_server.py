@@ -86,6 +86,15 @@ def test_layers_listed_and_served_byte_for_byte(served: tuple[ViewServer, list[P
     vertex = PlyData.read(str(paths[0]))["vertex"]
     xyz = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1)
     assert np.abs(unpack(body)["xyz"] - xyz).max() < 1e-5
+    # its other attributes apart, for the colour modes: those of the same points
+    assert layers[0]["attributes"] == "/data/0/attributes.bin"
+    assert "attributes" not in layers[1] and "attributes" not in layers[2]
+    status, kind, more = _get(server.url.rstrip("/") + layers[0]["attributes"])
+    assert status == 200 and kind == "application/octet-stream"
+    got = unpack(body, more)
+    assert (got["scan"] == vertex["scalar_scan"]).all() and (
+        got["scan"] == np.arange(500) // 50
+    ).all()
     assert _get(server.url.rstrip("/") + layers[1]["url"])[1] == "model/gltf-binary"
 
 
@@ -97,6 +106,7 @@ def test_nothing_else_is_served(served: tuple[ViewServer, list[Path]], tmp_path:
         "/static/%2e%2e/server.py", "/static/vendor/../../server.py", "/data/0/other.ply",
         "/data/3/cloud.ply", "/data/x/cloud.ply", "/data/../secret.txt",
         "/data/0/../../secret.txt", "/data/0/%2e%2e%2fsecret.txt", "/data/0/cloud.ply/x",
+        "/data/1/attributes.bin", "/data/0/attributes.bin/x", "/data/0/cloud-attributes.bin",
         "//etc/passwd", "/static//etc/passwd",
     ]:  # fmt: skip
         assert _raw_get(server, path) == 404, path

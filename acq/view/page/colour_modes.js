@@ -2,8 +2,12 @@
 // RGB, intensity, time, scan, source camera or whether they were coloured, chosen in the
 // panel's select, with a legend for the mode shown. A mode works on the attributes
 // points.js parses (a Points object's geometry.userData.points); a layer without the
-// attribute is drawn grey and the legend says so. Meshes keep their colours.
+// attribute is drawn grey and the legend says so. A cloud's first payload holds its
+// positions and colours only: the other attributes are fetched when a mode first needs
+// them (the select says "loading attributes…" meanwhile, the legend a layer's failure),
+// so that a user who never colours never waits for them. Meshes keep their colours.
 import * as THREE from 'three';
+import { lacksAttributes, loadAttributes } from './points.js';
 
 // sRGB bytes of the modes' colours
 export const GREY = [128, 128, 128]; // a point without the mode's attribute; camera none
@@ -40,7 +44,8 @@ const SRGB_TO_LINEAR = Float32Array.from(
   { length: 256 }, (_, c) => new THREE.Color().setRGB(c / 255, 0, 0, THREE.SRGBColorSpace).r);
 const css = (rgb) => `rgb(${rgb.join(', ')})`;
 
-const state = { mode: 'rgb', layers: [], legend: null, control: null };
+const state = { mode: 'rgb', layers: [], legend: null, control: null, render: () => {} };
+export const LOADING = 'loading attributes…'; // the select's text while they are fetched
 
 // the Points objects of a layer's root (the root itself, or its children added later)
 function pointsOf(root) {
@@ -49,8 +54,34 @@ function pointsOf(root) {
   return found;
 }
 
+// whether a layer's file has an attribute (loaded or not)
 const has = (layer, attribute) =>
-  pointsOf(layer.root).some((o) => attribute in o.geometry.userData.points.attributes);
+  pointsOf(layer.root).some((o) => o.geometry.userData.points.has.includes(attribute));
+
+// the attributes of the layers' points that lack `attribute`, fetched (a Promise, resolved
+// when every fetch is over); a layer whose fetch failed keeps the reason in layer.failed
+function fetchAttributes(layers, attribute) {
+  return Promise.all(layers.map(async (layer) => {
+    const lacking = pointsOf(layer.root).filter((o) => {
+      const p = o.geometry.userData.points;
+      return p.has.includes(attribute) && !(attribute in p.attributes);
+    });
+    if (!lacking.length) return;
+    try {
+      await Promise.all(lacking.map((o) => loadAttributes(o.geometry.userData.points, o.userData.attributesUrl)));
+      layer.failed = undefined;
+    } catch (error) {
+      layer.failed = `${layer.name}: its attributes could not be loaded (${error?.message ?? error})`;
+    }
+  }));
+}
+
+// whether a mode needs attributes some layer's points have not fetched yet
+const lacking = (mode) => {
+  const needs = MODES.find((m) => m.id === mode).needs;
+  return needs !== null && state.layers.some((layer) => pointsOf(layer.root)
+    .some((o) => lacksAttributes(o.geometry.userData.points) && o.geometry.userData.points.has.includes(needs)));
+};
 
 // the layer's values of an attribute over all its points (time: UTC s): [min, max], or
 // its low and high quantiles
@@ -186,14 +217,25 @@ function layerOf(object) {
 // colour one Points object of a layer (one added to a layer's root after the mode was
 // chosen, e.g. a finer level of detail) in the mode shown; the layer's ramps are taken
 // again over all its points, so its other objects are recoloured with it. The caller
-// renders (once for all the objects it adds).
-export function applyColourMode(object) {
+// renders (once for all the objects it adds); attributes the mode needs and the object
+// lacks are fetched, drawn grey until then (the returned Promise resolves once they are
+// drawn in the mode's colours, or failed, said in the legend).
+export async function applyColourMode(object) {
   const layer = layerOf(object);
   if (!layer) return;
   enableModes();
-  layer.stats = statistics(layer, state.mode);
-  for (const o of pointsOf(layer.root)) recolour(o, state.mode, layer.stats);
-  legend();
+  const mode = state.mode;
+  const colour = () => {
+    layer.stats = statistics(layer, mode);
+    for (const o of pointsOf(layer.root)) recolour(o, mode, layer.stats);
+    legend();
+  };
+  colour();
+  const needs = MODES.find((m) => m.id === mode).needs;
+  if (needs !== null && lacking(mode)) {  // drawn grey until its attributes come
+    await fetchAttributes([layer], needs);
+    if (state.mode === mode) { colour(); state.render(); }
+  }
 }
 
 function swatch(rgb, text) {
@@ -225,8 +267,14 @@ function legend() {
   for (const layer of state.layers) {
     if (!pointsOf(layer.root).length) continue; // a drive with no cloud (yet, or its own layer)
     const { stats } = layer;
-    if (mode.needs && !has(layer, mode.needs)) {
+    if (layer.failed && mode.needs && has(layer, mode.needs)) {
+      const said = swatch(GREY, layer.failed);
+      said.classList.add('error');
+      line(said);
+    } else if (mode.needs && !has(layer, mode.needs)) {
       line(swatch(GREY, `${layer.name}: no ${mode.label}`));
+    } else if (stats === null && (mode.id === 'intensity' || mode.id === 'time')) {
+      line(swatch(GREY, `${layer.name}: ${LOADING}`));  // drawn grey until they come
     } else if (mode.id === 'rgb' && !has(layer, 'rgb')) {
       line(swatch(NO_RGB, `${layer.name}: no colours`));
     } else if (mode.id === 'intensity') {
@@ -274,11 +322,26 @@ function show(mode) {
 // the select `control` of the modes over `layers` ([{name, root}]: each cloud layer's
 // object), the legend drawn into `legendBox`; a mode no layer has is disabled. The layers
 // are coloured by their RGB here, drawn by the caller; `render` draws after each change.
+// window.acqColourMode is the mode drawn (for the tests and the benchmark).
 export function colourModes(control, legendBox, layers, render) {
-  Object.assign(state, { layers, legend: legendBox, control });
+  Object.assign(state, { layers, legend: legendBox, control, render });
   control.replaceChildren(...MODES.map((m) => new Option(m.label, m.id)));
   enableModes();
   control.value = 'rgb';
-  control.addEventListener('change', () => { show(control.value); render(); });
+  control.addEventListener('change', async () => {
+    const mode = control.value;
+    if (lacking(mode)) {
+      const option = control.selectedOptions[0];
+      option.textContent = LOADING;
+      control.disabled = true;
+      await fetchAttributes(state.layers, MODES.find((m) => m.id === mode).needs);
+      option.textContent = MODES.find((m) => m.id === mode).label;
+      enableModes();
+    }
+    show(mode);
+    render();
+    window.acqColourMode = mode;
+  });
   if (layers.length) show('rgb');
+  window.acqColourMode = 'rgb';
 }

@@ -58,7 +58,7 @@ function say(status, text, error = false) {
   status.className = error ? 'drive-status error' : 'drive-status';
 }
 
-// the drive of `layer` (its index k) as a group; `ctx`: render(), loadCloud(url) -> a cloud
+// the drive of `layer` (its index k) as a group; `ctx`: render(), loadCloud(url, attributesUrl) -> a cloud
 // object (Promise), onCloud(object) once it is in the group; the cloud is added to the
 // group when it comes, marked for the frame tool
 export async function driveObject(layer, k, ctx) {
@@ -88,7 +88,7 @@ export async function driveObject(layer, k, ctx) {
 
   const cloudInto = async (cloud) => {
     if (cloud.layer !== undefined) return; // the same file is a layer of its own
-    const object = await ctx.loadCloud(cloud.url);
+    const object = await ctx.loadCloud(cloud.url, cloud.attributes);
     object.position.sub(group.position); // the group's child: its origin relative to the group's
     object.userData.frameLayer = k;
     object.name = cloud.file;

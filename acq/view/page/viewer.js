@@ -113,14 +113,16 @@ async function fetchPoints(layer) {
 async function loadLayer(layer, k, pointSize, render) {
   try {
     if (layer.kind === 'drive') {
-      const loadCloud = async (url) => pointsObject(
-        parsePoints(await fetchPoints({ name: layer.name, url })), Number(sizeInput.value));
+      const loadCloud = async (url, attributesUrl) => pointsObject(
+        parsePoints(await fetchPoints({ name: layer.name, url })), Number(sizeInput.value), attributesUrl);
       return await driveObject(layer, k, { render, loadCloud, onCloud: applyColourMode });
     }
     if (layer.url.toLowerCase().endsWith('.glb')) {
       return gltfObject(await new GLTFLoader().loadAsync(layer.url));
     }
-    if (layer.kind === 'cloud') return pointsObject(parsePoints(await fetchPoints(layer)), pointSize);
+    if (layer.kind === 'cloud') {
+      return pointsObject(parsePoints(await fetchPoints(layer)), pointSize, layer.attributes);
+    }
     return plyMesh(await new PLYLoader().loadAsync(layer.url));
   } catch (error) {
     const text = error?.message ?? String(error);

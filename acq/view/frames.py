@@ -22,19 +22,11 @@ from acq.log.drive_log import read_log
 from acq.time.utc import utc_seconds
 from acq.view.cloud_rows import NO_CAMERA, rows_of
 from acq.view.drive import Drive
+from acq.view.errors import FrameError
 
 __all__ = ["NO_CAMERA", "FrameError", "PointRow", "frame_jpeg", "point_frame", "point_row"]
 
 _FRAME_WINDOW_NS = (2 * 10**9, 5 * 10**9)  # log time read before/after a frame's stamp
-
-
-class FrameError(InputError):
-    """A point or frame the server cannot answer for; ``status`` the HTTP status (404 a
-    point or frame that is not there, 409 a cloud and log that do not belong together)."""
-
-    def __init__(self, message: str, status: int = 404) -> None:
-        super().__init__(message)
-        self.status = status
 
 
 @dataclass(frozen=True)

@@ -24,17 +24,19 @@ from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 from urllib.parse import parse_qs, quote, unquote, urlsplit
 
 from acq.addresses import is_loopback
 from acq.errors import InputError, first_line
 from acq.view import lod, static
 from acq.view.crs import crs_of
-from acq.view.drive import Drive
-from acq.view.frames import FrameError, frame_jpeg, point_frame, point_row
+from acq.view.errors import FrameError
 from acq.view.layers import Layer, layers_of
 from acq.view.points_payload import Split, payload, rows_and_shown, split_payload
+
+if TYPE_CHECKING:
+    from acq.view.drive import Drive
 
 __all__ = [
     "ATTRIBUTES_NAME", "DEFAULT_MAX_POINTS", "LOD_NAME", "POINTS_NAME", "AddressError",
@@ -88,11 +90,16 @@ class ViewServer:
         self.points = {
             k: _Packing() for k, layer in enumerate(self.layers) if layer.kind == "cloud"
         }
-        self.drives = {
-            k: Drive(layer.files, calib, cache)
-            for k, layer in enumerate(self.layers)
-            if layer.kind == "drive"
-        }
+        self.drives: dict[int, Drive] = {}
+        if any(layer.kind == "drive" for layer in self.layers):
+            # here: a drive's reading imports the colouring's (numba: ~100 MB resident)
+            from acq.view.drive import Drive
+
+            self.drives = {
+                k: Drive(layer.files, calib, cache)
+                for k, layer in enumerate(self.layers)
+                if layer.kind == "drive"
+            }
         if calib is not None and not self.drives:
             raise InputError(f"--calib {calib}: no .mcap log to use it with")
         self._on_error = on_error
@@ -208,6 +215,8 @@ class ViewServer:
             raise FrameError(f"{self.layers[k].name}: a {self.layers[k].kind}, not a cloud", 400)
         if not 0 <= point < shown:
             raise FrameError(f"{self.layers[k].name}: no point {point} (the page has {shown})")
+        from acq.view.frames import point_frame, point_row
+
         answer = point_frame(self.drives[d], point_row(cloud, point * count // shown))
         if answer["camera"] is not None:
             answer["url"] = f"/data/{d}/frame/{quote(answer['camera'])}/{answer['frame']}.jpg"
@@ -417,6 +426,8 @@ class _Handler(BaseHTTPRequestHandler):
                 self._send(part, "application/octet-stream", body, "no-cache")
         elif len(rest) == 3 and rest[0] == "frame" and rest[2].removesuffix(".jpg").isdigit():
             try:
+                from acq.view.frames import frame_jpeg
+
                 jpeg = frame_jpeg(drive, rest[1], int(rest[2].removesuffix(".jpg")))
             except FrameError as e:
                 self.send_error(e.status, str(e))

@@ -177,7 +177,8 @@ def _tcp_server(answer: Callable[[socket.socket], None]) -> socketserver.Threadi
 
     server = socketserver.ThreadingTCPServer(("127.0.0.1", 0), Handler)
     server.daemon_threads = True
-    threading.Thread(target=server.serve_forever, daemon=True).start()
+    # polled every 50 ms for the shutdown (socketserver's 0.5 s is waited out at each stop)
+    threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
     return server
 
 

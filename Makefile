@@ -64,14 +64,15 @@ chromium:
 
 # ruff first; then the real-time tests two at a time, with mypy and the wheel's smoke
 # beside them at nice 19 (the real-time tests mostly wait on their devices, and must hold
-# on a busy machine anyway); then the rest on both cores.
+# on a busy machine anyway); then the rest on both cores. worksteal: a worker that runs
+# out takes tests queued on the other, so neither idles through the other's long tail.
 test: $(STAMP) compile chrony chromium
 	$(BIN)/ruff format --check $(RUFF_PATHS)
 	$(BIN)/ruff check $(RUFF_PATHS)
 	@nice -n 19 $(MAKE) --no-print-directory typecheck > .mypy.out 2>&1 & mypy=$$!; \
 	nice -n 19 $(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
-	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 2; realtime=$$?; \
-	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2; rest=$$?; \
+	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 2 --dist worksteal; realtime=$$?; \
+	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2 --dist worksteal; rest=$$?; \
 	wait $$mypy; typed=$$?; wait $$smoke; smoked=$$?; \
 	echo "mypy:"; cat .mypy.out; echo "wheel smoke:"; cat .smoke.out; rm -f .mypy.out .smoke.out; \
 	test $$realtime -eq 0 && test $$rest -eq 0 && test $$typed -eq 0 && test $$smoked -eq 0

@@ -5,6 +5,8 @@ garbage, one that never answers, a WebSocket server of another protocol."""
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
 import socket
 import socketserver
@@ -16,8 +18,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from websockets.exceptions import ConnectionClosed
 from websockets.sync.server import ServerConnection, serve
 
+from acq.cli import main as acq_main
 from acq.log.schemas import ColouringStatus
 from acq.monitor.live_source import LiveSource
 from acq.record.listeners import Listener, LogRecord
@@ -34,6 +38,23 @@ def _status(*args: str | Path) -> subprocess.CompletedProcess[str]:
         [sys.executable, "-m", "acq.cli", "status", *map(str, args)],
         cwd=ROOT, capture_output=True, text=True, timeout=60,
     )  # fmt: skip
+
+
+def _status_here(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], *args: str
+) -> subprocess.CompletedProcess[str]:
+    """`acq status` in this process with shorter waits for a live server's handshake
+    (2 s, the installed 5 s) and its first status (1 s, the installed 4 s): the same
+    path to the same answers, for servers that never give them, without the full wait."""
+    from acq.cli import status as status_cli
+    from acq.monitor import live_source
+
+    shorter = functools.partial(live_source.LiveSource, timeout_s=2.0)
+    monkeypatch.setattr(live_source, "LiveSource", shorter)
+    monkeypatch.setattr(status_cli, "FIRST_STATUS_S", 1.0)
+    code = acq_main(["status", *args])
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(["acq", "status", *args], code, out, err)
 
 
 class StandIn(Listener):
@@ -156,7 +177,8 @@ def _tcp_server(answer: Callable[[socket.socket], None]) -> socketserver.Threadi
 
     server = socketserver.ThreadingTCPServer(("127.0.0.1", 0), Handler)
     server.daemon_threads = True
-    threading.Thread(target=server.serve_forever, daemon=True).start()
+    # polled every 50 ms for the shutdown (socketserver's 0.5 s is waited out at each stop)
+    threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True).start()
     return server
 
 
@@ -181,12 +203,16 @@ def _never(conn: socket.socket) -> None:
      (_never, "no WebSocket handshake within the time allowed")],
 )  # fmt: skip
 def test_a_server_of_something_else_is_exit_1(
-    answer: Callable[[socket.socket], None], said: str
+    answer: Callable[[socket.socket], None],
+    said: str,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     server = _tcp_server(answer)
     try:
         port = server.server_address[1]
-        _one_line(_status(f"127.0.0.1:{port}", "--json"), 1, f"127.0.0.1:{port}: {said}")
+        done = _status_here(monkeypatch, capsys, f"127.0.0.1:{port}", "--json")
+        _one_line(done, 1, f"127.0.0.1:{port}: {said}")
     finally:
         server.shutdown()
         server.server_close()
@@ -202,9 +228,11 @@ def _websocket(handler: Callable[[ServerConnection], None], **kw: object) -> Ite
 
 
 def _garbage_json(ws: ServerConnection) -> None:
-    ws.send(json.dumps({"op": "serverInfo", "name": "x"}))
-    ws.send("not json {")
-    time.sleep(2.0)
+    with contextlib.suppress(ConnectionClosed):  # a client that refuses it leaves at once
+        ws.send(json.dumps({"op": "serverInfo", "name": "x"}))
+        ws.send("not json {")
+        for _ in ws:  # held open until the client leaves (then the server stops at once)
+            pass
 
 
 def test_a_websocket_server_of_another_protocol_is_exit_1() -> None:
@@ -225,10 +253,12 @@ def test_a_websocket_server_of_another_protocol_is_exit_1() -> None:
         ), line
 
 
-def test_a_live_server_that_sends_no_status_is_exit_1() -> None:
+def test_a_live_server_that_sends_no_status_is_exit_1(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     server = LiveServer("127.0.0.1", 0)  # the protocol spoken, nothing published
     try:
-        done = _status(f"127.0.0.1:{server.port}", "--json")
+        done = _status_here(monkeypatch, capsys, f"127.0.0.1:{server.port}", "--json")
     finally:
         server.stop()
     assert done.returncode == 1 and done.stderr == "", done.stdout + done.stderr

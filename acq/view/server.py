@@ -263,7 +263,11 @@ class ViewServer:
             raise AddressError("port", self.port, why) from None
         self._httpd.view = self
         self._thread = threading.Thread(
-            target=self._httpd.serve_forever, name="acq-view", daemon=True
+            # a stop (Ctrl-C) waits for the loop's next poll: 50 ms, not socketserver's 0.5 s
+            target=self._httpd.serve_forever,
+            args=(0.05,),
+            name="acq-view",
+            daemon=True,
         )
         self._thread.start()
         for drive in self.drives.values():

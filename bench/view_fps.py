@@ -13,7 +13,8 @@ target at every animation frame for ``--seconds`` and counts the frames.
 
 Reported: ``points`` in the file, ``drawn`` (points sent to the page), ``serve_s`` (the
 server's start: checking and packing the file), ``first_frame_s`` (from opening the page
-to its first frame drawn), ``frames``, ``orbit_s``, ``fps``, and ``renderer`` (WebGL's own
+to its first frame drawn), ``frames``, ``orbit_s``, ``fps``, ``antialias`` (the page
+multisamples on a GPU only) and ``renderer`` (WebGL's own
 name for it, which says SwiftShader). Run as a script: ``python bench/view_fps.py [--demo
 DIR] [--millions 2 10] [--seconds 10]``.
 """
@@ -97,6 +98,7 @@ def measure(
             raise RuntimeError(f"{path}: the page failed: {error}")
         orbit = browser.evaluate(f"window.acqOrbit({seconds}, {step_deg})")
         renderer = browser.evaluate(RENDERER)
+        antialias = browser.evaluate("window.acqAntialias")
     return {
         "bench": "view_fps",
         "file": path.name,
@@ -109,6 +111,7 @@ def measure(
         "fps": round(orbit["frames"] / orbit["seconds"], 2),
         "viewport": [browser.width, browser.height],
         "renderer": renderer,
+        "antialias": antialias,  # the page turns multisampling off on a software renderer
         "software": "SwiftShader: WebGL on the CPU (headless Chromium); a GPU is far faster",
     }
 

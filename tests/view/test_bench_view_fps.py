@@ -24,6 +24,7 @@ def test_the_bench_orbits_a_cloud_and_counts_its_frames(browser: Browser, tmp_pa
     assert row["frames"] > 0 and 0.5 <= row["orbit_s"] < 5
     assert row["fps"] == pytest.approx(row["frames"] / row["orbit_s"], rel=0.01)
     assert "SwiftShader" in row["renderer"] and "SwiftShader" in row["software"]
+    assert row["antialias"] is False  # no multisampling on a software renderer
     # each frame counted turned the view by the step: the arrow (framed at 45 degrees) too
     north = browser.evaluate("window.acqOverlays.northDeg")
     assert (north - 45 - 2.0 * row["frames"] + 180) % 360 - 180 == pytest.approx(0, abs=0.01)

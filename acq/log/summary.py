@@ -50,6 +50,7 @@ __all__ = [
     "GnssStamping",
     "LogInfo",
     "format_info",
+    "gaps",
     "info",
     "info_many",
 ]
@@ -136,8 +137,9 @@ class LogInfo:
 # --- summarising --------------------------------------------------------------------
 
 
-def _gaps(times: list[int]) -> tuple[float, list[tuple[int, int]]]:
-    """(max interval s, gaps) of sorted times, ns; gaps as in :class:`ChannelInfo`."""
+def gaps(times: list[int]) -> tuple[float, list[tuple[int, int]]]:
+    """(max interval s, gaps) of sorted times, ns; gaps as in :class:`ChannelInfo` (the
+    rule ``acq info`` applies to a topic's log times)."""
     if len(times) < 2:
         return 0.0, []
     t = np.asarray(times, dtype=np.int64)
@@ -210,7 +212,7 @@ class _Acc:
         for topic in sorted(self.times):
             times = sorted(self.times[topic])
             span = times[-1] - times[0]
-            max_gap_s, gaps = _gaps(times)
+            max_gap_s, found = gaps(times)
             out.append(
                 ChannelInfo(
                     topic=topic,
@@ -220,7 +222,7 @@ class _Acc:
                     last_ns=times[-1],
                     rate_hz=(len(times) - 1) / (span / 1e9) if span > 0 else 0.0,
                     max_gap_s=max_gap_s,
-                    gaps=gaps,
+                    gaps=found,
                     bytes=self.sizes[topic],
                     undecodable=self.undecodable.get(topic, 0),
                 )

@@ -73,7 +73,7 @@ def test_export_ros2_names_the_ros2_extra(
     truth, _ = short_drive
     assert acq_main(["export", "ros2", *map(str, truth.files), "-o", str(tmp_path / "bag")]) == 2
     assert _one_line(capsys) == (
-        "acq export ros2: acq export ros2 needs the ros2 extra: pip install 'acq[ros2]'"
+        "acq export ros2: writing a rosbag2 bag needs the ros2 extra: pip install 'acq[ros2]'"
     )
     assert list(tmp_path.iterdir()) == []
 
@@ -127,3 +127,31 @@ def test_needs_passes_another_import_error_through(monkeypatch: pytest.MonkeyPat
     with pytest.raises(ImportError) as e, needs("e57", "E57 output"):
         import no_such_acq_module  # noqa: F401
     assert not isinstance(e.value, MissingExtraError)
+
+
+def test_demo_names_the_mesh_extra_before_recording(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _block(monkeypatch, "mesh")
+    assert acq_main(["demo", "--seconds", "1", "--out", str(tmp_path / "demo")]) == 2
+    assert _one_line(capsys) == (
+        "acq demo: the demo's textured mesh needs the mesh extra: pip install 'acq[mesh]'"
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_reading_a_rosbag2_bag_names_the_ros2_extra(
+    short_drive: Drive, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    truth, calib = short_drive
+    bag = tmp_path / "bag"
+    assert acq_main(["export", "ros2", *map(str, truth.files), "-o", str(bag)]) == 0
+    capsys.readouterr()
+    _block(monkeypatch, "ros2")
+    out = tmp_path / "c.ply"
+    assert acq_main(["colorize", str(bag), "--calib", str(calib), "-o", str(out)]) == 2
+    assert _one_line(capsys) == (
+        "acq colorize: reading a rosbag2 bag needs the ros2 extra: pip install 'acq[ros2]'"
+    )
+    assert not out.exists()

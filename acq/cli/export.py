@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from acq.export import export_ros2
     from acq.export.ros2 import bag_files
 
-    require("ros2", "acq export ros2")
+    require("ros2", "writing a rosbag2 bag")
     bag = output_files.folder_output("-o", args.output)
     kept = _check_bag(args.logs, bag, args.force)
     # written in a folder beside (rosbags names its storage file after the bag's folder),

@@ -203,7 +203,7 @@ def export_ros2(
     ``bag`` (see the module doc); ``progress`` is called with the number of messages
     read so far. Raises InputValueError for a log that cannot be read or mapped to UTC,
     AcqError when the bag cannot be written."""
-    with needs("ros2", "acq export ros2"):
+    with needs("ros2", "writing a rosbag2 bag"):
         from rosbags.interfaces import (
             Qos,
             QosDurability,

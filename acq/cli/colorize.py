@@ -111,7 +111,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.add_argument(
         "--dask", metavar="ADDRESS",
         help="run the chunks on this Dask scheduler (tcp://host:8786); the workers must "
-        "see the log files at the same paths",
+        "see the log files at the same paths (the cluster extra: pip install 'acq[cluster]')",
     )  # fmt: skip
     col.add_argument(
         "--chunk", type=CHUNK_S, default=None, metavar="S",

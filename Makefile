@@ -15,8 +15,8 @@ $(BIN)/python:
 # is compiled later, and every process the tests start would compile its imports again.
 $(STAMP): $(BIN)/python pyproject.toml
 	( $(BIN)/python -m pip install --quiet uv && \
-	  $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -e '.[test]' ) || \
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	  $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -e '.[all,test]' ) || \
+	$(BIN)/python -m pip install --quiet -e '.[all,test]'
 	touch $(STAMP)
 
 # our own sources' bytecode, for the same reason (stale files are rewritten)
@@ -85,8 +85,8 @@ test-slow: $(STAMP)
 # Node.js is installed; PCL's and CloudCompare's tools from the system when installed
 # (Debian: pcl-tools, cloudcompare, xvfb), skipped otherwise
 interop: $(STAMP)
-	( $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[test,interop]' ) || \
-	$(BIN)/python -m pip install --quiet -e '.[test,interop]'
+	( $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[all,test,interop]' ) || \
+	$(BIN)/python -m pip install --quiet -e '.[all,test,interop]'
 	if command -v npm >/dev/null; then cd tests/interop/node && npm ci --silent; fi
 	$(BIN)/pytest -q -rs -m interop tests/interop
 

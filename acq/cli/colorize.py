@@ -12,6 +12,7 @@ from acq.cli.camera_option import add_camera_option
 from acq.cli.option_types import integer, real
 from acq.cli.output_files import Output
 from acq.errors import InputError
+from acq.extras import require
 
 # the columns acq.motion.ins.from_csv reads
 TRAJECTORY_HELP = (
@@ -110,7 +111,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     col.add_argument(
         "--dask", metavar="ADDRESS",
         help="run the chunks on this Dask scheduler (tcp://host:8786); the workers must "
-        "see the log files at the same paths",
+        "see the log files at the same paths (the cluster extra: pip install 'acq[cluster]')",
     )  # fmt: skip
     col.add_argument(
         "--chunk", type=CHUNK_S, default=None, metavar="S",
@@ -180,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
     from acq.cloud.writer import format_of
 
     format_of(args.output, "-o")
+    if args.dask:
+        require("cluster", "--dask")
     check_crs_option(args.crs, args.frame)
     options = views.Options(
         view=args.view,

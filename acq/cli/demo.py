@@ -7,6 +7,7 @@ from pathlib import Path
 
 from acq.cli.option_types import real
 from acq.errors import AcqError
+from acq.extras import require
 
 HELP = "record the simulated rig and colour its cloud, end to end"
 
@@ -55,6 +56,7 @@ def _progress(line: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from acq.sim import demo
 
+    require("mesh", "the demo's textured mesh")
     result = demo.run(Path(args.out), args.seconds, progress=_progress)
     print("\n".join(result.lines), flush=True)
     if result.frames_used == 0:

@@ -12,6 +12,7 @@ from acq.cli import output_files
 from acq.cli.output_files import Output
 from acq.disk_space import naming_full_disk
 from acq.errors import InputError
+from acq.extras import require
 
 HELP = "logs for other tools: a ROS 2 bag (rosbag2, MCAP storage)"
 
@@ -71,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from acq.export import export_ros2
     from acq.export.ros2 import bag_files
 
+    require("ros2", "writing a rosbag2 bag")
     bag = output_files.folder_output("-o", args.output)
     kept = _check_bag(args.logs, bag, args.force)
     # written in a folder beside (rosbags names its storage file after the bag's folder),

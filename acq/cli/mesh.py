@@ -13,6 +13,7 @@ from acq.cli.colorize import CHUNK_S, add_placing_options, check_crs_option
 from acq.cli.option_types import integer, real
 from acq.cli.output_files import Output
 from acq.errors import InputValueError
+from acq.extras import require
 
 TEXELS = 8  # texels a side of an atlas cell, by default: see the README's "Facets"
 HELP = "facets of a drive's laser profiles, coloured from its cameras (glTF, OBJ or PLY)"
@@ -116,7 +117,12 @@ def run(args: argparse.Namespace) -> int:
     from acq.mesh.drive import prepare_mesh
     from acq.mesh.files import format_of, texture_files
 
-    textured_obj = format_of(args.output, "-o") == "obj" and args.texture
+    kind = format_of(args.output, "-o")
+    if kind == "glb":
+        require("mesh", f"-o {args.output}: glTF output")
+    if args.simplify is not None:
+        require("mesh", "--simplify")
+    textured_obj = kind == "obj" and args.texture
     if args.texels is not None and not args.texture:
         raise InputValueError("--texels: only with --texture")
     check_crs_option(args.crs, args.frame)

@@ -78,6 +78,7 @@ from acq.cloud.report import Report
 from acq.cloud.tally import Tally
 from acq.cloud.writer import FORMATS, CloudWriter
 from acq.errors import InputValueError
+from acq.extras import needs
 from acq.log.drive_log import DriveLog, read_log
 from acq.log.inputs import session_files
 from acq.log.locate import locate
@@ -229,7 +230,8 @@ def _run_each(
 ) -> None:
     """Each chunk's result to ``done`` as it comes, however the chunks run."""
     if dask:
-        from dask.distributed import Client, Queue, as_completed
+        with needs("cluster", "--dask"):
+            from dask.distributed import Client, Queue, as_completed
 
         with Client(dask) as client:
             queue = Queue(client=client)

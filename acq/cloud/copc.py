@@ -42,6 +42,7 @@ from acq.cloud.las import (
 )
 from acq.cloud.octree import Cube, Key, Scratch, build, drop_all
 from acq.errors import AcqError
+from acq.extras import needs
 from acq.provenance import SOFTWARE
 
 __all__ = ["CopcStream"]
@@ -126,7 +127,8 @@ class CopcStream:
             raise
 
     def _close(self) -> int:
-        import copclib
+        with needs("copc", "COPC output"):
+            import copclib
 
         if self._points is None:
             self._points = self._scratch()

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from acq.atomic_write import discard, release, temporary_beside
+from acq.extras import needs
 from acq.provenance import SOFTWARE
 from acq.time.gpstime import utc_to_gps
 
@@ -53,7 +54,8 @@ class E57Stream:
         self, path: str | os.PathLike[str], *, crs: str | None = None,
         comments: Sequence[str] = (), cameras: Sequence[str] = (),
     ) -> None:  # fmt: skip
-        from pye57 import libe57
+        with needs("e57", f"{path}: E57 output"):
+            from pye57 import libe57
 
         self.path = Path(path)
         wkt = ""

@@ -21,6 +21,7 @@ from acq.cloud.ply import PlyStream
 from acq.cloud.report import Report
 from acq.disk_space import full_disk_error
 from acq.errors import InputValueError
+from acq.extras import require
 from acq.output_suffix import suffix_format
 from acq.time.utc import utc_seconds
 
@@ -33,6 +34,10 @@ def format_of(output: Path, option: str = "-o") -> str:
     """The format ``output``'s suffix names ("ply", "las", "laz", "copc", "e57");
     InputValueError naming ``option`` and the accepted suffixes for any other."""
     kind = suffix_format(output, FORMATS, "cloud", option)
+    if kind == "copc.laz":
+        require("copc", f"{option} {output}: COPC output")
+    elif kind == "e57":
+        require("e57", f"{option} {output}: E57 output")
     return "copc" if kind == "copc.laz" else kind
 
 

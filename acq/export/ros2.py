@@ -36,6 +36,7 @@ import numpy as np
 from acq.errors import AcqError, InputValueError
 from acq.export.log_clock import LogClock
 from acq.export.ros_messages import BASE_LINK, ODOM, Messages, ScanGeometry
+from acq.extras import needs
 from acq.log.reader import LogReader, read_metadata
 from acq.log.timebase import MONOTONIC
 from acq.log.vehicle_log import ODOMETRY_TOPIC, VehicleReader
@@ -202,16 +203,17 @@ def export_ros2(
     ``bag`` (see the module doc); ``progress`` is called with the number of messages
     read so far. Raises InputValueError for a log that cannot be read or mapped to UTC,
     AcqError when the bag cannot be written."""
-    from rosbags.interfaces import (
-        Qos,
-        QosDurability,
-        QosHistory,
-        QosLiveliness,
-        QosReliability,
-        QosTime,
-    )
-    from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
-    from rosbags.typesys import Stores, get_typestore
+    with needs("ros2", "writing a rosbag2 bag"):
+        from rosbags.interfaces import (
+            Qos,
+            QosDurability,
+            QosHistory,
+            QosLiveliness,
+            QosReliability,
+            QosTime,
+        )
+        from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+        from rosbags.typesys import Stores, get_typestore
 
     files = [Path(p) for p in logs]
     session = _first_pass(files)

@@ -39,6 +39,7 @@ import numpy as np
 from mcap.records import Channel, Header, McapRecord, Message, Metadata, Schema
 
 from acq.errors import InputValueError
+from acq.extras import needs
 from acq.log import schemas
 from acq.records import Fix, Frame, Odometry, Scan
 
@@ -179,7 +180,8 @@ class _Translator:
     """The records of one rosbag2 storage file as an acq log's (see the module doc)."""
 
     def __init__(self) -> None:
-        from rosbags.typesys import Stores, get_typestore
+        with needs("ros2", "reading a rosbag2 bag"):
+            from rosbags.typesys import Stores, get_typestore
 
         self.typestore = get_typestore(Stores.EMPTY)
         self.registered: set[str] = set()

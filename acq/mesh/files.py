@@ -28,6 +28,7 @@ import numpy as np
 
 from acq.atomic_write import atomic
 from acq.cloud import ply
+from acq.extras import needs
 from acq.output_suffix import suffix_format
 from acq.provenance import SOFTWARE, marked_image
 
@@ -127,7 +128,8 @@ def _write_glb(
     path: Path, xyz: np.ndarray, rgb: np.ndarray, faces: np.ndarray, lines: Sequence[str],
     texture: Atlas | None,
 ) -> int:  # fmt: skip
-    import pygltflib as gl
+    with needs("mesh", f"{path}: glTF output"):
+        import pygltflib as gl
 
     offset = xyz[0].copy() if len(xyz) else np.zeros(3)
     parts = _GlbBuffer()

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from acq.extras import needs
+
 __all__ = ["simplify", "surface_distance"]
 
 # pyfqmr keeps the mesh it works on in its C++ library's global state (one per process,
@@ -32,8 +34,9 @@ def simplify(
     ``tolerance_m`` away. Vertices on the open border (a tile's first and last profile, a
     hole's rim) stay where they are and are never merged, so that tiles still meet. Each
     vertex takes the colour of the original vertex nearest to it."""
-    import pyfqmr
-    from scipy.spatial import cKDTree
+    with needs("mesh", "--simplify"):
+        import pyfqmr
+        from scipy.spatial import cKDTree
 
     if not faces.size:
         return xyz, rgb, faces

@@ -15,17 +15,21 @@ cleanup() {
 trap cleanup EXIT
 step() { printf 'wheel smoke: %s\n' "$*"; }
 
-step "build and install"
-if "$python" -m uv --version > /dev/null 2>&1; then  # as make installs: uv, else pip
+step "build and install: every extra (acq[all]) in venv, the core alone in core"
+# install VENV SPEC: the wheel as a user installs it, as make installs: uv, else pip
+if "$python" -m uv --version > /dev/null 2>&1; then
   "$python" -m uv build --quiet --wheel --out-dir "$work/dist" "$root"
-  "$python" -m uv venv --quiet --python "$python" "$work/venv"
-  "$python" -m uv pip install --quiet --compile-bytecode --python "$work/venv/bin/python" \
-    "$work"/dist/acq-*.whl
+  install() {
+    "$python" -m uv venv --quiet --python "$python" "$1"
+    "$python" -m uv pip install --quiet --compile-bytecode --python "$1/bin/python" "$2"
+  }
 else
   "$python" -m pip wheel --quiet --no-deps --wheel-dir "$work/dist" "$root"
-  "$python" -m venv "$work/venv"
-  "$work/venv/bin/python" -m pip install --quiet "$work"/dist/acq-*.whl
+  install() { "$python" -m venv "$1" && "$1/bin/python" -m pip install --quiet "$2"; }
 fi
+wheel=$(echo "$work"/dist/acq-*.whl)
+install "$work/venv" "$wheel[all]"
+install "$work/core" "$wheel"
 acq=$work/venv/bin/acq
 site=$("$work/venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
 cd "$work"  # nothing of the checkout on sys.path from here on
@@ -77,6 +81,17 @@ step "acq colorize on the demo's log"
 "$acq" colorize demo/demo.mcap --calib demo/calib.yaml --camera left -o drive.las --no-preview \
   > /dev/null
 [ -s drive.las ]
+
+step "the core install colours the demo's log, and names the extra --dask needs"
+"$work/core/bin/acq" colorize demo/demo.mcap --calib demo/calib.yaml --camera left -o core.las \
+  --no-preview > /dev/null
+[ -s core.las ]
+status=0
+"$work/core/bin/acq" colorize demo/demo.mcap --calib demo/calib.yaml -o core.ply \
+  --dask tcp://127.0.0.1:9 2> dask.txt || status=$?
+[ "$status" -eq 2 ] && [ "$(cat dask.txt)" = "acq colorize: --dask needs the cluster extra: \
+pip install 'acq[cluster]'" ] && [ ! -e core.ply ] \
+  || { echo "wheel smoke: core install, --dask: exit $status" >&2; cat dask.txt >&2; exit 1; }
 
 step "acq export ros2 on the demo's log"
 "$acq" export ros2 demo/demo.mcap -o drive_bag > /dev/null 2>&1

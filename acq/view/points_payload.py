@@ -32,7 +32,7 @@ from acq.view.cloud_rows import Rows, rows_of
 
 __all__ = [
     "ATTRIBUTES_PART", "COLUMNS", "FLAGS", "HEADER", "MAGIC", "POINTS_PART", "Column", "Split",
-    "payload", "positions", "rows_and_shown", "shown", "split_payload", "subset",
+    "payload", "positions", "rows_and_shown", "split_payload", "subset",
 ]  # fmt: skip
 
 MAGIC = b"ACQPTS2\0"
@@ -81,11 +81,6 @@ def subset(start: int, stop: int, max_points: int) -> np.ndarray:
     n = stop - start
     m = min(n, max_points)
     return start + np.arange(m, dtype=np.int64) * n // m
-
-
-def shown(data: bytes | bytearray) -> int:
-    """The points a payload holds (its header's)."""
-    return int(HEADER.unpack_from(data)[1])
 
 
 def positions(data: bytes | bytearray) -> tuple[int, np.ndarray, np.ndarray]:

@@ -104,7 +104,7 @@ class ViewServer:
             raise InputError(f"--calib {calib}: no .mcap log to use it with")
         self._on_error = on_error
         self._packer: threading.Thread | None = None
-        self._drive_points: dict[tuple[int, Path], Split] = {}
+        self._drive_packings: dict[tuple[int, Path], _Packing] = {}
         self._drive_lock = threading.Lock()
         # the clouds over max_points: their chunks, found once their subset is packed
         self.chunks: dict[int, list[lod.Chunk]] = {
@@ -177,18 +177,24 @@ class ViewServer:
             data["cloud"] |= {"layer": same[0]} if same else urls
         return data
 
-    def drive_points(self, k: int) -> Split | None:
-        """The page's binary of drive ``k``'s cloud in its two parts (at most
-        ``max_points`` points, packed once per file), None while it has none; InputError
-        when it cannot be read."""
+    def drive_packing(self, k: int) -> _Packing | None:
+        """Drive ``k``'s cloud packed for the page as a cloud layer's is (at most
+        ``max_points`` points, once per file, on a thread of its own from the first
+        asking), None while the drive has no cloud."""
         cloud = self.drives[k].cloud()
         if cloud is None:
             return None
         with self._drive_lock:
-            key = (k, cloud)
-            if key not in self._drive_points:
-                self._drive_points[key] = split_payload(cloud, self.max_points)
-            return self._drive_points[key]
+            packing = self._drive_packings.get((k, cloud))
+            if packing is None:
+                packing = self._drive_packings[(k, cloud)] = _Packing()
+                threading.Thread(
+                    target=self._pack_one,
+                    args=(cloud, packing),
+                    name="acq-view-pack-drive",
+                    daemon=True,
+                ).start()
+        return packing
 
     def frame_of(self, k: int, point: int) -> dict[str, Any]:
         """``/api/frame``: the frame point ``point`` (the page's index) of the cloud layer
@@ -197,11 +203,13 @@ class ViewServer:
         if not 0 <= k < len(self.layers):
             raise FrameError(f"no layer {k}")
         if k in self.drives:
-            d, cloud = k, self.drives[k].cloud()
-            if cloud is None:
+            d, cloud, packing = k, self.drives[k].cloud(), self.drive_packing(k)
+            if cloud is None or packing is None:
                 raise FrameError(f"{self.layers[k].name}: no cloud (yet)")
-            packed = self.drive_points(k)
-            count, shown = (1, 1) if packed is None else rows_and_shown(packed.points)
+            packing.done.wait()
+            if packing.data is None:
+                raise FrameError(packing.error or f"{cloud}: its points cannot be read", 409)
+            count, shown = rows_and_shown(packing.data.points)
         elif self.layers[k].kind == "cloud":
             found = self.log_of(k)
             if found is None:
@@ -277,24 +285,28 @@ class ViewServer:
             self._packer.start()
 
     def _pack(self) -> None:
-        """Pack each cloud's points in turn; its reason when they cannot be read."""
+        """Pack each cloud layer's points in turn."""
         for k, packing in self.points.items():
-            path = self.layers[k].path
-            try:
-                packing.data = split_payload(path, self.max_points)
-                if k in self.chunks:
-                    self.chunks[k] = lod.chunks(
-                        path, self.layers[k].count, packing.data.points, self._run_points
-                    )
-            except InputError as e:
-                packing.error = str(e)
-            # never a page left waiting: said, whatever it was (a Rust decoder's panic
-            # comes as a BaseException)
-            except BaseException as e:
-                packing.error = f"{path}: its points cannot be read ({first_line(e)})"
-            packing.done.set()
-            if packing.error is not None and self._on_error is not None:
-                self._on_error(packing.error)
+            self._pack_one(self.layers[k].path, packing, k if k in self.chunks else None)
+
+    def _pack_one(self, path: Path, packing: _Packing, chunked: int | None = None) -> None:
+        """Pack the cloud ``path`` into ``packing`` (and find the chunks of layer
+        ``chunked``); its reason, also to ``on_error``, when its points cannot be read."""
+        try:
+            packing.data = split_payload(path, self.max_points)
+            if chunked is not None:
+                self.chunks[chunked] = lod.chunks(
+                    path, self.layers[chunked].count, packing.data.points, self._run_points
+                )
+        except InputError as e:
+            packing.error = str(e)
+        # never a page left waiting: said, whatever it was (a Rust decoder's panic comes
+        # as a BaseException)
+        except BaseException as e:
+            packing.error = f"{path}: its points cannot be read ({first_line(e)})"
+        packing.done.set()
+        if packing.error is not None and self._on_error is not None:
+            self._on_error(packing.error)
 
     def wait(self, timeout: float | None = None) -> bool:
         """Whether every cloud is packed (or failed) within ``timeout`` seconds."""
@@ -377,11 +389,10 @@ class _Handler(BaseHTTPRequestHandler):
         k, c = found
         if c is None and k not in view.points:
             self._file(view.layers[k].path, body)
-        elif not self._packed(view.points[k], view.layers[k].name, body):
+        elif (packed := self._packed(view.points[k], view.layers[k].name, body)) is None:
             return  # a 202 or 422 said
         elif c is None or c == "attributes":
-            packed = view.points[k].data
-            part = b"" if packed is None else packed.points if c is None else packed.attributes
+            part = packed.points if c is None else packed.attributes
             self._send(part, "application/octet-stream", body, "no-cache")
         elif c == "lod":
             data = json.dumps(lod.index(view.chunks[k])).encode()
@@ -417,16 +428,11 @@ class _Handler(BaseHTTPRequestHandler):
         if rest == [DRIVE_NAME]:
             self._json(view.drive_data(k), 200, body)
         elif rest in ([DRIVE_CLOUD], [DRIVE_ATTRIBUTES]):
-            try:
-                data = view.drive_points(k)
-            except InputError as e:  # the cloud unreadable, or gone since it was found
-                self.send_response(HTTPStatus.UNPROCESSABLE_ENTITY)
-                self._text(str(e), body)
-                return
-            if data is None:
+            packing = view.drive_packing(k)
+            if packing is None:
                 self._not_found()
-            else:
-                part = data.points if rest == [DRIVE_CLOUD] else data.attributes
+            elif (packed := self._packed(packing, view.layers[k].name, body)) is not None:
+                part = packed.points if rest == [DRIVE_CLOUD] else packed.attributes
                 self._send(part, "application/octet-stream", body, "no-cache")
         elif len(rest) == 3 and rest[0] == "frame" and rest[2].removesuffix(".jpg").isdigit():
             try:
@@ -480,20 +486,19 @@ class _Handler(BaseHTTPRequestHandler):
             for start in range(0, len(data), _CHUNK):
                 self.wfile.write(view[start : start + _CHUNK])
 
-    def _packed(self, packing: _Packing, name: str, body: bool) -> bool:
-        """Whether a cloud is packed; if not, 202 said (Accepted: a browser logs a 503 as an
-        error) after a wait, so that it comes as soon as it is ready, or 422 and the reason
-        when its points could not be read."""
+    def _packed(self, packing: _Packing, name: str, body: bool) -> Split | None:
+        """A cloud's two parts once packed; if not (None), 202 said (Accepted: a browser
+        logs a 503 as an error) after a wait, so that it comes as soon as it is ready, or
+        422 and the reason when its points could not be read."""
         if not packing.done.wait(_POLL_S):
             self.send_response(HTTPStatus.ACCEPTED)
             self.send_header("Retry-After", "0")  # the next request waits again
             self._text(f"decoding {name}", body)
-            return False
+            return None
         if packing.data is None:
             self.send_response(HTTPStatus.UNPROCESSABLE_ENTITY)
             self._text(packing.error or "", body)
-            return False
-        return True
+        return packing.data
 
     def _text(self, text: str, body: bool) -> None:
         """The rest of an answer whose status is sent: ``text`` as its body."""
@@ -525,9 +530,8 @@ def _host_allowed(served: str, header: str | None) -> bool:
 def _drive_route(view: ViewServer, path: str) -> tuple[int, list[str]] | None:
     """(k, the parts after it) of a ``/data/<k>/...`` URL whose layer k is a drive."""
     parts = path.split("/")
-    if len(parts) < 4 or not parts[2].isdigit() or int(parts[2]) not in view.drives:
-        return None
-    return int(parts[2]), parts[3:]
+    k = _number(parts[2]) if len(parts) >= 4 else None
+    return (k, parts[3:]) if k is not None and k in view.drives else None
 
 
 def _data_route(view: ViewServer, path: str) -> tuple[int, int | str | None] | None:

@@ -63,14 +63,15 @@ chromium:
 	  >/dev/null 2>&1 ) || echo "chromium not installed: the page tests skip (fail where CI=true)"
 
 # ruff first; then the real-time tests two at a time, with mypy and the wheel's smoke
-# beside them at nice 19 (the real-time tests mostly wait on their devices, and must hold
-# on a busy machine anyway); then the rest on both cores. worksteal: a worker that runs
-# out takes tests queued on the other, so neither idles through the other's long tail.
+# beside them (the real-time tests mostly wait on their devices, and must hold on a busy
+# machine anyway: at a lower priority the two would starve behind any other load); then
+# the rest on both cores. worksteal: a worker that runs out takes tests queued on the
+# other, so neither idles through the other's long tail.
 test: $(STAMP) compile chrony chromium
 	$(BIN)/ruff format --check $(RUFF_PATHS)
 	$(BIN)/ruff check $(RUFF_PATHS)
-	@nice -n 19 $(MAKE) --no-print-directory typecheck > .mypy.out 2>&1 & mypy=$$!; \
-	nice -n 19 $(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
+	@$(MAKE) --no-print-directory typecheck > .mypy.out 2>&1 & mypy=$$!; \
+	$(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
 	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 2 --dist worksteal; realtime=$$?; \
 	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2 --dist worksteal; rest=$$?; \
 	wait $$mypy; typed=$$?; wait $$smoke; smoked=$$?; \

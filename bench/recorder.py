@@ -57,7 +57,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import pairwise
 from pathlib import Path
 from typing import IO, Any
@@ -86,6 +86,9 @@ RATE_STEPS = (1, 2, 5, 10, 15, 20, 25, 30, 40)
 TARGET_CPU_SHARE = 0.10
 TARGET_RATE = 10
 TARGET_GROWTH_MB = 5.0
+TARGET_MB_S = 150.0
+BANDWIDTH_SIZE = "2592x1944"  # a 5 MP sensor
+BANDWIDTH_FPS = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 50.0)  # per camera
 
 
 def _load() -> list[float]:
@@ -210,8 +213,11 @@ def start_recorder(
     scanner_url: str,
     camera_urls: str | list[str],
     fps: float,
+    calibrated: bool = True,
     **output: Any,
 ) -> Run:
+    """``acq record`` of the scanner and cameras at ``urls``; ``calibrated``: with the
+    simulated rig's calibration (of 780x582 cameras)."""
     urls = [camera_urls] if isinstance(camera_urls, str) else camera_urls
     config = {
         "version": 1,
@@ -225,7 +231,8 @@ def start_recorder(
         ],
         "output": {"dir": str(work / "logs"), **output},
     }  # fmt: skip
-    config["calibration"] = str(_true_calibration(work, camera_names(len(urls))))
+    if calibrated:
+        config["calibration"] = str(_true_calibration(work, camera_names(len(urls))))
     path = work / "rig.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     log = work / "record.log"
@@ -239,6 +246,16 @@ def start_recorder(
 
 
 @dataclass
+class Images:
+    """One camera's recorded frames: log times, and the first and last (log time ns,
+    JPEG digest)."""
+
+    times: list[int] = field(default_factory=list)
+    first: tuple[int, str] | None = None
+    last: tuple[int, str] | None = None
+
+
+@dataclass
 class Recorded:
     """What the files of one run hold, for the checks."""
 
@@ -246,22 +263,36 @@ class Recorded:
     per_file: list[LogInfo]
     scan_ticks: list[int]  # /acq/timing/laser device tick, in order
     raw_sequences: list[list[int]]  # /laser/raw sequence numbers, per file
-    first_image: tuple[int, str] | None  # (log_time ns, digest)
-    last_image: tuple[int, str] | None
-    image_times: list[int]
+    images: dict[str, Images]  # by camera name
     last_status: Any
     max_writer_queue: int
 
     def count(self, topic: str) -> int:
         return next((c.count for c in self.info.channels if c.topic == topic), 0)
 
+    @property
+    def first_image(self) -> tuple[int, str] | None:
+        return self.images.get("camera", Images()).first
+
+    @property
+    def last_image(self) -> tuple[int, str] | None:
+        return self.images.get("camera", Images()).last
+
+    @property
+    def image_times(self) -> list[int]:
+        return self.images.get("camera", Images()).times
+
+
+def _digest(data: bytes) -> str:
+    return jpeg_digest(CompressedImage.FromString(data).data)
+
 
 def read_recorded(files: list[Path]) -> Recorded:
     infos = info_many(files)
     ticks: list[int] = []
     sequences: list[list[int]] = []
-    images: list[int] = []
-    first = last = None
+    images: dict[str, Images] = {}
+    last_data: dict[str, bytes] = {}
     status, max_queue = None, 0
     for path in files:
         seqs: list[int] = []
@@ -272,29 +303,25 @@ def read_recorded(files: list[Path]) -> Recorded:
                 ticks.append(reader.decode(schema, channel, message).device_ticks[0])
             elif topic == "/laser/raw":
                 seqs.append(reader.decode(schema, channel, message).sequence)
-            elif topic == "/camera/image/compressed":
-                images.append(message.log_time)
-                if first is None:
-                    first = (message.log_time, message.data)
-                last = (message.log_time, message.data)
+            elif topic.endswith("/image/compressed"):
+                name = topic.split("/")[1]
+                got = images.setdefault(name, Images())
+                got.times.append(message.log_time)
+                if got.first is None:
+                    got.first = (message.log_time, _digest(message.data))
+                last_data[name] = message.data
             elif topic == "/acq/status":
                 status = reader.decode(schema, channel, message)
                 max_queue = max(max_queue, status.writer_queue)
         sequences.append(seqs)
-
-    def digest(item: tuple[int, bytes] | None) -> tuple[int, str] | None:
-        if item is None:
-            return None
-        return item[0], jpeg_digest(CompressedImage.FromString(item[1]).data)
-
+    for name, data in last_data.items():  # digested once, not every frame
+        images[name].last = (images[name].times[-1], _digest(data))
     return Recorded(
         info=infos[-1],
         per_file=infos[:-1] if len(infos) > 1 else infos,
         scan_ticks=ticks,
         raw_sequences=sequences,
-        first_image=digest(first),
-        last_image=digest(last),
-        image_times=images,
+        images=images,
         last_status=status,
         max_writer_queue=max_queue,
     )
@@ -411,11 +438,12 @@ def _expected_scans(sent: list[int], recorded: list[int]) -> int:
     return j - i + 1
 
 
-def _expected_frames(sent: list[list[Any]], rec: Recorded) -> int:
-    """Frames the camera sent from the first recorded to the last: each of those is the
+def _expected_frames(sent: list[list[Any]], rec: Recorded, camera: str = "camera") -> int:
+    """Frames ``camera`` sent from the first recorded to the last: each of those is the
     sent frame with the same JPEG whose send time is nearest its receipt (the pre-rendered
-    camera cycles 50 distinct JPEGs; the live one renders a new one each time)."""
-    first, last = rec.first_image, rec.last_image
+    camera cycles a few distinct JPEGs; the live one renders a new one each time)."""
+    images = rec.images.get(camera, Images())
+    first, last = images.first, images.last
     if first is None or last is None:
         return len(sent)
 
@@ -552,6 +580,122 @@ def part_rate(work: Path, seconds: float, quick: bool = False) -> None:
     )
 
 
+# --- (4) bandwidth: large frames from several cameras -----------------------------------------
+
+
+def _camera_stats(cameras: list[Prerendered]) -> list[dict[str, Any]]:
+    return [c.stats() for c in cameras]
+
+
+def _bandwidth_step(
+    work: Path, fps: float, seconds: float, cameras: int, size: str, frames: int
+) -> dict[str, Any]:
+    """One step of (4): ``cameras`` pre-rendered cameras of ``size`` at ``fps`` and the
+    scanner at its nominal rate, each in a process of its own, recorded ``seconds``."""
+    procs = Procs()
+    err = (work / "sim.log").open("w")
+    names = camera_names(cameras)
+    try:
+        scanner = Prerendered(procs, err, "scanner", "--model", "utm-30lx")
+        sims = [
+            Prerendered(procs, err, "camera", "--fps", str(fps), "--size", size,
+                        "--frames", str(frames), "--seed", str(k))
+            for k in range(cameras)
+        ]  # fmt: skip
+        # no calibration: the simulated rig's is of 780x582 cameras
+        run = start_recorder(procs, work, scanner.url, [c.url for c in sims], fps, False)
+        run.wait_for("laser connected", *(f"{n} connected" for n in names))
+        warmup = time.monotonic() - run.t_start + 2.0
+        run.sleep_until(warmup)
+        t0, c0, _ = run.sample()
+        b0 = run.bytes_on_disk()
+        s0 = scanner.stats()["cpu_s"], sum(c["cpu_s"] for c in _camera_stats(sims))
+        run.sleep_until(warmup + seconds)
+        t1, c1, _ = run.sample()
+        b1 = run.bytes_on_disk()
+        load = _load()
+        run.stop()
+        s_stats, c_stats = scanner.stats(), _camera_stats(sims)
+        rec = read_recorded(run.files())
+        exp_scans = _expected_scans(s_stats["ticks"], rec.scan_ticks)
+        frames_ok, per_camera = True, {}
+        for name, stats in zip(names, c_stats, strict=True):
+            got = len(rec.images.get(name, Images()).times)
+            expected = _expected_frames(stats["frames"], rec, name)
+            frames_ok = frames_ok and got == expected > 0
+            per_camera[name] = f"{got}/{expected}"
+        qdrops = scanner_queue_drops(rec)
+        span = (t1 - t0) or 1.0
+        mb_s = (b1 - b0) / span / 1e6
+        cpu = (c1 - c0) / span
+        ok = (
+            qdrops == 0
+            and len(rec.scan_ticks) == exp_scans > 0
+            and frames_ok
+            and not any(rec.info.disconnects.values())
+        )
+        return {
+            "cameras": cameras,
+            "size": size,
+            "fps": fps,
+            "seconds": round(seconds, 1),
+            "mb_per_s": round(mb_s, 1),
+            "recorder_cpu_share": round(cpu, 3),
+            "cpu_share_per_100_mb_s": round(cpu / mb_s * 100, 3) if mb_s > 0 else None,
+            "scans": f"{len(rec.scan_ticks)}/{exp_scans}",
+            "frames": per_camera,
+            "scanner_queue_drops": qdrops,
+            "drops": rec.info.drops,
+            "disconnects": rec.info.disconnects,
+            "max_writer_queue": rec.max_writer_queue,
+            "sim_cpu_share": {
+                "scanner": round((s_stats["cpu_s"] - s0[0]) / span, 3),
+                "cameras": round((sum(c["cpu_s"] for c in c_stats) - s0[1]) / span, 3),
+            },
+            "sim_camera_late": sum(c["late"] for c in c_stats),
+            "warnings": _short(run.warnings(), 3),
+            "zero_drops": ok,
+            "load_during": load,
+        }
+    except RecorderExited as e:
+        return {"cameras": cameras, "fps": fps, "recorder_exit": e.code, "error": e.summary,
+                "zero_drops": False}  # fmt: skip
+    finally:
+        procs.close()
+        err.close()
+        shutil.rmtree(work / "logs", ignore_errors=True)
+
+
+def part_bandwidth(
+    work: Path, seconds: float, cameras: int, size: str, steps: tuple[float, ...], frames: int
+) -> None:
+    """(4): the frame rate stepped up until a step loses a record; ``record_bandwidth_max``
+    is the highest MB/s written with zero drops."""
+    best: dict[str, Any] | None = None
+    failing = None
+    for fps in steps:
+        result = _bandwidth_step(work, fps, seconds, cameras, size, frames)
+        _line("record_bandwidth", **result)
+        if not result["zero_drops"]:
+            failing = fps
+            break
+        if best is None or result["mb_per_s"] > best["mb_per_s"]:
+            best = result
+    mb_s = best["mb_per_s"] if best else 0.0
+    _line(
+        "record_bandwidth_max",
+        mb_per_s=mb_s,
+        at_fps=best["fps"] if best else None,
+        recorder_cpu_share=best["recorder_cpu_share"] if best else None,
+        cpu_share_per_100_mb_s=best["cpu_share_per_100_mb_s"] if best else None,
+        first_failing_fps=failing,
+        cameras=cameras,
+        size=size,
+    )
+    _line("targets", record_bandwidth_mb_per_s=TARGET_MB_S, measured=mb_s,
+          ok=mb_s >= TARGET_MB_S)  # fmt: skip
+
+
 # --- (3) memory over file rollovers ---------------------------------------------------------
 
 
@@ -651,6 +795,18 @@ def main() -> None:
     parser.add_argument("--cpu", action="store_true", help="(1) CPU share at nominal rates")
     parser.add_argument("--rate", action="store_true", help="(2) highest rate with no drops")
     parser.add_argument("--memory", action="store_true", help="(3) memory over rollovers")
+    parser.add_argument(
+        "--bandwidth", action="store_true",
+        help="(4) MB/s with zero drops: 5 MP cameras stepped up from 10 Hz",
+    )  # fmt: skip
+    parser.add_argument(
+        "--bandwidth-cameras", type=int, default=4, metavar="N",
+        help="(4) cameras serving large frames (default 4)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--bandwidth-fps", type=float, nargs="+", metavar="HZ",
+        help="(4) the frame rates to step through (default 10 15 20 25 30 35 40 50)",
+    )  # fmt: skip
     parser.add_argument("--minutes", type=float, help="memory run length (default 10)")
     parser.add_argument("--quick", action="store_true", help="every part short (~3 min)")
     parser.add_argument("--keep", action="store_true", help="keep the work folders")
@@ -659,7 +815,7 @@ def main() -> None:
         help="(1) with N cameras at 25 Hz (default 1); the target is per camera",
     )  # fmt: skip
     args = parser.parse_args()
-    everything = not (args.cpu or args.rate or args.memory)
+    everything = not (args.cpu or args.rate or args.memory or args.bandwidth)
     minutes = args.minutes if args.minutes is not None else (2.0 if args.quick else 10.0)
     if minutes < 1.5:
         parser.error("--minutes: at least 1.5 (the first sample is at 1 minute)")
@@ -678,6 +834,21 @@ def main() -> None:
         )
     if everything or args.memory:
         parts.append(("record_memory", lambda w, first: part_memory(w, minutes, 50.0, first)))
+    if everything or args.bandwidth:
+        steps = tuple(args.bandwidth_fps or BANDWIDTH_FPS)
+        parts.append(
+            (
+                "record_bandwidth_max",
+                lambda w, _first: part_bandwidth(
+                    w,
+                    5.0 if args.quick else 12.0,
+                    args.bandwidth_cameras,
+                    BANDWIDTH_SIZE,
+                    steps,
+                    10,
+                ),
+            )
+        )
     for bench, run in parts:
         for recorder_first in (False, True):
             with workdir("acq-bench-recorder-", args.keep) as work:

@@ -88,7 +88,7 @@ def enlarged(image: np.ndarray, size: tuple[int, int], rng: np.random.Generator)
     of 10 grey levels (sd) added, so that its JPEG is as large as a real sensor's of that size
     (a smooth upscale alone compresses to a fraction of it)."""
     big = cv2.resize(image, size, interpolation=cv2.INTER_LINEAR).astype(np.int16)
-    big += rng.normal(0.0, 10.0, big.shape).astype(np.int16)
+    big += np.asarray(rng.normal(0.0, 10.0, size=big.shape)).astype(np.int16)
     out: np.ndarray = np.clip(big, 0, 255).astype(np.uint8)
     return out
 

@@ -39,12 +39,24 @@ the machine has 2 cores and may be busy with other work.
     ``/laser/raw`` sequence numbers run on with no duplicate and no gap (a reconnection
     restarts them: counted apart). Target: under 5 MB growth.
 
+(4) ``record_bandwidth``: large frames. ``--bandwidth-cameras`` (4) cameras of a 5 MP
+    sensor (2592x1944, a street view enlarged with noise: JPEGs of about 1.3 MB, 10 of
+    them cycled) and the scanner at 40 Hz, each from ``python -m acq.sim.prerendered`` in
+    a process of its own, recorded 12 s (5 s with ``--quick``) per step from 2 s after
+    all connected, at 10, 15, 20, 25, 30, 35, 40, 50 Hz a camera until a step loses a
+    record (checked as in (2), every camera's frames). Per step: MB/s written, the
+    recorder's CPU (share of a core, and per 100 MB/s), the simulators' CPU, the writer
+    queue's high-water mark, the load. ``record_bandwidth_max``: the highest MB/s with
+    zero drops; ``targets``: at least 150 MB/s. The files go to the system's temporary
+    folder: its disk is part of what is measured.
+
 If ``acq record`` exits by itself (a crash), the error is reported in a line of its own
 and the part or step is run once more with the devices started after the recorder.
 
-Run as a script: ``python bench/recorder.py [--cpu] [--rate] [--memory] [--minutes N]
-[--quick] [--keep]`` (no part named: all three). ``--quick`` shortens every part (about
-3-4 minutes in all: 12 s of CPU, 5 s per rate step without k=2, 2 minutes of memory).
+Run as a script: ``python bench/recorder.py [--cpu] [--rate] [--memory] [--bandwidth]
+[--minutes N] [--quick] [--keep]`` (no part named: all four). ``--quick`` shortens every
+part (about 5-6 minutes in all: 12 s of CPU, 5 s per rate and bandwidth step without
+k=2, 2 minutes of memory).
 """
 
 from __future__ import annotations
@@ -808,7 +820,7 @@ def main() -> None:
         help="(4) the frame rates to step through (default 10 15 20 25 30 35 40 50)",
     )  # fmt: skip
     parser.add_argument("--minutes", type=float, help="memory run length (default 10)")
-    parser.add_argument("--quick", action="store_true", help="every part short (~3 min)")
+    parser.add_argument("--quick", action="store_true", help="every part short (~5 min)")
     parser.add_argument("--keep", action="store_true", help="keep the work folders")
     parser.add_argument(
         "--cameras", type=int, default=1, choices=range(1, 5), metavar="N",
@@ -817,6 +829,10 @@ def main() -> None:
     args = parser.parse_args()
     everything = not (args.cpu or args.rate or args.memory or args.bandwidth)
     minutes = args.minutes if args.minutes is not None else (2.0 if args.quick else 10.0)
+    if args.bandwidth_cameras < 1:
+        parser.error("--bandwidth-cameras: at least 1")
+    if args.bandwidth_fps is not None and min(args.bandwidth_fps) <= 0:
+        parser.error("--bandwidth-fps: every rate must be > 0 Hz")
     if minutes < 1.5:
         parser.error("--minutes: at least 1.5 (the first sample is at 1 minute)")
     warmup, measure = (3.0, 12.0) if args.quick else (10.0, 60.0)

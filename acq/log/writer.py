@@ -12,7 +12,7 @@ writer stopped (:mod:`acq.log.writer_lock`).
 
 Each file stands alone: header and profile, then the metadata records, every channel
 with its schema, and the latched messages (calibration, ``/tf_static``), then the data.
-Chunks (:class:`acq.log.mcap_file.McapFile`) are zstd, but those mostly of image data
+Chunks (:class:`acq.log.mcap_file.McapFile`) are zstd, but those 90 % image data or more
 (``foxglove.CompressedImage``: JPEG, which zstd cannot shrink) are stored uncompressed,
 the message bytes never copied on the way. :meth:`LogWriter.sync` ends the open chunk,
 writes it and fsyncs, so a SIGKILL or a power cut loses only what came after the last

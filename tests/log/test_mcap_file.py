@@ -196,3 +196,28 @@ def test_write_pieces_writes_every_piece_in_order_past_the_iov_limit(tmp_path: P
     expected = b"".join(bytes(p) for p in pieces)
     assert n == len(expected) == out.pos == out.good
     assert path.read_bytes() == expected
+
+
+def test_a_chunk_of_small_frames_among_scans_keeps_zstd(tmp_path: Path, shared_dir: Path) -> None:
+    """A chunk about 60 % JPEG (a rig of 780x582 frames beside its scans) is compressed:
+    its scans shrink; one 90 % JPEG or more is stored as it is."""
+    jpeg = _jpegs(shared_dir)[0]
+    path = tmp_path / "mix.mcap"
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    f = McapFile(_File(fd), chunk_size=10 << 20)
+    f.start(profile="acq", library="test")
+    image = f.register_channel("/camera/image/compressed", "protobuf", 0, {}, False)
+    raw = f.register_channel("/laser/raw", "protobuf", 0, {})
+    scan = bytes(range(256)) * 40  # 10 kB that compresses
+    for scans_a_frame in (11, 1):  # 10 kB scans beside each ~160 kB JPEG
+        for k in range(4):
+            f.add_message(image, k, jpeg, k)
+            for _j in range(scans_a_frame):
+                f.add_message(raw, k, scan, k)
+        f.flush()
+    f.finish()
+    os.close(fd)
+    with path.open("rb") as g:
+        summary = make_reader(g).get_summary()
+    assert summary is not None
+    assert [i.compression for i in summary.chunk_indexes] == ["zstd", ""]

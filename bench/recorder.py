@@ -43,7 +43,7 @@ the machine has 2 cores and may be busy with other work.
     sensor (2592x1944, a street view enlarged with noise: JPEGs of about 1.3 MB, 10 of
     them cycled) and the scanner at 40 Hz, each from ``python -m acq.sim.prerendered`` in
     a process of its own, recorded 12 s (5 s with ``--quick``) per step from 2 s after
-    all connected, at 10, 15, 20, 25, 30, 35, 40, 50 Hz a camera until a step loses a
+    all connected, at 10, 15, 20, 25, 30, 35, 40, 50, 60, 75 Hz a camera until a step loses a
     record (checked as in (2), every camera's frames). Per step: MB/s written, the
     recorder's CPU (share of a core, and per 100 MB/s), the simulators' CPU, the writer
     queue's high-water mark, the load. ``record_bandwidth_max``: the highest MB/s with
@@ -100,7 +100,7 @@ TARGET_RATE = 10
 TARGET_GROWTH_MB = 5.0
 TARGET_MB_S = 150.0
 BANDWIDTH_SIZE = "2592x1944"  # a 5 MP sensor
-BANDWIDTH_FPS = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 50.0)  # per camera
+BANDWIDTH_FPS = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 50.0, 60.0, 75.0)  # per camera
 
 
 def _load() -> list[float]:
@@ -817,7 +817,7 @@ def main() -> None:
     )  # fmt: skip
     parser.add_argument(
         "--bandwidth-fps", type=float, nargs="+", metavar="HZ",
-        help="(4) the frame rates to step through (default 10 15 20 25 30 35 40 50)",
+        help="(4) the frame rates to step through (default 10 15 20 25 30 35 40 50 60 75)",
     )  # fmt: skip
     parser.add_argument("--minutes", type=float, help="memory run length (default 10)")
     parser.add_argument("--quick", action="store_true", help="every part short (~5 min)")

@@ -39,24 +39,13 @@ the machine has 2 cores and may be busy with other work.
     ``/laser/raw`` sequence numbers run on with no duplicate and no gap (a reconnection
     restarts them: counted apart). Target: under 5 MB growth.
 
-(4) ``record_bandwidth``: large frames. ``--bandwidth-cameras`` (4) cameras of a 5 MP
-    sensor (2592x1944, a street view enlarged with noise: JPEGs of about 1.3 MB, 10 of
-    them cycled) and the scanner at 40 Hz, each from ``python -m acq.sim.prerendered`` in
-    a process of its own, recorded 12 s (5 s with ``--quick``) per step from 2 s after
-    all connected, at 10, 15, 20, 25, 30, 35, 40, 50, 60, 75 Hz a camera until a step loses a
-    record (checked as in (2), every camera's frames). Per step: MB/s written, the
-    recorder's CPU (share of a core, and per 100 MB/s), the simulators' CPU, the writer
-    queue's high-water mark, the load. ``record_bandwidth_max``: the highest MB/s with
-    zero drops; ``targets``: at least 150 MB/s. The files go to the system's temporary
-    folder: its disk is part of what is measured.
-
 If ``acq record`` exits by itself (a crash), the error is reported in a line of its own
 and the part or step is run once more with the devices started after the recorder.
 
-Run as a script: ``python bench/recorder.py [--cpu] [--rate] [--memory] [--bandwidth]
-[--minutes N] [--quick] [--keep]`` (no part named: all four). ``--quick`` shortens every
-part (about 5-6 minutes in all: 12 s of CPU, 5 s per rate and bandwidth step without
-k=2, 2 minutes of memory).
+Run as a script: ``python bench/recorder.py [--cpu] [--rate] [--memory] [--minutes N]
+[--quick] [--keep]`` (no part named: all three). ``--quick`` shortens every part (about
+3-4 minutes in all: 12 s of CPU, 5 s per rate step without k=2, 2 minutes of memory).
+The bandwidth with large frames: ``bench/recorder_bandwidth.py``.
 """
 
 from __future__ import annotations
@@ -98,9 +87,6 @@ RATE_STEPS = (1, 2, 5, 10, 15, 20, 25, 30, 40)
 TARGET_CPU_SHARE = 0.10
 TARGET_RATE = 10
 TARGET_GROWTH_MB = 5.0
-TARGET_MB_S = 150.0
-BANDWIDTH_SIZE = "2592x1944"  # a 5 MP sensor
-BANDWIDTH_FPS = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 50.0, 60.0, 75.0)  # per camera
 
 
 def _load() -> list[float]:
@@ -592,122 +578,6 @@ def part_rate(work: Path, seconds: float, quick: bool = False) -> None:
     )
 
 
-# --- (4) bandwidth: large frames from several cameras -----------------------------------------
-
-
-def _camera_stats(cameras: list[Prerendered]) -> list[dict[str, Any]]:
-    return [c.stats() for c in cameras]
-
-
-def _bandwidth_step(
-    work: Path, fps: float, seconds: float, cameras: int, size: str, frames: int
-) -> dict[str, Any]:
-    """One step of (4): ``cameras`` pre-rendered cameras of ``size`` at ``fps`` and the
-    scanner at its nominal rate, each in a process of its own, recorded ``seconds``."""
-    procs = Procs()
-    err = (work / "sim.log").open("w")
-    names = camera_names(cameras)
-    try:
-        scanner = Prerendered(procs, err, "scanner", "--model", "utm-30lx")
-        sims = [
-            Prerendered(procs, err, "camera", "--fps", str(fps), "--size", size,
-                        "--frames", str(frames), "--seed", str(k))
-            for k in range(cameras)
-        ]  # fmt: skip
-        # no calibration: the simulated rig's is of 780x582 cameras
-        run = start_recorder(procs, work, scanner.url, [c.url for c in sims], fps, False)
-        run.wait_for("laser connected", *(f"{n} connected" for n in names))
-        warmup = time.monotonic() - run.t_start + 2.0
-        run.sleep_until(warmup)
-        t0, c0, _ = run.sample()
-        b0 = run.bytes_on_disk()
-        s0 = scanner.stats()["cpu_s"], sum(c["cpu_s"] for c in _camera_stats(sims))
-        run.sleep_until(warmup + seconds)
-        t1, c1, _ = run.sample()
-        b1 = run.bytes_on_disk()
-        load = _load()
-        run.stop()
-        s_stats, c_stats = scanner.stats(), _camera_stats(sims)
-        rec = read_recorded(run.files())
-        exp_scans = _expected_scans(s_stats["ticks"], rec.scan_ticks)
-        frames_ok, per_camera = True, {}
-        for name, stats in zip(names, c_stats, strict=True):
-            got = len(rec.images.get(name, Images()).times)
-            expected = _expected_frames(stats["frames"], rec, name)
-            frames_ok = frames_ok and got == expected > 0
-            per_camera[name] = f"{got}/{expected}"
-        qdrops = scanner_queue_drops(rec)
-        span = (t1 - t0) or 1.0
-        mb_s = (b1 - b0) / span / 1e6
-        cpu = (c1 - c0) / span
-        ok = (
-            qdrops == 0
-            and len(rec.scan_ticks) == exp_scans > 0
-            and frames_ok
-            and not any(rec.info.disconnects.values())
-        )
-        return {
-            "cameras": cameras,
-            "size": size,
-            "fps": fps,
-            "seconds": round(seconds, 1),
-            "mb_per_s": round(mb_s, 1),
-            "recorder_cpu_share": round(cpu, 3),
-            "cpu_share_per_100_mb_s": round(cpu / mb_s * 100, 3) if mb_s > 0 else None,
-            "scans": f"{len(rec.scan_ticks)}/{exp_scans}",
-            "frames": per_camera,
-            "scanner_queue_drops": qdrops,
-            "drops": rec.info.drops,
-            "disconnects": rec.info.disconnects,
-            "max_writer_queue": rec.max_writer_queue,
-            "sim_cpu_share": {
-                "scanner": round((s_stats["cpu_s"] - s0[0]) / span, 3),
-                "cameras": round((sum(c["cpu_s"] for c in c_stats) - s0[1]) / span, 3),
-            },
-            "sim_camera_late": sum(c["late"] for c in c_stats),
-            "warnings": _short(run.warnings(), 3),
-            "zero_drops": ok,
-            "load_during": load,
-        }
-    except RecorderExited as e:
-        return {"cameras": cameras, "fps": fps, "recorder_exit": e.code, "error": e.summary,
-                "zero_drops": False}  # fmt: skip
-    finally:
-        procs.close()
-        err.close()
-        shutil.rmtree(work / "logs", ignore_errors=True)
-
-
-def part_bandwidth(
-    work: Path, seconds: float, cameras: int, size: str, steps: tuple[float, ...], frames: int
-) -> None:
-    """(4): the frame rate stepped up until a step loses a record; ``record_bandwidth_max``
-    is the highest MB/s written with zero drops."""
-    best: dict[str, Any] | None = None
-    failing = None
-    for fps in steps:
-        result = _bandwidth_step(work, fps, seconds, cameras, size, frames)
-        _line("record_bandwidth", **result)
-        if not result["zero_drops"]:
-            failing = fps
-            break
-        if best is None or result["mb_per_s"] > best["mb_per_s"]:
-            best = result
-    mb_s = best["mb_per_s"] if best else 0.0
-    _line(
-        "record_bandwidth_max",
-        mb_per_s=mb_s,
-        at_fps=best["fps"] if best else None,
-        recorder_cpu_share=best["recorder_cpu_share"] if best else None,
-        cpu_share_per_100_mb_s=best["cpu_share_per_100_mb_s"] if best else None,
-        first_failing_fps=failing,
-        cameras=cameras,
-        size=size,
-    )
-    _line("targets", record_bandwidth_mb_per_s=TARGET_MB_S, measured=mb_s,
-          ok=mb_s >= TARGET_MB_S)  # fmt: skip
-
-
 # --- (3) memory over file rollovers ---------------------------------------------------------
 
 
@@ -807,32 +677,16 @@ def main() -> None:
     parser.add_argument("--cpu", action="store_true", help="(1) CPU share at nominal rates")
     parser.add_argument("--rate", action="store_true", help="(2) highest rate with no drops")
     parser.add_argument("--memory", action="store_true", help="(3) memory over rollovers")
-    parser.add_argument(
-        "--bandwidth", action="store_true",
-        help="(4) MB/s with zero drops: 5 MP cameras stepped up from 10 Hz",
-    )  # fmt: skip
-    parser.add_argument(
-        "--bandwidth-cameras", type=int, default=4, metavar="N",
-        help="(4) cameras serving large frames (default 4)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--bandwidth-fps", type=float, nargs="+", metavar="HZ",
-        help="(4) the frame rates to step through (default 10 15 20 25 30 35 40 50 60 75)",
-    )  # fmt: skip
     parser.add_argument("--minutes", type=float, help="memory run length (default 10)")
-    parser.add_argument("--quick", action="store_true", help="every part short (~5 min)")
+    parser.add_argument("--quick", action="store_true", help="every part short (~3 min)")
     parser.add_argument("--keep", action="store_true", help="keep the work folders")
     parser.add_argument(
         "--cameras", type=int, default=1, choices=range(1, 5), metavar="N",
         help="(1) with N cameras at 25 Hz (default 1); the target is per camera",
     )  # fmt: skip
     args = parser.parse_args()
-    everything = not (args.cpu or args.rate or args.memory or args.bandwidth)
+    everything = not (args.cpu or args.rate or args.memory)
     minutes = args.minutes if args.minutes is not None else (2.0 if args.quick else 10.0)
-    if args.bandwidth_cameras < 1:
-        parser.error("--bandwidth-cameras: at least 1")
-    if args.bandwidth_fps is not None and min(args.bandwidth_fps) <= 0:
-        parser.error("--bandwidth-fps: every rate must be > 0 Hz")
     if minutes < 1.5:
         parser.error("--minutes: at least 1.5 (the first sample is at 1 minute)")
     warmup, measure = (3.0, 12.0) if args.quick else (10.0, 60.0)
@@ -850,21 +704,6 @@ def main() -> None:
         )
     if everything or args.memory:
         parts.append(("record_memory", lambda w, first: part_memory(w, minutes, 50.0, first)))
-    if everything or args.bandwidth:
-        steps = tuple(args.bandwidth_fps or BANDWIDTH_FPS)
-        parts.append(
-            (
-                "record_bandwidth_max",
-                lambda w, _first: part_bandwidth(
-                    w,
-                    5.0 if args.quick else 12.0,
-                    args.bandwidth_cameras,
-                    BANDWIDTH_SIZE,
-                    steps,
-                    10,
-                ),
-            )
-        )
     for bench, run in parts:
         for recorder_first in (False, True):
             with workdir("acq-bench-recorder-", args.keep) as work:

@@ -1,4 +1,4 @@
-"""bench/recorder.py --bandwidth: one real step (pre-rendered cameras in processes of their
+"""bench/recorder_bandwidth.py: one real step (pre-rendered cameras in processes of their
 own, ``acq record``) counts what it wrote, and the enlarged frames are what they claim."""
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def test_enlarged_frames_have_the_size_asked_and_do_not_compress_to_nothing() ->
 
 
 def test_a_bandwidth_step_records_every_frame_of_two_cameras(tmp_path: Path) -> None:
-    bench = load("recorder")
+    bench = load("recorder_bandwidth")
     result = bench._bandwidth_step(tmp_path, 10.0, 2.0, 2, "1296x972", 3)
     assert result["zero_drops"], result
     frames = result["frames"]
@@ -43,11 +43,11 @@ def test_a_bandwidth_step_records_every_frame_of_two_cameras(tmp_path: Path) -> 
 
 
 def test_bandwidth_options_are_checked() -> None:
-    script = Path(__file__).resolve().parents[1] / "bench" / "recorder.py"
-    for args in (["--bandwidth-cameras", "0"], ["--bandwidth-fps", "10", "0"]):
+    script = Path(__file__).resolve().parents[1] / "bench" / "recorder_bandwidth.py"
+    for args in (["--cameras", "0"], ["--fps", "10", "0"]):
         proc = subprocess.run(
-            [sys.executable, str(script), "--bandwidth", *args],
+            [sys.executable, str(script), *args],
             capture_output=True, text=True, timeout=60,
         )  # fmt: skip
         assert proc.returncode == 2
-        assert "--bandwidth-" in proc.stderr.splitlines()[-1]
+        assert args[0] in proc.stderr.splitlines()[-1]

@@ -1,4 +1,4 @@
-"""The recorder's bandwidth with large frames (issue 32): one JSON line per result.
+"""The recorder's bandwidth with large frames: one JSON line per result.
 
 ``record_bandwidth``: ``--cameras`` (4) cameras of a 5 MP sensor (2592x1944, a street
 view enlarged with noise: JPEGs of about 1.3 MB, 10 of them cycled) and the scanner at

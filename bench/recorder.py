@@ -45,6 +45,7 @@ and the part or step is run once more with the devices started after the recorde
 Run as a script: ``python bench/recorder.py [--cpu] [--rate] [--memory] [--minutes N]
 [--quick] [--keep]`` (no part named: all three). ``--quick`` shortens every part (about
 3-4 minutes in all: 12 s of CPU, 5 s per rate step without k=2, 2 minutes of memory).
+The bandwidth with large frames: ``bench/recorder_bandwidth.py``.
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import pairwise
 from pathlib import Path
 from typing import IO, Any
@@ -210,8 +211,11 @@ def start_recorder(
     scanner_url: str,
     camera_urls: str | list[str],
     fps: float,
+    calibrated: bool = True,
     **output: Any,
 ) -> Run:
+    """``acq record`` of the scanner and cameras at ``urls``; ``calibrated``: with the
+    simulated rig's calibration (of 780x582 cameras)."""
     urls = [camera_urls] if isinstance(camera_urls, str) else camera_urls
     config = {
         "version": 1,
@@ -225,7 +229,8 @@ def start_recorder(
         ],
         "output": {"dir": str(work / "logs"), **output},
     }  # fmt: skip
-    config["calibration"] = str(_true_calibration(work, camera_names(len(urls))))
+    if calibrated:
+        config["calibration"] = str(_true_calibration(work, camera_names(len(urls))))
     path = work / "rig.yaml"
     path.write_text(yaml.safe_dump(config, sort_keys=False))
     log = work / "record.log"
@@ -239,6 +244,16 @@ def start_recorder(
 
 
 @dataclass
+class Images:
+    """One camera's recorded frames: log times, and the first and last (log time ns,
+    JPEG digest)."""
+
+    times: list[int] = field(default_factory=list)
+    first: tuple[int, str] | None = None
+    last: tuple[int, str] | None = None
+
+
+@dataclass
 class Recorded:
     """What the files of one run hold, for the checks."""
 
@@ -246,22 +261,36 @@ class Recorded:
     per_file: list[LogInfo]
     scan_ticks: list[int]  # /acq/timing/laser device tick, in order
     raw_sequences: list[list[int]]  # /laser/raw sequence numbers, per file
-    first_image: tuple[int, str] | None  # (log_time ns, digest)
-    last_image: tuple[int, str] | None
-    image_times: list[int]
+    images: dict[str, Images]  # by camera name
     last_status: Any
     max_writer_queue: int
 
     def count(self, topic: str) -> int:
         return next((c.count for c in self.info.channels if c.topic == topic), 0)
 
+    @property
+    def first_image(self) -> tuple[int, str] | None:
+        return self.images.get("camera", Images()).first
+
+    @property
+    def last_image(self) -> tuple[int, str] | None:
+        return self.images.get("camera", Images()).last
+
+    @property
+    def image_times(self) -> list[int]:
+        return self.images.get("camera", Images()).times
+
+
+def _digest(data: bytes) -> str:
+    return jpeg_digest(CompressedImage.FromString(data).data)
+
 
 def read_recorded(files: list[Path]) -> Recorded:
     infos = info_many(files)
     ticks: list[int] = []
     sequences: list[list[int]] = []
-    images: list[int] = []
-    first = last = None
+    images: dict[str, Images] = {}
+    last_data: dict[str, bytes] = {}
     status, max_queue = None, 0
     for path in files:
         seqs: list[int] = []
@@ -272,29 +301,25 @@ def read_recorded(files: list[Path]) -> Recorded:
                 ticks.append(reader.decode(schema, channel, message).device_ticks[0])
             elif topic == "/laser/raw":
                 seqs.append(reader.decode(schema, channel, message).sequence)
-            elif topic == "/camera/image/compressed":
-                images.append(message.log_time)
-                if first is None:
-                    first = (message.log_time, message.data)
-                last = (message.log_time, message.data)
+            elif topic.endswith("/image/compressed"):
+                name = topic.split("/")[1]
+                got = images.setdefault(name, Images())
+                got.times.append(message.log_time)
+                if got.first is None:
+                    got.first = (message.log_time, _digest(message.data))
+                last_data[name] = message.data
             elif topic == "/acq/status":
                 status = reader.decode(schema, channel, message)
                 max_queue = max(max_queue, status.writer_queue)
         sequences.append(seqs)
-
-    def digest(item: tuple[int, bytes] | None) -> tuple[int, str] | None:
-        if item is None:
-            return None
-        return item[0], jpeg_digest(CompressedImage.FromString(item[1]).data)
-
+    for name, data in last_data.items():  # digested once, not every frame
+        images[name].last = (images[name].times[-1], _digest(data))
     return Recorded(
         info=infos[-1],
         per_file=infos[:-1] if len(infos) > 1 else infos,
         scan_ticks=ticks,
         raw_sequences=sequences,
-        first_image=digest(first),
-        last_image=digest(last),
-        image_times=images,
+        images=images,
         last_status=status,
         max_writer_queue=max_queue,
     )
@@ -411,11 +436,12 @@ def _expected_scans(sent: list[int], recorded: list[int]) -> int:
     return j - i + 1
 
 
-def _expected_frames(sent: list[list[Any]], rec: Recorded) -> int:
-    """Frames the camera sent from the first recorded to the last: each of those is the
+def _expected_frames(sent: list[list[Any]], rec: Recorded, camera: str = "camera") -> int:
+    """Frames ``camera`` sent from the first recorded to the last: each of those is the
     sent frame with the same JPEG whose send time is nearest its receipt (the pre-rendered
-    camera cycles 50 distinct JPEGs; the live one renders a new one each time)."""
-    first, last = rec.first_image, rec.last_image
+    camera cycles a few distinct JPEGs; the live one renders a new one each time)."""
+    images = rec.images.get(camera, Images())
+    first, last = images.first, images.last
     if first is None or last is None:
         return len(sent)
 

@@ -150,7 +150,10 @@ class MultipartReader:
         return False
 
     def _take(self, n: int) -> bytes:
-        out = bytes(self._buf[:n])
+        """The first ``n`` bytes, removed from the buffer: one copy (a slice of the
+        bytearray would be a second), through a view released before the buffer shrinks."""
+        with memoryview(self._buf) as view, view[:n] as head:
+            out = bytes(head)
         del self._buf[:n]
         self._consumed += n
         return out

@@ -23,6 +23,7 @@ import time
 from dataclasses import replace
 from typing import Any
 
+import cv2
 import numpy as np
 
 from acq.sim.camera_device import FrameTruth, SimCamera, SimFrame, jpeg_digest
@@ -37,6 +38,7 @@ __all__ = [
     "CountingScipDevice",
     "PrerenderedCamera",
     "PrerenderedScanSource",
+    "enlarged",
     "sped_up",
 ]
 
@@ -81,14 +83,30 @@ class CountingScipDevice(ScipDevice):
         return telegram
 
 
+def enlarged(image: np.ndarray, size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    """``image`` (H,W,3 uint8) resized to ``size`` (width, height px) with Gaussian noise
+    of 10 grey levels (sd) added, so that its JPEG is as large as a real sensor's of that size
+    (a smooth upscale alone compresses to a fraction of it)."""
+    big = cv2.resize(image, size, interpolation=cv2.INTER_LINEAR).astype(np.int16)
+    big += np.asarray(rng.normal(0.0, 10.0, size=big.shape)).astype(np.int16)
+    out: np.ndarray = np.clip(big, 0, 255).astype(np.uint8)
+    return out
+
+
 class PrerenderedCamera(SimCamera):
     """A ``SimCamera`` at any ``fps`` whose frames cycle through ``n`` JPEGs rendered once,
-    ``1/25`` s of the drive apart. Timing and the truth log are ``SimCamera``'s."""
+    ``1/25`` s of the drive apart. Timing and the truth log are ``SimCamera``'s.
+    ``size`` (width, height px): the views enlarged to it (:func:`enlarged`), e.g. a
+    5 MP sensor's 2592x1944."""
 
-    def __init__(self, *, n: int = 50, **options: Any) -> None:
+    def __init__(self, *, n: int = 50, size: tuple[int, int] | None = None, **options: Any) -> None:
         super().__init__(**options)
         t = self.t_origin + 1.0
-        self._jpegs = [self.encode(self.render(t + i / NOMINAL_FPS)) for i in range(n)]
+        rng = np.random.default_rng(options.get("seed", 0))
+        views = (self.render(t + i / NOMINAL_FPS) for i in range(n))
+        self._jpegs = [
+            self.encode(view if size is None else enlarged(view, size, rng)) for view in views
+        ]
         self._digests = [jpeg_digest(j) for j in self._jpegs]
 
     def next_frame(self, render: bool = True) -> SimFrame:
@@ -136,6 +154,7 @@ def _serve_camera(args: argparse.Namespace) -> tuple[Any, Any]:
         exposure_s=0.004 * min(scale, 1.0),
         jitter_s=0.003 * min(scale, 1.0),
         seed=args.seed,
+        size=args.size,
     )
     server = MjpegServer(camera, args.host, args.port).start()
 
@@ -156,6 +175,14 @@ def _serve_camera(args: argparse.Namespace) -> tuple[Any, Any]:
     return server, stats
 
 
+def _size(text: str) -> tuple[int, int]:
+    """``WxH`` -> (W, H) px, for ``--size``."""
+    w, sep, h = text.lower().partition("x")
+    if not (sep and w.isdigit() and h.isdigit() and 0 < int(w) <= 16384 and 0 < int(h) <= 16384):
+        raise argparse.ArgumentTypeError(f"expected WxH in px (e.g. 2592x1944), not {text!r}")
+    return int(w), int(h)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m acq.sim.prerendered", description=__doc__)
     sub = p.add_subparsers(dest="device", required=True)
@@ -165,6 +192,10 @@ def main(argv: list[str] | None = None) -> int:
     c = sub.add_parser("camera", help="an MJPEG-over-HTTP camera of pre-rendered JPEGs")
     c.add_argument("--fps", type=float, default=NOMINAL_FPS)
     c.add_argument("--frames", type=int, default=50, help="distinct JPEGs to cycle")
+    c.add_argument(
+        "--size", type=_size, default=None, metavar="WxH",
+        help="enlarge the views to W x H px, with noise (e.g. 2592x1944, a 5 MP sensor)",
+    )  # fmt: skip
     for q in (s, c):
         q.add_argument("--host", default="127.0.0.1")
         q.add_argument("--port", type=int, default=0, help="0: a free one")

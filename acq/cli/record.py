@@ -27,7 +27,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help=HELP,
         description="Record every scanner and camera of a configuration into MCAP files: "
         "one thread per device, reconnection with backoff, device clocks mapped to the host "
-        "clock, zstd chunks fsynced every second, files split by size and duration. Ctrl-C, "
+        "clock, chunks fsynced every second (zstd; those of 90 % JPEG images or more stored "
+        "as they are, as zstd cannot shrink them), files split by size and duration. Ctrl-C, "
         "SIGTERM, SIGHUP (a dropped ssh link) and every other signal that would end the "
         "process finish the file, but SIGKILL, the faults and the watchdog's SIGABRT. "
         "When it stops, it names each device that recorded "

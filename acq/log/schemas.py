@@ -73,6 +73,7 @@ __all__ = [
     "clock",
     "colouring_of",
     "compressed_image",
+    "compressed_image_bytes",
     "decode",
     "frame_transforms",
     "host_clock_of",
@@ -221,9 +222,26 @@ def compressed_image(frame: Frame, frame_id: str, stamp_ns: int) -> bytes:
     ``stamp_ns``: the middle of the exposure (``frame.stamp_ns``) on the log's clock."""
     if not frame.jpeg:
         raise ValueError("compressed_image needs a Frame with jpeg bytes (encode it first)")
-    msg = CompressedImage(frame_id=frame_id, data=frame.jpeg, format="jpeg")
-    set_stamp(msg.timestamp, stamp_ns)
-    return serialized(msg)
+    return compressed_image_bytes(frame.jpeg, frame_id, stamp_ns)
+
+
+_JPEG_FORMAT = b"\x1a\x04jpeg"  # field 3 (format), length 4
+
+
+def compressed_image_bytes(jpeg: bytes, frame_id: str, stamp_ns: int) -> bytes:
+    """The wire bytes the protobuf library gives ``CompressedImage(timestamp=stamp_ns,
+    frame_id, data=jpeg, format="jpeg")``, built with one copy of the JPEG (the library
+    makes two): the few header fields in field-number order around the data."""
+    seconds, nanos = divmod(int(stamp_ns), 1_000_000_000)
+    if not -(1 << 63) <= seconds < 1 << 63:
+        raise ValueError(f"timestamp {stamp_ns} ns is out of a Timestamp's range")
+    stamp = (b"\x08" + _varint(seconds & 0xFFFF_FFFF_FFFF_FFFF) if seconds else b"") + (
+        b"\x10" + _varint(nanos) if nanos else b""
+    )
+    name = frame_id.encode()
+    tail = _JPEG_FORMAT + (b"\x22" + _varint(len(name)) + name if name else b"")
+    head = b"\x0a" + _varint(len(stamp)) + stamp + b"\x12" + _varint(len(jpeg))
+    return b"".join((head, jpeg, tail))
 
 
 def camera_calibration(calib: CameraCalib, frame_id: str, stamp_ns: int) -> bytes:

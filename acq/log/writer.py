@@ -12,9 +12,12 @@ writer stopped (:mod:`acq.log.writer_lock`).
 
 Each file stands alone: header and profile, then the metadata records, every channel
 with its schema, and the latched messages (calibration, ``/tf_static``), then the data.
-Chunks are zstd. :meth:`LogWriter.sync` ends the open chunk, writes it and fsyncs, so a
-SIGKILL or a power cut loses only what came after the last sync; the file is then
-readable by a linear reader (``mcap.stream_reader.StreamReader``) up to the cut.
+Chunks (:class:`acq.log.mcap_file.McapFile`) are zstd, but those 90 % image data or more
+(``foxglove.CompressedImage``: JPEG, which zstd cannot shrink) are stored uncompressed,
+the message bytes never copied on the way. :meth:`LogWriter.sync` ends the open chunk,
+writes it and fsyncs, so a SIGKILL or a power cut loses only what came after the last
+sync; the file is then readable by a linear reader (``mcap.stream_reader.StreamReader``)
+up to the cut.
 
 Bytes go to the file through an unbuffered :class:`_File`, so the writer always knows
 the offset where the last complete record ends. After an I/O error (a full disk) the
@@ -38,11 +41,11 @@ from pathlib import Path
 
 from mcap.data_stream import RecordBuilder
 from mcap.records import DataEnd, Footer
-from mcap.writer import LIBRARY_IDENTIFIER, MCAP0_MAGIC, CompressionType, IndexType
-from mcap.writer import Writer as McapWriter
+from mcap.writer import LIBRARY_IDENTIFIER, MCAP0_MAGIC
 
 from acq import __version__
 from acq.log import writer_lock
+from acq.log.mcap_file import McapFile, Piece
 from acq.log.schemas import Schema
 from acq.log.timebase import TimeBase
 
@@ -58,22 +61,18 @@ LatchedData = bytes | Callable[[int], bytes]
 # log's time base, latched). A latched message is passed once, when it is set.
 Tap = Callable[[str, Schema, bytes, int, bool], None]
 
-_COMPRESSION = {
-    "zstd": CompressionType.ZSTD,
-    "lz4": CompressionType.LZ4,
-    "none": CompressionType.NONE,
-    "": CompressionType.NONE,
-}
-# Bytes a message adds to the file besides its data: the Message record header (opcode 1,
-# length 8, channel 2, sequence 4, log and publish time 16) and its MessageIndex entry (16).
-_MESSAGE_OVERHEAD = 47
+_COMPRESSION = {"zstd": "zstd", "none": "", "": ""}
+# schemas whose payloads are already compressed (JPEG): their chunks are not compressed
+INCOMPRESSIBLE = frozenset({"foxglove.CompressedImage", "foxglove.CompressedVideo"})
+_IOV_MAX = 512  # pieces per writev (Linux takes 1024)
 
 
 class _File:
-    """The stream handed to mcap's Writer: unbuffered writes on our own descriptor.
+    """The stream handed to :class:`McapFile`: unbuffered writes on our own descriptor.
 
-    mcap writes whole records (a chunk, a batch of records) per ``write`` call, so after
-    every call that returned, ``good`` is the offset where the last complete record ends.
+    McapFile writes whole records (a chunk, a batch of records) per ``write`` or
+    ``write_pieces`` call, so after every call that returned, ``good`` is the offset where
+    the last complete record ends.
     """
 
     def __init__(self, fd: int) -> None:
@@ -82,13 +81,24 @@ class _File:
         self.good = 0  # end of the last complete write, a record boundary
 
     def write(self, data: bytes) -> int:
-        view = memoryview(data)
-        while view:
-            n = os.write(self.fd, view)
+        return self.write_pieces([data])
+
+    def write_pieces(self, pieces: Sequence[Piece]) -> int:
+        """Every piece, in order, with as few system calls as the kernel allows (writev)."""
+        views = [memoryview(p) for p in pieces if len(p)]
+        total, i = 0, 0
+        while i < len(views):
+            n = os.writev(self.fd, views[i : i + _IOV_MAX])
             self.pos += n
-            view = view[n:]
+            total += n
+            while n and i < len(views):  # past what went out, the rest of a piece
+                if n >= len(views[i]):
+                    n -= len(views[i])
+                    i += 1
+                else:
+                    views[i], n = views[i][n:], 0
         self.good = self.pos
-        return len(data)
+        return total
 
     def tell(self) -> int:
         return self.pos
@@ -110,16 +120,6 @@ def _fsync_dir(directory: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
-
-
-def _end_chunk(writer: McapWriter) -> None:
-    """Write the open chunk now, whatever its size.
-
-    mcap's Writer ends a chunk only when it grows past ``chunk_size`` (in ``add_message``)
-    or in ``finish()``; ``Writer.flush()`` (mcap >= 1.6, the version pyproject.toml asks
-    for) ends the open chunk when it holds a message and writes it with its message indexes.
-    """
-    writer.flush()
 
 
 def _trailer() -> bytes:
@@ -164,9 +164,7 @@ class LogWriter:
         tap: Tap | None = None,
     ) -> None:
         if compression not in _COMPRESSION:
-            raise ValueError(
-                f"unknown compression {compression!r}; expected one of zstd, lz4, none"
-            )
+            raise ValueError(f"unknown compression {compression!r}; expected one of zstd, none")
         if split_bytes <= 0 or split_s <= 0 or chunk_size <= 0:
             raise ValueError("split_bytes, split_s and chunk_size must be > 0")
         self.directory = Path(directory)
@@ -200,11 +198,10 @@ class LogWriter:
         # the open file
         self._path: Path | None = None
         self._out: _File | None = None
-        self._writer: McapWriter | None = None
+        self._writer: McapFile | None = None
         self._chan_ids: dict[str, int] = {}
         self._schema_ids: dict[str, int] = {}
         self._file_start_ns: int | None = None  # log_time of the file's first message
-        self._pending = 0  # estimated bytes in the open chunk, not yet in the file
         self._data_limit: int | None = None  # where the data section ends, once finishing
         self._finished = False  # the open file's summary and footer are written
         self._header_end = 0  # where the open file's magic and header end
@@ -317,15 +314,12 @@ class LogWriter:
         assert out is not None
         if self._file_start_ns is None:
             self._file_start_ns = log_time_ns
-        before = out.pos
         to_log = self.time_base.to_log
         self._guard(
             lambda: writer.add_message(
                 channel_id, to_log(log_time_ns), data, to_log(publish_time_ns)
             )
         )
-        # The chunk was written when the file grew: the message went with it.
-        self._pending = 0 if out.pos != before else self._pending + len(data) + _MESSAGE_OVERHEAD
         self._messages += 1
         if self.tap is not None:
             self.tap(topic, self._channels[topic].schema, data, to_log(log_time_ns), False)
@@ -396,7 +390,7 @@ class LogWriter:
         if self._closed:
             raise ValueError("the log writer is closed")
 
-    def _require_writer(self) -> McapWriter:
+    def _require_writer(self) -> McapFile:
         if self._writer is None:  # only after a failed rollover, which set _error
             raise OSError(errno.EIO, "no log file is open")
         return self._writer
@@ -410,7 +404,8 @@ class LogWriter:
 
     def _size(self) -> int:
         """Bytes in the current file, the open chunk counted uncompressed."""
-        return (self._out.pos if self._out is not None else 0) + self._pending
+        pending = self._writer.open_chunk_bytes if self._writer is not None else 0
+        return (self._out.pos if self._out is not None else 0) + pending
 
     def _open_file(self, start_ns: int | None) -> None:
         """Create the next part and write its start; ``start_ns`` stamps latched messages
@@ -431,23 +426,11 @@ class LogWriter:
         self._chan_ids = {}
         self._schema_ids = {}
         self._file_start_ns = None
-        self._pending = 0
         self._data_limit = None
         self._finished = False
         self._header_end = 1 << 62  # not written yet
         _fsync_dir(self.directory)
-        writer = McapWriter(
-            self._out,  # type: ignore[arg-type]  # duck-typed: write, tell, flush
-            chunk_size=self.chunk_size,
-            compression=self.compression,
-            index_types=IndexType.ALL,
-            repeat_channels=True,
-            repeat_schemas=True,
-            use_chunking=True,
-            use_statistics=True,
-            use_summary_offsets=True,
-            enable_crcs=True,
-        )
+        writer = McapFile(self._out, self.chunk_size, self.compression)
         self._writer = writer
         writer.start(profile=self.profile, library=LIBRARY)
         self._header_end = self._out.good
@@ -467,7 +450,7 @@ class LogWriter:
             schema_id = writer.register_schema(ch.schema.name, ch.schema.encoding, ch.schema.data)
             self._schema_ids[ch.schema.name] = schema_id
         self._chan_ids[topic] = writer.register_channel(
-            topic, ch.schema.encoding, schema_id, ch.metadata
+            topic, ch.schema.encoding, schema_id, ch.metadata, ch.schema.name not in INCOMPRESSIBLE
         )
 
     def _write_latched(self, topic: str, start_ns: int | None) -> None:
@@ -476,21 +459,19 @@ class LogWriter:
         stamp = self.time_base.to_log(publish_ns if start_ns is None else start_ns)
         payload = data(stamp) if callable(data) else data
         writer.add_message(self._chan_ids[topic], stamp, payload, stamp)
-        self._pending += len(payload) + _MESSAGE_OVERHEAD
 
     def _sync_file(self) -> None:
         if self._writer is None or self._out is None:
             return
-        _end_chunk(self._writer)
+        self._writer.flush()
         os.fsync(self._out.fd)
-        self._pending = 0
 
     def _finish_file(self) -> None:
         """Finish the open file normally: summary, footer, fsync, close, fsync the dir."""
         writer, out = self._writer, self._out
         if writer is None or out is None:
             return
-        _end_chunk(writer)
+        writer.flush()
         self._data_limit = out.good  # finish() writes DataEnd here (no chunk is left)
         writer.finish()
         self._finished = True

@@ -4,6 +4,7 @@ check: any bytes, in any split, give parts or a ProtocolError, at a bounded cost
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -238,3 +239,23 @@ def test_jpeg_size_real_and_broken() -> None:
     for broken in (data[: len(data) // 2], data[2:], data[:20] + data[-2:], b""):
         with pytest.raises(ProtocolError):
             jpeg_size(broken)
+
+
+_FISHEYE = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "fisheye"
+_CAPTURES = [p.read_bytes() for p in sorted(_FISHEYE.glob("*.jpg"))] if _FISHEYE.is_dir() else []
+
+
+@pytest.mark.skipif(not _CAPTURES, reason="no fisheye JPEGs in ../shared/data/fisheye")
+@settings(max_examples=60, deadline=None)
+@given(
+    lengths=st.booleans(),
+    cuts=st.lists(st.integers(min_value=0, max_value=900_000), max_size=40),
+)
+def test_real_captures_come_out_byte_for_byte_in_any_split(lengths: bool, cuts: list[int]) -> None:
+    """The real fisheye JPEGs (150-180 kB each), streamed twice over, cut anywhere: each
+    part is the JPEG as sent, and its size is read from its header."""
+    bodies = _CAPTURES * 2
+    got = _feed_split(MultipartReader(b"bnd"), _stream(bodies, lengths), cuts)
+    assert [p.body for p in got] == bodies
+    assert all(type(p.body) is bytes for p in got)
+    assert {jpeg_size(p.body) for p in got} == {jpeg_size(_CAPTURES[0])}

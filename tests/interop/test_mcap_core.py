@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from acq.cli import main as acq_main
 from acq.log.reader import LogReader
@@ -69,3 +70,19 @@ def test_mcap_core_sees_the_sessions_date_and_time(demo: tuple[Path, int, int]) 
     reader = LogReader(path)
     first = next(m for _, c, m in reader.messages() if c.topic == "/laser/scan")
     assert first.log_time + offset == int(topics["/laser/scan"]["first_log_time"])
+
+
+def test_mcap_core_reads_uncompressed_image_chunks(tmp_path: Path, shared_dir: Path) -> None:
+    """Chunks of JPEGs stored uncompressed (as a rig of large frames writes them) beside a
+    zstd one: @mcap/core reads every message and decodes the images."""
+    from tests.log.test_mcap_file import _jpegs, _write_both
+
+    _old, new = _write_both(tmp_path, _jpegs(shared_dir))
+    with new.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    assert {i.compression for i in summary.chunk_indexes} == {"zstd", ""}
+    topics = _read_with_mcap_core(new)["topics"]
+    assert topics["/camera/image/compressed"]["count"] == 15
+    assert topics["/laser/raw"]["count"] == 40 + 45
+    assert topics["/acq/clock"]["count"] == 40

@@ -453,17 +453,18 @@ def test_metadata_updates_reach_the_current_and_later_files(tmp_path: Path) -> N
 def fill_disk_at(monkeypatch: pytest.MonkeyPatch, limit: int) -> None:
     """Writes past ``limit`` bytes of a file fail with ENOSPC after a partial write, as a
     full filesystem does."""
-    real = writer._File.write
+    real = writer._File.write_pieces
 
-    def write(self: writer._File, data: bytes) -> int:
+    def write_pieces(self: writer._File, pieces: list[bytes]) -> int:
+        data = b"".join(pieces)
         room = limit - self.pos
         if len(data) > room:
             if room > 0:
                 self.pos += os.write(self.fd, memoryview(data)[:room])
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        return real(self, data)
+        return real(self, pieces)
 
-    monkeypatch.setattr(writer._File, "write", write)
+    monkeypatch.setattr(writer._File, "write_pieces", write_pieces)
 
 
 def write_until_full(w: LogWriter) -> tuple[int, int]:

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.LaserScan_pb2 import LaserScan
 from google.protobuf import descriptor_pb2
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mcap.records import Schema as McapSchema
 from mcap_protobuf.decoder import DecoderFactory
 
@@ -145,6 +149,45 @@ def test_compressed_image_keeps_the_jpeg() -> None:
     raw = Frame(0, 0, 0, 2, 1, image=np.zeros((1, 2, 3), np.uint8))
     with pytest.raises(ValueError, match="jpeg"):
         schemas.compressed_image(raw, "camera", 0)
+
+
+def _library_compressed_image(jpeg: bytes, frame_id: str, stamp_ns: int) -> bytes:
+    """The protobuf library's bytes of the same message (what the recorder wrote before)."""
+    msg = CompressedImage(frame_id=frame_id, data=jpeg, format="jpeg")
+    schemas.set_stamp(msg.timestamp, stamp_ns)
+    return schemas.serialized(msg)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    jpeg=st.binary(min_size=1, max_size=300),
+    frame_id=st.text(max_size=40),
+    stamp_ns=st.integers(min_value=-(1 << 70), max_value=1 << 72),
+)
+def test_compressed_image_bytes_are_the_protobuf_librarys(
+    jpeg: bytes, frame_id: str, stamp_ns: int
+) -> None:
+    try:
+        expected = _library_compressed_image(jpeg, frame_id, stamp_ns)
+    except ValueError:  # out of a Timestamp's int64 seconds: both refuse it
+        with pytest.raises(ValueError):
+            schemas.compressed_image_bytes(jpeg, frame_id, stamp_ns)
+        return
+    assert schemas.compressed_image_bytes(jpeg, frame_id, stamp_ns) == expected
+
+
+def test_compressed_image_bytes_of_real_captures(shared_dir: Path) -> None:
+    """Byte for byte the library's, for the real fisheye JPEGs and the stamps of a log
+    (UTC ns, whole seconds, zero, a long frame name)."""
+    paths = sorted((shared_dir / "data" / "fisheye").glob("*.jpg"))
+    if not paths:
+        pytest.skip("no fisheye JPEGs in ../shared/data/fisheye")
+    for path in paths:
+        jpeg = path.read_bytes()
+        for stamp in (0, 1, 10**9, STAMP, 1_764_969_600_123_456_789, 2**62):
+            for name in ("camera", "", "camera_2" * 40, "caméra"):
+                got = schemas.compressed_image_bytes(jpeg, name, stamp)
+                assert got == _library_compressed_image(jpeg, name, stamp)
 
 
 def test_camera_calibration_equidistant_is_kannala_brandt_with_zero_d() -> None:

@@ -59,12 +59,12 @@ from acq import progress as progress_bars
 from acq.calib.time_offset import OffsetEstimate, estimate_time_offset
 from acq.camera.calibfile import Calibration
 from acq.camera.camera_models import CameraModel
-from acq.cloud import views
+from acq.camera.jpeg import SharedDecodes
+from acq.cloud import heap, views
 from acq.cloud.chunks import (
     Chunk,
     ChunkColouring,
     ChunkResult,
-    CountedPool,
     cloud_of,
     colour_chunk,
     frames_used,
@@ -107,9 +107,11 @@ __all__ = [
 ]
 
 # logs up to this size are read once, images included: about twice that in memory, and
-# no faster than the chunks reading their own parts (a 5-minute, 1 GB log: 15.3 s and
-# 2.07 GB read once, 13.9 s and 1.06 GB by chunks)
-READ_ONCE_BYTES = 256 * 2**20
+# no faster than the chunks reading their own parts, which hold two chunks' images at
+# most (the 60 s two-camera demo drive, 219 MB: 870 MB peak read once, 750 MB by chunks,
+# in the same time; a 5-minute, 1 GB log: 15.3 s and 2.07 GB read once, 13.9 s and
+# 1.06 GB by chunks)
+READ_ONCE_BYTES = 32 * 2**20
 # two chunks are in memory at once (one placed while the last is coloured), each with its
 # images: 15 s of a two-camera rig hold about 0.45 GB where 30 s held 0.75 GB, at the
 # same speed (a 5-minute log to COPC: 906 MB and 28.7 s against 1235 MB and 29.3 s)
@@ -282,12 +284,12 @@ def _run_each(
                     pool.shutdown(cancel_futures=True)
     else:  # one process: the log read once (whole), or each chunk its part
         threads = ThreadPoolExecutor(max_workers=max(1, job.threads))
+        decodes = SharedDecodes(threads)  # the frames of two chunks' margins decoded once
         try:
             started: ChunkColouring | None = None
             for c in chunks:
-                counted = CountedPool(threads)
-                following = start_chunk(job, c, whole, counted)
-                shares.watch(c.index, counted.tasks)
+                following = start_chunk(job, c, whole, threads, decodes)
+                shares.watch(c.index, [f for col in following.colourings for f in col.futures])
                 if started is not None:
                     done(started.result())
                 started = following
@@ -415,6 +417,7 @@ def run(
     ``time_offset_s``: seconds, None for CALIB's, or "auto" (:func:`estimate_offset`).
     ``trajectory``: as :func:`prepare` takes it."""
     t_start = time.perf_counter()
+    heap.large_blocks_returned()
     options = options or views.Options()
     report = Report(output=str(output), view=options.view)
     # here, a log up to READ_ONCE_BYTES is read once with its images; a longer one's
@@ -519,7 +522,7 @@ def run(
             + ("left out (no pose)" if world else "kept, not coloured")
         )
     if preview is not None:
-        pc = cloud_of(tally.preview, index, [c.name for c in job.cameras])
+        pc = tally.preview_cloud(index.clock, [c.name for c in job.cameras])
         preview_png(preview, pc, title=f"acq colorize {output.name}")
         if every > 1:
             report.notes.append(f"the preview shows one scan in {every}")

@@ -144,6 +144,58 @@ def test_a_long_logs_preview_thins_its_scans_not_the_cloud(
     assert len(PlyData.read(str(out))["vertex"]) == report.points > 20_000
 
 
+@pytest.mark.parametrize("read_once", [True, False])
+def test_the_preview_from_what_the_run_holds_is_the_whole_clouds(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    read_once: bool,
+) -> None:  # fmt: skip
+    """The preview is drawn from the fields the run keeps of each chunk, joined at the
+    end: pixel for pixel the one drawn from every chunk's whole result."""
+    import cv2
+
+    from acq.cloud.preview import preview_png
+
+    truth, calib = drive
+    if not read_once:  # each chunk reads its own part
+        monkeypatch.setattr(colorize, "READ_ONCE_BYTES", 0)
+    out, png, whole = tmp_path / "c.ply", tmp_path / "c.png", tmp_path / "whole.png"
+    results: list[colorize.ChunkResult] = []
+    run(truth.files, calibfile.load(calib), out, preview=png, results=results, chunk_s=1.5)
+    assert len(results) == 3
+    index = drive_log.read_log(truth.files, cameras=list(truth.camera_names), jpegs=False)
+    cloud = colorize.cloud_of(results, index, list(truth.camera_names))
+    preview_png(whole, cloud, title=f"acq colorize {out.name}")
+    held, drawn = cv2.imread(str(png)), cv2.imread(str(whole))
+    assert held is not None and drawn is not None and held.shape == drawn.shape
+    np.testing.assert_array_equal(held, drawn)
+
+
+def test_a_started_chunk_leaves_its_jpegs_to_its_queued_frames(
+    drive: tuple[DriveTruth, Path],
+) -> None:
+    """Once a chunk is read, placed and its frames queued, only the queued tasks hold
+    its JPEGs (each let go when decoded); its result is the one colour_chunk gives."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from acq.camera.jpeg import SharedDecodes
+    from acq.cloud.chunks import start_chunk
+    from acq.cloud.report import Report
+
+    truth, calib = drive
+    job, _ = colorize.prepare(truth.files, calibfile.load(calib), Report(output="x.ply"))
+    chunk = colorize.plan(np.sort(job.scan_new), 1.5)[1]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        started = start_chunk(job, chunk, None, pool, SharedDecodes(pool))
+        assert sum(len(f.frame_ns) for f in started.log.cameras.values()) > 50
+        assert all(not f.jpegs for f in started.log.cameras.values())
+        assert all(not c.jpegs for c in started.cameras)
+        got = started.result()
+    want = colorize.colour_chunk(job, chunk)
+    assert got.frames_used == want.frames_used > 0
+    np.testing.assert_array_equal(got.rgb, want.rgb)
+    np.testing.assert_array_equal(got.xyz, want.xyz)
+
+
 def test_dask_local_cluster_gives_the_same_bytes(
     drive: tuple[DriveTruth, Path], tmp_path: Path
 ) -> None:

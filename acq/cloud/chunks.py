@@ -45,6 +45,7 @@ __all__ = [
     "cloud_of",
     "colour_chunk",
     "frames_used",
+    "holds",
     "laser_positions",
     "place",
     "plan",
@@ -177,6 +178,15 @@ def colour_chunk(
         if sink is not None:
             _report_frames(chunk.index, pool.tasks, sink)
         return started.result()
+
+
+def holds(whole: DriveLog, job: Job, chunk: Chunk) -> bool:
+    """Whether ``whole`` (a log read with images, maybe for a first span only) has
+    every frame's bytes :func:`start_chunk` cuts for ``chunk``."""
+    if whole.jpegs_until_ns is None:
+        return True
+    # its frames are stamped before the end + margin; received up to a second later
+    return chunk.end_ns + _margin_ns(job) + 2 * 10**9 <= whole.jpegs_until_ns
 
 
 def start_chunk(

@@ -68,6 +68,7 @@ from acq.cloud.chunks import (
     cloud_of,
     colour_chunk,
     frames_used,
+    holds,
     place,
     plan,
     start_chunk,
@@ -116,6 +117,10 @@ READ_ONCE_BYTES = 32 * 2**20
 # images: 15 s of a two-camera rig hold about 0.45 GB where 30 s held 0.75 GB, at the
 # same speed (a 5-minute log to COPC: 906 MB and 28.7 s against 1235 MB and 29.3 s)
 CHUNK_S = 15.0
+# a log read here in chunks is read first with the images of its first HELD_CHUNKS
+# chunks (the two that start at once), HELD_SLACK_S more for their margins and receipt
+HELD_CHUNKS = 2
+HELD_SLACK_S = 4.0
 PREVIEW_POINTS = 4_000_000  # at most about this many points kept for the preview
 
 log = logging.getLogger(__name__)
@@ -287,8 +292,15 @@ def _run_each(
         decodes = SharedDecodes(threads)  # the frames of two chunks' margins decoded once
         try:
             started: ChunkColouring | None = None
+            held = [c.index for c in chunks if whole is not None and holds(whole, job, c)]
             for c in chunks:
-                following = start_chunk(job, c, whole, threads, decodes)
+                following = start_chunk(job, c, whole if c.index in held else None, threads,
+                                        decodes)  # fmt: skip
+                if whole is not None and held and c.index == held[-1] < chunks[-1].index:
+                    # the chunks that cut their images from it have them: each JPEG is
+                    # let go once its queued frame is decoded
+                    for frames in whole.cameras.values():
+                        frames.jpegs.clear()
                 shares.watch(c.index, [f for col in following.colourings for f in col.futures])
                 if started is not None:
                     done(started.result())
@@ -417,25 +429,30 @@ def run(
     ``time_offset_s``: seconds, None for CALIB's, or "auto" (:func:`estimate_offset`).
     ``trajectory``: as :func:`prepare` takes it."""
     t_start = time.perf_counter()
-    heap.large_blocks_returned()
     options = options or views.Options()
     report = Report(output=str(output), view=options.view)
     # here, a log up to READ_ONCE_BYTES is read once with its images; a longer one's
-    # chunks read their own part (its images never all in memory), as workers do
+    # chunks after the first two read their own part (its images never all in memory),
+    # and on workers or Dask every chunk does
     logs = session_files(logs)
     size = sum(f.stat().st_size for f in logs if f.is_file())
     local = workers <= 1 and not dask
     once = local and size <= READ_ONCE_BYTES
+    # a longer log read here: with the images of its first chunks, which start at once,
+    # and their margins (the others read their own part while those decode)
+    first_s = None if once or not local else HELD_CHUNKS * chunk_s + HELD_SLACK_S
     auto = isinstance(time_offset_s, str)
     if auto and time_offset_s != "auto":
         raise InputValueError(f"--time-offset {time_offset_s}: expected seconds or 'auto'")
     job, index = prepare(
         logs, calib, report, camera=camera, frame=frame, options=options,
         trajectory=trajectory, retime_offline=retime_offline,
-        time_offset_s=None if isinstance(time_offset_s, str) else time_offset_s, jpegs=once,
-        threads=(os.cpu_count() or 1) if local else 1, crs=crs,
+        time_offset_s=None if isinstance(time_offset_s, str) else time_offset_s,
+        jpegs=once or first_s is not None, threads=(os.cpu_count() or 1) if local else 1,
+        crs=crs, jpegs_for_s=first_s,
     )  # fmt: skip
     job = replace(job, want_uv=want_uv)
+    heap.give_back()  # what reading left before the chunks' arrays come
     doubt = utc_doubt(index.metadata)
     if doubt is not None:
         report.notes.append(f"UTC not trusted (the points' times): {doubt}")
@@ -480,9 +497,11 @@ def run(
         tally.add(r)
         if results is not None:
             results.append(r)
+        heap.give_back()  # the chunk's memory, before the next one's
 
     try:
-        run_chunks(job, chunks, workers, dask, progress, emit, index if once else None)
+        imaged = once or first_s is not None  # the index holds images (some or all)
+        run_chunks(job, chunks, workers, dask, progress, emit, index if imaged else None)
         t_colour = time.perf_counter()
         size = out.close()
     except BaseException:
@@ -522,6 +541,7 @@ def run(
             + ("left out (no pose)" if world else "kept, not coloured")
         )
     if preview is not None:
+        heap.give_back()  # the chunks' memory, before the preview's
         pc = tally.preview_cloud(index.clock, [c.name for c in job.cameras])
         preview_png(preview, pc, title=f"acq colorize {output.name}")
         if every > 1:

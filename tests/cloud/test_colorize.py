@@ -196,6 +196,27 @@ def test_a_started_chunk_leaves_its_jpegs_to_its_queued_frames(
     np.testing.assert_array_equal(got.xyz, want.xyz)
 
 
+def test_a_long_log_read_with_its_first_chunks_images_gives_the_same_bytes(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A log too long to hold its images is read once with those of its first chunks
+    (cut from that read), the later chunks reading their own part: the same bytes as
+    read whole, and the light read holds the images of its first span only."""
+    truth, calib = drive
+    cal = calibfile.load(calib)
+    run(truth.files, cal, tmp_path / "whole.ply", chunk_s=0.5, preview=None)
+    monkeypatch.setattr(colorize, "READ_ONCE_BYTES", 0)
+    monkeypatch.setattr(colorize, "HELD_SLACK_S", 3.0)  # 4 s held: 2 of the 8 chunks
+    run(truth.files, cal, tmp_path / "parts.ply", chunk_s=0.5, preview=None)
+    assert _digest(tmp_path / "parts.ply") == _digest(tmp_path / "whole.ply")
+    log = drive_log.read_log(truth.files, cameras=list(truth.camera_names), jpegs_for_s=1.0)
+    frames = log.cameras[truth.camera_names[0]]
+    held = [bool(j) for j in frames.jpegs]
+    assert log.jpegs_until_ns is not None and 0 < sum(held) < len(held)
+    assert held == sorted(held, reverse=True)  # the first ones, by receipt
+    assert all(r < log.jpegs_until_ns for r, h in zip(frames.frame_recv_ns, held, strict=True) if h)
+
+
 def test_dask_local_cluster_gives_the_same_bytes(
     drive: tuple[DriveTruth, Path], tmp_path: Path
 ) -> None:

@@ -6,8 +6,8 @@ right 185-degree fisheye of 780x582 px at 25 Hz, a UTM-30LX at 40 Hz, CAN odomet
 its true calibration, written once into the work folder and kept there.
 
 Alternating, ``--repeat`` (3) times each, every run a new process measured from outside
-(wall time from its start to its exit, peak memory from ``os.wait4``'s rusage maxrss,
-the whole process):
+(wall time from its start to its exit, peak memory from ``os.wait4``'s rusage maxrss
+and CPU time (user + system) from the same rusage, the whole process):
 
 (a) ``colorize``: ``acq colorize LOG --calib calib.yaml -o OUT.ply --force``, the
     defaults a user gets (the preview included);
@@ -16,7 +16,9 @@ the whole process):
     nothing else.
 
 One JSON line per result: ``drive``; ``run`` (each process, with ``os.getloadavg()``);
-``speed`` (both medians side by side and their ratio); ``targets`` (ratio <= 1.25,
+``speed`` (both medians side by side and their ratio, with the CPU seconds of each:
+on ``cores`` cores a process takes at least its CPU time / cores, so
+``ratio_floor_from_cpu`` is the ratio no overlapping of work can beat); ``targets`` (ratio <= 1.25,
 colorize's peak <= 600 MB). The machine may be busy with other work: the load is in
 every line, and the alternation gives both the same share of it.
 
@@ -119,10 +121,10 @@ def write_drive(folder: Path, seconds: float) -> None:
     (folder / "done.json").write_text(json.dumps(kept))
 
 
-def measured(cmd: list[str]) -> tuple[float, float, str]:
-    """``cmd`` run as a new process: (wall s, peak memory MB of the whole process from
-    its ``os.wait4`` rusage, its stdout); RuntimeError with its stderr's end when it
-    fails."""
+def measured(cmd: list[str]) -> tuple[float, float, float, str]:
+    """``cmd`` run as a new process: (wall s, peak memory MB and CPU s (user + system)
+    of the whole process from its ``os.wait4`` rusage, its stdout); RuntimeError with its
+    stderr's end when it fails."""
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=out, stderr=err, text=True)
@@ -134,7 +136,7 @@ def measured(cmd: list[str]) -> tuple[float, float, str]:
         if proc.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd[:4])} failed ({proc.returncode}): "
                                f"{err.read()[-2000:]}")  # fmt: skip
-        return wall, usage.ru_maxrss / 1024, out.read()
+        return wall, usage.ru_maxrss / 1024, usage.ru_utime + usage.ru_stime, out.read()
 
 
 def compare(
@@ -145,25 +147,27 @@ def compare(
     colorize = [sys.executable, "-m", "acq.cli", "colorize", *map(str, files), "--calib",
                 str(calib), "-o", str(out), "--force"]  # fmt: skip
     limit = [sys.executable, __file__, "--decode-limit", *map(str, files)]
-    runs: dict[str, list[tuple[float, float]]] = {"colorize": [], "decode_limit": []}
+    runs: dict[str, list[tuple[float, float, float]]] = {"colorize": [], "decode_limit": []}
     parts: list[dict[str, Any]] = []
     for k in range(repeat):
         for kind, cmd in (("colorize", colorize), ("decode_limit", limit))[
             :: 1 if k % 2 == 0 else -1
         ]:
             load = _load()
-            wall, peak, stdout = measured(cmd)
-            runs[kind].append((wall, peak))
+            wall, peak, cpu, stdout = measured(cmd)
+            runs[kind].append((wall, peak, cpu))
             extra = json.loads(stdout) if kind == "decode_limit" else {}
             if extra:
                 parts.append(extra)
             _line("run", kind=kind, wall_s=round(wall, 3), peak_mb=round(peak, 1),
-                  load_before=load, load_after=_load(), **extra)  # fmt: skip
+                  cpu_s=round(cpu, 3), load_before=load, load_after=_load(),
+                  **extra)  # fmt: skip
     med = {
-        kind: (statistics.median(w for w, _ in r), statistics.median(p for _, p in r))
+        kind: [statistics.median(column) for column in zip(*r, strict=True)]
         for kind, r in runs.items()
     }
-    (c_wall, c_peak), (d_wall, d_peak) = med["colorize"], med["decode_limit"]
+    (c_wall, c_peak, c_cpu), (d_wall, d_peak, d_cpu) = med["colorize"], med["decode_limit"]
+    cores = os.cpu_count() or 1
     return {
         "runs": repeat,
         "drive_s": round(duration_s, 2),
@@ -172,6 +176,11 @@ def compare(
         "decode_limit_wall_s": round(d_wall, 3),
         "decode_limit_peak_mb": round(d_peak, 1),
         "ratio": round(c_wall / d_wall, 3),
+        "colorize_cpu_s": round(c_cpu, 3),
+        "decode_limit_cpu_s": round(d_cpu, 3),
+        "cores": cores,
+        # colorize cannot take less than its CPU time over the cores
+        "ratio_floor_from_cpu": round(c_cpu / cores / d_wall, 3),
         "colorize_real_time_multiple": round(duration_s / c_wall, 1),
         "decode_limit_real_time_multiple": round(duration_s / d_wall, 1),
         "decode_limit_frames": parts[0]["frames"] if parts else 0,

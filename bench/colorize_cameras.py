@@ -29,8 +29,10 @@ One JSON line per result:
   cameras see, the difference between the two cameras' samples before and after
   balancing and the balanced samples' difference from the truth;
 - ``speed``: the whole `acq colorize` process with default flags (preview included), in
-  a new process (median of 3), as a multiple of real time; beside it the decode-bound
-  limit: every frame decoded once, on all cores (frames x decode time / cores);
+  a new process (median of 3), as a multiple of real time; beside it the decode limit
+  measured alternately in new processes (``bench/colorize_speed.py``: read every frame,
+  decode each once on all cores; the peaks here count this process's memory too, as a
+  forked child's maxrss starts from its parent's: ``bench/colorize_speed.py`` gives them);
 - ``targets``.
 
 Run as a script: ``python bench/colorize_cameras.py [--seconds S] [--work DIR]``.
@@ -44,12 +46,8 @@ import io
 import itertools
 import json
 import math
-import os
 import pickle
 import shutil
-import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -58,6 +56,7 @@ from typing import Any
 
 import numpy as np
 from colorize import board_images  # bench/colorize.py, beside this script
+from colorize_speed import compare  # bench/colorize_speed.py: the decode limit beside it
 
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
@@ -226,50 +225,6 @@ def seams(truth: DriveTruth, results: list[ChunkResult]) -> dict[str, Any]:
     return out
 
 
-def _decode_limit(files: list[Path], names: list[str], duration_s: float) -> dict[str, float]:
-    """Every frame decoded once on one core (best of 2): the decode-bound limit of
-    colouring on this machine's cores, as a multiple of real time."""
-    from acq.camera.jpeg import decode_jpeg
-    from acq.log.drive_log import read_log
-
-    log = read_log(files, cameras=names)
-    jpegs = [j for n in names for j in log.cameras[n].jpegs]
-    best = math.inf
-    for _ in range(2):
-        t0 = time.process_time()
-        for j in jpegs:
-            decode_jpeg(j)
-        best = min(best, time.process_time() - t0)
-    cores = os.cpu_count() or 1
-    return {"frames": len(jpegs), "ms_per_frame": round(best / len(jpegs) * 1e3, 3),
-            "cores": cores, "limit_s": round(best / cores, 2),
-            "limit_real_time_multiple": round(duration_s * cores / best, 1)}  # fmt: skip
-
-
-def speed(files: list[Path], calib: Path, out: Path, repeat: int = 3) -> dict[str, Any]:
-    """`acq colorize` as a user runs it (default flags, preview included), a new process
-    each time; the median run."""
-    walls, reports = [], []
-    for _ in range(repeat):
-        cmd = [sys.executable, "-m", "acq.cli", "colorize", *map(str, files), "--calib",
-               str(calib), "-o", str(out), "--json", "--force"]  # fmt: skip
-        t0 = time.perf_counter()
-        done = subprocess.run(cmd, capture_output=True, text=True, check=True)
-        walls.append(time.perf_counter() - t0)
-        reports.append(json.loads(done.stdout))
-    k = walls.index(statistics.median(walls))
-    report = reports[k]
-    parts = {key.strip(): round(v, 2) for key, v in report["seconds"].items()}
-    return {
-        "runs": repeat,
-        "process_wall_s": round(walls[k], 2),
-        "process_real_time_multiple": round(report["duration_s"] / walls[k], 1),
-        "own_s": round(report["seconds"]["total"], 2),
-        "points": report["points"],
-        "breakdown_s": parts,
-    }
-
-
 def true_calibration(truth: DriveTruth) -> Calibration:
     """The truth as a calibration: each camera's lens and pose, and its latency error
     (true minus configured) as its time offset."""
@@ -346,9 +301,8 @@ def main() -> None:
         _line("seams", seconds=args.seam_seconds, cameras=list(seam_truth.camera_names),
               pairs=seam, colour=colour(seam_truth, results))  # fmt: skip
         duration = float(truth.scan_t0_s[-1] - truth.scan_t0_s[0])
-        limit = _decode_limit(truth.files, names, duration)
-        sp = speed(truth.files, calib_path, work / "speed.ply")
-        _line("speed", **sp, decode_bound=limit)
+        sp = compare(truth.files, calib_path, work / "speed.ply", duration, repeat=3)
+        _line("speed", **sp)
         n = summary["nearest"]
         b = summary["best"]
         after = [p["from_truth_after"]["median"] for p in seam.values() if p.get("points")]
@@ -363,9 +317,10 @@ def main() -> None:
                             for s in (n, b) for c in names),
             seam_from_truth_median=after,
             seams_ok=bool(after) and max(max(m) for m in after) <= 4,
-            process_real_time_multiple=sp["process_real_time_multiple"],
-            speed_ok=sp["process_real_time_multiple"] >= 20.0,
-            decode_bound_multiple=limit["limit_real_time_multiple"],
+            process_real_time_multiple=sp["colorize_real_time_multiple"],
+            speed_ok=sp["colorize_real_time_multiple"] >= 20.0,
+            decode_limit_multiple=sp["decode_limit_real_time_multiple"],
+            decode_limit_ratio=sp["ratio"],
         )  # fmt: skip
 
 

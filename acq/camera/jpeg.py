@@ -9,14 +9,15 @@ from __future__ import annotations
 import itertools
 import threading
 from collections import deque
-from collections.abc import Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Callable, Hashable, Iterator, Sequence
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from typing import TypeVar
 
 import cv2
 import numpy as np
 import simplejpeg
 
-__all__ = ["decode_jpeg", "decode_jpeg_transient", "decoded_frames"]
+__all__ = ["SharedDecodes", "decode_jpeg", "decode_jpeg_transient", "decoded_frames"]
 
 _local = threading.local()  # each thread's buffer for decode_jpeg_transient
 
@@ -71,3 +72,64 @@ def decoded_frames(
             for j in itertools.islice(todo, 1):
                 pending.append(pool.submit(decode_jpeg, jpegs[j]))
             yield done.result()
+
+
+_T = TypeVar("_T")
+
+
+class SharedDecodes:
+    """Frames decoded on ``pool``'s threads for uses of them, each frame decoded once for
+    every use asked of it while it waited to be decoded: the frames two chunks of a
+    drive share (their margins) are queued by both, the second while the first's are
+    still waiting. A frame is known by a key and its bytes (both must match)."""
+
+    def __init__(self, pool: Executor) -> None:
+        self.pool = pool
+        self._lock = threading.Lock()
+        # key -> (the JPEG, its uses: (use, its future)), until its decoding begins
+        self._waiting: dict[
+            Hashable, tuple[bytes, list[tuple[Callable[..., object], Future[object]]]]
+        ] = {}
+        self.decodes = 0  # frames decoded
+        self.uses = 0  # uses asked for
+
+    def submit(
+        self, key: Hashable, jpeg: bytes, use: Callable[[np.ndarray | None], _T]
+    ) -> Future[_T]:
+        """``use(image)`` of frame ``key`` (``jpeg`` decoded as by
+        :func:`decode_jpeg_transient`, None when it does not decode; valid during the
+        call only) on one of the pool's threads; its result in the future."""
+        future: Future[_T] = Future()
+        with self._lock:
+            self.uses += 1
+            entry = self._waiting.get(key)
+            if entry is not None and entry[0] == jpeg:
+                entry[1].append((use, future))  # type: ignore[arg-type]
+                return future
+            entry = (jpeg, [(use, future)])  # type: ignore[list-item]
+            self._waiting[key] = entry
+        self.pool.submit(self._decode, key, entry)
+        return future
+
+    def _decode(
+        self, key: Hashable, entry: tuple[bytes, list[tuple[Callable[..., object], Future[object]]]]
+    ) -> None:
+        with self._lock:  # from here on no use joins this decoding
+            if self._waiting.get(key) is entry:
+                del self._waiting[key]
+            self.decodes += 1
+        jpeg, uses = entry
+        try:
+            image = decode_jpeg_transient(jpeg)
+        except BaseException as e:  # each use's future carries it
+            for _, future in uses:
+                if future.set_running_or_notify_cancel():
+                    future.set_exception(e)
+            return
+        for use, future in uses:
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(use(image))
+            except BaseException as e:  # the caller sees it in the future
+                future.set_exception(e)

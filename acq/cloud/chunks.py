@@ -19,11 +19,12 @@ from concurrent.futures import (
     ThreadPoolExecutor,
     wait,
 )
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ParamSpec, Protocol, TypeVar
 
 import numpy as np
 
+from acq.camera.jpeg import SharedDecodes
 from acq.cloud import balance, scan_colouring, views
 from acq.cloud.job import Job, remap
 from acq.cloud.points import Cloud
@@ -44,6 +45,7 @@ __all__ = [
     "cloud_of",
     "colour_chunk",
     "frames_used",
+    "holds",
     "laser_positions",
     "place",
     "plan",
@@ -178,9 +180,23 @@ def colour_chunk(
         return started.result()
 
 
-def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) -> ChunkColouring:
+def holds(whole: DriveLog, job: Job, chunk: Chunk) -> bool:
+    """Whether ``whole`` (a log read with images, maybe for a first span only) has
+    every frame's bytes :func:`start_chunk` cuts for ``chunk``."""
+    if whole.jpegs_until_ns is None:
+        return True
+    # its frames are stamped before the end + margin; received up to a second later
+    return chunk.end_ns + _margin_ns(job) + 2 * 10**9 <= whole.jpegs_until_ns
+
+
+def start_chunk(
+    job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor,
+    decodes: SharedDecodes | None = None,
+) -> ChunkColouring:  # fmt: skip
     """Read and place one chunk and queue its frames, every camera's, on ``pool``
-    (:func:`colour_chunk` without waiting: :meth:`ChunkColouring.result` does)."""
+    (:func:`colour_chunk` without waiting: :meth:`ChunkColouring.result` does);
+    ``decodes``: the JPEGs go there instead, shared with the other chunks queued (a
+    frame of two chunks' margins decoded once)."""
     t0 = time.perf_counter()
     margin = _margin_ns(job)
     # the same scans and frames whether read here or cut from the whole log: those
@@ -203,6 +219,8 @@ def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) 
     )
     l2v = job.laser_to_vehicle
     pts = place(log, scan_ns, keep_scan, job.trajectory, l2v)
+    if job.frame_world and job.options.motion_compensation:  # only P_world is used from here
+        pts = replace(pts, P_laser=pts.P_laser[:0])
     # the chunk's own points are coloured; those of its margins only hide others
     core = core_scan[pts.scan] & (pts.inside if job.frame_world else True)
     size = views.point_size(pts.r, log.angle_increment, job.travel_m)
@@ -219,7 +237,7 @@ def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) 
     ]
     colourings = scan_colouring.start(
         pts, size, cameras, job.trajectory, l2v, job.options, pool=pool, need=core,
-        want_uv=job.want_uv, want_crops=job.want_crops,
+        want_uv=job.want_uv, want_crops=job.want_crops, decodes=decodes,
     )  # fmt: skip
     odd_size = {
         c.name: {int(log.cameras[c.name].frame_ns[k]): wh for k, wh in c.odd_size.items()}
@@ -227,6 +245,9 @@ def start_chunk(job: Job, chunk: Chunk, whole: DriveLog | None, pool: Executor) 
         if c.odd_size
     }
     seconds = {"read": t_read - t0, "place, queue": time.perf_counter() - t_read}
+    # the JPEGs are held by their queued tasks alone from here, each let go once decoded
+    log = replace(log, cameras={n: replace(f, jpegs=[]) for n, f in log.cameras.items()})
+    cameras = [replace(c, jpegs=()) for c in cameras]
     return ChunkColouring(
         job, chunk, log, scan_ns, core_scan, core, pts, cameras, colourings, seconds, odd_size
     )

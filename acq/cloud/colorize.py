@@ -59,15 +59,16 @@ from acq import progress as progress_bars
 from acq.calib.time_offset import OffsetEstimate, estimate_time_offset
 from acq.camera.calibfile import Calibration
 from acq.camera.camera_models import CameraModel
-from acq.cloud import views
+from acq.camera.jpeg import SharedDecodes
+from acq.cloud import heap, views
 from acq.cloud.chunks import (
     Chunk,
     ChunkColouring,
     ChunkResult,
-    CountedPool,
     cloud_of,
     colour_chunk,
     frames_used,
+    holds,
     place,
     plan,
     start_chunk,
@@ -107,13 +108,19 @@ __all__ = [
 ]
 
 # logs up to this size are read once, images included: about twice that in memory, and
-# no faster than the chunks reading their own parts (a 5-minute, 1 GB log: 15.3 s and
-# 2.07 GB read once, 13.9 s and 1.06 GB by chunks)
-READ_ONCE_BYTES = 256 * 2**20
+# no faster than the chunks reading their own parts, which hold two chunks' images at
+# most (the 60 s two-camera demo drive, 219 MB: 870 MB peak read once, 750 MB by chunks,
+# in the same time; a 5-minute, 1 GB log: 15.3 s and 2.07 GB read once, 13.9 s and
+# 1.06 GB by chunks)
+READ_ONCE_BYTES = 32 * 2**20
 # two chunks are in memory at once (one placed while the last is coloured), each with its
 # images: 15 s of a two-camera rig hold about 0.45 GB where 30 s held 0.75 GB, at the
 # same speed (a 5-minute log to COPC: 906 MB and 28.7 s against 1235 MB and 29.3 s)
 CHUNK_S = 15.0
+# a log read here in chunks is read first with the images of its first HELD_CHUNKS
+# chunks (the two that start at once), HELD_SLACK_S more for their margins and receipt
+HELD_CHUNKS = 2
+HELD_SLACK_S = 4.0
 PREVIEW_POINTS = 4_000_000  # at most about this many points kept for the preview
 
 log = logging.getLogger(__name__)
@@ -282,12 +289,19 @@ def _run_each(
                     pool.shutdown(cancel_futures=True)
     else:  # one process: the log read once (whole), or each chunk its part
         threads = ThreadPoolExecutor(max_workers=max(1, job.threads))
+        decodes = SharedDecodes(threads)  # the frames of two chunks' margins decoded once
         try:
             started: ChunkColouring | None = None
+            held = [c.index for c in chunks if whole is not None and holds(whole, job, c)]
             for c in chunks:
-                counted = CountedPool(threads)
-                following = start_chunk(job, c, whole, counted)
-                shares.watch(c.index, counted.tasks)
+                following = start_chunk(job, c, whole if c.index in held else None, threads,
+                                        decodes)  # fmt: skip
+                if whole is not None and held and c.index == held[-1] < chunks[-1].index:
+                    # the chunks that cut their images from it have them: each JPEG is
+                    # let go once its queued frame is decoded
+                    for frames in whole.cameras.values():
+                        frames.jpegs.clear()
+                shares.watch(c.index, [f for col in following.colourings for f in col.futures])
                 if started is not None:
                     done(started.result())
                 started = following
@@ -418,21 +432,27 @@ def run(
     options = options or views.Options()
     report = Report(output=str(output), view=options.view)
     # here, a log up to READ_ONCE_BYTES is read once with its images; a longer one's
-    # chunks read their own part (its images never all in memory), as workers do
+    # chunks after the first two read their own part (its images never all in memory),
+    # and on workers or Dask every chunk does
     logs = session_files(logs)
     size = sum(f.stat().st_size for f in logs if f.is_file())
     local = workers <= 1 and not dask
     once = local and size <= READ_ONCE_BYTES
+    # a longer log read here: with the images of its first chunks, which start at once,
+    # and their margins (the others read their own part while those decode)
+    first_s = None if once or not local else HELD_CHUNKS * chunk_s + HELD_SLACK_S
     auto = isinstance(time_offset_s, str)
     if auto and time_offset_s != "auto":
         raise InputValueError(f"--time-offset {time_offset_s}: expected seconds or 'auto'")
     job, index = prepare(
         logs, calib, report, camera=camera, frame=frame, options=options,
         trajectory=trajectory, retime_offline=retime_offline,
-        time_offset_s=None if isinstance(time_offset_s, str) else time_offset_s, jpegs=once,
-        threads=(os.cpu_count() or 1) if local else 1, crs=crs,
+        time_offset_s=None if isinstance(time_offset_s, str) else time_offset_s,
+        jpegs=once or first_s is not None, threads=(os.cpu_count() or 1) if local else 1,
+        crs=crs, jpegs_for_s=first_s,
     )  # fmt: skip
     job = replace(job, want_uv=want_uv)
+    heap.give_back()  # what reading left before the chunks' arrays come
     doubt = utc_doubt(index.metadata)
     if doubt is not None:
         report.notes.append(f"UTC not trusted (the points' times): {doubt}")
@@ -477,9 +497,11 @@ def run(
         tally.add(r)
         if results is not None:
             results.append(r)
+        heap.give_back()  # the chunk's memory, before the next one's
 
     try:
-        run_chunks(job, chunks, workers, dask, progress, emit, index if once else None)
+        imaged = once or first_s is not None  # the index holds images (some or all)
+        run_chunks(job, chunks, workers, dask, progress, emit, index if imaged else None)
         t_colour = time.perf_counter()
         size = out.close()
     except BaseException:
@@ -519,7 +541,8 @@ def run(
             + ("left out (no pose)" if world else "kept, not coloured")
         )
     if preview is not None:
-        pc = cloud_of(tally.preview, index, [c.name for c in job.cameras])
+        heap.give_back()  # the chunks' memory, before the preview's
+        pc = tally.preview_cloud(index.clock, [c.name for c in job.cameras])
         preview_png(preview, pc, title=f"acq colorize {output.name}")
         if every > 1:
             report.notes.append(f"the preview shows one scan in {every}")

@@ -224,10 +224,12 @@ def prepare(
     jpegs: bool = False,
     threads: int = 1,
     crs: str | None = None,
+    jpegs_for_s: float | None = None,
 ) -> tuple[Job, DriveLog]:
     """The :class:`Job` for ``logs`` (steps 1-3 of the module docstring) and the log's
     light part (with the images and the scans' returns when ``jpegs``: else the chunks
-    read their own); notes go into ``report``. ``camera``:
+    read their own; ``jpegs_for_s``: only the images of the log's first that many
+    seconds, as :func:`acq.log.drive_log.read_log` takes it); notes go into ``report``. ``camera``:
     the cameras to colour from (default: every camera of ``calib`` in the log; a
     calibration of one camera pairs with the log's only camera). ``time_offset_s``:
     for every camera, instead of ``calib``'s. ``trajectory``:
@@ -240,7 +242,7 @@ def prepare(
     if first is not None:
         threading.Thread(target=_warm_kernels, args=(first.model,), daemon=True).start()
     index = read_log(files, cameras=names, jpegs=jpegs, returns=jpegs,
-                     vehicle=trajectory is None, calib=calib)  # fmt: skip
+                     vehicle=trajectory is None, calib=calib, jpegs_for_s=jpegs_for_s)  # fmt: skip
     report.notes += index.notes
     pairs = _camera_calibs(index, calib, names, report)
     scan_new = _retime_scans(index, report) if retime_offline else index.scan_ns

@@ -41,6 +41,9 @@ PLY_DTYPE = np.dtype(
 _PLY_TYPES = {"|u1": "uchar", "<u2": "ushort", "<i4": "int", "<f4": "float", "<f8": "double"}
 
 
+WRITE_POINTS = 1 << 16  # points laid out and written at a time (3 MB)
+
+
 class PlyStream:
     """A binary little-endian PLY, one ``vertex`` per point: x y z (double, m, world),
     red green blue (uchar), scalar_time (double, UTC s), scalar_scan (int), intensity
@@ -87,17 +90,21 @@ class PlyStream:
         """Append points: ``xyz`` (N,3) m, ``rgb`` (N,3) uint8, ``utc_s`` (N,) UTC
         seconds, ``intensity``, ``scan`` index, ``coloured`` flag, source ``camera``
         (255 none) and ``frame`` (-1 none)."""
-        v = np.empty(utc_s.size, dtype=PLY_DTYPE)
-        v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-        v["red"], v["green"], v["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-        v["scalar_time"] = utc_s
-        v["scalar_scan"] = scan
-        v["intensity"] = intensity
-        v["scalar_coloured"] = coloured
-        v["scalar_camera"] = camera
-        v["scalar_frame"] = frame
-        v.tofile(self._file)
-        self.points += int(v.size)
+        n = utc_s.size
+        v = np.empty(min(n, WRITE_POINTS), dtype=PLY_DTYPE)
+        for lo in range(0, n, WRITE_POINTS):  # a slice at a time: no copy of the whole
+            k = slice(lo, min(n, lo + WRITE_POINTS))
+            w = v[: k.stop - lo]
+            w["x"], w["y"], w["z"] = xyz[k, 0], xyz[k, 1], xyz[k, 2]
+            w["red"], w["green"], w["blue"] = rgb[k, 0], rgb[k, 1], rgb[k, 2]
+            w["scalar_time"] = utc_s[k]
+            w["scalar_scan"] = scan[k]
+            w["intensity"] = intensity[k]
+            w["scalar_coloured"] = coloured[k]
+            w["scalar_camera"] = camera[k]
+            w["scalar_frame"] = frame[k]
+            w.tofile(self._file)
+        self.points += int(n)
         self.coloured += int(np.count_nonzero(coloured))
 
     def close(self) -> int:

@@ -19,6 +19,7 @@ from typing import Any, ParamSpec, TypeVar
 import numpy as np
 
 from acq.camera.calibfile import CameraCalib
+from acq.camera.jpeg import SharedDecodes
 from acq.cloud import balance, multiview, views
 from acq.geometry.transforms import Rigid
 from acq.motion.pose_source import PoseSource
@@ -152,13 +153,14 @@ def start(
     pts: Placed, size_m: np.ndarray, cameras: Sequence[CameraFrames],
     poses: PoseSource | None, laser_to_vehicle: Rigid, options: views.Options, *,
     pool: Executor, need: np.ndarray | None = None, want_uv: bool = False,
-    want_crops: bool = False,
+    want_crops: bool = False, decodes: SharedDecodes | None = None,
 ) -> list[views.Colouring]:  # fmt: skip
     """Colour ``pts`` from every camera of ``cameras`` (frames queued on ``pool``, not
     waited for): in the world, sent back to where the rig stood at each frame's time,
     when there are ``poses`` and ``options`` compensate motion; ``need`` the points to
     colour (default all; the others only hide points in ``best``'s depth buffers);
-    ``want_uv``, ``want_crops``: as :func:`views.start_colouring` takes them."""
+    ``want_uv``, ``want_crops``, ``decodes``: as :func:`views.start_colouring` takes
+    them."""
     compensate = poses is not None and options.motion_compensation
     pose_at = poses.pose_at if poses is not None else None
     return [
@@ -175,6 +177,7 @@ def start(
             pool=pool,
             want_uv=want_uv,
             want_crops=want_crops,
+            decodes=decodes,
             frame_ok=c.usable,
             need=need,
         )

@@ -23,9 +23,11 @@ colours RGB uint8.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -33,7 +35,7 @@ import numpy.typing as npt
 from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
 from acq.camera.camera_models import CameraModel
-from acq.camera.jpeg import decode_jpeg_transient
+from acq.camera.jpeg import SharedDecodes, decode_jpeg_transient
 from acq.camera.occlusion import occlusion_depths, visible
 from acq.drivers.errors import ProtocolError
 from acq.drivers.mjpeg import jpeg_size
@@ -288,6 +290,13 @@ class Colouring:
         of the camera model's size. ``frame``: its index, to keep its crop under (with
         want_crops)."""
         image = jpeg if isinstance(jpeg, np.ndarray) else decode_jpeg_transient(jpeg)
+        return self.colour_image(image, idx, R, t, pairs, frame)
+
+    def colour_image(
+        self, image: np.ndarray | None, idx: np.ndarray, R: np.ndarray, t: np.ndarray,
+        pairs: np.ndarray | None = None, frame: int | None = None,
+    ) -> bool:  # fmt: skip
+        """:meth:`colour_frame` with the frame decoded already (None: it did not)."""
         if image is None or image.shape[:2] != (self.model.height, self.model.width):
             return False
         projection.colour_into(
@@ -348,6 +357,7 @@ def start_colouring(
     frame_ok: np.ndarray | None = None,
     need: np.ndarray | None = None,
     want_crops: bool = False,
+    decodes: SharedDecodes | None = None,
 ) -> Colouring:
     """Colour points ``P`` (N,3) m measured at ``time_ns`` (N,) host ns, sorted by time:
     in the world when ``pose_at`` is given and motion is compensated, else in the laser
@@ -359,7 +369,9 @@ def start_colouring(
     ``need`` (N,) bool: the points to colour (default all; the others only hide points
     in ``best``'s depth buffers); ``want_uv``: each point's pixel; with it,
     ``want_crops``: each frame's part around its points' pixels (:class:`Crop`,
-    :data:`CROP_MARGIN_PX` beyond them).
+    :data:`CROP_MARGIN_PX` beyond them). ``decodes``: the frames given as JPEG go
+    there instead (on its pool), a frame decoded once for every colouring that asks for
+    it while it waits (known by the camera's name and ``frame_ns``).
 
     The frames go on ``pool`` (first come, first served), one task each, and are not
     waited for: the caller goes on (placing the next points, writing the last ones)
@@ -374,7 +386,7 @@ def start_colouring(
         sub = start_colouring(
             P, time_ns, size_m, frame_ns[keep], [jpegs[int(k)] for k in keep], cam,
             laser_to_vehicle, pose_at, options, pool=pool, want_uv=want_uv, need=need,
-            want_crops=want_crops,
+            want_crops=want_crops, decodes=decodes,
         )  # fmt: skip
         sub.frame_map = keep
         return sub
@@ -403,13 +415,27 @@ def start_colouring(
     Rs, ts = rig.camera_poses(frame_ns[frames])
     none = np.zeros(0, np.int64)
     for k, j in enumerate(frames.tolist()):
-        task = pool.submit(
-            out.colour_frame, jpegs[j], points.get(j, none), Rs[k], ts[k], again.get(j),
+        args = (
+            points.get(j, none),
+            Rs[k],
+            ts[k],
+            again.get(j),
             j if want_uv and want_crops else None,
-        )  # fmt: skip
+        )
+        jpeg = jpegs[j]
+        if decodes is not None and isinstance(jpeg, bytes):
+            task = decodes.submit(
+                (cam.name, int(frame_ns[j])), jpeg, functools.partial(_colour_image, out, args)
+            )
+        else:
+            task = pool.submit(out.colour_frame, jpeg, *args)
         out.futures.append(task)
         out.future_frames.append(j)
     return out
+
+
+def _colour_image(out: Colouring, args: tuple[Any, ...], image: np.ndarray | None) -> bool:
+    return out.colour_image(image, *args)
 
 
 def _by_frame(frame: np.ndarray) -> dict[int, np.ndarray]:

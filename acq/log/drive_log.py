@@ -102,6 +102,9 @@ class DriveLog:
     vehicle: VehicleLog | None = None
     camera_names: tuple[str, ...] = ()  # every camera with frames in the log, read or not
     steps: int = 0  # the points a scan has (``ranges``' columns unless read without them)
+    # read with images for a first span only: those received before this log time have
+    # their bytes, the others b"" (None: every frame's or none, as ``jpegs`` was)
+    jpegs_until_ns: int | None = None
 
     @property
     def frames(self) -> CameraFrames:
@@ -250,6 +253,7 @@ def read_log(
     returns: bool = True,
     vehicle: bool = False,
     calib: Calibration | None = None,
+    jpegs_for_s: float | None = None,
 ) -> DriveLog:
     """Scans, frames, clock pairs and metadata of a log (or of a session's files, in the
     order given). ``laser``/``camera`` name the devices where the log has several;
@@ -267,7 +271,10 @@ def read_log(
     :func:`acq.log.vehicle_log.read_vehicle`. ``calib``: the cameras read are then
     those :func:`acq.camera.selection.choose_cameras` picks from the log's and
     ``calib``'s, ``camera`` or ``cameras`` being what ``--camera`` asked (with
-    ``cameras``, every camera of both when it is empty).
+    ``cameras``, every camera of both when it is empty). ``jpegs_for_s``: with ``jpegs``,
+    only the images received in the first that many seconds (log time from the first
+    message read) keep their bytes (the first chunks of a long log, without reading it
+    twice); the log's ``jpegs_until_ns`` says up to when.
 
     Files whose writer was killed are read up to their last good record
     (:class:`acq.log.LogReader`); undecodable messages are skipped (noted).
@@ -293,6 +300,7 @@ def read_log(
     vehicle_reader = VehicleReader() if vehicle else None
     vehicle_topics = VehicleReader.TOPICS if vehicle else ()
     span = None if start_ns is None and end_ns is None else (lo, hi)
+    jpegs_until: int | None = None  # set at the first message, with jpegs_for_s
     for path in files:
         metadata.update(read_metadata(path))
         reader = LogReader(path, span)
@@ -308,7 +316,11 @@ def read_log(
                 not lo <= message.log_time <= hi and not topic.startswith("/acq/clock")
             ):
                 continue
-            if not jpegs and topic.endswith("/image/compressed"):
+            if jpegs_for_s is not None and jpegs_until is None:
+                jpegs_until = message.log_time + round(jpegs_for_s * 1e9)
+            if topic.endswith("/image/compressed") and (
+                not jpegs or (jpegs_until is not None and message.log_time >= jpegs_until)
+            ):
                 name = topic[1:].removesuffix("/image/compressed")
                 frames.setdefault(name, []).append((_stamp_of(message), b""))
                 if sizes.get(name) is None:
@@ -373,7 +385,7 @@ def read_log(
         metadata,
         notes,
     )
-    log = replace(log, camera_names=found)
+    log = replace(log, camera_names=found, jpegs_until_ns=jpegs_until if jpegs else None)
     if vehicle_reader is not None:
         log = replace(log, vehicle=vehicle_reader.result(files))
     return log

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -56,3 +57,46 @@ def test_a_transient_frame_is_the_same_image_in_this_threads_buffer() -> None:
     assert decode_jpeg_transient(b"") is None and decode_jpeg_transient(b"junk") is None
     third = decode_jpeg_transient(grey)
     assert third is not None and third.shape == (16, 16, 3)
+
+
+def test_shared_decodes_decode_a_waiting_frame_once_for_every_use() -> None:
+    """Uses asked of a frame while it waits join its decoding; a frame asked for again
+    once decoded, or other bytes under the same key, are decoded anew; a frame that does
+    not decode gives its uses None; a use's error goes to its own future only."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from acq.camera.jpeg import SharedDecodes
+
+    rng = np.random.default_rng(1)
+    a = _jpeg(rng.integers(0, 256, (24, 32, 3), dtype=np.uint8))
+    b = _jpeg(rng.integers(0, 256, (24, 32, 3), dtype=np.uint8))
+    gate = threading.Event()
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pool.submit(gate.wait)  # the pool's one thread busy: what follows waits
+        shared = SharedDecodes(pool)
+        seen: list[np.ndarray] = []
+
+        def mean(image: np.ndarray | None) -> float:
+            assert image is not None
+            seen.append(image.copy())
+            return float(image.mean())
+
+        def boom(image: np.ndarray | None) -> float:
+            raise ValueError("a use's own error")
+
+        first = shared.submit(("left", 1), a, mean)
+        again = shared.submit(("left", 1), a, mean)
+        failing = shared.submit(("left", 1), a, boom)
+        other = shared.submit(("left", 1), b, mean)  # same key, other bytes
+        broken = shared.submit(("left", 2), b"not a jpeg", lambda image: image is None)
+        gate.set()
+        assert first.result() == again.result() == float(decode_jpeg(a).mean())  # type: ignore[union-attr]
+        assert other.result() == float(decode_jpeg(b).mean())  # type: ignore[union-attr]
+        assert broken.result() is True
+        with pytest.raises(ValueError, match="own error"):
+            failing.result()
+        later = shared.submit(("left", 1), a, mean)  # decoded already: decoded anew
+        assert later.result() == first.result()
+    assert shared.uses == 6 and shared.decodes == 4  # a once for three, b, junk, a again
+    np.testing.assert_array_equal(seen[0], decode_jpeg(a))

@@ -144,6 +144,79 @@ def test_a_long_logs_preview_thins_its_scans_not_the_cloud(
     assert len(PlyData.read(str(out))["vertex"]) == report.points > 20_000
 
 
+@pytest.mark.parametrize("read_once", [True, False])
+def test_the_preview_from_what_the_run_holds_is_the_whole_clouds(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    read_once: bool,
+) -> None:  # fmt: skip
+    """The preview is drawn from the fields the run keeps of each chunk, joined at the
+    end: pixel for pixel the one drawn from every chunk's whole result."""
+    import cv2
+
+    from acq.cloud.preview import preview_png
+
+    truth, calib = drive
+    if not read_once:  # each chunk reads its own part
+        monkeypatch.setattr(colorize, "READ_ONCE_BYTES", 0)
+    out, png, whole = tmp_path / "c.ply", tmp_path / "c.png", tmp_path / "whole.png"
+    results: list[colorize.ChunkResult] = []
+    run(truth.files, calibfile.load(calib), out, preview=png, results=results, chunk_s=1.5)
+    assert len(results) == 3
+    index = drive_log.read_log(truth.files, cameras=list(truth.camera_names), jpegs=False)
+    cloud = colorize.cloud_of(results, index, list(truth.camera_names))
+    preview_png(whole, cloud, title=f"acq colorize {out.name}")
+    held, drawn = cv2.imread(str(png)), cv2.imread(str(whole))
+    assert held is not None and drawn is not None and held.shape == drawn.shape
+    np.testing.assert_array_equal(held, drawn)
+
+
+def test_a_started_chunk_leaves_its_jpegs_to_its_queued_frames(
+    drive: tuple[DriveTruth, Path],
+) -> None:
+    """Once a chunk is read, placed and its frames queued, only the queued tasks hold
+    its JPEGs (each let go when decoded); its result is the one colour_chunk gives."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from acq.camera.jpeg import SharedDecodes
+    from acq.cloud.chunks import start_chunk
+    from acq.cloud.report import Report
+
+    truth, calib = drive
+    job, _ = colorize.prepare(truth.files, calibfile.load(calib), Report(output="x.ply"))
+    chunk = colorize.plan(np.sort(job.scan_new), 1.5)[1]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        started = start_chunk(job, chunk, None, pool, SharedDecodes(pool))
+        assert sum(len(f.frame_ns) for f in started.log.cameras.values()) > 50
+        assert all(not f.jpegs for f in started.log.cameras.values())
+        assert all(not c.jpegs for c in started.cameras)
+        got = started.result()
+    want = colorize.colour_chunk(job, chunk)
+    assert got.frames_used == want.frames_used > 0
+    np.testing.assert_array_equal(got.rgb, want.rgb)
+    np.testing.assert_array_equal(got.xyz, want.xyz)
+
+
+def test_a_long_log_read_with_its_first_chunks_images_gives_the_same_bytes(
+    drive: tuple[DriveTruth, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A log too long to hold its images is read once with those of its first chunks
+    (cut from that read), the later chunks reading their own part: the same bytes as
+    read whole, and the light read holds the images of its first span only."""
+    truth, calib = drive
+    cal = calibfile.load(calib)
+    run(truth.files, cal, tmp_path / "whole.ply", chunk_s=0.5, preview=None)
+    monkeypatch.setattr(colorize, "READ_ONCE_BYTES", 0)
+    monkeypatch.setattr(colorize, "HELD_SLACK_S", 3.0)  # 4 s held: 2 of the 8 chunks
+    run(truth.files, cal, tmp_path / "parts.ply", chunk_s=0.5, preview=None)
+    assert _digest(tmp_path / "parts.ply") == _digest(tmp_path / "whole.ply")
+    log = drive_log.read_log(truth.files, cameras=list(truth.camera_names), jpegs_for_s=1.0)
+    frames = log.cameras[truth.camera_names[0]]
+    held = [bool(j) for j in frames.jpegs]
+    assert log.jpegs_until_ns is not None and 0 < sum(held) < len(held)
+    assert held == sorted(held, reverse=True)  # the first ones, by receipt
+    assert all(r < log.jpegs_until_ns for r, h in zip(frames.frame_recv_ns, held, strict=True) if h)
+
+
 def test_dask_local_cluster_gives_the_same_bytes(
     drive: tuple[DriveTruth, Path], tmp_path: Path
 ) -> None:

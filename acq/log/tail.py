@@ -216,8 +216,12 @@ class LogTail:
         indexes = sorted(summary.chunk_indexes, key=lambda i: i.chunk_start_offset)
         for i in indexes:
             self._note_chunk(i.chunk_start_offset + i.chunk_length, i.message_end_time)
+        # the last chunks holding a wanted topic (the index says which channels a chunk
+        # holds): the very last may hold none, ended early by a metadata record
+        wanted = {c.id for c in self._channels.values() if c.topic in self.topics}
+        holding = [i for i in indexes if wanted & i.message_index_offsets.keys()]
         out: list[Tailed] = []
-        for i in indexes[-self.back_chunks :]:
+        for i in holding[-self.back_chunks :]:
             f.seek(i.chunk_start_offset)
             out += self._chunk(f.read(i.chunk_length))
         return out

@@ -89,3 +89,21 @@ def test_a_closed_file_is_read_from_its_index(tmp_path: Path) -> None:
     assert got[0].decoded.uptime_s == 20.0
     assert tail.metadata["config"] == {"yaml": "version: 1\n"}
     assert tail.poll() == []
+
+
+def test_a_closed_files_last_state_when_its_last_chunks_hold_none(tmp_path: Path) -> None:
+    """A metadata record ends the open chunk: a file may end in chunks of other topics
+    only (a clock pair after a device's description); the last status is still found."""
+    w = _writer(tmp_path)
+    _seconds(w, 1, 5)
+    assert w.path is not None
+    path = w.path
+    for s in (6, 7):
+        t = s * 1_000_000_000
+        w.update_metadata("device.laser", {"model": f"UTM-30LX {s}"})
+        w.write("/acq/clock", schemas.clock(realtime_ns=t, monotonic_ns=t), t, t)
+    w.close()
+    tail = LogTail(path, ["/acq/status"], back_chunks=1)
+    got = tail.poll()
+    assert [m.decoded.uptime_s for m in got] == [5.0]
+    assert tail.metadata["device.laser"] == {"model": "UTM-30LX 7"}

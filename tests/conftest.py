@@ -9,8 +9,13 @@ a real rig would meet, so `make test` runs them alone, then the rest on both cor
 
 from __future__ import annotations
 
+import fcntl
+import json
+import os
+import shutil
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
@@ -42,3 +47,23 @@ def short_drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriveTruth, P
     calib = d / "calib.yaml"
     calibfile.save(truth.calibration, calib)
     return truth, calib
+
+
+def once_per_run(
+    tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], dict[str, Any]]
+) -> tuple[Path, dict[str, Any]]:
+    """``make(folder)`` run once in a whole test run, however many xdist workers ask (a
+    module fixture runs once per worker that runs its tests): the first to ask makes the
+    folder ``name`` and its JSON result under a lock, the others wait and read them."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the workers' temporary folders share this parent
+    folder, done = root / name, root / f"{name}.json"
+    with (root / f"{name}.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)  # a failed attempt's
+            folder.mkdir()
+            done.write_text(json.dumps(make(folder)))
+        result: dict[str, Any] = json.loads(done.read_text())
+    return folder, result

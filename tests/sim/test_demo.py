@@ -14,7 +14,7 @@ import os
 import re
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -35,6 +35,7 @@ from acq.sim.demo import COLOUR_CAMERA
 from acq.sim.demo_rig import CAMERAS, demo_rig
 from acq.sim.demo_truth import COLOUR_TOLERANCE, colour_check
 from acq.sim.mesh_views import read_textured_mesh
+from tests.conftest import once_per_run
 
 # drives simulated devices in real time: run alone (`make test`)
 pytestmark = pytest.mark.realtime
@@ -62,20 +63,26 @@ class Demo(NamedTuple):
     printed: str  # what the command printed
 
 
-@pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
-    out = tmp_path_factory.mktemp("demo")
+def _run_demo(folder: Path) -> dict[str, Any]:
     wall0, utc0 = time.monotonic(), time.time()
     cwd = os.getcwd()
-    os.chdir(out.parent)  # a relative --out, as `make demo` gives
+    os.chdir(folder)  # a relative --out, as `make demo` gives
     printed = io.StringIO()
     try:
         with contextlib.redirect_stdout(printed):
-            code = acq_main(["demo", "--out", out.name, "--seconds", repr(SECONDS)])
+            code = acq_main(["demo", "--out", "demo", "--seconds", repr(SECONDS)])
     finally:
         os.chdir(cwd)
-    print(printed.getvalue())
-    return Demo(out, code, time.monotonic() - wall0, utc0, printed.getvalue())
+    return {"code": code, "took_s": time.monotonic() - wall0, "utc0": utc0,
+            "printed": printed.getvalue()}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
+    """One demo for the whole run (both workers' tests read it)."""
+    folder, ran = once_per_run(tmp_path_factory, "demo_run", _run_demo)
+    print(ran["printed"])
+    return Demo(folder / "demo", **ran)
 
 
 def test_exit_code_files_and_time(demo: Demo) -> None:

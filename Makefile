@@ -63,17 +63,21 @@ chromium:
 	  >/dev/null 2>&1 ) || echo "chromium not installed: the page tests skip (fail where CI=true)"
 
 # ruff first; then the real-time tests two at a time, with mypy and the wheel's smoke
-# beside them (the real-time tests mostly wait on their devices, and must hold on a busy
-# machine anyway: at a lower priority the two would starve behind any other load); then
-# the rest on both cores. worksteal: a worker that runs out takes tests queued on the
-# other, so neither idles through the other's long tail.
+# beside them at nice 19 (they take only the CPU the tests leave: the real-time tests
+# mostly wait on their devices); then the rest on both cores. Once the tests are done,
+# mypy and the smoke go back to the default priority where we may (root), so that on a
+# busy machine they do not starve behind its other work. worksteal: a worker that runs
+# out takes tests queued on the other, so neither idles through the other's long tail.
+# setsid: each in a process group of its own, for renice -g (and killed with make test).
 test: $(STAMP) compile chrony chromium
 	$(BIN)/ruff format --check $(RUFF_PATHS)
 	$(BIN)/ruff check $(RUFF_PATHS)
-	@$(MAKE) --no-print-directory typecheck > .mypy.out 2>&1 & mypy=$$!; \
-	$(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
+	@setsid nice -n 19 $(MAKE) --no-print-directory typecheck > .mypy.out 2>&1 & mypy=$$!; \
+	setsid nice -n 19 $(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
+	trap 'kill -- -$$mypy -$$smoke 2> /dev/null' EXIT; \
 	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 2 --dist worksteal; realtime=$$?; \
 	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2 --dist worksteal; rest=$$?; \
+	renice -n 0 -g $$mypy $$smoke > /dev/null 2>&1 || true; \
 	wait $$mypy; typed=$$?; wait $$smoke; smoked=$$?; \
 	echo "mypy:"; cat .mypy.out; echo "wheel smoke:"; cat .smoke.out; rm -f .mypy.out .smoke.out; \
 	test $$realtime -eq 0 && test $$rest -eq 0 && test $$typed -eq 0 && test $$smoked -eq 0

@@ -45,11 +45,15 @@ def test_a_flooding_camera_is_warned_about_counted_and_reported(
             "output": {"dir": str(tmp_path)},
         })  # fmt: skip
         with caplog.at_level(logging.WARNING):
-            recorder = Recorder(config, duration_s=3.0)
+            recorder = Recorder(config, duration_s=5.0)
             assert recorder.run() == 0
     state = recorder.devices["camera"]
-    assert state.received > 10 * FPS * 3.0  # far faster than configured, all recorded
-    [warning] = _fast_warnings(caplog)  # the next one only 5 s later
+    assert state.received > 10 * FPS * 5.0  # far faster than configured, all recorded
+    # warned after 2 s of it (the next only 5 s later); on a busy machine the server,
+    # a thread of this process, may stall the stream a second, and the watch starts again
+    warnings = _fast_warnings(caplog)
+    assert 1 <= len(warnings) <= 2, warnings
+    warning = warnings[0]
     assert warning.startswith("camera: ") and "configured 10/s" in warning
     assert float(warning.split()[1]) > 1.5 * FPS  # the measured rate
     [path] = sorted(tmp_path.glob("*.mcap"))

@@ -66,8 +66,9 @@ chromium:
 # two at a time used a third of the two cores), with mypy and the wheel's smoke beside
 # them at nice 19 (they take only the CPU the tests leave); then the rest on both cores.
 # Once the tests are done, mypy and the smoke go back to the default priority where we may
-# (root), so that on a busy machine they do not starve behind its other work. worksteal: a worker that runs
-# out takes tests queued on the other, so neither idles through the other's long tail.
+# (root), so that on a busy machine they do not starve behind its other work. worksteal:
+# a worker that runs out takes tests queued on another, so none idles through another's
+# long tail.
 # setsid: each in a process group of its own, for renice -g (and killed with make test).
 test: $(STAMP) compile chrony chromium
 	$(BIN)/ruff format --check $(RUFF_PATHS)

@@ -94,17 +94,33 @@ def test_another_host_is_warned_of_and_a_foreign_address_refused(
 
 def _stopped(proc: subprocess.Popen[str]) -> tuple[str, str]:
     """Ctrl-C to ``proc`` (an `acq view` started with :data:`DUMPS`): its (stdout, stderr)
-    once it exits; when it does not within 20 s, fails with every thread's stack
-    (faulthandler's dump on SIGABRT) to say where it hung."""
+    once it exits; when it does not within 20 s, fails saying its state, its children
+    and every thread's stack (faulthandler's dump on SIGABRT) to say where it hung."""
     proc.send_signal(signal.SIGINT)
     try:
         return proc.communicate(timeout=20)
     except subprocess.TimeoutExpired:
         status = Path(f"/proc/{proc.pid}/status").read_text().splitlines()
-        signals = [line for line in status if line.startswith(("State", "Threads", "Sig", "Shd"))]
+        state = [line for line in status if line.startswith(("State", "Threads", "Sig", "Shd"))]
+        children = [line for line in map(_stat, Path("/proc").glob("[0-9]*/stat"))
+                    if line.rpartition(")")[2].split()[1:2] == [str(proc.pid)]]  # fmt: skip
         proc.send_signal(signal.SIGABRT)
-        err = proc.communicate(timeout=20)[1]
-        pytest.fail(f"acq view did not exit within 20 s of Ctrl-C ({signals}); its threads:\n{err}")
+        try:
+            err = proc.communicate(timeout=20)[1]
+        except subprocess.TimeoutExpired:
+            err = "(its pipes still open: held by a child?)"
+        pytest.fail(
+            f"acq view did not exit within 20 s of Ctrl-C ({state}; children {children});"
+            f" its threads:\n{err}"
+        )
+
+
+def _stat(path: Path) -> str:
+    """A process's /proc stat line ("" once it is gone)."""
+    try:
+        return path.read_text()
+    except OSError:
+        return ""
 
 
 DUMPS = os.environ | {"PYTHONFAULTHANDLER": "1"}  # a stack dump on SIGABRT

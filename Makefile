@@ -62,12 +62,13 @@ chromium:
 	  { apt-get install -y -qq chromium || { apt-get update -qq && apt-get install -y -qq chromium; }; } \
 	  >/dev/null 2>&1 ) || echo "chromium not installed: the page tests skip (fail where CI=true)"
 
-# ruff first; then the real-time tests two at a time, with mypy and the wheel's smoke
-# beside them at nice 19 (they take only the CPU the tests leave: the real-time tests
-# mostly wait on their devices); then the rest on both cores. Once the tests are done,
-# mypy and the smoke go back to the default priority where we may (root), so that on a
-# busy machine they do not starve behind its other work. worksteal: a worker that runs
-# out takes tests queued on the other, so neither idles through the other's long tail.
+# ruff first; then the real-time tests three at a time (they mostly wait on their devices:
+# two at a time used a third of the two cores), with mypy and the wheel's smoke beside
+# them at nice 19 (they take only the CPU the tests leave); then the rest on both cores.
+# Once the tests are done, mypy and the smoke go back to the default priority where we may
+# (root), so that on a busy machine they do not starve behind its other work. worksteal:
+# a worker that runs out takes tests queued on another, so none idles through another's
+# long tail.
 # setsid: each in a process group of its own, for renice -g (and killed with make test).
 test: $(STAMP) compile chrony chromium
 	$(BIN)/ruff format --check $(RUFF_PATHS)
@@ -75,7 +76,7 @@ test: $(STAMP) compile chrony chromium
 	@setsid nice -n 19 $(MAKE) --no-print-directory typecheck > .mypy.out 2>&1 & mypy=$$!; \
 	setsid nice -n 19 $(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
 	trap 'kill -- -$$mypy -$$smoke 2> /dev/null' EXIT; \
-	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 2 --dist worksteal; realtime=$$?; \
+	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 3 --dist worksteal; realtime=$$?; \
 	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2 --dist worksteal; rest=$$?; \
 	renice -n 0 -g $$mypy $$smoke > /dev/null 2>&1 || true; \
 	wait $$mypy; typed=$$?; wait $$smoke; smoked=$$?; \

@@ -58,8 +58,16 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     # rates: scans at 40 Hz, frames at 25 Hz, nothing lost between the first and the last
     span = (scans[-1][1] - scans[0][1]) * 1e-9
     assert len(scans) == pytest.approx(span * 40 + 1, rel=0.01)
+    # every frame the camera sent between the first and the last recorded, once, in order
+    # (not 25 Hz exactly: on a loaded machine the simulator drops the frames it is late with)
+    sent = {t.digest: t.sequence for t in rig.camera.truth() if t.status == "sent"}
+    from acq.sim.camera_device import jpeg_digest
+
+    got = [sent[jpeg_digest(m.data)] for _, _, m in images]  # KeyError: a frame never sent
+    assert got == sorted(set(got))
+    assert len(got) == sum(got[0] <= k <= got[-1] for k in sent.values())
     fspan = (images[-1][1] - images[0][1]) * 1e-9
-    assert len(images) == pytest.approx(fspan * 25 + 1, rel=0.01)
+    assert len(images) > 0.8 * fspan * 25
     # times: log_time (receipt) and publish_time (first point / mid-exposure) monotonic
     for topic in ("/laser/scan", "/camera/image/compressed"):
         logt = np.array([t for t, _, _ in log[topic]])
@@ -75,10 +83,6 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     first = scans[0][2]
     assert len(first.ranges) == 1081 and len(first.intensities) == 1081
     assert first.start_angle == pytest.approx(np.radians(-135.0))
-    jpeg_digests = {t.digest for t in rig.camera.truth() if t.status == "sent"}
-    from acq.sim.camera_device import jpeg_digest
-
-    assert all(jpeg_digest(m.data) in jpeg_digests for _, _, m in images)
     assert images[0][2].format == "jpeg"
     # status at 1 Hz, clock pairs, metadata
     status = log["/acq/status"]

@@ -13,6 +13,9 @@ cleanup() {
   rm -rf "$work"
 }
 trap cleanup EXIT
+# bytecode written by the first process that imports a module (not all of every package
+# compiled at install, twice: most of it these commands never import)
+unset PYTHONDONTWRITEBYTECODE
 step() { printf 'wheel smoke: %s\n' "$*"; }
 
 step "build and install: every extra (acq[all]) in venv, the core alone in core"
@@ -21,7 +24,7 @@ if "$python" -m uv --version > /dev/null 2>&1; then
   "$python" -m uv build --quiet --wheel --out-dir "$work/dist" "$root"
   install() {
     "$python" -m uv venv --quiet --python "$python" "$1"
-    "$python" -m uv pip install --quiet --compile-bytecode --python "$1/bin/python" "$2"
+    "$python" -m uv pip install --quiet --python "$1/bin/python" "$2"
   }
 else
   "$python" -m pip wheel --quiet --no-deps --wheel-dir "$work/dist" "$root"

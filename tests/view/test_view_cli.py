@@ -92,6 +92,40 @@ def test_another_host_is_warned_of_and_a_foreign_address_refused(
     _refused(capsys, [path, "--host", "::1", "--port", "-5"], "--port")  # no warning for ::1
 
 
+def _stopped(proc: subprocess.Popen[str]) -> tuple[str, str]:
+    """Ctrl-C to ``proc`` (an `acq view` started with :data:`DUMPS`): its (stdout, stderr)
+    once it exits; when it does not within 20 s, fails saying its state, its children
+    and every thread's stack (faulthandler's dump on SIGABRT) to say where it hung."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        return proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        status = Path(f"/proc/{proc.pid}/status").read_text().splitlines()
+        state = [line for line in status if line.startswith(("State", "Threads", "Sig", "Shd"))]
+        children = [line for line in map(_stat, Path("/proc").glob("[0-9]*/stat"))
+                    if line.rpartition(")")[2].split()[1:2] == [str(proc.pid)]]  # fmt: skip
+        proc.send_signal(signal.SIGABRT)
+        try:
+            err = proc.communicate(timeout=20)[1]
+        except subprocess.TimeoutExpired:
+            err = "(its pipes still open: held by a child?)"
+        pytest.fail(
+            f"acq view did not exit within 20 s of Ctrl-C ({state}; children {children});"
+            f" its threads:\n{err}"
+        )
+
+
+def _stat(path: Path) -> str:
+    """A process's /proc stat line ("" once it is gone)."""
+    try:
+        return path.read_text()
+    except OSError:
+        return ""
+
+
+DUMPS = os.environ | {"PYTHONFAULTHANDLER": "1"}  # a stack dump on SIGABRT
+
+
 def test_serves_until_ctrl_c_and_opens_the_browser(tmp_path: Path) -> None:
     path = cloud(tmp_path / "c.ply", n=50)
     # the "browser": a command that writes down the URL it is given (webbrowser's BROWSER)
@@ -102,7 +136,7 @@ def test_serves_until_ctrl_c_and_opens_the_browser(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "acq.cli", "view", str(path), "--open"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env=os.environ | {"BROWSER": f"{browser} %s"},
+        env=DUMPS | {"BROWSER": f"{browser} %s"},
     )  # fmt: skip
     try:
         assert proc.stdout is not None
@@ -114,8 +148,7 @@ def test_serves_until_ctrl_c_and_opens_the_browser(tmp_path: Path) -> None:
         deadline = time.monotonic() + 20
         while not opened.exists() and time.monotonic() < deadline:  # the browser runs apart
             time.sleep(0.05)
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=20)
+        out, err = _stopped(proc)
     finally:
         proc.kill()
     assert proc.returncode == 0 and err == "" and out == ""
@@ -128,14 +161,13 @@ def test_points_found_bad_after_the_url_is_printed_are_said_in_one_line(tmp_path
     cut.write_bytes(laz.read_bytes()[: laz.stat().st_size // 2])
     proc = subprocess.Popen(
         [sys.executable, "-m", "acq.cli", "view", str(laz), str(cut)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=DUMPS,
     )  # fmt: skip
     try:
         assert proc.stdout is not None and proc.stderr is not None
         assert proc.stdout.readline().startswith("serving 2 layers at http://127.0.0.1:")
         said = proc.stderr.readline()  # while it keeps serving the good one
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=20)
+        out, err = _stopped(proc)
     finally:
         proc.kill()
     assert said.startswith(f"acq view: {cut}: its points cannot be read ("), said

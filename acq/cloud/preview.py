@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import re
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -256,22 +257,27 @@ def preview_panels(
     step_m = float(np.median(steps)) if steps.size else math.nan
     block = int(np.clip(math.ceil(step_m / res) + 1, 1, 12)) if math.isfinite(step_m) else 1
     scan, step = cloud.scan, cloud.step
-    hz = _block_heights(z, scan, step, res, 20)
     zbot = min(float(np.nanpercentile(zs, 0.5)), 0.0) - 0.2
-
-    def facade(sign: float) -> np.ndarray:
-        on = zs[sign * ls > _EDGE_M]
-        ztop = float(np.nanpercentile(on, 99.5)) + 0.5 if on.size else 10.0
-        fh = max(math.ceil((ztop - zbot) / res), 1)
-        lo, hi = (_EDGE_M, math.inf) if sign > 0 else (-math.inf, -_EDGE_M)
-        return _zbuffer(fh, w, u, u_lo, z, ztop, res, block, hz, lat, sign, lat, lo, hi)
-
-    left_idx, right_idx = facade(1.0), facade(-1.0)
     l0, l1 = np.nanpercentile(ls, [0.5, 99.5])
     l0, l1 = max(l0, -top_half_width_m), min(l1, top_half_width_m)
     th = math.ceil((l1 - l0) / res) + 1
-    hl = _block_heights(lat, scan, step, res, 20)
-    top_idx = _zbuffer(th, w, u, u_lo, lat, l1, res, block, hl, z, -1.0, lat, -math.inf, math.inf)
+    # the compiled passes over every point run without the GIL: two at a time
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        hz_f = pool.submit(_block_heights, z, scan, step, res, 20)
+        hl_f = pool.submit(_block_heights, lat, scan, step, res, 20)
+
+        def facade(sign: float) -> Future[np.ndarray]:
+            on = zs[sign * ls > _EDGE_M]
+            ztop = float(np.nanpercentile(on, 99.5)) + 0.5 if on.size else 10.0
+            fh = max(math.ceil((ztop - zbot) / res), 1)
+            lo, hi = (_EDGE_M, math.inf) if sign > 0 else (-math.inf, -_EDGE_M)
+            return pool.submit(_zbuffer, fh, w, u, u_lo, z, ztop, res, block, hz_f.result(), lat,
+                               sign, lat, lo, hi)  # fmt: skip
+
+        left_f, right_f = facade(1.0), facade(-1.0)
+        top_f = pool.submit(_zbuffer, th, w, u, u_lo, lat, l1, res, block, hl_f.result(), z,
+                            -1.0, lat, -math.inf, math.inf)  # fmt: skip
+        left_idx, right_idx, top_idx = left_f.result(), right_f.result(), top_f.result()
 
     camera = _camera_index(cloud)
     shares = _camera_shares(cloud, camera)

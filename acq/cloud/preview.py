@@ -47,18 +47,17 @@ def _axes(cloud: Cloud) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @numba.njit(cache=True, nogil=True)
 def _project(
     xyz: np.ndarray, origin: np.ndarray, along: np.ndarray, left: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per point (along-track, leftwards, height), m: one pass, no (P,3) temporaries."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per point (along-track, leftwards), m: one pass, no (P,3) temporaries (the height
+    is the points' own z)."""
     n = xyz.shape[0]
     u = np.empty(n)
     lat = np.empty(n)
-    z = np.empty(n)
     for i in range(n):
         x, y = xyz[i, 0] - origin[0], xyz[i, 1] - origin[1]
         u[i] = x * along[0] + y * along[1]
         lat[i] = x * left[0] + y * left[1]
-        z[i] = xyz[i, 2]
-    return u, lat, z
+    return u, lat
 
 
 @numba.njit(cache=True, nogil=True)
@@ -244,7 +243,9 @@ def preview_panels(
 ) -> Panels:
     """The pictures of :func:`preview_image`, without captions (``cloud`` not empty)."""
     along, left, origin = _axes(cloud)
-    u, lat, z = _project(np.ascontiguousarray(cloud.xyz, dtype=np.float64), origin, along, left)
+    xyz = np.ascontiguousarray(cloud.xyz, dtype=np.float64)
+    u, lat = _project(xyz, origin, along, left)
+    z = xyz[:, 2]  # a view: the preview's peak is the run's
     # extents from a sample: percentiles of millions of points cost more than all drawing
     every = max(1, cloud.size // _SAMPLE)
     us, ls, zs = u[::every], lat[::every], z[::every]

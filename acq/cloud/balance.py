@@ -25,6 +25,7 @@ import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from acq.cloud.views import Coloured
@@ -49,15 +50,19 @@ class Gains:
     cross: int
     by_camera: tuple[int, ...] = ()
 
+    def scales(self, camera: int) -> np.ndarray:
+        """What a colour of each frame of ``camera`` is multiplied by: (F,3) float32."""
+        scales: np.ndarray = np.exp(-self.log_gain[camera]).astype(np.float32)
+        return scales
+
     def apply(self, camera: int, rgb: np.ndarray, frame: np.ndarray) -> np.ndarray:
         """``rgb`` (N,3) uint8 of points coloured from ``frame`` (N,) (-1: left as
         they are) of ``camera``, with its gains divided out."""
-        g = self.log_gain[camera]
         out = rgb.copy()
         sel = np.flatnonzero(frame >= 0)
-        if g.size == 0 or sel.size == 0:
+        if self.log_gain[camera].size == 0 or sel.size == 0:
             return out
-        scale = np.exp(-g).astype(np.float32)[frame[sel]]
+        scale = self.scales(camera)[frame[sel]]
         out[sel] = np.clip(rgb[sel] * scale + 0.5, 0, 255).astype(np.uint8)
         return out
 
@@ -149,31 +154,70 @@ def _solve(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, rhs: np.ndarray
     """x (n,3) with M @ x = ``rhs`` for the symmetric positive definite M given by its
     entries (``rows``, ``cols``, ``vals``; repeated entries add up): conjugate gradients
     with a diagonal preconditioner, to 1e-10 of the right-hand side."""
+    x: np.ndarray = _cg(
+        np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64),
+        np.asarray(vals, dtype=np.float64), np.ascontiguousarray(rhs, dtype=np.float64),
+    )  # fmt: skip
+    return x
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _cg(rows, cols, vals, rhs):  # type: ignore[no-untyped-def]
+    """:func:`_solve`'s iterations, each sum taken in the order numpy's ``bincount`` and
+    ``sum(axis=0)`` take it (the same bytes, without their temporaries)."""
     n = rhs.shape[0]
-    diag = np.bincount(rows[rows == cols], weights=vals[rows == cols], minlength=n)
-
-    def times(x: np.ndarray) -> np.ndarray:
-        return np.stack(
-            [np.bincount(rows, weights=vals * x[cols, k], minlength=n) for k in range(3)], axis=1
-        )
-
-    x = np.zeros_like(rhs)
-    r = rhs.copy()
-    z = r / diag[:, None]
-    p = z.copy()
-    rz = np.sum(r * z, axis=0)
-    stop = 1e-20 * np.maximum(np.sum(rhs * rhs, axis=0), 1e-30)
+    diag = np.zeros(n)
+    for e in range(rows.size):
+        if rows[e] == cols[e]:
+            diag[rows[e]] += vals[e]
+    x = np.zeros((n, 3))
+    r = np.empty((n, 3))
+    z = np.empty((n, 3))
+    p = np.empty((n, 3))
+    q = np.empty((n, 3))
+    sums = np.zeros((6, 3))  # r.z, the stop, r.r, p.q, the new r.z, alpha
+    for i in range(n):
+        for k in range(3):
+            r[i, k] = rhs[i, k]
+            z[i, k] = r[i, k] / diag[i]
+            p[i, k] = z[i, k]
+            sums[0, k] += r[i, k] * z[i, k]
+            sums[1, k] += rhs[i, k] * rhs[i, k]
+    for k in range(3):
+        sums[1, k] = 1e-20 * max(sums[1, k], 1e-30)
     for _ in range(4 * n):
-        if np.all(np.sum(r * r, axis=0) <= stop):
+        for k in range(3):
+            sums[2, k] = 0.0
+        for i in range(n):
+            for k in range(3):
+                sums[2, k] += r[i, k] * r[i, k]
+        if sums[2, 0] <= sums[1, 0] and sums[2, 1] <= sums[1, 1] and sums[2, 2] <= sums[1, 2]:
             break
-        q = times(p)
-        alpha = rz / np.maximum(np.sum(p * q, axis=0), 1e-300)
-        x += alpha * p
-        r -= alpha * q
-        z = r / diag[:, None]
-        rz_new = np.sum(r * z, axis=0)
-        p = z + (rz_new / np.maximum(rz, 1e-300)) * p
-        rz = rz_new
+        for i in range(n):
+            for k in range(3):
+                q[i, k] = 0.0
+        for e in range(rows.size):  # q = M @ p
+            i, j, v = rows[e], cols[e], vals[e]
+            for k in range(3):
+                q[i, k] += v * p[j, k]
+        for k in range(3):
+            sums[3, k] = sums[4, k] = 0.0
+        for i in range(n):
+            for k in range(3):
+                sums[3, k] += p[i, k] * q[i, k]
+        for k in range(3):
+            sums[5, k] = sums[0, k] / max(sums[3, k], 1e-300)
+        for i in range(n):
+            for k in range(3):
+                x[i, k] += sums[5, k] * p[i, k]
+                r[i, k] -= sums[5, k] * q[i, k]
+                z[i, k] = r[i, k] / diag[i]
+                sums[4, k] += r[i, k] * z[i, k]
+        for i in range(n):
+            for k in range(3):
+                p[i, k] = z[i, k] + sums[4, k] / max(sums[0, k], 1e-300) * p[i, k]
+        for k in range(3):
+            sums[0, k] = sums[4, k]
     return x
 
 

@@ -284,13 +284,20 @@ class ChunkColouring:
         frames = [log.cameras[cj.name] for cj in job.cameras]
         merged = scan_colouring.merge(cols, self.cameras, job.options, n, want_uv=job.want_uv)
         cam_idx, frame, coloured = merged.camera, merged.frame, merged.coloured
-        # the frame's recorded stamp and its index among its camera's frames in the session
-        stamp = np.full(n, -1, dtype=np.int64)
-        session_frame = np.full(n, -1, dtype=np.int64)
-        for c, (cj, f) in enumerate(zip(job.cameras, frames, strict=True)):
+        # per camera, the session index of each of the chunk's frames (``gains``' rows)
+        session_frames = [
+            np.searchsorted(cj.frame_old, f.frame_ns)
+            for cj, f in zip(job.cameras, frames, strict=True)
+        ]
+        # each point's frame: its recorded stamp (with want_uv) and its index among its
+        # camera's frames in the session, looked up per frame
+        stamp = np.full(n if job.want_uv else 0, -1, dtype=np.int64)
+        session_frame = np.full(n, -1, dtype=np.int32)
+        for c, f in enumerate(frames):
             sel = np.flatnonzero(cam_idx == c)
-            stamp[sel] = f.frame_ns[frame[sel]]
-            session_frame[sel] = np.searchsorted(cj.frame_old, stamp[sel])
+            if job.want_uv:
+                stamp[sel] = f.frame_ns[frame[sel]]
+            session_frame[sel] = session_frames[c][frame[sel]]
         t_choose = time.perf_counter()
         xyz = pts.P_world if job.frame_world else pts.P_laser
         # the laser's position at each core scan's point 0 (the track; scans with a pose)
@@ -311,10 +318,6 @@ class ChunkColouring:
             ]
             or [np.zeros((0, 2), np.int64)]
         )
-        session_frames = [
-            np.searchsorted(cj.frame_old, f.frame_ns)
-            for cj, f in zip(job.cameras, frames, strict=True)
-        ]
         return ChunkResult(
             index=chunk.index,
             xyz=xyz[core],
@@ -328,7 +331,7 @@ class ChunkColouring:
             dt_s=merged.dt_s[core],
             theta=merged.theta[core],
             camera=np.where(coloured, cam_idx, NO_CAMERA).astype(np.uint8)[core],
-            frame=session_frame.astype(np.int32)[core],
+            frame=session_frame[core],
             scan_origin=origin,
             frame_stamp_ns=stamp[core] if job.want_uv else None,
             uv=merged.uv[core] if merged.uv is not None else None,

@@ -21,12 +21,13 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from acq.camera.camera_models import CameraModel
 from acq.cloud.views import Coloured
 
-__all__ = ["BLEND_SCALE", "RIM", "Choice", "choose", "half_aperture"]
+__all__ = ["BLEND_SCALE", "RIM", "Choice", "Picked", "choose", "half_aperture", "pick"]
 
 RIM = 2.0
 BLEND_SCALE = 0.3
@@ -53,6 +54,19 @@ class Choice:
     coloured: np.ndarray
 
 
+def _cost(v: Coloured, model: CameraModel, max_dt_s: float) -> np.ndarray:
+    """The cost (module docstring) of each point ``v`` coloured, in their order (K,)
+    float64; 1e9 where it is not finite."""
+    ok = v.coloured
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cost = (
+            np.log(np.maximum(v.depth[ok].astype(np.float64), 1e-3) / (0.5 * (model.fx + model.fy)))  # type: ignore[index]
+            + RIM * (v.theta[ok].astype(np.float64) / half_aperture(model)) ** 4
+            + np.abs(v.dt_s[ok].astype(np.float64)) / max_dt_s
+        )
+    return np.where(np.isfinite(cost), cost, 1e9)
+
+
 def choose(
     views: Sequence[Coloured],
     rgbs: Sequence[np.ndarray],
@@ -66,15 +80,7 @@ def choose(
     n = views[0].coloured.size
     cost = np.full((len(views), n), np.inf)
     for c, (v, model) in enumerate(zip(views, models, strict=True)):
-        f = 0.5 * (model.fx + model.fy)
-        ok = v.coloured
-        with np.errstate(invalid="ignore", divide="ignore"):
-            c_ = (
-                np.log(np.maximum(v.depth[ok].astype(np.float64), 1e-3) / f)  # type: ignore[index]
-                + RIM * (v.theta[ok].astype(np.float64) / half_aperture(model)) ** 4
-                + np.abs(v.dt_s[ok].astype(np.float64)) / max_dt_s
-            )
-        cost[c, ok] = np.where(np.isfinite(c_), c_, 1e9)
+        cost[c, v.coloured] = _cost(v, model, max_dt_s)
     camera = np.argmin(cost, axis=0)
     coloured = np.isfinite(cost[camera, np.arange(n)])
     camera = np.where(coloured, camera, -1)
@@ -93,3 +99,75 @@ def choose(
             np.uint8
         )
     return Choice(camera, rgb, coloured)
+
+
+@dataclass(frozen=True)
+class Picked(Choice):
+    """A :class:`Choice` (``rgb`` with the gains divided out) and, per point, what the
+    camera chosen (:func:`pick`) gives it: ``frame`` (N,) int64 (-1 none), ``dt_s`` and
+    ``theta`` (N,) float32 (NaN), ``hidden`` (N,) (seen by a camera but hidden in every
+    frame)."""
+
+    frame: np.ndarray
+    dt_s: np.ndarray
+    theta: np.ndarray
+    hidden: np.ndarray
+
+
+def pick(
+    views: Sequence[Coloured],
+    models: Sequence[CameraModel],
+    max_dt_s: float,
+    scales: Sequence[np.ndarray | None],
+) -> Picked:
+    """The best camera for each point of ``views`` (one per camera, over the same points;
+    through the cameras' ``models``), as :func:`choose` without blending, and what that
+    camera gives it, in one pass per camera: its colour with the gains of its frame
+    divided out (``scales``: per camera, (F,3) float32 ``exp(-log_gain)`` of its frames;
+    None: as taken), the same bytes as :meth:`acq.cloud.balance.Gains.apply` and then
+    :func:`choose` give."""
+    n = views[0].coloured.size
+    best = np.full(n, np.inf)
+    camera = np.full(n, -1, dtype=np.int64)
+    rgb = np.zeros((n, 3), dtype=np.uint8)
+    frame = np.full(n, -1, dtype=np.int64)
+    dt_s = np.full(n, np.nan, dtype=np.float32)
+    theta = np.full(n, np.nan, dtype=np.float32)
+    seen = np.zeros(n, dtype=bool)
+    none = np.zeros((0, 3), dtype=np.float32)
+    for c, (v, model, scale) in enumerate(zip(views, models, scales, strict=True)):
+        _take(
+            c, np.flatnonzero(v.coloured), _cost(v, model, max_dt_s), v.rgb, v.frame, v.dt_s,
+            v.theta, none if scale is None else np.asarray(scale, dtype=np.float32),
+            best, camera, rgb, frame, dt_s, theta,
+        )  # fmt: skip
+        seen |= v.hidden
+    coloured = camera >= 0
+    return Picked(camera, rgb, coloured, frame, dt_s, theta, seen & ~coloured)
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _take(  # type: ignore[no-untyped-def]
+    c, idx, cost, rgb_c, frame_c, dt_c, theta_c, scale, best, camera, rgb, frame, dt_s, theta
+):
+    """Camera ``c`` takes the points ``idx`` whose ``cost`` (in idx's order) is below the
+    best so far (the first camera keeps a tie, as argmin does): its colour (times its
+    frame's ``scale``, rounded as numpy's float32 does, when there are scales), frame,
+    dt and theta."""
+    for k in range(idx.size):
+        i = idx[k]
+        if not cost[k] < best[i]:
+            continue
+        best[i] = cost[k]
+        camera[i] = c
+        f = frame_c[i]
+        if scale.shape[0] and f >= 0:
+            for ch in range(3):
+                x = np.float32(rgb_c[i, ch]) * scale[f, ch] + np.float32(0.5)
+                rgb[i, ch] = np.uint8(min(max(x, np.float32(0.0)), np.float32(255.0)))
+        else:
+            for ch in range(3):
+                rgb[i, ch] = rgb_c[i, ch]
+        frame[i] = f
+        dt_s[i] = dt_c[i]
+        theta[i] = theta_c[i]

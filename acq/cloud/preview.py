@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import re
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -46,18 +47,17 @@ def _axes(cloud: Cloud) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @numba.njit(cache=True, nogil=True)
 def _project(
     xyz: np.ndarray, origin: np.ndarray, along: np.ndarray, left: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per point (along-track, leftwards, height), m: one pass, no (P,3) temporaries."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per point (along-track, leftwards), m: one pass, no (P,3) temporaries (the height
+    is the points' own z)."""
     n = xyz.shape[0]
     u = np.empty(n)
     lat = np.empty(n)
-    z = np.empty(n)
     for i in range(n):
         x, y = xyz[i, 0] - origin[0], xyz[i, 1] - origin[1]
         u[i] = x * along[0] + y * along[1]
         lat[i] = x * left[0] + y * left[1]
-        z[i] = xyz[i, 2]
-    return u, lat, z
+    return u, lat
 
 
 @numba.njit(cache=True, nogil=True)
@@ -243,7 +243,9 @@ def preview_panels(
 ) -> Panels:
     """The pictures of :func:`preview_image`, without captions (``cloud`` not empty)."""
     along, left, origin = _axes(cloud)
-    u, lat, z = _project(np.ascontiguousarray(cloud.xyz, dtype=np.float64), origin, along, left)
+    xyz = np.ascontiguousarray(cloud.xyz, dtype=np.float64)
+    u, lat = _project(xyz, origin, along, left)
+    z = xyz[:, 2]  # a view: the preview's peak is the run's
     # extents from a sample: percentiles of millions of points cost more than all drawing
     every = max(1, cloud.size // _SAMPLE)
     us, ls, zs = u[::every], lat[::every], z[::every]
@@ -256,22 +258,27 @@ def preview_panels(
     step_m = float(np.median(steps)) if steps.size else math.nan
     block = int(np.clip(math.ceil(step_m / res) + 1, 1, 12)) if math.isfinite(step_m) else 1
     scan, step = cloud.scan, cloud.step
-    hz = _block_heights(z, scan, step, res, 20)
     zbot = min(float(np.nanpercentile(zs, 0.5)), 0.0) - 0.2
-
-    def facade(sign: float) -> np.ndarray:
-        on = zs[sign * ls > _EDGE_M]
-        ztop = float(np.nanpercentile(on, 99.5)) + 0.5 if on.size else 10.0
-        fh = max(math.ceil((ztop - zbot) / res), 1)
-        lo, hi = (_EDGE_M, math.inf) if sign > 0 else (-math.inf, -_EDGE_M)
-        return _zbuffer(fh, w, u, u_lo, z, ztop, res, block, hz, lat, sign, lat, lo, hi)
-
-    left_idx, right_idx = facade(1.0), facade(-1.0)
     l0, l1 = np.nanpercentile(ls, [0.5, 99.5])
     l0, l1 = max(l0, -top_half_width_m), min(l1, top_half_width_m)
     th = math.ceil((l1 - l0) / res) + 1
-    hl = _block_heights(lat, scan, step, res, 20)
-    top_idx = _zbuffer(th, w, u, u_lo, lat, l1, res, block, hl, z, -1.0, lat, -math.inf, math.inf)
+    # the compiled passes over every point run without the GIL: two at a time
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        hz_f = pool.submit(_block_heights, z, scan, step, res, 20)
+        hl_f = pool.submit(_block_heights, lat, scan, step, res, 20)
+
+        def facade(sign: float) -> Future[np.ndarray]:
+            on = zs[sign * ls > _EDGE_M]
+            ztop = float(np.nanpercentile(on, 99.5)) + 0.5 if on.size else 10.0
+            fh = max(math.ceil((ztop - zbot) / res), 1)
+            lo, hi = (_EDGE_M, math.inf) if sign > 0 else (-math.inf, -_EDGE_M)
+            return pool.submit(_zbuffer, fh, w, u, u_lo, z, ztop, res, block, hz_f.result(), lat,
+                               sign, lat, lo, hi)  # fmt: skip
+
+        left_f, right_f = facade(1.0), facade(-1.0)
+        top_f = pool.submit(_zbuffer, th, w, u, u_lo, lat, l1, res, block, hl_f.result(), z,
+                            -1.0, lat, -math.inf, math.inf)  # fmt: skip
+        left_idx, right_idx, top_idx = left_f.result(), right_f.result(), top_f.result()
 
     camera = _camera_index(cloud)
     shares = _camera_shares(cloud, camera)

@@ -192,7 +192,8 @@ class Merged:
     (N,) (seen by a camera but hidden in every frame), ``frame`` (N,) int64 the index of
     its frame among that camera's frames given (-1), ``dt_s`` and ``theta`` (N,) float32
     (NaN), ``uv`` (N,2) float32 px (with ``want_uv``); ``cols`` each camera's own
-    colours, ``rgbs`` those balanced, ``gains`` the balance (None: off)."""
+    colours, ``rgbs`` those balanced (with ``want_uv`` or blending; else empty),
+    ``gains`` the balance (None: off)."""
 
     camera: np.ndarray
     rgb: np.ndarray
@@ -227,36 +228,46 @@ def merge(
         if options.balance
         else None
     )
-    rgbs = [
-        gains.apply(c, col.rgb, col.frame) if gains is not None else col.rgb
-        for c, col in enumerate(cols)
-    ]
-    choice = multiview.choose(
-        cols, rgbs, [c.cam.model for c in cameras], options.max_dt_s, options.blend
-    )
-    cam_idx = choice.camera
-    pick = np.maximum(cam_idx, 0)
-    rows = np.arange(n)
-
-    def chosen(name: str, fill: Any) -> np.ndarray:
-        stack = np.stack([getattr(col, name) for col in cols])
-        out: np.ndarray = np.where(cam_idx >= 0, stack[pick, rows], fill)
-        return out
-
+    models = [c.cam.model for c in cameras]
     uv = None
+    if want_uv or options.blend:  # every camera's balanced colours are kept or blended
+        rgbs = [
+            gains.apply(c, col.rgb, col.frame) if gains is not None else col.rgb
+            for c, col in enumerate(cols)
+        ]
+    else:
+        rgbs = []
+    if not options.blend:  # one pass per camera: its colours balanced only where chosen
+        scales = [None if gains is None else gains.scales(c) for c in range(len(cols))]
+        p = multiview.pick(cols, models, options.max_dt_s, scales)
+        cam_idx, rgb, frame, dt_s, theta = p.camera, p.rgb, p.frame, p.dt_s, p.theta
+        coloured, hidden = p.coloured, p.hidden
+    else:
+        choice = multiview.choose(cols, rgbs, models, options.max_dt_s, blend=True)
+        cam_idx, rgb, coloured = choice.camera, choice.rgb, choice.coloured
+        pick = np.maximum(cam_idx, 0)
+        rows = np.arange(n)
+
+        def chosen(name: str, fill: Any) -> np.ndarray:
+            stack = np.stack([getattr(col, name) for col in cols])
+            out: np.ndarray = np.where(cam_idx >= 0, stack[pick, rows], fill)
+            return out
+
+        frame = chosen("frame", -1)
+        dt_s = chosen("dt_s", np.nan).astype(np.float32)
+        theta = chosen("theta", np.nan).astype(np.float32)
+        hidden = np.any(np.stack([col.hidden for col in cols]), axis=0) & ~coloured
     if want_uv:
-        uv = np.stack([col.uv for col in cols])[pick, rows]  # type: ignore[misc]
+        uv = np.stack([col.uv for col in cols])[np.maximum(cam_idx, 0), np.arange(n)]  # type: ignore[misc]
         uv[cam_idx < 0] = np.nan
-    coloured = cam_idx >= 0
-    hidden = np.any(np.stack([col.hidden for col in cols]), axis=0) & ~coloured
     return Merged(
         camera=cam_idx,
-        rgb=choice.rgb,
+        rgb=rgb,
         coloured=coloured,
         hidden=hidden,
-        frame=chosen("frame", -1),
-        dt_s=chosen("dt_s", np.nan).astype(np.float32),
-        theta=chosen("theta", np.nan).astype(np.float32),
+        frame=frame,
+        dt_s=dt_s,
+        theta=theta,
         uv=uv,
         cols=cols,
         rgbs=rgbs,

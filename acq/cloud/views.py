@@ -29,6 +29,7 @@ from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -440,13 +441,32 @@ def _colour_image(out: Colouring, args: tuple[Any, ...], image: np.ndarray | Non
 
 def _by_frame(frame: np.ndarray) -> dict[int, np.ndarray]:
     """The indices of ``frame`` (K,) by their value (frames >= 0 only), each ascending."""
-    order = np.argsort(frame, kind="stable")
-    order = order[frame[order] >= 0]
-    used, first, counts = np.unique(frame[order], return_index=True, return_counts=True)
-    return {
-        j: order[lo : lo + c]
-        for j, lo, c in zip(used.tolist(), first.tolist(), counts.tolist(), strict=True)
-    }
+    if frame.size == 0:
+        return {}
+    order, starts = _group(np.asarray(frame, dtype=np.int64), max(int(frame.max()) + 1, 0))
+    used = np.flatnonzero(starts[1:] > starts[:-1])
+    return {j: order[starts[j] : starts[j + 1]] for j in used.tolist()}
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _group(frame, m):  # type: ignore[no-untyped-def]
+    """(order, starts): the indices of ``frame``'s values in [0, ``m``) grouped by value,
+    ascending within a group (a counting sort: as a stable argsort, in one pass); value
+    j's are ``order[starts[j]:starts[j + 1]]``."""
+    starts = np.zeros(m + 1, dtype=np.int64)
+    for f in frame:
+        if f >= 0:
+            starts[f + 1] += 1
+    for j in range(m):
+        starts[j + 1] += starts[j]
+    at = starts[:m].copy()
+    order = np.empty(starts[m], dtype=np.int64)
+    for i in range(frame.size):
+        f = frame[i]
+        if f >= 0:
+            order[at[f]] = i
+            at[f] += 1
+    return order, starts
 
 
 def _pairs(frame: np.ndarray, frame_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from acq.cloud.balance import estimate_gains
+from acq.cloud.balance import _solve, estimate_gains
 from acq.cloud.views import Coloured, Pairs
 
 
@@ -72,3 +72,42 @@ def test_clipped_and_dark_samples_are_not_used() -> None:
     out = estimate_gains([cam], [f])
     assert out.pairs == 0  # every sample at 250 or clipped at 255: nothing to go on
     np.testing.assert_allclose(out.log_gain[0], 0.0, atol=1e-9)
+
+
+def test_the_solve_gives_the_bytes_of_conjugate_gradients_in_numpy() -> None:
+    # the compiled iterations sum in numpy's order (bincount, sum over axis 0): the same
+    # gains to the last bit as the numpy loop they replace, written out here
+    rng = np.random.default_rng(5)
+    n = 300
+    a, b = rng.integers(0, n, 4000), rng.integers(0, n, 4000)
+    w = rng.uniform(1.0, 100.0, 4000)
+    diag = np.arange(n)
+    rows = np.concatenate([a, b, a, b, diag])  # repeated entries add up
+    cols = np.concatenate([a, b, b, a, diag])
+    vals = np.concatenate([w, w, -w, -w, np.full(n, 1e-3)])
+    rhs = rng.normal(0.0, 1.0, (n, 3))
+
+    def times(x: np.ndarray) -> np.ndarray:
+        return np.stack(
+            [np.bincount(rows, weights=vals * x[cols, k], minlength=n) for k in range(3)], axis=1
+        )
+
+    d = np.bincount(rows[rows == cols], weights=vals[rows == cols], minlength=n)
+    x, r = np.zeros_like(rhs), rhs.copy()
+    z = r / d[:, None]
+    p, rz = z.copy(), np.sum(r * z, axis=0)
+    stop = 1e-20 * np.maximum(np.sum(rhs * rhs, axis=0), 1e-30)
+    for _ in range(4 * n):
+        if np.all(np.sum(r * r, axis=0) <= stop):
+            break
+        q = times(p)
+        alpha = rz / np.maximum(np.sum(p * q, axis=0), 1e-300)
+        x += alpha * p
+        r -= alpha * q
+        z = r / d[:, None]
+        rz_new = np.sum(r * z, axis=0)
+        p = z + (rz_new / np.maximum(rz, 1e-300)) * p
+        rz = rz_new
+    got = _solve(rows, cols, vals, rhs)
+    assert np.array_equal(got, x)
+    np.testing.assert_allclose(times(got), rhs, atol=1e-6)  # and it solves the system

@@ -163,3 +163,18 @@ def test_a_crop_is_the_frame_around_its_points_within_the_frame() -> None:
     edge = crop_around(image, np.array([[1.0, 58.5]], np.float32), margin=4)
     assert edge is not None and (edge.x0, edge.y0) == (0, 54) and edge.pixels.shape[:2] == (6, 6)
     assert crop_around(image, np.full((2, 2), np.nan, np.float32)) is None
+
+
+def test_points_are_grouped_by_their_frame_in_their_order() -> None:
+    # what each frame's task colours: its points, ascending; points without a frame none
+    rng = np.random.default_rng(3)
+    frame = np.where(rng.random(5000) < 0.3, -1, rng.integers(0, 40, 5000))
+    frame[frame == 17] = 18  # a frame no point uses
+    got = views._by_frame(frame)
+    want: dict[int, list[int]] = {}
+    for i, f in enumerate(frame.tolist()):
+        if f >= 0:
+            want.setdefault(f, []).append(i)
+    assert sorted(got) == sorted(want) and 17 not in got
+    assert all(got[f].tolist() == want[f] for f in want)
+    assert views._by_frame(np.full(3, -1)) == {} and views._by_frame(np.zeros(0, np.int64)) == {}

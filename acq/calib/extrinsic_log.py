@@ -19,7 +19,8 @@ From the log (:func:`acq.log.drive_log.read_log`):
    the straight segments of a board's length; with a coarse ``camera_to_laser`` (not the
    identity) the one nearest the camera's plane, else the one in front of its
    neighbours (the board stands before the background) whose range is nearest the
-   board's distance from the camera; trimmed by ``trim_m`` at each end;
+   board's distance from the camera; within ``trim_m`` of each end, the points off the
+   line (mixed returns at the board's edges) dropped, those on it kept;
 4. :func:`acq.calib.extrinsic.calibrate` on all poses.
 
 Frames of another size than the camera model's are skipped, and a WARNING says how many
@@ -358,9 +359,23 @@ def board_segment(
         best = min(fg, key=lambda k: abs(float(np.median(r[cands[k][0]])) - abs(d)))
     idx, c, u = cands[best]
     Q = P[idx]
-    along = (Q[:, :2] - c) @ u
-    keep = (along > along.min() + trim_m) & (along < along.max() - trim_m)
+    keep = _off_line_ends(Q[:, :2], c, u, trim_m)
     return Q[keep] if keep.sum() >= 2 else None
+
+
+def _off_line_ends(P: np.ndarray, c: np.ndarray, u: np.ndarray, end_m: float) -> np.ndarray:
+    """Which of the segment's 2-D points (m; line centre ``c``, direction ``u``) to keep:
+    all but those within ``end_m`` of either end that lie off the line by more than 3
+    robust standard deviations (MAD) of the others' distances: the mixed returns of a
+    beam that grazes the board's edge, its range between the board's and the
+    background's. The ends on the line are kept: they give the fit its longest lever."""
+    along = (P - c) @ u
+    off = (P - c) @ np.array([-u[1], u[0]])
+    dev = np.abs(off - np.median(off))
+    sigma = 1.4826 * float(np.median(dev))
+    near_end = (along < along.min() + end_m) | (along > along.max() - end_m)
+    keep: np.ndarray = ~(near_end & (dev > 3.0 * sigma))
+    return keep
 
 
 # --- per pose ---------------------------------------------------------------------------

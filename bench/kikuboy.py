@@ -21,7 +21,7 @@ reported std, and for comparison plain Levenberg-Marquardt fits (scipy's least_s
 no robust loss) on the same board planes: over the laser points acq kept
 (``lm_segments``) and over every given point (``lm_all_points``), each point counting
 alike; and with each pose counting alike (``lm_all_points_per_pose``: KiKuBoy's own
-weights).
+weights); and ``factors``: acq's fit with one thing changed at a time (:func:`factors`).
 
 Run: ``python bench/kikuboy.py SOURCE [--out DIR]`` (default: ``ACQ_KIKUBOY``).
 """
@@ -168,8 +168,9 @@ def write_log(source: Path, out: Path) -> tuple[list[Path], Path, str]:
     return list(writer.files), calib_path, holds
 
 
-def run(source: Path, out: Path) -> dict[str, Any]:
-    """Convert, calibrate with ``acq calibrate extrinsic`` and compare (module docstring)."""
+def run(source: Path, out: Path, *, with_factors: bool = True) -> dict[str, Any]:
+    """Convert, calibrate with ``acq calibrate extrinsic`` and compare (module docstring;
+    ``with_factors``: the ``factors`` too)."""
     from acq.calib.checkerboard import parse_board
     from acq.calib.extrinsic_log import parse_poses, poses_from_log
     from acq.cli import main
@@ -218,7 +219,48 @@ def run(source: Path, out: Path) -> dict[str, Any]:
         ("lm_all_points_per_pose", everything, True),
     ):
         row[name] = _against(plain_lm(poses, pub.camera_to_laser, per_pose), pub.camera_to_laser)
+    if with_factors:
+        row["factors"] = factors(source, pub, segments, everything)
     return row
+
+
+def factors(
+    source: Path, pub: Published, segments: list[BoardPose], everything: list[BoardPose]
+) -> dict[str, Any]:
+    """acq's calibration (:func:`acq.calib.extrinsic.calibrate`, as the command) with one
+    thing changed at a time, each against the published: the board planes from
+    cv2.solvePnP on the same corners with the published intrinsics (and how far they are
+    from acq's: normal deg, distance mm), every given laser point instead of the board
+    segment acq picked, the planes taken as exact with each pose counting alike (acq's
+    first stage, KiKuBoy's weights), and no robust loss."""
+    from acq.calib.checkerboard import detect_corners, parse_board
+    from acq.calib.extrinsic import calibrate
+
+    spec = parse_board(BOARD)
+    m = pub.model
+    K = np.array([[m.fx, 0.0, m.cx], [0.0, m.fy, m.cy], [0.0, 0.0, 1.0]])
+    cv_planes, normal_deg, distance_mm = [], [], []
+    for p, k in zip(segments, pose_numbers(source), strict=True):
+        gray = cv2.imread(str(source / "data" / "image" / f"{k}.jpg"), cv2.IMREAD_GRAYSCALE)
+        uv = detect_corners(gray, spec)
+        assert uv is not None
+        _, rvec, tvec = cv2.solvePnP(spec.object_points(), uv, K, np.array(m.dist))
+        n = cv2.Rodrigues(rvec)[0][:, 2]
+        d = float(n @ tvec.reshape(3))
+        cv_planes.append(replace(p, normal=n, distance=d))
+        normal_deg.append(math.degrees(math.acos(min(1.0, float(n @ p.normal)))))
+        distance_mm.append(abs(d - p.distance) * 1e3)
+    ref = pub.camera_to_laser
+    return {
+        "acq": _against(calibrate(segments).camera_to_laser, ref),
+        "planes_cv2_solvepnp": _against(calibrate(cv_planes).camera_to_laser, ref),
+        "planes_max_diff": {"normal_deg": max(normal_deg), "distance_mm": max(distance_mm)},
+        "all_given_points": _against(calibrate(everything).camera_to_laser, ref),
+        "exact_planes_poses_alike": _against(
+            calibrate(segments, plane_errors=False).camera_to_laser, ref
+        ),
+        "no_robust_loss": _against(calibrate(segments, loss="linear").camera_to_laser, ref),
+    }
 
 
 def plain_lm(poses: list[BoardPose], start: Rigid, per_pose: bool) -> Rigid:

@@ -19,8 +19,8 @@ From the log (:func:`acq.log.drive_log.read_log`):
    the straight segments of a board's length; with a coarse ``camera_to_laser`` (not the
    identity) the one nearest the camera's plane, else the one in front of its
    neighbours (the board stands before the background) whose range is nearest the
-   board's distance from the camera; within ``trim_m`` of each end, the points off the
-   line (mixed returns at the board's edges) dropped, those on it kept;
+   board's distance from the camera; at each end, the outermost points off the line
+   (mixed returns at the board's edges, within ``trim_m``) dropped, those on it kept;
 4. :func:`acq.calib.extrinsic.calibrate` on all poses.
 
 Frames of another size than the camera model's are skipped, and a WARNING says how many
@@ -364,17 +364,22 @@ def board_segment(
 
 
 def _off_line_ends(P: np.ndarray, c: np.ndarray, u: np.ndarray, end_m: float) -> np.ndarray:
-    """Which of the segment's 2-D points (m; line centre ``c``, direction ``u``) to keep:
-    all but those within ``end_m`` of either end that lie off the line by more than 3
-    robust standard deviations (MAD) of the others' distances: the mixed returns of a
-    beam that grazes the board's edge, its range between the board's and the
-    background's. The ends on the line are kept: they give the fit its longest lever."""
+    """Which of the segment's 2-D points (m; line centre ``c``, direction ``u``, in scan
+    order) to keep: all but, at each end, the run of outermost points off the line by
+    more than 3 robust standard deviations (MAD) of the distances, within ``end_m`` of
+    the end: the mixed returns of beams that graze the board's edge, their range between
+    the board's and the background's. Ends on the line are kept: they give the fit its
+    longest lever; a point off the line inside the board is noise, not a mixed return."""
     along = (P - c) @ u
     off = (P - c) @ np.array([-u[1], u[0]])
     dev = np.abs(off - np.median(off))
-    sigma = 1.4826 * float(np.median(dev))
-    near_end = (along < along.min() + end_m) | (along > along.max() - end_m)
-    keep: np.ndarray = ~(near_end & (dev > 3.0 * sigma))
+    bad = dev > 3.0 * 1.4826 * float(np.median(dev))
+    keep = np.ones(len(P), dtype=bool)
+    for order, edge in ((range(len(P)), along[0]), (range(len(P) - 1, -1, -1), along[-1])):
+        for i in order:
+            if not bad[i] or abs(along[i] - edge) > end_m:
+                break
+            keep[i] = False
     return keep
 
 

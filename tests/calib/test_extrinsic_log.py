@@ -281,3 +281,8 @@ def test_board_segment_drops_mixed_returns_at_the_ends_and_keeps_the_rest() -> N
     y = np.sort(got[:, 1])
     expected = np.sort(ranges[on[2:-2]] * np.sin(a0 + inc * on[2:-2]))
     np.testing.assert_allclose(y, expected, atol=1e-9)
+    # a point off the line with points on it beyond: noise on the board, kept
+    inner = mixed.copy()
+    inner[on[4]] += 0.03
+    got = board_segment(inner, a0, inc, plane, spec)
+    assert got is not None and len(got) == on.size - 4

@@ -14,6 +14,7 @@ from acq.calib import extrinsic as ex
 from acq.calib.board_pose import BoardPose, board_pose_from_corners
 from acq.calib.extrinsic_linear import linear_solution
 from acq.calib.plots import residual_plot
+from acq.cli.calibrate_extrinsic import _extrinsic_lines
 from acq.geometry.rotations import rotation_angle, rotation_from_euler, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
 from acq.sim.board_poses import Checkerboard, simulate
@@ -142,6 +143,10 @@ def test_the_reported_std_covers_errors_common_to_a_board() -> None:
     d = result.to_dict()
     assert d["std_pose_spread"] == pytest.approx(list(result.std_spread))
     assert d["std_model"] == pytest.approx(list(result.std_model))
+    # acq calibrate extrinsic says so beside the std it prints
+    (line,) = [s for s in _extrinsic_lines(result, [], 0, "m") if s.startswith("  std")]
+    ratio = float(np.max(result.std_spread / result.std_model))
+    assert f"the poses' spread, up to {ratio:.1f}x the fit's model" in line
 
 
 def test_few_poses_keep_the_model_std() -> None:
@@ -150,6 +155,7 @@ def test_few_poses_keep_the_model_std() -> None:
     assert result.std_spread is not None and np.isnan(result.std_spread).all()
     np.testing.assert_array_equal(result.std, result.std_model)
     assert result.to_dict()["std_pose_spread"] == [None] * 6
+    assert not any("spread" in s for s in _extrinsic_lines(result, [], 0, "m"))
 
 
 def test_an_outlier_pose_is_detected_and_dropped(tmp_path: Path) -> None:

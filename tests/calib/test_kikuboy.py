@@ -6,6 +6,7 @@ repository: the test runs when ``ACQ_KIKUBOY`` names a copy of it, else it is sk
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -82,3 +83,18 @@ def test_the_real_set_lands_within_its_uncertainty_of_the_published(tmp_path: Pa
     assert f["acq"] == {k: got[k] for k in ("rot_deg", "t_mm", "t_diff_mm")}
     for name in ("all_given_points", "exact_planes_poses_alike", "no_robust_loss"):
         assert f[name]["rot_deg"] < 0.2 and f[name]["t_mm"] < 3.0, name
+
+
+def test_without_the_set_the_bench_says_why(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    monkeypatch.delenv("ACQ_KIKUBOY", raising=False)
+    monkeypatch.setattr("sys.argv", ["kikuboy.py"])
+    bench.main()  # as make bench runs it: one line, status 0
+    assert json.loads(capsys.readouterr().out)["skipped"].startswith("ACQ_KIKUBOY not set")
+    monkeypatch.setattr("sys.argv", ["kikuboy.py", str(tmp_path)])
+    with pytest.raises(SystemExit) as e:
+        bench.main()
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and f"SOURCE {tmp_path}: not a copy" in err

@@ -366,14 +366,15 @@ def board_segment(
 def _off_line_ends(P: np.ndarray, c: np.ndarray, u: np.ndarray, end_m: float) -> np.ndarray:
     """Which of the segment's 2-D points (m; line centre ``c``, direction ``u``, in scan
     order) to keep: all but, at each end, the run of outermost points off the line by
-    more than 3 robust standard deviations (MAD) of the distances, within ``end_m`` of
-    the end: the mixed returns of beams that graze the board's edge, their range between
-    the board's and the background's. Ends on the line are kept: they give the fit its
-    longest lever; a point off the line inside the board is noise, not a mixed return."""
+    more than 3 robust standard deviations (MAD, at least 1 mm) of the distances, within
+    ``end_m`` of the end: the mixed returns of beams that graze the board's edge, their
+    range between the board's and the background's. Ends on the line are kept: they give
+    the fit its longest lever; a point off the line inside the board is noise."""
     along = (P - c) @ u
     off = (P - c) @ np.array([-u[1], u[0]])
     dev = np.abs(off - np.median(off))
-    bad = dev > 3.0 * 1.4826 * float(np.median(dev))
+    # sigma at least 1 mm: no scanner is better, and exact (simulated) ranges have none
+    bad = dev > 3.0 * max(1.4826 * float(np.median(dev)), 1e-3)
     keep = np.ones(len(P), dtype=bool)
     for order, edge in ((range(len(P)), along[0]), (range(len(P) - 1, -1, -1), along[-1])):
         for i in order:

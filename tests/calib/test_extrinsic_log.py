@@ -252,16 +252,18 @@ def test_a_wrong_board_size_is_answered_with_the_boards(rec: tuple[BoardLog, Pat
     assert board_size_hint(dl, model, intervals, parse_board("7x9x0.1")) == ""
 
 
-def _board_scan(rng: np.random.Generator) -> tuple[np.ndarray, float, float, np.ndarray]:
+def _board_scan(
+    rng: np.random.Generator, noise_m: float = 0.002
+) -> tuple[np.ndarray, float, float, np.ndarray]:
     """A scan (0.25 degree steps) of a wall 3 m away with a flat board across it at
-    x = 1 m, |y| <= 0.3 m (2 mm range noise): ranges, angle_min, increment, and the
-    board's beam indices."""
+    x = 1 m, |y| <= 0.3 m (``noise_m`` range noise): ranges, angle_min, increment, and
+    the board's beam indices."""
     inc = math.radians(0.25)
     a0 = math.radians(-135.0)
     a = a0 + inc * np.arange(1081)
     ranges = np.full(a.size, 3.0)
     on = np.flatnonzero((np.cos(a) > 0) & (np.abs(np.tan(a)) <= 0.3))
-    ranges[on] = 1.0 / np.cos(a[on]) + rng.normal(0.0, 0.002, on.size)
+    ranges[on] = 1.0 / np.cos(a[on]) + rng.normal(0.0, noise_m, on.size)
     return ranges, a0, inc, on
 
 
@@ -281,6 +283,10 @@ def test_board_segment_drops_mixed_returns_at_the_ends_and_keeps_the_rest() -> N
     y = np.sort(got[:, 1])
     expected = np.sort(ranges[on[2:-2]] * np.sin(a0 + inc * on[2:-2]))
     np.testing.assert_allclose(y, expected, atol=1e-9)
+    # exact ranges: rounding errors are not off the line
+    exact, _, _, _ = _board_scan(np.random.default_rng(4), 0.0)
+    got = board_segment(exact, a0, inc, plane, spec)
+    assert got is not None and len(got) == on.size
     # a point off the line with points on it beyond: noise on the board, kept
     inner = mixed.copy()
     inner[on[4]] += 0.03

@@ -19,7 +19,8 @@ From the log (:func:`acq.log.drive_log.read_log`):
    the straight segments of a board's length; with a coarse ``camera_to_laser`` (not the
    identity) the one nearest the camera's plane, else the one in front of its
    neighbours (the board stands before the background) whose range is nearest the
-   board's distance from the camera; trimmed by ``trim_m`` at each end;
+   board's distance from the camera; at each end, the outermost points off the line
+   (mixed returns at the board's edges, within ``trim_m``) dropped, those on it kept;
 4. :func:`acq.calib.extrinsic.calibrate` on all poses.
 
 Frames of another size than the camera model's are skipped, and a WARNING says how many
@@ -358,9 +359,29 @@ def board_segment(
         best = min(fg, key=lambda k: abs(float(np.median(r[cands[k][0]])) - abs(d)))
     idx, c, u = cands[best]
     Q = P[idx]
-    along = (Q[:, :2] - c) @ u
-    keep = (along > along.min() + trim_m) & (along < along.max() - trim_m)
+    keep = _off_line_ends(Q[:, :2], c, u, trim_m)
     return Q[keep] if keep.sum() >= 2 else None
+
+
+def _off_line_ends(P: np.ndarray, c: np.ndarray, u: np.ndarray, end_m: float) -> np.ndarray:
+    """Which of the segment's 2-D points (m; line centre ``c``, direction ``u``, in scan
+    order) to keep: all but, at each end, the run of outermost points off the line by
+    more than 3 robust standard deviations (MAD, at least 1 mm) of the distances, within
+    ``end_m`` of the end: the mixed returns of beams that graze the board's edge, their
+    range between the board's and the background's. Ends on the line are kept: they give
+    the fit its longest lever; a point off the line inside the board is noise."""
+    along = (P - c) @ u
+    off = (P - c) @ np.array([-u[1], u[0]])
+    dev = np.abs(off - np.median(off))
+    # sigma at least 1 mm: no scanner is better, and exact (simulated) ranges have none
+    bad = dev > 3.0 * max(1.4826 * float(np.median(dev)), 1e-3)
+    keep = np.ones(len(P), dtype=bool)
+    for order, edge in ((range(len(P)), along[0]), (range(len(P) - 1, -1, -1), along[-1])):
+        for i in order:
+            if not bad[i] or abs(along[i] - edge) > end_m:
+                break
+            keep[i] = False
+    return keep
 
 
 # --- per pose ---------------------------------------------------------------------------

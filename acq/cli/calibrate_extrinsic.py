@@ -106,7 +106,10 @@ def _extrinsic_lines(
         "  t = " + np.array2string(T.translation, precision=4) + " m",
         "  rpy = " + ", ".join(f"{x:.3f}" for x in d["rpy_deg"]) + " deg",
         "  std rotation " + ", ".join(f"{x:.3f}" for x in result.std_rot_deg) + " deg,"
-        " translation " + ", ".join(f"{x:.1f}" for x in result.std_t_mm) + " mm",
+        " translation "
+        + ", ".join(f"{x:.1f}" for x in result.std_t_mm)
+        + " mm"
+        + _spread_note(result),
         f"  RMS {result.rms_m * 1e3:.2f} mm over {result.n_points} points,"
         f" {len(result.residuals_per_pose) - len(result.outliers)} poses kept",
         "poses:",
@@ -126,6 +129,21 @@ def _extrinsic_lines(
         )
         k += 1
     return lines
+
+
+def _spread_note(result: ExtrinsicResult) -> str:
+    """When the poses' spread widened the std: by how much, and what it means."""
+    import numpy as np
+
+    model, spread = result.std_model, result.std_spread
+    if model is None or spread is None or not np.isfinite(spread).all():
+        return ""
+    ratio = float(np.max(spread / np.maximum(model, 1e-300)))
+    if ratio <= 1.0:
+        return ""
+    return (
+        f" (the poses' spread, up to {ratio:.1f}x the fit's model: errors a board's points share)"
+    )
 
 
 def _plots(plot: Path | None, output: Path, names: list[str]) -> dict[str, Path]:

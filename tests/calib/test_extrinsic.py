@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -13,6 +14,7 @@ from acq.calib import extrinsic as ex
 from acq.calib.board_pose import BoardPose, board_pose_from_corners
 from acq.calib.extrinsic_linear import linear_solution
 from acq.calib.plots import residual_plot
+from acq.cli.calibrate_extrinsic import _extrinsic_lines
 from acq.geometry.rotations import rotation_angle, rotation_from_euler, rotvec_from_matrix
 from acq.geometry.transforms import Rigid
 from acq.sim.board_poses import Checkerboard, simulate
@@ -100,9 +102,60 @@ def test_the_plain_covariance_underestimates_when_planes_have_errors() -> None:
     full = ex.calibrate(data.poses)
     plain = ex.calibrate(data.poses, plane_errors=False)
     assert not plain.plane_errors and full.plane_errors
-    assert np.all(plain.std < 0.6 * full.std)
+    assert plain.std_model is not None and plain.std_spread is not None
+    assert np.all(plain.std_model < 0.6 * full.std)
+    # the poses' spread sees the planes' errors the plain model leaves out
+    assert np.all(plain.std_spread > 1.5 * plain.std_model)
+    np.testing.assert_allclose(plain.std, np.maximum(plain.std_model, plain.std_spread))
     assert full.laser_noise_m is not None
     assert 0.007 < float(np.median(full.laser_noise_m)) < 0.013  # simulated: 10 mm
+
+
+def _bowed(poses: list[BoardPose], rng: np.random.Generator, size_m: float) -> list[BoardPose]:
+    """The poses with a range error common to each board's points (an offset and a
+    slope along the board, ``size_m`` each): a real scanner's errors along one board
+    are not independent."""
+    out = []
+    for p in poses:
+        r = np.linalg.norm(p.points, axis=1, keepdims=True)
+        s = np.linspace(-1.0, 1.0, len(r))[:, None]
+        err = rng.normal(0.0, size_m) + rng.normal(0.0, size_m) * s
+        out.append(replace(p, points=p.points * (1.0 + err / r)))
+    return out
+
+
+def test_the_reported_std_covers_errors_common_to_a_board() -> None:
+    # each board's laser points share an error: the fit's model (independent points)
+    # underestimates, the poses' spread does not
+    errors, reported, model = [], [], []
+    for seed in range(16):
+        data = simulate(20, seed=200 + seed, true_planes=True, range_noise=0.002)
+        poses = _bowed(data.poses, np.random.default_rng(seed), 0.006)
+        result = ex.calibrate(poses)
+        assert result.std_model is not None and result.std_spread is not None
+        errors.append(_error_vector(result.camera_to_laser, data.truth))
+        reported.append(result.std)
+        model.append(result.std_model)
+    rms_error = np.sqrt(np.mean(np.square(errors), axis=0))
+    assert np.all(np.mean(model, axis=0) / rms_error < 0.5)
+    ratio = np.mean(reported, axis=0) / rms_error
+    assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
+    d = result.to_dict()
+    assert d["std_pose_spread"] == pytest.approx(list(result.std_spread))
+    assert d["std_model"] == pytest.approx(list(result.std_model))
+    # acq calibrate extrinsic says so beside the std it prints
+    (line,) = [s for s in _extrinsic_lines(result, [], 0, "m") if s.startswith("  std")]
+    ratio = float(np.max(result.std_spread / result.std_model))
+    assert f"the poses' spread, up to {ratio:.1f}x the fit's model" in line
+
+
+def test_few_poses_keep_the_model_std() -> None:
+    data = simulate(6, seed=11)
+    result = ex.calibrate(data.poses)
+    assert result.std_spread is not None and np.isnan(result.std_spread).all()
+    np.testing.assert_array_equal(result.std, result.std_model)
+    assert result.to_dict()["std_pose_spread"] == [None] * 6
+    assert not any("spread" in s for s in _extrinsic_lines(result, [], 0, "m"))
 
 
 def test_an_outlier_pose_is_detected_and_dropped(tmp_path: Path) -> None:

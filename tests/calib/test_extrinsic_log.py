@@ -12,7 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq.calib.extrinsic_log import average_corners, parse_poses, poses_from_log, still_intervals
+from acq.calib.checkerboard import BoardSpec
+from acq.calib.extrinsic_log import (
+    average_corners,
+    board_segment,
+    parse_poses,
+    poses_from_log,
+    still_intervals,
+)
 from acq.calib.fisheye_calib import parse_board
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration, CameraCalib
@@ -243,3 +250,45 @@ def test_a_wrong_board_size_is_answered_with_the_boards(rec: tuple[BoardLog, Pat
         "try --board 7x9x0.1"
     )
     assert board_size_hint(dl, model, intervals, parse_board("7x9x0.1")) == ""
+
+
+def _board_scan(
+    rng: np.random.Generator, noise_m: float = 0.002
+) -> tuple[np.ndarray, float, float, np.ndarray]:
+    """A scan (0.25 degree steps) of a wall 3 m away with a flat board across it at
+    x = 1 m, |y| <= 0.3 m (``noise_m`` range noise): ranges, angle_min, increment, and
+    the board's beam indices."""
+    inc = math.radians(0.25)
+    a0 = math.radians(-135.0)
+    a = a0 + inc * np.arange(1081)
+    ranges = np.full(a.size, 3.0)
+    on = np.flatnonzero((np.cos(a) > 0) & (np.abs(np.tan(a)) <= 0.3))
+    ranges[on] = 1.0 / np.cos(a[on]) + rng.normal(0.0, noise_m, on.size)
+    return ranges, a0, inc, on
+
+
+def test_board_segment_drops_mixed_returns_at_the_ends_and_keeps_the_rest() -> None:
+    spec = BoardSpec(5, 4, 0.1)
+    plane = (np.array([0.0, 0.0, 1.0]), 1.0)  # the camera's: only its distance is used here
+    ranges, a0, inc, on = _board_scan(np.random.default_rng(4))
+    clean = board_segment(ranges, a0, inc, plane, spec)
+    assert clean is not None and len(clean) == on.size  # the ends on the line are kept
+    # the beams grazing the board's edges: ranges between the board's and the wall's,
+    # within the 5 cm that still joins them to the board's segment
+    mixed = ranges.copy()
+    ends = [on[0], on[1], on[-2], on[-1]]
+    mixed[ends] += [0.04, 0.025, 0.025, 0.04]
+    got = board_segment(mixed, a0, inc, plane, spec)
+    assert got is not None and len(got) == on.size - 4
+    y = np.sort(got[:, 1])
+    expected = np.sort(ranges[on[2:-2]] * np.sin(a0 + inc * on[2:-2]))
+    np.testing.assert_allclose(y, expected, atol=1e-9)
+    # exact ranges: rounding errors are not off the line
+    exact, _, _, _ = _board_scan(np.random.default_rng(4), 0.0)
+    got = board_segment(exact, a0, inc, plane, spec)
+    assert got is not None and len(got) == on.size
+    # a point off the line with points on it beyond: noise on the board, kept
+    inner = mixed.copy()
+    inner[on[4]] += 0.03
+    got = board_segment(inner, a0, inc, plane, spec)
+    assert got is not None and len(got) == on.size - 4

@@ -159,7 +159,10 @@ class ColaScanner(Scanner):
                 self._streaming = False
 
     def _next(self, deadline: float) -> Telegram:
-        """The next telegram before ``deadline`` (monotonic s)."""
+        """The next telegram before ``deadline`` (monotonic s). Past it, what has already
+        arrived is still read once before ScanTimeout: a host that held this thread up (a
+        loaded machine) is not a device gone quiet."""
+        late = False
         while True:
             try:
                 tg = self._framer.pop()
@@ -171,13 +174,14 @@ class ColaScanner(Scanner):
             sock = self._sock
             if sock is None:
                 raise ConnectionLost(f"{self.url}: not connected")
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            if late:
                 raise ScanTimeout(f"{self.url}: nothing complete within {self.timeout:g} s")
-            sock.settimeout(remaining)
+            remaining = deadline - time.monotonic()
+            late = remaining <= 0
+            sock.settimeout(max(remaining, 0.0))  # 0: what has arrived, without waiting
             try:
                 data = sock.recv(65536)
-            except TimeoutError:
+            except (TimeoutError, BlockingIOError):
                 raise ScanTimeout(
                     f"{self.url}: nothing complete within {self.timeout:g} s"
                 ) from None

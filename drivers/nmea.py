@@ -590,13 +590,15 @@ class NmeaReceiver:
         """The next sentence as received; raises ReadTimeout, ConnectionLost, NmeaError
         (an overlong or sentence-less line)."""
         deadline = time.monotonic() + self.timeout
+        late = False  # past the deadline, what has already arrived is still read once
         while True:
             sentence = self.framer.next()
             if sentence is not None:
                 self.sentences += 1
                 return sentence
-            if time.monotonic() >= deadline:
+            if late:
                 raise ReadTimeout(f"{self.url}: no NMEA sentence within {self.timeout} s")
+            late = time.monotonic() >= deadline
             try:
                 chunk = self._read_chunk(deadline)
             except (serial.SerialException, OSError) as e:

@@ -327,7 +327,10 @@ class ScipScanner(Scanner):
             raise ConnectionLost(f"{self.url}: write failed: {e}") from e
 
     def _read_block(self, deadline: float) -> tuple[bytes, int]:
-        """Bytes up to and including the next LF LF, and the ns its last byte arrived."""
+        """Bytes up to and including the next LF LF, and the ns its last byte arrived.
+        Past ``deadline``, what has already arrived is still read once before ScanTimeout:
+        a host that held this thread up (a loaded machine) is not a device gone quiet."""
+        late = False
         while True:
             end = self._buf.find(b"\n\n")
             if end >= 0:
@@ -337,8 +340,9 @@ class ScipScanner(Scanner):
                 recv_ns = next((t for off, t in self._marks if off >= n), time.monotonic_ns())
                 self._marks = [(off - n, t) for off, t in self._marks if off > n]
                 return block, recv_ns
-            if time.monotonic() >= deadline:
+            if late:
                 raise ScanTimeout(f"{self.url}: no complete telegram within {self.timeout} s")
+            late = time.monotonic() >= deadline
             if self._ser is None:
                 raise ConnectionLost("not connected")
             try:

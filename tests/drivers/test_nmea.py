@@ -570,3 +570,21 @@ def test_fuzz_any_fixed_order_gives_each_epoch_once_and_whole(
     assert len(fixes) == epochs
     for k, fix in enumerate(fixes):
         _check_epoch_fix(fix, k, set(sent))
+
+
+def test_sentences_that_arrived_are_read_when_the_read_comes_late(
+    receiver: tuple[NmeaDevice, NmeaPtyServer],
+) -> None:
+    """A read that runs after its deadline (a host busy elsewhere held the thread: here,
+    timeout 0) still takes the sentences already in the port."""
+    _, server = receiver
+    with NmeaReceiver(server.url, timeout=2.0) as rx:
+        rx.connect()
+        rx.read_sentence()
+        time.sleep(0.5)  # a fix a 0.1 s, several sentences each, pile up in the port
+        rx.timeout = 0.0
+        late: list[Sentence] = []
+        with pytest.raises(ReadTimeout):
+            for _ in range(200):
+                late.append(rx.read_sentence())
+    assert len(late) >= 5

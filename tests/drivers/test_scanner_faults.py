@@ -16,7 +16,7 @@ import pytest
 
 from acq import cli
 from acq.drivers.reconnect import LinkEvent, Reconnecting
-from acq.drivers.scanner import scanner_for
+from acq.drivers.scanner import ScanTimeout, scanner_for
 from acq.sim.devices import make_scanner, serve_scanner
 
 # drives simulated devices in real time: run alone (`make test`)
@@ -56,6 +56,34 @@ def test_reboot_is_reported_and_scans_resume_within_2s(name: str, pty: bool) -> 
     finally:
         stop.set()
         thread.join(5)
+        server.close()
+
+
+@pytest.mark.parametrize("name", ["utm-30lx", "lms111"])
+def test_scans_that_arrived_are_read_when_the_read_comes_late(name: str) -> None:
+    """A read that runs after its deadline (a host busy elsewhere held the thread: here,
+    timeout 0) still takes the scans already in the socket; a timeout only once they are
+    taken and nothing more comes (the device stalled)."""
+    m, device = make_scanner(name)
+    server = serve_scanner(device, None)
+    driver = "hokuyo" if m.vendor == "hokuyo" else "sick"
+    scanner = scanner_for(driver, server.url, timeout=2.0)
+    try:
+        scanner.connect()
+        scanner.start()
+        scanner.read_scan()
+        time.sleep(0.5)  # scans pile up in the socket: 20 at 40 Hz, 25 at 50 Hz
+        server.stall(3.0)
+        time.sleep(0.1)  # the last telegram under way arrives
+        scanner.timeout = 0.0
+        late = []
+        with pytest.raises(ScanTimeout):
+            for _ in range(100):
+                late.append(scanner.read_scan())
+        assert len(late) >= 5
+        assert [s.sequence for s in late] == list(range(late[0].sequence, late[-1].sequence + 1))
+    finally:
+        scanner.close()
         server.close()
 
 

@@ -55,6 +55,10 @@ class Listener(ABC):
     def on_record(self, record: LogRecord) -> None:
         """One record of the log, in the order the writer wrote them (less the dropped)."""
 
+    def dropped(self, record: LogRecord) -> None:  # noqa: B027 (an optional hook)
+        """``record`` never reaches :meth:`on_record`: the listener's queue was full
+        (called on the writer's thread: count, nothing more)."""
+
     def stop(self) -> None:  # noqa: B027 (an optional hook: most listeners hold nothing)
         """The log is closed: release what the listener holds (on its feed's thread)."""
 
@@ -88,6 +92,7 @@ class Feed:
             self._queue.put_nowait(record)
         except queue.Full:
             self.dropped += 1
+            self.listener.dropped(record)
             return False
         return True
 

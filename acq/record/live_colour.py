@@ -12,7 +12,7 @@ the cameras merged. The result goes to ``emit`` as ``/<scanner>/colored``
 uint8, alpha 0 where no camera saw the point; stamped with the scan's stamp) and its
 coloured points to the :class:`acq.record.swath.Swath`, whose cloud goes to ``emit`` as
 ``/live/swath`` at 2 Hz. When colouring falls behind, the oldest waiting scans are
-skipped (counted), never a logged record.
+skipped (counted, with those its full queue lost), never a logged record.
 
 Times: the records' stamps are on the log's clock (UTC for a recorder's log); they are
 taken back to host ns as ``acq colorize`` reads them, and the messages made are stamped
@@ -172,6 +172,7 @@ class LiveColourer(Listener):
         self._tf_ns = -(2**62)  # the stamp of the last /tf sent
         self.coloured = 0  # scans coloured and emitted
         self.skipped = 0  # scans not coloured: colouring fell behind
+        self.lost = 0  # scans that never reached it: its queue was full (writer's thread)
         self.failed = 0  # scans whose colouring raised
         # per scan of the last SHARE_SCANS: (points, points coloured by each camera)
         self._shares: deque[tuple[int, np.ndarray]] = deque(maxlen=SHARE_SCANS)
@@ -202,6 +203,10 @@ class LiveColourer(Listener):
             return
         self._now_ns = max(self._now_ns, record.log_time_ns - offset)
         self._colour_ready(offset)
+
+    def dropped(self, record: LogRecord) -> None:
+        if record.topic == f"/{self.scanner}/scan":
+            self.lost += 1
 
     @staticmethod
     def _decode(record: LogRecord, offset: int) -> Any:
@@ -321,9 +326,11 @@ class LiveColourer(Listener):
 
     def status(self) -> schemas.ColouringStatus:
         """The figures ``/acq/status`` carries each second (read from the writer's thread:
-        counters and a copy of the last scans' shares)."""
+        counters and a copy of the last scans' shares); skipped counts the scans its full
+        queue lost too."""
         share, by_camera = self.shares()
-        return schemas.ColouringStatus(self.coloured, self.skipped, share, by_camera)
+        skipped = self.skipped + self.lost
+        return schemas.ColouringStatus(self.coloured, skipped, share, by_camera)
 
     def stop(self) -> None:
         """The log is closed: the scans still waiting are coloured with the frames there

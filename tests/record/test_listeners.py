@@ -28,6 +28,7 @@ class Collect(Listener):
 
     def __init__(self, gate: threading.Event | None = None) -> None:
         self.got: list[LogRecord] = []
+        self.lost: list[LogRecord] = []
         self.gate = gate
         self.stopped = False
 
@@ -35,6 +36,9 @@ class Collect(Listener):
         if self.gate is not None:
             self.gate.wait()
         self.got.append(record)
+
+    def dropped(self, record: LogRecord) -> None:
+        self.lost.append(record)
 
     def stop(self) -> None:
         self.stopped = True
@@ -81,7 +85,8 @@ def test_a_stalled_listener_drops_its_own_records_and_never_blocks(
     took = time.monotonic() - started
     # the stalled one holds one record in hand and 8 queued; the rest were dropped
     assert stalled_feed.dropped == 200 - 9
-    assert other_feed.dropped == 0 and other.got == records
+    assert stalled.lost == records[9:]  # each told to the listener
+    assert other_feed.dropped == 0 and other.got == records and other.lost == []
     assert took < 10.0
     # publishing as fast as it can: no wait, what a queue cannot take is counted
     started = time.perf_counter()

@@ -4,6 +4,8 @@ log; its swath; its behaviour when it falls behind or takes garbage."""
 
 from __future__ import annotations
 
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +22,7 @@ from acq.log.drive_log import read_log
 from acq.log.timebase import TimeBase
 from acq.log.vehicle_log import ODOMETRY_TOPIC
 from acq.motion import RollingTrajectory
-from acq.record.listeners import LogRecord
+from acq.record.listeners import Listeners, LogRecord
 from acq.record.live_colour import SWATH_TOPIC, LiveColourer
 from acq.record.swath import Swath
 from acq.sim.drive_log import DriveTruth
@@ -221,3 +223,32 @@ def test_a_colourer_with_records_queued_behind_it_skips_scans_and_takes_the_fram
     assert colourer.coloured > 20
     scans = sum(r.topic == "/laser/scan" for r in records)
     assert colourer.coloured + colourer.skipped + len(colourer._waiting) == scans
+
+
+def test_scans_its_full_queue_lost_are_counted_as_skipped(
+    short_drive: tuple[DriveTruth, Path],
+) -> None:
+    """The colourer's feed full (it is stuck colouring on a loaded machine): the scans the
+    feed could not queue are in its status's skipped, the other records' losses are not."""
+    truth, calib_path = short_drive
+    records, offset = _records(truth.files[0])
+    colourer = LiveColourer(
+        calibfile.load(calib_path), "laser", emit=lambda _: None,
+        time_increment_s=lambda: None, utc_offset_ns=lambda: offset,
+    )  # fmt: skip
+    gate = threading.Event()
+    stuck = colourer.on_record
+    colourer.on_record = lambda r: (gate.wait(), stuck(r))[1]  # type: ignore[method-assign]
+    hub = Listeners(size=4)
+    feed = hub.add(colourer)
+    hub.publish(records[0])
+    while feed.qsize():  # in the colourer's hand, stuck
+        time.sleep(0.001)
+    for record in records[1:]:
+        hub.publish(record)
+    lost = sum(r.topic == "/laser/scan" for r in records[5:])  # 4 queued, the rest lost
+    assert feed.dropped == len(records) - 5 and lost > 0
+    assert colourer.lost == lost
+    assert colourer.status().scans_skipped == colourer.skipped + lost
+    gate.set()
+    hub.close()

@@ -17,6 +17,7 @@ Times are the host's ``time.monotonic()`` seconds.
 from __future__ import annotations
 
 import contextlib
+import math
 import select
 import socket
 import threading
@@ -73,6 +74,7 @@ class MjpegServer:
         self._requests: dict[socket.socket, tuple[bytes, float]] = {}
         self._stall_until = 0.0
         self._flood_until = 0.0
+        self._flood_s: float | None = None  # a flood asked for, not yet begun (s)
         self._flood_part = b""
         self._drop = False
         self._corrupt = 0
@@ -108,7 +110,10 @@ class MjpegServer:
         part = head.encode("ascii") + b"\r\n" + body + b"\r\n"
         with self._lock:
             self._flood_part = part * max(1, 65536 // len(part))  # one send's worth
-            self._flood_until = time.monotonic() + seconds
+            # timed from the server's first flood send: a server thread held up (rendering
+            # on a loaded machine) would otherwise miss a short flood whole
+            self._flood_until = math.inf
+            self._flood_s = seconds
         self._wake()
 
     def flooded_bytes(self) -> int:
@@ -202,6 +207,8 @@ class MjpegServer:
                 return
             with self._lock:
                 clients = list(self._clients)
+                if self._flood_s is not None:
+                    self._flood_until, self._flood_s = now + self._flood_s, None
                 flood = self._flood_part if now < self._flood_until else b""
             watch = [self._listener, self._wake_r, *self._requests, *clients]
             ready, _, _ = select.select(watch, [], [], 0 if flood and clients else left)

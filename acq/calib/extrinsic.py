@@ -347,10 +347,15 @@ class _Problem:
 
 
 def _with_pose_spread(
-    cov: np.ndarray, B: np.ndarray, pid: np.ndarray, wr: np.ndarray, J6: np.ndarray
+    cov: np.ndarray,
+    model: np.ndarray,
+    B: np.ndarray,
+    pid: np.ndarray,
+    wr: np.ndarray,
+    J6: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The covariance of the 6 parameters widened to the spread of the poses, and that
-    spread's standard deviations (rad, m).
+    """The covariance ``cov`` of the 6 parameters (``model``: its standard deviations)
+    widened to the spread of the poses, and that spread's standard deviations (rad, m).
 
     The model's covariance assumes the laser's errors independent from point to point;
     a real scanner's are not (a pose's residuals bow by millimetres along the board:
@@ -368,7 +373,6 @@ def _with_pose_spread(
     scores = np.add.reduceat(wr[:, None] * J6, starts)  # (K, 6)
     sandwich = B @ (scores.T @ scores) @ B.T * (K / (K - 6))
     spread = np.sqrt(np.clip(np.diag(sandwich), 0.0, None))
-    model = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     scale = np.where(model > 0, np.maximum(spread / np.where(model > 0, model, 1.0), 1.0), 1.0)
     return cov * np.outer(scale, scale), spread
 
@@ -464,7 +468,7 @@ def refine(
         cov = sigma2 * B
     cov = 0.5 * (cov + cov.T)
     std_model = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    cov, spread = _with_pose_spread(cov, B, prob.pid, w * r, J[:, :6])
+    cov, spread = _with_pose_spread(cov, std_model, B, prob.pid, w * r, J[:, :6])
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     result = Rigid(R, t)
     raw = np.concatenate(point_residuals(poses, result))

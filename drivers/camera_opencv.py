@@ -20,8 +20,9 @@ arrived (``time_source="receipt"``). Either way ``latency_s`` (the nominal delay
 the middle of the exposure to that instant) is subtracted, so ``stamp_ns`` is the middle
 of the exposure. Sequence numbers are the driver's own: a gap of more than 1.75 frame
 periods since the previous frame advances them by the frames that may have been lost,
-which are counted in ``drops`` unless the next frames arrive bunched up (they were late,
-not lost: ``drops`` is then taken back).
+which are counted in ``drops``; first, for up to half a period, the frames held up
+behind it are waited for: those that arrive bunched up were late, not lost, and keep
+their numbers.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ import cv2
 import numpy as np
 
 from acq.drivers.camera import Camera, FrameFormat, FrameTimeout
-from acq.drivers.errors import ConnectionLost, DeviceError, ProtocolError
+from acq.drivers.errors import ConnectionLost, DeviceError, DriverError, ProtocolError
 from acq.drivers.mjpeg import (
     MAX_HEAD,
     MultipartReader,
@@ -100,7 +101,7 @@ class OpenCVCamera(Camera):
         self._credit = _JUNK_ALLOWANCE  # junk the connection may still send
         self._junk_parts = self._good_parts = 0  # on this connection
         self._closed_why = "not connected"
-        self._error: ProtocolError | None = None  # raised once the frames before it are read
+        self._error: DriverError | None = None  # raised once the frames before it are read
         self._cap: cv2.VideoCapture | None = None
         self._kernel_time = False
         self._passthrough = False
@@ -119,18 +120,24 @@ class OpenCVCamera(Camera):
         fps = self.format.fps if self.format is not None and self.format.fps > 0 else self.fps
         return int(1e9 / fps) if fps > 0 else 0
 
+    def _missing(self, recv_ns: int, count: int) -> int:
+        """Frames the time since the previous batch says were lost before ``count`` frames
+        completed at ``recv_ns``: a lost frame leaves a gap of two periods, give or take
+        the jitter; a frame merely late (the sender or this host busy) rarely by as much
+        as 3/4 period."""
+        period = self._period_ns()
+        if self._last_ns is None or period <= 0:
+            return 0
+        gap = (recv_ns - self._last_ns) / period
+        return max(0, round(gap) - count) if gap > 1.75 else 0
+
     def _advance(self, recv_ns: int, count: int = 1) -> int:
         """Sequence number of the first of ``count`` frames completed at ``recv_ns``;
         the frames a time gap says were lost are added to ``drops``."""
+        missing = self._missing(recv_ns, count)
         period = self._period_ns()
-        missing = 0
-        if self._last_ns is not None and period > 0:
-            gap = (recv_ns - self._last_ns) / period
-            # a lost frame leaves a gap of two periods, give or take the jitter; a frame
-            # merely late (the sender or this host busy) rarely by as much as 3/4 period
-            if gap > 1.75:
-                missing = max(0, round(gap) - count)
-            elif gap < 0.5 and self._suspect > 0:
+        if not missing and self._last_ns is not None and period > 0:
+            if (recv_ns - self._last_ns) / period < 0.5 and self._suspect > 0:
                 # frames arriving in a bunch after a long gap were late, not lost: a
                 # busy host or network delays them; a lost frame is never made up for
                 self._suspect -= 1
@@ -253,17 +260,18 @@ class OpenCVCamera(Camera):
         )
 
     def _recv(self, deadline: float) -> tuple[bytes, int]:
-        """Bytes from the socket by ``deadline`` (monotonic s) and their receipt host ns."""
+        """Bytes from the socket by ``deadline`` (monotonic s) and their receipt host ns;
+        past it, only bytes that have already arrived."""
         sock = self._sock
         if sock is None:
             raise ConnectionLost(f"{self.source}: {self._closed_why}")
         left = deadline - time.monotonic()
-        if left <= 0:
-            raise FrameTimeout(f"{self.source}: no frame within {self.timeout:g} s")
         try:
-            sock.settimeout(left)
+            # past the deadline, what has already arrived is still read (timeout 0): a
+            # host that held this thread up is not a camera gone quiet
+            sock.settimeout(max(left, 0.0))
             data = sock.recv(_RECV)
-        except (TimeoutError, ssl.SSLWantReadError):
+        except (TimeoutError, BlockingIOError, ssl.SSLWantReadError):
             raise FrameTimeout(f"{self.source}: no frame within {self.timeout:g} s") from None
         except OSError as e:
             raise ConnectionLost(f"{self.source}: {e}") from e
@@ -361,6 +369,25 @@ class OpenCVCamera(Camera):
             elif self._reader is not None and self._reader.finished:
                 raise ConnectionLost(f"{self.source}: the camera ended the stream")
 
+    def _settle(self, deadline: float) -> None:
+        """After a gap in time that says frames were lost, wait up to half a period past
+        the last arrival for more: frames a busy host or network held up arrive bunched
+        right behind, and join the batch as late, not lost. A real loss costs the frame
+        after it half a period of latency."""
+        half = self._period_ns() / 2e9
+        while self._sock is not None and self._error is None:
+            last_ns = self._parts[-1][3]
+            if not self._missing(last_ns, len(self._parts)):
+                return
+            try:
+                data, recv_ns = self._recv(min(deadline, last_ns * 1e-9 + half))
+            except FrameTimeout:
+                return
+            except DriverError as e:  # raised once the frames already here are read
+                self._error = e
+                return
+            self._feed(data, recv_ns)
+
     def _read_http(self, deadline: float) -> Frame:
         while True:
             if not self._parts:
@@ -370,6 +397,7 @@ class OpenCVCamera(Camera):
                 self._fill(deadline)
                 if not self._parts:
                     continue  # an error is pending
+                self._settle(deadline)
                 # sequence numbers for the whole batch: frames that arrive together
                 # explain the time since the previous batch
                 first = self._advance(self._parts[-1][3], len(self._parts))

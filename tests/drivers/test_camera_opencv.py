@@ -322,12 +322,15 @@ def _jpeg_part(boundary: bytes = b"b") -> bytes:
 class ScriptedCamera:
     """An MJPEG camera on 127.0.0.1 serving one connection at a time: to a request, the
     response head, ``first``, then ``loop`` again and again (every ``pace_s``; 0: back to
-    back) until the client hangs up. ``requests`` counts the requests served."""
+    back) until the client hangs up, or once at each of ``at_s`` (s after the head).
+    ``requests`` counts the requests served."""
 
     HEAD = b"HTTP/1.0 200 OK\r\nContent-Type: multipart/x-mixed-replace; boundary=b\r\n\r\n"
 
-    def __init__(self, first: bytes, loop: bytes, pace_s: float = 0.0) -> None:
-        self.first, self.loop, self.pace_s = first, loop, pace_s
+    def __init__(
+        self, first: bytes, loop: bytes, pace_s: float = 0.0, at_s: list[float] | None = None
+    ) -> None:
+        self.first, self.loop, self.pace_s, self.at_s = first, loop, pace_s, at_s
         self.requests = 0
         self._listener = socket.create_server(("127.0.0.1", 0))
         self._listener.settimeout(0.1)
@@ -357,6 +360,13 @@ class ScriptedCamera:
                         continue  # a reachability check
                     self.requests += 1
                     conn.sendall(self.HEAD + self.first)
+                    if self.at_s is not None:  # ``loop`` once at each time after the head
+                        t0 = time.monotonic()
+                        for at in self.at_s:
+                            time.sleep(max(0.0, t0 + at - time.monotonic()))
+                            conn.sendall(self.loop)
+                        self._stop.wait()
+                        continue
                     while not self._stop.is_set():
                         conn.sendall(self.loop)
                         if self.pace_s:
@@ -493,3 +503,46 @@ def test_a_late_frame_is_not_a_drop(arrivals_ms: list[int], drops: int) -> None:
     for t in arrivals_ms:
         cam._advance(t * 1_000_000)
     assert cam.drops == drops
+
+
+@pytest.mark.parametrize(
+    ("sent_ms", "sequence"),
+    [
+        ([0, 200, 400, 780, 830, 1000, 1200], [0, 1, 2, 3, 4, 5, 6]),  # late, the next behind
+        ([0, 200, 400, 800, 1000, 1200], [0, 1, 2, 4, 5, 6]),  # one never sent
+        ([0, 200, 1000, 1030, 1060, 1090, 1200], [0, 1, 2, 3, 4, 5, 6]),  # four late
+    ],
+)
+def test_frames_held_up_are_numbered_as_late_not_lost(
+    sent_ms: list[int], sequence: list[int]
+) -> None:
+    """Over a real socket at 5 Hz: a frame that comes after a gap of two periods is held
+    (at most half a period) for the next, so frames a busy host or network held up keep
+    their numbers and only a frame never sent leaves one out."""
+    with ScriptedCamera(b"", _jpeg_part(), at_s=[t / 1e3 for t in sent_ms]) as server:
+        cam = OpenCVCamera(server.url, fps=5.0, timeout=3.0)
+        cam.connect()
+        cam.start()
+        frames = [cam.read_frame() for _ in sent_ms]
+        cam.close()
+    assert [f.sequence - frames[0].sequence for f in frames] == sequence
+    assert cam.drops == sequence[-1] + 1 - len(sent_ms)
+
+
+def test_frames_that_arrived_are_read_when_the_read_comes_late() -> None:
+    """A read that runs after its deadline (a host busy elsewhere held the thread: here,
+    timeout 0) still takes the frames already in the socket; a timeout only once they
+    are taken and nothing more comes."""
+    with ScriptedCamera(b"", _jpeg_part(), at_s=[0.0, 0.04, 0.08, 0.12, 0.16]) as server:
+        cam = OpenCVCamera(server.url, fps=25.0, timeout=2.0)
+        cam.connect()
+        cam.start()
+        cam.read_frame()
+        time.sleep(0.5)  # the other four are in the socket
+        cam.timeout = 0.0
+        late = []
+        with pytest.raises(FrameTimeout):
+            for _ in range(10):
+                late.append(cam.read_frame())
+        cam.close()
+    assert len(late) == 4

@@ -202,14 +202,14 @@ class MjpegServer:
         while not self._stop.is_set():
             self._apply_drop()
             now = time.monotonic()
-            left = until - now
-            if left <= 0:
-                return
             with self._lock:
                 clients = list(self._clients)
                 if self._flood_s is not None:
                     self._flood_until, self._flood_s = now + self._flood_s, None
                 flood = self._flood_part if now < self._flood_until else b""
+            # behind (rendering slower than real time: a loaded host), one pass without
+            # waiting still serves requests and the flood, which would otherwise starve
+            left = max(0.0, until - now)
             watch = [self._listener, self._wake_r, *self._requests, *clients]
             ready, _, _ = select.select(watch, [], [], 0 if flood and clients else left)
             for sock in ready:
@@ -229,6 +229,8 @@ class MjpegServer:
                     sock.close()
             if flood:
                 self._send_flood(flood)
+            if left <= 0:
+                return
 
     def _read_client(self, sock: socket.socket) -> None:
         """A client sends nothing after its request: readable means it hung up (a camera

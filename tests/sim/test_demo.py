@@ -12,6 +12,7 @@ import io
 import math
 import os
 import re
+import resource
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -61,10 +62,11 @@ class Demo(NamedTuple):
     took_s: float  # wall time of run()
     utc0: float  # UTC s when it started
     printed: str  # what the command printed
+    cpu_s: float  # its CPU time, the cameras' processes included
 
 
 def _run_demo(folder: Path) -> dict[str, Any]:
-    wall0, utc0 = time.monotonic(), time.time()
+    wall0, utc0, cpu0 = time.monotonic(), time.time(), _cpu_s()
     cwd = os.getcwd()
     os.chdir(folder)  # a relative --out, as `make demo` gives
     printed = io.StringIO()
@@ -73,8 +75,16 @@ def _run_demo(folder: Path) -> dict[str, Any]:
             code = acq_main(["demo", "--out", "demo", "--seconds", repr(SECONDS)])
     finally:
         os.chdir(cwd)
-    return {"code": code, "took_s": time.monotonic() - wall0, "utc0": utc0,
-            "printed": printed.getvalue()}  # fmt: skip
+    return {"code": code, "took_s": time.monotonic() - wall0, "cpu_s": _cpu_s() - cpu0,
+            "utc0": utc0, "printed": printed.getvalue()}  # fmt: skip
+
+
+def _cpu_s() -> float:
+    """CPU s of this process and its children that have ended (the cameras' processes)."""
+    own, ended = (
+        resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+    )
+    return own.ru_utime + own.ru_stime + ended.ru_utime + ended.ru_stime
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +96,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> Demo:
 
 
 def test_exit_code_files_and_time(demo: Demo) -> None:
-    out, code, took, _, printed = demo
+    out, code, took, _, printed, cpu = demo
     assert code == 0
     assert f"acq view {out}" in printed  # where to look at it next
     for name in (
@@ -101,7 +111,10 @@ def test_exit_code_files_and_time(demo: Demo) -> None:
     ):
         assert (out / name).is_file(), name
     assert not (out / ".recording").exists()
-    assert took < 60.0  # the cameras render their frames first: 10-30 s on a busy machine
+    # the cameras render their frames first: 10-30 s idle; a loaded host stretches the
+    # wall time, not the demo's own work
+    print(f"demo: {took:.1f} s wall, {cpu:.1f} s CPU")
+    assert cpu < 40.0 and took < 180.0
 
 
 def test_clock_summary_shows_no_drift_it_cannot_know(demo: Demo) -> None:
@@ -195,7 +208,7 @@ def _seen_gains(xyz: np.ndarray) -> np.ndarray | None:
 
 
 def test_log_and_cloud_agree(demo: Demo) -> None:
-    out, code, _, utc0, _ = demo
+    out, code, _, utc0, _, _ = demo
     assert code == 0
     scans, valid, frame_utc = _read_log(out / "demo.mcap")
     assert scans == pytest.approx(SECONDS * 40, rel=0.1)
@@ -234,7 +247,7 @@ def test_every_camera_recorded_on_time(demo: Demo) -> None:
     """Both cameras at 25 Hz on their own cadence, no frame dropped by the recorder or
     sent late by the camera, each frame's stamp the true middle of its exposure (the
     demo's summary, checked against the simulator's truth log of each camera)."""
-    out, code, _, _, printed = demo
+    out, code, _, _, printed, _ = demo
     assert code == 0
     frame_utc = _read_log(out / "demo.mcap").frame_utc
     config = yaml.safe_load((out / "config.yaml").read_text())
@@ -302,7 +315,7 @@ def test_calibrate_time_offset_on_the_demo_agrees_with_its_truth(
     leaves out the laser's own and the late frames that re-timing snaps back); `acq
     calibrate time-offset` on its log finds it within its standard error's reach, and
     the calibration it writes no longer calls the offset simulator truth."""
-    out, code, _, _, printed = demo
+    out, code, _, _, printed, _ = demo
     assert code == 0
     truth = {}
     for name in CAMERAS:
@@ -336,7 +349,7 @@ def test_calibrate_time_offset_on_the_demo_agrees_with_its_truth(
 def test_colours_are_the_true_surface_colours(demo: Demo) -> None:
     from acq.sim.world import Street
 
-    out, code, _, _, _ = demo
+    out, code, _, _, _, _ = demo
     assert code == 0
     v = PlyData.read(str(out / "cloud.ply"))["vertex"].data
     c = v[v["scalar_coloured"].astype(bool)]
@@ -371,7 +384,7 @@ def test_colours_are_the_true_surface_colours(demo: Demo) -> None:
 
 
 def test_preview_is_a_picture_of_the_street(demo: Demo) -> None:
-    out, code, _, _, _ = demo
+    out, code, _, _, _, _ = demo
     assert code == 0
     img = cv2.imread(str(out / "preview.png"), cv2.IMREAD_COLOR)
     assert img is not None
@@ -389,7 +402,7 @@ def test_mesh_and_its_views_beside_the_truth(demo: Demo) -> None:
     in the cloud's frame; mesh_textured.glb the same facets with a JPEG texture;
     mesh_views.png: three rows of truth, mesh, textured mesh and cloud, with the figures
     the summary prints."""
-    out, code, _, _, printed = demo
+    out, code, _, _, printed, _ = demo
     assert code == 0
     gl = pygltflib.GLTF2().load(str(out / "mesh.glb"))
     assert gl.asset.generator.startswith("acq ")
@@ -445,7 +458,7 @@ def test_colorize_places_the_demo_log_with_its_can_odometry(demo: Demo, tmp_path
     simulator's trajectory) and the true surface colours."""
     from acq.sim.world import Street, Trajectory
 
-    out, code, _, _, _ = demo
+    out, code, _, _, _, _ = demo
     assert code == 0
     can = yaml.safe_load((out / "config.yaml").read_text())["can"]
     assert can["interface"] == "virtual" and Path(can["dbc"]).is_file()

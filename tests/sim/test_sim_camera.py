@@ -119,14 +119,18 @@ def test_http_framing_and_truth(server: MjpegServer) -> None:
         assert t.size == len(body) and t.t_sent is not None
         # sent when available, received just after (generous bounds: the suite shares
         # two cores, and the renderer holds the GIL for ~20 ms a frame)
-        assert -0.001 <= t.t_sent - t.t_available < 0.15
+        # (a loaded host holds the server thread up: a frame later than late_s is dropped)
+        assert -0.001 <= t.t_sent - t.t_available < server.late_s + 0.2
         assert arrived >= t.t_available and arrived - t.t_sent < 0.2
         exp = t.exposure_s
         assert exp / 2 + 0.02 <= t.t_available - t.t_mid <= exp / 2 + 0.02 + 4 * 0.003 + 1e-9
         seqs.append(t.sequence)
-    assert seqs == list(range(seqs[0], seqs[0] + 6))
+    # in order; any frame between that did not come was dropped as late
+    assert seqs == sorted(seqs)
+    statuses = {t.sequence: t.status for t in server.camera.truth()}
+    assert all(statuses[k] == "late" for k in set(range(seqs[0], seqs[-1] + 1)) - set(seqs))
     mids = [truth[jpeg_digest(b)].t_mid for _, b, _ in parts]
-    assert np.allclose(np.diff(mids), 1 / 25, atol=1e-9)
+    assert np.allclose(np.diff(mids), np.diff(seqs) / 25, atol=1e-9)
 
 
 def test_two_clients_get_the_same_frames(server: MjpegServer) -> None:
@@ -188,8 +192,10 @@ def test_faults(server: MjpegServer) -> None:
     t0 = time.monotonic()
     _, _, arrived = reader.part()
     assert arrived - t0 > 0.3
+    # the frames due in the stall are held back, none sent (a loaded host renders fewer
+    # of them in time: the rest are dropped as late)
     stalled = [t for t in server.camera.truth() if t.status == "stalled"]
-    assert 8 <= len(stalled) <= 11
+    assert 1 <= len(stalled) <= 11
 
     # drop: the client reads end-of-stream, a new client is served again
     server.drop_connection()

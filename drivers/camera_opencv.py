@@ -16,13 +16,14 @@ undecoded.
 
 Time: on V4L2, ``CAP_PROP_POS_MSEC`` is the kernel's buffer timestamp on the monotonic
 clock (``time_source="kernel"``); elsewhere the host time at which the frame's last byte
-arrived (``time_source="receipt"``). Either way ``latency_s`` (the nominal delay from
-the middle of the exposure to that instant) is subtracted, so ``stamp_ns`` is the middle
-of the exposure. Sequence numbers are the driver's own: a gap of more than 1.75 frame
-periods since the previous frame advances them by the frames that may have been lost,
-which are counted in ``drops``; first, for up to half a period, the frames held up
-behind it are waited for: those that arrive bunched up were late, not lost, and keep
-their numbers.
+arrived (``time_source="receipt"``): over HTTP on Linux, the kernel's receive time of its
+bytes, so a busy host that reads them late does not make them late. Either way
+``latency_s`` (the nominal delay from the middle of the exposure to that instant) is
+subtracted, so ``stamp_ns`` is the middle of the exposure. Sequence numbers are the
+driver's own: a gap of more than 1.75 frame periods since the previous frame advances
+them by the frames that may have been lost, which are counted in ``drops``; first, for
+up to half a period, the frames held up behind it are waited for: those that arrive
+bunched up were late, not lost, and keep their numbers.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ import base64
 import select
 import socket
 import ssl
+import struct
+import sys
 import time
 from collections import deque
 from typing import Any
@@ -55,6 +58,11 @@ __all__ = ["OpenCVCamera", "fourcc_text"]
 _RECV = 256 * 1024  # bytes per recv
 _MAX_BATCH = 8 * 1024 * 1024  # bytes read back-to-back before parts are handed out
 _KERNEL_WINDOW_NS = 10_000_000_000  # a kernel time this far from receipt is not monotonic
+# the kernel's receive timestamps on a TCP socket (Linux: SO_TIMESTAMPNS, which the socket
+# module does not name; its SCM_ message carries a struct timespec)
+_SO_TIMESTAMPNS = 35
+_TIMESTAMP_SPACE = socket.CMSG_SPACE(16)
+_KERNEL_AGE_NS = 5_000_000_000  # a receive time older than this is a realtime clock step
 # parts that are not JPEG (or stretches that are not multipart) a connection may send
 # beyond one per good frame before it is dropped: a corrupt frame now and then is
 # skipped, a flood is not read on
@@ -104,6 +112,7 @@ class OpenCVCamera(Camera):
         self._error: DriverError | None = None  # raised once the frames before it are read
         self._cap: cv2.VideoCapture | None = None
         self._kernel_time = False
+        self._kernel_receipt = False  # the socket gives the kernel's receive times
         self._passthrough = False
         self._pending: Frame | None = None  # the frame read while connecting
         self._sequence = -1
@@ -210,6 +219,7 @@ class OpenCVCamera(Camera):
         self._sock = sock
         self._credit, self._junk_parts, self._good_parts = _JUNK_ALLOWANCE, 0, 0
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        self._kernel_receipt = _kernel_receipt_on(sock)
         path = url.path or "/"
         if url.query:
             path += "?" + url.query
@@ -266,11 +276,16 @@ class OpenCVCamera(Camera):
         if sock is None:
             raise ConnectionLost(f"{self.source}: {self._closed_why}")
         left = deadline - time.monotonic()
+        kernel_ns: int | None = None
         try:
             # past the deadline, what has already arrived is still read (timeout 0): a
             # host that held this thread up is not a camera gone quiet
             sock.settimeout(max(left, 0.0))
-            data = sock.recv(_RECV)
+            if self._kernel_receipt:
+                data, ancillary, _, _ = sock.recvmsg(_RECV, _TIMESTAMP_SPACE)
+                kernel_ns = _kernel_time(ancillary)
+            else:
+                data = sock.recv(_RECV)
         except (TimeoutError, BlockingIOError, ssl.SSLWantReadError):
             raise FrameTimeout(f"{self.source}: no frame within {self.timeout:g} s") from None
         except OSError as e:
@@ -278,6 +293,13 @@ class OpenCVCamera(Camera):
         recv_ns = time.monotonic_ns()
         if not data:
             raise ConnectionLost(f"{self.source}: the camera closed the stream")
+        if kernel_ns is not None:
+            # the kernel's receipt (realtime clock) on the monotonic clock: how long ago
+            # it was, taken from now; a step of the realtime clock between the two (an
+            # age out of bounds) falls back to now
+            age = time.time_ns() - kernel_ns
+            if 0 <= age < _KERNEL_AGE_NS:
+                recv_ns -= age
         return data, recv_ns
 
     def _read_head(self, deadline: float) -> tuple[bytes, bytes]:
@@ -527,3 +549,25 @@ class OpenCVCamera(Camera):
         height, width = image.shape[:2]
         self.frames += 1
         return Frame(recv_ns, stamp_ns, sequence, width, height, image=image, time_source=source)
+
+
+def _kernel_receipt_on(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp what ``sock`` receives (a plain TCP socket on Linux): a
+    frame's receipt is then when its bytes arrived, not when a busy host got round to
+    reading them. False where it cannot."""
+    if sys.platform != "linux" or isinstance(sock, ssl.SSLSocket):
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def _kernel_time(ancillary: list[tuple[int, int, bytes]]) -> int | None:
+    """The kernel's receive time (realtime ns) in a recvmsg's ancillary data, if any."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(data) >= 16:
+            sec, nsec = struct.unpack("qq", data[:16])
+            return int(sec) * 1_000_000_000 + int(nsec)
+    return None

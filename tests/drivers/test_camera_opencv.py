@@ -4,6 +4,7 @@ on a video file and an image sequence, and a fuzz of its multipart parser."""
 from __future__ import annotations
 
 import socket
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -546,3 +547,19 @@ def test_frames_that_arrived_are_read_when_the_read_comes_late() -> None:
                 late.append(cam.read_frame())
         cam.close()
     assert len(late) == 4
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="kernel receive times: Linux")
+def test_a_frame_read_late_keeps_the_time_it_arrived() -> None:
+    """The receipt stamp is the kernel's: a frame read 0.3 s after it arrived (the host
+    busy elsewhere) is stamped when it arrived."""
+    with ScriptedCamera(b"", _jpeg_part(), at_s=[0.0, 0.5]) as server:
+        cam = OpenCVCamera(server.url, fps=5.0, timeout=3.0)
+        cam.connect()
+        cam.start()
+        cam.read_frame()
+        time.sleep(0.6)  # the second frame arrived about 0.1 s ago
+        read_at = time.monotonic_ns()
+        second = cam.read_frame()
+        cam.close()
+    assert 0.05e9 < read_at - second.recv_ns < 0.3e9

@@ -13,7 +13,9 @@ One JSON line per figure:
 - ``need``: per frame, the fraction of its iMCU rows (16 px for 4:2:0) that hold a pixel
   read (``imcu_rows``), of the rows up to the end of the last such iMCU row (the entropy
   decoding stops there: ``to_last``), of its pixels in the box of rows x columns read
-  (``box``); median and mean over the frames.
+  (``box``), of its 16 x 16 px blocks that hold a pixel read (``blocks16``: what a
+  decoder skipping whole blocks would decode; the float64 camera model, no margin);
+  median and mean over the frames.
 - ``decode``: ms per frame per core, on every core as colouring decodes (a thread each)
   and on one, and CPU seconds: ``whole`` (``acq.camera.jpeg.decode_jpeg_transient``,
   simplejpeg, as colouring decodes), ``partial`` (:mod:`acq.camera.jpeg_partial`'s
@@ -48,7 +50,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as a script or loaded by path
 from colorize_speed import drive
 
-Kept = tuple[bytes, Any, np.ndarray, int, int]  # jpeg, header, rows, x0, x1
+Kept = tuple[bytes, Any, np.ndarray, int, int, np.ndarray]  # jpeg, header, rows, x0, x1, blocks
+BLOCK = 16  # px: the MCU of a 4:2:0 JPEG
 
 
 def _line(bench: str, **fields: Any) -> None:
@@ -67,7 +70,7 @@ def kept_frames(files: list[Path], calib: Path, work: Path) -> list[Kept]:
     from acq.camera import jpeg, jpeg_partial, projection
     from acq.cloud import views
 
-    marks: dict[int, tuple[bytes, np.ndarray, np.ndarray]] = {}
+    marks: dict[int, tuple[bytes, np.ndarray, np.ndarray, np.ndarray]] = {}
     lock = threading.Lock()
     last = threading.local()  # the frame this thread decoded last
     decode, colour = jpeg.decode_jpeg_transient, views.Colouring.colour_image
@@ -85,13 +88,15 @@ def kept_frames(files: list[Path], calib: Path, work: Path) -> list[Kept]:
             and image.shape[:2] == (model.height, model.width)
         ):
             with lock:
-                _, rows, cols = marks.setdefault(
-                    id(data), (data, np.zeros(model.height, bool), np.array([model.width, 0]))
-                )
-                projection.pixels_read(self.P, idx, model, (R, t), rows, cols)
+                _, rows, cols, blocks = marks.setdefault(id(data), (
+                    data, np.zeros(model.height, bool), np.array([model.width, 0]),
+                    np.zeros((-(-model.height // BLOCK), -(-model.width // BLOCK)), bool),
+                ))  # fmt: skip
                 pairs = rest[0] if rest else None
-                if pairs is not None and pairs.size:
-                    projection.pixels_read(self.pair_P, pairs, model, (R, t), rows, cols)
+                for P, sub in ((self.P, idx), (self.pair_P, pairs)):
+                    if sub is not None and sub.size:
+                        projection.pixels_read(P, sub, model, (R, t), rows, cols)
+                        _mark_blocks(model, (P[sub] - t) @ R, blocks)
         return colour(self, image, idx, R, t, *rest)
 
     jpeg.decode_jpeg_transient = decoding  # type: ignore[assignment]
@@ -104,11 +109,23 @@ def kept_frames(files: list[Path], calib: Path, work: Path) -> list[Kept]:
         views.decode_jpeg_transient = decode  # type: ignore[assignment]
         views.Colouring.colour_image = colour  # type: ignore[method-assign]
     kept = []
-    for data, rows, cols in marks.values():
+    for data, rows, cols, blocks in marks.values():
         header = jpeg_partial.plain_header(data)
         if header is not None:
-            kept.append((data, header, rows, int(cols[0]), int(cols[1])))
+            kept.append((data, header, rows, int(cols[0]), int(cols[1]), blocks))
     return kept
+
+
+def _mark_blocks(model: Any, P_cam: np.ndarray, blocks: np.ndarray) -> None:
+    """The BLOCK x BLOCK px blocks holding a pixel the sampling reads for the points
+    ``P_cam`` (camera frame, m), by the float64 camera model (no margin)."""
+    uv, ok = model.project(P_cam)
+    uv = uv[ok]
+    for du in (0, 1):  # bilinear reads floor(x) and floor(x) + 1
+        for dv in (0, 1):
+            u = np.clip(np.floor(uv[:, 0]).astype(int) + du, 0, model.width - 1)
+            v = np.clip(np.floor(uv[:, 1]).astype(int) + dv, 0, model.height - 1)
+            blocks[v // BLOCK, u // BLOCK] = True
 
 
 def _stats(values: list[float]) -> dict[str, float]:
@@ -119,8 +136,9 @@ def _stats(values: list[float]) -> dict[str, float]:
 
 
 def need(kept: list[Kept]) -> dict[str, Any]:
-    imcu, to_last, box = [], [], []
-    for _, header, rows, x0, x1 in kept:
+    imcu, to_last, box, in_blocks = [], [], [], []
+    for _, header, rows, x0, x1, blocks in kept:
+        in_blocks.append(float(blocks.mean()))
         step = header.imcu_rows
         blocks = np.add.reduceat(rows.astype(np.int64), np.arange(0, rows.size, step)) > 0
         imcu.append(float(blocks.mean()))
@@ -130,7 +148,7 @@ def need(kept: list[Kept]) -> dict[str, Any]:
         span = (r[-1] - r[0] + 1) * max(x1 - x0, 0) if r.size else 0
         box.append(float(span) / (header.width * header.height))
     return {"frames": len(kept), "imcu_rows": _stats(imcu), "to_last": _stats(to_last),
-            "box": _stats(box)}  # fmt: skip
+            "box": _stats(box), f"blocks{BLOCK}": _stats(in_blocks)}  # fmt: skip
 
 
 def _timed(fn: Callable[[Kept], object], kept: list[Kept], threads: int) -> tuple[float, float]:
@@ -198,7 +216,7 @@ def identical(kept: list[Kept]) -> dict[str, Any]:
     from acq.camera import jpeg_partial
 
     differ, largest, fell_back = 0, 0, 0
-    for jpeg, header, rows, x0, x1 in kept:
+    for jpeg, header, rows, x0, x1, _ in kept:
         whole = simplejpeg.decode_jpeg(jpeg, colorspace="BGR")
         part = np.zeros_like(whole)
         if not jpeg_partial.decode_rows(jpeg, header, rows, x0, x1, part):

@@ -19,11 +19,14 @@ def test_need_counts_imcu_rows_the_rows_to_the_last_and_the_box() -> None:
     rows = np.zeros(64, dtype=bool)
     rows[[0, 40, 41]] = True  # iMCU rows 0 and 2 of 4
     none = np.zeros(64, dtype=bool)
-    got = bench.need([(b"", header, rows, 8, 24), (b"", header, none, 64, 0)])
+    blocks = np.zeros((4, 4), dtype=bool)
+    blocks[0, 1] = True
+    got = bench.need([(b"", header, rows, 8, 24, blocks), (b"", header, none, 64, 0, blocks)])
     assert got["frames"] == 2
     assert got["imcu_rows"]["mean"] == pytest.approx(0.25)  # 0.5 and 0
     assert got["to_last"]["mean"] == pytest.approx(0.375)  # 3/4 and 0
     assert got["box"]["mean"] == pytest.approx(42 * 16 / 4096 / 2, abs=1e-4)
+    assert got["blocks16"]["median"] == pytest.approx(1 / 16)
 
 
 def test_without_the_library_one_line_says_why_and_exits_0(

@@ -18,7 +18,7 @@ One JSON line per figure:
   median and mean over the frames.
 - ``decode``: ms per frame per core, on every core as colouring decodes (a thread each)
   and on one, and CPU seconds: ``whole`` (``acq.camera.jpeg.decode_jpeg_transient``,
-  simplejpeg, as colouring decodes), ``partial`` (:mod:`acq.camera.jpeg_partial`'s
+  simplejpeg, as colouring decodes), ``partial`` (`bench/jpeg_partial.py`'s
   header check and decode of those pixels), ``whole_libjpeg`` (the same library
   decoding every pixel) and ``entropy_only`` (its decode of the last iMCU row, 16
   columns: the entropy decoding of the whole frame that skipping rows cannot avoid).
@@ -67,7 +67,9 @@ def _colorize(files: list[Path], calib: Path, out: Path) -> None:
 
 def kept_frames(files: list[Path], calib: Path, work: Path) -> list[Kept]:
     """Each frame colouring decodes and colours, with the pixels it reads there."""
-    from acq.camera import jpeg, jpeg_partial, projection
+    import jpeg_partial
+
+    from acq.camera import jpeg, projection
     from acq.cloud import views
 
     marks: dict[int, tuple[bytes, np.ndarray, np.ndarray, np.ndarray]] = {}
@@ -174,7 +176,8 @@ def _out(header: Any) -> np.ndarray:
 
 
 def decode(kept: list[Kept], repeat: int) -> dict[str, Any]:
-    from acq.camera import jpeg_partial
+    import jpeg_partial
+
     from acq.camera.jpeg import decode_jpeg_transient
 
     def whole(k: Kept) -> object:
@@ -211,9 +214,8 @@ def decode(kept: list[Kept], repeat: int) -> dict[str, Any]:
 
 
 def identical(kept: list[Kept]) -> dict[str, Any]:
+    import jpeg_partial
     import simplejpeg
-
-    from acq.camera import jpeg_partial
 
     differ, largest, fell_back = 0, 0, 0
     for jpeg, header, rows, x0, x1, _ in kept:
@@ -236,7 +238,7 @@ def main() -> None:
     ap.add_argument("--work", type=Path, help="keep the drive here (default: a temporary folder)")
     ap.add_argument("--repeat", type=int, default=3, help="timed passes, the best kept (3)")
     args = ap.parse_args()
-    from acq.camera import jpeg_partial
+    import jpeg_partial
 
     if not jpeg_partial.available():
         _line("skipped", why=jpeg_partial.why_unavailable())

@@ -9,12 +9,13 @@ import sys
 import numpy as np
 import pytest
 
-from acq.camera import jpeg_partial
 from tests.bench_scripts import load
 
 
 def test_need_counts_imcu_rows_the_rows_to_the_last_and_the_box() -> None:
     bench = load("partial_decode")
+    import jpeg_partial  # bench/'s, as the script imports it (load put bench/ on the path)
+
     header = jpeg_partial.Header(width=64, height=64, imcu_rows=16)
     rows = np.zeros(64, dtype=bool)
     rows[[0, 40, 41]] = True  # iMCU rows 0 and 2 of 4
@@ -33,6 +34,8 @@ def test_without_the_library_one_line_says_why_and_exits_0(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     bench = load("partial_decode")
+    import jpeg_partial
+
     monkeypatch.setattr(jpeg_partial, "available", lambda: False)
     monkeypatch.setattr(jpeg_partial, "why_unavailable", lambda: "no system libjpeg (here)")
     monkeypatch.setattr(sys, "argv", ["partial_decode.py"])

@@ -1,4 +1,4 @@
-"""Partial decoding through the system libjpeg-turbo (acq.camera.jpeg_partial): the pixels
+"""Partial decoding through the system libjpeg-turbo (bench/jpeg_partial.py): the pixels
 asked for are simplejpeg's whole decode, byte for byte; a JPEG it does not take, or a
 damaged one, is refused or said not decoded, and never reaches libjpeg's error handler."""
 
@@ -11,7 +11,9 @@ import simplejpeg
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from acq.camera import jpeg_partial
+from tests.bench_scripts import load
+
+jpeg_partial = load("jpeg_partial")
 
 pytestmark = pytest.mark.skipif(
     not jpeg_partial.available(), reason=f"no partial decoding: {jpeg_partial.why_unavailable()}"

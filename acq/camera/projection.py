@@ -29,6 +29,7 @@ __all__ = [
     "colour_into",
     "depth_and_angle",
     "laser_to_camera",
+    "pixels_read",
     "project",
 ]
 
@@ -220,6 +221,36 @@ def _colour_into(P, idx, R, t, intr, pinhole, image, bilinear, out, valid, uv): 
                     uv[k, 1] = uvf[2 * i + 1]
 
 
+@numba.njit(nogil=True, fastmath=True, cache=True, error_model="numpy")
+def _pixels_read(P, idx, R, t, intr, pinhole, w_px, h_px, rows, cols):  # type: ignore[no-untyped-def]
+    """The rows and columns :func:`_colour_into` reads for ``idx``, and one more each
+    side (the kernels need not round alike): ``rows`` (H,) set True, ``cols`` [lo, hi)
+    widened."""
+    w = np.float32(w_px)
+    h = np.float32(h_px)
+    zero = np.zeros(3, dtype=np.float32)
+    Pf = np.empty(3 * _BLOCK, dtype=np.float32)
+    uvf = np.empty(2 * _BLOCK, dtype=np.float32)
+    ok = np.empty(_BLOCK, dtype=np.bool_)
+    for blo in range(0, idx.size, _BLOCK):
+        m = min(blo + _BLOCK, idx.size) - blo
+        for i in range(m):
+            k = idx[blo + i]
+            Pf[3 * i] = P[k, 0] - t[0]
+            Pf[3 * i + 1] = P[k, 1] - t[1]
+            Pf[3 * i + 2] = P[k, 2] - t[2]
+        _project_block(Pf[: 3 * m], R, zero, intr, pinhole, w, h, uvf[: 2 * m], ok[:m])
+        for i in range(m):
+            if ok[i]:
+                # nearest reads round(x), bilinear floor(x) and floor(x) + 1
+                u = min(max(int(uvf[2 * i]), 0), w_px - 1)
+                v = min(max(int(uvf[2 * i + 1]), 0), h_px - 1)
+                for r in range(max(v - 1, 0), min(v + 3, h_px)):
+                    rows[r] = True
+                cols[0] = min(cols[0], max(u - 1, 0))
+                cols[1] = max(cols[1], min(u + 3, w_px))
+
+
 @numba.njit(nogil=True, cache=True)
 def _depth_theta(P, idx, R, t, depth, theta):  # type: ignore[no-untyped-def]
     for k in idx:
@@ -390,4 +421,23 @@ def colour_into(
         P, idx, np.ascontiguousarray(R, dtype=np.float32), np.asarray(t, dtype=np.float64),
         intr, pinhole, image, bilinear, out, valid,
         uv if uv is not None else np.empty((0, 2), dtype=np.float32),
+    )  # fmt: skip
+
+
+def pixels_read(
+    P: np.ndarray,
+    idx: np.ndarray,
+    model: CameraModel,
+    camera_to_points: tuple[np.ndarray, np.ndarray],
+    rows: np.ndarray,
+    cols: np.ndarray,
+) -> None:
+    """Where :func:`colour_into` of the same points reads its image (either sampling), and
+    a pixel more each side: ``rows`` ((H,) bool, the model's height) set True at the rows,
+    ``cols`` ((2,) int64, [lo, hi) px) widened to the columns. One thread, no GIL."""
+    R, t = camera_to_points
+    intr, pinhole = _intrinsics(model)
+    _pixels_read(
+        P, idx, np.ascontiguousarray(R, dtype=np.float32), np.asarray(t, dtype=np.float64),
+        intr, pinhole, model.width, model.height, rows, cols,
     )  # fmt: skip

@@ -123,6 +123,33 @@ def test_colour_into_is_colorize_on_the_rows_it_is_given_far_from_the_origin(
     assert (out[~seen] == 7).all()
 
 
+@pytest.mark.parametrize("bilinear", [True, False], ids=["bilinear", "nearest"])
+@pytest.mark.parametrize("model", [KB, PH], ids=["kannala_brandt", "pinhole"])
+def test_colour_into_reads_only_the_pixels_pixels_read_marks(
+    model: CameraModel, bilinear: bool
+) -> None:
+    rng = np.random.default_rng(7)
+    image = rng.integers(0, 256, (model.height, model.width, 3), dtype=np.uint8)
+    P = street_points(20_000, seed=3) + np.array([2.0e5, -1.5e5, 30.0])
+    pose = (EXTR.rotation, EXTR.translation + np.array([2.0e5, -1.5e5, 30.0]))
+    idx = np.flatnonzero(rng.random(P.shape[0]) < 0.3)
+    rows = np.zeros(model.height, dtype=bool)
+    cols = np.array([model.width, 0], dtype=np.int64)
+    projection.pixels_read(P, idx, model, pose, rows, cols)
+    assert 0 < rows.sum() < model.height and 0 <= cols[0] < cols[1] <= model.width
+    # every pixel not marked changed: the colours must not
+    scrambled = 255 - image
+    scrambled[rows, cols[0] : cols[1]] = image[rows, cols[0] : cols[1]]
+    got = []
+    for img in (image, scrambled):
+        out = np.zeros((P.shape[0], 3), dtype=np.uint8)
+        seen = np.zeros(P.shape[0], dtype=bool)
+        projection.colour_into(P, idx, model, pose, img, out, seen, bilinear=bilinear)
+        got.append(out)
+    assert seen.sum() > 300
+    np.testing.assert_array_equal(got[0], got[1])
+
+
 def test_colorize_grey_image_and_keeps_out_for_invalid_points() -> None:
     grey = np.full((EQ.height, EQ.width), 77, dtype=np.uint8)
     P = np.vstack([EXTR.apply(np.array([[0.0, 0.0, 4.0]])), [[np.inf, 0, 0]]])

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import importlib.util
 import io
+import json
 import re
 from collections.abc import Iterator
 from types import ModuleType
@@ -128,3 +130,12 @@ def test_the_exit_statuses_come_from_the_cli(gen: ModuleType) -> None:
     page = gen.exit_codes_markdown()
     for value, name in ((1, "EXIT_FAILURE"), (2, "EXIT_USAGE"), (3, "EXIT_DISK_FULL")):
         assert f"| {value} | `{name}` |" in page
+
+
+def test_the_vendored_mermaid_is_what_its_record_says() -> None:
+    folder = DOCS / "javascripts" / "mermaid"
+    record = json.loads((folder / "VENDORED.json").read_text())
+    assert record["package"] == "mermaid" and record["integrity"].startswith("sha512-")
+    for entry in record["files"]:
+        digest = hashlib.sha256((folder / entry["path"]).read_bytes()).hexdigest()
+        assert digest == entry["sha256"], entry["path"]

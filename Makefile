@@ -106,8 +106,8 @@ docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
 
 # the pictures the pages show, drawn from the simulated rig (committed: `make docs` uses them)
-docs-pictures: $(STAMP)
-	$(BIN)/python docs/pictures.py docs/pictures
+docs-pictures: $(STAMP) chromium
+	PYTHONPATH=. $(BIN)/python docs/pictures.py docs/pictures
 
 bench: $(STAMP)
 	@for f in bench/*.py; do $(BIN)/python $$f || exit 1; done

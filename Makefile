@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 SHELL := /bin/bash
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow interop lint typecheck smoke compile bench clean chrony chromium
+.PHONY: demo test test-slow interop lint typecheck smoke compile bench clean chrony chromium docs docs-pictures
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -15,8 +15,8 @@ $(BIN)/python:
 # is compiled later, and every process the tests start would compile its imports again.
 $(STAMP): $(BIN)/python pyproject.toml
 	( $(BIN)/python -m pip install --quiet uv && \
-	  $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -e '.[all,test]' ) || \
-	$(BIN)/python -m pip install --quiet -e '.[all,test]'
+	  $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -e '.[all,test,docs]' ) || \
+	$(BIN)/python -m pip install --quiet -e '.[all,test,docs]'
 	touch $(STAMP)
 
 # our own sources' bytecode, for the same reason (stale files are rewritten)
@@ -26,7 +26,7 @@ compile: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/acq demo
 
-RUFF_PATHS := acq drivers sim config tests bench
+RUFF_PATHS := acq drivers sim config tests bench docs
 
 # mypy reads the package as the wheel lays it out (drivers/ and sim/ inside acq/): it cannot
 # follow the editable install's import hook, so it reads a tree of links (.typed/acq).
@@ -63,30 +63,35 @@ chromium:
 	  >/dev/null 2>&1 ) || echo "chromium not installed: the page tests skip (fail where CI=true)"
 
 # ruff first; then the real-time tests three at a time (they mostly wait on their devices:
-# two at a time used a third of the two cores), with mypy and the wheel's smoke beside
+# two at a time used a third of the two cores), with mypy, the wheel's smoke and the
+# documentation site (`make docs`, strict: a broken link or a stale reference fails) beside
 # them at nice 19 (they take only the CPU the tests leave); then the rest on both cores.
-# Once the tests are done, mypy and the smoke go back to the default priority where we may
+# Once the tests are done, those three go back to the default priority where we may
 # (root), so that on a busy machine they do not starve behind its other work. worksteal:
 # a worker that runs out takes tests queued on another, so none idles through another's
 # long tail.
 # setsid: each in a process group of its own, for renice -g (and killed with make test).
 # A new session is also a scheduler autogroup of its own where the kernel has them: nice
 # ranks processes only within their autogroup, so the autogroup is set to nice 19 too
-# (LOW), or mypy and the smoke would take as much CPU as all the tests together.
+# (LOW), or each would take as much CPU as all the tests together.
+
 LOW = { echo 19 > /proc/self/autogroup; } 2> /dev/null;
 test: $(STAMP) compile chrony chromium
 	$(BIN)/ruff format --check $(RUFF_PATHS)
 	$(BIN)/ruff check $(RUFF_PATHS)
 	@setsid sh -c "$(LOW) exec nice -n 19 $(MAKE) --no-print-directory typecheck" > .mypy.out 2>&1 & mypy=$$!; \
 	setsid sh -c "$(LOW) exec nice -n 19 $(MAKE) --no-print-directory smoke" > .smoke.out 2>&1 & smoke=$$!; \
-	trap 'kill -- -$$mypy -$$smoke 2> /dev/null' EXIT; \
+	setsid sh -c "$(LOW) exec nice -n 19 $(MAKE) --no-print-directory docs" > .docs.out 2>&1 & docs=$$!; \
+	trap 'kill -- -$$mypy -$$smoke -$$docs 2> /dev/null' EXIT; \
 	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 3 --dist worksteal; realtime=$$?; \
 	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2 --dist worksteal; rest=$$?; \
-	renice -n 0 -g $$mypy $$smoke > /dev/null 2>&1 || true; \
-	for p in $$mypy $$smoke; do echo 0 > /proc/$$p/autogroup; done 2> /dev/null || true; \
-	wait $$mypy; typed=$$?; wait $$smoke; smoked=$$?; \
-	echo "mypy:"; cat .mypy.out; echo "wheel smoke:"; cat .smoke.out; rm -f .mypy.out .smoke.out; \
-	test $$realtime -eq 0 && test $$rest -eq 0 && test $$typed -eq 0 && test $$smoked -eq 0
+	renice -n 0 -g $$mypy $$smoke $$docs > /dev/null 2>&1 || true; \
+	for p in $$mypy $$smoke $$docs; do echo 0 > /proc/$$p/autogroup; done 2> /dev/null || true; \
+	wait $$mypy; typed=$$?; wait $$smoke; smoked=$$?; wait $$docs; documented=$$?; \
+	echo "mypy:"; cat .mypy.out; echo "wheel smoke:"; cat .smoke.out; echo "docs:"; cat .docs.out; \
+	rm -f .mypy.out .smoke.out .docs.out; \
+	test $$realtime -eq 0 && test $$rest -eq 0 && test $$typed -eq 0 && test $$smoked -eq 0 && \
+	test $$documented -eq 0
 
 test-slow: $(STAMP)
 	$(BIN)/pytest -q -m slow
@@ -101,8 +106,17 @@ interop: $(STAMP)
 	if command -v npm >/dev/null; then cd tests/interop/node && npm ci --silent; fi
 	$(BIN)/pytest -q -rs -m interop tests/interop
 
+# the documentation site into site/, strict: a broken link, a page missing from the nav or
+# a warning fails; the reference pages are generated from the code as it is built
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+
+# the pictures the pages show, drawn from the simulated rig (committed: `make docs` uses them)
+docs-pictures: $(STAMP) chromium
+	PYTHONPATH=. $(BIN)/python docs/pictures.py docs/pictures
+
 bench: $(STAMP)
 	@for f in bench/*.py; do $(BIN)/python $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) build .typed *.egg-info .mypy_cache .pytest_cache .ruff_cache
+	rm -rf $(VENV) build site .typed *.egg-info .mypy_cache .pytest_cache .ruff_cache

@@ -37,17 +37,17 @@ ENTRIES = (
 BARE = {"three": "build/three.module.js"}
 
 
-def pack(spec: str, version: str, into: Path) -> tuple[Path, str]:
+def pack(spec: str, version: str, into: Path, package: str = PACKAGE) -> tuple[Path, str]:
     """The npm tarball of ``spec`` (``three@VERSION``, or a local package folder or
     tarball) unpacked in ``into``; its folder and integrity. SystemExit unless it is
-    three ``version``."""
+    ``package`` ``version``."""
     done = subprocess.run(
         ["npm", "pack", spec, "--json", "--pack-destination", str(into)],
         check=True, capture_output=True, text=True,
     )  # fmt: skip
     info = json.loads(done.stdout)[0]
-    if (info["name"], info["version"]) != (PACKAGE, version):
-        raise SystemExit(f"npm gave {info['name']} {info['version']}, not {PACKAGE} {version}")
+    if (info["name"], info["version"]) != (package, version):
+        raise SystemExit(f"npm gave {info['name']} {info['version']}, not {package} {version}")
     with tarfile.open(into / info["filename"]) as tar:
         tar.extractall(into, filter="data")
     return into / "package", info["integrity"]

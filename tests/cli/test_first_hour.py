@@ -78,9 +78,15 @@ def test_every_file_a_help_text_names_exists() -> None:
     assert not missing, missing
 
 
+def _pages() -> list[Path]:
+    """README.md and the documentation's pages."""
+    return [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
+
+
 def _readme_scripts() -> list[list[str]]:
-    """The `python -m MODULE` and `python bench/NAME.py` commands README.md names."""
-    text = (REPO / "README.md").read_text()
+    """The `python -m MODULE` and `python bench/NAME.py` commands README.md and the
+    documentation name."""
+    text = "\n".join(page.read_text() for page in _pages())
     found = re.findall(r"python (-m [\w.]+|bench/\w+\.py)", text)
     return [f.split() for f in dict.fromkeys(found)]
 
@@ -119,8 +125,12 @@ def test_sim_log_writes_a_recording_and_the_command_to_try_on_it(
 def test_readme_code_fences_stand_on_their_own_lines() -> None:
     """A fence with text after it (```` ``` `--crs` is ...````) swallows the prose that
     follows into the code block."""
-    lines = (REPO / "README.md").read_text().splitlines()
-    fences = [(n, s) for n, s in enumerate(lines, 1) if "```" in s]
-    bad = [(n, s) for n, s in fences if not re.fullmatch(r"```[\w-]*", s.strip())]
-    assert not bad, bad
-    assert len(fences) % 2 == 0
+    for page in _pages():
+        lines = page.read_text().splitlines()
+        fences = [(n, s) for n, s in enumerate(lines, 1) if "```" in s]
+        # a language, or attributes: ```{.sh .runnable}
+        bad = [
+            (n, s) for n, s in fences if not re.fullmatch(r"```([\w-]*|\{[.\w -]+\})", s.strip())
+        ]
+        assert not bad, (page, bad)
+        assert len(fences) % 2 == 0, page

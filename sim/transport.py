@@ -327,8 +327,9 @@ class PtyDeviceServer(DeviceServer):
         # Bytes already sent reach the host before the hangup (a pty would discard what
         # the client has not read yet): wait, briefly, for its input queue to drain. The
         # kernel moves written bytes to that queue asynchronously, so the queue must be
-        # seen empty twice, a little apart.
-        deadline = time.monotonic() + 0.5
+        # seen empty twice, a little apart. Up to 2 s: a loaded host may leave the client's
+        # reading thread waiting for a core that long.
+        deadline = time.monotonic() + 2.0
         empty_seen = 0
         while self._slave is not None and time.monotonic() < deadline and empty_seen < 2:
             time.sleep(0.01)

@@ -41,8 +41,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "it); the measure box gives a distance and its points in the file's CRS (a "
         "LAS/LAZ/COPC file's, or a PLY's 'crs' comment), and a view in a projected CRS has "
         "a scale bar and a north arrow (a CRS not in metres is refused). Prints "
-        "the page's URL and serves until Ctrl-C. Exit status: "
-        "0 stopped by Ctrl-C, 2 a bad file or option (the port in use among them).",
+        "the page's URL and serves until Ctrl-C (or SIGTERM, SIGHUP). Exit status: "
+        "0 stopped so, 2 a bad file or option (the port in use among them).",
     )
     v.add_argument(
         "paths", nargs="+", type=Path, metavar="PATH",
@@ -85,6 +85,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 def run(args: argparse.Namespace) -> int:
     import webbrowser
 
+    from acq.stopped import stopping
     from acq.view import AddressError, ViewServer
 
     if not is_loopback(args.host):
@@ -103,12 +104,16 @@ def run(args: argparse.Namespace) -> int:
     except AddressError as e:  # named as the command line names it
         raise InputError(f"--{e.about} {e.value}: {e.reason}") from None
     try:
-        n = len(server.layers)
-        print(f"serving {n} layer{'s' * (n != 1)} at {server.url} (Ctrl-C to stop)", flush=True)
-        if args.open and not webbrowser.open(server.url):
-            print(f"acq view: no web browser found: open {server.url}", file=sys.stderr)
-        threading.Event().wait()
-    except KeyboardInterrupt:  # the way to stop it: not a failure
+        # Ctrl-C, SIGTERM or SIGHUP end it, even where SIGINT came ignored (a command
+        # started in the background by a script, where Python leaves it ignored); from
+        # before the URL is printed, which is when a caller may send one
+        with stopping():
+            n = len(server.layers)
+            print(f"serving {n} layer{'s' * (n != 1)} at {server.url} (Ctrl-C to stop)", flush=True)
+            if args.open and not webbrowser.open(server.url):
+                print(f"acq view: no web browser found: open {server.url}", file=sys.stderr)
+            threading.Event().wait()
+    except KeyboardInterrupt:  # the way to stop it (Stopped is one): not a failure
         pass
     finally:
         server.stop()

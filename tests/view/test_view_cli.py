@@ -92,11 +92,12 @@ def test_another_host_is_warned_of_and_a_foreign_address_refused(
     _refused(capsys, [path, "--host", "::1", "--port", "-5"], "--port")  # no warning for ::1
 
 
-def _stopped(proc: subprocess.Popen[str]) -> tuple[str, str]:
-    """Ctrl-C to ``proc`` (an `acq view` started with :data:`DUMPS`): its (stdout, stderr)
-    once it exits; when it does not within 20 s, fails saying its state, its children
-    and every thread's stack (faulthandler's dump on SIGABRT) to say where it hung."""
-    proc.send_signal(signal.SIGINT)
+def _stopped(proc: subprocess.Popen[str], signum: int = signal.SIGINT) -> tuple[str, str]:
+    """Ctrl-C (or ``signum``) to ``proc`` (an `acq view` started with :data:`DUMPS`): its
+    (stdout, stderr) once it exits; when it does not within 20 s, fails saying its state,
+    its children and every thread's stack (faulthandler's dump on SIGABRT) to say where it
+    hung."""
+    proc.send_signal(signum)
     try:
         return proc.communicate(timeout=20)
     except subprocess.TimeoutExpired:
@@ -171,4 +172,27 @@ def test_points_found_bad_after_the_url_is_printed_are_said_in_one_line(tmp_path
     finally:
         proc.kill()
     assert said.startswith(f"acq view: {cut}: its points cannot be read ("), said
+    assert proc.returncode == 0 and err == "" and out == ""
+
+
+def _sigint_ignored() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_stops_it_even_started_with_sigint_ignored(tmp_path: Path, signum: int) -> None:
+    """A script's background job starts with SIGINT ignored, and Python then leaves Ctrl-C
+    without effect: acq view still ends on it, and on SIGTERM and SIGHUP, with status 0."""
+    path = cloud(tmp_path / "c.ply", n=50)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", "view", str(path)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=DUMPS,
+        preexec_fn=_sigint_ignored,  # as `cmd &` in a non-interactive shell
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().startswith("serving 1 layer at http://127.0.0.1:")
+        out, err = _stopped(proc, signum)
+    finally:
+        proc.kill()
     assert proc.returncode == 0 and err == "" and out == ""

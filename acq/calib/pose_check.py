@@ -56,7 +56,7 @@ __all__ = ["CheckOptions", "PoseCheck", "check_pose", "pixels_at"]
 
 # chi-square quantiles at 1 - 1e-3 for 3 and 1 degrees of freedom
 _CHI2 = {3: 16.266, 1: 10.828}
-_FLOOR = np.array([np.radians(0.02)] * 3 + [0.002] * 3 + [0.0003])  # rad, m, s
+_FLOOR = np.array([np.radians(0.05)] * 3 + [0.005] * 3 + [0.001])  # rad, m, s
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,8 @@ class CheckOptions:
     edge_weight: float = 0.0
     rounds: int = 2
     newton_steps: int = 3
-    blocks: int = 5
+    blocks: int = 8
+    time_offset: bool = True
     max_std: tuple[float, float, float] = (np.radians(0.25), 0.025, 0.003)
     threads: int = 2
 
@@ -219,7 +220,8 @@ def _swath(
     s_bins = quantile_bins(strength[pts], opt.bins)
     swath = Swath(
         P_world[pts], starts, frame_ns[[j for j, _ in frames]], np.stack(features), s_bins,
-        edge[pts], np.zeros(256, np.int64), np.zeros(256, np.int64), opt.bins, opt.edge_weight,
+        edge[pts], np.zeros((0, 256), np.int64), np.zeros((0, 256), np.int64), opt.bins,
+        opt.edge_weight,
     )  # fmt: skip
     return swath
 
@@ -245,13 +247,32 @@ def check_pose(
     plain = Scorer(made, cam.model, cam.camera_to_laser, cam.time_offset_s, laser_to_vehicle,
                    pose_at)  # fmt: skip
     grey, grad, ok = plain.samples(np.zeros(7))
-    swath = replace(
-        made, grey_lut=bins_of_bytes(grey[ok], opt.bins), grad_lut=bins_of_bytes(grad[ok], opt.bins)
-    )
+    luts = []
+    for image in (grey, grad):
+        luts.append(np.stack([
+            bins_of_bytes(image[a:b][ok[a:b]], opt.bins)
+            for a, b in itertools.pairwise(made.starts.tolist())
+        ]))  # fmt: skip
+    swath = replace(made, grey_lut=luts[0], grad_lut=luts[1])
     score = Scorer(swath, cam.model, cam.camera_to_laser, cam.time_offset_s, laser_to_vehicle,
                    pose_at)  # fmt: skip
-    x = search(score, np.zeros(7), START_STEPS, opt.rounds)
-    x, H = newton(score, x, FIT_STEPS, opt.newton_steps)
+    free = np.ones(7, dtype=bool)
+    free[6] = opt.time_offset
+    x = search(score, np.zeros(7), START_STEPS, opt.rounds, free)
+
+    def on(f: Scorer) -> Callable[[np.ndarray], float]:
+        """``f`` of the free parameters, the others at the estimate's."""
+
+        def g(z: np.ndarray) -> float:
+            y = x.copy()
+            y[free] = z
+            return f(y)
+
+        return g
+
+    h = FIT_STEPS[free]
+    z, H = newton(on(score), x[free], h, opt.newton_steps)
+    x[free] = z
     # the blocks: disjoint runs of consecutive frames, each its own estimate
     k = max(2, min(opt.blocks, swath.frames // 4))
     cuts = np.linspace(0, swath.frames, k + 1).astype(int)
@@ -260,7 +281,9 @@ def check_pose(
     for lo, hi in itertools.pairwise(cuts.tolist()):
         part = Scorer(swath.part(int(lo), int(hi)), cam.model, cam.camera_to_laser,
                       cam.time_offset_s, laser_to_vehicle, pose_at)  # fmt: skip
-        blocks.append(x - np.linalg.solve(H, gradient(part, x, FIT_STEPS)) * FIT_STEPS)
+        est = np.full(7, np.nan)
+        est[free] = z - np.linalg.solve(H, gradient(on(part), z, h)) * h
+        blocks.append(est)
         evaluations += part.evaluations
     b = np.array(blocks)
     std = b.std(axis=0, ddof=1) / np.sqrt(len(blocks))

@@ -21,6 +21,7 @@ its curvature does not depend on how many); their spread is the whole's standard
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numba
@@ -70,7 +71,9 @@ class Swath:
     no offset applied); their grey level and gradient ``features`` ((F,H,W,2) uint8,
     :func:`acq.calib.information.image_features`); per point its return strength's bin
     ``s_bins`` (N,) and whether it is a depth ``edge`` (N,); the bins of grey levels
-    ``grey_lut`` and gradients ``grad_lut`` (256,) (fixed, so scores compare);
+    ``grey_lut`` and gradients ``grad_lut`` (F,256), per frame (a camera's exposure
+    and white balance change from frame to frame; the laser's return strengths do not)
+    and fixed (so that scores compare);
     ``edge_weight`` the depth-edge term's weight."""
 
     P_world: np.ndarray
@@ -98,6 +101,7 @@ class Swath:
         return replace(
             self, P_world=self.P_world[a:b], starts=self.starts[lo : hi + 1] - a,
             frame_ns=self.frame_ns[lo:hi], features=self.features[lo:hi],
+            grey_lut=self.grey_lut[lo:hi], grad_lut=self.grad_lut[lo:hi],
             s_bins=self.s_bins[a:b], edge=self.edge[a:b],
         )  # fmt: skip
 
@@ -173,14 +177,17 @@ class Scorer:
         self.evaluations += 1
         sw = self.swath
         grey, grad, ok = self.samples(x)
-        score = mutual_information(sw.s_bins[ok], sw.grey_lut[grey[ok]], sw.bins)
+        f = self.frame_of[ok]
+        score = mutual_information(sw.s_bins[ok], sw.grey_lut[f, grey[ok]], sw.bins)
         if sw.edge_weight > 0:
-            e = sw.grad_lut[grad[ok]]
+            e = sw.grad_lut[f, grad[ok]]
             score += sw.edge_weight * mutual_information(sw.edge[ok].astype(np.int64), e, sw.bins)
         return score
 
 
-def _line(score: Scorer, x: np.ndarray, i: int, step: float, half: int = 3) -> np.ndarray:
+def _line(
+    score: Callable[[np.ndarray], float], x: np.ndarray, i: int, step: float, half: int = 3
+) -> np.ndarray:
     """``x`` with parameter ``i`` at the top of the score along it: a grid of ``half``
     steps either side, a parabola through the grid when its best is inside (a least
     squares fit: the score is not smooth at the scale of a step), else the edge's best."""
@@ -202,7 +209,11 @@ def _line(score: Scorer, x: np.ndarray, i: int, step: float, half: int = 3) -> n
 
 
 def search(
-    score: Scorer, x0: np.ndarray, steps: np.ndarray, rounds: int, free: np.ndarray | None = None
+    score: Callable[[np.ndarray], float],
+    x0: np.ndarray,
+    steps: np.ndarray,
+    rounds: int,
+    free: np.ndarray | None = None,
 ) -> np.ndarray:
     """Coordinate ascent of ``score`` from ``x0`` (7,) with ``steps`` (7,) halved each of
     ``rounds``; only the parameters ``free`` (7,) bool move (default all)."""
@@ -229,9 +240,11 @@ def _design(n: int) -> np.ndarray:
     return np.array(rows)
 
 
-def quadratic_fit(score: Scorer, x: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The gradient (7,) and Hessian (7,7) of ``score`` at ``x`` in units of the steps
-    ``h`` (7,): a least-squares quadratic through the score at :func:`_design`'s
+def quadratic_fit(
+    score: Callable[[np.ndarray], float], x: np.ndarray, h: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The gradient (n,) and Hessian (n,n) of ``score`` at ``x`` (n,) in units of the
+    steps ``h`` (n,): a least-squares quadratic through the score at :func:`_design`'s
     offsets (the score is not smooth at the scale of a few points' pixels, so no
     finite differences of two values)."""
     n = x.size
@@ -258,7 +271,7 @@ def concave(H: np.ndarray, floor: float = 0.02) -> np.ndarray:
 
 
 def newton(
-    score: Scorer, x: np.ndarray, h: np.ndarray, iterations: int
+    score: Callable[[np.ndarray], float], x: np.ndarray, h: np.ndarray, iterations: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Newton steps to the top of the score's fitted quadratic (:func:`quadratic_fit`,
     made :func:`concave`), each at most two steps ``h`` per parameter. The estimate
@@ -271,7 +284,7 @@ def newton(
     return x, H
 
 
-def gradient(score: Scorer, x: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """The gradient (7,) of ``score`` at ``x`` in units of ``h``: central differences."""
+def gradient(score: Callable[[np.ndarray], float], x: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The gradient (n,) of ``score`` at ``x`` in units of ``h``: central differences."""
     eye = np.eye(x.size)
     return np.array([(score(x + e * h) - score(x - e * h)) / 2 for e in eye])

@@ -39,6 +39,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -61,6 +62,9 @@ from acq.sim.sensors import (
 )
 from acq.sim.world import Rig, Street, Trajectory, default_rig
 from acq.time.clocksync import DeviceClock
+
+if TYPE_CHECKING:
+    from acq.cloud.job import Job
 
 __all__ = [
     "SINGLE_CAMERA_LATENCY_S",
@@ -164,6 +168,22 @@ class DriveTruth:
             uv[sel], valid[sel] = lens.project(pose.inverse().apply(P[sel]))
         valid &= np.isfinite(P).all(axis=1)
         return uv, valid
+
+    def time_offsets_s(self, job: Job) -> dict[str, float]:
+        """Each camera's true time offset (camera minus laser time, s) as ``job`` (of this
+        drive's log, :func:`acq.cloud.job.prepare`) re-timed the stamps: the re-timed
+        frames' mean error minus the re-timed scans'."""
+        from acq.cloud.job import remap
+
+        scans = remap(job.scan_old, job.scan_new, self.scan_stamp_ns)
+        scan_err = float(np.mean(scans - (self.start_ns + self.scan_t0_s * 1e9)))
+        out = {}
+        for cj in job.cameras:
+            c = self.cameras[cj.name]
+            frames = remap(cj.frame_old, cj.frame_new, c.frame_stamp_ns)
+            frame_err = float(np.mean(frames - (self.start_ns + c.frame_t_s * 1e9)))
+            out[cj.name] = (frame_err - scan_err) * 1e-9
+        return out
 
     def distances(
         self,

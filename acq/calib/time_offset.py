@@ -43,6 +43,8 @@ import cv2
 import numpy as np
 
 from acq import progress
+from acq.calib.drive_frames import moving_frames, points_near
+from acq.calib.information import mutual_information, quantile_bins
 from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
 from acq.camera.jpeg import decoded_frames
@@ -77,21 +79,6 @@ class OffsetEstimate:
         """No estimate, with the reason."""
         empty = np.zeros(0)
         return cls(np.nan, np.nan, empty, empty, 0, 0, 0.0, False, note)
-
-
-def mutual_information(a_bins: np.ndarray, b_bins: np.ndarray, bins: int) -> float:
-    """Mutual information (nats) of two integer samples in [0, bins)."""
-    joint = np.bincount(a_bins * bins + b_bins, minlength=bins * bins).astype(np.float64)
-    joint = joint.reshape(bins, bins) / max(a_bins.size, 1)
-    pa, pb = joint.sum(axis=1), joint.sum(axis=0)
-    nz = joint > 0
-    return float(np.sum(joint[nz] * np.log(joint[nz] / np.outer(pa, pb)[nz])))
-
-
-def _quantile_bins(x: np.ndarray, bins: int, edges: np.ndarray | None = None) -> np.ndarray:
-    if edges is None:
-        edges = np.quantile(x, np.linspace(0.0, 1.0, bins + 1)[1:-1])
-    return np.searchsorted(edges, x).astype(np.int64)
 
 
 def _jackknife_se(left_out: np.ndarray) -> float:
@@ -143,28 +130,19 @@ def estimate_time_offset(
     if not usable.any():
         return fail("no laser return strengths in the log (SCIP ME / CoLa RSSI1 needed)")
     # frames while the rig moves, spread over the drive; each with the points nearest it
-    order = np.argsort(time_ns, kind="stable")
-    t_sorted = time_ns[order]
     period = float(np.median(np.diff(np.sort(frame_ns)))) if frame_ns.size > 1 else 4e7
     prior_ns = round(prior_s * 1e9)
-    moving = np.zeros(frame_ns.size, dtype=bool)
     t_prior = frame_ns - prior_ns
-    ok = covers(t_prior) & covers(t_prior - 50_000_000) & covers(t_prior + 50_000_000)
-    if ok.any():
-        _, a = pose_at(t_prior[ok] - 50_000_000)
-        _, b = pose_at(t_prior[ok] + 50_000_000)
-        moving[ok] = np.linalg.norm(b - a, axis=1) / 0.1 >= min_speed_mps
-    candidates = np.flatnonzero(moving)
-    if candidates.size == 0:
+    pick = moving_frames(
+        t_prior, pose_at, covers, min_speed_mps=min_speed_mps, max_frames=max_frames
+    )
+    if pick.size == 0:
         return fail("the rig does not move (or no pose) while the camera records")
-    pick = candidates[np.unique(np.linspace(0, candidates.size - 1, max_frames).astype(int))]
-    frames: list[_Frame] = []
-    for j in pick.tolist():
-        lo, hi = np.searchsorted(t_sorted, [t_prior[j] - period / 2, t_prior[j] + period / 2])
-        idx = order[lo:hi]
-        idx = idx[usable[idx]]
-        if idx.size:
-            frames.append(_Frame(j, int(frame_ns[j]), idx))
+    near = points_near(time_ns, usable, t_prior[pick], period / 2)
+    frames = [
+        _Frame(j, int(frame_ns[j]), idx) for j, idx in zip(pick.tolist(), near, strict=True)
+        if idx.size
+    ]  # fmt: skip
     if not frames:
         return fail("no laser points near the frames' times")
 
@@ -212,7 +190,7 @@ def estimate_time_offset(
 
     def curve(grey: np.ndarray, s_bins: np.ndarray) -> np.ndarray:
         edges = np.quantile(grey[grey.shape[0] // 2], np.linspace(0.0, 1.0, bins + 1)[1:-1])
-        return np.array([mutual_information(s_bins, _quantile_bins(g, bins, edges), bins)
+        return np.array([mutual_information(s_bins, quantile_bins(g, bins, edges), bins)
                          for g in grey])  # fmt: skip
 
     def peak(x: np.ndarray, y: np.ndarray, half: int = 6) -> float:
@@ -228,7 +206,7 @@ def estimate_time_offset(
     if good.sum() < 1000:
         return fail(f"only {int(good.sum())} laser points in view of the frames")
     pts_all = np.concatenate([f.points for f in frames])[good]
-    s_bins = _quantile_bins(strength[pts_all], bins)
+    s_bins = quantile_bins(strength[pts_all], bins)
     scores = curve(grey[:, good], s_bins)
     best = int(np.argmax(scores))
     median = float(np.median(scores))
@@ -248,7 +226,7 @@ def estimate_time_offset(
     grey_f, good_f, fold = sample(fine)
     keep = good_f
     pts_f = np.concatenate([f.points for f in frames])[keep]
-    s_bins_f = _quantile_bins(strength[pts_f], bins)
+    s_bins_f = quantile_bins(strength[pts_f], bins)
     fine_scores = curve(grey_f[:, keep], s_bins_f)
     offset = peak(fine, fine_scores)
     per_fold: list[float] = []
@@ -256,7 +234,7 @@ def estimate_time_offset(
     for r in np.unique(fold):
         sel = fold != r
         if sel.sum() >= 1000:
-            sb = _quantile_bins(strength[pts_f[sel]], bins)
+            sb = quantile_bins(strength[pts_f[sel]], bins)
             per_fold.append(peak(fine, curve(grey_f[:, keep][:, sel], sb)))
     std = _jackknife_se(np.array(per_fold))
     return OffsetEstimate(

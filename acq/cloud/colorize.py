@@ -46,7 +46,7 @@ import os
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import replace
@@ -56,9 +56,9 @@ from typing import Any
 import numpy as np
 
 from acq import progress as progress_bars
+from acq.calib.pose_check import CheckOptions, PoseCheck, check_pose
 from acq.calib.time_offset import OffsetEstimate, estimate_time_offset
 from acq.camera.calibfile import Calibration
-from acq.camera.camera_models import CameraModel
 from acq.camera.jpeg import SharedDecodes
 from acq.cloud import heap, views
 from acq.cloud.chunks import (
@@ -69,23 +69,21 @@ from acq.cloud.chunks import (
     colour_chunk,
     frames_used,
     holds,
-    place,
     plan,
     start_chunk,
 )
-from acq.cloud.job import CameraJob, Job, prepare, remap
+from acq.cloud.drive_window import first_at, odd_size_note, read_window
+from acq.cloud.job import CameraJob, Job, prepare
 from acq.cloud.preview import preview_png
 from acq.cloud.report import Report
 from acq.cloud.tally import Tally
 from acq.cloud.writer import FORMATS, CloudWriter
 from acq.errors import InputValueError
 from acq.extras import needs
-from acq.log.drive_log import DriveLog, read_log
+from acq.log.drive_log import DriveLog
 from acq.log.inputs import session_files
-from acq.log.locate import locate
 from acq.motion import Trajectory
 from acq.stopped import shield_resource_tracker
-from acq.time import sync
 from acq.time.host_clock_summary import utc_doubt
 
 # the pipeline's parts, as callers of `acq colorize` and its bench know them
@@ -98,6 +96,7 @@ __all__ = [
     "ChunkResult",
     "Job",
     "Report",
+    "check_calibration",
     "cloud_of",
     "colour_chunk",
     "estimate_offset",
@@ -124,27 +123,6 @@ HELD_SLACK_S = 4.0
 PREVIEW_POINTS = 4_000_000  # at most about this many points kept for the preview
 
 log = logging.getLogger(__name__)
-
-
-def _first_at(drive: DriveLog, stamps: Iterable[int], files: Sequence[str]) -> str:
-    """Where the first of ``stamps`` (recorded stamps of ``drive``'s frames) lies: its
-    log time (its receipt) and file."""
-    first = min(stamps)
-    i = int(np.searchsorted(drive.frame_ns, first))
-    recv = int(drive.frame_recv_ns[i]) if i < drive.frame_recv_ns.size else -1
-    return locate(files, recv if recv >= 0 else first)
-
-
-def _odd_size_note(
-    drive: DriveLog, odd: dict[int, tuple[int, int]], model: CameraModel, files: Sequence[str]
-) -> str:
-    """What was skipped: ``odd`` (recorded stamp -> (w, h) px) frames of ``drive``, not of
-    ``model``'s size; the first named by its log time (its receipt) and file."""
-    sizes = ", ".join(sorted({f"{w}x{h}" for w, h in odd.values()}))
-    return (
-        f"{len(odd)} frames of another size ({sizes}) than the camera model's "
-        f"{model.width}x{model.height} skipped; the first at {_first_at(drive, odd, files)}"
-    )
 
 
 def run_chunks(
@@ -367,38 +345,49 @@ def estimate_offset(
     if not job.cameras:
         return OffsetEstimate.not_found("the log has no camera frames")
     cj = camera or job.cameras[0]
-    first, last = int(job.scan_new[0]), int(job.scan_new[-1])
-    span = round(seconds * 1e9)
-    lo = first + (max(0, (last - first - span) // 2) if start_s is None else round(start_s * 1e9))
-    hi = lo + span
-    if whole is None:
-        whole = read_log(
-            list(job.files), laser=job.laser, camera=cj.name,
-            start_ns=lo - 2 * 10**9, end_ns=hi + 2 * 10**9,
-        )  # fmt: skip
-    whole = whole.with_camera(cj.name)
-    scan_ns = remap(job.scan_old, job.scan_new, whole.scan_ns)
-    frame_ns = remap(cj.frame_old, cj.frame_new, whole.frame_ns)
-    keep = (scan_ns >= lo) & (scan_ns < hi)
-    pts = place(whole, scan_ns, keep, job.trajectory, job.laser_to_vehicle)
-    strength = whole.intensities[pts.scan, pts.step] if whole.intensities.size else None
-    if strength is None or not np.any(strength > 0):
+    w = read_window(job, cj, whole=whole, start_s=start_s, seconds=seconds, what="time offset")
+    if w.strength is None or not np.any(w.strength > 0):
         return OffsetEstimate.not_found(
             "no laser return strengths in the log (record them: SCIP ME, CoLa RSSI1)"
         )
-    laser_ns = sync.on_laser_clock(frame_ns, cj.time_offset_ns)
-    in_span = (laser_ns >= lo) & (laser_ns < hi)
-    sel = np.flatnonzero(in_span)
-    odd = views.odd_sized([whole.jpegs[int(i)] for i in sel], cj.cam.model)
-    if odd:
-        stamps = {int(whole.frame_ns[sel[k]]): size for k, size in odd.items()}
-        log.warning("time offset: %s", _odd_size_note(whole, stamps, cj.cam.model, job.files))
-        sel = np.delete(sel, list(odd))
     return estimate_time_offset(
-        pts.P_world, pts.time_ns, strength.astype(np.float64), frame_ns[sel],
-        [whole.jpegs[int(i)] for i in sel], cj.cam, job.laser_to_vehicle,
+        w.points.P_world, w.points.time_ns, w.strength, w.frame_ns, w.jpegs, cj.cam,
+        job.laser_to_vehicle,
         job.trajectory.pose_at, job.trajectory.covers, prior_s=cj.cam.time_offset_s,
         search_s=search_s, max_frames=max_frames, threads=threads,
+    )  # fmt: skip
+
+
+def check_calibration(
+    job: Job,
+    *,
+    camera: CameraJob | None = None,
+    whole: DriveLog | None = None,
+    start_s: float | None = None,
+    seconds: float = 60.0,
+    options: CheckOptions | None = None,
+) -> PoseCheck:
+    """Whether ``camera``'s (default: the job's first) calibration holds on ``seconds`` of
+    the job's log from ``start_s`` after its first scan (default: the middle ``seconds``)
+    (:mod:`acq.calib.pose_check`); ``whole``: the log already read, with its images."""
+    if job.trajectory is None:
+        return PoseCheck(
+            "cannot tell", "needs the rig's motion: CAN odometry in the log or --trajectory"
+        )
+    if not job.cameras:
+        return PoseCheck("cannot tell", "the log has no camera frames")
+    cj = camera or job.cameras[0]
+    opt = options or CheckOptions()
+    w = read_window(job, cj, whole=whole, start_s=start_s, seconds=seconds,
+                    margin_s=opt.window_s + 0.2, what="check")  # fmt: skip
+    if w.strength is None or not np.any(w.strength > 0):
+        return PoseCheck(
+            "cannot tell", "no laser return strengths in the log (record them: SCIP ME, CoLa RSSI1)"
+        )
+    p = w.points
+    return check_pose(
+        p.P_world, p.time_ns, w.strength, p.scan, p.step, p.r, w.frame_ns, w.jpegs, cj.cam,
+        job.laser_to_vehicle, job.trajectory.pose_at, job.trajectory.covers, opt,
     )  # fmt: skip
 
 
@@ -523,12 +512,12 @@ def run(
         odd = tally.odd_size.get(cj.name)
         if odd:
             report.frames_odd_size += len(odd)
-            note = _odd_size_note(index.with_camera(cj.name), odd, cj.cam.model, job.files)
+            note = odd_size_note(index.with_camera(cj.name), odd, cj.cam.model, job.files)
             report.notes.append(f"{cj.name}: {note}" if len(job.cameras) > 1 else note)
         bad = tally.undecodable.get(cj.name)
         if bad:
             report.cameras[cj.name]["frames_undecodable"] = len(bad)
-            first = _first_at(index.with_camera(cj.name), bad, job.files)
+            first = first_at(index.with_camera(cj.name), bad, job.files)
             note = f"{len(bad)} frames that do not decode as JPEG skipped; the first at {first}"
             report.notes.append(f"{cj.name}: {note}" if len(job.cameras) > 1 else note)
     report.frames_failed = sum(len(b) for b in tally.undecodable.values())

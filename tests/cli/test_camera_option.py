@@ -51,6 +51,7 @@ def _commands(log: list[str], calib: Path, out: Path) -> dict[str, list[str]]:
             "-o",
             str(out / "t.yaml"),
         ],
+        "calibrate check": ["calibrate", "check", *log, "--calib", c],
         "colorize": ["colorize", *log, "--calib", c, "-o", str(out / "c.ply")],
     }
 
@@ -58,7 +59,7 @@ def _commands(log: list[str], calib: Path, out: Path) -> dict[str, list[str]]:
 @pytest.mark.parametrize(
     "command",
     ["analyze sensitivity", "calibrate validate", "calibrate extrinsic",
-     "calibrate time-offset", "colorize"],
+     "calibrate time-offset", "calibrate check", "colorize"],
 )  # fmt: skip
 def test_a_wrong_camera_name_lists_the_logs_and_the_calibrations_names(
     two: tuple[DriveTruth, Path], tmp_path: Path, command: str,

@@ -59,6 +59,7 @@ BASE: dict[tuple[str, ...], list[str]] = {
         "o.yaml",
     ],
     ("calibrate", "time-offset"): ["x.mcap", "--calib", "c.yaml", "-o", "o.yaml"],
+    ("calibrate", "check"): ["x.mcap", "--calib", "c.yaml"],
     ("analyze", "sensitivity"): ["x.mcap", "--calib", "c.yaml"],
     ("status",): [],
     ("view",): ["x.ply"],

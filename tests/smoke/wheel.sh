@@ -51,7 +51,7 @@ step "acq --version, every command's --help"
 "$acq" --version
 for cmd in demo "sim render" "sim scanner" "sim camera" "sim rig" "probe scanner" "probe camera" record \
     info status replay colorize "calibrate fisheye" "calibrate extrinsic" "calibrate time-offset" \
-    "calibrate validate" "analyze sensitivity" devices "export ros2" view; do
+    "calibrate validate" "calibrate check" "analyze sensitivity" devices "export ros2" view; do
   # shellcheck disable=SC2086
   "$acq" $cmd --help > /dev/null || { echo "wheel smoke: acq $cmd --help failed" >&2; exit 1; }
 done

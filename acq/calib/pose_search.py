@@ -1,0 +1,290 @@
+"""The search over a camera's pose relative to the laser and its time offset that best
+aligns a drive's swath with the camera's frames (:mod:`acq.calib.information`).
+
+Seven parameters, each a change from the calibration given: a small rotation about the
+LASER x, y, z axes (rad; ``R = exp([w]x) R_0``, as calib.yaml's std has it, turning the
+camera about its own centre), a translation along them (m) and a time offset (s, camera
+minus laser time). Every frame's points, placed in the world at their own time, go into
+the laser frame as the rig stood at the frame's time and through the camera's model; the
+score is the information measure of what they sample there.
+
+First coordinate ascent (:func:`search`: each parameter in turn on a grid of seven
+steps around the current best, a least-squares parabola through the grid's top, rounds
+with the steps halved), which finds the top's neighbourhood but crawls along the valleys
+where a rotation and a translation move the image alike; then Newton steps on a
+quadratic fitted to the score around the estimate (:func:`newton`), which walk along
+them. The swath is cut in blocks of consecutive frames (:meth:`Swath.part`); each
+block's estimate is the Newton step from the whole's with the block's own gradient
+(:func:`gradient`) and the whole's Hessian (the measure is a mean over the points, so
+its curvature does not depend on how many); their spread is the whole's standard error.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numba
+import numpy as np
+
+from acq.calib.information import mutual_information
+from acq.camera import projection
+from acq.camera.camera_models import CameraModel
+from acq.geometry.rotations import matrix_from_rotvec
+from acq.geometry.transforms import PoseFn, Rigid
+from acq.time import sync
+
+__all__ = [
+    "FIT_STEPS",
+    "PARAMS",
+    "START_STEPS",
+    "Scorer",
+    "Swath",
+    "concave",
+    "gradient",
+    "newton",
+    "quadratic_fit",
+    "search",
+    "shifted",
+]
+
+PARAMS = ("rx", "ry", "rz", "tx", "ty", "tz", "dt")
+"""The parameters: rotation about the laser's axes (rad), translation (m), time (s)."""
+
+START_STEPS = np.array([np.radians(0.4)] * 3 + [0.02] * 3 + [0.002])
+"""The first round's step per parameter; a line reaches three steps either side."""
+
+FIT_STEPS = np.array([np.radians(0.2)] * 3 + [0.01] * 3 + [0.002])
+"""The quadratic fit's steps per parameter (:func:`quadratic_fit`)."""
+
+
+def shifted(c2l: Rigid, x: np.ndarray) -> Rigid:
+    """``camera_to_laser`` changed by the parameters ``x`` (7,) (module docstring)."""
+    return Rigid(matrix_from_rotvec(x[:3]) @ c2l.rotation, c2l.translation + x[3:6])
+
+
+@dataclass(frozen=True)
+class Swath:
+    """What the search scores, made once: ``P_world`` (N,3) m the points of every frame
+    one after the other (a point may serve several frames), frame ``f``'s from
+    ``starts[f]`` to ``starts[f + 1]``; ``frame_ns`` (F,) the frames' stamps (re-timed,
+    no offset applied); their grey level and gradient ``features`` ((F,H,W,2) uint8,
+    :func:`acq.calib.information.image_features`); per point its return strength's bin
+    ``s_bins`` (N,) and whether it is a depth ``edge`` (N,); the bins of grey levels
+    ``grey_lut`` and gradients ``grad_lut`` (F,256), per frame (a camera's exposure
+    and white balance change from frame to frame; the laser's return strengths do not)
+    and fixed (so that scores compare);
+    ``edge_weight`` the depth-edge term's weight."""
+
+    P_world: np.ndarray
+    starts: np.ndarray
+    frame_ns: np.ndarray
+    features: np.ndarray
+    s_bins: np.ndarray
+    edge: np.ndarray
+    grey_lut: np.ndarray
+    grad_lut: np.ndarray
+    bins: int
+    edge_weight: float
+
+    @property
+    def frames(self) -> int:
+        return int(self.frame_ns.size)
+
+    @property
+    def points(self) -> int:
+        return int(self.P_world.shape[0])
+
+    def part(self, lo: int, hi: int) -> Swath:
+        """Frames ``lo`` to ``hi`` (excluded), their points, the same bins."""
+        a, b = int(self.starts[lo]), int(self.starts[hi])
+        return replace(
+            self, P_world=self.P_world[a:b], starts=self.starts[lo : hi + 1] - a,
+            frame_ns=self.frame_ns[lo:hi], features=self.features[lo:hi],
+            grey_lut=self.grey_lut[lo:hi], grad_lut=self.grad_lut[lo:hi],
+            s_bins=self.s_bins[a:b], edge=self.edge[a:b],
+        )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _bilinear(images, frame, uv, ok, out):  # type: ignore[no-untyped-def]
+    """out[i] = images[frame[i]] at uv[i] (bilinear, clamped to the image) where ok[i]:
+    one pass for every frame (an OpenCV call per frame costs more than its few
+    thousand points)."""
+    _, h, w, nc = images.shape
+    for i in range(uv.shape[0]):
+        if not ok[i]:
+            continue
+        u = min(max(np.float32(uv[i, 0]), np.float32(0.0)), np.float32(w - 1))
+        v = min(max(np.float32(uv[i, 1]), np.float32(0.0)), np.float32(h - 1))
+        u0 = min(int(u), w - 2)
+        v0 = min(int(v), h - 2)
+        a = u - np.float32(u0)
+        b = v - np.float32(v0)
+        f = frame[i]
+        for c in range(nc):
+            p00 = np.float32(images[f, v0, u0, c])
+            p01 = np.float32(images[f, v0, u0 + 1, c])
+            p10 = np.float32(images[f, v0 + 1, u0, c])
+            p11 = np.float32(images[f, v0 + 1, u0 + 1, c])
+            top = p00 + a * (p01 - p00)
+            bot = p10 + a * (p11 - p10)
+            out[i, c] = np.uint8(min(top + b * (bot - top) + np.float32(0.5), np.float32(255.0)))
+
+
+class Scorer:
+    """The score of parameters on a swath, for a camera ``model`` at ``camera_to_laser``
+    with CALIB's ``offset_s`` and the rig at ``pose_at``; the points in the laser frame
+    kept per time offset tried (only the time line moves them)."""
+
+    def __init__(
+        self, swath: Swath, model: CameraModel, camera_to_laser: Rigid, offset_s: float,
+        laser_to_vehicle: Rigid, pose_at: PoseFn,
+    ) -> None:  # fmt: skip
+        self.swath, self.model, self.c2l, self.offset_s = swath, model, camera_to_laser, offset_s
+        self.v2l = laser_to_vehicle.inverse()
+        self.pose_at = pose_at
+        self.frame_of = np.repeat(np.arange(swath.frames), np.diff(swath.starts))
+        self._laser: dict[float, np.ndarray] = {}
+        self.evaluations = 0
+
+    def laser_points(self, dt: float) -> np.ndarray:
+        """(N,3) the points in the laser frame at their frames' times, offset ``dt`` s."""
+        key = round(dt, 7)
+        if key not in self._laser:
+            if len(self._laser) > 8:
+                self._laser.clear()
+            t = sync.on_laser_clock(self.swath.frame_ns, round((self.offset_s + dt) * 1e9))
+            R, tr = self.pose_at(t)
+            f = self.frame_of
+            d = self.swath.P_world - tr[f]
+            P_vehicle = np.einsum("ni,nij->nj", d, R[f])  # R.T @ (P - t) per point
+            self._laser[key] = self.v2l.apply(P_vehicle)
+        return self._laser[key]
+
+    def samples(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Grey and gradient (N,) uint8 where the points project under ``x``, and which
+        project into the image."""
+        sw = self.swath
+        P = self.laser_points(float(x[6]))
+        uv, ok = projection.project(P, self.model, shifted(self.c2l, x))
+        both = np.zeros((sw.points, 2), dtype=np.uint8)
+        _bilinear(sw.features, self.frame_of, uv, ok, both)
+        return both[:, 0], both[:, 1], ok
+
+    def __call__(self, x: np.ndarray) -> float:
+        """The information measure (nats) under parameters ``x`` (7,)."""
+        self.evaluations += 1
+        sw = self.swath
+        grey, grad, ok = self.samples(x)
+        f = self.frame_of[ok]
+        score = mutual_information(sw.s_bins[ok], sw.grey_lut[f, grey[ok]], sw.bins)
+        if sw.edge_weight > 0:
+            e = sw.grad_lut[f, grad[ok]]
+            score += sw.edge_weight * mutual_information(sw.edge[ok].astype(np.int64), e, sw.bins)
+        return score
+
+
+def _line(
+    score: Callable[[np.ndarray], float], x: np.ndarray, i: int, step: float, half: int = 3
+) -> np.ndarray:
+    """``x`` with parameter ``i`` at the top of the score along it: a grid of ``half``
+    steps either side, a parabola through the grid when its best is inside (a least
+    squares fit: the score is not smooth at the scale of a step), else the edge's best."""
+    ks = np.arange(-half, half + 1)
+    ys = np.empty(ks.size)
+    for j, k in enumerate(ks):
+        y = x.copy()
+        y[i] += k * step
+        ys[j] = score(y)
+    best = int(np.argmax(ys))
+    out = x.copy()
+    top = float(ks[best])
+    if 0 < best < ks.size - 1:
+        a, b, _ = np.polyfit(ks.astype(float), ys, 2)
+        if a < 0:
+            top = float(np.clip(-b / (2 * a), ks[0], ks[-1]))
+    out[i] += top * step
+    return out
+
+
+def search(
+    score: Callable[[np.ndarray], float],
+    x0: np.ndarray,
+    steps: np.ndarray,
+    rounds: int,
+    free: np.ndarray | None = None,
+) -> np.ndarray:
+    """Coordinate ascent of ``score`` from ``x0`` (7,) with ``steps`` (7,) halved each of
+    ``rounds``; only the parameters ``free`` (7,) bool move (default all)."""
+    x = x0.astype(np.float64).copy()
+    free = np.ones(len(PARAMS), dtype=bool) if free is None else free
+    s = steps.astype(np.float64).copy()
+    for _ in range(rounds):
+        for i in np.flatnonzero(free).tolist():
+            x = _line(score, x, i, float(s[i]))
+        s = s / 2
+    return x
+
+
+def _design(n: int) -> np.ndarray:
+    """The quadratic fit's offsets (in steps): the centre, +-1 along each parameter,
+    and (1, 1) and (1, -1) along each pair: 57 for 7 parameters."""
+    rows = [np.zeros(n)]
+    eye = np.eye(n)
+    for i in range(n):
+        rows += [eye[i], -eye[i]]
+    for i in range(n):
+        for j in range(i + 1, n):
+            rows += [eye[i] + eye[j], eye[i] - eye[j]]
+    return np.array(rows)
+
+
+def quadratic_fit(
+    score: Callable[[np.ndarray], float], x: np.ndarray, h: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The gradient (n,) and Hessian (n,n) of ``score`` at ``x`` (n,) in units of the
+    steps ``h`` (n,): a least-squares quadratic through the score at :func:`_design`'s
+    offsets (the score is not smooth at the scale of a few points' pixels, so no
+    finite differences of two values)."""
+    n = x.size
+    d = _design(n)
+    y = np.array([score(x + row * h) for row in d])
+    iu, ju = np.triu_indices(n)
+    A = np.hstack([np.ones((d.shape[0], 1)), d, d[:, iu] * d[:, ju]])
+    coef = np.linalg.lstsq(A, y, rcond=None)[0]
+    g = coef[1 : n + 1]
+    H = np.zeros((n, n))
+    H[iu, ju] = coef[n + 1 :]
+    H = H + H.T  # the diagonal doubled: d2/dx2 of c x^2 is 2c
+    return g, H
+
+
+def concave(H: np.ndarray, floor: float = 0.02) -> np.ndarray:
+    """``H`` with every eigenvalue at most ``-floor`` times the largest magnitude: a
+    direction the fit sees flat or rising (noise over a shallow valley) gets a short,
+    bounded step instead of none or an unbounded one."""
+    lam, V = np.linalg.eigh(H)
+    lam = np.minimum(lam, -floor * float(np.abs(lam).max()))
+    out: np.ndarray = (V * lam) @ V.T
+    return out
+
+
+def newton(
+    score: Callable[[np.ndarray], float], x: np.ndarray, h: np.ndarray, iterations: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Newton steps to the top of the score's fitted quadratic (:func:`quadratic_fit`,
+    made :func:`concave`), each at most two steps ``h`` per parameter. The estimate
+    and the last Hessian (in units of ``h``)."""
+    H = np.zeros((x.size, x.size))
+    for _ in range(iterations):
+        g, H = quadratic_fit(score, x, h)
+        H = concave(H)
+        x = x + np.clip(-np.linalg.solve(H, g), -2.0, 2.0) * h
+    return x, H
+
+
+def gradient(score: Callable[[np.ndarray], float], x: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The gradient (n,) of ``score`` at ``x`` in units of ``h``: central differences."""
+    eye = np.eye(x.size)
+    return np.array([(score(x + e * h) - score(x - e * h)) / 2 for e in eye])

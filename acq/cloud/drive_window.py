@@ -1,0 +1,101 @@
+"""A window of a drive for the checks that compare the laser with one camera's frames
+(``--time-offset auto``, ``acq calibrate check``): its scans placed with the job's
+trajectory by the colouring core (:func:`acq.cloud.chunks.place`), their return
+strengths, and the camera's frames in it, re-timed. Times host ns unless ``_s``; metres.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from acq.camera.camera_models import CameraModel
+from acq.cloud import views
+from acq.cloud.chunks import place
+from acq.cloud.job import CameraJob, Job, remap
+from acq.cloud.scan_colouring import Placed
+from acq.log.drive_log import DriveLog, read_log
+from acq.log.locate import locate
+from acq.time import sync
+
+__all__ = ["DriveWindow", "first_at", "odd_size_note", "read_window"]
+
+READ_MARGIN_NS = 2 * 10**9  # read this much more either side: receipt lags measurement
+
+log = logging.getLogger(__name__)
+
+
+def first_at(drive: DriveLog, stamps: Iterable[int], files: Sequence[str]) -> str:
+    """Where the first of ``stamps`` (recorded stamps of ``drive``'s frames) lies: its
+    log time (its receipt) and file."""
+    first = min(stamps)
+    i = int(np.searchsorted(drive.frame_ns, first))
+    recv = int(drive.frame_recv_ns[i]) if i < drive.frame_recv_ns.size else -1
+    return locate(files, recv if recv >= 0 else first)
+
+
+def odd_size_note(
+    drive: DriveLog, odd: dict[int, tuple[int, int]], model: CameraModel, files: Sequence[str]
+) -> str:
+    """What was skipped: ``odd`` (recorded stamp -> (w, h) px) frames of ``drive``, not of
+    ``model``'s size; the first named by its log time (its receipt) and file."""
+    sizes = ", ".join(sorted({f"{w}x{h}" for w, h in odd.values()}))
+    return (
+        f"{len(odd)} frames of another size ({sizes}) than the camera model's "
+        f"{model.width}x{model.height} skipped; the first at {first_at(drive, odd, files)}"
+    )
+
+
+@dataclass(frozen=True)
+class DriveWindow:
+    """``points`` placed in the world (time order), ``strength`` (N,) their return
+    strengths (None: the log has none), the camera's frames whose time on the laser's
+    clock (CALIB's offset) lies in the window: ``frame_ns`` (M,) re-timed stamps, no
+    offset applied, and their ``jpegs``; ``span_ns`` the window (start, end)."""
+
+    points: Placed
+    strength: np.ndarray | None
+    frame_ns: np.ndarray
+    jpegs: list[bytes]
+    span_ns: tuple[int, int]
+
+
+def read_window(
+    job: Job, cj: CameraJob, *, whole: DriveLog | None = None, start_s: float | None = None,
+    seconds: float = 60.0, margin_s: float = 0.0, what: str = "window",
+) -> DriveWindow:  # fmt: skip
+    """``seconds`` of the job's drive (which needs a trajectory) from ``start_s`` after
+    its first scan (default: the middle ``seconds``) with camera ``cj``'s frames; the
+    scans ``margin_s`` either side too (the swath a frame at the window's edge sees);
+    ``whole``: the log already read, with its images, else the window is read. Frames of
+    another size than the model's are left out, said in a warning starting ``what``."""
+    first, last = int(job.scan_new[0]), int(job.scan_new[-1])
+    span = round(seconds * 1e9)
+    lo = first + (max(0, (last - first - span) // 2) if start_s is None else round(start_s * 1e9))
+    hi = lo + span
+    margin = round(margin_s * 1e9)
+    if whole is None:
+        whole = read_log(
+            list(job.files), laser=job.laser, camera=cj.name,
+            start_ns=lo - margin - READ_MARGIN_NS, end_ns=hi + margin + READ_MARGIN_NS,
+        )  # fmt: skip
+    whole = whole.with_camera(cj.name)
+    scan_ns = remap(job.scan_old, job.scan_new, whole.scan_ns)
+    frame_ns = remap(cj.frame_old, cj.frame_new, whole.frame_ns)
+    keep = (scan_ns >= lo - margin) & (scan_ns < hi + margin)
+    pts = place(whole, scan_ns, keep, job.trajectory, job.laser_to_vehicle)
+    strength = None
+    if whole.intensities.size:
+        strength = whole.intensities[pts.scan, pts.step].astype(np.float64)
+    laser_ns = sync.on_laser_clock(frame_ns, cj.time_offset_ns)
+    sel = np.flatnonzero((laser_ns >= lo) & (laser_ns < hi))
+    odd = views.odd_sized([whole.jpegs[int(i)] for i in sel], cj.cam.model)
+    if odd:
+        stamps = {int(whole.frame_ns[sel[k]]): size for k, size in odd.items()}
+        log.warning("%s: %s", what, odd_size_note(whole, stamps, cj.cam.model, job.files))
+        sel = np.delete(sel, list(odd))
+    jpegs = [whole.jpegs[int(i)] for i in sel]
+    return DriveWindow(pts, strength, frame_ns[sel], jpegs, (lo, hi))

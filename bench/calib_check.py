@@ -1,0 +1,160 @@
+"""`acq calibrate check` against the truth on simulated drives, one JSON line per drive,
+camera and case, then one summary line per case, then (``--speed``) its time against
+`acq colorize` on a 60 s drive.
+
+Each drive: :func:`acq.sim.drive_log.write_drive_log` with the two-camera rig (another
+street per seed, ``--seconds`` long, each camera's latency configured right), read once.
+Cases: the true calibration (a "moved" there is a false alarm), and camera_to_laser
+turned by 0.3, 0.5 and 1 deg about each of the laser's axes and shifted by 1, 2 and 5
+cm along each; both cameras changed alike, each checked on its own
+(:func:`acq.cloud.colorize.check_calibration`, what `acq calibrate check` runs). Per
+row: the verdict, the estimate's error against the true pose (deg, mm) and time offset
+(ms; the true one: the re-timed frames' mean error minus the re-timed scans'), the
+standard errors. Per case: how often it said "moved", the errors' median and largest.
+
+Run as a script: ``python bench/calib_check.py [--drives N] [--seconds S] [--speed]``
+(defaults 2 drives of 20 s: about 15 minutes on 2 loaded cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from acq.calib.pose_search import shifted
+from acq.cloud.colorize import Report, check_calibration, prepare
+from acq.geometry.rotations import rotation_angle
+from acq.sim.drive_log import write_drive_log
+from acq.sim.world import default_rig
+
+AXES = ("x", "y", "z")
+
+
+def cases() -> dict[str, np.ndarray]:
+    """Case name -> the change (7,) (rad, m) applied to CALIB's camera_to_laser."""
+    out = {"true": np.zeros(7)}
+    for deg in (0.3, 0.5, 1.0):
+        for i, a in enumerate(AXES):
+            x = np.zeros(7)
+            x[i] = np.radians(deg)
+            out[f"rot {deg} deg {a}"] = x
+    for cm in (1, 2, 5):
+        for i, a in enumerate(AXES):
+            x = np.zeros(7)
+            x[3 + i] = cm / 100
+            out[f"shift {cm} cm {a}"] = x
+    return out
+
+
+def _drive(seed: int, seconds: float, directory: Path) -> list[dict[str, Any]]:
+    truth = write_drive_log(directory, seconds, pattern_at=None, seed=seed,
+                            rig=default_rig(cameras=2),
+                            configured_camera_latency_s=None)  # fmt: skip
+    job, whole = prepare(truth.files, truth.calibration, Report(output="x"), jpegs=True)
+    offsets = truth.time_offsets_s(job)
+    rows = []
+    for case, x in cases().items():
+        for cj in job.cameras:
+            true = truth.calibration.camera(cj.name)
+            cam = replace(true, extrinsics=shifted(true.camera_to_laser, x),
+                          time_offset_s=offsets[cj.name])  # fmt: skip
+            cj_case = replace(cj, cam=cam)
+            job_case = replace(job, cameras=(cj_case,))
+            t0 = time.perf_counter()
+            c = check_calibration(job_case, camera=cj_case, whole=whole)
+            row: dict[str, Any] = {"bench": "calib_check", "seed": seed, "camera": cj.name,
+                                   "case": case, "verdict": c.verdict, "reason": c.reason,
+                                   "seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip
+            if c.found:
+                assert c.camera_to_laser is not None
+                R_err = c.camera_to_laser.rotation @ true.camera_to_laser.rotation.T
+                row |= {
+                    "err_deg": round(float(np.degrees(rotation_angle(R_err))), 3),
+                    "err_mm": round(1e3 * float(np.linalg.norm(
+                        c.camera_to_laser.translation - true.camera_to_laser.translation)), 1),
+                    "err_ms": round(1e3 * (c.time_offset_s - offsets[cj.name]), 2),
+                    "std_deg": round(float(np.degrees(np.linalg.norm(c.std[:3]))), 3),
+                    "std_mm": round(1e3 * float(np.linalg.norm(c.std[3:6])), 1),
+                    "std_ms": round(1e3 * float(c.std[6]), 2),
+                    "px_at_10m": round(c.px_at_10m, 1),
+                }  # fmt: skip
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    return rows
+
+
+def summary(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per case: the share said "moved" (a false alarm for "true"), the errors."""
+    out = []
+    for case in cases():
+        mine = [r for r in rows if r["case"] == case]
+        found = [r for r in mine if "err_deg" in r]
+        s: dict[str, Any] = {"bench": "calib_check", "case": case, "runs": len(mine),
+                             "moved": sum(r["verdict"] == "moved" for r in mine),
+                             "cannot_tell": sum(r["verdict"] == "cannot tell"
+                                                for r in mine)}  # fmt: skip
+        for key in ("err_deg", "err_mm", "err_ms"):
+            v = np.abs([r[key] for r in found])
+            if v.size:
+                s[f"{key}_median"] = round(float(np.median(v)), 3)
+                s[f"{key}_max"] = round(float(v.max()), 3)
+        out.append(s)
+        print(json.dumps(s), flush=True)
+    return out
+
+
+def speed(directory: Path, seconds: float = 60.0) -> dict[str, Any]:
+    """Wall time of `acq calibrate check` and of `acq colorize` on one drive (in this
+    process, one after the other)."""
+    from acq.camera import calibfile
+    from acq.cli import main as acq_main
+
+    truth = write_drive_log(directory, seconds, pattern_at=None, seed=0,
+                            rig=default_rig(cameras=2),
+                            configured_camera_latency_s=None)  # fmt: skip
+    calib = directory / "calib.yaml"
+    calibfile.save(truth.calibration, calib)
+    logs = [str(f) for f in truth.files]
+    times = {}
+    for name, argv in (
+        ("check", ["calibrate", "check", *logs, "--calib", str(calib)]),
+        ("colorize", ["colorize", *logs, "--calib", str(calib), "-o", str(directory / "c.ply")]),
+    ):
+        t0 = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()):
+            code = acq_main(argv)
+        times[name] = round(time.perf_counter() - t0, 2)
+        if code not in (0, 1):
+            raise SystemExit(f"acq {' '.join(argv[:2])} exited {code}")
+    row = {"bench": "calib_check_speed", "drive_s": seconds, "check_s": times["check"],
+           "colorize_s": times["colorize"]}  # fmt: skip
+    print(json.dumps(row), flush=True)
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--drives", type=int, default=2)
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--speed", action="store_true", help="also time it against acq colorize")
+    args = ap.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in range(args.drives):
+            rows += _drive(seed, args.seconds, Path(tmp) / f"d{seed}")
+        summary(rows)
+        if args.speed:
+            speed(Path(tmp) / "speed")
+
+
+if __name__ == "__main__":
+    main()

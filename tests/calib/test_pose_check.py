@@ -1,0 +1,150 @@
+"""`acq calibrate check` (acq/calib/pose_check.py) on a short simulated drive recorded as
+the recorder writes it, its camera's latency configured right: the true calibration
+holds, a camera turned or shifted from it is said to have moved, by about what the
+simulator moved it, and a drive that cannot tell says why."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from acq.calib.information import depth_edges
+from acq.calib.pose_check import PoseCheck
+from acq.calib.pose_search import shifted
+from acq.camera import calibfile
+from acq.camera.calibfile import Calibration
+from acq.cli import main as acq_main
+from acq.cloud.colorize import Report, check_calibration, prepare
+from acq.sim.drive_log import DriveTruth, write_drive_log
+
+SECONDS = 5.0
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriveTruth, Calibration]:
+    """The drive, and its true calibration with the camera's true time offset after the
+    re-timing (a fraction of a millisecond)."""
+    d = tmp_path_factory.mktemp("drive")
+    truth = write_drive_log(d, SECONDS, pattern_at=None, seed=3, configured_camera_latency_s=None)
+    job, _ = prepare(truth.files, truth.calibration, Report(output="x"))
+    offset = truth.time_offsets_s(job)["camera"]
+    cam = replace(truth.calibration.camera(), time_offset_s=offset)
+    return truth, replace(truth.calibration, cameras={"camera": cam})
+
+
+def _moved(calib: Calibration, x: np.ndarray) -> Calibration:
+    """``calib`` with its camera's camera_to_laser changed by ``x`` (7,) (rad, m)."""
+    name, cam = next(iter(calib.cameras.items()))
+    cam = replace(cam, extrinsics=shifted(cam.camera_to_laser, x))
+    return replace(calib, cameras={name: cam})
+
+
+def _check(truth: DriveTruth, calib: Calibration) -> PoseCheck:
+    job, whole = prepare(truth.files, calib, Report(output="x"), jpegs=True)
+    return check_calibration(job, whole=whole)
+
+
+def test_depth_edges_are_the_near_side_of_a_range_jump() -> None:
+    scan = np.array([0, 0, 0, 0, 0, 1, 1])
+    step = np.array([0, 1, 2, 3, 5, 0, 1])
+    r = np.array([5.0, 5.1, 3.0, 3.05, 3.0, 2.0, 9.0])
+    # 2 is nearer than 1 by 2.1 m; 3 and 4 have a missing beam between them; scan 1's
+    # first beam is nearer than its second
+    assert depth_edges(scan, step, r).tolist() == [False, False, True, True, True, True, False]
+
+
+def test_a_turned_camera_has_moved_by_what_it_was_turned(
+    drive: tuple[DriveTruth, Calibration],
+) -> None:
+    """CALIB says the camera is turned 1 deg about the laser's z axis from where it is:
+    the check says it moved, by about 1 deg, and its estimate is the truth's pose."""
+    x = np.zeros(7)
+    x[2] = np.radians(1.0)
+    truth, calib = drive
+    c = _check(truth, _moved(calib, x))
+    print(c.to_dict())
+    assert c.verdict == "moved" and "rotation" in c.reason
+    true = calib.camera().camera_to_laser
+    assert c.camera_to_laser is not None
+    err = np.degrees(np.arccos(np.clip(
+        (np.trace(c.camera_to_laser.rotation @ true.rotation.T) - 1) / 2, -1, 1)))  # fmt: skip
+    assert err < 0.15
+    assert np.linalg.norm(c.camera_to_laser.translation - true.translation) < 0.02
+    assert 0.8 < c.angle_deg < 1.2 and c.px_at_10m > 2
+
+
+def test_cli_verdict_json_and_write(
+    drive: tuple[DriveTruth, Calibration], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A camera 4 cm off along the laser's y axis: moved (the text line), the refined
+    calibration written with its standard errors, CALIB never overwritten without
+    --force; the true calibration holds (--json); bad input one line and exit 2."""
+    truth, true_calib = drive
+    x = np.zeros(7)
+    x[4] = 0.04
+    calib = tmp_path / "calib.yaml"
+    calibfile.save(_moved(true_calib, x), calib)
+    before = calib.read_bytes()
+    out = tmp_path / "refined.yaml"
+    logs = [str(f) for f in truth.files]
+    assert acq_main(["calibrate", "check", *logs, "--calib", str(calib), "--write", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    print(lines)
+    assert lines[0].startswith("camera camera: moved by ") and "px at 10 m" in lines[0]
+    assert lines[-1] == f"wrote {out}"
+    refined = calibfile.load(out).camera()
+    true = true_calib.camera().camera_to_laser
+    assert np.linalg.norm(refined.camera_to_laser.translation - true.translation) < 0.02
+    assert refined.std.translation_m is not None and max(refined.std.translation_m) < 0.02
+    assert "acq calibrate check on " in refined.method
+    # over CALIB: refused without --force, CALIB untouched
+    argv = ["calibrate", "check", *logs, "--calib", str(calib), "--write", str(calib)]
+    assert acq_main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--write" in err, err
+    assert calib.read_bytes() == before
+    # the true calibration: holds, in JSON
+    good = tmp_path / "good.yaml"
+    calibfile.save(true_calib, good)
+    assert acq_main(["calibrate", "check", *logs, "--calib", str(good), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["verdict"] == "holds" and report["camera"] == "camera", report["reason"]
+    assert report["rotation_deg"] < 0.15 and report["translation_mm"] < 15
+    assert abs(report["time_offset_ms"]) < 1.0
+    assert report["frames"] >= 40 and report["points"] > 50_000
+    # the estimate is the fitted quadratic's top: within the measure's noise of CALIB's
+    assert abs(report["score_nats"]["estimate"] - report["score_nats"]["calib"]) < 0.002
+    assert set(report["std"]) == {"rx", "ry", "rz", "tx", "ty", "tz", "dt"}
+    assert len(report["blocks"]) >= 4
+    # bad input
+    assert acq_main(["calibrate", "check", *logs, "--calib", str(tmp_path / "no.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no.yaml" in err
+    assert acq_main(["calibrate", "check", *logs, "--calib", str(good), "--frames", "3"]) == 2
+    assert "--frames" in capsys.readouterr().err
+
+
+def test_a_drive_that_cannot_tell_says_why(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cases = {
+        "still": (dict(speed_kmh=0.0), "does not move"),
+        "no_strengths": (dict(intensities=False), "return strengths"),
+        "no_odometry": (dict(odometry_hz=0.0), "motion"),
+    }
+    for name, (kwargs, message) in cases.items():
+        truth = write_drive_log(tmp_path / name, 1.0, pattern_at=None, **kwargs)  # type: ignore[arg-type]
+        calib = tmp_path / name / "calib.yaml"
+        calibfile.save(truth.calibration, calib)
+        out = tmp_path / name / "out.yaml"
+        argv = ["calibrate", "check", *map(str, truth.files), "--calib", str(calib),
+                "--write", str(out)]  # fmt: skip
+        assert acq_main(argv) == 1, name
+        captured = capsys.readouterr()
+        assert captured.out.startswith("camera camera: cannot tell: "), captured.out
+        assert message in captured.out, captured.out
+        assert "nothing written" in captured.err and not out.exists()

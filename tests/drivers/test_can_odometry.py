@@ -162,7 +162,10 @@ def test_udp_multicast_kernel_stamps_map_to_the_monotonic_clock() -> None:
             assert odo.speed == pytest.approx(sent.speed, abs=SPEED_LSB / 2 + 1e-9)
     lat = np.array(latency) / 1e6  # ms
     assert len(lat) > 150 and bus.bad_stamps == 0
-    assert lat[:, 0].min() > -0.05 and np.median(lat[:, 0]) < 2.0
+    # never before the send, but for the mapping's error: the wall clock's stamp is moved
+    # to the monotonic clock by its age, which a wall clock being slewed (NTP, a virtual
+    # machine's agent: 0.5 % seen here) misreads by its rate: 50 us in 10 ms
+    assert lat[:, 0].min() > -0.2 and np.median(lat[:, 0]) < 2.0
     assert lat[:, 1].min() >= 0.0
 
 

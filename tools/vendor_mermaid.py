@@ -13,13 +13,11 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import json
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 
-from vendor_viewer import pack
+from vendor_viewer import pack, write_record
 
 PACKAGE = "mermaid"
 VERSION = "11.17.2"  # the major version Material for MkDocs loads
@@ -45,12 +43,7 @@ def main(argv: list[str] | None = None) -> int:
             listed.append(
                 {"path": target.name, "sha256": hashlib.sha256(target.read_bytes()).hexdigest()}
             )
-    record = {
-        "package": PACKAGE, "version": args.version, "integrity": integrity,
-        "source": f"npm pack {spec}", "files": listed,
-    }  # fmt: skip
-    (out / "VENDORED.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
-    print(f"vendored {PACKAGE} {args.version}: {len(listed)} files in {out}", file=sys.stderr)
+    write_record(out, PACKAGE, args.version, integrity, spec, listed)
     return 0
 
 

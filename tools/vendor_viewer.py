@@ -104,13 +104,21 @@ def main(argv: list[str] | None = None) -> int:
             shutil.copyfile(root / path, target)
             digest = hashlib.sha256(target.read_bytes()).hexdigest()
             listed.append({"path": f"{PACKAGE}/{path}", "sha256": digest})
+    write_record(out, PACKAGE, args.version, integrity, spec, listed)
+    return 0
+
+
+def write_record(
+    out: Path, package: str, version: str, integrity: str, spec: str, listed: list[dict[str, str]]
+) -> None:
+    """VENDORED.json in ``out``: the package, its version, the tarball's integrity, where it
+    came from and each file's sha256 (``listed``); said on stderr."""
     record = {
-        "package": PACKAGE, "version": args.version, "integrity": integrity,
+        "package": package, "version": version, "integrity": integrity,
         "source": f"npm pack {spec}", "files": listed,
     }  # fmt: skip
     (out / "VENDORED.json").write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
-    print(f"vendored {PACKAGE} {args.version}: {len(listed)} files in {out}", file=sys.stderr)
-    return 0
+    print(f"vendored {package} {version}: {len(listed)} files in {out}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -195,6 +195,17 @@ def _colorize_range(Pf, lo, hi, R, t, intr, pinhole, image, bilinear, out, valid
 
 
 @numba.njit(nogil=True, fastmath=True, cache=True, error_model="numpy")
+def _gather(P, idx, t, blo, m, Pf):  # type: ignore[no-untyped-def]
+    """``Pf[:3m]`` the points ``P[idx[blo : blo + m]]`` relative to the camera at ``t``,
+    subtracted in float64 (world coordinates can be large)."""
+    for i in range(m):
+        k = idx[blo + i]
+        Pf[3 * i] = P[k, 0] - t[0]
+        Pf[3 * i + 1] = P[k, 1] - t[1]
+        Pf[3 * i + 2] = P[k, 2] - t[2]
+
+
+@numba.njit(nogil=True, fastmath=True, cache=True, error_model="numpy")
 def _colour_into(P, idx, R, t, intr, pinhole, image, bilinear, out, valid, uv):  # type: ignore[no-untyped-def]
     w = np.float32(image.shape[1])
     h = np.float32(image.shape[0])
@@ -204,12 +215,7 @@ def _colour_into(P, idx, R, t, intr, pinhole, image, bilinear, out, valid, uv): 
     ok = np.empty(_BLOCK, dtype=np.bool_)
     for blo in range(0, idx.size, _BLOCK):
         m = min(blo + _BLOCK, idx.size) - blo
-        # gathered relative to the camera in float64 (world coordinates can be large)
-        for i in range(m):
-            k = idx[blo + i]
-            Pf[3 * i] = P[k, 0] - t[0]
-            Pf[3 * i + 1] = P[k, 1] - t[1]
-            Pf[3 * i + 2] = P[k, 2] - t[2]
+        _gather(P, idx, t, blo, m, Pf)
         _project_block(Pf[: 3 * m], R, zero, intr, pinhole, w, h, uvf[: 2 * m], ok[:m])
         for i in range(m):
             if ok[i]:
@@ -234,11 +240,7 @@ def _pixels_read(P, idx, R, t, intr, pinhole, w_px, h_px, rows, cols):  # type: 
     ok = np.empty(_BLOCK, dtype=np.bool_)
     for blo in range(0, idx.size, _BLOCK):
         m = min(blo + _BLOCK, idx.size) - blo
-        for i in range(m):
-            k = idx[blo + i]
-            Pf[3 * i] = P[k, 0] - t[0]
-            Pf[3 * i + 1] = P[k, 1] - t[1]
-            Pf[3 * i + 2] = P[k, 2] - t[2]
+        _gather(P, idx, t, blo, m, Pf)
         _project_block(Pf[: 3 * m], R, zero, intr, pinhole, w, h, uvf[: 2 * m], ok[:m])
         for i in range(m):
             if ok[i]:

@@ -112,15 +112,22 @@ ready() {  # a simulator's first line says where it serves
   for i in $(seq 1 600); do grep -q '^simulated' "$log" 2>/dev/null && return 0; sleep 0.1; done
   echo "wheel smoke: $log: the simulator did not start" >&2; cat "$log" >&2; return 1
 }
-"$acq" sim scanner --model utm-30lx --listen tcp://127.0.0.1:10940 > scanner.log 2>&1 &
-pids+=($!)
-"$acq" sim camera --listen http://127.0.0.1:8080/stream.mjpg > camera.log 2>&1 &
+# 10940 is also the Hokuyo samples' fixed port, which their tests serve beside this run:
+# held under their lock (tests/hokuyo_client.py: sample_port) until the simulator is gone
+exec 9>> "${TMPDIR:-/tmp}/acq-tests-port-10940.lock"
+flock -w 300 9
+"$acq" sim scanner --model utm-30lx --listen tcp://127.0.0.1:10940 > scanner.log 2>&1 9>&- &
+scanner=$!
+pids+=($scanner)
+"$acq" sim camera --listen http://127.0.0.1:8080/stream.mjpg > camera.log 2>&1 9>&- &
 pids+=($!)
 ready scanner.log && ready camera.log
 "$acq" probe scanner --driver hokuyo --url socket://127.0.0.1:10940 --count 2 > /dev/null
 "$acq" record --duration 2
 "$acq" info logs/*.mcap > info.txt || { cat info.txt; exit 1; }
 grep -q '/laser/scan' info.txt && grep -q '/camera/image/compressed' info.txt
+kill "$scanner" 2> /dev/null || true; wait "$scanner" 2> /dev/null || true
+flock -u 9
 
 step "acq analyze sensitivity on that one-camera log"
 "$acq" analyze sensitivity --calib "$site/acq/config/sim_calib.yaml" logs/*.mcap -o sensitivity \

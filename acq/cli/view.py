@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-import threading
+import time
 from pathlib import Path
 
 from acq.addresses import is_loopback
@@ -112,7 +112,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"serving {n} layer{'s' * (n != 1)} at {server.url} (Ctrl-C to stop)", flush=True)
             if args.open and not webbrowser.open(server.url):
                 print(f"acq view: no web browser found: open {server.url}", file=sys.stderr)
-            threading.Event().wait()
+            # timed: a process's signal may be taken by one of the server's threads, and
+            # then only the main thread's next step runs its handler (an untimed wait on
+            # a lock never takes one)
+            while True:
+                time.sleep(0.2)
     except KeyboardInterrupt:  # the way to stop it (Stopped is one): not a failure
         pass
     finally:

@@ -3,6 +3,7 @@ when asked, and refuses a bad file or option in one line with exit status 2."""
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import signal
@@ -92,12 +93,17 @@ def test_another_host_is_warned_of_and_a_foreign_address_refused(
     _refused(capsys, [path, "--host", "::1", "--port", "-5"], "--port")  # no warning for ::1
 
 
-def _stopped(proc: subprocess.Popen[str], signum: int = signal.SIGINT) -> tuple[str, str]:
-    """Ctrl-C (or ``signum``) to ``proc`` (an `acq view` started with :data:`DUMPS`): its
-    (stdout, stderr) once it exits; when it does not within 20 s, fails saying its state,
-    its children and every thread's stack (faulthandler's dump on SIGABRT) to say where it
-    hung."""
-    proc.send_signal(signum)
+def _stopped(
+    proc: subprocess.Popen[str], signum: int = signal.SIGINT, *, tid: int | None = None
+) -> tuple[str, str]:
+    """Ctrl-C (or ``signum``) to ``proc`` (an `acq view` started with :data:`DUMPS`), or
+    to its thread ``tid`` only: its (stdout, stderr) once it exits; when it does not within
+    20 s, fails saying its state, its children and every thread's stack (faulthandler's
+    dump on SIGABRT) to say where it hung."""
+    if tid is None:
+        proc.send_signal(signum)
+    elif ctypes.CDLL(None, use_errno=True).tgkill(proc.pid, tid, signum) != 0:
+        raise OSError(ctypes.get_errno(), f"tgkill {proc.pid} {tid}")
     try:
         return proc.communicate(timeout=20)
     except subprocess.TimeoutExpired:
@@ -172,6 +178,26 @@ def test_points_found_bad_after_the_url_is_printed_are_said_in_one_line(tmp_path
     finally:
         proc.kill()
     assert said.startswith(f"acq view: {cut}: its points cannot be read ("), said
+    assert proc.returncode == 0 and err == "" and out == ""
+
+
+def test_ctrl_c_taken_by_another_thread_than_the_main_one_stops_it(tmp_path: Path) -> None:
+    """The kernel gives a process's signal to any of its threads that does not block it:
+    one taken by the server's thread (or a library's) stops acq view as well."""
+    path = cloud(tmp_path / "c.ply", n=50)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "acq.cli", "view", str(path)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=DUMPS,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().startswith("serving 1 layer at http://127.0.0.1:")
+        others = [int(t.name) for t in Path(f"/proc/{proc.pid}/task").iterdir()]
+        others.remove(proc.pid)
+        assert others, "acq view serves from a thread of its own"
+        out, err = _stopped(proc, tid=max(others))
+    finally:
+        proc.kill()
     assert proc.returncode == 0 and err == "" and out == ""
 
 

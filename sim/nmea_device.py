@@ -62,7 +62,7 @@ class FixTruth:
     speed: float  # m/s over ground
     course: float  # rad clockwise from north
     reported: tuple[float, float, float]  # latitude, longitude, altitude sent (noise added)
-    t_sent: float = 0.0  # host monotonic s its sentences were due
+    t_sent: float = 0.0  # host monotonic s its sentences were made, then written
 
 
 def _geodetic(frame: WorldFrame, e: float, n: float, u: float) -> tuple[float, float, float]:

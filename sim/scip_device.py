@@ -28,6 +28,7 @@ URG-04LX or UTM-30LX does.
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -60,6 +61,7 @@ class SentScan:
     intensities: np.ndarray | None
     extra_mm: list[list[int]] = field(default_factory=list)  # further echoes per point
     telegram: bytes = b""
+    t_sent: float = 0.0  # host monotonic s the telegram was made (then written at once), s
 
 
 @dataclass
@@ -552,6 +554,7 @@ class ScipDevice:
                 inten if with_int else None,
                 extra,
                 telegram,
+                time.monotonic(),
             )
         )
         return telegram

@@ -50,11 +50,17 @@ def test_record_the_simulated_rig(rig: Rig, tmp_path: Path) -> None:
     assert all(m.data == s.telegram for (_, _, m), s in zip(raws, recorded, strict=True))
     assert len(scans) == len(raws) == len(log["/acq/timing/laser"])
     # the stamps: point 0's true time, the latency measured with TM round trips (the
-    # default), within 1 ms once the clock has a few seconds of scans
+    # default), within 1 ms once the clock has a few seconds of scans; plus what the
+    # simulator's lateness raised the floor of either half's delays by (a loaded host
+    # keeps it from writing a scan when due: no recorder can see below that floor)
     step_dt = rig.scanner.step_dt
     err = np.array([p * 1e-9 - (s.t0 + s.start * step_dt)
                     for (_, p, _), s in zip(scans, recorded, strict=True)])  # fmt: skip
-    assert abs(float(np.median(err[len(err) // 2 :]))) < 1e-3, np.percentile(err, [5, 50, 95])
+    late = np.array([s.t_sent - s.t_stamp for s in recorded])
+    half = len(late) // 2
+    slack = max(late[:half].min(), late[half:].min()) - late.min()
+    assert abs(float(np.median(err[half:]))) < 1e-3 + slack, (
+        np.percentile(err, [5, 50, 95]), slack)  # fmt: skip
     # rates: scans at 40 Hz, frames at 25 Hz, nothing lost between the first and the last
     span = (scans[-1][1] - scans[0][1]) * 1e-9
     assert len(scans) == pytest.approx(span * 40 + 1, rel=0.01)

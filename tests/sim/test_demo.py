@@ -132,6 +132,7 @@ def test_clock_summary_shows_no_drift_it_cannot_know(demo: Demo) -> None:
 
 class Log(NamedTuple):
     scans: int
+    scan_span_s: float  # from the first scan's stamp to the last's
     valid: int  # finite ranges
     frame_utc: dict[str, np.ndarray]  # per camera (F,) s, the frames' stamps (middle of exposure)
 
@@ -140,6 +141,7 @@ def _read_log(path: Path) -> Log:
     """What the test needs of the log, through mcap's seeking reader (needs the summary),
     as any MCAP tool sees it: the frames' publish times are UTC already."""
     scans = valid = 0
+    scan_ns: list[int] = []
     frames: dict[str, list[int]] = {name: [] for name in CAMERAS}
     topics = {f"/{name}/image/compressed": name for name in CAMERAS}
     with path.open("rb") as f:
@@ -152,11 +154,13 @@ def _read_log(path: Path) -> Log:
         ):
             if channel.topic == "/laser/scan":
                 scans += 1
+                scan_ns.append(message.publish_time)
                 valid += int(np.isfinite(np.asarray(msg.ranges)).sum())
             else:
                 assert msg.timestamp.ToNanoseconds() == message.publish_time
                 frames[topics[channel.topic]].append(message.publish_time)
-    return Log(scans, valid, {k: np.array(v) * 1e-9 for k, v in frames.items()})
+    span = (max(scan_ns) - min(scan_ns)) * 1e-9 if scan_ns else 0.0
+    return Log(scans, span, valid, {k: np.array(v) * 1e-9 for k, v in frames.items()})
 
 
 def _on_cadence(stamps: np.ndarray, period_s: float = 0.04, slack_s: float = 0.006) -> np.ndarray:
@@ -210,8 +214,11 @@ def _seen_gains(xyz: np.ndarray) -> np.ndarray | None:
 def test_log_and_cloud_agree(demo: Demo) -> None:
     out, code, _, utc0, _, _ = demo
     assert code == 0
-    scans, valid, frame_utc = _read_log(out / "demo.mcap")
-    assert scans == pytest.approx(SECONDS * 40, rel=0.1)
+    scans, span, valid, frame_utc = _read_log(out / "demo.mcap")
+    # every scan from the first recorded to the last, at 40 Hz, over most of the run: on a
+    # loaded host the scanner's connection (20 time queries first) can take a second of it
+    assert scans == pytest.approx(span * 40 + 1, abs=2)
+    assert SECONDS - 1.0 < span < SECONDS + 0.1
     for name in CAMERAS:
         assert frame_utc[name].size == pytest.approx(SECONDS * 25, rel=0.15), name
 

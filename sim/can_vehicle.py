@@ -83,6 +83,7 @@ class SentFrame:
     speed: float  # m/s
     yaw_rate: float  # rad/s
     wheel_speeds: tuple[float, float, float, float]  # m/s FL, FR, RL, RR
+    t_returned: float = 0.0  # host monotonic s, once bus.send returned (a busy host: later)
 
 
 class SimVehicle:
@@ -254,7 +255,9 @@ class SimVehicle:
                 except can.CanError:
                     continue  # a full transmit queue: the frame is lost, as on a car
                 self.sent += 1
-                self._truth.append(dataclasses.replace(truth, t_sent=t_sent))
+                self._truth.append(
+                    dataclasses.replace(truth, t_sent=t_sent, t_returned=time.monotonic())
+                )
 
     def close(self) -> None:
         self._stop.set()

@@ -69,6 +69,7 @@ class SentScan:
     t0: float  # true (host monotonic) time of the first point sent, s
     ranges: np.ndarray  # float32 m, DIST1
     intensities: np.ndarray  # float32, RSSI1; empty without it
+    t_sent: float = 0.0  # host monotonic s the telegram was made (then written at once)
 
 
 @dataclass(frozen=True)
@@ -391,7 +392,9 @@ class ColaDevice:
         )
         metres = dist.astype(np.float32) * np.float32(self.dist_scale * 0.001)
         metres[dist == 0] = np.inf
-        sent = SentScan(k & 0xFFFF, self.telegram_counter, ticks, t_first, metres, rssi)
+        sent = SentScan(
+            k & 0xFFFF, self.telegram_counter, ticks, t_first, metres, rssi, time.monotonic()
+        )
         return sd, sent
 
     def _scan_payload(self, k: int, command: str) -> bytes:

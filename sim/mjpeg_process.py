@@ -8,10 +8,12 @@ Times are the host's ``time.monotonic()`` seconds.
 from __future__ import annotations
 
 import contextlib
+import os
 import select
 import signal
 import time
 from dataclasses import asdict
+from pathlib import Path
 from typing import Any
 
 from acq.sim.camera_device import FrameTruth
@@ -63,6 +65,15 @@ def _child_main() -> None:
         server.close()
 
 
+def _cpu_s(pid: int) -> float | None:
+    """CPU s (user and system) process ``pid`` has used; None where /proc cannot say."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 class MjpegServerProcess:
     """:func:`serve_camera` in a child process: the same faults, ``truth()`` fetched over
     a pipe. ``options`` must be JSON values (no Street or Rig objects: ``camera`` names
@@ -96,14 +107,28 @@ class MjpegServerProcess:
             options["prerender_s"] = prerender_s
         self._proc.stdin.write(json.dumps({"listen": listen, "options": options}) + "\n")
         self._proc.stdin.flush()
-        # a frame takes 20-40 ms of a core to render: 0.5-1 s per second of frames, and
-        # up to 3 s on a machine busy with other work
-        ready, _, _ = select.select([self._proc.stdout], [], [], 60 + 5 * prerender_s)
-        reply = json.loads(self._proc.stdout.readline() or "{}") if ready else {}
+        # a frame takes 20-40 ms of a core to render: 0.5-1 s of the child's CPU per second
+        # of frames, whatever the wall time a machine busy with other work stretches it to
+        budget_s = 60 + 5 * prerender_s
+        t0 = time.monotonic()
+        reply: dict[str, Any] = {}
+        while self._proc.poll() is None:
+            ready, _, _ = select.select([self._proc.stdout], [], [], 1.0)
+            if ready:
+                reply = json.loads(self._proc.stdout.readline() or "{}")
+                break
+            used = _cpu_s(self._proc.pid)
+            waited = time.monotonic() - t0
+            if (used if used is not None else waited) > budget_s or waited > 20 * budget_s:
+                cpu = f"{used:.0f} s of its CPU in " if used is not None else ""
+                rendering = f"rendering {prerender_s:g} s of frames first"
+                reply = {"error": f"no answer after {cpu}{waited:.0f} s ({rendering})"}
+                break
         if "url" not in reply:
             self._proc.kill()
-            self._proc.wait(5)
-            raise RuntimeError(f"the simulated camera process failed: {reply.get('error')}")
+            status = self._proc.wait(5)
+            why = reply.get("error") or f"it exited with status {status} before serving"
+            raise RuntimeError(f"the simulated camera process failed: {why}")
         self.url: str = reply["url"]
 
     def _call(self, *command: Any) -> Any:

@@ -30,14 +30,18 @@ class Soak:
     name: str
     pty: bool
     sent: list[int] = field(default_factory=list)
+    sent_at: list[float] = field(default_factory=list)  # host monotonic s each was made
     received: list[int] = field(default_factory=list)
     events: list[LinkEvent] = field(default_factory=list)
     pulls: int = 0
+    pulled_at: list[float] = field(default_factory=list)  # host monotonic s
 
 
-def _drain(history: deque, out: list[int], key: str) -> None:  # type: ignore[type-arg]
+def _drain(history: deque, run: Soak, key: str) -> None:  # type: ignore[type-arg]
     while history:
-        out.append(getattr(history.popleft(), key))
+        sent = history.popleft()
+        run.sent.append(getattr(sent, key))
+        run.sent_at.append(sent.t_sent)
 
 
 def run_soak(seconds: float, pull_every: float) -> list[Soak]:
@@ -71,9 +75,10 @@ def run_soak(seconds: float, pull_every: float) -> list[Soak]:
     while time.monotonic() < t_end:
         time.sleep(0.1)
         for run, _server, history, key, _ in setups:
-            _drain(history, run.sent, key)
+            _drain(history, run, key)
         if time.monotonic() >= next_pull:
             for run, server, *_ in setups:
+                run.pulled_at.append(time.monotonic())
                 server.disconnect()
                 run.pulls += 1
             next_pull += pull_every
@@ -81,9 +86,14 @@ def run_soak(seconds: float, pull_every: float) -> list[Soak]:
     for run, server, history, key, thread in setups:
         thread.join(10)
         assert not thread.is_alive()
-        _drain(history, run.sent, key)
+        _drain(history, run, key)
         server.close()
     return runs
+
+
+# a scan made this little before a cable pull may still wait in the link's buffer when
+# it goes (a pty's unread bytes go with it, as a serial line's do): lost with the cable
+IN_FLIGHT_S = 0.25
 
 
 def check(runs: list[Soak], min_connects: int) -> None:
@@ -91,9 +101,16 @@ def check(runs: list[Soak], min_connects: int) -> None:
         assert run.received, run.name
         last = run.received[-1]
         # Every scan sent up to the last one received (later ones were in flight when
-        # the consumer stopped) arrived, once, in order.
+        # the consumer stopped) arrived, once, in order; but for any in flight at a pull
         expected = [k for k in run.sent if k <= last]
-        assert run.received == expected, (run.name, len(expected), len(run.received))
+        in_flight = {
+            k for k, t in zip(run.sent, run.sent_at, strict=True)
+            if any(0 <= pull - t < IN_FLIGHT_S for pull in run.pulled_at)
+        }  # fmt: skip
+        got = set(run.received)
+        assert run.received == [k for k in expected if k in got], run.name  # once, in order
+        lost = [k for k in expected if k not in got]
+        assert set(lost) <= in_flight, (run.name, lost, len(expected), len(run.received))
         connects = [e for e in run.events if e.kind == "connected"]
         assert len(connects) >= min_connects, (run.name, [e.kind for e in run.events])
 

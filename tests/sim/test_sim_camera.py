@@ -4,14 +4,18 @@ from __future__ import annotations
 
 import socket
 import statistics
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
 from acq.sim.camera_device import SimCamera, jpeg_digest
+from acq.sim.mjpeg_process import MjpegServerProcess, _cpu_s
 from acq.sim.mjpeg_server import MjpegServer, serve_camera
 from acq.sim.world import Street
 
@@ -368,3 +372,28 @@ def test_a_camera_rendering_slower_than_real_time_still_sends_in_time(
     last = [t for t in arrived if t > arrived[-1] - 1.5]
     assert len(last) >= 8, np.diff(arrived)
     assert any(t.status == "late" for t in truth)  # it did fall behind
+
+
+def test_a_camera_process_that_cannot_serve_says_why(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its own error, or how it exited, not a bare failure (the demo says it on)."""
+    with pytest.raises(RuntimeError, match=r"process failed: .*listen"):
+        MjpegServerProcess("ftp://127.0.0.1:0/x")
+    # a child that goes without a word: its exit status (a real process, not Python)
+    gone = tmp_path / "gone.sh"
+    gone.write_text("#!/bin/sh\nexit 3\n")
+    gone.chmod(0o755)
+    monkeypatch.setattr(sys, "executable", str(gone))
+    with pytest.raises(RuntimeError, match="it exited with status 3 before serving"):
+        MjpegServerProcess()
+    # the wait is on the child's CPU, read from /proc, not on the wall clock alone
+    spin = subprocess.Popen(["/bin/sh", "-c", "while :; do :; done"])
+    try:
+        time.sleep(0.5)
+        used = _cpu_s(spin.pid)
+        assert used is not None and 0.05 < used < 5.0, used
+    finally:
+        spin.kill()
+        spin.wait()
+    assert _cpu_s(spin.pid) is None  # gone

@@ -106,12 +106,6 @@ step "acq sim render, acq calibrate fisheye on its frame"
 [ -s fisheye.yaml ]
 "$acq" devices > /dev/null
 
-# From here a rig runs in real time, its simulators against the recorder: make test starts
-# this smoke at nice 19 beside the tests, where they starve (a camera without a frame
-# within 1 s, seen on CI); back to the default priority where we may (root)
-renice -n 0 -p $$ > /dev/null 2>&1 || true
-{ echo 0 > /proc/self/autogroup; } 2> /dev/null || true
-
 step "acq record for 2 s with the default configuration, against acq sim"
 ready() {  # a simulator's first line says where it serves
   local log=$1 i

@@ -149,6 +149,24 @@ class PoseCheck:
         d |= {"frames": self.frames, "points": self.points, "evaluations": self.evaluations}
         return d
 
+    def line(self, name: str) -> str:
+        """The one line that says camera ``name``'s verdict."""
+        if not self.found or self.verdict == "cannot tell":
+            return f"camera {name}: cannot tell: {self.reason}"
+        s = self.std
+        errs = (
+            f"standard errors {np.degrees(np.linalg.norm(s[:3])):.2f} deg, "
+            f"{1e3 * np.linalg.norm(s[3:6]):.1f} mm, {1e3 * s[6]:.2f} ms"
+        )
+        size = (
+            f"{self.angle_deg:.2f} deg and {self.shift_mm:.1f} mm and {self.offset_ms:+.2f} ms, "
+            f"{self.px_at_10m:.1f} px at 10 m"
+        )
+        used = f"from {self.frames} frames, {self.points:,} laser points"
+        if self.verdict == "moved":
+            return f"camera {name}: moved by {size} ({self.reason}; {errs}), {used}"
+        return f"camera {name}: the calibration holds: within {size} of CALIB ({errs}), {used}"
+
 
 def pixels_at(cam: CameraCalib, moved: Rigid, distance_m: float = 10.0) -> float:
     """How far (px) points ``distance_m`` away move in ``cam``'s image when its pose goes

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from acq.calib.pose_check import PoseCheck
     from acq.camera.calibfile import CameraCalib
 
-__all__ = ["add_parser", "run_check", "verdict_line"]
+__all__ = ["add_parser", "run_check"]
 
 
 def add_parser(cal_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -75,27 +75,6 @@ def add_parser(cal_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> 
     chk.set_defaults(handler=run_check)
 
 
-def verdict_line(name: str, c: PoseCheck) -> str:
-    """The one line that says camera ``name``'s verdict."""
-    if not c.found or c.verdict == "cannot tell":
-        return f"camera {name}: cannot tell: {c.reason}"
-    import numpy as np
-
-    s = c.std
-    errs = (
-        f"standard errors {np.degrees(np.linalg.norm(s[:3])):.2f} deg, "
-        f"{1e3 * np.linalg.norm(s[3:6]):.1f} mm, {1e3 * s[6]:.2f} ms"
-    )
-    size = (
-        f"{c.angle_deg:.2f} deg and {c.shift_mm:.1f} mm and {c.offset_ms:+.2f} ms, "
-        f"{c.px_at_10m:.1f} px at 10 m"
-    )
-    used = f"from {c.frames} frames, {c.points:,} laser points"
-    if c.verdict == "moved":
-        return f"camera {name}: moved by {size} ({c.reason}; {errs}), {used}"
-    return f"camera {name}: the calibration holds: within {size} of CALIB ({errs}), {used}"
-
-
 def _refined(cam: CameraCalib, c: PoseCheck, logs: list[Path]) -> CameraCalib:
     """``cam`` with the check's estimate, its standard errors and how it was made."""
     import numpy as np
@@ -134,28 +113,23 @@ def run_check(args: argparse.Namespace) -> int:
         targets.append(Output("--write", args.write, "yaml", in_place_of=("--calib",)))
     backups = output_files.check(inputs, targets, force=args.force)
     calib = calibfile.load(args.calib)
-    report = colorize.Report(output=str(args.write or ""))
-    job, _ = colorize.prepare(
-        args.logs, calib, report, camera=args.camera, trajectory=args.trajectory
-    )
+    job, report, checks = colorize.check_drive(
+        args.logs, calib, camera=args.camera, trajectory=args.trajectory, start_s=args.start,
+        seconds=args.seconds,
+        options=CheckOptions(max_frames=args.frames, threads=os.cpu_count() or 1),
+    )  # fmt: skip
     for note in report.notes:
         if "laser_to_vehicle" in note:  # the check depends on it: said, not buried
             print(f"warning: {note}", file=sys.stderr)
     if not job.cameras:
         raise AcqError("the log has no frames of the calibration's cameras")
     keys = [next(iter(calib.cameras))] if len(calib.cameras) == 1 else [c.name for c in job.cameras]
-    opt = CheckOptions(max_frames=args.frames, threads=os.cpu_count() or 1)
-    checks = [
-        colorize.check_calibration(job, camera=cj, start_s=args.start, seconds=args.seconds,
-                                   options=opt)
-        for cj in job.cameras
-    ]  # fmt: skip
     if args.json:
         out = [{"camera": k, **c.to_dict()} for k, c in zip(keys, checks, strict=True)]
         print(json_text.dumps(out[0] if len(out) == 1 else {"cameras": out}, what="--json"))
     else:
         for k, c in zip(keys, checks, strict=True):
-            print(verdict_line(k, c))
+            print(c.line(k))
     if any(not c.found or c.verdict == "cannot tell" for c in checks):
         if args.write is not None:
             print(f"acq calibrate check: nothing written to {args.write}", file=sys.stderr)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from acq import json_text
 from acq.cli import output_files
@@ -23,6 +24,21 @@ TRAJECTORY_HELP = (
 HELP = "coloured 3D cloud of a drive (PLY, LAS, LAZ, COPC or E57)"
 # a chunk's scans and their points are in memory at once: a few seconds at the least
 CHUNK_S = real(1, 600, what="seconds")
+# --check: how much of the drive the calibration check reads, s (its middle): as much as
+# `acq calibrate check` reads by default, for the same verdict (30 s gave a false alarm)
+CHECK_S = 60.0
+
+
+def warn_moved(command: str, checks: dict[str, dict[str, Any]]) -> None:
+    """A warning on stderr for each camera whose calibration check (``checks``: per camera,
+    :meth:`acq.calib.pose_check.PoseCheck.to_dict` and its ``line``) says it moved."""
+    for name, c in checks.items():
+        if c.get("verdict") == "moved":
+            print(
+                f"{command}: warning: the calibration of camera {name} has moved: {c['line']}"
+                " (`acq calibrate check LOG --calib CALIB --write OUT` refines it)",
+                file=sys.stderr, flush=True,
+            )  # fmt: skip
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -123,6 +139,14 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="the preview image (default: OUT's name + _preview.png)",
     )  # fmt: skip
     col.add_argument("--no-preview", action="store_true", help="no preview image")
+    col.add_argument(
+        "--check", action="store_true",
+        help="first check each camera's calibration on the drive itself, as `acq calibrate "
+        f"check` does on {CHECK_S:g} s of its middle (needs the rig's motion and the "
+        "laser's return strengths): a warning when it has moved beyond its uncertainty, "
+        "the figures in the report and in the cloud's metadata (PLY and E57 comments, a "
+        "LAS VLR)",
+    )  # fmt: skip
     col.add_argument("--json", action="store_true", help="JSON report instead of text")
     col.add_argument("--force", action="store_true", help=output_files.FORCE_HELP)
     col.set_defaults(handler=run, stops_cleanly=True)
@@ -209,7 +233,9 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers, dask=args.dask, chunk_s=args.chunk or colorize.CHUNK_S,
         preview=None if args.no_preview else preview,
         progress=args.progress or (not args.json and sys.stderr.isatty()),
+        check_s=CHECK_S if args.check else None,
     )  # fmt: skip
+    warn_moved("acq colorize", report.calibration_check)
     if args.json:
         print(json_text.dumps(report, what="--json"))
     else:

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
+from typing import Any
 
+from acq import json_text
 from acq.cli import output_files
+from acq.cli.colorize import CHECK_S, warn_moved
 from acq.cli.output_files import Output
 from acq.credentials import redact
 from acq.errors import InputError
@@ -43,6 +47,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     info.add_argument(
         "-o", "--output", type=Path, help="with --repair and one LOG: the copy (a new file)"
     )
+    info.add_argument(
+        "--calib", type=Path, metavar="CALIB",
+        help="also check each camera's calibration on each session's drive, as `acq "
+        f"calibrate check` does on {CHECK_S:g} s of its middle (needs the rig's motion "
+        "and the laser's return strengths): a line per camera, a warning when it has "
+        "moved beyond its uncertainty",
+    )  # fmt: skip
     info.set_defaults(handler=run, sessions_apart=True)
 
 
@@ -65,10 +76,36 @@ def run(args: argparse.Namespace) -> int:
             print(f"{src} -> {dst}: {n} messages, indexed")
         return 0
     sessions = inputs.sessions(args.logs)
-    infos = [i for s in sessions for i in summary.info_many(s.files)]
-    if len(sessions) > 1 and not args.json:
-        listed = "; ".join(s.describe() for s in sessions)
-        print(f"{len(sessions)} recording sessions, each summarised on its own: {listed}\n")
-    # logs of older versions may hold a password in a device URL's query
-    print(redact(summary.format_info(infos, json=args.json)))
+    per_session = [summary.info_many(s.files) for s in sessions]
+    infos = [i for found in per_session for i in found]
+    checks = [_checked(args.calib, s.files) for s in sessions] if args.calib else []
+    if args.json and checks:  # each session's objects carry its cameras' checks
+        objects = json.loads(summary.format_info(infos, json=True))
+        owners = [k for k, found in enumerate(per_session) for _ in found]
+        for obj, k in zip(objects, owners, strict=True):
+            obj["calibration_check"] = checks[k]
+        print(redact(json_text.dumps(objects, what="acq info --json")))
+    else:
+        if len(sessions) > 1 and not args.json:
+            listed = "; ".join(s.describe() for s in sessions)
+            print(f"{len(sessions)} recording sessions, each summarised on its own: {listed}\n")
+        # logs of older versions may hold a password in a device URL's query
+        print(redact(summary.format_info(infos, json=args.json)))
+        for session, found in zip(sessions, checks, strict=False):  # none without --calib
+            where = f" ({session.describe()})" if len(sessions) > 1 else ""
+            print(f"\ncalibration check{where}:")
+            print("\n".join(f"  {c['line']}" for c in found.values()))
+    for found in checks:
+        warn_moved("acq info", found)
     return 0
+
+
+def _checked(calib_path: Path, files: list[Path]) -> dict[str, dict[str, Any]]:
+    """Per camera of CALIB in the session ``files``, its calibration check's figures
+    (:meth:`acq.calib.pose_check.PoseCheck.to_dict`) and its ``line``."""
+    from acq.camera import calibfile
+    from acq.cloud.colorize import check_drive
+
+    job, _, checks = check_drive(files, calibfile.load(calib_path), seconds=CHECK_S)
+    return {cj.name: {"line": c.line(cj.name), **c.to_dict()}
+            for cj, c in zip(job.cameras, checks, strict=True)}  # fmt: skip

@@ -97,6 +97,7 @@ __all__ = [
     "Job",
     "Report",
     "check_calibration",
+    "check_drive",
     "cloud_of",
     "colour_chunk",
     "estimate_offset",
@@ -391,6 +392,27 @@ def check_calibration(
     )  # fmt: skip
 
 
+def check_drive(
+    logs: Sequence[Path],
+    calib: Calibration,
+    *,
+    camera: str | Sequence[str] | None = None,
+    trajectory: Path | Trajectory | None = None,
+    start_s: float | None = None,
+    seconds: float = 60.0,
+    options: CheckOptions | None = None,
+) -> tuple[Job, Report, list[PoseCheck]]:
+    """Each camera's calibration checked on ``logs`` (one session):
+    :func:`check_calibration` on ``seconds`` from ``start_s`` (default: the middle); the
+    job (its cameras in the order of the checks) and the report holding prepare's notes."""
+    report = Report(output="")
+    job, _ = prepare(logs, calib, report, camera=camera, trajectory=trajectory)
+    opt = options or CheckOptions(threads=os.cpu_count() or 1)
+    checks = [check_calibration(job, camera=cj, start_s=start_s, seconds=seconds, options=opt)
+              for cj in job.cameras]  # fmt: skip
+    return job, report, checks
+
+
 def run(
     logs: Sequence[Path],
     calib: Calibration,
@@ -410,13 +432,16 @@ def run(
     progress: bool = False,
     results: list[ChunkResult] | None = None,
     want_uv: bool = False,
+    check_s: float | None = None,
 ) -> Report:
     """The whole command (module docstring); raises InputError (LogError, CalibFileError,
     InputValueError...) with a one-line message for bad input, OSError naming ``output``
     when it cannot be written. ``results``: a list to receive the chunks' results
     (with each point's frame and pixel when ``want_uv``), for accuracy checks.
     ``time_offset_s``: seconds, None for CALIB's, or "auto" (:func:`estimate_offset`).
-    ``trajectory``: as :func:`prepare` takes it."""
+    ``trajectory``: as :func:`prepare` takes it. ``check_s``: first check each camera's
+    calibration on that many seconds of the drive's middle (:func:`check_calibration`),
+    its figures into the report (``calibration_check``) and the cloud's metadata."""
     t_start = time.perf_counter()
     options = options or views.Options()
     report = Report(output=str(output), view=options.view)
@@ -465,6 +490,16 @@ def run(
                     f"--time-offset auto ({cj.name}): {est.note}; CALIB's time_offset_s used"
                 )
         job = job.with_offsets(found)
+    t_check = time.perf_counter()
+    checked: list[str] = []
+    if check_s is not None:
+        opt = CheckOptions(threads=job.threads)
+        for cj in job.cameras:
+            checked_cam = check_calibration(job, camera=cj, whole=index if once else None,
+                                           seconds=check_s, options=opt)  # fmt: skip
+            line = checked_cam.line(cj.name)
+            report.calibration_check[cj.name] = {"line": line, **checked_cam.to_dict()}
+            checked.append(f"calibration check: {line}")
     world = job.frame_world
     if job.cameras:  # the first camera's figures at the top, as for one camera
         report.time_offset["used_s"] = job.cameras[0].time_offset_ns * 1e-9
@@ -476,7 +511,7 @@ def run(
     chunks = plan(scan_new, chunk_s)
     t_plan = time.perf_counter()
     out = CloudWriter(output, crs, index.clock, report, [c.name for c in job.cameras],
-                      utc_doubt=doubt)  # fmt: skip
+                      utc_doubt=doubt, checks=checked)  # fmt: skip
     # a long log's cloud is not held: counts, and every k-th scan for the preview
     every = max(1, math.ceil(index.n_scans * index.steps / PREVIEW_POINTS))
     tally = Tally(every if preview is not None else 0)
@@ -538,7 +573,9 @@ def run(
     t_end = time.perf_counter()
     parts: dict[str, float] = {"index": t_offset - t_start}
     if auto:
-        parts["time offset"] = t_plan - t_offset
+        parts["time offset"] = t_check - t_offset
+    if check_s is not None:
+        parts["calibration check"] = t_plan - t_check
     parts["chunks and writing"] = t_colour - t_plan
     # the chunks' frames decode on threads meanwhile: "waiting" is what they add
     for key in ("read", "place, queue", "waiting for frames", "finish"):

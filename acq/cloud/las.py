@@ -16,6 +16,8 @@ VLR of user ID ``acq``, record ID 1 (:data:`CAMERAS_VLR`): ASCII lines ``<index>
 in index order. When the log's UTC cannot be trusted (its time base says the host clock
 was unsynchronised, stepped or off, or it has none), a VLR of user ID ``acq``, record
 ID 2 (:data:`TIME_BASE_VLR`) says why, in ASCII: the GPS times are the host clock's.
+When the cameras' calibration was checked on the drive, record ID 3
+(:data:`CALIBRATION_CHECK_VLR`) holds each camera's verdict, an ASCII line each.
 RGB is 16-bit (8-bit values times 257), intensity clipped to 0..65535.
 Generating Software is acq's mark (:mod:`acq.provenance`); System Identifier "OTHER", the
 specification's value for an operation that is neither a hardware system nor a merge,
@@ -40,8 +42,8 @@ if TYPE_CHECKING:
     import laspy
 
 __all__ = [
-    "CAMERAS_VLR", "SYSTEM_IDENTIFIER", "TIME_BASE_VLR", "LasStream", "cameras_text", "extra_dims",
-    "grow_ranges", "pack_points", "write_extra_bytes_ranges",
+    "CALIBRATION_CHECK_VLR", "CAMERAS_VLR", "SYSTEM_IDENTIFIER", "TIME_BASE_VLR", "LasStream",
+    "cameras_text", "extra_dims", "grow_ranges", "pack_points", "write_extra_bytes_ranges",
 ]  # fmt: skip
 
 SYSTEM_IDENTIFIER = "OTHER"
@@ -49,6 +51,8 @@ SYSTEM_IDENTIFIER = "OTHER"
 CAMERAS_VLR = ("acq", 1, "cameras: index name")
 # why the points' GPS times (from the host clock's UTC) cannot be trusted
 TIME_BASE_VLR = ("acq", 2, "time base: UTC not trusted")
+# each camera's calibration checked on the drive (acq colorize --check)
+CALIBRATION_CHECK_VLR = ("acq", 3, "calibration check")
 # the extra-bytes dimensions in the record's order: name -> (type, no_data, description)
 _EXTRA: dict[str, tuple[type[np.integer], int | None, str]] = {
     "scan_index": (np.uint32, None, "scan in the log"),
@@ -65,11 +69,13 @@ class LasStream:
     is the first part's rounded minimum; the header's extent, counts and GPS time span
     grow with every part. ``cameras``: the names, in index order, of
     the cameras the points' ``camera`` indexes. ``comments`` have no place in LAS: unused.
-    ``utc_doubt``: why the points' UTC cannot be trusted, as the :data:`TIME_BASE_VLR`."""
+    ``utc_doubt``: why the points' UTC cannot be trusted, as the :data:`TIME_BASE_VLR`;
+    ``checks``: the calibration check's lines, as the :data:`CALIBRATION_CHECK_VLR`."""
 
     def __init__(
         self, path: str | os.PathLike[str], *, crs: str | None = None,
         comments: Sequence[str] = (), cameras: Sequence[str] = (), utc_doubt: str | None = None,
+        checks: Sequence[str] = (),
     ) -> None:  # fmt: skip
         import laspy
         import pyproj
@@ -92,6 +98,9 @@ class LasStream:
         if utc_doubt is not None:
             text = utc_doubt.encode("ascii", "replace")[:60000]  # a VLR holds < 64 KiB
             header.vlrs.append(laspy.VLR(*TIME_BASE_VLR, text))
+        if checks:
+            text = "\n".join(checks).encode("ascii", "replace")[:60000]
+            header.vlrs.append(laspy.VLR(*CALIBRATION_CHECK_VLR, text))
         self._header = header
         self._tmp = temporary_beside(self.path)  # last: nothing above leaves it behind
         self._writer: laspy.LasWriter | None = None

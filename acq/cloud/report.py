@@ -21,7 +21,9 @@ class Report:
     ``pairs`` (int) point pairs (one point seen by two cameras or frames) the gains
     were fitted on, ``cameras``: per camera name ``pairs`` (int) of them involving it and
     the gains applied to its frames, per channel ``r``, ``g``, ``b`` a [min, median,
-    max] list (1.0: unchanged); optionally ``note`` (str).
+    max] list (1.0: unchanged); optionally ``note`` (str). ``calibration_check``: per
+    camera name, the check of its calibration on the drive when asked
+    (:meth:`acq.calib.pose_check.PoseCheck.to_dict`, and its ``line``).
     """
 
     output: str
@@ -44,6 +46,7 @@ class Report:
     seconds: dict[str, float] = field(default_factory=dict)
     cameras: dict[str, dict[str, Any]] = field(default_factory=dict)
     balance: dict[str, Any] = field(default_factory=dict)
+    calibration_check: dict[str, dict[str, Any]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
     def lines(self) -> list[str]:
@@ -61,6 +64,7 @@ class Report:
                 f"frames {rt.get('frame_residual_rms_ms', 0):.2f} ms RMS receipt jitter removed"
             )
         out += self._camera_lines() + self._time_offset_lines() + self._balance_lines()
+        out += [f"calibration check: {c['line']}" for c in self.calibration_check.values()]
         total = sum(self.seconds.values())
         if total:
             parts = ", ".join(f"{k} {v:.1f} s" for k, v in self.seconds.items())

@@ -66,11 +66,12 @@ class CloudWriter:
     :data:`NO_CAMERA`) or a name that is not one line of printable ASCII (the formats'
     headers hold them as text lines). ``utc_doubt``: why the points' UTC cannot be trusted
     (:func:`acq.time.host_clock_summary.utc_doubt`), written as a comment (in LAS, whose
-    files have no comments, as a VLR)."""
+    files have no comments, as a VLR); ``checks``, the calibration check's lines, too
+    (COPC, whose writer takes no VLR of ours, has neither)."""
 
     def __init__(
         self, output: Path, crs: str | None, clock: np.ndarray, report: Report,
-        cameras: Sequence[str] = (), utc_doubt: str | None = None,
+        cameras: Sequence[str] = (), utc_doubt: str | None = None, checks: Sequence[str] = (),
     ) -> None:  # fmt: skip
         self.output = output
         kind = format_of(output)
@@ -90,6 +91,7 @@ class CloudWriter:
             [f"crs {crs}"] if crs else [])]  # fmt: skip
         if utc_doubt is not None:
             comments.append(f"UTC not trusted: {utc_doubt}")
+        comments += checks
         self.stream: PlyStream | LasStream | CopcStream | E57Stream
         if kind == "ply":
             with _naming(output):
@@ -105,7 +107,7 @@ class CloudWriter:
         else:
             with _naming(output):
                 self.stream = LasStream(output, crs=crs, comments=comments, cameras=cameras,
-                                        utc_doubt=utc_doubt)  # fmt: skip
+                                        utc_doubt=utc_doubt, checks=checks)  # fmt: skip
         self.clock = clock
         self.seconds = 0.0
 

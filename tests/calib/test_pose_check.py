@@ -148,3 +148,56 @@ def test_a_drive_that_cannot_tell_says_why(
         assert captured.out.startswith("camera camera: cannot tell: "), captured.out
         assert message in captured.out, captured.out
         assert "nothing written" in captured.err and not out.exists()
+
+
+def test_colorize_and_info_check_the_drive_and_warn_when_the_calibration_moved(
+    drive: tuple[DriveTruth, Calibration], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`acq colorize --check` and `acq info --calib`: a camera turned 1 deg from CALIB is
+    warned about in one line on stderr, its figures in the report (text and JSON) and in
+    the cloud's metadata (a LAS VLR, a PLY comment); the true calibration holds, no
+    warning."""
+    import laspy
+
+    from acq.cloud.las import CALIBRATION_CHECK_VLR
+
+    truth, true_calib = drive
+    x = np.zeros(7)
+    x[2] = np.radians(1.0)
+    moved, good = tmp_path / "moved.yaml", tmp_path / "good.yaml"
+    calibfile.save(_moved(true_calib, x), moved)
+    calibfile.save(true_calib, good)
+    logs = [str(f) for f in truth.files]
+
+    las = tmp_path / "moved.las"
+    argv = ["colorize", *logs, "--calib", str(moved), "-o", str(las), "--no-preview", "--check"]
+    assert acq_main([*argv, "--json"]) == 0
+    captured = capsys.readouterr()
+    (warning,) = captured.err.splitlines()
+    assert warning.startswith(
+        "acq colorize: warning: the calibration of camera camera has moved: camera camera: "
+        "moved by "
+    ), warning
+    assert "acq calibrate check" in warning
+    check = json.loads(captured.out)["calibration_check"]["camera"]
+    assert check["verdict"] == "moved" and 0.8 < check["rotation_deg"] < 1.2, check
+    vlrs = laspy.read(las).header.vlrs
+    (vlr,) = [v for v in vlrs if (v.user_id, v.record_id) == CALIBRATION_CHECK_VLR[:2]]
+    assert vlr.record_data.decode().startswith("calibration check: camera camera: moved by ")
+
+    ply = tmp_path / "good.ply"
+    argv = ["colorize", *logs, "--calib", str(good), "-o", str(ply), "--no-preview", "--check"]
+    assert acq_main(argv) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    said = [line for line in captured.out.splitlines() if line.startswith("calibration check")]
+    assert len(said) == 1 and "camera camera: the calibration holds" in said[0], said
+    header = ply.read_bytes()[:4000].split(b"end_header")[0].decode()
+    assert f"comment {said[0]}" in header.splitlines()
+
+    assert acq_main(["info", *logs, "--calib", str(moved)]) == 0
+    captured = capsys.readouterr()
+    out = captured.out.splitlines()
+    at = out.index("calibration check:")
+    assert out[at + 1].startswith("  camera camera: moved by "), out[at:]
+    assert captured.err.startswith("acq info: warning: the calibration of camera camera has")

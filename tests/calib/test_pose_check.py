@@ -201,3 +201,9 @@ def test_colorize_and_info_check_the_drive_and_warn_when_the_calibration_moved(
     at = out.index("calibration check:")
     assert out[at + 1].startswith("  camera camera: moved by "), out[at:]
     assert captured.err.startswith("acq info: warning: the calibration of camera camera has")
+    # --json: each log's object carries its session's checks (the true calibration: holds)
+    assert acq_main(["info", *logs, "--calib", str(good), "--json"]) == 0
+    captured = capsys.readouterr()
+    objects = json.loads(captured.out)
+    assert objects and captured.err == ""
+    assert all(o["calibration_check"]["camera"]["verdict"] == "holds" for o in objects)

@@ -184,8 +184,10 @@ def _fix_row(msg: Any) -> tuple[Any, ...]:
 
 
 def _fixes(rows: list[tuple[Any, ...]]) -> Fixes:
-    unique = {r[0]: r for r in rows}  # a file given twice: once
-    rows = [unique[t] for t in sorted(unique)]
+    # a file given twice: once; two fixes stamped alike (the clock's envelope dropped by
+    # a period, the first fixes held up) both kept, told apart by their UTC fix time
+    unique = {(r[0], r[1]): r for r in rows}
+    rows = [unique[k] for k in sorted(unique)]
     cols = list(zip(*rows, strict=True)) if rows else [()] * 10
 
     def f64(i: int) -> np.ndarray:

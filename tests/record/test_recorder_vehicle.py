@@ -190,7 +190,10 @@ def test_record_the_vehicle_sensors(rig: VehicleRig, tmp_path: Path) -> None:
     vehicle = read_vehicle([path])
     o, f = vehicle.odometry, vehicle.fixes
     assert len(o) == len(odo) and len(f) == len(fixes) and not vehicle.notes
-    assert np.all(np.diff(o.t_ns) >= 0) and np.all(np.diff(f.t_ns) > 0)
+    # each fix once (two may share a stamp: the clock's envelope dropping by a period
+    # within the first fixes, which a loaded host held up)
+    assert np.all(np.diff(o.t_ns) >= 0) and np.all(np.diff(f.t_ns) >= 0)
+    assert np.unique(f.utc_s).size == len(f)
     assert np.all(np.isfinite(o.speed)) and np.all(np.isfinite(o.yaw_rate))
     assert o.speed_measured.sum() == len(speed_err) and o.yaw_rate_measured.sum() == len(yaw_err)
     assert not np.any(o.speed_measured & o.yaw_rate_measured)

@@ -33,8 +33,7 @@ GNSS_AHEAD_S = 0.020  # the receiver's UTC ahead of the host's
 
 def test_one_time_base_reading_a_second_with_gnss_against_the_host(tmp_path: Path) -> None:
     utc_offset = time.time() - time.monotonic() + GNSS_AHEAD_S
-    receiver = NmeaDevice(utc_offset_s=utc_offset, latency_s=GNSS_LATENCY_S)
-    server = NmeaPtyServer(receiver).start()
+    server = NmeaPtyServer(NmeaDevice(utc_offset_s=utc_offset, latency_s=GNSS_LATENCY_S)).start()
     scanner = TcpDeviceServer(ScipDevice(MODELS["utm-30lx"])).start()
     try:
         data = {
@@ -50,7 +49,8 @@ def test_one_time_base_reading_a_second_with_gnss_against_the_host(tmp_path: Pat
         server.close()
         scanner.close()
     (path,) = sorted((tmp_path / "logs").glob("*.mcap"))
-    readings = read_log(path)["/acq/timebase"]
+    log = read_log(path)
+    readings = log["/acq/timebase"]
     assert SECONDS - 1.5 <= len(readings) <= SECONDS + 1, len(readings)
     times = [t for t, _, _ in readings]
     assert all(0.8e9 < b - a < 1.3e9 for a, b in itertools.pairwise(times)), times
@@ -60,18 +60,18 @@ def test_one_time_base_reading_a_second_with_gnss_against_the_host(tmp_path: Pat
     assert last.HasField("chrony") or "chrony: " in absent  # type: ignore[attr-defined]
     gnss = last.gnss  # type: ignore[attr-defined]
     assert gnss.latency_s == GNSS_LATENCY_S and 0 <= gnss.fix_age_s < 0.5
-    # host minus GNSS: -20 ms, plus the least delay beyond latency_s the receiver sent a
-    # fix with before the reading (its jitter, and its lateness on a loaded host: the
-    # recorder cannot see below what it was sent); within 1 ms below, 3 above (the
-    # recorder's own receipt)
-    fixes = receiver.truth
+    # host minus GNSS: -20 ms, plus the least delay beyond latency_s the recorder received
+    # a fix with before the reading (the receiver's jitter, and on a loaded host its
+    # lateness and the recorder's own wait for the pty: no recorder sees below that)
+    timing = log["/acq/timing/gnss"]
+    fixes = [(m.recv_ns, m.device_ticks[0] * 1e-6) for _, _, m in timing]  # type: ignore[attr-defined]
     expected = []
     for reading in (r for _, _, r in readings if r.HasField("gnss")):  # type: ignore[attr-defined]
-        floor = min(f.t_sent - f.t - GNSS_LATENCY_S for f in fixes
-                    if f.t_sent * 1e9 <= reading.monotonic_ns)  # type: ignore[attr-defined]  # fmt: skip
+        floor = min(recv * 1e-9 - (utc - utc_offset) - GNSS_LATENCY_S for recv, utc in fixes
+                    if recv <= reading.monotonic_ns)  # type: ignore[attr-defined]  # fmt: skip
         expected.append(-GNSS_AHEAD_S + floor)
         off = reading.gnss.host_minus_gnss_s - expected[-1]  # type: ignore[attr-defined]
-        assert -0.001 < off < 0.003, (off, floor)
+        assert -0.001 < off < 0.002, (off, floor)
     assert expected, "no reading with the receiver's time"
     meta = read_metadata(path)["time_base"]
     assert meta["utc_trusted"] == "no" and int(meta["records"]) == len(readings)

@@ -105,8 +105,11 @@ class MjpegServerProcess:
         assert self._proc.stdin is not None and self._proc.stdout is not None
         if prerender_s:
             options["prerender_s"] = prerender_s
-        self._proc.stdin.write(json.dumps({"listen": listen, "options": options}) + "\n")
-        self._proc.stdin.flush()
+        try:
+            self._proc.stdin.write(json.dumps({"listen": listen, "options": options}) + "\n")
+            self._proc.stdin.flush()
+        except BrokenPipeError:  # it is gone already: said below, with its exit status
+            self._proc.wait(5)
         # a frame takes 20-40 ms of a core to render: 0.5-1 s of the child's CPU per second
         # of frames, whatever the wall time a machine busy with other work stretches it to
         budget_s = 60 + 5 * prerender_s
@@ -127,6 +130,9 @@ class MjpegServerProcess:
         if "url" not in reply:
             self._proc.kill()
             status = self._proc.wait(5)
+            for pipe in (self._proc.stdin, self._proc.stdout):
+                with contextlib.suppress(OSError):  # the spec it never read: a broken pipe
+                    pipe.close()
             why = reply.get("error") or f"it exited with status {status} before serving"
             raise RuntimeError(f"the simulated camera process failed: {why}")
         self.url: str = reply["url"]

@@ -325,12 +325,17 @@ class Colouring:
         )
         coloured = self.coloured
         frame = np.where(coloured, self.frame, -1)
-        dt = np.where(coloured, (self.time_ns - self.frame_ns[np.maximum(frame, 0)]) * 1e-9, np.nan)
+        if self.frame_ns.size:
+            dt = np.where(
+                coloured, (self.time_ns - self.frame_ns[np.maximum(frame, 0)]) * 1e-9, np.nan
+            )
+        else:  # no frame (a camera without one near these points): nothing coloured
+            dt = np.full(self.time_ns.shape, np.nan)
         theta = np.where(coloured, self.theta, np.nan).astype(np.float32)
         depth = np.where(coloured, self.depth, np.nan).astype(np.float32)
         pair_frame = self.pair_frame
         crops = self.crops
-        if self.frame_map is not None:
+        if self.frame_map is not None and self.frame_map.size:
             frame = np.where(frame >= 0, self.frame_map[np.maximum(frame, 0)], -1)
             pair_frame = self.frame_map[pair_frame]
             bad = self.frame_map[bad]

@@ -142,6 +142,17 @@ def test_no_camera_leaves_every_point_uncoloured() -> None:
     assert not merged.coloured.any() and (merged.camera == -1).all()
 
 
+def test_a_camera_without_a_frame_near_the_scan_colours_nothing_and_the_others_go_on() -> None:
+    """As live, where a camera's frames have not come (stalled, or a loaded host): its
+    points stay uncoloured, the other camera's are coloured (the scan was lost before)."""
+    none = scan_colouring.camera_frames("none", CAM, np.zeros(0, np.int64), [], 0, None)
+    for options in (NEAREST, views.Options(motion_compensation=False)):
+        _, merged = _colour([45_000_000], [none], options)
+        assert not merged.coloured.any() and np.isnan(merged.dt_s).all()
+        _, merged = _colour([45_000_000], [none, _frames(4)], options)
+        assert merged.coloured.any() and (merged.camera[merged.coloured] == 1).all()
+
+
 def test_frames_too_far_in_time_colour_nothing() -> None:
     _, merged = _colour([2_000_000_000], [_frames(3)], NEAREST)  # 1.9 s after the last
     assert not merged.coloured.any()

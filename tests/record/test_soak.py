@@ -92,7 +92,8 @@ def run_soak(seconds: float, pull_every: float) -> list[Soak]:
 
 
 # a scan made this little before a cable pull may still wait in the link's buffer when
-# it goes (a pty's unread bytes go with it, as a serial line's do): lost with the cable
+# it goes (a pty's unread bytes go with it, as a serial line's do), and one made as
+# little after it, before the device's thread saw the pull: lost with the cable
 IN_FLIGHT_S = 0.25
 
 
@@ -105,7 +106,7 @@ def check(runs: list[Soak], min_connects: int) -> None:
         expected = [k for k in run.sent if k <= last]
         in_flight = {
             k for k, t in zip(run.sent, run.sent_at, strict=True)
-            if any(0 <= pull - t < IN_FLIGHT_S for pull in run.pulled_at)
+            if any(abs(pull - t) < IN_FLIGHT_S for pull in run.pulled_at)
         }  # fmt: skip
         got = set(run.received)
         assert run.received == [k for k in expected if k in got], run.name  # once, in order

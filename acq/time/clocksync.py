@@ -508,7 +508,8 @@ def fit_log_drift(
     """:func:`fit_drift` over one device-clock epoch of a log: unwrapped ``ticks`` and
     their host receive ns (arrays of one length), periodic stamps placed by their turn;
     first the earliest arrival in each of at most ``buckets`` stretches of device time
-    (at least 0.5 s each), so that a log of hours costs what one of minutes does."""
+    (at least 0.5 s each), so that a log of hours costs what one of minutes does; the
+    interval widened by the samples' median delay above the line, over the span."""
     u = np.asarray(ticks, dtype=np.float64)
     x = _turn_times(u) / tick_hz
     y = np.asarray(recv_ns, dtype=np.int64)
@@ -519,7 +520,15 @@ def fit_log_drift(
     if bx.size < 3:  # under a second and a half: every sample
         bx, by = xs, ys
     fit = fit_drift(bx, by, reps=200, tick_s=1.0 / tick_hz)
-    return replace(fit, offset_s=fit.offset_s + y0 * 1e-9 - x0)
+    # the floor's own wander, which no subsample of it sees: a host busier over one part
+    # of a short log lifts the floor there, which looks like drift; taken to be as much
+    # as the samples' median delay above the line, over the span (0.3 ms over 3 s:
+    # 100 ppm; over an hour, nothing)
+    above = ys - (fit.offset_s + (1.0 + fit.drift_ppm * 1e-6) * xs)
+    wander = float(np.median(above)) / max(float(bx.max()), 1e-9) * 1e6
+    lo, hi = fit.drift_ci_ppm
+    return replace(fit, offset_s=fit.offset_s + y0 * 1e-9 - x0,
+                   drift_ci_ppm=(lo - wander, hi + wander))  # fmt: skip
 
 
 def latency_bounds(

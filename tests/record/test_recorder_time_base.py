@@ -69,9 +69,13 @@ def test_one_time_base_reading_a_second_with_gnss_against_the_host(tmp_path: Pat
     for reading in (r for _, _, r in readings if r.HasField("gnss")):  # type: ignore[attr-defined]
         floor = min(recv * 1e-9 - (utc - utc_offset) - GNSS_LATENCY_S for recv, utc in fixes
                     if recv <= reading.monotonic_ns)  # type: ignore[attr-defined]  # fmt: skip
-        expected.append(-GNSS_AHEAD_S + floor)
+        # and what the host's UTC moved against its monotonic clock since the start (a
+        # slewing clock: the receiver's UTC here is tied to the monotonic one)
+        wall = (reading.realtime_ns - reading.monotonic_ns) * 1e-9  # type: ignore[attr-defined]
+        slew = wall - (utc_offset - GNSS_AHEAD_S)
+        expected.append(-GNSS_AHEAD_S + floor + slew)
         off = reading.gnss.host_minus_gnss_s - expected[-1]  # type: ignore[attr-defined]
-        assert -0.001 < off < 0.002, (off, floor)
+        assert -0.001 < off < 0.002, (off, floor, slew)
     assert expected, "no reading with the receiver's time"
     meta = read_metadata(path)["time_base"]
     assert meta["utc_trusted"] == "no" and int(meta["records"]) == len(readings)

@@ -149,6 +149,10 @@ class PoseCheck:
         d |= {"frames": self.frames, "points": self.points, "evaluations": self.evaluations}
         return d
 
+    def summary(self, name: str) -> dict[str, Any]:
+        """:meth:`to_dict` with camera ``name``'s verdict :meth:`line` (``line``)."""
+        return {"line": self.line(name), **self.to_dict()}
+
     def line(self, name: str) -> str:
         """The one line that says camera ``name``'s verdict."""
         if not self.found or self.verdict == "cannot tell":

@@ -102,10 +102,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _checked(calib_path: Path, files: list[Path]) -> dict[str, dict[str, Any]]:
     """Per camera of CALIB in the session ``files``, its calibration check's figures
-    (:meth:`acq.calib.pose_check.PoseCheck.to_dict`) and its ``line``."""
+    (:meth:`acq.calib.pose_check.PoseCheck.summary`)."""
     from acq.camera import calibfile
     from acq.cloud.colorize import check_drive
 
     job, _, checks = check_drive(files, calibfile.load(calib_path), seconds=CHECK_S)
-    return {cj.name: {"line": c.line(cj.name), **c.to_dict()}
-            for cj, c in zip(job.cameras, checks, strict=True)}  # fmt: skip
+    return {cj.name: c.summary(cj.name) for cj, c in zip(job.cameras, checks, strict=True)}

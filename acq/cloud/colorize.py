@@ -491,15 +491,12 @@ def run(
                 )
         job = job.with_offsets(found)
     t_check = time.perf_counter()
-    checked: list[str] = []
     if check_s is not None:
         opt = CheckOptions(threads=job.threads)
         for cj in job.cameras:
-            checked_cam = check_calibration(job, camera=cj, whole=index if once else None,
-                                           seconds=check_s, options=opt)  # fmt: skip
-            line = checked_cam.line(cj.name)
-            report.calibration_check[cj.name] = {"line": line, **checked_cam.to_dict()}
-            checked.append(f"calibration check: {line}")
+            checked = check_calibration(job, camera=cj, whole=index if once else None,
+                                        seconds=check_s, options=opt)  # fmt: skip
+            report.calibration_check[cj.name] = checked.summary(cj.name)
     world = job.frame_world
     if job.cameras:  # the first camera's figures at the top, as for one camera
         report.time_offset["used_s"] = job.cameras[0].time_offset_ns * 1e-9
@@ -511,7 +508,7 @@ def run(
     chunks = plan(scan_new, chunk_s)
     t_plan = time.perf_counter()
     out = CloudWriter(output, crs, index.clock, report, [c.name for c in job.cameras],
-                      utc_doubt=doubt, checks=checked)  # fmt: skip
+                      utc_doubt=doubt, checks=report.check_lines())  # fmt: skip
     # a long log's cloud is not held: counts, and every k-th scan for the preview
     every = max(1, math.ceil(index.n_scans * index.steps / PREVIEW_POINTS))
     tally = Tally(every if preview is not None else 0)

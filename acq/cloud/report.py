@@ -64,7 +64,7 @@ class Report:
                 f"frames {rt.get('frame_residual_rms_ms', 0):.2f} ms RMS receipt jitter removed"
             )
         out += self._camera_lines() + self._time_offset_lines() + self._balance_lines()
-        out += [f"calibration check: {c['line']}" for c in self.calibration_check.values()]
+        out += self.check_lines()
         total = sum(self.seconds.values())
         if total:
             parts = ", ".join(f"{k} {v:.1f} s" for k, v in self.seconds.items())
@@ -73,6 +73,10 @@ class Report:
         out += [f"note: {n}" for n in self.notes]
         out.append(f"wrote {self.output}")
         return out
+
+    def check_lines(self) -> list[str]:
+        """One line per camera whose calibration was checked: its verdict."""
+        return [f"calibration check: {c['line']}" for c in self.calibration_check.values()]
 
     def _camera_lines(self) -> list[str]:
         """One line per camera: the points coloured from it and the frames it gave."""

@@ -22,6 +22,8 @@ on the log's clock again.
 from __future__ import annotations
 
 import logging
+import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Executor, ThreadPoolExecutor
@@ -176,6 +178,51 @@ class LiveColourer(Listener):
         self.failed = 0  # scans whose colouring raised
         # per scan of the last SHARE_SCANS: (points, points coloured by each camera)
         self._shares: deque[tuple[int, np.ndarray]] = deque(maxlen=SHARE_SCANS)
+        self._warm = threading.Event()  # set: the kernels are ready (see start_warm_up)
+        self._warm.set()
+
+    # --- the kernels ----------------------------------------------------------------------
+
+    def warm_up(self) -> float:
+        """Colour one made-up scan (a 5 m circle) from a grey frame of each camera, nothing
+        emitted: numba compiles the colouring kernels, or loads them from its cache, before
+        a real scan waits on them. The seconds it took."""
+        t0 = time.monotonic()
+        steps = 1081
+        beams = scan_colouring.Beams(-0.75 * np.pi, 1.5 * np.pi / (steps - 1), 25e-6)
+        stamp = np.zeros(1, dtype=np.int64)
+        cameras = []
+        for c in self.cameras.values():
+            grey = np.full((c.cam.model.height, c.cam.model.width, 3), 128, np.uint8)
+            cameras.append(scan_colouring.camera_frames(c.name, c.cam, stamp, [grey], 0, None))
+        options = replace(self.options, motion_compensation=False)
+        scan_colouring.colour_scans(
+            np.full((1, steps), 5.0), stamp, beams, cameras, None, self.l2v, options,
+            pool=scan_colouring.Inline(),
+        )  # fmt: skip
+        return time.monotonic() - t0
+
+    def start_warm_up(self) -> threading.Thread:
+        """:meth:`warm_up` on a thread of its own. Until it has ended, scans are taken and
+        wait (the oldest skipped, counted) rather than block this listener's thread on a
+        compilation that takes seconds on a machine's first recording, its queue
+        overflowing meanwhile."""
+        self._warm.clear()
+
+        def run() -> None:
+            try:
+                took = self.warm_up()
+                level = logging.INFO if took > 1.0 else logging.DEBUG
+                log.log(level, "live colouring ready: its kernels took %.1f s to load "
+                        "(numba caches them once compiled)", took)  # fmt: skip
+            except Exception as e:  # the scans' own colouring says what fails
+                log.debug("live colouring: warm-up failed", exc_info=e)
+            finally:
+                self._warm.set()
+
+        thread = threading.Thread(target=run, name="live colour warm-up", daemon=True)
+        thread.start()
+        return thread
 
     # --- taking records ------------------------------------------------------------------
 
@@ -246,6 +293,8 @@ class LiveColourer(Listener):
     def _colour_ready(self, offset: int, everything: bool = False) -> None:
         """Colour the waiting scans that are ready, in order (``everything``: all, with
         the frames there are: the log ends)."""
+        if not everything and not self._warm.is_set():
+            return  # the scans wait (the oldest skipped) until the kernels are ready
         while self._waiting:
             increment = self.time_increment_s()
             if increment is None:
@@ -426,6 +475,7 @@ def attach(recorder: Recorder, settings: ColourSettings) -> LiveColourer | None:
         poses=poses, pose_topics=topics,
         swath=Swath(settings.swath_s) if server is not None else None,
     )  # fmt: skip
+    colourer.start_warm_up()
     recorder.listeners.add(colourer)
     log.info("live colouring %s from %s%s", scanner, ", ".join(calib.cameras),
              " (logged too)" if to_log else "")  # fmt: skip

@@ -19,10 +19,12 @@ import numpy as np
 import pytest
 import yaml
 
+from acq.camera import calibfile
 from acq.log.reader import read_metadata
 from acq.log.timebase import TimeBase
 from acq.monitor.foxglove_client import Seen, connect_client, take
 from acq.record import live_colour
+from acq.record.live_colour import LiveColourer
 from tests.sim_rig import Rig, read_log
 
 pytestmark = pytest.mark.realtime
@@ -118,6 +120,14 @@ def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
     rig: Rig, tmp_path: Path
 ) -> None:
     cfg_path = _with_calibration(rig, tmp_path)
+    # numba's cache filled first: a first recording's wait for its kernels (seconds, the
+    # scans waiting meanwhile: test_live_colour) is not what this test is about
+    LiveColourer(
+        calibfile.load(rig.calibration(tmp_path)),
+        "laser",
+        emit=lambda _: None,
+        time_increment_s=lambda: None,
+    ).warm_up()
     port = _free_port()
     out = tmp_path / "logs"
     proc = subprocess.Popen(
@@ -129,7 +139,7 @@ def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
     try:
         # the clients in their own process: not this one, which runs the scanner
         client = subprocess.run(
-            [sys.executable, "-m", "tests.record.test_live", f"ws://127.0.0.1:{port}", "4"],
+            [sys.executable, "-m", "tests.record.test_live", f"ws://127.0.0.1:{port}", "5"],
             cwd=ROOT, capture_output=True, text=True, timeout=60,
         )  # fmt: skip
         _, err = proc.communicate(timeout=30)
@@ -150,7 +160,7 @@ def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
     span = seen["scan_span_s"]
     assert span > 2.5 and seen["scans"] > 20 * span, seen
     assert seen["image"] == ["jpeg", "ffd8"]
-    assert 1 <= seen["images"] <= 4 * 4.0 + 2  # at most --live-image-hz
+    assert 1 <= seen["images"] <= 4 * 5.0 + 2  # at most --live-image-hz, for 5 s
     # the latched messages reach a client that connected after they were written
     assert seen["transforms"] > 0
     assert seen["status_devices"] == ["laser", "camera"]
@@ -183,8 +193,6 @@ def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
     why = (colored["count"], str(figures), err.decode())
     if behind and figures.scans_coloured <= 5 * span:
         pytest.skip(f"the colourer was behind all along (every scan counted): {why}")
-    if behind and colored["count"] == 0:  # the live server behind: said, the log whole
-        pytest.skip(f"the live server was behind: no coloured scan reached the client: {why}")
     assert colored["count"] >= (1 if behind else 5 * span), why
     assert colored["fields"] == [["x", 0, 7], ["y", 4, 7], ["z", 8, 7], ["red", 12, 1],
                                  ["green", 13, 1], ["blue", 14, 1], ["alpha", 15, 1]]  # fmt: skip

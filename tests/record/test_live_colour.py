@@ -252,3 +252,40 @@ def test_scans_its_full_queue_lost_are_counted_as_skipped(
     assert colourer.status().scans_skipped == colourer.skipped + lost
     gate.set()
     hub.close()
+
+
+def test_while_its_kernels_load_scans_wait_and_then_are_coloured(
+    short_drive: tuple[DriveTruth, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The warm-up (numba compiling, seconds on a first recording) on its own thread: the
+    records keep being taken meanwhile, the scans wait (the oldest skipped, counted), and
+    colouring starts when it has ended. The warm-up itself is held here by a gate around
+    the real one, which emits nothing."""
+    truth, calib_path = short_drive
+    records, offset = _records(truth.files[0])
+    increment = read_log(truth.files[0], returns=False, jpegs=False).time_increment
+    out: list[LogRecord] = []
+    colourer = LiveColourer(
+        calibfile.load(calib_path), "laser", emit=out.append,
+        time_increment_s=lambda: increment, utc_offset_ns=lambda: offset,
+        options=views.Options(view="nearest", balance=False, motion_compensation=False),
+    )  # fmt: skip
+    gate = threading.Event()
+    real = colourer.warm_up
+    took: list[float] = []
+    monkeypatch.setattr(colourer, "warm_up", lambda: (gate.wait(), took.append(real()))[1] or 0.0)
+    thread = colourer.start_warm_up()
+    half = len(records) // 2
+    for record in records[:half]:
+        colourer.on_record(record)
+    assert out == [] and colourer.coloured == 0
+    scans = sum(r.topic == "/laser/scan" for r in records[:half])
+    assert colourer.skipped == scans - 12 and len(colourer._waiting) == 12
+    assert all(c.frames for c in colourer.cameras.values())  # the frames still taken
+    gate.set()
+    thread.join(60)
+    assert not thread.is_alive() and out == [] and took  # the warm-up emitted nothing
+    for record in records[half:]:
+        colourer.on_record(record)
+    assert colourer.coloured > 20 and colourer.failed == 0
+    assert len([r for r in out if r.topic == "/laser/colored"]) == colourer.coloured

@@ -63,10 +63,9 @@ chromium:
 	  >/dev/null 2>&1 ) || echo "chromium not installed: the page tests skip (fail where CI=true)"
 
 # ruff first; then the real-time tests three at a time (they mostly wait on their devices:
-# two at a time used a third of the two cores), with mypy, the documentation site
-# (`make docs`, strict: a broken link or a stale reference fails) and numba's cache of our
-# kernels (tests/warm_kernels.py) beside them at nice 19 (they take only the CPU the tests
-# leave); then the rest on both cores, with the wheel's
+# two at a time used a third of the two cores), with mypy and the documentation site
+# (`make docs`, strict: a broken link or a stale reference fails) beside them at nice 19
+# (they take only the CPU the tests leave); then the rest on both cores, with the wheel's
 # smoke beside them at the default priority: it runs rigs in real time itself (the demo,
 # simulators against the recorder), which starved at nice 19 (a camera without a frame
 # within 1 s, seen on CI). Once the tests are done, mypy and the docs go back to the
@@ -84,18 +83,15 @@ test: $(STAMP) compile chrony chromium
 	$(BIN)/ruff check $(RUFF_PATHS)
 	@setsid sh -c "$(LOW) exec nice -n 19 $(MAKE) --no-print-directory typecheck" > .mypy.out 2>&1 & mypy=$$!; \
 	setsid sh -c "$(LOW) exec nice -n 19 $(MAKE) --no-print-directory docs" > .docs.out 2>&1 & docs=$$!; \
-	setsid sh -c "$(LOW) exec nice -n 19 $(BIN)/python -m tests.warm_kernels" > .warm.out 2>&1 & warm=$$!; \
-	smoke=; trap 'kill -- -$$mypy -$$docs -$$warm $${smoke:+-$$smoke} 2> /dev/null' EXIT; \
+	smoke=; trap 'kill -- -$$mypy -$$docs $${smoke:+-$$smoke} 2> /dev/null' EXIT; \
 	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 3 --dist worksteal; realtime=$$?; \
-	renice -n 0 -g $$warm > /dev/null 2>&1 && echo 0 > /proc/$$warm/autogroup 2> /dev/null || true; \
 	setsid $(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
 	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2 --dist worksteal; rest=$$?; \
 	renice -n 0 -g $$mypy $$docs > /dev/null 2>&1 || true; \
 	for p in $$mypy $$docs; do echo 0 > /proc/$$p/autogroup; done 2> /dev/null || true; \
 	wait $$mypy; typed=$$?; wait $$smoke; smoked=$$?; wait $$docs; documented=$$?; \
-	wait $$warm; cat .warm.out; \
 	echo "mypy:"; cat .mypy.out; echo "wheel smoke:"; cat .smoke.out; echo "docs:"; cat .docs.out; \
-	rm -f .mypy.out .smoke.out .docs.out .warm.out; \
+	rm -f .mypy.out .smoke.out .docs.out; \
 	test $$realtime -eq 0 && test $$rest -eq 0 && test $$typed -eq 0 && test $$smoked -eq 0 && \
 	test $$documented -eq 0
 

@@ -139,3 +139,24 @@ def test_the_vendored_mermaid_is_what_its_record_says() -> None:
     for entry in record["files"]:
         digest = hashlib.sha256((folder / entry["path"]).read_bytes()).hexdigest()
         assert digest == entry["sha256"], entry["path"]
+
+
+def test_the_api_reference_shows_sphinx_roles_as_code() -> None:
+    """The docstrings' roles (``:class:`X```) as the site's Markdown shows them: code."""
+    import griffe
+
+    ext = griffe.load_extensions(str(DOCS / "griffe_roles.py") + ":SphinxRoles")
+    errors = griffe.load("acq.errors", extensions=ext, search_paths=[str(ROOT)])
+    text = errors.docstring.value
+    assert ":class:" not in text and "`InputError` 2" in text, text
+    rt = griffe.load("acq.records", extensions=ext, search_paths=[str(ROOT)])
+    for obj in [rt, *rt.members.values()]:
+        if not obj.is_alias and obj.docstring is not None:
+            assert not re.search(r":(class|func|meth|mod|attr|data):`", obj.docstring.value)
+    spec = importlib.util.spec_from_file_location("griffe_roles", DOCS / "griffe_roles.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.plain(":func:`~acq.log.reader.read_metadata` and :mod:`acq.time`") == (
+        "`read_metadata` and `acq.time`"
+    )

@@ -8,7 +8,8 @@
 - ``extrinsic_residuals.png``: `acq calibrate extrinsic`'s residual plot on the simulated
   board recording;
 - ``status.txt``: what `acq status` shows of the demo's log (a pipe gets one plain
-  snapshot), for the page to show as a terminal;
+  snapshot), for the page to show as text; ``status.svg`` the same full-screen view as a
+  terminal shows it, drawn by rich (the library the view is made with);
 - ``rig_frames.png``: the demo rig's frames (vehicle, laser, each camera) from its
   calib.yaml, seen from the side and from above;
 - ``view_demo_drive.png``: `acq view` of the demo's log (its trajectory, a frustum per
@@ -20,6 +21,9 @@ Usage: ``python docs/pictures.py OUT_DIR`` from the repository's root.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import re
 import shutil
 import signal
 import subprocess
@@ -36,6 +40,7 @@ from tests.browser import FLAGS
 
 CHROMIUM = "/usr/bin/chromium"
 PAGE_SIZE = (1280, 800)
+STALE_S = 5.0  # acq status --stale-s, its default
 PAGE_BUDGET_MS = 20000  # of the page's virtual time: the layers fetched, decoded, drawn
 
 
@@ -102,6 +107,28 @@ def rig_frames(calib_path: Path, png: Path) -> None:
     )
 
 
+def status_shot(log: str, svg: Path, cwd: Path) -> None:
+    """`acq status LOG`'s full-screen view (its first frame), as a terminal shows it, to
+    ``svg``: rich's recording console renders the view `acq status` renders."""
+    from rich.console import Console
+
+    from acq.monitor.log_source import LogSource
+    from acq.monitor.view import render
+
+    with contextlib.chdir(cwd):
+        source = LogSource(Path(log))
+        try:
+            snap = source.snapshot()
+        finally:
+            source.close()
+    with open(os.devnull, "w") as sink:
+        console = Console(record=True, width=128, force_terminal=True, file=sink)
+        console.print(render(snap, STALE_S))
+    # rich's web fonts come from a CDN: the site is read offline, in a monospace font
+    text = console.export_svg(title=f"acq status {log}")
+    svg.write_text(re.sub(r"@font-face \{.*?\}\s*", "", text, flags=re.S))
+
+
 def page_shot(paths: list[str], png: Path, cwd: Path) -> None:
     """`acq view PATHS` served, its page drawn by headless Chromium into ``png``."""
     view = subprocess.Popen(
@@ -134,6 +161,7 @@ def draw(out: Path) -> list[Path]:
         shutil.copyfile(work / "demo" / "preview.png", out / "demo_preview.png")
         status = acq("status", "demo/demo.mcap", cwd=work)
         (out / "status.txt").write_text(status.replace(str(work) + "/", ""))
+        status_shot("demo/demo.mcap", out / "status.svg", cwd=work)
         page_shot(["demo/demo.mcap"], out / "view_demo_drive.png", cwd=work)
         rig_frames(work / "demo" / "calib.yaml", out / "rig_frames.png")
 

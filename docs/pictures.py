@@ -12,6 +12,8 @@
   terminal shows it, drawn by rich (the library the view is made with);
 - ``rig_frames.png``: the demo rig's frames (vehicle, laser, each camera) from its
   calib.yaml, seen from the side and from above;
+- ``site_*.png``: three pages of this documentation site as built (`mkdocs build`), in
+  headless Chromium: a how-to guide, the live one with `acq status`, the Python API;
 - ``view_demo_drive.png``: `acq view` of the demo's log (its trajectory, a frustum per
   camera pose, its coloured cloud) in headless Chromium, WebGL in software (SwiftShader,
   as tests/browser.py drives it; `make chromium` installs it).
@@ -129,6 +131,27 @@ def status_shot(log: str, svg: Path, cwd: Path) -> None:
     svg.write_text(re.sub(r"@font-face \{.*?\}\s*", "", text, flags=re.S))
 
 
+SITE_PAGES = ("how-to/record", "how-to/watch-live", "reference/api")
+
+
+def site_shots(out: Path) -> None:
+    """The site built (strict) and :data:`SITE_PAGES` drawn by headless Chromium into
+    ``out/site_<name>.png``."""
+    with tempfile.TemporaryDirectory(prefix="acq-site-") as tmp:
+        subprocess.run(
+            [sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "-d", tmp],
+            check=True, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
+        )  # fmt: skip
+        flags = [f for f in FLAGS if not f.startswith("--remote-debugging")]
+        for page in SITE_PAGES:
+            png = out / f"site_{page.rsplit('/', 1)[-1]}.png"
+            subprocess.run(
+                [CHROMIUM, *flags, "--window-size=1280,1400", f"--screenshot={png}",
+                 f"file://{tmp}/{page}.html"],
+                check=True, capture_output=True, timeout=120,
+            )  # fmt: skip
+
+
 def page_shot(paths: list[str], png: Path, cwd: Path) -> None:
     """`acq view PATHS` served, its page drawn by headless Chromium into ``png``."""
     view = subprocess.Popen(
@@ -174,6 +197,7 @@ def draw(out: Path) -> list[Path]:
         acq("calibrate", "extrinsic", "board", "--intrinsics", "board/intrinsics.yaml",
             "--board", "9x7x0.1", "-o", "board/calib.yaml", cwd=work)  # fmt: skip
         shutil.copyfile(work / "board" / "calib_extrinsic.png", out / "extrinsic_residuals.png")
+    site_shots(out)
     return sorted(out.iterdir())
 
 

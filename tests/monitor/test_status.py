@@ -171,14 +171,16 @@ def _view_through_pty(target: str, signum: signal.Signals) -> bytes:
         cwd=ROOT, stdin=side, stdout=side, stderr=subprocess.PIPE,
         env={**os.environ, "COLUMNS": "120", "LINES": "40", "TERM": "xterm"},
     )  # fmt: skip
-    os.close(side)
+    # the side stays open here until all is read: closed by its last holder, a pty's
+    # master may say EIO before the last bytes written are read (lost, on a loaded host)
     seen = bytearray()
+    ended = threading.Event()
 
     def read() -> None:  # all the view writes, while it runs and as it ends
-        while select.select([main], [], [], 10.0)[0]:
-            try:
+        while True:
+            if select.select([main], [], [], 0.2)[0]:
                 seen.extend(os.read(main, 65536))
-            except OSError:  # EIO: the view's process is gone
+            elif ended.is_set():  # the process gone, and nothing more for 0.2 s
                 return
 
     reader = threading.Thread(target=read, daemon=True)
@@ -191,13 +193,17 @@ def _view_through_pty(target: str, signum: signal.Signals) -> bytes:
         assert b"\x1b[?1049h" in seen  # the alternate screen: a full-screen view
         proc.send_signal(signum)
         assert proc.wait(10) == 0, proc.stderr.read() if proc.stderr else ""
+        ended.set()
         reader.join(10)
+        assert not reader.is_alive()
         assert seen.rfind(b"\x1b[?1049l") > seen.rfind(b"\x1b[?1049h")  # screen given back
         return bytes(seen)
     finally:
         if proc.poll() is None:
             proc.kill()
+        ended.set()
         reader.join(10)
+        os.close(side)
         os.close(main)
 
 

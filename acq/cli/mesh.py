@@ -20,6 +20,9 @@ HELP = "facets of a drive's laser profiles, coloured from its cameras (glTF, OBJ
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from acq.mesh.organized import FacetRules
+
+    rules = FacetRules()
     m = sub.add_parser(
         "mesh",
         help=HELP,
@@ -63,18 +66,19 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "first profile; the last tile holds the rest, a rest under a quarter tile joins it",
     )  # fmt: skip
     m.add_argument(
-        "--max-grazing-deg", type=real(0, 90, hi_open=True, what="degrees"), default=12.5,
-        metavar="DEG",
+        "--max-grazing-deg", type=real(0, 90, hi_open=True, what="degrees"),
+        default=rules.max_grazing_deg, metavar="DEG",
         help="refuse an edge within this angle of the viewing ray from its profile's own "
-        "sensor position (a range jump), degrees (default 12.5)",
+        f"sensor position (a range jump), degrees (default {rules.max_grazing_deg:g})",
     )  # fmt: skip
     m.add_argument(
         "--edge-a-m", type=real(0, 100, what="metres"), default=None, metavar="M",
-        help="refuse an edge longer than A + B x range: A, metres",
+        help=f"refuse an edge longer than A + B x range: A, metres (default {rules.edge_a_m:g})",
     )  # fmt: skip
     m.add_argument(
         "--edge-b", type=real(0, 10, what="a ratio"), default=None, metavar="B",
-        help="refuse an edge longer than A + B x range: B, metres per metre of range",
+        help="refuse an edge longer than A + B x range: B, metres per metre of range "
+        f"(default {rules.edge_b:g})",
     )  # fmt: skip
     m.add_argument(
         "--chunk", type=CHUNK_S, default=None, metavar="S",

@@ -64,8 +64,8 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )  # fmt: skip
     replay.add_argument(
         "--config-out", type=Path, metavar="YAML",
-        help="write the recorder configuration here (and the log's calibration beside it, "
-        "YAML.calib.yaml) instead of printing it",
+        help="write the recorder configuration here (and the log's calibration beside it: "
+        "NAME.calib.yaml for NAME.yaml) instead of printing it",
     )  # fmt: skip
     replay.add_argument(
         "--force", action="store_true",

@@ -196,11 +196,11 @@ def test_with_odometry_the_swath_is_the_street_placed_in_the_odometry_frame(
     assert last.translation.x - first.translation.x == pytest.approx(20 / 3.6 * 2, abs=1.0)
 
 
-def test_a_colourer_with_records_queued_behind_it_skips_scans_and_takes_the_frames(
+def _still_colourer(
     short_drive: tuple[DriveTruth, Path],
-) -> None:
-    """Far behind (its feed's queue long), it skips the ready scans, counted, and keeps
-    taking frames; caught up, it colours again."""
+) -> tuple[list[LogRecord], list[LogRecord], LiveColourer]:
+    """The drive's records, a list of what is emitted, and a colourer of the drive's
+    calibration without motion compensation emitting into it (records not yet given)."""
     truth, calib_path = short_drive
     records, offset = _records(truth.files[0])
     increment = read_log(truth.files[0], returns=False, jpegs=False).time_increment
@@ -210,6 +210,15 @@ def test_a_colourer_with_records_queued_behind_it_skips_scans_and_takes_the_fram
         time_increment_s=lambda: increment, utc_offset_ns=lambda: offset,
         options=views.Options(view="nearest", balance=False, motion_compensation=False),
     )  # fmt: skip
+    return records, out, colourer
+
+
+def test_a_colourer_with_records_queued_behind_it_skips_scans_and_takes_the_frames(
+    short_drive: tuple[DriveTruth, Path],
+) -> None:
+    """Far behind (its feed's queue long), it skips the ready scans, counted, and keeps
+    taking frames; caught up, it colours again."""
+    records, _, colourer = _still_colourer(short_drive)
     queued = [100]
     colourer.backlog = lambda: queued[0]  # type: ignore[method-assign]
     half = len(records) // 2
@@ -261,15 +270,7 @@ def test_while_its_kernels_load_scans_wait_and_then_are_coloured(
     records keep being taken meanwhile, the scans wait (the oldest skipped, counted), and
     colouring starts when it has ended. The warm-up itself is held here by a gate around
     the real one, which emits nothing."""
-    truth, calib_path = short_drive
-    records, offset = _records(truth.files[0])
-    increment = read_log(truth.files[0], returns=False, jpegs=False).time_increment
-    out: list[LogRecord] = []
-    colourer = LiveColourer(
-        calibfile.load(calib_path), "laser", emit=out.append,
-        time_increment_s=lambda: increment, utc_offset_ns=lambda: offset,
-        options=views.Options(view="nearest", balance=False, motion_compensation=False),
-    )  # fmt: skip
+    records, out, colourer = _still_colourer(short_drive)
     gate = threading.Event()
     real = colourer.warm_up
     took: list[float] = []

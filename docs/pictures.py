@@ -38,11 +38,13 @@ import numpy as np
 
 from acq.camera import calibfile
 from acq.geometry.transforms import Rigid
+from acq.monitor.snapshot import STALE_S
 from tests.browser import FLAGS
 
 CHROMIUM = "/usr/bin/chromium"
 PAGE_SIZE = (1280, 800)
-STALE_S = 5.0  # acq status --stale-s, its default
+# Chromium's flags for one screenshot: it exits once drawn (a debugging port keeps it on)
+SHOT_FLAGS = [f for f in FLAGS if not f.startswith("--remote-debugging")]
 PAGE_BUDGET_MS = 20000  # of the page's virtual time: the layers fetched, decoded, drawn
 
 
@@ -142,11 +144,10 @@ def site_shots(out: Path) -> None:
             [sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "-d", tmp],
             check=True, env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
         )  # fmt: skip
-        flags = [f for f in FLAGS if not f.startswith("--remote-debugging")]
         for page in SITE_PAGES:
             png = out / f"site_{page.rsplit('/', 1)[-1]}.png"
             subprocess.run(
-                [CHROMIUM, *flags, "--window-size=1280,1400", f"--screenshot={png}",
+                [CHROMIUM, *SHOT_FLAGS, "--window-size=1280,1400", f"--screenshot={png}",
                  f"file://{tmp}/{page}.html"],
                 check=True, capture_output=True, timeout=120,
             )  # fmt: skip
@@ -164,9 +165,8 @@ def page_shot(paths: list[str], png: Path, cwd: Path) -> None:
         if " at http://" not in line:
             raise SystemExit(f"acq view {' '.join(paths)}: {line}{view.stdout.read()}")
         url = line.split(" at ", 1)[1].split()[0]
-        flags = [f for f in FLAGS if not f.startswith("--remote-debugging")]
         subprocess.run(
-            [CHROMIUM, *flags, f"--window-size={PAGE_SIZE[0]},{PAGE_SIZE[1]}",
+            [CHROMIUM, *SHOT_FLAGS, f"--window-size={PAGE_SIZE[0]},{PAGE_SIZE[1]}",
              f"--virtual-time-budget={PAGE_BUDGET_MS}", f"--screenshot={png}", url],
             check=True, capture_output=True, timeout=120,
         )  # fmt: skip

@@ -32,13 +32,13 @@ pytestmark = pytest.mark.realtime
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _with_calibration(rig: Rig, tmp_path: Path) -> Path:
-    """The rig's configuration with its true calibration (so the log has /tf_static and
-    /camera/calibration, latched)."""
+def _with_calibration(rig: Rig, tmp_path: Path, calib: Path) -> Path:
+    """The rig's configuration with its true calibration ``calib`` (so the log has
+    /tf_static and /camera/calibration, latched)."""
     rig.config(tmp_path)
     path = tmp_path / "rig.yaml"
     data = yaml.safe_load(path.read_text())
-    path.write_text(yaml.safe_dump({**data, "calibration": str(rig.calibration(tmp_path))}))
+    path.write_text(yaml.safe_dump({**data, "calibration": str(calib)}))
     return path
 
 
@@ -119,11 +119,12 @@ def _clouds(got: list[tuple[float, Any]]) -> dict[str, Any]:
 def test_live_clients_see_every_channel_and_the_log_keeps_every_record(
     rig: Rig, tmp_path: Path
 ) -> None:
-    cfg_path = _with_calibration(rig, tmp_path)
+    calib = rig.calibration(tmp_path)
+    cfg_path = _with_calibration(rig, tmp_path, calib)
     # numba's cache filled first: a first recording's wait for its kernels (seconds, the
     # scans waiting meanwhile: test_live_colour) is not what this test is about
     LiveColourer(
-        calibfile.load(rig.calibration(tmp_path)),
+        calibfile.load(calib),
         "laser",
         emit=lambda _: None,
         time_increment_s=lambda: None,

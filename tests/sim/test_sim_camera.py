@@ -196,10 +196,11 @@ def test_faults(server: MjpegServer) -> None:
     t0 = time.monotonic()
     _, _, arrived = reader.part()
     assert arrived - t0 > 0.3
-    # the frames due in the stall are held back, none sent (a loaded host renders fewer
-    # of them in time: the rest are dropped as late)
+    # the frames handed over in the stall are held back, none sent: those due in it, and
+    # on a loaded host those the server was behind with, up to late_s (a loaded host also
+    # renders fewer of them in time: the rest are dropped as late)
     stalled = [t for t in server.camera.truth() if t.status == "stalled"]
-    assert 1 <= len(stalled) <= 11
+    assert 1 <= len(stalled) <= int((0.4 + server.late_s) * 25) + 1
 
     # drop: the client reads end-of-stream, a new client is served again
     server.drop_connection()

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import logging
 import math
 import re
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -22,7 +25,7 @@ from acq.calib.extrinsic_log import (
 )
 from acq.calib.fisheye_calib import parse_board
 from acq.camera import calibfile
-from acq.camera.calibfile import Calibration, CameraCalib
+from acq.camera.calibfile import Calibration, CalibStd, CameraCalib
 from acq.geometry.rotations import rotation_angle
 from acq.geometry.transforms import Rigid
 from acq.log import drive_log
@@ -41,6 +44,27 @@ def rec(tmp_path_factory: pytest.TempPathFactory) -> tuple[BoardLog, Path]:
     return log, intr
 
 
+INTRINSICS_STD = CalibStd(fx=0.08, fy=0.09, cx=0.07, cy=0.07, k=(2e-3, 4e-3, 3e-3, 1e-3))
+INTRINSICS_NOTE = "f = r / theta_max from the image circle alone, not checked"
+
+
+@pytest.fixture(scope="module")
+def calibrated(
+    rec: tuple[BoardLog, Path], tmp_path_factory: pytest.TempPathFactory
+) -> tuple[dict[str, Any], Path]:
+    """`acq calibrate extrinsic --camera camera --json` into a new CALIB, run once, with
+    intrinsics that carry their standard errors and a note: the report and CALIB."""
+    log, _ = rec
+    d = tmp_path_factory.mktemp("extrinsic")
+    cam = replace(log.calibration.camera("camera"), std=INTRINSICS_STD, note=INTRINSICS_NOTE)
+    intr = d / "intrinsics.yaml"
+    calibfile.save(Calibration(cameras={"camera": cam}), intr)
+    out = d / "calib.yaml"
+    with contextlib.redirect_stdout(io.StringIO()) as stdout:  # capsys is per test
+        assert calibrate_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
+    return json.loads(stdout.getvalue()), out
+
+
 def _errors(got: Rigid, truth: Rigid) -> tuple[float, float]:
     """Rotation error (deg) and translation error (m)."""
     rot = math.degrees(rotation_angle(got.rotation @ truth.rotation.T))
@@ -56,12 +80,10 @@ def test_still_intervals_match_the_holds(rec: tuple[BoardLog, Path]) -> None:
 
 
 def test_calibration_recovers_the_truth(
-    rec: tuple[BoardLog, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    rec: tuple[BoardLog, Path], calibrated: tuple[dict[str, Any], Path]
 ) -> None:
-    log, intr = rec
-    out = tmp_path / "calib.yaml"
-    assert calibrate_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
-    report = json.loads(capsys.readouterr().out)
+    log, _ = rec
+    report, out = calibrated
     assert len(report["poses"]) == 12
     assert all(p["problem"] == "" for p in report["poses"])
     assert all(p["frames"] >= 5 for p in report["poses"])  # 25 frames a pose, 10 asked
@@ -71,7 +93,8 @@ def test_calibration_recovers_the_truth(
     rot, trans = _errors(cam.camera_to_laser, log.truth)
     print(f"recovered camera_to_laser: {rot:.3f} deg, {trans * 1e3:.1f} mm from the truth")
     assert rot < 0.15 and trans < 0.003
-    assert (tmp_path / "calib_extrinsic.png").stat().st_size > 0
+    assert report["plot"] == str(out.parent / "calib_extrinsic.png")
+    assert (out.parent / "calib_extrinsic.png").stat().st_size > 0
 
 
 def test_given_poses_and_a_coarse_extrinsic(
@@ -180,28 +203,17 @@ def test_too_few_poses_exits_1(
 
 
 def test_output_carries_the_std_of_the_result_and_keeps_the_intrinsics_std_and_note(
-    rec: tuple[BoardLog, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    calibrated: tuple[dict[str, Any], Path],
 ) -> None:
-
-    from acq.camera.calibfile import CalibStd
-
-    log, _ = rec
-    intr_std = CalibStd(fx=0.08, fy=0.09, cx=0.07, cy=0.07, k=(2e-3, 4e-3, 3e-3, 1e-3))
-    cam = log.calibration.camera("camera")
-    intr = tmp_path / "intrinsics.yaml"
-    note = "f = r / theta_max from the image circle alone, not checked"
-    calibfile.save(Calibration(cameras={"camera": replace(cam, std=intr_std, note=note)}), intr)
-    out = tmp_path / "calib.yaml"
-    assert calibrate_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
-    report = json.loads(capsys.readouterr().out)
+    report, out = calibrated
     std = calibfile.load(out).camera("camera").std
     assert std.rotation_deg is not None and std.translation_m is not None
     # the result's std: rotation about the laser axes (rad -> deg), then translation (m)
     np.testing.assert_allclose(std.rotation_deg, np.degrees(report["std"][:3]), rtol=5e-3)
     np.testing.assert_allclose(std.rotation_deg, report["std_rot_deg"], rtol=5e-3)
     np.testing.assert_allclose(std.translation_m, report["std"][3:], rtol=5e-3)
-    assert std.merged(CalibStd(), CalibStd.EXTRINSICS) == intr_std
-    assert calibfile.load(out).camera("camera").note == note  # the intrinsics' own
+    assert std.merged(CalibStd(), CalibStd.EXTRINSICS) == INTRINSICS_STD
+    assert calibfile.load(out).camera("camera").note == INTRINSICS_NOTE  # the intrinsics' own
 
 
 def test_an_existing_calib_is_updated_and_keeps_the_other_cameras(

@@ -3,10 +3,13 @@ the paper's pattern in the synthetic street, seen by the parked vehicle."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -48,6 +51,19 @@ def rec(tmp_path_factory: pytest.TempPathFactory) -> tuple[ValidationLog, Path]:
     return log, calib
 
 
+@pytest.fixture(scope="module")
+def truth_report(
+    rec: tuple[ValidationLog, Path], tmp_path_factory: pytest.TempPathFactory
+) -> tuple[dict[str, Any], Path]:
+    """`acq calibrate validate --json -o DIR` with the true calibration, run once: its
+    report (the ValidationResult's figures) and DIR; the tests below read it."""
+    log, calib = rec
+    out = tmp_path_factory.mktemp("validate_out")
+    with contextlib.redirect_stdout(io.StringIO()) as stdout:  # capsys is per test
+        assert calibrate_validate(log.files, calib, json_out=True, out=out) == 0
+    return json.loads(stdout.getvalue()), out
+
+
 def _perturbed(cam: CameraCalib, deg: float) -> CameraCalib:
     """``cam`` with camera_to_laser turned by ``deg`` about the laser z axis (the scan
     plane's normal: the projections move along the laser line)."""
@@ -64,42 +80,46 @@ def test_truth_sees_both_sets(rec: tuple[ValidationLog, Path]) -> None:
     assert set(names) <= set(LABELS)
 
 
-def test_true_calibration_colours_right(rec: tuple[ValidationLog, Path], tmp_path: Path) -> None:
+def test_true_calibration_colours_right(
+    rec: tuple[ValidationLog, Path], truth_report: tuple[dict[str, Any], Path]
+) -> None:
     log, _ = rec
-    png = tmp_path / "overlay.png"
-    res = validate(drive_log.read_log(log.files), log.calibration.camera(), overlay=png)
-    print(res.to_dict())
-    assert res.points > 5000 and res.front[0] > 0 and res.back[0] > 0
-    assert res.share_right >= 0.95
-    assert res.n_edges > 100 and res.sigma_px < 1.0
-    assert abs(res.edge_mean_px) < 0.3
-    assert sum(res.histogram) == res.points and res.histogram[0] == res.right
-    assert sum(f[1] for f in res.frames) == res.points
-    img = cv2.imread(str(png))
-    assert img is not None and img.shape[:2] == (log.calibration.camera().model.height,
-                                                 log.calibration.camera().model.width)  # fmt: skip
+    res, out = truth_report
+    print(res)
+    assert res["points"] > 5000 and res["front"][0] > 0 and res["back"][0] > 0
+    assert res["share_right"] >= 0.95
+    assert res["n_edges"] > 100 and res["sigma_px"] < 1.0
+    assert abs(res["edge_mean_px"]) < 0.3
+    assert sum(res["histogram"].values()) == res["points"]
+    assert res["histogram"]["0"] == res["right"]
+    assert sum(f[1] for f in res["frames"]) == res["points"]
+    img = cv2.imread(str(out / "validate_overlay.png"))
+    model = log.calibration.camera().model
+    assert img is not None and img.shape[:2] == (model.height, model.width)
 
 
-def test_perturbed_calibration_is_clearly_worse(rec: tuple[ValidationLog, Path]) -> None:
+def test_perturbed_calibration_is_clearly_worse(
+    rec: tuple[ValidationLog, Path], truth_report: tuple[dict[str, Any], Path]
+) -> None:
     log, _ = rec
-    drive = drive_log.read_log(log.files)
-    good = validate(drive, log.calibration.camera())
-    bad = validate(drive, _perturbed(log.calibration.camera(), 1.0))
-    print(good.share_right, good.sigma_px, bad.share_right, bad.sigma_px)
-    assert bad.share_right <= good.share_right - 0.10
-    assert bad.sigma_px > 2 * good.sigma_px
+    good, _ = truth_report
+    bad = validate(drive_log.read_log(log.files), _perturbed(log.calibration.camera(), 1.0))
+    print(good["share_right"], good["sigma_px"], bad.share_right, bad.sigma_px)
+    assert bad.share_right <= good["share_right"] - 0.10
+    assert bad.sigma_px > 2 * good["sigma_px"]
     assert sum(bad.histogram[2:]) > 0.05 * bad.points
 
 
 def test_main_json_and_overlay(
-    rec: tuple[ValidationLog, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    rec: tuple[ValidationLog, Path], truth_report: tuple[dict[str, Any], Path]
 ) -> None:
-    log, calib = rec
-    assert calibrate_validate(log.files, calib, json_out=True, out=tmp_path) == 0
-    report = json.loads(capsys.readouterr().out)
+    _, calib = rec
+    report, out = truth_report
     assert report["camera"] == "camera" and report["share_right"] >= 0.95
+    assert report["calib"] == str(calib)
     assert set(report["histogram"]) == {"0", "1", "2", "3", ">3"}
-    assert (tmp_path / "validate_overlay.png").is_file()
+    assert report["overlay"] == str(out / "validate_overlay.png")
+    assert (out / "validate_overlay.png").is_file()
 
 
 def test_main_bad_input_exits_2(

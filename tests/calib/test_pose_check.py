@@ -5,20 +5,21 @@ simulator moved it, and a drive that cannot tell says why."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from acq.calib.information import depth_edges
-from acq.calib.pose_check import PoseCheck
 from acq.calib.pose_search import shifted
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
 from acq.cli import main as acq_main
-from acq.cloud.colorize import Report, check_calibration, prepare
+from acq.cloud.colorize import Report, prepare
 from acq.sim.drive_log import DriveTruth, write_drive_log
 
 SECONDS = 5.0
@@ -43,9 +44,45 @@ def _moved(calib: Calibration, x: np.ndarray) -> Calibration:
     return replace(calib, cameras={name: cam})
 
 
-def _check(truth: DriveTruth, calib: Calibration) -> PoseCheck:
-    job, whole = prepare(truth.files, calib, Report(output="x"), jpegs=True)
-    return check_calibration(job, whole=whole)
+@pytest.fixture(scope="module")
+def calibs(
+    drive: tuple[DriveTruth, Calibration], tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, Path]:
+    """CALIB files: the true calibration, and the camera turned 1 deg about the laser's
+    z axis from where it is."""
+    _, true_calib = drive
+    d = tmp_path_factory.mktemp("calibs")
+    x = np.zeros(7)
+    x[2] = np.radians(1.0)
+    good, turned = d / "good.yaml", d / "turned.yaml"
+    calibfile.save(true_calib, good)
+    calibfile.save(_moved(true_calib, x), turned)
+    return good, turned
+
+
+@dataclass(frozen=True)
+class Colorized:
+    out: str
+    err: str
+    cloud: Path
+
+
+@pytest.fixture(scope="module")
+def colorized_turned(
+    drive: tuple[DriveTruth, Calibration],
+    calibs: tuple[Path, Path],
+    tmp_path_factory: pytest.TempPathFactory,
+) -> Colorized:
+    """`acq colorize --check --json` to a LAS with the turned CALIB, run once: what it
+    printed and the cloud (the check is the command's dearest part; two tests read it)."""
+    truth, _ = drive
+    las = tmp_path_factory.mktemp("colorized") / "turned.las"
+    argv = ["colorize", *map(str, truth.files), "--calib", str(calibs[1]), "-o", str(las),
+            "--no-preview", "--check", "--json"]  # fmt: skip
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):  # capsys: per test
+        assert acq_main(argv) == 0
+    return Colorized(out.getvalue(), err.getvalue(), las)
 
 
 def test_depth_edges_are_the_near_side_of_a_range_jump() -> None:
@@ -58,23 +95,22 @@ def test_depth_edges_are_the_near_side_of_a_range_jump() -> None:
 
 
 def test_a_turned_camera_has_moved_by_what_it_was_turned(
-    drive: tuple[DriveTruth, Calibration],
+    drive: tuple[DriveTruth, Calibration], colorized_turned: Colorized
 ) -> None:
     """CALIB says the camera is turned 1 deg about the laser's z axis from where it is:
-    the check says it moved, by about 1 deg, and its estimate is the truth's pose."""
-    x = np.zeros(7)
-    x[2] = np.radians(1.0)
-    truth, calib = drive
-    c = _check(truth, _moved(calib, x))
-    print(c.to_dict())
-    assert c.verdict == "moved" and "rotation" in c.reason
+    the check (here `acq colorize --check`'s, in its JSON) says it moved, by about 1 deg,
+    and its estimate is the truth's pose."""
+    _, calib = drive
+    c = json.loads(colorized_turned.out)["calibration_check"]["camera"]
+    print(c)
+    assert c["verdict"] == "moved" and "rotation" in c["reason"]
     true = calib.camera().camera_to_laser
-    assert c.camera_to_laser is not None
-    err = np.degrees(np.arccos(np.clip(
-        (np.trace(c.camera_to_laser.rotation @ true.rotation.T) - 1) / 2, -1, 1)))  # fmt: skip
+    rotation = np.array(c["camera_to_laser"]["rotation"])
+    translation = np.array(c["camera_to_laser"]["translation"])
+    err = np.degrees(np.arccos(np.clip((np.trace(rotation @ true.rotation.T) - 1) / 2, -1, 1)))
     assert err < 0.15
-    assert np.linalg.norm(c.camera_to_laser.translation - true.translation) < 0.02
-    assert 0.8 < c.angle_deg < 1.2 and c.px_at_10m > 2
+    assert np.linalg.norm(translation - true.translation) < 0.02
+    assert 0.8 < c["rotation_deg"] < 1.2 and c["px_at_10m"] > 2
 
 
 def test_cli_verdict_json_and_write(
@@ -129,19 +165,13 @@ def test_cli_verdict_json_and_write(
 
 
 def test_a_drive_that_cannot_tell_says_why(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    undecidable_drives: dict[str, tuple[list[Path], Path, str]],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
-    cases = {
-        "still": (dict(speed_kmh=0.0), "does not move"),
-        "no_strengths": (dict(intensities=False), "return strengths"),
-        "no_odometry": (dict(odometry_hz=0.0), "motion"),
-    }
-    for name, (kwargs, message) in cases.items():
-        truth = write_drive_log(tmp_path / name, 1.0, pattern_at=None, **kwargs)  # type: ignore[arg-type]
-        calib = tmp_path / name / "calib.yaml"
-        calibfile.save(truth.calibration, calib)
-        out = tmp_path / name / "out.yaml"
-        argv = ["calibrate", "check", *map(str, truth.files), "--calib", str(calib),
+    for name, (files, calib, message) in undecidable_drives.items():
+        out = tmp_path / f"{name}.yaml"
+        argv = ["calibrate", "check", *map(str, files), "--calib", str(calib),
                 "--write", str(out)]  # fmt: skip
         assert acq_main(argv) == 1, name
         captured = capsys.readouterr()
@@ -151,7 +181,11 @@ def test_a_drive_that_cannot_tell_says_why(
 
 
 def test_colorize_and_info_check_the_drive_and_warn_when_the_calibration_moved(
-    drive: tuple[DriveTruth, Calibration], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    drive: tuple[DriveTruth, Calibration],
+    calibs: tuple[Path, Path],
+    colorized_turned: Colorized,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     """`acq colorize --check` and `acq info --calib`: a camera turned 1 deg from CALIB is
     warned about in one line on stderr, its figures in the report (text and JSON) and in
@@ -161,27 +195,19 @@ def test_colorize_and_info_check_the_drive_and_warn_when_the_calibration_moved(
 
     from acq.cloud.las import CALIBRATION_CHECK_VLR
 
-    truth, true_calib = drive
-    x = np.zeros(7)
-    x[2] = np.radians(1.0)
-    moved, good = tmp_path / "moved.yaml", tmp_path / "good.yaml"
-    calibfile.save(_moved(true_calib, x), moved)
-    calibfile.save(true_calib, good)
+    truth, _ = drive
+    good, moved = calibs
     logs = [str(f) for f in truth.files]
 
-    las = tmp_path / "moved.las"
-    argv = ["colorize", *logs, "--calib", str(moved), "-o", str(las), "--no-preview", "--check"]
-    assert acq_main([*argv, "--json"]) == 0
-    captured = capsys.readouterr()
-    (warning,) = captured.err.splitlines()
+    (warning,) = colorized_turned.err.splitlines()
     assert warning.startswith(
         "acq colorize: warning: the calibration of camera camera has moved: camera camera: "
         "moved by "
     ), warning
     assert "acq calibrate check" in warning
-    check = json.loads(captured.out)["calibration_check"]["camera"]
+    check = json.loads(colorized_turned.out)["calibration_check"]["camera"]
     assert check["verdict"] == "moved" and 0.8 < check["rotation_deg"] < 1.2, check
-    vlrs = laspy.read(las).header.vlrs
+    vlrs = laspy.read(colorized_turned.cloud).header.vlrs
     (vlr,) = [v for v in vlrs if (v.user_id, v.record_id) == CALIBRATION_CHECK_VLR[:2]]
     assert vlr.record_data.decode().startswith("calibration check: camera camera: moved by ")
 

@@ -112,8 +112,10 @@ def test_the_estimate_reads_its_window_itself_for_workers(drive: tuple[DriveTrut
 
     truth, calib = drive
     job, whole = prepare(truth.files, calibfile.load(calib), Report(output="x"), jpegs=True)
-    mine = estimate_offset(job, seconds=4.0)
-    given = estimate_offset(job, whole=whole, seconds=4.0)
+    # 2.5 s of the middle (62 frames) are enough to find the offset: the property is
+    # that the two reads agree, not the accuracy of a long window
+    mine = estimate_offset(job, seconds=2.5)
+    given = estimate_offset(job, whole=whole, seconds=2.5)
     assert mine.found and mine.frames == given.frames and mine.points == given.points
     assert mine.offset_s == given.offset_s
     assert mine.offset_s == pytest.approx(_true_error(truth), abs=0.003)
@@ -146,26 +148,20 @@ def test_the_standard_error_follows_the_offset_along_the_drive(
 
 
 def test_no_estimate_without_motion_or_return_strengths(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    undecidable_drives: dict[str, tuple[list[Path], Path, str]],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
-    cases = {
-        "still": (dict(speed_kmh=0.0), "does not move"),
-        "no_strengths": (dict(intensities=False), "return strengths"),
-        "no_odometry": (dict(odometry_hz=0.0), "motion"),
-    }
-    for name, (kwargs, message) in cases.items():
-        truth = write_drive_log(tmp_path / name, 1.0, pattern_at=None, **kwargs)  # type: ignore[arg-type]
-        calib = tmp_path / name / "calib.yaml"
-        calibfile.save(truth.calibration, calib)
-        out = tmp_path / name / "out.yaml"
-        argv = ["calibrate", "time-offset", *map(str, truth.files), "--calib", str(calib),
+    for name, (files, calib, message) in undecidable_drives.items():
+        out = tmp_path / f"{name}.yaml"
+        argv = ["calibrate", "time-offset", *map(str, files), "--calib", str(calib),
                 "-o", str(out)]  # fmt: skip
         assert acq_main(argv) == 1, name
         err = capsys.readouterr().err
         assert message in err and err.startswith("acq calibrate time-offset: no estimate"), err
         assert not out.exists()
         # colorize keeps CALIB's offset and says why
-        report = run(truth.files, truth.calibration, tmp_path / name / "c.ply",
+        report = run(files, calibfile.load(calib), tmp_path / f"{name}.ply",
                      time_offset_s="auto", preview=None,
                      frame="laser" if name == "no_odometry" else None)  # fmt: skip
         assert report.time_offset["used_s"] == 0.0 and not report.time_offset["found"]

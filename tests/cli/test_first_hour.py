@@ -96,13 +96,15 @@ def _readme_scripts() -> list[list[str]]:
 
 # Runs each script with --help in a process of its own, forked from one that has already
 # imported what the scripts import at their top (their --help's whole cost, about 1 s a
-# script when each starts a Python of its own). argv: the JSON list of the runs.
+# script when each starts a Python of its own); only a speed-up, so a module of that list
+# that is gone is passed over. argv: the JSON list of the runs.
 _FORKS = """
-import importlib, json, os, runpy, sys, traceback
+import contextlib, importlib, json, os, runpy, sys, traceback
 for name in ("numpy", "scipy.optimize", "cv2", "numba", "acq.log", "acq.cloud.colorize",
              "acq.calib.validate", "acq.calib.board_pose", "acq.calib.time_offset",
              "acq.sim.demo"):
-    importlib.import_module(name)
+    with contextlib.suppress(ImportError):
+        importlib.import_module(name)
 codes = {}
 for run in json.loads(sys.argv[1]):
     sys.stdout.flush(), sys.stderr.flush()

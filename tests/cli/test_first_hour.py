@@ -4,6 +4,7 @@ starts, help texts that point to what exists, scripts that answer --help."""
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import shlex
@@ -11,6 +12,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -18,6 +20,7 @@ from acq.camera import calibfile
 from acq.cli.main import build_parser
 from acq.cli.main import main as acq_main
 from acq.sim.drive_log import write_drive_log
+from tests.conftest import once_per_run
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -91,17 +94,89 @@ def _readme_scripts() -> list[list[str]]:
     return [f.split() for f in dict.fromkeys(found)]
 
 
+# Runs each script with --help in a process of its own, forked from one that has already
+# imported what the scripts import at their top (their --help's whole cost, about 1 s a
+# script when each starts a Python of its own); only a speed-up, so a module of that list
+# that is gone is passed over. argv: the JSON list of the runs.
+_FORKS = """
+import contextlib, importlib, json, os, runpy, sys, traceback
+for name in ("numpy", "scipy.optimize", "cv2", "numba", "acq.log", "acq.cloud.colorize",
+             "acq.calib.validate", "acq.calib.board_pose", "acq.calib.time_offset",
+             "acq.sim.demo"):
+    with contextlib.suppress(ImportError):
+        importlib.import_module(name)
+codes = {}
+for run in json.loads(sys.argv[1]):
+    sys.stdout.flush(), sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:
+        code = 1
+        try:
+            os.chdir(run["cwd"])
+            for fd, path in ((1, run["stdout"]), (2, run["stderr"])):
+                os.dup2(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC), fd)
+            script = run["target"].endswith(".py")
+            sys.argv = [run["target"], "--help"]
+            sys.path[0] = os.path.dirname(run["target"]) if script else os.getcwd()
+            try:
+                if script:
+                    runpy.run_path(run["target"], run_name="__main__")
+                else:
+                    runpy.run_module(run["target"], run_name="__main__", alter_sys=True)
+                code = 0
+            except SystemExit as e:
+                code = e.code if isinstance(e.code, int) else (e.code is not None)
+                if isinstance(e.code, str):
+                    print(e.code, file=sys.stderr)
+        except BaseException:
+            traceback.print_exc()
+        finally:
+            sys.stdout.flush(), sys.stderr.flush()
+            os._exit(code)
+    codes[run["target"]] = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+print(json.dumps(codes))
+"""
+
+
+def _run_helps(folder: Path) -> dict[str, Any]:
+    """Every script of _readme_scripts() run with --help (_FORKS), each in an empty
+    folder of its own: its exit status, stdout, stderr and what it left there."""
+    runs = []
+    for i, (*_, target) in enumerate(_readme_scripts()):
+        (cwd := folder / str(i)).mkdir()
+        path = str(REPO / target) if target.endswith(".py") else target
+        runs.append({"target": path, "cwd": str(cwd), "stdout": str(folder / f"{i}.out"),
+                     "stderr": str(folder / f"{i}.err")})  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, "-c", _FORKS, json.dumps(runs)], cwd=folder,
+                          env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    codes = json.loads(done.stdout)
+    return {
+        " ".join(script): {
+            "code": codes[run["target"]],
+            "stdout": Path(run["stdout"]).read_text(),
+            "stderr": Path(run["stderr"]).read_text(),
+            "left": sorted(p.name for p in Path(run["cwd"]).iterdir()),
+        }
+        for script, run in zip(_readme_scripts(), runs, strict=True)
+    }
+
+
+@pytest.fixture(scope="module")
+def helps(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    return once_per_run(tmp_path_factory, "readme_script_helps", _run_helps)[1]
+
+
 @pytest.mark.parametrize("script", _readme_scripts(), ids=" ".join)
-def test_every_script_the_readme_names_answers_help(script: list[str], tmp_path: Path) -> None:
+def test_every_script_the_readme_names_answers_help(
+    script: list[str], helps: dict[str, Any]
+) -> None:
     """Each answers --help with its usage, writing nothing (a script that took --help for
     its output folder once made one named so)."""
-    *options, target = script  # ["-m", MODULE] or [bench/NAME.py]
-    path = str(REPO / target) if target.endswith(".py") else target
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    run = subprocess.run([sys.executable, *options, path, "--help"], cwd=tmp_path, env=env,
-                         capture_output=True, text=True, timeout=120)  # fmt: skip
-    assert run.returncode == 0 and run.stdout.startswith("usage:"), run.stderr
-    assert not list(tmp_path.iterdir())
+    run = helps[" ".join(script)]
+    assert run["code"] == 0 and run["stdout"].startswith("usage:"), run["stderr"]
+    assert not run["left"]
 
 
 def test_sim_log_writes_a_recording_and_the_command_to_try_on_it(

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import json
 import logging
 from pathlib import Path
@@ -114,22 +116,86 @@ def test_offline_retiming_brings_stamps_to_the_truth(
     assert np.isin(used, truth.frame_stamp_ns).all()
 
 
-def test_same_bytes_with_workers_and_chunks(
-    drive: tuple[DriveTruth, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    truth, calib = drive
-    outs = []
-    runs = (["--chunk", "1.5"], ["--chunk", "1.5", "--workers", "2"], ["--chunk", "1.5"])
-    for i, extra in enumerate(runs):
-        if i == 2:  # a log too long to hold its images: each chunk reads its part
-            monkeypatch.setattr(colorize, "READ_ONCE_BYTES", 0)
-        out = tmp_path / f"c{i}.ply"
-        args = _args(*map(str, truth.files), "--calib", str(calib), "-o", str(out),
-                     "--frame", "laser", "--no-preview", *extra)  # fmt: skip
-        assert acq_main(args) == 0
-        outs.append(_digest(out))
-    assert outs[0] == outs[1] == outs[2]
+class _Chunked:
+    """The drive coloured by `acq colorize --chunk 1.5` (3 chunks) in the laser frame, in
+    this process, each way run once per module when a test first asks for it (a run on
+    workers or dask is the costly part): "here" (the log read once), "parts" (a log too
+    long to hold its images: each chunk reads its part), "workers" (--workers 2) and
+    "dask" (a LocalCluster of 2 processes); those two with --progress, the frame
+    reports their chunks send (_ChunkShares.frames_done) kept."""
+
+    def __init__(self, truth: DriveTruth, calib: Path, folder: Path) -> None:
+        self.truth, self.calib, self.folder = truth, calib, folder
+        self.runs: dict[str, tuple[str, dict, list[tuple[int, int, int]]]] = {}
+
+    def __call__(self, way: str) -> tuple[str, dict, list[tuple[int, int, int]]]:
+        """``way``'s output digest, its --json report and its chunks' frame reports."""
+        if way not in self.runs:
+            with pytest.MonkeyPatch.context() as mp:
+                self.runs[way] = self._run(way, mp)
+        return self.runs[way]
+
+    def _run(self, way: str, mp: pytest.MonkeyPatch) -> tuple[str, dict, list]:
+        from acq.cloud.colorize import _ChunkShares
+
+        reports: list[tuple[int, int, int]] = []
+        real = _ChunkShares.frames_done
+
+        def seen(shares: _ChunkShares, index: int, done: int, total: int) -> None:
+            reports.append((index, done, total))
+            real(shares, index, done, total)
+
+        mp.setattr(_ChunkShares, "frames_done", seen)
+        if way == "parts":
+            mp.setattr(colorize, "READ_ONCE_BYTES", 0)
+        out = self.folder / f"{way}.ply"
+        argv = _args(*map(str, self.truth.files), "--calib", str(self.calib), "-o", str(out),
+                     "--frame", "laser", "--no-preview", "--chunk", "1.5", "--json")  # fmt: skip
+        stdout = io.StringIO()
+        with contextlib.ExitStack() as stack:
+            if way == "workers":
+                argv += ["--workers", "2", "--progress"]
+            elif way == "dask":
+                from dask.distributed import LocalCluster
+
+                cluster = stack.enter_context(
+                    LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                 dashboard_address=None)
+                )  # fmt: skip
+                argv += ["--dask", cluster.scheduler_address, "--progress"]
+            stack.enter_context(contextlib.redirect_stdout(stdout))
+            assert acq_main(argv) == 0
+        return _digest(out), json.loads(stdout.getvalue()), reports
+
+
+@pytest.fixture(scope="module")
+def chunked(drive: tuple[DriveTruth, Path], tmp_path_factory: pytest.TempPathFactory) -> _Chunked:
+    return _Chunked(*drive, tmp_path_factory.mktemp("chunked"))
+
+
+def test_same_bytes_with_workers_and_chunks(chunked: _Chunked) -> None:
+    here, parts, workers = chunked("here")[0], chunked("parts")[0], chunked("workers")[0]
+    assert here == workers == parts
     assert len(plan(np.arange(0, 4_000_000_000, 25_000_000), 1.5)) == 3
+
+
+def test_dask_local_cluster_gives_the_same_bytes(chunked: _Chunked) -> None:
+    assert chunked("dask")[0] == chunked("here")[0]
+
+
+@pytest.mark.parametrize("where", ["workers", "dask"])
+def test_chunks_run_elsewhere_report_their_frames_as_they_go(where: str, chunked: _Chunked) -> None:
+    """With --workers or --dask each chunk reports its frames done through a queue (its
+    first frame at once, then at most every 0.25 s, and its last), so the bar moves
+    within chunks there too; the reports reach the bar in this process."""
+    _, report, reports = chunked(where)
+    assert report["chunks"] == 3
+    within = 0
+    for index in range(report["chunks"]):
+        mine = [(d, t) for i, d, t in reports if i == index]
+        assert mine and (mine[0][1],) * 2 in mine  # the last frame reported
+        within += min(d for d, _ in mine) < mine[0][1]
+    assert within  # and before (all of a chunk's frames done at once only if starved)
 
 
 def test_a_long_logs_preview_thins_its_scans_not_the_cloud(
@@ -215,24 +281,6 @@ def test_a_long_log_read_with_its_first_chunks_images_gives_the_same_bytes(
     assert log.jpegs_until_ns is not None and 0 < sum(held) < len(held)
     assert held == sorted(held, reverse=True)  # the first ones, by receipt
     assert all(r < log.jpegs_until_ns for r, h in zip(frames.frame_recv_ns, held, strict=True) if h)
-
-
-def test_dask_local_cluster_gives_the_same_bytes(
-    drive: tuple[DriveTruth, Path], tmp_path: Path
-) -> None:
-    from dask.distributed import LocalCluster
-
-    truth, calib = drive
-    local = tmp_path / "local.ply"
-    common = ["--calib", str(calib), "--frame", "laser", "--no-preview", "--chunk", "1.5"]
-    assert acq_main(_args(*map(str, truth.files), *common, "-o", str(local))) == 0
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:  # fmt: skip
-        out = tmp_path / "dask.ply"
-        args = _args(*map(str, truth.files), *common, "-o", str(out), "--dask",
-                     cluster.scheduler_address)  # fmt: skip
-        assert acq_main(args) == 0
-    assert _digest(out) == _digest(local)
 
 
 def test_a_full_disk_midway_is_one_line_and_leaves_the_old_output(
@@ -472,41 +520,3 @@ def test_the_bar_moves_as_a_chunks_frames_are_done(capsys: pytest.CaptureFixture
         shares.watch(1, [])
         shares.finish(1)
     assert "17/17" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("where", ["workers", "dask"])
-def test_chunks_run_elsewhere_report_their_frames_as_they_go(
-    where: str, drive: tuple[DriveTruth, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """With --workers or --dask each chunk reports its frames done through a queue (its
-    first frame at once, then at most every 0.25 s, and its last), so the bar moves
-    within chunks there too; the reports reach the bar in this process."""
-    from acq.cloud.colorize import _ChunkShares
-
-    truth, calib = drive
-    reports: list[tuple[int, int, int]] = []
-    real = _ChunkShares.frames_done
-
-    def seen(self: _ChunkShares, index: int, done: int, total: int) -> None:
-        reports.append((index, done, total))
-        real(self, index, done, total)
-
-    monkeypatch.setattr(_ChunkShares, "frames_done", seen)
-    out = tmp_path / "c.ply"
-    kw: dict[str, object] = {"frame": "laser", "chunk_s": 1.5, "progress": True}
-    if where == "workers":
-        report = run(truth.files, calibfile.load(calib), out, workers=2, **kw)  # type: ignore[arg-type]
-    else:
-        from dask.distributed import LocalCluster
-
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                          dashboard_address=None) as cluster:  # fmt: skip
-            report = run(truth.files, calibfile.load(calib), out,  # type: ignore[arg-type]
-                         dask=cluster.scheduler_address, **kw)  # fmt: skip
-    assert report.chunks == 3
-    within = 0
-    for index in range(report.chunks):
-        mine = [(d, t) for i, d, t in reports if i == index]
-        assert mine and (mine[0][1],) * 2 in mine  # the last frame reported
-        within += min(d for d, _ in mine) < mine[0][1]
-    assert within  # and before (all of a chunk's frames done at once only if starved)

@@ -1,4 +1,4 @@
-"""bench/mesh_render.py end to end on a 3 s two-camera drive, with the textured mesh: its
+"""bench/mesh_render.py end to end on a 2 s two-camera drive, with the textured mesh: its
 JSON line and picture."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ def test_the_mesh_the_textured_mesh_and_the_cloud_are_judged_from_three_views(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     png = tmp_path / "views.png"
-    argv = ["mesh_render.py", "--seconds", "3", "--work", str(tmp_path), "--picture", str(png),
+    argv = ["mesh_render.py", "--seconds", "2", "--work", str(tmp_path), "--picture", str(png),
             "--texture"]  # fmt: skip
     monkeypatch.setattr(sys, "argv", argv)
     out = io.StringIO()
@@ -36,6 +36,7 @@ def test_the_mesh_the_textured_mesh_and_the_cloud_are_judged_from_three_views(
         fig = row[kind]
         assert fig["street_px"] == sum(v[kind]["street_px"] for v in row["views"].values())
         # the laser saw the facades beside the drive: they come out close to the truth
+        # (2 s: covered 0.58-0.63, within_24 0.78-0.88, 17-21 dB)
         assert fig["covered"] > 0.4 and fig["within_24"] > 0.6 and fig["psnr_db"] > 14
     img = cv2.imread(str(png))
     assert img is not None and img.shape[1] == 4 * 320  # truth, mesh, textured, cloud

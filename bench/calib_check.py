@@ -12,7 +12,8 @@ row: the verdict, the estimate's error against the true pose (deg, mm) and time 
 (ms; the true one: the re-timed frames' mean error minus the re-timed scans'), the
 standard errors. Per case: how often it said "moved", the errors' median and largest.
 
-Run as a script: ``python bench/calib_check.py [--drives N] [--seconds S] [--speed]``
+Run as a script: ``python bench/calib_check.py [--drives N] [--seconds S] [--case NAME]...
+[--speed]`` (``--case true --drives 10 --seconds 60``: the false-alarm run)
 (defaults 2 drives of 20 s: about 15 minutes on 2 loaded cores).
 """
 
@@ -55,14 +56,16 @@ def cases() -> dict[str, np.ndarray]:
     return out
 
 
-def _drive(seed: int, seconds: float, directory: Path) -> list[dict[str, Any]]:
+def _drive(
+    seed: int, seconds: float, directory: Path, chosen: dict[str, np.ndarray]
+) -> list[dict[str, Any]]:
     truth = write_drive_log(directory, seconds, pattern_at=None, seed=seed,
                             rig=default_rig(cameras=2),
                             configured_camera_latency_s=None)  # fmt: skip
     job, whole = prepare(truth.files, truth.calibration, Report(output="x"), jpegs=True)
     offsets = truth.time_offsets_s(job)
     rows = []
-    for case, x in cases().items():
+    for case, x in chosen.items():
         for cj in job.cameras:
             true = truth.calibration.camera(cj.name)
             cam = replace(true, extrinsics=shifted(true.camera_to_laser, x),
@@ -92,10 +95,10 @@ def _drive(seed: int, seconds: float, directory: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def summary(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def summary(rows: list[dict[str, Any]], chosen: dict[str, np.ndarray]) -> list[dict[str, Any]]:
     """Per case: the share said "moved" (a false alarm for "true"), the errors."""
     out = []
-    for case in cases():
+    for case in chosen:
         mine = [r for r in rows if r["case"] == case]
         found = [r for r in mine if "err_deg" in r]
         s: dict[str, Any] = {"bench": "calib_check", "case": case, "runs": len(mine),
@@ -146,12 +149,16 @@ def main() -> None:
     ap.add_argument("--drives", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--speed", action="store_true", help="also time it against acq colorize")
+    ap.add_argument("--case", action="append", metavar="NAME", help="only this case (repeatable)")
     args = ap.parse_args()
+    chosen = {k: v for k, v in cases().items() if not args.case or k in args.case}
+    if args.case and len(chosen) != len(set(args.case)):
+        ap.error(f"--case: unknown case among {args.case}; the cases: {', '.join(cases())}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.drives):
-            rows += _drive(seed, args.seconds, Path(tmp) / f"d{seed}")
-        summary(rows)
+            rows += _drive(seed, args.seconds, Path(tmp) / f"d{seed}", chosen)
+        summary(rows, chosen)
         if args.speed:
             speed(Path(tmp) / "speed")
 

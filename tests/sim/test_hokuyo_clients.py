@@ -125,10 +125,11 @@ def test_urg_library_samples(name: str, transport: str, programs: list[str]) -> 
                 assert run.returncode == 0 and len(run.lines) == 8, run.lines
                 offsets = [int(line.split(",")[1]) - int(line.split(",")[0])
                            for line in run.lines[3:]]  # fmt: skip
-                # within a round trip of the TM exchange the sample corrects by: a few ms,
-                # up to 10 seen when the host keeps the simulator's reply waiting; a clock
-                # that is wrong is off by much more
-                assert max(map(abs, offsets)) <= 20, run.lines
+                # within a round trip of the TM exchange the sample corrects by: a few ms
+                # idle, 43 seen on a busy host keeping the simulator's reply waiting; a
+                # clock that is wrong (another unit, another base, not ticking) is off by
+                # seconds within the sample's run
+                assert max(map(abs, offsets)) <= 150, run.lines
             elif program == "calculate_xy":
                 run = run_sample(program, target)
                 assert run.returncode == 0

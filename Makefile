@@ -84,7 +84,7 @@ test: $(STAMP) compile chrony chromium
 	@setsid sh -c "$(LOW) exec nice -n 19 $(MAKE) --no-print-directory typecheck" > .mypy.out 2>&1 & mypy=$$!; \
 	setsid sh -c "$(LOW) exec nice -n 19 $(MAKE) --no-print-directory docs" > .docs.out 2>&1 & docs=$$!; \
 	smoke=; trap 'kill -- -$$mypy -$$docs $${smoke:+-$$smoke} 2> /dev/null' EXIT; \
-	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 4 --dist worksteal; realtime=$$?; \
+	$(BIN)/pytest -q -m "not slow and realtime and not interop" -n 3 --dist worksteal; realtime=$$?; \
 	setsid $(MAKE) --no-print-directory smoke > .smoke.out 2>&1 & smoke=$$!; \
 	$(BIN)/pytest -q -m "not slow and not realtime and not interop" -n 2 --dist worksteal; rest=$$?; \
 	renice -n 0 -g $$mypy $$docs > /dev/null 2>&1 || true; \

@@ -180,10 +180,13 @@ def test_speed_2_serves_twice_as_fast(recorded: list[Path]) -> None:
     k = contiguous_run(raw1, [s.raw for s in scans])
     t1 = np.array([t for t, _ in one.raws[k : k + len(scans)]], dtype=np.int64)
     t2 = np.array([s.recv_ns for s in scans], dtype=np.int64)
-    # the whole: half the recording's time; each step: half its own, within what a loaded
-    # host's scheduling adds (the server and the driver share this process: 2.4 ms
+    # the whole: half the recording's time (the slope of receipt against recorded time,
+    # which one receipt a loaded host kept waiting moves little: the span's two ends alone
+    # were 3.3 % short when the first was late); each step: half its own, within what a
+    # loaded host's scheduling adds (the server and the driver share this process: 2.4 ms
     # median measured beside two busy loops and the other tests, under 1 ms alone)
-    assert (t2[-1] - t2[0]) == pytest.approx((t1[-1] - t1[0]) / 2, rel=0.03)
+    slope = np.polyfit((t1 - t1[0]) * 1e-9, (t2 - t2[0]) * 1e-9, 1)[0]
+    assert slope == pytest.approx(0.5, rel=0.03)
     err = np.abs(np.diff(t2) - np.diff(t1) / 2) * 1e-6
     assert np.median(err) < 4.0, np.median(err)
 

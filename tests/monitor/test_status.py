@@ -298,3 +298,13 @@ def test_no_log_is_one_line_and_exit_2(tmp_path: Path) -> None:
     ]
     done = _status(tmp_path / "missing.mcap")
     assert done.returncode == 2 and "missing.mcap: no such log or folder" in done.stderr
+
+
+def test_the_commands_staleness_default_is_the_snapshots() -> None:
+    """`acq status --stale-s` defaults to what the snapshot judges by (the parser keeps its
+    own literal: importing acq.monitor.snapshot to build it costs 0.4 s on every command)."""
+    from acq.cli.main import build_parser
+    from acq.monitor.snapshot import STALE_S
+
+    args = build_parser().parse_args(["status", "log.mcap"])
+    assert args.stale_s == STALE_S

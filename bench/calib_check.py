@@ -10,11 +10,21 @@ cm along each; both cameras changed alike, each checked on its own
 (:func:`acq.cloud.colorize.check_calibration`, what `acq calibrate check` runs). Per
 row: the verdict, the estimate's error against the true pose (deg, mm) and time offset
 (ms; the true one: the re-timed frames' mean error minus the re-timed scans'), the
-standard errors. Per case: how often it said "moved", the errors' median and largest.
+standard errors; per axis the signed errors and standard errors (``*_xyz``: the laser's
+x, y, z; ``err_dir_mm``: the translation's error along the vehicle's forward axis
+(along the travel), up, and the camera's optical axis, each in the laser frame). Per
+case: how often it said "moved", the errors' median and largest, and per axis the signed
+errors' mean and spread (bias against noise).
 
 Run as a script: ``python bench/calib_check.py [--drives N] [--seconds S] [--case NAME]...
-[--speed]`` (``--case true --drives 10 --seconds 60``: the false-alarm run)
-(defaults 2 drives of 20 s: about 15 minutes on 2 loaded cores).
+[--frames N]... [--fixed-offset] [--true-trajectory] [--speed]`` (``--case true --drives
+10 --seconds 60``: the false-alarm run) (defaults 2 drives of 20 s: about 15 minutes on 2
+loaded cores).
+``--frames N`` (repeatable): the check's frames per camera (``acq calibrate check
+--frames``; default its 80), each drive checked at each; ``--fixed-offset``: the time
+offset held at the true one (not searched), to see what it costs the pose;
+``--true-trajectory``: the points placed with the simulator's trajectory instead of the
+one the log's CAN odometry gives (what the odometry's errors cost).
 """
 
 from __future__ import annotations
@@ -31,9 +41,10 @@ from typing import Any
 
 import numpy as np
 
+from acq.calib.pose_check import CheckOptions
 from acq.calib.pose_search import shifted
 from acq.cloud.colorize import Report, check_calibration, prepare
-from acq.geometry.rotations import rotation_angle
+from acq.geometry.rotations import rotation_angle, rotvec_from_matrix
 from acq.sim.drive_log import write_drive_log
 from acq.sim.world import default_rig
 
@@ -56,15 +67,25 @@ def cases() -> dict[str, np.ndarray]:
     return out
 
 
+def _r(v: np.ndarray, scale: float, nd: int) -> list[float]:
+    return [round(scale * float(a), nd) for a in v]
+
+
 def _drive(
-    seed: int, seconds: float, directory: Path, chosen: dict[str, np.ndarray]
-) -> list[dict[str, Any]]:
+    seed: int, seconds: float, directory: Path, chosen: dict[str, np.ndarray],
+    options: list[CheckOptions], true_trajectory: bool = False,
+) -> list[dict[str, Any]]:  # fmt: skip
     truth = write_drive_log(directory, seconds, pattern_at=None, seed=seed,
                             rig=default_rig(cameras=2),
                             configured_camera_latency_s=None)  # fmt: skip
-    job, whole = prepare(truth.files, truth.calibration, Report(output="x"), jpegs=True)
+    given = truth.host_trajectory() if true_trajectory else None
+    job, whole = prepare(truth.files, truth.calibration, Report(output="x"), jpegs=True,
+                         trajectory=given)  # fmt: skip
     offsets = truth.time_offsets_s(job)
     rows = []
+    # the vehicle's forward and up axes in the laser frame
+    forward = job.laser_to_vehicle.rotation.T @ np.array([1.0, 0.0, 0.0])
+    up = job.laser_to_vehicle.rotation.T @ np.array([0.0, 0.0, 1.0])
     for case, x in chosen.items():
         for cj in job.cameras:
             true = truth.calibration.camera(cj.name)
@@ -72,46 +93,73 @@ def _drive(
                           time_offset_s=offsets[cj.name])  # fmt: skip
             cj_case = replace(cj, cam=cam)
             job_case = replace(job, cameras=(cj_case,))
-            t0 = time.perf_counter()
-            c = check_calibration(job_case, camera=cj_case, whole=whole)
-            row: dict[str, Any] = {"bench": "calib_check", "seed": seed, "camera": cj.name,
-                                   "case": case, "verdict": c.verdict, "reason": c.reason,
-                                   "seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip
-            if c.found:
-                assert c.camera_to_laser is not None
-                R_err = c.camera_to_laser.rotation @ true.camera_to_laser.rotation.T
-                row |= {
-                    "err_deg": round(float(np.degrees(rotation_angle(R_err))), 3),
-                    "err_mm": round(1e3 * float(np.linalg.norm(
-                        c.camera_to_laser.translation - true.camera_to_laser.translation)), 1),
-                    "err_ms": round(1e3 * (c.time_offset_s - offsets[cj.name]), 2),
-                    "std_deg": round(float(np.degrees(np.linalg.norm(c.std[:3]))), 3),
-                    "std_mm": round(1e3 * float(np.linalg.norm(c.std[3:6])), 1),
-                    "std_ms": round(1e3 * float(c.std[6]), 2),
-                    "px_at_10m": round(c.px_at_10m, 1),
-                }  # fmt: skip
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+            optical = true.camera_to_laser.rotation[:, 2]
+            for opt in options:
+                t0 = time.perf_counter()
+                c = check_calibration(job_case, camera=cj_case, whole=whole, options=opt)
+                row: dict[str, Any] = {"bench": "calib_check", "seed": seed, "camera": cj.name,
+                                       "case": case, "max_frames": opt.max_frames,
+                                       "fixed_offset": not opt.time_offset,
+                                       "verdict": c.verdict, "reason": c.reason,
+                                       "seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip
+                if c.found:
+                    assert c.camera_to_laser is not None
+                    R_err = c.camera_to_laser.rotation @ true.camera_to_laser.rotation.T
+                    t_err = c.camera_to_laser.translation - true.camera_to_laser.translation
+                    row |= {
+                        "frames": c.frames,
+                        "err_deg": round(float(np.degrees(rotation_angle(R_err))), 3),
+                        "err_mm": round(1e3 * float(np.linalg.norm(t_err)), 1),
+                        "err_ms": round(1e3 * (c.time_offset_s - offsets[cj.name]), 2),
+                        "std_deg": round(float(np.degrees(np.linalg.norm(c.std[:3]))), 3),
+                        "std_mm": round(1e3 * float(np.linalg.norm(c.std[3:6])), 1),
+                        "std_ms": round(1e3 * float(c.std[6]), 2),
+                        "px_at_10m": round(c.px_at_10m, 1),
+                        "err_deg_xyz": _r(rotvec_from_matrix(R_err), np.degrees(1.0), 3),
+                        "err_mm_xyz": _r(t_err, 1e3, 1),
+                        "std_deg_xyz": _r(c.std[:3], np.degrees(1.0), 3),
+                        "std_mm_xyz": _r(c.std[3:6], 1e3, 1),
+                        "err_dir_mm": {k: round(1e3 * float(t_err @ d), 1) for k, d in
+                                       (("along", forward), ("up", up), ("optical", optical))},
+                    }  # fmt: skip
+                rows.append(row)
+                print(json.dumps(row), flush=True)
     return rows
 
 
 def summary(rows: list[dict[str, Any]], chosen: dict[str, np.ndarray]) -> list[dict[str, Any]]:
-    """Per case: the share said "moved" (a false alarm for "true"), the errors."""
+    """Per case (and frames, offset held or not): the share said "moved" (a false alarm
+    for "true"), the errors; per axis the signed errors' mean and spread."""
     out = []
+    settings = sorted({(r["max_frames"], r["fixed_offset"]) for r in rows})
     for case in chosen:
-        mine = [r for r in rows if r["case"] == case]
-        found = [r for r in mine if "err_deg" in r]
-        s: dict[str, Any] = {"bench": "calib_check", "case": case, "runs": len(mine),
-                             "moved": sum(r["verdict"] == "moved" for r in mine),
-                             "cannot_tell": sum(r["verdict"] == "cannot tell"
-                                                for r in mine)}  # fmt: skip
-        for key in ("err_deg", "err_mm", "err_ms"):
-            v = np.abs([r[key] for r in found])
-            if v.size:
-                s[f"{key}_median"] = round(float(np.median(v)), 3)
-                s[f"{key}_max"] = round(float(v.max()), 3)
-        out.append(s)
-        print(json.dumps(s), flush=True)
+        for frames, fixed in settings:
+            mine = [r for r in rows if r["case"] == case and r["max_frames"] == frames
+                    and r["fixed_offset"] == fixed]  # fmt: skip
+            found = [r for r in mine if "err_deg" in r]
+            s: dict[str, Any] = {"bench": "calib_check", "case": case, "max_frames": frames,
+                                 "fixed_offset": fixed, "runs": len(mine),
+                                 "moved": sum(r["verdict"] == "moved" for r in mine),
+                                 "cannot_tell": sum(r["verdict"] == "cannot tell"
+                                                    for r in mine)}  # fmt: skip
+            for key in ("err_deg", "err_mm", "err_ms", "std_deg", "std_mm", "seconds"):
+                v = np.abs([r[key] for r in found])
+                if v.size:
+                    s[f"{key}_median"] = round(float(np.median(v)), 3)
+                    s[f"{key}_max"] = round(float(v.max()), 3)
+            for key in ("err_deg_xyz", "err_mm_xyz"):
+                v = np.array([r[key] for r in found])
+                if len(v) > 1:
+                    s[f"{key}_mean"] = _r(v.mean(axis=0), 1.0, 3)
+                    s[f"{key}_sd"] = _r(v.std(axis=0, ddof=1), 1.0, 3)
+            # along the travel, up and the optical axis (a bias there is each camera's own)
+            if len(found) > 1:
+                names = list(found[0]["err_dir_mm"])
+                d = np.array([[r["err_dir_mm"][k] for k in names] for r in found])
+                for stat, v in (("mean", d.mean(axis=0)), ("sd", d.std(axis=0, ddof=1))):
+                    s[f"err_dir_mm_{stat}"] = dict(zip(names, _r(v, 1.0, 2), strict=True))
+            out.append(s)
+            print(json.dumps(s), flush=True)
     return out
 
 
@@ -150,14 +198,23 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--speed", action="store_true", help="also time it against acq colorize")
     ap.add_argument("--case", action="append", metavar="NAME", help="only this case (repeatable)")
+    ap.add_argument("--frames", type=int, action="append", metavar="N",
+                    help="the check's frames per camera (repeatable; default 80)")  # fmt: skip
+    ap.add_argument("--fixed-offset", action="store_true",
+                    help="hold the time offset at the true one (not searched)")  # fmt: skip
+    ap.add_argument("--true-trajectory", action="store_true",
+                    help="place the points with the true trajectory (not odometry)")  # fmt: skip
     args = ap.parse_args()
+    base = CheckOptions(time_offset=not args.fixed_offset)
+    options = [replace(base, max_frames=n) for n in args.frames or [base.max_frames]]
     chosen = {k: v for k, v in cases().items() if not args.case or k in args.case}
     if args.case and len(chosen) != len(set(args.case)):
         ap.error(f"--case: unknown case among {args.case}; the cases: {', '.join(cases())}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.drives):
-            rows += _drive(seed, args.seconds, Path(tmp) / f"d{seed}", chosen)
+            rows += _drive(seed, args.seconds, Path(tmp) / f"d{seed}", chosen, options,
+                           args.true_trajectory)  # fmt: skip
         summary(rows, chosen)
         if args.speed:
             speed(Path(tmp) / "speed")

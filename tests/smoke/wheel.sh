@@ -61,6 +61,7 @@ step "acq demo --seconds 2"
 [ -s demo/demo.mcap ] && [ -s demo/cloud.ply ] && [ -s demo/preview.png ]
 
 step "acq view serves the demo's cloud, its page and every vendored library"
+: > view.log  # there before it is read: the job's own redirection may come later
 "$acq" view demo/cloud.ply > view.log 2>&1 &
 pids+=($!)
 url=

@@ -3,12 +3,24 @@ builds the command line and returns `acq.cli.main`'s exit status."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
-from collections.abc import Mapping, Sequence
+import io
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from unittest import mock
 
 from acq.cli import main
+
+
+def printed(command: Callable[..., int], *args: object, **kwargs: object) -> tuple[int, str, str]:
+    """``command(*args, **kwargs)`` (``main`` or one of the calls below) run in this
+    process: its exit status and what it wrote on stdout and stderr. For fixtures wider
+    than one test, where capsys cannot be had."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = command(*args, **kwargs)
+    return code, out.getvalue(), err.getvalue()
 
 
 def _opt(flag: str, value: object) -> list[str]:

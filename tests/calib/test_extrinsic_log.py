@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import logging
 import math
@@ -31,7 +29,7 @@ from acq.geometry.transforms import Rigid
 from acq.log import drive_log
 from acq.log.locate import first_log_time
 from acq.sim.board_log import BoardLog, write_board_log
-from tests.cli_calls import calibrate_extrinsic
+from tests.cli_calls import calibrate_extrinsic, printed
 from tests.log_rewrite import jpeg
 
 
@@ -60,9 +58,10 @@ def calibrated(
     intr = d / "intrinsics.yaml"
     calibfile.save(Calibration(cameras={"camera": cam}), intr)
     out = d / "calib.yaml"
-    with contextlib.redirect_stdout(io.StringIO()) as stdout:  # capsys is per test
-        assert calibrate_extrinsic(log.files, "camera", intr, log.spec, out, json_out=True) == 0
-    return json.loads(stdout.getvalue()), out
+    code, stdout, _ = printed(calibrate_extrinsic, log.files, "camera", intr, log.spec, out,
+                              json_out=True)  # fmt: skip
+    assert code == 0
+    return json.loads(stdout), out
 
 
 def _errors(got: Rigid, truth: Rigid) -> tuple[float, float]:

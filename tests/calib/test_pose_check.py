@@ -5,8 +5,6 @@ simulator moved it, and a drive that cannot tell says why."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,6 +19,7 @@ from acq.camera.calibfile import Calibration
 from acq.cli import main as acq_main
 from acq.cloud.colorize import Report, prepare
 from acq.sim.drive_log import DriveTruth, write_drive_log
+from tests.cli_calls import printed
 
 SECONDS = 5.0
 
@@ -79,10 +78,9 @@ def colorized_turned(
     las = tmp_path_factory.mktemp("colorized") / "turned.las"
     argv = ["colorize", *map(str, truth.files), "--calib", str(calibs[1]), "-o", str(las),
             "--no-preview", "--check", "--json"]  # fmt: skip
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):  # capsys: per test
-        assert acq_main(argv) == 0
-    return Colorized(out.getvalue(), err.getvalue(), las)
+    code, out, err = printed(acq_main, argv)
+    assert code == 0
+    return Colorized(out, err, las)
 
 
 def test_depth_edges_are_the_near_side_of_a_range_jump() -> None:

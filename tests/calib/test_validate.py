@@ -3,9 +3,7 @@ the paper's pattern in the synthetic street, seen by the parked vehicle."""
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import io
 import json
 import math
 from pathlib import Path
@@ -39,7 +37,7 @@ from acq.sim.world import (
     default_rig,
     validation_pattern,
 )
-from tests.cli_calls import calibrate_validate
+from tests.cli_calls import calibrate_validate, printed
 
 
 @pytest.fixture(scope="module")
@@ -59,9 +57,9 @@ def truth_report(
     report (the ValidationResult's figures) and DIR; the tests below read it."""
     log, calib = rec
     out = tmp_path_factory.mktemp("validate_out")
-    with contextlib.redirect_stdout(io.StringIO()) as stdout:  # capsys is per test
-        assert calibrate_validate(log.files, calib, json_out=True, out=out) == 0
-    return json.loads(stdout.getvalue()), out
+    code, stdout, _ = printed(calibrate_validate, log.files, calib, json_out=True, out=out)
+    assert code == 0
+    return json.loads(stdout), out
 
 
 def _perturbed(cam: CameraCalib, deg: float) -> CameraCalib:

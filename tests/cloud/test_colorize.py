@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import io
 import json
 import logging
 from pathlib import Path
@@ -27,6 +26,7 @@ from acq.log.reader import read_metadata
 from acq.log.timebase import MONOTONIC
 from acq.log.vehicle_log import read_vehicle
 from acq.sim.drive_log import DriveTruth, write_drive_log
+from tests.cli_calls import printed
 from tests.log_rewrite import corrupt_chunk, jpeg, rewrite
 
 
@@ -151,7 +151,6 @@ class _Chunked:
         out = self.folder / f"{way}.ply"
         argv = _args(*map(str, self.truth.files), "--calib", str(self.calib), "-o", str(out),
                      "--frame", "laser", "--no-preview", "--chunk", "1.5", "--json")  # fmt: skip
-        stdout = io.StringIO()
         with contextlib.ExitStack() as stack:
             if way == "workers":
                 argv += ["--workers", "2", "--progress"]
@@ -163,9 +162,9 @@ class _Chunked:
                                  dashboard_address=None)
                 )  # fmt: skip
                 argv += ["--dask", cluster.scheduler_address, "--progress"]
-            stack.enter_context(contextlib.redirect_stdout(stdout))
-            assert acq_main(argv) == 0
-        return _digest(out), json.loads(stdout.getvalue()), reports
+            code, stdout, _ = printed(acq_main, argv)
+        assert code == 0
+        return _digest(out), json.loads(stdout), reports
 
 
 @pytest.fixture(scope="module")

@@ -7,8 +7,6 @@ without it."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 from pathlib import Path
 
@@ -20,6 +18,7 @@ from acq.camera import calibfile
 from acq.cli.main import main as acq_main
 from acq.sim.drive_log import DriveTruth, write_drive_log
 from acq.sim.world import default_rig
+from tests.cli_calls import printed
 
 
 @pytest.fixture(scope="module")
@@ -39,11 +38,11 @@ def coloured(
     the cloud and the report."""
     truth, calib = drive
     out = tmp_path_factory.mktemp("coloured") / "c.ply"
-    stdout = io.StringIO()
-    with contextlib.redirect_stdout(stdout):
-        assert acq_main(["colorize", *map(str, truth.files), "--calib", str(calib), "-o",
-                         str(out), "--no-preview", "--json"]) == 0  # fmt: skip
-    return out, json.loads(stdout.getvalue())
+    argv = ["colorize", *map(str, truth.files), "--calib", str(calib), "-o", str(out),
+            "--no-preview", "--json"]  # fmt: skip
+    code, stdout, _ = printed(acq_main, argv)
+    assert code == 0
+    return out, json.loads(stdout)
 
 
 def _ply(path: Path) -> tuple[np.ndarray, list[str]]:

@@ -96,7 +96,7 @@ def _drive(
             optical = true.camera_to_laser.rotation[:, 2]
             for opt in options:
                 t0 = time.perf_counter()
-                c = check_calibration(job_case, camera=cj_case, whole=whole, options=opt)
+                (c,) = check_calibration(job_case, whole=whole, options=opt)
                 row: dict[str, Any] = {"bench": "calib_check", "seed": seed, "camera": cj.name,
                                        "case": case, "max_frames": opt.max_frames,
                                        "fixed_offset": not opt.time_offset,

@@ -24,6 +24,7 @@ __all__ = [
     "bins_of_bytes",
     "depth_edges",
     "image_features",
+    "information",
     "mutual_information",
     "quantile_bins",
 ]
@@ -34,11 +35,17 @@ DEPTH_JUMP_M = 0.25
 
 def mutual_information(a_bins: np.ndarray, b_bins: np.ndarray, bins: int) -> float:
     """Mutual information (nats) of two integer samples in [0, bins)."""
-    joint = np.bincount(a_bins * bins + b_bins, minlength=bins * bins).astype(np.float64)
-    joint = joint.reshape(bins, bins) / max(a_bins.size, 1)
-    pa, pb = joint.sum(axis=1), joint.sum(axis=0)
-    nz = joint > 0
-    return float(np.sum(joint[nz] * np.log(joint[nz] / np.outer(pa, pb)[nz])))
+    joint = np.bincount(a_bins * bins + b_bins, minlength=bins * bins)
+    return information(joint.reshape(bins, bins))
+
+
+def information(joint: np.ndarray) -> float:
+    """Mutual information (nats) of two integer samples from their joint counts
+    ``joint`` (bins_a, bins_b)."""
+    p = joint.astype(np.float64) / max(int(joint.sum()), 1)
+    pa, pb = p.sum(axis=1), p.sum(axis=0)
+    nz = p > 0
+    return float(np.sum(p[nz] * np.log(p[nz] / np.outer(pa, pb)[nz])))
 
 
 def quantile_bins(x: np.ndarray, bins: int, edges: np.ndarray | None = None) -> np.ndarray:

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numba
 import numpy as np
 
-from acq.calib.information import mutual_information
+from acq.calib.information import information
 from acq.camera import projection
 from acq.camera.camera_models import CameraModel
 from acq.geometry.rotations import matrix_from_rotvec
@@ -68,13 +68,13 @@ class Swath:
     """What the search scores, made once: ``P_world`` (N,3) m the points of every frame
     one after the other (a point may serve several frames), frame ``f``'s from
     ``starts[f]`` to ``starts[f + 1]``; ``frame_ns`` (F,) the frames' stamps (re-timed,
-    no offset applied); their grey level and gradient ``features`` ((F,H,W,2) uint8,
-    :func:`acq.calib.information.image_features`); per point its return strength's bin
-    ``s_bins`` (N,) and whether it is a depth ``edge`` (N,); the bins of grey levels
-    ``grey_lut`` and gradients ``grad_lut`` (F,256), per frame (a camera's exposure
-    and white balance change from frame to frame; the laser's return strengths do not)
-    and fixed (so that scores compare);
-    ``edge_weight`` the depth-edge term's weight."""
+    no offset applied); their grey level and gradient ``features`` ((F,H,W,C) uint8,
+    :func:`acq.calib.information.image_features`; C 1 without the gradient); per point
+    its return strength's bin ``s_bins`` (N,) and whether it is a depth ``edge`` (N,);
+    the bins of grey levels ``grey_lut`` and gradients ``grad_lut`` (F,256), per frame
+    (a camera's exposure and white balance change from frame to frame; the laser's
+    return strengths do not) and fixed (so that scores compare); ``edge_weight`` the
+    depth-edge term's weight."""
 
     P_world: np.ndarray
     starts: np.ndarray
@@ -106,30 +106,55 @@ class Swath:
         )  # fmt: skip
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _sample(images, f, u, v, c):  # type: ignore[no-untyped-def]
+    """images[f] at (u, v) px, channel c: bilinear, clamped to the image, rounded."""
+    _, h, w, _ = images.shape
+    u = min(max(np.float32(u), np.float32(0.0)), np.float32(w - 1))
+    v = min(max(np.float32(v), np.float32(0.0)), np.float32(h - 1))
+    u0 = min(int(u), w - 2)
+    v0 = min(int(v), h - 2)
+    a = u - np.float32(u0)
+    b = v - np.float32(v0)
+    p00 = np.float32(images[f, v0, u0, c])
+    p01 = np.float32(images[f, v0, u0 + 1, c])
+    p10 = np.float32(images[f, v0 + 1, u0, c])
+    p11 = np.float32(images[f, v0 + 1, u0 + 1, c])
+    top = p00 + a * (p01 - p00)
+    bot = p10 + a * (p11 - p10)
+    return np.uint8(min(top + b * (bot - top) + np.float32(0.5), np.float32(255.0)))
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _bilinear(images, frame, uv, ok, out):  # type: ignore[no-untyped-def]
-    """out[i] = images[frame[i]] at uv[i] (bilinear, clamped to the image) where ok[i]:
-    one pass for every frame (an OpenCV call per frame costs more than its few
-    thousand points)."""
-    _, h, w, nc = images.shape
-    for i in range(uv.shape[0]):
-        if not ok[i]:
-            continue
-        u = min(max(np.float32(uv[i, 0]), np.float32(0.0)), np.float32(w - 1))
-        v = min(max(np.float32(uv[i, 1]), np.float32(0.0)), np.float32(h - 1))
-        u0 = min(int(u), w - 2)
-        v0 = min(int(v), h - 2)
-        a = u - np.float32(u0)
-        b = v - np.float32(v0)
-        f = frame[i]
-        for c in range(nc):
-            p00 = np.float32(images[f, v0, u0, c])
-            p01 = np.float32(images[f, v0, u0 + 1, c])
-            p10 = np.float32(images[f, v0 + 1, u0, c])
-            p11 = np.float32(images[f, v0 + 1, u0 + 1, c])
-            top = p00 + a * (p01 - p00)
-            bot = p10 + a * (p11 - p10)
-            out[i, c] = np.uint8(min(top + b * (bot - top) + np.float32(0.5), np.float32(255.0)))
+def _bilinear(images, starts, uv, ok, out):  # type: ignore[no-untyped-def]
+    """out[i] = the image of point i's frame (frame f's points from ``starts[f]`` to
+    ``starts[f + 1]``) at uv[i] where ok[i], every channel."""
+    nc = images.shape[3]
+    for f in range(starts.size - 1):
+        for i in range(starts[f], starts[f + 1]):
+            if ok[i]:
+                for c in range(nc):
+                    out[i, c] = _sample(images, f, uv[i, 0], uv[i, 1], c)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _joint(images, starts, uv, ok, s_bins, grey_lut, edge, grad_lut, joint):  # type: ignore[no-untyped-def]
+    """The joint counts of the points in view (ok): ``joint[0]`` of their return
+    strengths' bins ``s_bins`` and their frames' grey levels' bins (``grey_lut`` per
+    frame, of channel 0 sampled at ``uv``); with a second channel, ``joint[1]`` of their
+    depth ``edge`` (0/1) and their gradients' bins (``grad_lut``). One pass over the
+    frames' images for every point (an OpenCV call per frame costs more than its few
+    thousand points), no sample kept."""
+    nc = images.shape[3]
+    for f in range(starts.size - 1):
+        for i in range(starts[f], starts[f + 1]):
+            if not ok[i]:
+                continue
+            g = _sample(images, f, uv[i, 0], uv[i, 1], 0)
+            joint[0, s_bins[i], grey_lut[f, g]] += 1
+            if nc > 1:
+                d = _sample(images, f, uv[i, 0], uv[i, 1], 1)
+                joint[1, 1 if edge[i] else 0, grad_lut[f, d]] += 1
 
 
 class Scorer:
@@ -162,26 +187,28 @@ class Scorer:
             self._laser[key] = self.v2l.apply(P_vehicle)
         return self._laser[key]
 
-    def samples(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Grey and gradient (N,) uint8 where the points project under ``x``, and which
-        project into the image."""
+    def samples(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The features (N,C) uint8 where the points project under ``x`` (0 elsewhere),
+        and which project into the image (N,)."""
         sw = self.swath
-        P = self.laser_points(float(x[6]))
-        uv, ok = projection.project(P, self.model, shifted(self.c2l, x))
-        both = np.zeros((sw.points, 2), dtype=np.uint8)
-        _bilinear(sw.features, self.frame_of, uv, ok, both)
-        return both[:, 0], both[:, 1], ok
+        uv, ok = projection.project(self.laser_points(float(x[6])), self.model,
+                                    shifted(self.c2l, x))  # fmt: skip
+        out = np.zeros((sw.points, sw.features.shape[3]), dtype=np.uint8)
+        _bilinear(sw.features, sw.starts, uv, ok, out)
+        return out, ok
 
     def __call__(self, x: np.ndarray) -> float:
         """The information measure (nats) under parameters ``x`` (7,)."""
         self.evaluations += 1
         sw = self.swath
-        grey, grad, ok = self.samples(x)
-        f = self.frame_of[ok]
-        score = mutual_information(sw.s_bins[ok], sw.grey_lut[f, grey[ok]], sw.bins)
+        uv, ok = projection.project(self.laser_points(float(x[6])), self.model,
+                                    shifted(self.c2l, x))  # fmt: skip
+        joint = np.zeros((2, sw.bins, sw.bins), dtype=np.int64)
+        _joint(sw.features, sw.starts, uv, ok, sw.s_bins, sw.grey_lut, sw.edge, sw.grad_lut,
+               joint)  # fmt: skip
+        score = information(joint[0])
         if sw.edge_weight > 0:
-            e = sw.grad_lut[f, grad[ok]]
-            score += sw.edge_weight * mutual_information(sw.edge[ok].astype(np.int64), e, sw.bins)
+            score += sw.edge_weight * information(joint[1])
         return score
 
 

@@ -72,7 +72,7 @@ from acq.cloud.chunks import (
     plan,
     start_chunk,
 )
-from acq.cloud.drive_window import first_at, odd_size_note, read_window
+from acq.cloud.drive_window import DriveWindow, first_at, odd_size_note, read_window, read_windows
 from acq.cloud.job import CameraJob, Job, prepare
 from acq.cloud.preview import preview_png
 from acq.cloud.report import Report
@@ -362,34 +362,45 @@ def estimate_offset(
 def check_calibration(
     job: Job,
     *,
-    camera: CameraJob | None = None,
+    cameras: Sequence[CameraJob] | None = None,
     whole: DriveLog | None = None,
     start_s: float | None = None,
     seconds: float = 60.0,
     options: CheckOptions | None = None,
-) -> PoseCheck:
-    """Whether ``camera``'s (default: the job's first) calibration holds on ``seconds`` of
-    the job's log from ``start_s`` after its first scan (default: the middle ``seconds``)
-    (:mod:`acq.calib.pose_check`); ``whole``: the log already read, with its images."""
+) -> list[PoseCheck]:
+    """Whether each of ``cameras``' (default: the job's) calibration holds on ``seconds``
+    of the job's log from ``start_s`` after its first scan (default: the middle
+    ``seconds``) (:mod:`acq.calib.pose_check`), in their order; ``whole``: the log
+    already read, with its images. The scans are read and placed once for all; the
+    cameras are checked side by side on ``options.threads``."""
+    cams = list(job.cameras if cameras is None else cameras)
     if job.trajectory is None:
-        return PoseCheck(
-            "cannot tell", "needs the rig's motion: CAN odometry in the log or --trajectory"
-        )
-    if not job.cameras:
-        return PoseCheck("cannot tell", "the log has no camera frames")
-    cj = camera or job.cameras[0]
+        why = "needs the rig's motion: CAN odometry in the log or --trajectory"
+        return [PoseCheck("cannot tell", why) for _ in cams]
+    if not cams:
+        return []
     opt = options or CheckOptions()
-    w = read_window(job, cj, whole=whole, start_s=start_s, seconds=seconds,
-                    margin_s=opt.window_s + 0.2, what="check")  # fmt: skip
-    if w.strength is None or not np.any(w.strength > 0):
-        return PoseCheck(
-            "cannot tell", "no laser return strengths in the log (record them: SCIP ME, CoLa RSSI1)"
-        )
-    p = w.points
-    return check_pose(
-        p.P_world, p.time_ns, w.strength, p.scan, p.step, p.r, w.frame_ns, w.jpegs, cj.cam,
-        job.laser_to_vehicle, job.trajectory.pose_at, job.trajectory.covers, opt,
-    )  # fmt: skip
+    windows = read_windows(job, cams, whole=whole, start_s=start_s, seconds=seconds,
+                           margin_s=opt.window_s + 0.2, what="check")  # fmt: skip
+    strength = windows[0].strength
+    if strength is None or not np.any(strength > 0):
+        why = "no laser return strengths in the log (record them: SCIP ME, CoLa RSSI1)"
+        return [PoseCheck("cannot tell", why) for _ in cams]
+    trajectory = job.trajectory
+
+    def one(cw: tuple[CameraJob, DriveWindow]) -> PoseCheck:
+        cj, w = cw
+        p = w.points
+        return check_pose(
+            p.P_world, p.time_ns, strength, p.scan, p.step, p.r, w.frame_ns, w.jpegs, cj.cam,
+            job.laser_to_vehicle, trajectory.pose_at, trajectory.covers, opt,
+        )  # fmt: skip
+
+    pairs = list(zip(cams, windows, strict=True))
+    if len(pairs) == 1 or opt.threads < 2:
+        return [one(cw) for cw in pairs]
+    with ThreadPoolExecutor(min(len(pairs), opt.threads)) as pool:
+        return list(pool.map(one, pairs))
 
 
 def check_drive(
@@ -408,8 +419,7 @@ def check_drive(
     report = Report(output="")
     job, _ = prepare(logs, calib, report, camera=camera, trajectory=trajectory)
     opt = options or CheckOptions(threads=os.cpu_count() or 1)
-    checks = [check_calibration(job, camera=cj, start_s=start_s, seconds=seconds, options=opt)
-              for cj in job.cameras]  # fmt: skip
+    checks = check_calibration(job, start_s=start_s, seconds=seconds, options=opt)
     return job, report, checks
 
 
@@ -493,9 +503,9 @@ def run(
     t_check = time.perf_counter()
     if check_s is not None:
         opt = CheckOptions(threads=job.threads)
-        for cj in job.cameras:
-            checked = check_calibration(job, camera=cj, whole=index if once else None,
-                                        seconds=check_s, options=opt)  # fmt: skip
+        checks = check_calibration(job, whole=index if once else None, seconds=check_s,
+                                   options=opt)  # fmt: skip
+        for cj, checked in zip(job.cameras, checks, strict=True):
             report.calibration_check[cj.name] = checked.summary(cj.name)
     world = job.frame_world
     if job.cameras:  # the first camera's figures at the top, as for one camera

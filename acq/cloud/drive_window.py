@@ -1,4 +1,4 @@
-"""A window of a drive for the checks that compare the laser with one camera's frames
+"""A window of a drive for the checks that compare the laser with a camera's frames
 (``--time-offset auto``, ``acq calibrate check``): its scans placed with the job's
 trajectory by the colouring core (:func:`acq.cloud.chunks.place`), their return
 strengths, and the camera's frames in it, re-timed. Times host ns unless ``_s``; metres.
@@ -21,7 +21,7 @@ from acq.log.drive_log import DriveLog, read_log
 from acq.log.locate import locate
 from acq.time import sync
 
-__all__ = ["DriveWindow", "first_at", "odd_size_note", "read_window"]
+__all__ = ["DriveWindow", "first_at", "odd_size_note", "read_window", "read_windows"]
 
 READ_MARGIN_NS = 2 * 10**9  # read this much more either side: receipt lags measurement
 
@@ -67,8 +67,20 @@ def read_window(
     job: Job, cj: CameraJob, *, whole: DriveLog | None = None, start_s: float | None = None,
     seconds: float = 60.0, margin_s: float = 0.0, what: str = "window",
 ) -> DriveWindow:  # fmt: skip
+    """:func:`read_windows` of one camera ``cj``."""
+    (w,) = read_windows(job, [cj], whole=whole, start_s=start_s, seconds=seconds,
+                        margin_s=margin_s, what=what)  # fmt: skip
+    return w
+
+
+def read_windows(
+    job: Job, cameras: Sequence[CameraJob], *, whole: DriveLog | None = None,
+    start_s: float | None = None, seconds: float = 60.0, margin_s: float = 0.0,
+    what: str = "window",
+) -> list[DriveWindow]:  # fmt: skip
     """``seconds`` of the job's drive (which needs a trajectory) from ``start_s`` after
-    its first scan (default: the middle ``seconds``) with camera ``cj``'s frames; the
+    its first scan (default: the middle ``seconds``), one window per camera of
+    ``cameras`` with its frames, all sharing the scans (read and placed once); the
     scans ``margin_s`` either side too (the swath a frame at the window's edge sees);
     ``whole``: the log already read, with its images, else the window is read. Frames of
     another size than the model's are left out, said in a warning starting ``what``."""
@@ -79,23 +91,26 @@ def read_window(
     margin = round(margin_s * 1e9)
     if whole is None:
         whole = read_log(
-            list(job.files), laser=job.laser, camera=cj.name,
+            list(job.files), laser=job.laser, cameras=[cj.name for cj in cameras],
             start_ns=lo - margin - READ_MARGIN_NS, end_ns=hi + margin + READ_MARGIN_NS,
         )  # fmt: skip
-    whole = whole.with_camera(cj.name)
     scan_ns = remap(job.scan_old, job.scan_new, whole.scan_ns)
-    frame_ns = remap(cj.frame_old, cj.frame_new, whole.frame_ns)
     keep = (scan_ns >= lo - margin) & (scan_ns < hi + margin)
     pts = place(whole, scan_ns, keep, job.trajectory, job.laser_to_vehicle)
     strength = None
     if whole.intensities.size:
         strength = whole.intensities[pts.scan, pts.step].astype(np.float64)
-    laser_ns = sync.on_laser_clock(frame_ns, cj.time_offset_ns)
-    sel = np.flatnonzero((laser_ns >= lo) & (laser_ns < hi))
-    odd = views.odd_sized([whole.jpegs[int(i)] for i in sel], cj.cam.model)
-    if odd:
-        stamps = {int(whole.frame_ns[sel[k]]): size for k, size in odd.items()}
-        log.warning("%s: %s", what, odd_size_note(whole, stamps, cj.cam.model, job.files))
-        sel = np.delete(sel, list(odd))
-    jpegs = [whole.jpegs[int(i)] for i in sel]
-    return DriveWindow(pts, strength, frame_ns[sel], jpegs, (lo, hi))
+    out = []
+    for cj in cameras:
+        mine = whole.with_camera(cj.name)
+        frame_ns = remap(cj.frame_old, cj.frame_new, mine.frame_ns)
+        laser_ns = sync.on_laser_clock(frame_ns, cj.time_offset_ns)
+        sel = np.flatnonzero((laser_ns >= lo) & (laser_ns < hi))
+        odd = views.odd_sized([mine.jpegs[int(i)] for i in sel], cj.cam.model)
+        if odd:
+            stamps = {int(mine.frame_ns[sel[k]]): size for k, size in odd.items()}
+            log.warning("%s: %s", what, odd_size_note(mine, stamps, cj.cam.model, job.files))
+            sel = np.delete(sel, list(odd))
+        jpegs = [mine.jpegs[int(i)] for i in sel]
+        out.append(DriveWindow(pts, strength, frame_ns[sel], jpegs, (lo, hi)))
+    return out

@@ -12,12 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq.calib.information import depth_edges
-from acq.calib.pose_search import shifted
+from acq.calib.information import depth_edges, mutual_information
+from acq.calib.pose_search import Scorer, Swath, shifted
 from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
 from acq.cli import main as acq_main
 from acq.cloud.colorize import Report, prepare
+from acq.geometry.transforms import Rigid
 from acq.sim.drive_log import DriveTruth, write_drive_log
 from tests.cli_calls import printed
 
@@ -90,6 +91,43 @@ def test_depth_edges_are_the_near_side_of_a_range_jump() -> None:
     # 2 is nearer than 1 by 2.1 m; 3 and 4 have a missing beam between them; scan 1's
     # first beam is nearer than its second
     assert depth_edges(scan, step, r).tolist() == [False, False, True, True, True, True, False]
+
+
+@pytest.mark.parametrize("channels", [1, 2])
+def test_the_score_is_the_information_of_what_the_points_sample(
+    drive: tuple[DriveTruth, Calibration], channels: int
+) -> None:
+    """The search's score, counted in one pass over the images, is the mutual
+    information of the points' return strengths' bins and the grey levels' bins they
+    sample (plus the weighted depth edges' with the gradients' when there is a gradient
+    channel), at CALIB's pose and at a changed one."""
+    _, calib = drive
+    cam = calib.camera()
+    rng = np.random.default_rng(1)
+    frames, n, bins = 3, 4000, 8
+    model = cam.model
+    features = rng.integers(0, 256, (frames, model.height, model.width, channels), np.uint8)
+    rays = model.unproject(rng.uniform([0, 0], [model.width - 1, model.height - 1], (n, 2)))
+    P_laser = cam.camera_to_laser.apply(rng.uniform(3, 12, (n, 1)) * rays)
+    at_rest = Rigid(np.eye(3), np.zeros(3))
+    sw = Swath(
+        P_laser, np.linspace(0, n, frames + 1).astype(np.int64), np.arange(frames) * 10**8,
+        features, rng.integers(0, bins, n), rng.random(n) < 0.3,
+        rng.integers(0, bins, (frames, 256)), rng.integers(0, bins, (frames, 256)), bins, 0.5,
+    )  # fmt: skip
+
+    def standing(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.broadcast_to(np.eye(3), (t.size, 3, 3)), np.zeros((t.size, 3))
+
+    score = Scorer(sw, model, cam.camera_to_laser, 0.0, at_rest, standing)
+    for x in (np.zeros(7), np.array([0.01, -0.02, 0.005, 0.03, 0.0, -0.02, 0.0])):
+        values, ok = score.samples(x)
+        f = score.frame_of[ok]
+        want = mutual_information(sw.s_bins[ok], sw.grey_lut[f, values[ok, 0]], bins)
+        if channels == 2:
+            e = sw.grad_lut[f, values[ok, 1]]
+            want += 0.5 * mutual_information(sw.edge[ok].astype(np.int64), e, bins)
+        assert ok.sum() > 0.5 * n and score(x) == pytest.approx(want, rel=1e-12)
 
 
 def test_a_turned_camera_has_moved_by_what_it_was_turned(

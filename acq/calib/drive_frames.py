@@ -45,10 +45,13 @@ def points_near(
     at ``time_ns`` (N,) within ``half_ns`` of it (in time order), thinned evenly to at
     most ``max_points``."""
     order = np.argsort(time_ns, kind="stable")
-    t_sorted = time_ns[order]
+    # in float64, as the window's ends are: once, not per frame
+    t_sorted = time_ns[order].astype(np.float64)
+    c = np.asarray(centre_ns).astype(np.float64)
+    los = np.searchsorted(t_sorted, c - half_ns).tolist()
+    his = np.searchsorted(t_sorted, c + half_ns).tolist()
     out = []
-    for c in centre_ns.tolist():
-        lo, hi = np.searchsorted(t_sorted, [c - half_ns, c + half_ns])
+    for lo, hi in zip(los, his, strict=True):
         idx = order[lo:hi]
         idx = idx[usable[idx]]
         if max_points is not None and idx.size > max_points:

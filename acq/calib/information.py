@@ -17,6 +17,7 @@ against 0.74 nats for the first, so :mod:`acq.calib.pose_check` weighs it 0 by d
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 
 __all__ = [
@@ -25,8 +26,10 @@ __all__ = [
     "depth_edges",
     "image_features",
     "information",
+    "joint_counts",
     "mutual_information",
     "quantile_bins",
+    "quantile_edges",
 ]
 
 DEPTH_JUMP_M = 0.25
@@ -52,8 +55,40 @@ def quantile_bins(x: np.ndarray, bins: int, edges: np.ndarray | None = None) -> 
     """``x`` as integers in [0, bins): by its own quantiles, or by ``edges`` (bins - 1,
     sorted) so that samples binned alike compare."""
     if edges is None:
-        edges = np.quantile(x, np.linspace(0.0, 1.0, bins + 1)[1:-1])
+        edges = quantile_edges(x, bins)
     return np.searchsorted(edges, x).astype(np.int64)
+
+
+def quantile_edges(x: np.ndarray, bins: int) -> np.ndarray:
+    """(bins - 1,) float64: the edges that cut ``x`` into ``bins`` equal parts."""
+    edges: np.ndarray = np.quantile(x, np.linspace(0.0, 1.0, bins + 1)[1:-1])
+    return edges.astype(np.float64)
+
+
+def joint_counts(
+    a_bins: np.ndarray, x: np.ndarray, edges: np.ndarray, mask: np.ndarray, joint: np.ndarray
+) -> None:
+    """Add to ``joint`` (bins, bins) the counts of ``a_bins`` (N,) against ``x`` (N,)
+    binned by ``edges`` (:func:`quantile_bins`) over the samples ``mask`` (N,): without
+    a copy of the masked samples or of their bins."""
+    _joint_counts(a_bins, x, np.asarray(edges, dtype=np.float64), mask, joint)
+
+
+@numba.njit(cache=True, nogil=True)
+def _joint_counts(a_bins, x, edges, mask, joint):  # type: ignore[no-untyped-def]
+    # a value's bin: how many edges lie below it (NaN: every one, as np.searchsorted
+    # has it), counted without branches: 3 times faster than a binary search's
+    # unpredictable ones over a few dozen edges
+    ne = edges.size
+    for i in range(x.size):
+        if mask[i]:
+            v = np.float64(x[i])
+            k = ne
+            if v == v:
+                k = 0
+                for j in range(ne):
+                    k += edges[j] < v
+            joint[a_bins[i], k] += 1
 
 
 def depth_edges(
@@ -92,5 +127,4 @@ def image_features(bgr: np.ndarray, blur_px: float) -> np.ndarray:
 def bins_of_bytes(sample: np.ndarray, bins: int) -> np.ndarray:
     """(256,) int64: the bin in [0, bins) of each byte value, by the quantiles of
     ``sample`` (uint8): a lookup that bins a sample of bytes at once."""
-    edges = np.quantile(sample, np.linspace(0.0, 1.0, bins + 1)[1:-1])
-    return quantile_bins(np.arange(256), bins, edges)
+    return quantile_bins(np.arange(256), bins, quantile_edges(sample, bins))

@@ -44,14 +44,14 @@ import numpy as np
 
 from acq import progress
 from acq.calib.drive_frames import moving_frames, points_near
-from acq.calib.information import mutual_information, quantile_bins
+from acq.calib.information import information, joint_counts, quantile_bins, quantile_edges
 from acq.camera import projection
 from acq.camera.calibfile import CameraCalib
 from acq.camera.jpeg import decoded_frames
-from acq.geometry.transforms import PoseFn, Rigid, world_to_laser
+from acq.geometry.transforms import PoseFn, Rigid, world_to_laser_each
 from acq.time import sync
 
-__all__ = ["OffsetEstimate", "estimate_time_offset", "mutual_information"]
+__all__ = ["OffsetEstimate", "estimate_time_offset"]
 
 
 @dataclass(frozen=True)
@@ -95,6 +95,17 @@ class _Frame:
     index: int  # into the log's frames
     t_ns: int  # its stamp (re-timed) before any offset
     points: np.ndarray  # indices into the points
+
+
+def _remap(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``image`` (float32) at the pixels ``uv`` (N,2) (bilinear, the border repeated):
+    (N,), in rows of 1024 (OpenCV's maps have fewer than 32767 rows and columns)."""
+    n = uv.shape[0]
+    m = np.zeros((-(-n // 1024) * 1024, 2), dtype=np.float32)
+    m[:n] = uv
+    m = m.reshape(-1, 1024, 2)
+    out = cv2.remap(image, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1)[:n]
 
 
 def estimate_time_offset(
@@ -151,47 +162,47 @@ def estimate_time_offset(
     def sample(offsets_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Grey levels (K, n) of every frame's points under each offset, valid (n,) in
         all of them, and each point's block (of ``blocks`` runs of consecutive frames)."""
-        cols: list[np.ndarray] = []
-        oks: list[np.ndarray] = []
-        fold: list[np.ndarray] = []
+        k = offsets_s.size
+        cuts = np.concatenate([[0], np.cumsum([f.points.size for f in frames])])
+        g = np.zeros((k, int(cuts[-1])), dtype=np.float32)  # written in place, not joined
+        good = np.zeros(g.shape[1], dtype=bool)
         jpeg_order = np.array([f.index for f in frames])
         decoded = decoded_frames(jpegs, jpeg_order, threads)
-        with progress.bar(len(frames), "frame", f"time offset ({offsets_s.size} offsets)"):
+        with progress.bar(len(frames), "frame", f"time offset ({k} offsets)"):
             for r, (f, image) in enumerate(zip(frames, decoded, strict=True)):
-                if image is not None and image.shape[:2] != (model.height, model.width):
-                    image = None  # not sampled: its pixels are not the model's (callers say so)
-                n = f.points.size
-                g = np.zeros((offsets_s.size, n), dtype=np.float32)
-                good = np.zeros(n, dtype=bool) if image is None else np.ones(n, dtype=bool)
-                if image is not None:
-                    grey: np.ndarray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32)
-                    if blur_px > 0:
-                        grey = cv2.GaussianBlur(grey, (0, 0), blur_px)
-                    t = sync.on_laser_clock(f.t_ns, np.rint(offsets_s * 1e9))
-                    inside = covers(t)
-                    good &= bool(inside.all())
-                    if inside.all():
-                        R, tr = pose_at(t)
-                        P = P_world[f.points]
-                        for k in range(offsets_s.size):
-                            P_l = world_to_laser(P, R[k], tr[k], v2l)
-                            uv, ok = projection.project(P_l, model, c2l)
-                            good &= ok
-                            m = uv.astype(np.float32).reshape(-1, 1, 2)
-                            g[k] = cv2.remap(
-                                grey, m[..., 0], m[..., 1], cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_REPLICATE,
-                            ).ravel()  # fmt: skip
-                cols.append(g)
-                oks.append(good)
-                fold.append(np.full(n, r * max(blocks, 1) // len(frames)))
                 progress.advance(1, "frame")
-        return np.concatenate(cols, axis=1), np.concatenate(oks), np.concatenate(fold)
+                if image is None or image.shape[:2] != (model.height, model.width):
+                    continue  # not sampled: its pixels are not the model's (callers say so)
+                t = sync.on_laser_clock(f.t_ns, np.rint(offsets_s * 1e9))
+                if not covers(t).all():
+                    continue
+                grey: np.ndarray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32)
+                if blur_px > 0:
+                    grey = cv2.GaussianBlur(grey, (0, 0), blur_px)
+                # every offset at once: one projection and one remap a frame
+                R, tr = pose_at(t)
+                P_l = world_to_laser_each(P_world[f.points], R, tr, v2l)
+                uv, ok = projection.project(P_l.reshape(-1, 3), model, c2l)
+                a, b = int(cuts[r]), int(cuts[r + 1])
+                good[a:b] = ok.reshape(k, b - a).all(axis=0)
+                g[:, a:b] = _remap(grey, uv).reshape(k, b - a)
+        fold = np.repeat(np.arange(len(frames)) * max(blocks, 1) // len(frames), np.diff(cuts))
+        return g, good, fold
 
-    def curve(grey: np.ndarray, s_bins: np.ndarray) -> np.ndarray:
-        edges = np.quantile(grey[grey.shape[0] // 2], np.linspace(0.0, 1.0, bins + 1)[1:-1])
-        return np.array([mutual_information(s_bins, quantile_bins(g, bins, edges), bins)
-                         for g in grey])  # fmt: skip
+    def curve(grey: np.ndarray, mask: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """The mutual information (K,) at each offset of the points ``mask`` (N,) of
+        ``pts`` (N,): their return strengths and their grey levels ``grey`` (K, N), each
+        binned by the quantiles of those points (the grey levels' at the middle offset,
+        so that the offsets compare); the samples are not copied."""
+        s_bins = quantile_bins(strength[pts], bins, quantile_edges(strength[pts][mask], bins))
+        g_edges = quantile_edges(grey[grey.shape[0] // 2][mask], bins)
+        joint = np.zeros((bins, bins), dtype=np.int64)
+        out = np.empty(grey.shape[0])
+        for k, g in enumerate(grey):
+            joint[:] = 0
+            joint_counts(s_bins, g, g_edges, mask, joint)
+            out[k] = information(joint)
+        return out
 
     def peak(x: np.ndarray, y: np.ndarray, half: int = 6) -> float:
         """The top of a least-squares parabola through the best point and ``half``
@@ -205,9 +216,9 @@ def estimate_time_offset(
     grey, good, _ = sample(coarse)
     if good.sum() < 1000:
         return fail(f"only {int(good.sum())} laser points in view of the frames")
-    pts_all = np.concatenate([f.points for f in frames])[good]
-    s_bins = quantile_bins(strength[pts_all], bins)
-    scores = curve(grey[:, good], s_bins)
+    pts = np.concatenate([f.points for f in frames])
+    scores = curve(grey, good, pts)
+    del grey
     best = int(np.argmax(scores))
     median = float(np.median(scores))
     contrast = (float(scores[best]) - median) / median if median > 0 else 0.0
@@ -223,19 +234,13 @@ def estimate_time_offset(
         )
     # fine grid around the coarse best: same points, so the curves compare
     fine = coarse[best] + np.arange(-2 * coarse_s, 2 * coarse_s + fine_s / 2, fine_s)
-    grey_f, good_f, fold = sample(fine)
-    keep = good_f
-    pts_f = np.concatenate([f.points for f in frames])[keep]
-    s_bins_f = quantile_bins(strength[pts_f], bins)
-    fine_scores = curve(grey_f[:, keep], s_bins_f)
-    offset = peak(fine, fine_scores)
+    grey_f, keep, fold = sample(fine)
+    offset = peak(fine, curve(grey_f, keep, pts))
     per_fold: list[float] = []
-    fold = fold[keep]
-    for r in np.unique(fold):
-        sel = fold != r
+    for r in np.unique(fold[keep]):
+        sel = keep & (fold != r)
         if sel.sum() >= 1000:
-            sb = quantile_bins(strength[pts_f[sel]], bins)
-            per_fold.append(peak(fine, curve(grey_f[:, keep][:, sel], sb)))
+            per_fold.append(peak(fine, curve(grey_f, sel, pts)))
     std = _jackknife_se(np.array(per_fold))
     return OffsetEstimate(
         offset, std, coarse, scores, n_pts, n_frames, contrast, True, folds_s=per_fold

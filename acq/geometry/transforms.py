@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["PoseFn", "Rigid", "world_to_laser"]
+__all__ = ["PoseFn", "Rigid", "world_to_laser", "world_to_laser_each"]
 
 
 _KERNEL_POINTS = 50_000  # from this many points on, Rigid.apply runs a compiled loop
@@ -88,3 +88,16 @@ def world_to_laser(
     ``R`` (3,3), ``t`` (3,) (vehicle -> world): motion compensation, world -> vehicle
     -> laser."""
     return vehicle_to_laser.apply((np.asarray(P_world, dtype=np.float64) - t) @ R)
+
+
+def world_to_laser_each(
+    P_world: np.ndarray, R: np.ndarray, t: np.ndarray, vehicle_to_laser: Rigid
+) -> npt.NDArray[np.float64]:
+    """:func:`world_to_laser` of the points (N,3) m at each of K poses ``R`` (K,3,3),
+    ``t`` (K,3): (K,N,3)."""
+    # (P - t) @ R @ A.T + b for A, b vehicle -> laser: P @ M + c, one product a pose
+    M = R @ vehicle_to_laser.rotation.T
+    c = vehicle_to_laser.translation - (t[:, None, :] @ M)[:, 0, :]
+    out: npt.NDArray[np.float64] = np.asarray(P_world, dtype=np.float64)[None] @ M
+    out += c[:, None, :]
+    return out

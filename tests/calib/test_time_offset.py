@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acq.calib.time_offset import mutual_information
+from acq.calib.information import joint_counts, mutual_information, quantile_bins
 from acq.camera import calibfile
 from acq.cli import main as acq_main
 from acq.cloud.colorize import run
@@ -39,6 +39,23 @@ def test_mutual_information_of_equal_and_independent_samples() -> None:
     assert mutual_information(a, a, 16) == pytest.approx(np.log(16), rel=1e-3)
     assert mutual_information(a, rng.integers(0, 16, a.size), 16) < 2e-3
     assert mutual_information(a, (a + rng.integers(0, 2, a.size)) % 16, 16) > 1.5
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_joint_counts_bin_as_quantile_bins_do(dtype: type) -> None:
+    """The joint counts the curves are made of: the masked samples binned by the edges
+    as quantile_bins bins them (a value on an edge, NaN and infinities included)."""
+    rng = np.random.default_rng(2)
+    x = rng.uniform(0, 255, 50_000).astype(dtype)
+    edges = np.quantile(x, np.linspace(0, 1, 17)[1:-1])
+    x[:4] = [np.nan, np.inf, -np.inf, edges[5]]
+    a = rng.integers(0, 16, x.size)
+    mask = rng.random(x.size) < 0.8
+    mask[:4] = True
+    joint = np.zeros((16, 16), dtype=np.int64)
+    joint_counts(a, x, edges, mask, joint)
+    binned = quantile_bins(x[mask], 16, edges)
+    assert (joint == np.bincount(a[mask] * 16 + binned, minlength=256).reshape(16, 16)).all()
 
 
 def test_calibrate_time_offset_finds_the_latency_error(

@@ -76,6 +76,7 @@ from processes import (
     workdir,
 )
 
+from acq.drivers.scanner import Scanner
 from acq.log import LogInfo, LogReader, info_many
 from acq.sim.camera_device import jpeg_digest
 from acq.sim.mjpeg_process import MjpegServerProcess
@@ -343,8 +344,10 @@ def bytes_per_s(files: list[Path], seconds: float) -> float:
 
 
 def nominal_scans(ticks: list[int]) -> int:
-    """Scans a UTM-30LX makes from the first recorded to the last (25 ms of its clock apart)."""
-    return round((ticks[-1] - ticks[0]) / (1000.0 / SCAN_HZ)) + 1 if ticks else 0
+    """Scans a UTM-30LX makes from the first recorded to the last (25 ms of its clock apart;
+    its millisecond counter wraps at 2**24, every 4.7 hours)."""
+    span = (ticks[-1] - ticks[0]) % (1 << Scanner.tick_bits) if ticks else 0
+    return round(span / (1000.0 / SCAN_HZ)) + 1 if ticks else 0
 
 
 def part_cpu(

@@ -187,12 +187,20 @@ class Scorer:
             self._laser[key] = self.v2l.apply(P_vehicle)
         return self._laser[key]
 
+    def project(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The points' pixels (N,2) under parameters ``x`` (7,), and which fall in the
+        image (N,)."""
+        P = self.laser_points(float(x[6]))
+        uv: np.ndarray
+        ok: np.ndarray
+        uv, ok = projection.project(P, self.model, shifted(self.c2l, x))
+        return uv, ok
+
     def samples(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The features (N,C) uint8 where the points project under ``x`` (0 elsewhere),
         and which project into the image (N,)."""
         sw = self.swath
-        uv, ok = projection.project(self.laser_points(float(x[6])), self.model,
-                                    shifted(self.c2l, x))  # fmt: skip
+        uv, ok = self.project(x)
         out = np.zeros((sw.points, sw.features.shape[3]), dtype=np.uint8)
         _bilinear(sw.features, sw.starts, uv, ok, out)
         return out, ok
@@ -201,8 +209,7 @@ class Scorer:
         """The information measure (nats) under parameters ``x`` (7,)."""
         self.evaluations += 1
         sw = self.swath
-        uv, ok = projection.project(self.laser_points(float(x[6])), self.model,
-                                    shifted(self.c2l, x))  # fmt: skip
+        uv, ok = self.project(x)
         joint = np.zeros((2, sw.bins, sw.bins), dtype=np.int64)
         _joint(sw.features, sw.starts, uv, ok, sw.s_bins, sw.grey_lut, sw.edge, sw.grad_lut,
                joint)  # fmt: skip

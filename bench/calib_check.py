@@ -1,6 +1,8 @@
 """`acq calibrate check` against the truth on simulated drives, one JSON line per drive,
 camera and case, then one summary line per case, then (``--speed``) its time against
-`acq colorize` on a 60 s drive.
+`acq colorize` on a 60 s drive: each command a new process measured from outside (as a
+user runs it: its start and imports counted), alternating, ``--repeat`` times each, the
+medians compared.
 
 Each drive: :func:`acq.sim.drive_log.write_drive_log` with the two-camera rig (another
 street per seed, ``--seconds`` long, each camera's latency configured right), read once.
@@ -17,7 +19,7 @@ case: how often it said "moved", the errors' median and largest, and per axis th
 errors' mean and spread (bias against noise).
 
 Run as a script: ``python bench/calib_check.py [--drives N] [--seconds S] [--case NAME]...
-[--frames N]... [--fixed-offset] [--true-trajectory] [--speed]`` (``--case true --drives
+[--frames N]... [--fixed-offset] [--true-trajectory] [--speed [--repeat N]]`` (``--case true --drives
 10 --seconds 60``: the false-alarm run) (defaults 2 drives of 20 s: about 15 minutes on 2
 loaded cores).
 ``--frames N`` (repeatable): the check's frames per camera (``acq calibrate check
@@ -30,9 +32,10 @@ one the log's CAN odometry gives (what the odometry's errors cost).
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
+import os
+import statistics
+import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -163,31 +166,38 @@ def summary(rows: list[dict[str, Any]], chosen: dict[str, np.ndarray]) -> list[d
     return out
 
 
-def speed(directory: Path, seconds: float = 60.0) -> dict[str, Any]:
-    """Wall time of `acq calibrate check` and of `acq colorize` on one drive (in this
-    process, one after the other)."""
-    from acq.camera import calibfile
-    from acq.cli import main as acq_main
+def speed(work: Path, seconds: float = 60.0, repeat: int = 3) -> dict[str, Any]:
+    """`acq calibrate check` and `acq colorize` on the same two-camera drive of
+    ``seconds`` (``colorize_speed``'s, the rig ``acq demo`` records), each a new process
+    measured from outside as a user runs it, alternating, ``repeat`` times each: a
+    ``calib_check_run`` line per process, then the medians (wall s, peak MB, CPU s)."""
+    from colorize_speed import drive, measured  # this folder: run as a script
 
-    truth = write_drive_log(directory, seconds, pattern_at=None, seed=0,
-                            rig=default_rig(cameras=2),
-                            configured_camera_latency_s=None)  # fmt: skip
-    calib = directory / "calib.yaml"
-    calibfile.save(truth.calibration, calib)
-    logs = [str(f) for f in truth.files]
-    times = {}
-    for name, argv in (
-        ("check", ["calibrate", "check", *logs, "--calib", str(calib)]),
-        ("colorize", ["colorize", *logs, "--calib", str(calib), "-o", str(directory / "c.ply")]),
-    ):
-        t0 = time.perf_counter()
-        with contextlib.redirect_stdout(io.StringIO()):
-            code = acq_main(argv)
-        times[name] = round(time.perf_counter() - t0, 2)
-        if code not in (0, 1):
-            raise SystemExit(f"acq {' '.join(argv[:2])} exited {code}")
-    row = {"bench": "calib_check_speed", "drive_s": seconds, "check_s": times["check"],
-           "colorize_s": times["colorize"]}  # fmt: skip
+    files, calib, _ = drive(work, seconds)
+    logs = [str(f) for f in files]
+    acq = [sys.executable, "-m", "acq.cli"]
+    commands = {
+        "check": [*acq, "calibrate", "check", *logs, "--calib", str(calib)],
+        "colorize": [*acq, "colorize", *logs, "--calib", str(calib), "-o",
+                     str(work / "speed.ply"), "--force"],
+    }  # fmt: skip
+    runs: dict[str, list[tuple[float, float, float]]] = {k: [] for k in commands}
+    for k in range(repeat):
+        for name in list(commands)[:: 1 if k % 2 == 0 else -1]:
+            wall, peak, cpu, _ = measured(commands[name])
+            runs[name].append((wall, peak, cpu))
+            print(json.dumps({"bench": "calib_check_run", "command": name,
+                              "wall_s": round(wall, 3), "peak_mb": round(peak, 1),
+                              "cpu_s": round(cpu, 3),
+                              "load": [round(x, 2) for x in os.getloadavg()]}),
+                  flush=True)  # fmt: skip
+    med = {k: [statistics.median(c) for c in zip(*r, strict=True)] for k, r in runs.items()}
+    row = {"bench": "calib_check_speed", "drive_s": seconds, "runs": repeat,
+           "check_s": round(med["check"][0], 2), "colorize_s": round(med["colorize"][0], 2),
+           "check_peak_mb": round(med["check"][1], 1),
+           "colorize_peak_mb": round(med["colorize"][1], 1),
+           "check_cpu_s": round(med["check"][2], 2), "colorize_cpu_s": round(med["colorize"][2], 2),
+           "target_met": med["check"][0] <= med["colorize"][0]}  # fmt: skip
     print(json.dumps(row), flush=True)
     return row
 
@@ -197,6 +207,10 @@ def main() -> None:
     ap.add_argument("--drives", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--speed", action="store_true", help="also time it against acq colorize")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="--speed: runs of each command, alternating (3)")  # fmt: skip
+    ap.add_argument("--work", type=Path,
+                    help="--speed: keep its drive here (default: a temporary folder)")  # fmt: skip
     ap.add_argument("--case", action="append", metavar="NAME", help="only this case (repeatable)")
     ap.add_argument("--frames", type=int, action="append", metavar="N",
                     help="the check's frames per camera (repeatable; default 80)")  # fmt: skip
@@ -217,7 +231,7 @@ def main() -> None:
                            args.true_trajectory)  # fmt: skip
         summary(rows, chosen)
         if args.speed:
-            speed(Path(tmp) / "speed")
+            speed(args.work or Path(tmp), repeat=args.repeat)
 
 
 if __name__ == "__main__":

@@ -109,12 +109,15 @@ def depth_edges(
     return edge
 
 
-def image_features(bgr: np.ndarray, blur_px: float) -> np.ndarray:
+def image_features(bgr: np.ndarray, blur_px: float, gradient: bool = True) -> np.ndarray:
     """(H,W,2) uint8: the image's grey levels and gradient magnitude, after a Gaussian
     blur of ``blur_px`` px (the sampled values then change smoothly with the pose); the
-    gradient from a blur of twice that, 255 at eight times its mean."""
+    gradient from a blur of twice that, 255 at eight times its mean. Without
+    ``gradient``: (H,W,1), the grey levels."""
     grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
     smooth = cv2.GaussianBlur(grey, (0, 0), blur_px) if blur_px > 0 else grey
+    if not gradient:
+        return smooth[..., None]
     g = cv2.GaussianBlur(grey, (0, 0), max(2 * blur_px, 1.0))
     gx = cv2.Sobel(g, cv2.CV_32F, 1, 0)
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1)

@@ -39,6 +39,7 @@ from acq.calib.pose_search import (
     FIT_STEPS,
     PARAMS,
     START_STEPS,
+    Many,
     Scorer,
     Swath,
     gradient,
@@ -52,7 +53,7 @@ from acq.camera.jpeg import decoded_frames
 from acq.geometry.transforms import PoseFn, Rigid, world_to_laser
 from acq.time import sync
 
-__all__ = ["CheckOptions", "PoseCheck", "check_pose", "pixels_at"]
+__all__ = ["CheckOptions", "PoseCheck", "check_frames", "check_pose", "pixels_at"]
 
 # chi-square quantiles at 1 - 1e-3 for 3 and 1 degrees of freedom
 _CHI2 = {3: 16.266, 1: 10.828}
@@ -73,6 +74,7 @@ class CheckOptions:
     bins: int = 24
     edge_weight: float = 0.0
     rounds: int = 2
+    search_every: int = 2
     newton_steps: int = 3
     blocks: int = 8
     time_offset: bool = True
@@ -187,6 +189,19 @@ def pixels_at(cam: CameraCalib, moved: Rigid, distance_m: float = 10.0) -> float
     return float(np.median(np.linalg.norm(a[ok] - b[ok], axis=1))) if ok.any() else float("nan")
 
 
+def check_frames(
+    frame_ns: np.ndarray, cam: CameraCalib, pose_at: PoseFn,
+    covers: Callable[[np.ndarray], np.ndarray], opt: CheckOptions,
+) -> np.ndarray:  # fmt: skip
+    """Indices of the frames, re-timed at ``frame_ns`` (M,) ns (no offset applied), that
+    the check of camera ``cam`` (:func:`check_pose`, options ``opt``) uses on a drive
+    posed by ``pose_at``/``covers``: known before the images are read."""
+    t_laser = sync.on_laser_clock(frame_ns, round(cam.time_offset_s * 1e9))
+    return moving_frames(
+        t_laser, pose_at, covers, min_speed_mps=opt.min_speed_mps, max_frames=opt.max_frames
+    )
+
+
 def _swath(
     P_world: np.ndarray, time_ns: np.ndarray, strength: np.ndarray, edge: np.ndarray,
     frame_ns: np.ndarray, jpegs: list[bytes], cam: CameraCalib, laser_to_vehicle: Rigid,
@@ -197,9 +212,7 @@ def _swath(
     if not usable.any():
         return "no laser return strengths in the log (SCIP ME / CoLa RSSI1 needed)"
     t_laser = sync.on_laser_clock(frame_ns, round(cam.time_offset_s * 1e9))
-    pick = moving_frames(
-        t_laser, pose_at, covers, min_speed_mps=opt.min_speed_mps, max_frames=opt.max_frames
-    )
+    pick = check_frames(frame_ns, cam, pose_at, covers, opt)
     if pick.size == 0:
         return "the rig does not move (or no pose) while the camera records"
     # thinned first: most of a window's points are out of view or too far
@@ -233,7 +246,7 @@ def _swath(
             continue
         # the gradient left out when its term weighs nothing: half the memory the
         # search reads for every point
-        features.append(image_features(image, opt.blur_px)[..., : 2 if opt.edge_weight else 1])
+        features.append(image_features(image, opt.blur_px, gradient=opt.edge_weight > 0))
         frames.append((j, idx))
     if not frames:
         return "no laser points in view of the frames"
@@ -242,9 +255,10 @@ def _swath(
         return f"only {pts.size} laser points in view of the frames"
     starts = np.concatenate([[0], np.cumsum([idx.size for _, idx in frames])]).astype(np.int64)
     s_bins = quantile_bins(strength[pts], opt.bins)
+    unbinned = np.zeros((len(frames), 256), np.int64)  # until the grey levels' bins are made
     swath = Swath(
         P_world[pts], starts, frame_ns[[j for j, _ in frames]], np.stack(features), s_bins,
-        edge[pts], np.zeros((0, 256), np.int64), np.zeros((0, 256), np.int64), opt.bins,
+        edge[pts], unbinned, unbinned, opt.bins,
         opt.edge_weight,
     )  # fmt: skip
     return swath
@@ -282,15 +296,18 @@ def check_pose(
                    pose_at)  # fmt: skip
     free = np.ones(7, dtype=bool)
     free[6] = opt.time_offset
-    x = search(score, np.zeros(7), START_STEPS, opt.rounds, free)
+    # the search only finds the top's neighbourhood: on part of the points
+    coarse = Scorer(swath.every(opt.search_every), cam.model, cam.camera_to_laser,
+                    cam.time_offset_s, laser_to_vehicle, pose_at)  # fmt: skip
+    x = search(coarse.many, np.zeros(7), START_STEPS, opt.rounds, free)
 
-    def on(f: Scorer) -> Callable[[np.ndarray], float]:
-        """``f`` of the free parameters, the others at the estimate's."""
+    def on(f: Scorer) -> Many:
+        """``f`` of candidates of the free parameters (K,n), the others at the estimate's."""
 
-        def g(z: np.ndarray) -> float:
-            y = x.copy()
-            y[free] = z
-            return f(y)
+        def g(Z: np.ndarray) -> np.ndarray:
+            Y = np.repeat(x[None], len(Z), axis=0)
+            Y[:, free] = Z
+            return f.many(Y)
 
         return g
 
@@ -301,7 +318,7 @@ def check_pose(
     k = max(2, min(opt.blocks, swath.frames // 4))
     cuts = np.linspace(0, swath.frames, k + 1).astype(int)
     blocks = []
-    evaluations = score.evaluations
+    evaluations = coarse.evaluations + score.evaluations
     for lo, hi in itertools.pairwise(cuts.tolist()):
         part = Scorer(swath.part(int(lo), int(hi)), cam.model, cam.camera_to_laser,
                       cam.time_offset_s, laser_to_vehicle, pose_at)  # fmt: skip

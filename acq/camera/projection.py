@@ -28,9 +28,11 @@ __all__ = [
     "colorize",
     "colour_into",
     "depth_and_angle",
+    "kernel_args",
     "laser_to_camera",
     "pixels_read",
     "project",
+    "project_block",
 ]
 
 _PI = np.float32(math.pi)
@@ -106,8 +108,10 @@ _BLOCK = 4096  # points per parallel task: the per-block buffers stay in L1/L2
 
 
 @numba.njit(inline="always", fastmath=True, error_model="numpy")
-def _project_block(Pf, R, t, intr, pinhole, w, h, uvf, valid):  # type: ignore[no-untyped-def]
-    """Flat (3n,) laser points -> flat (2n,) pixels uvf and (n,) valid.
+def project_block(Pf, R, t, intr, pinhole, w, h, uvf, valid):  # type: ignore[no-untyped-def]
+    """Flat (3n,) laser points -> flat (2n,) pixels uvf and (n,) valid, for a camera at
+    ``R``, ``t`` with ``intr``/``pinhole`` (:func:`kernel_args`) and an image ``w`` x
+    ``h`` px (float32); a numba kernel, inlined where other kernels call it.
 
     Flat arrays with constant strides, a loop from 0 and no early exits let LLVM
     vectorise this loop (8 points per AVX2 instruction); indexing an (N,3) array per
@@ -145,7 +149,7 @@ def _project_block(Pf, R, t, intr, pinhole, w, h, uvf, valid):  # type: ignore[n
 
 @numba.njit(nogil=True, fastmath=True, cache=True, error_model="numpy")
 def _project_range(Pf, lo, hi, R, t, intr, pinhole, w, h, uvf, valid):  # type: ignore[no-untyped-def]
-    _project_block(
+    project_block(
         Pf[3 * lo : 3 * hi], R, t, intr, pinhole, w, h, uvf[2 * lo : 2 * hi], valid[lo:hi]
     )
 
@@ -186,7 +190,7 @@ def _colorize_range(Pf, lo, hi, R, t, intr, pinhole, image, bilinear, out, valid
     for blo in range(lo, hi, _BLOCK):
         bhi = min(blo + _BLOCK, hi)
         # Project a block (vectorised), then gather its colours (scalar).
-        _project_block(
+        project_block(
             Pf[3 * blo : 3 * bhi], R, t, intr, pinhole, w, h, uvf[: 2 * (bhi - blo)], valid[blo:bhi]
         )
         for i in range(blo, bhi):
@@ -216,7 +220,7 @@ def _colour_into(P, idx, R, t, intr, pinhole, image, bilinear, out, valid, uv): 
     for blo in range(0, idx.size, _BLOCK):
         m = min(blo + _BLOCK, idx.size) - blo
         _gather(P, idx, t, blo, m, Pf)
-        _project_block(Pf[: 3 * m], R, zero, intr, pinhole, w, h, uvf[: 2 * m], ok[:m])
+        project_block(Pf[: 3 * m], R, zero, intr, pinhole, w, h, uvf[: 2 * m], ok[:m])
         for i in range(m):
             if ok[i]:
                 k = idx[blo + i]
@@ -241,7 +245,7 @@ def _pixels_read(P, idx, R, t, intr, pinhole, w_px, h_px, rows, cols):  # type: 
     for blo in range(0, idx.size, _BLOCK):
         m = min(blo + _BLOCK, idx.size) - blo
         _gather(P, idx, t, blo, m, Pf)
-        _project_block(Pf[: 3 * m], R, zero, intr, pinhole, w, h, uvf[: 2 * m], ok[:m])
+        project_block(Pf[: 3 * m], R, zero, intr, pinhole, w, h, uvf[: 2 * m], ok[:m])
         for i in range(m):
             if ok[i]:
                 # nearest reads round(x), bilinear floor(x) and floor(x) + 1
@@ -310,10 +314,11 @@ def _run_split(kernel: Callable[..., None], n: int, *args: object) -> None:
         f.result()
 
 
-def _kernel_args(
+def kernel_args(
     model: CameraModel, camera_to_laser: Rigid
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """(R, t, intrinsics, is_pinhole) as float32 arrays for the kernels."""
+    """(R, t, intrinsics, is_pinhole) as float32 arrays for the kernels
+    (:func:`project_block`)."""
     R = np.ascontiguousarray(camera_to_laser.rotation, dtype=np.float32)
     t = np.ascontiguousarray(camera_to_laser.translation, dtype=np.float32)
     return (R, t, *_intrinsics(model))
@@ -356,7 +361,7 @@ def project(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Laser-frame points -> ((N,2) float32 px, (N,) bool valid), compiled."""
     P = _as_points(P_laser)
-    R, t, intr, pinhole = _kernel_args(model, camera_to_laser)
+    R, t, intr, pinhole = kernel_args(model, camera_to_laser)
     uv = np.empty((P.shape[0], 2), dtype=np.float32)
     valid = np.empty(P.shape[0], dtype=np.bool_)
     w, h = np.float32(model.width), np.float32(model.height)
@@ -387,7 +392,7 @@ def colorize(
     if img.dtype != np.uint8 or img.ndim != 3:
         raise ValueError(f"expected an (H,W[,C]) uint8 image, got {img.dtype} {img.shape}")
     _check_size(img, model)
-    R, t, intr, pinhole = _kernel_args(model, camera_to_laser)
+    R, t, intr, pinhole = kernel_args(model, camera_to_laser)
     if out is None:
         out = np.zeros((P.shape[0], img.shape[2]), dtype=np.uint8)
     elif out.shape != (P.shape[0], img.shape[2]) or out.dtype != np.uint8:

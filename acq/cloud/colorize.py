@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from acq import progress as progress_bars
-from acq.calib.pose_check import CheckOptions, PoseCheck, check_pose
+from acq.calib.pose_check import CheckOptions, PoseCheck, check_frames, check_pose
 from acq.calib.time_offset import OffsetEstimate, estimate_time_offset
 from acq.camera.calibfile import Calibration
 from acq.camera.jpeg import SharedDecodes
@@ -380,13 +380,15 @@ def check_calibration(
     if not cams:
         return []
     opt = options or CheckOptions()
+    trajectory = job.trajectory
     windows = read_windows(job, cams, whole=whole, start_s=start_s, seconds=seconds,
-                           margin_s=opt.window_s + 0.2, what="check")  # fmt: skip
+                           margin_s=opt.window_s + 0.2, what="check",
+                           pick=lambda cj, ns: check_frames(ns, cj.cam, trajectory.pose_at,
+                                                            trajectory.covers, opt))  # fmt: skip
     strength = windows[0].strength
     if strength is None or not np.any(strength > 0):
         why = "no laser return strengths in the log (record them: SCIP ME, CoLa RSSI1)"
         return [PoseCheck("cannot tell", why) for _ in cams]
-    trajectory = job.trajectory
 
     def one(cw: tuple[CameraJob, DriveWindow]) -> PoseCheck:
         cj, w = cw

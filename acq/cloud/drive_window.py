@@ -7,7 +7,7 @@ strengths, and the camera's frames in it, re-timed. Times host ns unless ``_s``;
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +21,7 @@ from acq.log.drive_log import DriveLog, read_log
 from acq.log.locate import locate
 from acq.time import sync
 
-__all__ = ["DriveWindow", "first_at", "odd_size_note", "read_window", "read_windows"]
+__all__ = ["DriveWindow", "Pick", "first_at", "odd_size_note", "read_window", "read_windows"]
 
 READ_MARGIN_NS = 2 * 10**9  # read this much more either side: receipt lags measurement
 
@@ -63,36 +63,46 @@ class DriveWindow:
     span_ns: tuple[int, int]
 
 
+Pick = Callable[[CameraJob, np.ndarray], np.ndarray]
+"""Which of a camera's frames a check uses: (its job, the re-timed stamps (M,) ns of its
+frames in the window, no offset applied) -> their indices."""
+
+
 def read_window(
     job: Job, cj: CameraJob, *, whole: DriveLog | None = None, start_s: float | None = None,
     seconds: float = 60.0, margin_s: float = 0.0, what: str = "window",
+    pick: Pick | None = None,
 ) -> DriveWindow:  # fmt: skip
     """:func:`read_windows` of one camera ``cj``."""
     (w,) = read_windows(job, [cj], whole=whole, start_s=start_s, seconds=seconds,
-                        margin_s=margin_s, what=what)  # fmt: skip
+                        margin_s=margin_s, what=what, pick=pick)  # fmt: skip
     return w
 
 
 def read_windows(
     job: Job, cameras: Sequence[CameraJob], *, whole: DriveLog | None = None,
     start_s: float | None = None, seconds: float = 60.0, margin_s: float = 0.0,
-    what: str = "window",
+    what: str = "window", pick: Pick | None = None,
 ) -> list[DriveWindow]:  # fmt: skip
     """``seconds`` of the job's drive (which needs a trajectory) from ``start_s`` after
     its first scan (default: the middle ``seconds``), one window per camera of
     ``cameras`` with its frames, all sharing the scans (read and placed once); the
     scans ``margin_s`` either side too (the swath a frame at the window's edge sees);
     ``whole``: the log already read, with its images, else the window is read. Frames of
-    another size than the model's are left out, said in a warning starting ``what``."""
+    another size than the model's are left out, said in a warning starting ``what``.
+    ``pick``: only the frames it picks (chosen from the job's stamps before the log is
+    read, so that only their images are read)."""
     first, last = int(job.scan_new[0]), int(job.scan_new[-1])
     span = round(seconds * 1e9)
     lo = first + (max(0, (last - first - span) // 2) if start_s is None else round(start_s * 1e9))
     hi = lo + span
     margin = round(margin_s * 1e9)
+    wanted = None if pick is None else {cj.name: _picked(cj, pick, lo, hi) for cj in cameras}
     if whole is None:
         whole = read_log(
             list(job.files), laser=job.laser, cameras=[cj.name for cj in cameras],
             start_ns=lo - margin - READ_MARGIN_NS, end_ns=hi + margin + READ_MARGIN_NS,
+            jpegs_at=wanted,
         )  # fmt: skip
     scan_ns = remap(job.scan_old, job.scan_new, whole.scan_ns)
     keep = (scan_ns >= lo - margin) & (scan_ns < hi + margin)
@@ -106,6 +116,8 @@ def read_windows(
         frame_ns = remap(cj.frame_old, cj.frame_new, mine.frame_ns)
         laser_ns = sync.on_laser_clock(frame_ns, cj.time_offset_ns)
         sel = np.flatnonzero((laser_ns >= lo) & (laser_ns < hi))
+        if wanted is not None:
+            sel = sel[np.isin(mine.frame_ns[sel], list(wanted[cj.name]))]
         odd = views.odd_sized([mine.jpegs[int(i)] for i in sel], cj.cam.model)
         if odd:
             stamps = {int(mine.frame_ns[sel[k]]): size for k, size in odd.items()}
@@ -114,3 +126,11 @@ def read_windows(
         jpegs = [mine.jpegs[int(i)] for i in sel]
         out.append(DriveWindow(pts, strength, frame_ns[sel], jpegs, (lo, hi)))
     return out
+
+
+def _picked(cj: CameraJob, pick: Pick, lo: int, hi: int) -> set[int]:
+    """The recorded stamps of the frames ``pick`` picks of ``cj``'s whose time on the
+    laser's clock lies in [lo, hi) ns."""
+    laser_ns = sync.on_laser_clock(cj.frame_new, cj.time_offset_ns)
+    sel = np.flatnonzero((laser_ns >= lo) & (laser_ns < hi))
+    return set(cj.frame_old[sel[pick(cj, cj.frame_new[sel])]].tolist())

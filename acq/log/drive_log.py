@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -254,6 +254,7 @@ def read_log(
     vehicle: bool = False,
     calib: Calibration | None = None,
     jpegs_for_s: float | None = None,
+    jpegs_at: Mapping[str, Collection[int]] | None = None,
 ) -> DriveLog:
     """Scans, frames, clock pairs and metadata of a log (or of a session's files, in the
     order given). ``laser``/``camera`` name the devices where the log has several;
@@ -274,7 +275,9 @@ def read_log(
     ``cameras``, every camera of both when it is empty). ``jpegs_for_s``: with ``jpegs``,
     only the images received in the first that many seconds (log time from the first
     message read) keep their bytes (the first chunks of a long log, without reading it
-    twice); the log's ``jpegs_until_ns`` says up to when.
+    twice); the log's ``jpegs_until_ns`` says up to when. ``jpegs_at``: with ``jpegs``,
+    only the images of these cameras (by name) recorded at these stamps keep their bytes
+    (a few frames of a long window, without holding every image in memory).
 
     Files whose writer was killed are read up to their last good record
     (:class:`acq.log.LogReader`); undecodable messages are skipped (noted).
@@ -318,10 +321,12 @@ def read_log(
                 continue
             if jpegs_for_s is not None and jpegs_until is None:
                 jpegs_until = message.log_time + round(jpegs_for_s * 1e9)
+            name = topic[1:].removesuffix("/image/compressed")
             if topic.endswith("/image/compressed") and (
-                not jpegs or (jpegs_until is not None and message.log_time >= jpegs_until)
+                not jpegs
+                or (jpegs_until is not None and message.log_time >= jpegs_until)
+                or (jpegs_at is not None and _stamp_of(message) not in jpegs_at.get(name, ()))
             ):
-                name = topic[1:].removesuffix("/image/compressed")
                 frames.setdefault(name, []).append((_stamp_of(message), b""))
                 if sizes.get(name) is None:
                     sizes[name] = _jpeg_size(reader.decode(schema, channel, message))

@@ -18,7 +18,9 @@ from acq.camera import calibfile
 from acq.camera.calibfile import Calibration
 from acq.cli import main as acq_main
 from acq.cloud.colorize import Report, prepare
+from acq.cloud.drive_window import read_window
 from acq.geometry.transforms import Rigid
+from acq.log.drive_log import read_log
 from acq.sim.drive_log import DriveTruth, write_drive_log
 from tests.cli_calls import printed
 
@@ -93,15 +95,9 @@ def test_depth_edges_are_the_near_side_of_a_range_jump() -> None:
     assert depth_edges(scan, step, r).tolist() == [False, False, True, True, True, True, False]
 
 
-@pytest.mark.parametrize("channels", [1, 2])
-def test_the_score_is_the_information_of_what_the_points_sample(
-    drive: tuple[DriveTruth, Calibration], channels: int
-) -> None:
-    """The search's score, counted in one pass over the images, is the mutual
-    information of the points' return strengths' bins and the grey levels' bins they
-    sample (plus the weighted depth edges' with the gradients' when there is a gradient
-    channel), at CALIB's pose and at a changed one."""
-    _, calib = drive
+def _random_scorer(calib: Calibration, channels: int, speed_mps: float = 0.0) -> Scorer:
+    """A scorer of random images (3 frames of ``channels``) and 4000 random points in
+    view, 8 bins, the edges' term weighed 0.5; the rig driving at ``speed_mps`` along x."""
     cam = calib.camera()
     rng = np.random.default_rng(1)
     frames, n, bins = 3, 4000, 8
@@ -116,18 +112,67 @@ def test_the_score_is_the_information_of_what_the_points_sample(
         rng.integers(0, bins, (frames, 256)), rng.integers(0, bins, (frames, 256)), bins, 0.5,
     )  # fmt: skip
 
-    def standing(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return np.broadcast_to(np.eye(3), (t.size, 3, 3)), np.zeros((t.size, 3))
+    def driving(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        along = np.zeros((t.size, 3))
+        along[:, 0] = speed_mps * 1e-9 * t
+        return np.broadcast_to(np.eye(3), (t.size, 3, 3)), along
 
-    score = Scorer(sw, model, cam.camera_to_laser, 0.0, at_rest, standing)
+    return Scorer(sw, model, cam.camera_to_laser, 0.0, at_rest, driving)
+
+
+@pytest.mark.parametrize("channels", [1, 2])
+def test_the_score_is_the_information_of_what_the_points_sample(
+    drive: tuple[DriveTruth, Calibration], channels: int
+) -> None:
+    """The search's score, counted in one pass over the images, is the mutual
+    information of the points' return strengths' bins and the grey levels' bins they
+    sample (plus the weighted depth edges' with the gradients' when there is a gradient
+    channel), at CALIB's pose and at a changed one."""
+    score = _random_scorer(drive[1], channels)
+    sw, n = score.swath, score.swath.points
     for x in (np.zeros(7), np.array([0.01, -0.02, 0.005, 0.03, 0.0, -0.02, 0.0])):
         values, ok = score.samples(x)
         f = score.frame_of[ok]
-        want = mutual_information(sw.s_bins[ok], sw.grey_lut[f, values[ok, 0]], bins)
+        want = mutual_information(sw.s_bins[ok], sw.grey_lut[f, values[ok, 0]], sw.bins)
         if channels == 2:
             e = sw.grad_lut[f, values[ok, 1]]
-            want += 0.5 * mutual_information(sw.edge[ok].astype(np.int64), e, bins)
+            want += 0.5 * mutual_information(sw.edge[ok].astype(np.int64), e, sw.bins)
         assert ok.sum() > 0.5 * n and score(x) == pytest.approx(want, rel=1e-12)
+
+
+def test_candidates_scored_together_score_as_each_alone(
+    drive: tuple[DriveTruth, Calibration],
+) -> None:
+    """Batches of candidates (the search's and the fit's) give each candidate the score
+    a scorer of its own gives it, also when they ask for more time offsets than the
+    scorer keeps points for (the rig moving, so each offset places the points anew)."""
+    rng = np.random.default_rng(2)
+    X = np.zeros((2 * Scorer.SLOTS + 3, 7))
+    X[:, :6] = rng.normal(0, [0.005] * 3 + [0.01] * 3, (X.shape[0], 6))
+    X[:, 6] = rng.choice(np.arange(12) * 0.002, X.shape[0])  # 12 offsets, some repeated
+    many = _random_scorer(drive[1], 1, speed_mps=8.0)
+    together = np.concatenate([many.many(X[a : a + 7]) for a in range(0, X.shape[0], 7)])
+    alone = [_random_scorer(drive[1], 1, speed_mps=8.0)(x) for x in X]
+    assert np.unique(X[:, 6]).size > Scorer.SLOTS
+    np.testing.assert_array_equal(together, alone)
+    assert many.evaluations == X.shape[0]
+    assert np.ptp(alone) > 0  # the candidates differ
+
+
+def test_every_kth_point_of_each_frame_is_kept() -> None:
+    """The search's thinned swath: every k-th point of each frame, counted from the
+    frame's first, with its own bins; the frames and their images the same."""
+    starts = np.array([0, 5, 5, 12], dtype=np.int64)
+    n = int(starts[-1])
+    images, luts = np.zeros((3, 4, 4, 1), np.uint8), np.zeros((3, 256), np.int64)
+    sw = Swath(np.arange(3 * n, dtype=float).reshape(n, 3), starts, np.arange(3), images,
+               np.arange(n), np.arange(n) % 2 == 0, luts, luts, 4, 0.0)  # fmt: skip
+    thin = sw.every(2)
+    np.testing.assert_array_equal(thin.starts, [0, 3, 3, 7])
+    np.testing.assert_array_equal(thin.s_bins, [0, 2, 4, 5, 7, 9, 11])
+    np.testing.assert_array_equal(thin.P_world[:, 0], 3 * thin.s_bins)
+    np.testing.assert_array_equal(thin.edge, thin.s_bins % 2 == 0)
+    assert thin.frames == 3 and thin.features is sw.features
 
 
 def test_a_turned_camera_has_moved_by_what_it_was_turned(
@@ -269,3 +314,25 @@ def test_colorize_and_info_check_the_drive_and_warn_when_the_calibration_moved(
     objects = json.loads(captured.out)
     assert objects and captured.err == ""
     assert all(o["calibration_check"]["camera"]["verdict"] == "holds" for o in objects)
+
+
+def test_only_the_frames_the_check_picks_are_read_with_their_images(
+    drive: tuple[DriveTruth, Calibration],
+) -> None:
+    """The check picks its frames from the job's stamps before reading the log: the
+    window read then holds those frames, with the same bytes as a whole read, and the
+    log reader keeps the images of the stamps asked for and no other."""
+    truth, calib = drive
+    job, _ = prepare(truth.files, calib, Report(output="x"))
+    (cj,) = job.cameras
+    whole = read_window(job, cj, seconds=SECONDS)
+    some = read_window(job, cj, seconds=SECONDS, pick=lambda c, ns: np.arange(0, ns.size, 3))
+    assert whole.frame_ns.size > 6
+    np.testing.assert_array_equal(some.frame_ns, whole.frame_ns[::3])
+    assert some.jpegs == whole.jpegs[::3]
+    log = read_log(truth.files).with_camera(cj.name)
+    wanted = {int(log.frame_ns[1]), int(log.frame_ns[4])}
+    light = read_log(truth.files, jpegs_at={cj.name: wanted}).with_camera(cj.name)
+    np.testing.assert_array_equal(light.frame_ns, log.frame_ns)
+    assert [i for i, j in enumerate(light.jpegs) if j] == [1, 4]
+    assert [light.jpegs[1], light.jpegs[4]] == [log.jpegs[1], log.jpegs[4]]

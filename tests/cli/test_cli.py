@@ -4,6 +4,7 @@ a closed or full stdout."""
 from __future__ import annotations
 
 import logging
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -129,3 +130,16 @@ def test_library_warnings_are_the_commands_lines(
     logging.getLogger("acq.log").warning("x.mcap: 1 corrupt chunk skipped")
     logging.getLogger("acq.log").info("read x.mcap")
     assert capsys.readouterr().err == "acq colorize: x.mcap: 1 corrupt chunk skipped\n"
+
+
+@pytest.mark.parametrize(("given", "kept"), [(None, "1"), ("2", "2")])
+def test_the_commands_run_one_blas_thread_unless_told(given: str | None, kept: str) -> None:
+    """The command line sets OpenBLAS to one thread before numpy loads it (the commands
+    run their own threads), and keeps what the user set."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    code = "import os, acq.cli, numpy; print(os.environ['OPENBLAS_NUM_THREADS'])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=True)  # fmt: skip
+    assert out.stdout.strip() == kept

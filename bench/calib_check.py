@@ -19,14 +19,15 @@ case: how often it said "moved", the errors' median and largest, and per axis th
 errors' mean and spread (bias against noise).
 
 Run as a script: ``python bench/calib_check.py [--drives N] [--seconds S] [--case NAME]...
-[--frames N]... [--fixed-offset] [--true-trajectory] [--speed [--repeat N]]`` (``--case true --drives
-10 --seconds 60``: the false-alarm run) (defaults 2 drives of 20 s: about 15 minutes on 2
-loaded cores).
+[--frames N]... [--fixed-offset] [--true-trajectory] [--work DIR] [--speed [--repeat N]]``
+(``--case true --drives 10 --seconds 60``: the false-alarm run) (defaults 2 drives of 20
+s: about 5 minutes on 2 cores).
 ``--frames N`` (repeatable): the check's frames per camera (``acq calibrate check
 --frames``; default its 80), each drive checked at each; ``--fixed-offset``: the time
 offset held at the true one (not searched), to see what it costs the pose;
 ``--true-trajectory``: the points placed with the simulator's trajectory instead of the
-one the log's CAN odometry gives (what the odometry's errors cost).
+one the log's CAN odometry gives (what the odometry's errors cost); ``--work DIR``: the
+drives kept there (with their truth, pickled) and used again by the next run.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import pickle
 import statistics
 import sys
 import tempfile
@@ -78,9 +80,14 @@ def _drive(
     seed: int, seconds: float, directory: Path, chosen: dict[str, np.ndarray],
     options: list[CheckOptions], true_trajectory: bool = False,
 ) -> list[dict[str, Any]]:  # fmt: skip
-    truth = write_drive_log(directory, seconds, pattern_at=None, seed=seed,
-                            rig=default_rig(cameras=2),
-                            configured_camera_latency_s=None)  # fmt: skip
+    kept = directory / "truth.pickle"  # the drive written before (--work)
+    if kept.exists():
+        truth = pickle.loads(kept.read_bytes())
+    else:
+        truth = write_drive_log(directory, seconds, pattern_at=None, seed=seed,
+                                rig=default_rig(cameras=2),
+                                configured_camera_latency_s=None)  # fmt: skip
+        kept.write_bytes(pickle.dumps(truth))
     given = truth.host_trajectory() if true_trajectory else None
     job, whole = prepare(truth.files, truth.calibration, Report(output="x"), jpegs=True,
                          trajectory=given)  # fmt: skip
@@ -102,6 +109,7 @@ def _drive(
                 (c,) = check_calibration(job_case, whole=whole, options=opt)
                 row: dict[str, Any] = {"bench": "calib_check", "seed": seed, "camera": cj.name,
                                        "case": case, "max_frames": opt.max_frames,
+                                       "blur_px": opt.blur_px,
                                        "fixed_offset": not opt.time_offset,
                                        "verdict": c.verdict, "reason": c.reason,
                                        "seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip
@@ -210,28 +218,34 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3,
                     help="--speed: runs of each command, alternating (3)")  # fmt: skip
     ap.add_argument("--work", type=Path,
-                    help="--speed: keep its drive here (default: a temporary folder)")  # fmt: skip
+                    help="keep the drives here, and use those already there (default: a "
+                         "temporary folder)")  # fmt: skip
     ap.add_argument("--case", action="append", metavar="NAME", help="only this case (repeatable)")
     ap.add_argument("--frames", type=int, action="append", metavar="N",
                     help="the check's frames per camera (repeatable; default 80)")  # fmt: skip
+    ap.add_argument("--blur", type=float, metavar="PX",
+                    help="the check's blur of the images (px; default its own)")  # fmt: skip
     ap.add_argument("--fixed-offset", action="store_true",
                     help="hold the time offset at the true one (not searched)")  # fmt: skip
     ap.add_argument("--true-trajectory", action="store_true",
                     help="place the points with the true trajectory (not odometry)")  # fmt: skip
     args = ap.parse_args()
     base = CheckOptions(time_offset=not args.fixed_offset)
+    if args.blur is not None:
+        base = replace(base, blur_px=args.blur)
     options = [replace(base, max_frames=n) for n in args.frames or [base.max_frames]]
     chosen = {k: v for k, v in cases().items() if not args.case or k in args.case}
     if args.case and len(chosen) != len(set(args.case)):
         ap.error(f"--case: unknown case among {args.case}; the cases: {', '.join(cases())}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        work = args.work or Path(tmp)
         for seed in range(args.drives):
-            rows += _drive(seed, args.seconds, Path(tmp) / f"d{seed}", chosen, options,
-                           args.true_trajectory)  # fmt: skip
+            rows += _drive(seed, args.seconds, work / f"drive_{seed}_{args.seconds:g}s", chosen,
+                           options, args.true_trajectory)  # fmt: skip
         summary(rows, chosen)
         if args.speed:
-            speed(args.work or Path(tmp), repeat=args.repeat)
+            speed(work, repeat=args.repeat)
 
 
 if __name__ == "__main__":

@@ -206,13 +206,6 @@ class Scorer:
         self._row: dict[float, int] = {}  # time offset (rounded) -> its row
         self.evaluations = 0
 
-    def laser_points(self, dt: float) -> np.ndarray:
-        """(N,3) the points in the laser frame at their frames' times, offset ``dt`` s
-        (valid until :data:`SLOTS` other offsets are asked for)."""
-        (row,) = self._rows([dt])
-        out: np.ndarray = self._laser[row].reshape(-1, 3)
-        return out
-
     def _rows(self, dts: list[float]) -> list[int]:
         """The rows of ``_laser`` holding the points at each time offset of ``dts``
         (at most :data:`SLOTS` different), made where missing."""

@@ -114,8 +114,7 @@ def read_windows(
     for cj in cameras:
         mine = whole.with_camera(cj.name)
         frame_ns = remap(cj.frame_old, cj.frame_new, mine.frame_ns)
-        laser_ns = sync.on_laser_clock(frame_ns, cj.time_offset_ns)
-        sel = np.flatnonzero((laser_ns >= lo) & (laser_ns < hi))
+        sel = _in_window(cj, frame_ns, lo, hi)
         if wanted is not None:
             sel = sel[np.isin(mine.frame_ns[sel], list(wanted[cj.name]))]
         odd = views.odd_sized([mine.jpegs[int(i)] for i in sel], cj.cam.model)
@@ -128,9 +127,15 @@ def read_windows(
     return out
 
 
+def _in_window(cj: CameraJob, frame_ns: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """Indices of ``cj``'s frames re-timed at ``frame_ns`` whose time on the laser's
+    clock lies in [lo, hi) ns."""
+    laser_ns = sync.on_laser_clock(frame_ns, cj.time_offset_ns)
+    return np.flatnonzero((laser_ns >= lo) & (laser_ns < hi))
+
+
 def _picked(cj: CameraJob, pick: Pick, lo: int, hi: int) -> set[int]:
-    """The recorded stamps of the frames ``pick`` picks of ``cj``'s whose time on the
-    laser's clock lies in [lo, hi) ns."""
-    laser_ns = sync.on_laser_clock(cj.frame_new, cj.time_offset_ns)
-    sel = np.flatnonzero((laser_ns >= lo) & (laser_ns < hi))
+    """The recorded stamps of the frames ``pick`` picks of ``cj``'s in [lo, hi) ns
+    (:func:`_in_window`), from the job's stamps: before the log is read."""
+    sel = _in_window(cj, cj.frame_new, lo, hi)
     return set(cj.frame_old[sel[pick(cj, cj.frame_new[sel])]].tolist())

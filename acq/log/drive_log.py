@@ -321,16 +321,17 @@ def read_log(
                 continue
             if jpegs_for_s is not None and jpegs_until is None:
                 jpegs_until = message.log_time + round(jpegs_for_s * 1e9)
-            name = topic[1:].removesuffix("/image/compressed")
-            if topic.endswith("/image/compressed") and (
-                not jpegs
-                or (jpegs_until is not None and message.log_time >= jpegs_until)
-                or (jpegs_at is not None and _stamp_of(message) not in jpegs_at.get(name, ()))
-            ):
-                frames.setdefault(name, []).append((_stamp_of(message), b""))
-                if sizes.get(name) is None:
-                    sizes[name] = _jpeg_size(reader.decode(schema, channel, message))
-                continue
+            if topic.endswith("/image/compressed"):
+                name = topic[1:].removesuffix("/image/compressed")
+                if (
+                    not jpegs
+                    or (jpegs_until is not None and message.log_time >= jpegs_until)
+                    or (jpegs_at is not None and _stamp_of(message) not in jpegs_at.get(name, ()))
+                ):
+                    frames.setdefault(name, []).append((_stamp_of(message), b""))
+                    if sizes.get(name) is None:
+                        sizes[name] = _jpeg_size(reader.decode(schema, channel, message))
+                    continue
             msg = reader.decode(schema, channel, message)
             if msg is None:
                 bad += 1
